@@ -1,0 +1,247 @@
+//! Top-down pictures of a scene (tiny-skia raster, PNG).
+
+use anyhow::{Context, Result};
+use glam::Vec2;
+use hilo_raycast::scene::layout::point_in_polygon;
+use hilo_raycast::{ObjectKind, Scene};
+use serde_json::json;
+use tiny_skia::{Color, FillRule, Paint, PathBuilder, Pixmap, Stroke, StrokeDash, Transform};
+
+/// Maps local metres to pixels (y up in the world, down in the image).
+struct View {
+    min: Vec2,
+    max: Vec2,
+    scale: f32,
+}
+
+impl View {
+    fn px(&self, p: Vec2) -> (f32, f32) {
+        ((p.x - self.min.x) * self.scale, (self.max.y - p.y) * self.scale)
+    }
+
+    fn path(&self, poly: &[Vec2], close: bool) -> Option<tiny_skia::Path> {
+        let mut pb = PathBuilder::new();
+        let (x, y) = self.px(*poly.first()?);
+        pb.move_to(x, y);
+        for p in &poly[1..] {
+            let (x, y) = self.px(*p);
+            pb.line_to(x, y);
+        }
+        if close {
+            pb.close();
+        }
+        pb.finish()
+    }
+
+    fn circle(&self, c: Vec2, r: f32) -> Option<tiny_skia::Path> {
+        let (x, y) = self.px(c);
+        PathBuilder::from_circle(x, y, (r * self.scale).max(0.75))
+    }
+}
+
+fn paint(r: u8, g: u8, b: u8, a: u8) -> Paint<'static> {
+    let mut p = Paint::default();
+    p.set_color(Color::from_rgba8(r, g, b, a));
+    p.anti_alias = true;
+    p
+}
+
+struct Canvas {
+    pm: Pixmap,
+    view: View,
+}
+
+impl Canvas {
+    fn fill(&mut self, poly: &[Vec2], p: &Paint) {
+        if let Some(path) = self.view.path(poly, true) {
+            self.pm.fill_path(&path, p, FillRule::EvenOdd, Transform::identity(), None);
+        }
+    }
+
+    fn line(&mut self, pts: &[Vec2], p: &Paint, width_m: f32, dash_m: Option<(f32, f32)>) {
+        if let Some(path) = self.view.path(pts, false) {
+            let mut s = Stroke { width: (width_m * self.view.scale).max(1.0), ..Stroke::default() };
+            if let Some((on, off)) = dash_m {
+                s.dash = StrokeDash::new(vec![on * self.view.scale, off * self.view.scale], 0.0);
+            }
+            self.pm.stroke_path(&path, p, &s, Transform::identity(), None);
+        }
+    }
+
+    fn outline(&mut self, poly: &[Vec2], p: &Paint, width_px: f32) {
+        if let Some(path) = self.view.path(poly, true) {
+            let s = Stroke { width: width_px, ..Stroke::default() };
+            self.pm.stroke_path(&path, p, &s, Transform::identity(), None);
+        }
+    }
+
+    fn disc(&mut self, c: Vec2, r_m: f32, p: &Paint) {
+        if let Some(path) = self.view.circle(c, r_m) {
+            self.pm.fill_path(&path, p, FillRule::Winding, Transform::identity(), None);
+        }
+    }
+}
+
+/// Renders the scene top-down at `px_per_m` and returns PNG bytes.
+pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
+    let g = scene.ground;
+    let view = View { min: g.min, max: g.max, scale: px_per_m };
+    let size = (g.max - g.min) * px_per_m;
+    let pm = Pixmap::new(size.x.ceil() as u32, size.y.ceil() as u32)
+        .with_context(|| format!("picture of {:.0}x{:.0} px is empty or too large", size.x, size.y))?;
+    let mut c = Canvas { pm, view };
+    c.pm.fill(Color::from_rgba8(200, 211, 178, 255));
+
+    let asphalt = paint(70, 70, 74, 255);
+    for arm in &scene.layout.arms {
+        c.fill(&arm.road, &asphalt);
+    }
+    c.fill(&scene.layout.central, &asphalt);
+    let concrete = paint(214, 209, 199, 255);
+    for arm in &scene.layout.arms {
+        for s in &arm.sidewalks {
+            c.fill(s, &concrete);
+        }
+        if let Some(m) = &arm.median {
+            c.fill(m, &paint(176, 168, 150, 255));
+        }
+    }
+    for s in &scene.layout.corner_sidewalks {
+        c.fill(s, &concrete);
+    }
+    // Lane markings: dashed white between lanes of one direction, solid yellow at the median.
+    let white = paint(245, 245, 245, 255);
+    let yellow = paint(240, 200, 40, 255);
+    for arm in &scene.layout.arms {
+        for lane in &arm.lanes {
+            let d = (lane.end - lane.start).normalize_or_zero();
+            let side = d.perp() * (0.5 * lane.width_m);
+            // Left boundary in driving direction.
+            let (a, b) = (lane.start + side, lane.end + side);
+            let s_left = ((a + b) * 0.5).dot(arm.normal);
+            let at_median = (s_left.abs() - arm.median_half_width_m).abs() < 1e-3;
+            if at_median {
+                c.line(&[a, b], &yellow, 0.15, None);
+            } else {
+                c.line(&[a, b], &white, 0.12, Some((3.0, 6.0)));
+            }
+        }
+        c.line(&arm.stop_line, &white, 0.45, None);
+        // Zebra crosswalk: bars parallel to the traffic, spread across the road.
+        let cw = &arm.crosswalk;
+        let (along, across) = (cw[1] - cw[0], cw[3] - cw[0]);
+        let width = across.length();
+        let mut o = 0.3;
+        while o + 0.6 <= width {
+            let u = across / width;
+            let p0 = cw[0] + u * o;
+            c.fill(&[p0, p0 + along, p0 + along + u * 0.6, p0 + u * 0.6], &white);
+            o += 1.2;
+        }
+    }
+    // ROIs, translucent, heavier weight = redder.
+    let max_w = scene.rois.iter().map(|r| r.weight).fold(0.0, f32::max);
+    for roi in &scene.rois {
+        let k = if max_w > 0.0 { roi.weight / max_w } else { 1.0 };
+        let fill = paint(230, (170.0 - 120.0 * k) as u8, 40, 70);
+        let edge = paint(200, (140.0 - 110.0 * k) as u8, 20, 220);
+        for poly in &roi.polygons {
+            c.fill(poly, &fill);
+            c.outline(poly, &edge, 2.0);
+        }
+    }
+    // Buildings and imported meshes.
+    for b in &scene.config.buildings {
+        let fp: Vec<Vec2> = b.footprint.iter().map(|p| Vec2::from(*p)).collect();
+        c.fill(&fp, &paint(141, 110, 99, 255));
+        c.outline(&fp, &paint(80, 60, 50, 255), 1.5);
+    }
+    for (k, tri) in scene.mesh.triangles.iter().enumerate() {
+        if scene.objects[scene.mesh.object[k] as usize].kind == ObjectKind::Mesh {
+            c.fill(&[tri[0].truncate(), tri[1].truncate(), tri[2].truncate()], &paint(160, 130, 100, 200));
+        }
+    }
+    // Trees: crown and trunk.
+    for t in &scene.config.trees {
+        let p = Vec2::from(t.position);
+        c.disc(p, t.crown_radius_m, &paint(46, 125, 50, 190));
+        c.disc(p, t.trunk_radius_m.max(0.3), &paint(93, 64, 55, 255));
+    }
+    // Street lights and signal poles (mounting structures) with their arms and heads.
+    for s in &scene.config.street_lights {
+        let p = Vec2::from(s.position);
+        let tip = p + Vec2::from_angle(s.arm_heading_deg.to_radians()) * s.arm_length_m;
+        c.line(&[p, tip], &paint(120, 120, 120, 255), 0.25, None);
+        c.disc(p, 0.35, &paint(90, 90, 90, 255));
+    }
+    for m in &scene.mounts {
+        let tip = m.base + m.arm_dir * m.arm_length_m;
+        c.line(&[m.base, tip], &paint(25, 25, 25, 255), 0.5, None);
+        c.disc(m.base, 0.6, &paint(10, 10, 10, 255));
+    }
+    for p in &scene.config.signal_poles {
+        let dir = Vec2::from_angle(p.arm_heading_deg.to_radians());
+        for off in &p.head_offsets_m {
+            let h = Vec2::from(p.position) + dir * *off;
+            let n = dir.perp() * 0.3;
+            let d = dir * 0.25;
+            c.fill(&[h - d - n, h + d - n, h + d + n, h - d + n], &yellow);
+        }
+    }
+    // Scale bar (20 m, 5 m ticks) bottom-left and a north arrow top-right.
+    let bl = Vec2::new(g.min.x + 6.0, g.min.y + 6.0);
+    let black = paint(0, 0, 0, 255);
+    c.line(&[bl, bl + Vec2::X * 20.0], &black, 0.5, None);
+    for k in 0..=4 {
+        let x = bl + Vec2::X * (5.0 * k as f32);
+        c.line(&[x, x + Vec2::Y * if k % 2 == 0 { 2.0 } else { 1.0 }], &black, 0.3, None);
+    }
+    let tr = Vec2::new(g.max.x - 8.0, g.max.y - 12.0);
+    c.fill(&[tr + Vec2::new(0.0, 7.0), tr + Vec2::new(-2.5, 0.0), tr + Vec2::new(2.5, 0.0)], &black);
+    c.pm.encode_png().context("encoding PNG")
+}
+
+/// A JSON summary of a scene for `hilo scene info`.
+pub fn scene_summary(scene: &Scene) -> serde_json::Value {
+    let mut kinds = std::collections::BTreeMap::<String, usize>::new();
+    for (k, _) in scene.mesh.triangles.iter().enumerate() {
+        let kind = scene.objects[scene.mesh.object[k] as usize].kind;
+        *kinds.entry(serde_json::to_value(kind).map(|v| v.as_str().unwrap_or("?").to_owned()).unwrap_or_default()).or_default() += 1;
+    }
+    let rois: Vec<_> = scene
+        .rois
+        .iter()
+        .map(|r| {
+            // Area by 0.5 m sampling over the polygons' bounds (polygons may overlap).
+            let pts: Vec<Vec2> = r.polygons.iter().flatten().copied().collect();
+            let lo = pts.iter().fold(Vec2::splat(f32::MAX), |a, b| a.min(*b));
+            let hi = pts.iter().fold(Vec2::splat(f32::MIN), |a, b| a.max(*b));
+            let step = 0.5;
+            let mut cells = 0usize;
+            let mut y = lo.y + step / 2.0;
+            while y < hi.y {
+                let mut x = lo.x + step / 2.0;
+                while x < hi.x {
+                    let p = Vec2::new(x, y);
+                    if r.polygons.iter().any(|poly| point_in_polygon(p, poly)) {
+                        cells += 1;
+                    }
+                    x += step;
+                }
+                y += step;
+            }
+            json!({"name": r.name, "weight": r.weight, "polygons": r.polygons.len(), "area_m2": cells as f32 * step * step})
+        })
+        .collect();
+    json!({
+        "name": scene.config.name,
+        "source": scene.source_name(),
+        "origin": [scene.frame.origin.x, scene.frame.origin.y, scene.frame.origin.z],
+        "static_triangles": scene.mesh.len(),
+        "triangles_by_kind": kinds,
+        "objects": scene.objects.len(),
+        "arms": scene.layout.arms.iter().map(|a| json!({"name": a.name, "lanes": a.lanes.len(), "stop_line_at_m": a.stop_line_at_m})).collect::<Vec<_>>(),
+        "mounting_structures": scene.mounts.iter().map(|m| json!({"name": m.name, "pole_height_m": m.pole_height_m, "arm_length_m": m.arm_length_m, "arm_height_m": m.arm_height_m})).collect::<Vec<_>>(),
+        "rois": rois,
+    })
+}

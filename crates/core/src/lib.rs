@@ -1,0 +1,22 @@
+//! Shared value types of hilo.
+//!
+//! Units everywhere: metres, seconds, radians inside the code (degrees only in config field names
+//! ending in `_deg`), velocities in m/s, radar cross-section in dBsm. The world frame is
+//! right-handed with z up and yaw counter-clockwise from +x.
+//!
+//! World coordinates (e.g. UTM eastings of several hundred kilometres) do not fit f32 at
+//! millimetre precision, so geometry lives in a *local* f32 frame whose origin is an f64 world
+//! point ([`LocalFrame`]); [`Pose`] keeps f64 and converts once.
+
+mod boxes;
+mod class;
+mod frame;
+mod points;
+
+pub use boxes::Box3;
+pub use class::{Class, UnknownClass};
+pub use frame::{LocalFrame, Pose};
+pub use points::{Detection, LidarPoint, RadarPoint};
+
+/// Re-exported so that every crate names the same glam.
+pub use glam;

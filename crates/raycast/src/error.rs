@@ -1,0 +1,17 @@
+use std::path::PathBuf;
+
+/// Errors of scene loading and geometry building. Each names the file and the field or element
+/// at fault, and the offending value.
+#[derive(Debug, thiserror::Error)]
+pub enum RaycastError {
+    #[error("cannot read {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Toml { path: PathBuf, message: String },
+    #[error("{path}: field `{field}` = {value}: {reason}")]
+    Invalid { path: PathBuf, field: String, value: String, reason: String },
+    #[error("{path}: mesh: {message}")]
+    Mesh { path: PathBuf, message: String },
+    #[error("geometry: {0}")]
+    Geometry(String),
+}

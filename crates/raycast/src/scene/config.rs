@@ -1,0 +1,458 @@
+//! The scene file: a TOML description of an intersection's digital twin.
+//!
+//! Coordinates are metres in the scene's local frame (x east, y north, z up) whose world
+//! position is `[origin]`; imported meshes may instead be given in world coordinates
+//! (`world_coordinates = true`), and are then shifted by the origin in f64 before rounding.
+//! See `fixtures/intersection.toml` for a commented example of every field.
+
+use crate::error::RaycastError;
+use crate::ray::Material;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneConfig {
+    pub name: String,
+    #[serde(default)]
+    pub origin: OriginConfig,
+    #[serde(default)]
+    pub ground: GroundConfig,
+    #[serde(default)]
+    pub arms: Vec<ArmConfig>,
+    #[serde(default)]
+    pub buildings: Vec<BuildingConfig>,
+    #[serde(default)]
+    pub trees: Vec<TreeConfig>,
+    #[serde(default)]
+    pub signal_poles: Vec<SignalPoleConfig>,
+    #[serde(default)]
+    pub street_lights: Vec<StreetLightConfig>,
+    #[serde(default)]
+    pub roi: Vec<RoiConfig>,
+    #[serde(default)]
+    pub meshes: Vec<MeshConfig>,
+}
+
+/// World position of the local origin (e.g. a UTM easting/northing and altitude).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OriginConfig {
+    #[serde(default)]
+    pub x_m: f64,
+    #[serde(default)]
+    pub y_m: f64,
+    #[serde(default)]
+    pub z_m: f64,
+    /// Coordinate reference system of the world coordinates, e.g. "EPSG:32612"; informative.
+    #[serde(default)]
+    pub crs: Option<String>,
+}
+
+/// A flat ground square centred on the local origin.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GroundConfig {
+    pub z_m: f32,
+    pub half_size_m: f32,
+}
+
+impl Default for GroundConfig {
+    fn default() -> Self {
+        GroundConfig { z_m: 0.0, half_size_m: 150.0 }
+    }
+}
+
+/// One approach of the intersection. Traffic drives on the right: inbound lanes lie on the
+/// counter-clockwise side of the arm's outward heading.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ArmConfig {
+    pub name: String,
+    /// Outward direction of the arm, degrees counter-clockwise from +x (east).
+    pub heading_deg: f32,
+    #[serde(default = "d_arm_length")]
+    pub length_m: f32,
+    #[serde(default = "d_two")]
+    pub lanes_in: u32,
+    #[serde(default = "d_two")]
+    pub lanes_out: u32,
+    #[serde(default = "d_lane_width")]
+    pub lane_width_m: f32,
+    /// Left-turn bay lanes next to the median, inbound.
+    #[serde(default)]
+    pub left_turn_lanes: u32,
+    #[serde(default = "d_bay_length")]
+    pub left_turn_bay_length_m: f32,
+    /// Raised median width (0 = painted centre line only).
+    #[serde(default)]
+    pub median_width_m: f32,
+    #[serde(default = "d_sidewalk")]
+    pub sidewalk_width_m: f32,
+    #[serde(default = "d_curb")]
+    pub curb_height_m: f32,
+    #[serde(default = "d_crosswalk")]
+    pub crosswalk_width_m: f32,
+    #[serde(default = "d_speed")]
+    pub speed_limit_kph: f32,
+}
+
+fn d_arm_length() -> f32 {
+    120.0
+}
+fn d_two() -> u32 {
+    2
+}
+fn d_lane_width() -> f32 {
+    3.6
+}
+fn d_bay_length() -> f32 {
+    50.0
+}
+fn d_sidewalk() -> f32 {
+    2.0
+}
+fn d_curb() -> f32 {
+    0.15
+}
+fn d_crosswalk() -> f32 {
+    3.5
+}
+fn d_speed() -> f32 {
+    60.0
+}
+
+/// A building as an extruded footprint (any simple polygon, either winding).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BuildingConfig {
+    #[serde(default)]
+    pub name: String,
+    pub footprint: Vec<[f32; 2]>,
+    pub height_m: f32,
+    #[serde(default)]
+    pub material: Material,
+}
+
+/// A tree: a cylindrical trunk and an ellipsoidal crown, both opaque.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TreeConfig {
+    pub position: [f32; 2],
+    #[serde(default = "d_trunk_r")]
+    pub trunk_radius_m: f32,
+    #[serde(default = "d_trunk_h")]
+    pub trunk_height_m: f32,
+    #[serde(default = "d_crown_r")]
+    pub crown_radius_m: f32,
+    #[serde(default = "d_crown_h")]
+    pub crown_height_m: f32,
+}
+
+fn d_trunk_r() -> f32 {
+    0.2
+}
+fn d_trunk_h() -> f32 {
+    2.5
+}
+fn d_crown_r() -> f32 {
+    2.5
+}
+fn d_crown_h() -> f32 {
+    4.0
+}
+
+/// A traffic-signal pole with a mast arm: the mounting structure for roadside sensors.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SignalPoleConfig {
+    pub name: String,
+    pub position: [f32; 2],
+    #[serde(default = "d_pole_h")]
+    pub height_m: f32,
+    #[serde(default = "d_pole_r")]
+    pub radius_m: f32,
+    /// Direction the mast arm points, degrees counter-clockwise from +x.
+    pub arm_heading_deg: f32,
+    pub arm_length_m: f32,
+    #[serde(default = "d_arm_h")]
+    pub arm_height_m: f32,
+    /// Signal heads hang below the arm at these distances from the pole, metres.
+    #[serde(default)]
+    pub head_offsets_m: Vec<f32>,
+}
+
+fn d_pole_h() -> f32 {
+    7.5
+}
+fn d_pole_r() -> f32 {
+    0.18
+}
+fn d_arm_h() -> f32 {
+    6.0
+}
+
+/// A street-light pole with a short arm and a luminaire.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StreetLightConfig {
+    pub position: [f32; 2],
+    #[serde(default = "d_light_h")]
+    pub height_m: f32,
+    #[serde(default)]
+    pub arm_heading_deg: f32,
+    #[serde(default = "d_light_arm")]
+    pub arm_length_m: f32,
+}
+
+fn d_light_h() -> f32 {
+    9.0
+}
+fn d_light_arm() -> f32 {
+    2.0
+}
+
+/// A region of interest for placement, weighted in the objective.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RoiConfig {
+    pub name: String,
+    #[serde(default = "d_weight")]
+    pub weight: f32,
+    pub kind: RoiKind,
+    /// For `kind = "polygon"`: the polygon in local coordinates.
+    #[serde(default)]
+    pub polygon: Option<Vec<[f32; 2]>>,
+    /// For `kind = "approaches"`: how far out from the crosswalk the queue lanes are covered.
+    #[serde(default)]
+    pub length_m: Option<f32>,
+}
+
+fn d_weight() -> f32 {
+    1.0
+}
+
+/// Where an ROI lies: an explicit polygon, or derived from the road layout.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RoiKind {
+    /// The `polygon` field.
+    Polygon,
+    /// The central conflict zone: the junction box and its crosswalks.
+    Central,
+    /// The inbound (queue) lanes of every arm, from the far edge of the crosswalk out to
+    /// `length_m`.
+    Approaches,
+}
+
+/// Which axis of an imported mesh points up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum UpAxis {
+    /// Z up for OBJ, Y up for glTF (its specification's convention).
+    #[default]
+    Auto,
+    Z,
+    Y,
+}
+
+/// A triangle mesh imported from a Wavefront OBJ or glTF (.gltf/.glb) file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshConfig {
+    #[serde(default)]
+    pub name: String,
+    /// Relative paths are resolved against the scene file's folder.
+    pub path: PathBuf,
+    #[serde(default)]
+    pub translation_m: [f64; 3],
+    #[serde(default)]
+    pub yaw_deg: f64,
+    #[serde(default = "d_scale")]
+    pub scale: f64,
+    #[serde(default)]
+    pub up_axis: UpAxis,
+    /// The file's coordinates are world coordinates: the scene origin is subtracted (in f64).
+    #[serde(default)]
+    pub world_coordinates: bool,
+    #[serde(default)]
+    pub material: Material,
+}
+
+fn d_scale() -> f64 {
+    1.0
+}
+
+/// Field checks that name the file, field and value.
+struct Check<'a> {
+    path: &'a Path,
+}
+
+impl Check<'_> {
+    fn err(&self, field: &str, value: impl std::fmt::Debug, reason: &str) -> RaycastError {
+        RaycastError::Invalid {
+            path: self.path.to_path_buf(),
+            field: field.to_owned(),
+            value: format!("{value:?}"),
+            reason: reason.to_owned(),
+        }
+    }
+
+    fn positive(&self, field: &str, v: f32) -> Result<(), RaycastError> {
+        if v.is_finite() && v > 0.0 { Ok(()) } else { Err(self.err(field, v, "must be a finite number > 0")) }
+    }
+
+    fn non_negative(&self, field: &str, v: f32) -> Result<(), RaycastError> {
+        if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(self.err(field, v, "must be a finite number >= 0")) }
+    }
+
+    fn finite(&self, field: &str, v: f32) -> Result<(), RaycastError> {
+        if v.is_finite() { Ok(()) } else { Err(self.err(field, v, "must be finite")) }
+    }
+
+    fn polygon(&self, field: &str, poly: &[[f32; 2]]) -> Result<(), RaycastError> {
+        if poly.len() < 3 {
+            return Err(self.err(field, poly, "a polygon needs at least 3 points"));
+        }
+        if poly.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(self.err(field, poly, "coordinates must be finite"));
+        }
+        if polygon_area(poly).abs() < 1e-6 {
+            return Err(self.err(field, poly, "polygon has zero area"));
+        }
+        Ok(())
+    }
+}
+
+/// Signed area (positive counter-clockwise).
+pub fn polygon_area(poly: &[[f32; 2]]) -> f32 {
+    let n = poly.len();
+    (0..n)
+        .map(|i| {
+            let (a, b) = (poly[i], poly[(i + 1) % n]);
+            a[0] * b[1] - b[0] * a[1]
+        })
+        .sum::<f32>()
+        * 0.5
+}
+
+impl SceneConfig {
+    /// Parses a scene from TOML text; `path` is only used in error messages.
+    pub fn from_toml_str(text: &str, path: &Path) -> Result<Self, RaycastError> {
+        let cfg: SceneConfig =
+            toml::from_str(text).map_err(|e| RaycastError::Toml { path: path.to_path_buf(), message: e.to_string() })?;
+        cfg.validate(path)?;
+        Ok(cfg)
+    }
+
+    /// Reads and validates a scene file.
+    pub fn load(path: &Path) -> Result<Self, RaycastError> {
+        let text = std::fs::read_to_string(path).map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
+        Self::from_toml_str(&text, path)
+    }
+
+    /// Checks every number for finiteness and sign and every polygon for shape.
+    pub fn validate(&self, path: &Path) -> Result<(), RaycastError> {
+        let c = Check { path };
+        let o = &self.origin;
+        if ![o.x_m, o.y_m, o.z_m].iter().all(|v| v.is_finite()) {
+            return Err(c.err("origin", [o.x_m, o.y_m, o.z_m], "must be finite"));
+        }
+        c.finite("ground.z_m", self.ground.z_m)?;
+        c.positive("ground.half_size_m", self.ground.half_size_m)?;
+        let mut names = std::collections::HashSet::new();
+        for (i, a) in self.arms.iter().enumerate() {
+            let f = |n: &str| format!("arms[{i}].{n}");
+            if !names.insert(a.name.as_str()) {
+                return Err(c.err(&f("name"), &a.name, "duplicate arm name"));
+            }
+            c.finite(&f("heading_deg"), a.heading_deg)?;
+            c.positive(&f("length_m"), a.length_m)?;
+            c.positive(&f("lane_width_m"), a.lane_width_m)?;
+            c.non_negative(&f("median_width_m"), a.median_width_m)?;
+            c.non_negative(&f("sidewalk_width_m"), a.sidewalk_width_m)?;
+            c.non_negative(&f("curb_height_m"), a.curb_height_m)?;
+            c.positive(&f("crosswalk_width_m"), a.crosswalk_width_m)?;
+            c.positive(&f("speed_limit_kph"), a.speed_limit_kph)?;
+            c.non_negative(&f("left_turn_bay_length_m"), a.left_turn_bay_length_m)?;
+            if a.lanes_in + a.lanes_out == 0 {
+                return Err(c.err(&f("lanes_in"), a.lanes_in, "an arm needs at least one lane"));
+            }
+        }
+        for (i, b) in self.buildings.iter().enumerate() {
+            c.polygon(&format!("buildings[{i}].footprint"), &b.footprint)?;
+            c.positive(&format!("buildings[{i}].height_m"), b.height_m)?;
+        }
+        for (i, t) in self.trees.iter().enumerate() {
+            let f = |n: &str| format!("trees[{i}].{n}");
+            c.finite(&f("position"), t.position[0])?;
+            c.finite(&f("position"), t.position[1])?;
+            c.positive(&f("trunk_radius_m"), t.trunk_radius_m)?;
+            c.positive(&f("trunk_height_m"), t.trunk_height_m)?;
+            c.positive(&f("crown_radius_m"), t.crown_radius_m)?;
+            c.positive(&f("crown_height_m"), t.crown_height_m)?;
+        }
+        let mut pole_names = std::collections::HashSet::new();
+        for (i, p) in self.signal_poles.iter().enumerate() {
+            let f = |n: &str| format!("signal_poles[{i}].{n}");
+            if !pole_names.insert(p.name.as_str()) {
+                return Err(c.err(&f("name"), &p.name, "duplicate signal pole name"));
+            }
+            c.finite(&f("position"), p.position[0])?;
+            c.finite(&f("position"), p.position[1])?;
+            c.positive(&f("height_m"), p.height_m)?;
+            c.positive(&f("radius_m"), p.radius_m)?;
+            c.finite(&f("arm_heading_deg"), p.arm_heading_deg)?;
+            c.non_negative(&f("arm_length_m"), p.arm_length_m)?;
+            c.positive(&f("arm_height_m"), p.arm_height_m)?;
+            if p.arm_height_m > p.height_m {
+                return Err(c.err(&f("arm_height_m"), p.arm_height_m, "the mast arm must not be above the pole top"));
+            }
+            for (k, h) in p.head_offsets_m.iter().enumerate() {
+                c.non_negative(&f(&format!("head_offsets_m[{k}]")), *h)?;
+                if *h > p.arm_length_m {
+                    return Err(c.err(&f(&format!("head_offsets_m[{k}]")), *h, "signal head beyond the end of the arm"));
+                }
+            }
+        }
+        for (i, s) in self.street_lights.iter().enumerate() {
+            let f = |n: &str| format!("street_lights[{i}].{n}");
+            c.finite(&f("position"), s.position[0])?;
+            c.finite(&f("position"), s.position[1])?;
+            c.positive(&f("height_m"), s.height_m)?;
+            c.finite(&f("arm_heading_deg"), s.arm_heading_deg)?;
+            c.non_negative(&f("arm_length_m"), s.arm_length_m)?;
+        }
+        for (i, r) in self.roi.iter().enumerate() {
+            let f = |n: &str| format!("roi[{i}].{n}");
+            c.positive(&f("weight"), r.weight)?;
+            match r.kind {
+                RoiKind::Polygon => match &r.polygon {
+                    Some(p) => c.polygon(&f("polygon"), p)?,
+                    None => return Err(c.err(&f("polygon"), "missing", "kind = \"polygon\" needs a polygon")),
+                },
+                RoiKind::Approaches => match r.length_m {
+                    Some(l) => c.positive(&f("length_m"), l)?,
+                    None => return Err(c.err(&f("length_m"), "missing", "kind = \"approaches\" needs length_m")),
+                },
+                RoiKind::Central => {}
+            }
+            if r.kind != RoiKind::Polygon && self.arms.is_empty() {
+                return Err(c.err(&f("kind"), r.kind, "derived ROIs need at least one arm"));
+            }
+        }
+        for (i, m) in self.meshes.iter().enumerate() {
+            let f = |n: &str| format!("meshes[{i}].{n}");
+            if !m.translation_m.iter().all(|v| v.is_finite()) {
+                return Err(c.err(&f("translation_m"), m.translation_m, "must be finite"));
+            }
+            if !m.yaw_deg.is_finite() {
+                return Err(c.err(&f("yaw_deg"), m.yaw_deg, "must be finite"));
+            }
+            if !(m.scale.is_finite() && m.scale > 0.0) {
+                return Err(c.err(&f("scale"), m.scale, "must be a finite number > 0"));
+            }
+        }
+        Ok(())
+    }
+}

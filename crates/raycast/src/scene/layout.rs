@@ -1,0 +1,353 @@
+//! The road layout derived from the arms: lanes, stop lines, crosswalks, sidewalks, medians,
+//! the junction box and ROI polygons. Everything is 2-D in the local frame.
+//!
+//! Simplifications (documented for users): arms are straight; the junction corners are sharp
+//! (no curb radius); right turns share the outermost through lane (no right-turn bays); roads
+//! are flat at ground height, and only sidewalks and medians are raised (by the curb height).
+
+use super::config::{ArmConfig, RoiConfig, RoiKind, SceneConfig};
+use glam::Vec2;
+use serde::{Deserialize, Serialize};
+
+/// What a lane is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LaneKind {
+    /// Towards the junction, through (and, for the outermost, right) movements.
+    Inbound,
+    /// A left-turn bay next to the median, inbound.
+    LeftTurnBay,
+    /// Away from the junction.
+    Outbound,
+}
+
+/// A lane as a straight centreline in its driving direction.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Lane {
+    pub kind: LaneKind,
+    pub start: Vec2,
+    pub end: Vec2,
+    pub width_m: f32,
+}
+
+/// One arm's derived geometry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ArmLayout {
+    pub name: String,
+    /// Unit outward direction and its counter-clockwise normal (the inbound side).
+    pub dir: Vec2,
+    pub normal: Vec2,
+    /// Lateral offsets of the road edges along `normal` (outbound edge is negative).
+    pub edge_in_m: f32,
+    pub edge_out_m: f32,
+    /// Half the median width: the lanes start this far from the centreline on each side.
+    pub median_half_width_m: f32,
+    pub lanes: Vec<Lane>,
+    /// Stop line across the inbound lanes, `[median side, curb side]`.
+    pub stop_line: [Vec2; 2],
+    /// Distance of the stop line from the centre along `dir`.
+    pub stop_line_at_m: f32,
+    pub crosswalk: Vec<Vec2>,
+    pub road: Vec<Vec2>,
+    pub sidewalks: Vec<Vec<Vec2>>,
+    pub median: Option<Vec<Vec2>>,
+    pub curb_height_m: f32,
+    pub speed_limit_mps: f32,
+}
+
+/// The whole junction.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+pub struct Layout {
+    pub arms: Vec<ArmLayout>,
+    /// The junction box and the crosswalks (the central conflict zone).
+    pub central: Vec<Vec2>,
+    /// Sidewalk squares at the corners between neighbouring arms.
+    pub corner_sidewalks: Vec<Vec<Vec2>>,
+}
+
+/// A resolved region of interest.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Roi {
+    pub name: String,
+    pub weight: f32,
+    /// One or more polygons (counter-clockwise).
+    pub polygons: Vec<Vec<Vec2>>,
+}
+
+impl Roi {
+    /// True when `p` lies in any of the ROI's polygons.
+    pub fn contains(&self, p: Vec2) -> bool {
+        self.polygons.iter().any(|poly| point_in_polygon(p, poly))
+    }
+}
+
+/// Even–odd point-in-polygon test.
+pub fn point_in_polygon(p: Vec2, poly: &[Vec2]) -> bool {
+    let mut inside = false;
+    let n = poly.len();
+    let mut j = n.wrapping_sub(1);
+    for i in 0..n {
+        let (a, b) = (poly[i], poly[j]);
+        if (a.y > p.y) != (b.y > p.y) && p.x < (b.x - a.x) * (p.y - a.y) / (b.y - a.y) + a.x {
+            inside = !inside;
+        }
+        j = i;
+    }
+    inside
+}
+
+struct ArmFrame<'a> {
+    cfg: &'a ArmConfig,
+    dir: Vec2,
+    normal: Vec2,
+    s_med: f32,
+    edge_in: f32,
+    edge_out: f32,
+}
+
+impl ArmFrame<'_> {
+    /// Point at distance `a` along the arm and lateral offset `s`.
+    fn at(&self, a: f32, s: f32) -> Vec2 {
+        self.dir * a + self.normal * s
+    }
+
+    fn rect(&self, a0: f32, a1: f32, s0: f32, s1: f32) -> Vec<Vec2> {
+        vec![self.at(a0, s0), self.at(a1, s0), self.at(a1, s1), self.at(a0, s1)]
+    }
+}
+
+/// Intersection of the lines `x·n1 = c1` and `x·n2 = c2`, if they are not (nearly) parallel.
+fn line_meet(n1: Vec2, c1: f32, n2: Vec2, c2: f32) -> Option<Vec2> {
+    let det = n1.x * n2.y - n1.y * n2.x;
+    if det.abs() < 1e-3 {
+        return None;
+    }
+    Some(Vec2::new((c1 * n2.y - c2 * n1.y) / det, (n1.x * c2 - n2.x * c1) / det))
+}
+
+/// Derives the layout. Arms are handled in counter-clockwise order of heading.
+pub fn build_layout(cfg: &SceneConfig) -> Layout {
+    let mut frames: Vec<ArmFrame> = cfg
+        .arms
+        .iter()
+        .map(|a| {
+            let dir = Vec2::from_angle(a.heading_deg.to_radians());
+            let s_med = 0.5 * a.median_width_m;
+            ArmFrame {
+                cfg: a,
+                dir,
+                normal: dir.perp(),
+                s_med,
+                edge_in: s_med + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m,
+                edge_out: -(s_med + a.lanes_out as f32 * a.lane_width_m),
+            }
+        })
+        .collect();
+    frames.sort_by(|a, b| {
+        let ka = a.dir.y.atan2(a.dir.x).rem_euclid(std::f32::consts::TAU);
+        let kb = b.dir.y.atan2(b.dir.x).rem_euclid(std::f32::consts::TAU);
+        ka.total_cmp(&kb)
+    });
+    let n = frames.len();
+    // corner[i] joins arm i's inbound edge to arm i+1's outbound edge.
+    let corners: Vec<Option<Vec2>> = (0..n)
+        .map(|i| {
+            if n < 2 {
+                return None;
+            }
+            let (a, b) = (&frames[i], &frames[(i + 1) % n]);
+            line_meet(a.normal, a.edge_in, b.normal, b.edge_out)
+                // Keep only corners on the junction side of both arms.
+                .filter(|p| p.dot(a.dir) > -1.0 && p.dot(b.dir) > -1.0 && p.length() < 200.0)
+        })
+        .collect();
+
+    let mut layout = Layout::default();
+    for (i, f) in frames.iter().enumerate() {
+        let a = f.cfg;
+        let prev = (i + n - 1) % n;
+        let a_in = corners[i].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
+        let a_out = corners[prev].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
+        let cw0 = a_in.max(a_out) + 0.5;
+        let cw1 = cw0 + a.crosswalk_width_m;
+        let stop = cw1 + 1.0;
+        let len = a.length_m.max(stop + 1.0);
+        let w = a.lane_width_m;
+        let mut lanes = Vec::new();
+        for k in 0..a.left_turn_lanes {
+            let s = f.s_med + (k as f32 + 0.5) * w;
+            let bay_start = (stop + a.left_turn_bay_length_m).min(len);
+            lanes.push(Lane { kind: LaneKind::LeftTurnBay, start: f.at(bay_start, s), end: f.at(stop, s), width_m: w });
+        }
+        for k in 0..a.lanes_in {
+            let s = f.s_med + (a.left_turn_lanes + k) as f32 * w + 0.5 * w;
+            lanes.push(Lane { kind: LaneKind::Inbound, start: f.at(len, s), end: f.at(stop, s), width_m: w });
+        }
+        for k in 0..a.lanes_out {
+            let s = -(f.s_med + (k as f32 + 0.5) * w);
+            lanes.push(Lane { kind: LaneKind::Outbound, start: f.at(cw0, s), end: f.at(len, s), width_m: w });
+        }
+        let sw = a.sidewalk_width_m;
+        let mut sidewalks = Vec::new();
+        if sw > 0.0 {
+            sidewalks.push(f.rect(a_in, len, f.edge_in, f.edge_in + sw));
+            sidewalks.push(f.rect(a_out, len, f.edge_out - sw, f.edge_out));
+        }
+        let median = (a.median_width_m > 0.0 && stop + 1.0 < len).then(|| f.rect(stop + 1.0, len, -f.s_med, f.s_med));
+        layout.arms.push(ArmLayout {
+            name: a.name.clone(),
+            dir: f.dir,
+            normal: f.normal,
+            edge_in_m: f.edge_in,
+            edge_out_m: f.edge_out,
+            median_half_width_m: f.s_med,
+            lanes,
+            stop_line: [f.at(stop, f.s_med), f.at(stop, f.edge_in)],
+            stop_line_at_m: stop,
+            crosswalk: f.rect(cw0, cw1, f.edge_out, f.edge_in),
+            road: f.rect(0.0, len, f.edge_out, f.edge_in),
+            sidewalks,
+            median,
+            curb_height_m: a.curb_height_m,
+            speed_limit_mps: a.speed_limit_kph / 3.6,
+        });
+    }
+    // Corner sidewalks and the central polygon, walking counter-clockwise.
+    for i in 0..n {
+        let (f, g) = (&frames[i], &frames[(i + 1) % n]);
+        let cw1_f = layout.arms[i].crosswalk[1].dot(f.dir);
+        layout.central.push(f.at(cw1_f, f.edge_out));
+        layout.central.push(f.at(cw1_f, f.edge_in));
+        if let Some(p) = corners[i] {
+            layout.central.push(p);
+            let sw = f.cfg.sidewalk_width_m.min(g.cfg.sidewalk_width_m);
+            if sw > 0.0 {
+                layout.corner_sidewalks.push(vec![p, p - g.normal * sw, p - g.normal * sw + f.normal * sw, p + f.normal * sw]);
+            }
+        }
+    }
+    if n == 1 {
+        layout.central.clear();
+        let f = &frames[0];
+        let cw1 = layout.arms[0].crosswalk[1].dot(f.dir);
+        layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
+    }
+    layout
+}
+
+/// Resolves the configured ROIs against the layout.
+pub fn resolve_rois(rois: &[RoiConfig], layout: &Layout) -> Vec<Roi> {
+    rois.iter()
+        .map(|r| {
+            let polygons = match r.kind {
+                RoiKind::Polygon => {
+                    vec![r.polygon.iter().flatten().map(|p| Vec2::from(*p)).collect()]
+                }
+                RoiKind::Central => vec![layout.central.clone()],
+                RoiKind::Approaches => {
+                    let length = r.length_m.unwrap_or(0.0);
+                    layout
+                        .arms
+                        .iter()
+                        .map(|arm| {
+                            let a0 = arm.crosswalk[1].dot(arm.dir);
+                            let inner = arm
+                                .lanes
+                                .iter()
+                                .filter(|l| l.kind != LaneKind::Outbound)
+                                .map(|l| l.end.dot(arm.normal) - 0.5 * l.width_m)
+                                .fold(f32::INFINITY, f32::min);
+                            let s0 = if inner.is_finite() { inner } else { 0.0 };
+                            let (d, nrm) = (arm.dir, arm.normal);
+                            let at = |a: f32, s: f32| d * a + nrm * s;
+                            vec![at(a0, s0), at(a0 + length, s0), at(a0 + length, arm.edge_in_m), at(a0, arm.edge_in_m)]
+                        })
+                        .collect()
+                }
+            };
+            let polygons = polygons.into_iter().map(ccw).collect();
+            Roi { name: r.name.clone(), weight: r.weight, polygons }
+        })
+        .collect()
+}
+
+/// The polygon in counter-clockwise order.
+pub fn ccw(mut poly: Vec<Vec2>) -> Vec<Vec2> {
+    let n = poly.len();
+    let area: f32 = (0..n).map(|i| poly[i].perp_dot(poly[(i + 1) % n])).sum();
+    if area < 0.0 {
+        poly.reverse();
+    }
+    poly
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+mod tests {
+    use super::*;
+    use crate::scene::config::SceneConfig;
+    use std::path::Path;
+
+    fn default_cfg() -> SceneConfig {
+        SceneConfig::from_toml_str(crate::scene::DEFAULT_SCENE_TOML, Path::new("default")).unwrap()
+    }
+
+    #[test]
+    fn default_layout_has_lanes_stop_lines_and_a_ccw_central_zone() {
+        let cfg = default_cfg();
+        let l = build_layout(&cfg);
+        assert_eq!(l.arms.len(), 4);
+        let area: f32 = (0..l.central.len()).map(|i| l.central[i].perp_dot(l.central[(i + 1) % l.central.len()])).sum();
+        assert!(area > 0.0, "central polygon must be counter-clockwise");
+        assert!(point_in_polygon(Vec2::ZERO, &l.central));
+        for arm in &l.arms {
+            assert_eq!(arm.lanes.iter().filter(|x| x.kind == LaneKind::LeftTurnBay).count(), 1);
+            assert_eq!(arm.lanes.iter().filter(|x| x.kind == LaneKind::Inbound).count(), 3);
+            assert_eq!(arm.lanes.iter().filter(|x| x.kind == LaneKind::Outbound).count(), 3);
+            let cw_far = arm.crosswalk[1].dot(arm.dir);
+            assert!(arm.stop_line_at_m > cw_far, "{}: stop line inside the crosswalk", arm.name);
+            for lane in &arm.lanes {
+                // Inbound lanes end at the stop line; outbound lanes point away.
+                let along = (lane.end - lane.start).dot(arm.dir);
+                match lane.kind {
+                    LaneKind::Outbound => assert!(along > 0.0),
+                    _ => {
+                        assert!(along < 0.0);
+                        assert!((lane.end.dot(arm.dir) - arm.stop_line_at_m).abs() < 1e-4);
+                        // Right-hand traffic: inbound lanes on the counter-clockwise side.
+                        assert!(lane.end.dot(arm.normal) > 0.0);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn approach_rois_cover_inbound_lanes_only() {
+        let cfg = default_cfg();
+        let l = build_layout(&cfg);
+        let rois = resolve_rois(&cfg.roi, &l);
+        let queue = rois.iter().find(|r| r.name == "queue lanes").unwrap();
+        let central = rois.iter().find(|r| r.name == "central conflict zone").unwrap();
+        assert!(central.contains(Vec2::ZERO));
+        for arm in &l.arms {
+            let a = arm.stop_line_at_m + 10.0;
+            for lane in &arm.lanes {
+                let p = arm.dir * a + arm.normal * lane.end.dot(arm.normal);
+                assert_eq!(queue.contains(p), lane.kind != LaneKind::Outbound, "{} {:?}", arm.name, lane.kind);
+            }
+            assert!(!queue.contains(arm.dir * (arm.stop_line_at_m + 80.0)));
+        }
+    }
+
+    #[test]
+    fn t_junction_with_collinear_arms_builds() {
+        let mut cfg = default_cfg();
+        cfg.arms.retain(|a| a.name != "south");
+        let l = build_layout(&cfg);
+        assert_eq!(l.arms.len(), 3);
+        assert!(l.central.len() >= 6);
+        assert!(l.central.iter().all(|p| p.is_finite()));
+        assert!(point_in_polygon(Vec2::new(0.0, 1.0), &l.central));
+    }
+}

@@ -1,0 +1,198 @@
+//! The digital twin of an intersection: configuration, derived layout, static geometry.
+
+pub mod config;
+pub mod import;
+pub mod layout;
+
+use crate::error::RaycastError;
+use crate::mesh::TriangleMesh;
+use crate::ray::Material;
+use crate::shapes::GroundPlane;
+use config::SceneConfig;
+use glam::{DVec3, Vec2, Vec3};
+use hilo_core::{Box3, LocalFrame};
+use layout::{Layout, Roi};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The default four-arm suburban intersection, embedded so that `hilo` runs without files.
+pub const DEFAULT_SCENE_TOML: &str = include_str!("../../../../fixtures/intersection.toml");
+
+/// What a static object is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectKind {
+    Sidewalk,
+    Median,
+    Building,
+    TreeTrunk,
+    TreeCrown,
+    SignalPole,
+    MastArm,
+    SignalHead,
+    StreetLight,
+    Mesh,
+}
+
+/// One entry of the scene's object table; triangles refer to it by index.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneObject {
+    pub name: String,
+    pub kind: ObjectKind,
+    pub material: Material,
+}
+
+/// A pole with a mast arm, where sensors can be mounted (local frame).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MountStructure {
+    pub name: String,
+    pub base: Vec2,
+    pub pole_height_m: f32,
+    pub pole_radius_m: f32,
+    /// Unit direction of the mast arm in the xy plane.
+    pub arm_dir: Vec2,
+    pub arm_length_m: f32,
+    pub arm_height_m: f32,
+}
+
+/// A loaded scene: configuration, layout, ROIs, static triangles with their objects, ground.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub config: SceneConfig,
+    /// The file it came from (None for the embedded default).
+    pub source: Option<PathBuf>,
+    pub frame: LocalFrame,
+    pub layout: Layout,
+    pub rois: Vec<Roi>,
+    pub ground: GroundPlane,
+    pub mesh: TriangleMesh,
+    pub objects: Vec<SceneObject>,
+    pub mounts: Vec<MountStructure>,
+}
+
+impl Scene {
+    /// Loads and builds a scene file (meshes are resolved against its folder).
+    pub fn load(path: &Path) -> Result<Self, RaycastError> {
+        let cfg = SceneConfig::load(path)?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let mut scene = Self::from_config(cfg, dir, path)?;
+        scene.source = Some(path.to_path_buf());
+        Ok(scene)
+    }
+
+    /// The embedded default intersection.
+    pub fn default_fixture() -> Result<Self, RaycastError> {
+        let name = Path::new("<embedded>/fixtures/intersection.toml");
+        let cfg = SceneConfig::from_toml_str(DEFAULT_SCENE_TOML, name)?;
+        Self::from_config(cfg, Path::new("."), name)
+    }
+
+    /// Builds geometry from a validated configuration. `file` is used in error messages.
+    pub fn from_config(cfg: SceneConfig, scene_dir: &Path, file: &Path) -> Result<Self, RaycastError> {
+        cfg.validate(file)?;
+        let frame = LocalFrame::new(DVec3::new(cfg.origin.x_m, cfg.origin.y_m, cfg.origin.z_m));
+        let layout = layout::build_layout(&cfg);
+        let rois = layout::resolve_rois(&cfg.roi, &layout);
+        let h = cfg.ground.half_size_m;
+        let gz = cfg.ground.z_m;
+        let ground = GroundPlane { z_m: gz, min: Vec2::splat(-h), max: Vec2::splat(h) };
+        let mut b = Builder::default();
+        let named = |e: RaycastError, field: String| match e {
+            RaycastError::Geometry(msg) => RaycastError::Invalid { path: file.to_path_buf(), field, value: String::new(), reason: msg },
+            other => other,
+        };
+        for (i, arm) in layout.arms.iter().enumerate() {
+            for (k, sw) in arm.sidewalks.iter().enumerate() {
+                let o = b.object(format!("{}/sidewalk{k}", arm.name), ObjectKind::Sidewalk, Material::Concrete);
+                b.mesh.push_prism(sw, gz, gz + arm.curb_height_m, o).map_err(|e| named(e, format!("arms[{i}]")))?;
+            }
+            if let Some(m) = &arm.median {
+                let o = b.object(format!("{}/median", arm.name), ObjectKind::Median, Material::Concrete);
+                b.mesh.push_prism(m, gz, gz + arm.curb_height_m, o).map_err(|e| named(e, format!("arms[{i}]")))?;
+            }
+        }
+        let curb = cfg.arms.iter().map(|a| a.curb_height_m).fold(0.0, f32::max);
+        for (k, c) in layout.corner_sidewalks.iter().enumerate() {
+            let o = b.object(format!("corner{k}/sidewalk"), ObjectKind::Sidewalk, Material::Concrete);
+            b.mesh.push_prism(c, gz, gz + curb, o).map_err(|e| named(e, "arms".into()))?;
+        }
+        for (i, bc) in cfg.buildings.iter().enumerate() {
+            let name = if bc.name.is_empty() { format!("building{i}") } else { bc.name.clone() };
+            let o = b.object(name, ObjectKind::Building, bc.material);
+            let fp: Vec<Vec2> = bc.footprint.iter().map(|p| Vec2::from(*p)).collect();
+            b.mesh.push_prism(&fp, gz, gz + bc.height_m, o).map_err(|e| named(e, format!("buildings[{i}].footprint")))?;
+        }
+        for (i, t) in cfg.trees.iter().enumerate() {
+            let p = Vec2::from(t.position);
+            let o = b.object(format!("tree{i}/trunk"), ObjectKind::TreeTrunk, Material::Vegetation);
+            b.mesh.push_cylinder(p.extend(gz), p.extend(gz + t.trunk_height_m + 0.5 * t.crown_height_m), t.trunk_radius_m, 8, o);
+            let o = b.object(format!("tree{i}/crown"), ObjectKind::TreeCrown, Material::Vegetation);
+            let cz = gz + t.trunk_height_m + 0.5 * t.crown_height_m;
+            b.mesh.push_ellipsoid(p.extend(cz), Vec3::new(t.crown_radius_m, t.crown_radius_m, 0.5 * t.crown_height_m), 1, o);
+        }
+        let mut mounts = Vec::new();
+        for p in &cfg.signal_poles {
+            let base = Vec2::from(p.position);
+            let dir = Vec2::from_angle(p.arm_heading_deg.to_radians());
+            let o = b.object(format!("{}/pole", p.name), ObjectKind::SignalPole, Material::Metal);
+            b.mesh.push_cylinder(base.extend(gz), base.extend(gz + p.height_m), p.radius_m, 12, o);
+            if p.arm_length_m > 0.0 {
+                let o = b.object(format!("{}/mast_arm", p.name), ObjectKind::MastArm, Material::Metal);
+                let z = gz + p.arm_height_m;
+                b.mesh.push_cylinder(base.extend(z), (base + dir * p.arm_length_m).extend(z), 0.6 * p.radius_m, 8, o);
+            }
+            for (k, off) in p.head_offsets_m.iter().enumerate() {
+                let o = b.object(format!("{}/head{k}", p.name), ObjectKind::SignalHead, Material::Metal);
+                let c = (base + dir * *off).extend(gz + p.arm_height_m - 0.65);
+                let yaw = dir.y.atan2(dir.x);
+                b.mesh.push_box(&Box3::new(c, 0.35, 0.35, 1.1, yaw), o);
+            }
+            mounts.push(MountStructure {
+                name: p.name.clone(),
+                base,
+                pole_height_m: p.height_m,
+                pole_radius_m: p.radius_m,
+                arm_dir: dir,
+                arm_length_m: p.arm_length_m,
+                arm_height_m: p.arm_height_m,
+            });
+        }
+        for (i, s) in cfg.street_lights.iter().enumerate() {
+            let base = Vec2::from(s.position);
+            let dir = Vec2::from_angle(s.arm_heading_deg.to_radians());
+            let o = b.object(format!("light{i}"), ObjectKind::StreetLight, Material::Metal);
+            b.mesh.push_cylinder(base.extend(gz), base.extend(gz + s.height_m), 0.12, 8, o);
+            let tip = base + dir * s.arm_length_m;
+            if s.arm_length_m > 0.0 {
+                b.mesh.push_cylinder(base.extend(gz + s.height_m - 0.1), tip.extend(gz + s.height_m - 0.1), 0.06, 6, o);
+            }
+            b.mesh.push_box(&Box3::new(tip.extend(gz + s.height_m - 0.25), 0.7, 0.35, 0.2, s.arm_heading_deg.to_radians()), o);
+        }
+        for (i, m) in cfg.meshes.iter().enumerate() {
+            let name = if m.name.is_empty() { format!("mesh{i}") } else { m.name.clone() };
+            let o = b.object(name, ObjectKind::Mesh, m.material);
+            for t in import::load_mesh(m, scene_dir, frame.origin, file, i)? {
+                b.mesh.push(t, o);
+            }
+        }
+        Ok(Scene { config: cfg, source: None, frame, layout, rois, ground, mesh: b.mesh, objects: b.objects, mounts })
+    }
+
+    /// Display name of the file the scene came from.
+    pub fn source_name(&self) -> String {
+        self.source.as_ref().map_or_else(|| "<embedded default>".to_owned(), |p| p.display().to_string())
+    }
+}
+
+#[derive(Default)]
+struct Builder {
+    mesh: TriangleMesh,
+    objects: Vec<SceneObject>,
+}
+
+impl Builder {
+    fn object(&mut self, name: String, kind: ObjectKind, material: Material) -> u32 {
+        self.objects.push(SceneObject { name, kind, material });
+        (self.objects.len() - 1) as u32
+    }
+}
