@@ -38,9 +38,25 @@ fn raycast(c: &mut Criterion) {
     g.finish();
 }
 
+fn sensors(c: &mut Criterion) {
+    use hilo::sensors::{Catalog, SensorPose, simulate_lidar, simulate_radar};
+    let scene = Scene::default_fixture().expect("default scene");
+    let world = World::build(&scene, &QueryRegion::everything()).expect("world");
+    let catalog = Catalog::default_catalog().expect("catalog");
+    let pose = SensorPose::new(hilo::core::glam::Vec3::new(13.0, 16.6, 7.8), -2.2, 0.17, 0.0);
+    let mut g = c.benchmark_group("sensor_frame_static_scene");
+    for name in ["lidar-16", "lidar-64"] {
+        let spec = catalog.lidar(name).expect("lidar");
+        g.bench_function(name, |b| b.iter(|| simulate_lidar(spec, &pose, &world, None, 1).expect("scan").points.len()));
+    }
+    let radar = catalog.radar("radar-4d").expect("radar");
+    g.bench_function("radar-4d", |b| b.iter(|| simulate_radar(radar, &pose, &world, None, 1).expect("scan").points.len()));
+    g.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(20).measurement_time(std::time::Duration::from_secs(3));
-    targets = raycast
+    targets = raycast, sensors
 }
 criterion_main!(benches);

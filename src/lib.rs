@@ -4,3 +4,4 @@
 
 pub use hilo_core as core;
 pub use hilo_raycast as raycast;
+pub use hilo_sensor_models as sensors;

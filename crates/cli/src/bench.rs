@@ -1,6 +1,7 @@
 //! `hilo bench raycast`: hilo's engine against parry3d's TriMesh and raw obvhs on the same rays.
 
 use anyhow::Result;
+use glam::Vec3;
 use hilo_raycast::reference::{compare_with_parry, ground_triangles, parry_trimesh, pole_top_sweeps};
 use hilo_raycast::{QueryRegion, Ray, Scene, World};
 use obvhs::bvh2::builder::build_bvh2_from_tris;
@@ -144,5 +145,110 @@ pub fn raycast(scene: &Scene, azimuth_steps: usize, repeats: usize) -> Result<Ra
         parry_triangles: parry.indices().len(),
         hilo_build_ms,
         parry_build_ms,
+    })
+}
+
+/// `hilo bench sensors`.
+#[derive(Serialize, Debug)]
+pub struct SensorsReport {
+    pub actors: usize,
+    pub frames: usize,
+    pub threads: usize,
+    /// Median wall time of one frame of 2 x lidar-16 + radar-4d (actor structure included).
+    pub cheap_suite_frame_ms: f64,
+    pub cheap_suite_rays_per_frame: usize,
+    pub cheap_suite_points_per_frame: f64,
+    /// Median wall time of one frame of lidar-64 + radar-4d.
+    pub lidar64_radar_frame_ms: f64,
+    pub lidar64_radar_rays_per_frame: usize,
+    pub lidar64_radar_points_per_frame: f64,
+    /// The error the placement model pays: expected returns on a car (detection-probability
+    /// model, occlusion ignored) against the mean of simulated scans of the same car.
+    pub probe_car_expected_returns: f64,
+    pub probe_car_simulated_mean_returns: f64,
+    pub realtime_factor_cheap_suite: f64,
+}
+
+impl SensorsReport {
+    pub fn print_table(&self) {
+        println!("{} moving actors, {} frames, {} threads", self.actors, self.frames, self.threads);
+        println!("{:<28} {:>10} {:>10} {:>12}", "suite", "ms/frame", "rays", "points");
+        println!("{:<28} {:>10.2} {:>10} {:>12.0}", "2 x lidar-16 + radar-4d", self.cheap_suite_frame_ms, self.cheap_suite_rays_per_frame, self.cheap_suite_points_per_frame);
+        println!("{:<28} {:>10.2} {:>10} {:>12.0}", "lidar-64 + radar-4d", self.lidar64_radar_frame_ms, self.lidar64_radar_rays_per_frame, self.lidar64_radar_points_per_frame);
+        println!("cheap suite runs {:.1}x faster than real time at 20 Hz", self.realtime_factor_cheap_suite);
+        println!(
+            "placement model vs simulation (car probe, lidar-16): expected {:.1} returns, simulated mean {:.1}",
+            self.probe_car_expected_returns, self.probe_car_simulated_mean_returns
+        );
+    }
+}
+
+pub fn sensors(n_actors: usize, frames: usize) -> Result<SensorsReport> {
+    use hilo_raycast::ActorSet;
+    use hilo_sensor_models::probability::{Probe, lidar_expected_returns};
+    use hilo_sensor_models::{Catalog, SensorPose, simulate_lidar, simulate_radar};
+    let scene = Scene::default_fixture()?;
+    let world = World::build(&scene, &QueryRegion::everything())?;
+    let catalog = Catalog::default_catalog()?;
+    let (l16, l64, radar) = (catalog.lidar("lidar-16")?, catalog.lidar("lidar-64")?, catalog.radar("radar-4d")?);
+    let deg = f32::to_radians;
+    // Two 16-beam LiDARs on opposite pole tops, tilted 10° down toward the centre; the radar on
+    // the SE mast arm looking across the junction.
+    let ne = SensorPose::new(Vec3::new(13.0, 16.6, 7.8), deg(-127.0), deg(10.0), 0.0);
+    let sw = SensorPose::new(Vec3::new(-13.0, -16.6, 7.8), deg(53.0), deg(10.0), 0.0);
+    let rp = SensorPose::new(Vec3::new(16.6, -7.0, 6.4), deg(165.0), deg(8.0), 0.0);
+    let base = crate::demo::demo_actors(&scene, n_actors, true, 1);
+    let dt = 1.0 / 20.0;
+    let mut cheap = Vec::new();
+    let mut high = Vec::new();
+    let (mut cheap_pts, mut high_pts) = (0usize, 0usize);
+    for f in 0..frames + 1 {
+        let actors = crate::demo::advance(&base, f as f32 * dt);
+        let t = Instant::now();
+        // The sensors of a frame are independent: simulate them concurrently.
+        let set = ActorSet::new(actors.clone())?;
+        let ((a, b), r) = rayon::join(
+            || rayon::join(|| simulate_lidar(l16, &ne, &world, Some(&set), 3 * f as u64), || simulate_lidar(l16, &sw, &world, Some(&set), 3 * f as u64 + 1)),
+            || simulate_radar(radar, &rp, &world, Some(&set), 3 * f as u64 + 2),
+        );
+        let (a, b, r) = (a?, b?, r?);
+        let t_cheap = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let set = ActorSet::new(actors)?;
+        let (c, r2) = rayon::join(|| simulate_lidar(l64, &ne, &world, Some(&set), 3 * f as u64), || simulate_radar(radar, &rp, &world, Some(&set), 3 * f as u64 + 2));
+        let (c, r2) = (c?, r2?);
+        let t_high = t.elapsed().as_secs_f64();
+        if f > 0 {
+            cheap.push(t_cheap * 1e3);
+            high.push(t_high * 1e3);
+            cheap_pts += a.points.len() + b.points.len() + r.points.len();
+            high_pts += c.points.len() + r2.points.len();
+        }
+    }
+    // Placement model against simulation: an unoccluded car 30 m from a 16-beam LiDAR.
+    let pose = SensorPose::new(Vec3::new(0.0, 0.0, 6.5), 0.0, deg(5.0), 0.0);
+    let open = World::from_triangles(&[], Some(scene.ground))?;
+    let b = Probe::CAR.at(glam::Vec2::new(30.0, 2.0), scene.ground.z_m, 0.3);
+    let expected = lidar_expected_returns(l16, &pose, &Probe::CAR, &b) as f64;
+    let set = ActorSet::new(vec![hilo_raycast::Actor::from_box(1, Probe::CAR.class, b)])?;
+    let trials = 50;
+    let mut sum = 0usize;
+    for s in 0..trials {
+        sum += simulate_lidar(l16, &pose, &open, Some(&set), s)?.points_per_actor().get(&1).copied().unwrap_or(0);
+    }
+    let cheap_ms = median(cheap);
+    Ok(SensorsReport {
+        actors: base.len(),
+        frames,
+        threads: rayon::current_num_threads(),
+        cheap_suite_frame_ms: cheap_ms,
+        cheap_suite_rays_per_frame: 2 * l16.rays_per_frame() + (radar.hfov_deg / radar.ray_azimuth_step_deg).round() as usize * (radar.vfov_deg / radar.ray_elevation_step_deg).round() as usize,
+        cheap_suite_points_per_frame: cheap_pts as f64 / frames as f64,
+        lidar64_radar_frame_ms: median(high),
+        lidar64_radar_rays_per_frame: l64.rays_per_frame() + (radar.hfov_deg / radar.ray_azimuth_step_deg).round() as usize * (radar.vfov_deg / radar.ray_elevation_step_deg).round() as usize,
+        lidar64_radar_points_per_frame: high_pts as f64 / frames as f64,
+        probe_car_expected_returns: expected,
+        probe_car_simulated_mean_returns: sum as f64 / trials as f64,
+        realtime_factor_cheap_suite: 50.0 / cheap_ms,
     })
 }

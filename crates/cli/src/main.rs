@@ -1,7 +1,9 @@
 //! `hilo`: which roadside sensors to mount where, and how well they will detect road users.
 
 mod bench;
+mod demo;
 mod render;
+mod scan;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -22,6 +24,8 @@ enum Command {
         #[command(subcommand)]
         command: SceneCommand,
     },
+    /// Simulate one frame of one sensor on a scene with a few road users; write PCD or PLY.
+    Scan(scan::ScanArgs),
     /// Benchmarks that report speed together with the error paid for it.
     Bench {
         #[command(subcommand)]
@@ -65,6 +69,18 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// One frame of the paper's cheapest suite (2 x 16-beam LiDAR + radar) with moving actors,
+    /// and of a 64-beam LiDAR + radar, on the default scene.
+    Sensors {
+        /// Moving road users in the scene.
+        #[arg(long, default_value_t = 50)]
+        actors: usize,
+        /// Frames timed (the median is reported).
+        #[arg(long, default_value_t = 40)]
+        frames: usize,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Loads the named scene or the embedded default.
@@ -90,6 +106,15 @@ fn main() -> Result<()> {
         Command::Scene { command: SceneCommand::Info { scene } } => {
             let scene = load_scene(scene.as_deref())?;
             println!("{}", serde_json::to_string_pretty(&render::scene_summary(&scene))?);
+        }
+        Command::Scan(args) => scan::run(&args)?,
+        Command::Bench { command: BenchCommand::Sensors { actors, frames, json } } => {
+            let report = bench::sensors(actors, frames.max(1))?;
+            if json {
+                println!("{}", serde_json::to_string(&report)?);
+            } else {
+                report.print_table();
+            }
         }
         Command::Bench { command: BenchCommand::Raycast { scene, azimuth_steps, repeats, json } } => {
             let scene = load_scene(scene.as_deref())?;

@@ -46,7 +46,8 @@ fn paint(r: u8, g: u8, b: u8, a: u8) -> Paint<'static> {
     p
 }
 
-struct Canvas {
+/// A picture in progress: the scene drawn, more can be drawn on top.
+pub struct Canvas {
     pm: Pixmap,
     view: View,
 }
@@ -84,6 +85,36 @@ impl Canvas {
 
 /// Renders the scene top-down at `px_per_m` and returns PNG bytes.
 pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
+    scene_canvas(scene, px_per_m)?.png()
+}
+
+impl Canvas {
+    /// PNG bytes of the picture.
+    pub fn png(&self) -> Result<Vec<u8>> {
+        self.pm.encode_png().context("encoding PNG")
+    }
+
+    /// Outlines of boxes (e.g. actors), in an RGB colour.
+    pub fn boxes(&mut self, boxes: &[hilo_core::Box3], rgb: (u8, u8, u8)) {
+        let p = paint(rgb.0, rgb.1, rgb.2, 255);
+        for b in boxes {
+            self.outline(&b.bev_corners(), &p, 2.0);
+        }
+    }
+
+    /// Dots at local-frame points, each with its own RGB colour and a radius in pixels.
+    pub fn dots(&mut self, points: &[(Vec2, (u8, u8, u8))], radius_px: f32) {
+        for (q, c) in points {
+            let (x, y) = self.view.px(*q);
+            if let Some(path) = PathBuilder::from_circle(x, y, radius_px) {
+                self.pm.fill_path(&path, &paint(c.0, c.1, c.2, 230), FillRule::Winding, Transform::identity(), None);
+            }
+        }
+    }
+}
+
+/// The scene drawn top-down, ready for more layers.
+pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
     let g = scene.ground;
     let view = View { min: g.min, max: g.max, scale: px_per_m };
     let size = (g.max - g.min) * px_per_m;
@@ -198,7 +229,7 @@ pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
     }
     let tr = Vec2::new(g.max.x - 8.0, g.max.y - 12.0);
     c.fill(&[tr + Vec2::new(0.0, 7.0), tr + Vec2::new(-2.5, 0.0), tr + Vec2::new(2.5, 0.0)], &black);
-    c.pm.encode_png().context("encoding PNG")
+    Ok(c)
 }
 
 /// A JSON summary of a scene for `hilo scene info`.

@@ -62,3 +62,62 @@ fn scene_info_summarises_the_default_scene() {
     let area = central["area_m2"].as_f64().unwrap();
     assert!(area > 1000.0 && area < 1600.0, "{area}");
 }
+
+#[test]
+fn scan_writes_a_readable_cloud_and_a_picture() {
+    use hilo_core::{LidarPoint, RadarPoint};
+    use hilo_sensor_models::export::{from_pcd, from_ply};
+    let dir = tempfile::tempdir().unwrap();
+    let pcd = dir.path().join("scan.pcd");
+    let png = dir.path().join("scan.png");
+    let o = hilo()
+        .args(["scan", "--sensor", "lidar-16", "--pose", "13,16.6,7.8,-127,10", "--out"])
+        .arg(&pcd)
+        .arg("--png")
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let pts: Vec<LidarPoint> = from_pcd(&std::fs::read(&pcd).unwrap(), &pcd).unwrap();
+    assert!(pts.len() > 1000 && pts.len() <= 16 * 900);
+    assert!(pts.iter().all(|p| p.ring < 16));
+    assert!(tiny_skia::Pixmap::load_png(&png).is_ok());
+    // Same seed, same bytes.
+    let again = dir.path().join("again.pcd");
+    let st = hilo().args(["scan", "--sensor", "lidar-16", "--pose", "13,16.6,7.8,-127,10", "--out"]).arg(&again).status().unwrap();
+    assert!(st.success());
+    assert_eq!(std::fs::read(&pcd).unwrap(), std::fs::read(&again).unwrap());
+    // Radar to PLY, with approaching and receding road users.
+    let ply = dir.path().join("radar.ply");
+    let st = hilo().args(["scan", "--sensor", "radar-4d", "--pose", "16.6,-7,6.4,165,8", "--out"]).arg(&ply).status().unwrap();
+    assert!(st.success());
+    let r: Vec<RadarPoint> = from_ply(&std::fs::read(&ply).unwrap(), &ply).unwrap();
+    assert!(r.iter().any(|p| p.v_r_mps < -1.0) && r.iter().any(|p| p.v_r_mps > 1.0));
+}
+
+#[test]
+fn scan_with_bad_input_explains_itself() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.pcd");
+    let o = hilo().args(["scan", "--sensor", "lidar-128", "--pose", "0,0,8", "--out"]).arg(&out).output().unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("lidar-128") && err.contains("lidar-16") && err.contains("radar-4d"), "{err}");
+    let o = hilo().args(["scan", "--sensor", "lidar-16", "--pose", "0,zero,8", "--out"]).arg(&out).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("zero"));
+    // Inside the bank building.
+    let o = hilo().args(["scan", "--sensor", "lidar-16", "--pose", "-35,-36,3", "--out"]).arg(&out).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("bank"));
+    assert!(!out.exists());
+}
+
+#[test]
+fn bench_sensors_json_reports_frame_times_and_model_error() {
+    let o = hilo().args(["bench", "sensors", "--json", "--frames", "2", "--actors", "20"]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["cheap_suite_frame_ms"].as_f64().unwrap() > 0.0);
+    assert!(v["lidar64_radar_rays_per_frame"].as_u64().unwrap() > v["cheap_suite_rays_per_frame"].as_u64().unwrap());
+    let (e, s) = (v["probe_car_expected_returns"].as_f64().unwrap(), v["probe_car_simulated_mean_returns"].as_f64().unwrap());
+    assert!((e - s).abs() < 0.1 * e, "model {e} vs simulation {s}");
+}

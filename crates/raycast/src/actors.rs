@@ -54,16 +54,36 @@ pub struct Actor {
     pub id: u32,
     pub class: Class,
     pub shape: ActorShape,
+    /// Velocity in the local frame, m/s (radar Doppler reads it; rays do not).
+    pub velocity_mps: Vec3,
 }
 
 impl Actor {
     /// The shape hilo uses for a class: capsules for pedestrians, boxes otherwise.
     pub fn from_box(id: u32, class: Class, b: Box3) -> Self {
         let shape = if class == Class::Pedestrian { ActorShape::capsule_in(&b) } else { ActorShape::Box(b) };
-        Actor { id, class, shape }
+        Actor { id, class, shape, velocity_mps: Vec3::ZERO }
     }
 
-    fn material(&self) -> Material {
+    /// The same actor moving at `v` (local frame, m/s).
+    pub fn with_velocity(mut self, v: Vec3) -> Self {
+        self.velocity_mps = v;
+        self
+    }
+
+    /// Contains `p` (inside or on the surface).
+    pub fn contains(&self, p: Vec3) -> bool {
+        match &self.shape {
+            ActorShape::Box(b) => b.contains(p),
+            ActorShape::Capsule(c) => {
+                let (za, zb) = (c.z0 + c.radius, (c.z1 - c.radius).max(c.z0 + c.radius));
+                let z = p.z.clamp(za, zb);
+                (p - c.center.extend(z)).length() <= c.radius
+            }
+        }
+    }
+
+    pub fn material(&self) -> Material {
         if self.class == Class::Pedestrian { Material::Person } else { Material::VehicleBody }
     }
 }

@@ -1,0 +1,24 @@
+use std::path::PathBuf;
+
+/// Errors of sensor specs and scan simulation; each names the file, field and value at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum SensorError {
+    #[error("cannot read {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Toml { path: PathBuf, message: String },
+    #[error("{path}: field `{field}` = {value}: {reason}")]
+    Invalid { path: PathBuf, field: String, value: String, reason: String },
+    #[error("unknown sensor {name:?} in {catalog}; known sensors: {known}")]
+    UnknownSensor { name: String, catalog: PathBuf, known: String },
+    #[error("sensor {name:?} is not a {expected}")]
+    WrongKind { name: String, expected: &'static str },
+    #[error("sensor at {position:?} is inside {what}: every direction hits it within {within_m} m; move the mount")]
+    InsideGeometry { position: [f32; 3], what: String, within_m: f32 },
+    #[error("invalid sensor pose: {0}")]
+    Pose(String),
+    #[error("{path}: {message}")]
+    PointFile { path: PathBuf, message: String },
+    #[error(transparent)]
+    Raycast(#[from] hilo_raycast::RaycastError),
+}

@@ -1,0 +1,29 @@
+//! LiDAR and 4D-radar sensor models for hilo.
+//!
+//! - [`spec`]: specifications and the priced catalog (`fixtures/sensors.toml`, the paper's
+//!   Table I), validated once.
+//! - [`lidar`], [`radar`]: scan simulation over a [`hilo_raycast::World`] and the frame's
+//!   actors; deterministic for a seed.
+//! - [`probability`]: the detection-probability model placement uses (expected LiDAR returns,
+//!   radar detection probability) for probe targets.
+//! - [`export`]: PCD and PLY writers and readers.
+//!
+//! The difference the paper studies is made physical here: a LiDAR returns dense geometry whose
+//! density falls with range and beam count; a radar returns a few detections per target, each
+//! with RCS and an exact radial velocity.
+
+pub mod error;
+pub mod export;
+pub mod lidar;
+pub mod noise;
+pub mod pose;
+pub mod probability;
+pub mod radar;
+pub mod spec;
+
+pub use error::SensorError;
+pub use lidar::{LidarScan, PointSource, simulate_lidar};
+pub use pose::SensorPose;
+pub use probability::{Probe, lidar_expected_returns, radar_detection_probability};
+pub use radar::{RadarScan, simulate_radar};
+pub use spec::{Catalog, LidarSpec, RadarSpec, SensorSpec};

@@ -1,0 +1,384 @@
+//! Sensor specifications and the priced catalog (`fixtures/sensors.toml`).
+//!
+//! Specs are read with serde and validated once ([`Catalog::from_toml_str`]); the simulation
+//! and probability models then trust them.
+
+use crate::error::SensorError;
+use hilo_core::Class;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The default catalog: the paper's Table I.
+pub const DEFAULT_CATALOG_TOML: &str = include_str!("../../../fixtures/sensors.toml");
+
+/// A spinning multi-beam LiDAR.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LidarSpec {
+    pub name: String,
+    pub beams: u32,
+    pub rate_hz: f32,
+    pub hfov_deg: f32,
+    /// Vertical field of view, centred on the horizon, when `elevations_deg` is not given.
+    pub vfov_deg: f32,
+    /// Per-beam elevations (any order); overrides the uniform spread over `vfov_deg`.
+    #[serde(default)]
+    pub elevations_deg: Option<Vec<f32>>,
+    pub azimuth_resolution_deg: f32,
+    pub min_range_m: f32,
+    pub max_range_m: f32,
+    /// Standard deviation of Gaussian range noise.
+    pub range_noise_m: f32,
+    /// Intensity falls as exp(−a·d) with range d (CARLA's atmosphere attenuation).
+    pub atmosphere_attenuation_per_m: f32,
+    /// Probability that any return is dropped (CARLA `dropoff_general_rate`).
+    pub dropoff_general_rate: f32,
+    /// Returns with intensity above this are never dropped by the intensity rule.
+    pub dropoff_intensity_limit: f32,
+    /// Drop probability of a zero-intensity return; falls linearly to 0 at the limit.
+    pub dropoff_zero_intensity: f32,
+    pub price_usd: f64,
+    /// Where the price comes from, or "assumption: …".
+    pub price_source: String,
+}
+
+/// A 4D imaging radar (range, azimuth, elevation, Doppler).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RadarSpec {
+    pub name: String,
+    pub rate_hz: f32,
+    pub hfov_deg: f32,
+    pub vfov_deg: f32,
+    pub min_range_m: f32,
+    pub max_range_m: f32,
+    /// Angular grid of the rays cast per frame.
+    pub ray_azimuth_step_deg: f32,
+    pub ray_elevation_step_deg: f32,
+    /// Resolution cells: hits in one cell give one detection.
+    pub range_resolution_m: f32,
+    pub azimuth_resolution_deg: f32,
+    pub elevation_resolution_deg: f32,
+    pub range_noise_m: f32,
+    pub azimuth_noise_deg: f32,
+    pub elevation_noise_deg: f32,
+    pub velocity_noise_mps: f32,
+    pub rcs_noise_db: f32,
+    /// SNR of a 10 dBsm target at `max_range_m`; SNR scales with σ/R⁴ (the radar equation).
+    pub snr_at_max_range_db: f32,
+    pub detection_threshold_db: f32,
+    /// Probability that a resolution cell on static structures (poles, buildings, trees) is
+    /// reported.
+    pub clutter_probability: f32,
+    /// The same for the road surface, far lower: at grazing incidence the ground scatters
+    /// little back.
+    pub ground_clutter_probability: f32,
+    pub static_rcs_dbsm: f32,
+    /// At most this many detections per frame (the strongest are kept).
+    pub max_points: u32,
+    /// At most this many detections per target: the cells with the most hits, standing for
+    /// the target's dominant scattering centres (a real radar's peak detection reports a
+    /// handful per vehicle, not one per resolution cell it spans).
+    pub max_detections_per_target: u32,
+    pub rcs_dbsm: RcsTable,
+    pub price_usd: f64,
+    pub price_source: String,
+}
+
+/// Mean radar cross-section per class, dBsm.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RcsTable {
+    pub car: f32,
+    pub truck: f32,
+    pub bus: f32,
+    pub motorcycle: f32,
+    pub pedestrian: f32,
+    pub golf_cart: f32,
+}
+
+impl RcsTable {
+    pub fn get(&self, class: Class) -> f32 {
+        match class {
+            Class::Car => self.car,
+            Class::Truck => self.truck,
+            Class::Bus => self.bus,
+            Class::Motorcycle => self.motorcycle,
+            Class::Pedestrian => self.pedestrian,
+            Class::GolfCart => self.golf_cart,
+        }
+    }
+}
+
+/// Any catalog entry.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SensorSpec {
+    Lidar(LidarSpec),
+    Radar(RadarSpec),
+}
+
+impl SensorSpec {
+    pub fn name(&self) -> &str {
+        match self {
+            SensorSpec::Lidar(l) => &l.name,
+            SensorSpec::Radar(r) => &r.name,
+        }
+    }
+
+    pub fn price_usd(&self) -> f64 {
+        match self {
+            SensorSpec::Lidar(l) => l.price_usd,
+            SensorSpec::Radar(r) => r.price_usd,
+        }
+    }
+}
+
+impl LidarSpec {
+    /// Beam elevations in radians, sorted ascending: index = ring.
+    pub fn elevations_rad(&self) -> Vec<f32> {
+        let mut e: Vec<f32> = match &self.elevations_deg {
+            Some(t) => t.clone(),
+            None if self.beams == 1 => vec![0.0],
+            None => (0..self.beams)
+                .map(|b| -0.5 * self.vfov_deg + self.vfov_deg * b as f32 / (self.beams - 1) as f32)
+                .collect(),
+        };
+        e.sort_by(f32::total_cmp);
+        e.into_iter().map(f32::to_radians).collect()
+    }
+
+    /// Azimuth columns per revolution (or per `hfov_deg` sweep).
+    pub fn columns(&self) -> u32 {
+        (self.hfov_deg / self.azimuth_resolution_deg).round().max(1.0) as u32
+    }
+
+    /// Rays fired per frame.
+    pub fn rays_per_frame(&self) -> usize {
+        self.beams as usize * self.columns() as usize
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CatalogFile {
+    #[serde(default)]
+    lidar: Vec<LidarSpec>,
+    #[serde(default)]
+    radar: Vec<RadarSpec>,
+}
+
+/// Validated sensor specifications, looked up by name.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Catalog {
+    sensors: Vec<SensorSpec>,
+    source: PathBuf,
+}
+
+struct Check<'a> {
+    path: &'a Path,
+    prefix: String,
+}
+
+impl Check<'_> {
+    fn err(&self, field: &str, value: impl std::fmt::Debug, reason: &str) -> SensorError {
+        SensorError::Invalid {
+            path: self.path.to_path_buf(),
+            field: format!("{}.{field}", self.prefix),
+            value: format!("{value:?}"),
+            reason: reason.to_owned(),
+        }
+    }
+    fn positive(&self, field: &str, v: f32) -> Result<(), SensorError> {
+        if v.is_finite() && v > 0.0 { Ok(()) } else { Err(self.err(field, v, "must be a finite number > 0")) }
+    }
+    fn non_negative(&self, field: &str, v: f32) -> Result<(), SensorError> {
+        if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(self.err(field, v, "must be a finite number >= 0")) }
+    }
+    fn finite(&self, field: &str, v: f32) -> Result<(), SensorError> {
+        if v.is_finite() { Ok(()) } else { Err(self.err(field, v, "must be finite")) }
+    }
+    fn probability(&self, field: &str, v: f32) -> Result<(), SensorError> {
+        if (0.0..=1.0).contains(&v) { Ok(()) } else { Err(self.err(field, v, "must be a probability in [0, 1]")) }
+    }
+    fn price(&self, v: f64) -> Result<(), SensorError> {
+        if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(self.err("price_usd", v, "must be a finite number >= 0")) }
+    }
+}
+
+fn validate_lidar(l: &LidarSpec, c: &Check) -> Result<(), SensorError> {
+    if l.beams == 0 {
+        return Err(c.err("beams", l.beams, "a LiDAR needs at least one beam"));
+    }
+    c.positive("rate_hz", l.rate_hz)?;
+    c.positive("hfov_deg", l.hfov_deg)?;
+    if l.hfov_deg > 360.0 {
+        return Err(c.err("hfov_deg", l.hfov_deg, "must be at most 360"));
+    }
+    c.non_negative("vfov_deg", l.vfov_deg)?;
+    if l.vfov_deg >= 180.0 {
+        return Err(c.err("vfov_deg", l.vfov_deg, "must be below 180"));
+    }
+    if let Some(t) = &l.elevations_deg {
+        if t.len() != l.beams as usize {
+            return Err(c.err("elevations_deg", t.len(), &format!("has {} entries, but beams = {}", t.len(), l.beams)));
+        }
+        if let Some(e) = t.iter().find(|e| !(e.is_finite() && e.abs() < 90.0)) {
+            return Err(c.err("elevations_deg", e, "every elevation must be finite and within (-90, 90)"));
+        }
+    }
+    c.positive("azimuth_resolution_deg", l.azimuth_resolution_deg)?;
+    c.non_negative("min_range_m", l.min_range_m)?;
+    c.positive("max_range_m", l.max_range_m)?;
+    if l.min_range_m >= l.max_range_m {
+        return Err(c.err("min_range_m", l.min_range_m, "must be below max_range_m"));
+    }
+    c.non_negative("range_noise_m", l.range_noise_m)?;
+    c.non_negative("atmosphere_attenuation_per_m", l.atmosphere_attenuation_per_m)?;
+    c.probability("dropoff_general_rate", l.dropoff_general_rate)?;
+    c.non_negative("dropoff_intensity_limit", l.dropoff_intensity_limit)?;
+    c.probability("dropoff_zero_intensity", l.dropoff_zero_intensity)?;
+    c.price(l.price_usd)
+}
+
+fn validate_radar(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {
+    c.positive("rate_hz", r.rate_hz)?;
+    c.positive("hfov_deg", r.hfov_deg)?;
+    if r.hfov_deg >= 180.0 {
+        return Err(c.err("hfov_deg", r.hfov_deg, "must be below 180 (a radar looks forward)"));
+    }
+    c.positive("vfov_deg", r.vfov_deg)?;
+    if r.vfov_deg >= 180.0 {
+        return Err(c.err("vfov_deg", r.vfov_deg, "must be below 180"));
+    }
+    c.non_negative("min_range_m", r.min_range_m)?;
+    c.positive("max_range_m", r.max_range_m)?;
+    if r.min_range_m >= r.max_range_m {
+        return Err(c.err("min_range_m", r.min_range_m, "must be below max_range_m"));
+    }
+    for (f, v) in [
+        ("ray_azimuth_step_deg", r.ray_azimuth_step_deg),
+        ("ray_elevation_step_deg", r.ray_elevation_step_deg),
+        ("range_resolution_m", r.range_resolution_m),
+        ("azimuth_resolution_deg", r.azimuth_resolution_deg),
+        ("elevation_resolution_deg", r.elevation_resolution_deg),
+    ] {
+        c.positive(f, v)?;
+    }
+    for (f, v) in [
+        ("range_noise_m", r.range_noise_m),
+        ("azimuth_noise_deg", r.azimuth_noise_deg),
+        ("elevation_noise_deg", r.elevation_noise_deg),
+        ("velocity_noise_mps", r.velocity_noise_mps),
+        ("rcs_noise_db", r.rcs_noise_db),
+    ] {
+        c.non_negative(f, v)?;
+    }
+    c.finite("snr_at_max_range_db", r.snr_at_max_range_db)?;
+    c.finite("detection_threshold_db", r.detection_threshold_db)?;
+    c.probability("clutter_probability", r.clutter_probability)?;
+    c.probability("ground_clutter_probability", r.ground_clutter_probability)?;
+    c.finite("static_rcs_dbsm", r.static_rcs_dbsm)?;
+    for class in Class::ALL {
+        c.finite(&format!("rcs_dbsm.{class}"), r.rcs_dbsm.get(class))?;
+    }
+    if r.max_detections_per_target == 0 {
+        return Err(c.err("max_detections_per_target", r.max_detections_per_target, "must be at least 1"));
+    }
+    if r.max_points == 0 {
+        return Err(c.err("max_points", r.max_points, "must be at least 1"));
+    }
+    c.price(r.price_usd)
+}
+
+impl Catalog {
+    /// Parses and validates a catalog; `path` names the file in errors.
+    pub fn from_toml_str(text: &str, path: &Path) -> Result<Self, SensorError> {
+        let file: CatalogFile =
+            toml::from_str(text).map_err(|e| SensorError::Toml { path: path.to_path_buf(), message: e.to_string() })?;
+        let mut sensors = Vec::new();
+        let mut seen = std::collections::HashSet::new();
+        for (i, l) in file.lidar.into_iter().enumerate() {
+            let c = Check { path, prefix: format!("lidar[{i}]") };
+            validate_lidar(&l, &c)?;
+            if !seen.insert(l.name.clone()) {
+                return Err(c.err("name", &l.name, "duplicate sensor name"));
+            }
+            sensors.push(SensorSpec::Lidar(l));
+        }
+        for (i, r) in file.radar.into_iter().enumerate() {
+            let c = Check { path, prefix: format!("radar[{i}]") };
+            validate_radar(&r, &c)?;
+            if !seen.insert(r.name.clone()) {
+                return Err(c.err("name", &r.name, "duplicate sensor name"));
+            }
+            sensors.push(SensorSpec::Radar(r));
+        }
+        Ok(Catalog { sensors, source: path.to_path_buf() })
+    }
+
+    pub fn load(path: &Path) -> Result<Self, SensorError> {
+        let text = std::fs::read_to_string(path).map_err(|e| SensorError::Io { path: path.to_path_buf(), source: e })?;
+        Self::from_toml_str(&text, path)
+    }
+
+    /// The embedded default catalog (the paper's Table I).
+    pub fn default_catalog() -> Result<Self, SensorError> {
+        Self::from_toml_str(DEFAULT_CATALOG_TOML, Path::new("<embedded>/fixtures/sensors.toml"))
+    }
+
+    pub fn sensors(&self) -> &[SensorSpec] {
+        &self.sensors
+    }
+
+    pub fn names(&self) -> Vec<&str> {
+        self.sensors.iter().map(SensorSpec::name).collect()
+    }
+
+    /// Looks a sensor up by name; an unknown name lists the known ones.
+    pub fn get(&self, name: &str) -> Result<&SensorSpec, SensorError> {
+        self.sensors.iter().find(|s| s.name() == name).ok_or_else(|| SensorError::UnknownSensor {
+            name: name.to_owned(),
+            catalog: self.source.clone(),
+            known: self.names().join(", "),
+        })
+    }
+
+    pub fn lidar(&self, name: &str) -> Result<&LidarSpec, SensorError> {
+        match self.get(name)? {
+            SensorSpec::Lidar(l) => Ok(l),
+            SensorSpec::Radar(_) => Err(SensorError::WrongKind { name: name.to_owned(), expected: "LiDAR" }),
+        }
+    }
+
+    pub fn radar(&self, name: &str) -> Result<&RadarSpec, SensorError> {
+        match self.get(name)? {
+            SensorSpec::Radar(r) => Ok(r),
+            SensorSpec::Lidar(_) => Err(SensorError::WrongKind { name: name.to_owned(), expected: "radar" }),
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_catalog_is_table_one_with_the_papers_cost_ratios() {
+        let c = Catalog::default_catalog().unwrap();
+        let (l16, l32, l64, r) =
+            (c.lidar("lidar-16").unwrap(), c.lidar("lidar-32").unwrap(), c.lidar("lidar-64").unwrap(), c.radar("radar-4d").unwrap());
+        assert_eq!((l16.beams, l32.beams, l64.beams), (16, 32, 64));
+        assert_eq!((l16.max_range_m, l64.max_range_m, r.max_range_m), (100.0, 90.0, 90.0));
+        assert_eq!((r.hfov_deg, r.vfov_deg, r.rate_hz), (120.0, 28.0, 20.0));
+        let cheap = 2.0 * l16.price_usd + r.price_usd;
+        // −26.7% against 32-beam + radar, −56% against 64-beam + radar.
+        assert!((1.0 - cheap / (l32.price_usd + r.price_usd) - 0.267).abs() < 0.001);
+        assert!((1.0 - cheap / (l64.price_usd + r.price_usd) - 0.56).abs() < 0.001);
+        // The 16-beam table: -15..15 every 2 degrees.
+        let e = l16.elevations_rad();
+        assert_eq!(e.len(), 16);
+        assert!((e[0].to_degrees() + 15.0).abs() < 1e-4 && (e[15].to_degrees() - 15.0).abs() < 1e-4);
+        assert_eq!(l64.elevations_rad().len(), 64);
+    }
+}

@@ -1,0 +1,118 @@
+//! LiDAR scans: counts per spec, range and FOV, ring and time order, determinism, mounts.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+
+use common::*;
+use glam::Vec3;
+use hilo_core::{Box3, Class};
+use hilo_raycast::{Actor, ActorSet, QueryRegion, Scene, World};
+use hilo_sensor_models::{PointSource, SensorError, SensorPose, simulate_lidar};
+
+#[test]
+fn beam_and_azimuth_counts_ranges_fov_rings_and_times_follow_the_spec() {
+    let world = dome_world();
+    for name in ["lidar-16", "lidar-32", "lidar-64"] {
+        let spec = ideal_lidar(name);
+        let pose = SensorPose::new(Vec3::new(3.0, -2.0, 6.0), 0.4, 0.0, 0.0);
+        let scan = simulate_lidar(&spec, &pose, &world, None, 1).unwrap();
+        let cols = spec.columns() as usize;
+        assert_eq!(scan.rays_cast, spec.beams as usize * cols);
+        assert_eq!(scan.points.len(), scan.rays_cast, "{name}: every ray hits the dome or the ground");
+        let elev = spec.elevations_rad();
+        let mut per_ring = vec![0usize; spec.beams as usize];
+        for (i, p) in scan.points.iter().enumerate() {
+            let r = Vec3::new(p.x, p.y, p.z).length();
+            assert!(r > spec.min_range_m && r <= spec.max_range_m, "{name}: range {r}");
+            let el = (p.z / r).asin();
+            assert!((el - elev[p.ring as usize]).abs() < 1e-4, "{name}: point {i} off its beam");
+            per_ring[p.ring as usize] += 1;
+            assert!((0.0..=1.0).contains(&p.intensity));
+            if i > 0 {
+                let q = &scan.points[i - 1];
+                assert!(p.time_s >= q.time_s, "time must not decrease");
+                if p.time_s == q.time_s {
+                    assert!(p.ring > q.ring, "rings ascend within a column");
+                }
+            }
+        }
+        assert!(per_ring.iter().all(|&n| n == cols), "{name}: {per_ring:?}");
+        let last = scan.points.last().unwrap().time_s;
+        assert!(last < 1.0 / spec.rate_hz && last > 0.9 / spec.rate_hz);
+    }
+}
+
+#[test]
+fn same_seed_same_scan_and_another_seed_differs() {
+    let scene = Scene::default_fixture().unwrap();
+    let world = World::build(&scene, &QueryRegion::everything()).unwrap();
+    let spec = catalog().lidar("lidar-32").unwrap().clone();
+    let pose = SensorPose::new(Vec3::new(13.0, 16.6, 7.8), 0.0, 0.2, 0.0);
+    let a = simulate_lidar(&spec, &pose, &world, None, 42).unwrap();
+    let b = simulate_lidar(&spec, &pose, &world, None, 42).unwrap();
+    let c = simulate_lidar(&spec, &pose, &world, None, 43).unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a.points, c.points);
+    // Drop-off removes a few percent, not most.
+    let kept = a.points.len() as f64 / a.rays_cast as f64;
+    assert!(kept > 0.3 && kept < 0.99, "{kept}");
+}
+
+#[test]
+fn empty_scene_gives_an_empty_cloud() {
+    let world = World::from_triangles(&[], None).unwrap();
+    let spec = catalog().lidar("lidar-16").unwrap().clone();
+    let scan = simulate_lidar(&spec, &SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0), &world, None, 0).unwrap();
+    assert!(scan.points.is_empty() && scan.sources.is_empty());
+    assert!(scan.rays_cast > 0);
+}
+
+#[test]
+fn a_mount_inside_a_building_or_an_actor_is_an_error() {
+    let scene = Scene::default_fixture().unwrap();
+    let world = World::build(&scene, &QueryRegion::everything()).unwrap();
+    let spec = catalog().lidar("lidar-16").unwrap().clone();
+    // Inside the bank (x -45..-25, y -45..-28, 7 m high).
+    let expect_err = |r: Result<_, SensorError>| match r {
+        Err(e) => e,
+        Ok(_) => panic!("a mount inside geometry must be refused"),
+    };
+    let err = expect_err(simulate_lidar(&spec, &SensorPose::new(Vec3::new(-35.0, -36.0, 3.0), 0.0, 0.0, 0.0), &world, None, 0));
+    assert!(matches!(err, SensorError::InsideGeometry { .. }));
+    assert!(err.to_string().contains("bank"), "{err}");
+    let car = Actor::from_box(7, Class::Car, Box3::new(Vec3::new(0.0, 5.0, 0.8), 4.5, 1.9, 1.6, 0.0));
+    let actors = ActorSet::new(vec![car]).unwrap();
+    let err = expect_err(simulate_lidar(&spec, &SensorPose::new(Vec3::new(0.5, 5.0, 1.0), 0.0, 0.0, 0.0), &world, Some(&actors), 0));
+    assert!(err.to_string().contains("actor 7"), "{err}");
+    // On top of a pole is fine.
+    assert!(simulate_lidar(&spec, &SensorPose::new(Vec3::new(13.0, 16.6, 7.8), 0.0, 0.0, 0.0), &world, None, 0).is_ok());
+}
+
+#[test]
+fn points_on_actors_are_attributed_and_local_frame_is_consistent() {
+    let world = ground_world();
+    let spec = ideal_lidar("lidar-64");
+    let pose = SensorPose::new(Vec3::new(0.0, 0.0, 6.0), 0.3, 0.15, 0.0);
+    let bus = Actor::from_box(11, Class::Bus, Box3::new(Vec3::new(15.0, 4.0, 1.6), 12.0, 2.6, 3.2, 0.2));
+    let ped = Actor::from_box(12, Class::Pedestrian, Box3::new(Vec3::new(10.0, -6.0, 0.875), 0.6, 0.6, 1.75, 0.0));
+    let actors = ActorSet::new(vec![bus, ped]).unwrap();
+    let scan = simulate_lidar(&spec, &pose, &world, Some(&actors), 5).unwrap();
+    let counts = scan.points_per_actor();
+    assert!(counts[&11] > counts[&12] && counts[&12] > 5, "{counts:?}");
+    for (p, s) in scan.points_local().iter().zip(&scan.sources) {
+        let q = Vec3::new(p.x, p.y, p.z);
+        match s {
+            PointSource::Ground => assert!(q.z.abs() < 1e-3, "{q}"),
+            PointSource::Actor(id) => {
+                let a = actors.actors().iter().find(|a| a.id == *id).unwrap();
+                let grown = match a.shape {
+                    hilo_raycast::ActorShape::Box(b) => Box3 { length_m: b.length_m + 0.01, width_m: b.width_m + 0.01, height_m: b.height_m + 0.01, ..b },
+                    hilo_raycast::ActorShape::Capsule(c) => Box3::new(c.center.extend(0.5 * (c.z0 + c.z1)), 2.0 * c.radius + 0.01, 2.0 * c.radius + 0.01, c.z1 - c.z0 + 0.01, 0.0),
+                };
+                assert!(grown.contains(q), "point {q} not on actor {id}");
+            }
+            PointSource::Static => panic!("no static geometry here"),
+        }
+    }
+}
