@@ -2,8 +2,10 @@
 
 mod bench;
 mod demo;
+mod place;
 mod render;
 mod scan;
+mod study;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -26,6 +28,8 @@ enum Command {
     },
     /// Simulate one frame of one sensor on a scene with a few road users; write PCD or PLY.
     Scan(scan::ScanArgs),
+    /// Place each configuration of a study optimally (integer programming over visibility).
+    Place(place::PlaceArgs),
     /// Benchmarks that report speed together with the error paid for it.
     Bench {
         #[command(subcommand)]
@@ -69,6 +73,15 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Placement at the default scale: visibility, the paper's three configurations, the
+    /// budgeted problem, and the plain formulation handed to CBC on the same instance.
+    Placement {
+        /// Time limit for CBC (it rounds to whole seconds and may overshoot).
+        #[arg(long, default_value_t = 120.0)]
+        cbc_seconds: f64,
+        #[arg(long)]
+        json: bool,
+    },
     /// One frame of the paper's cheapest suite (2 x 16-beam LiDAR + radar) with moving actors,
     /// and of a 64-beam LiDAR + radar, on the default scene.
     Sensors {
@@ -108,6 +121,17 @@ fn main() -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&render::scene_summary(&scene))?);
         }
         Command::Scan(args) => scan::run(&args)?,
+        Command::Place(args) => {
+            place::run(&args)?;
+        }
+        Command::Bench { command: BenchCommand::Placement { cbc_seconds, json } } => {
+            let report = bench::placement(cbc_seconds)?;
+            if json {
+                println!("{}", serde_json::to_string(&report)?);
+            } else {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            }
+        }
         Command::Bench { command: BenchCommand::Sensors { actors, frames, json } } => {
             let report = bench::sensors(actors, frames.max(1))?;
             if json {

@@ -59,7 +59,7 @@ impl Canvas {
         }
     }
 
-    fn line(&mut self, pts: &[Vec2], p: &Paint, width_m: f32, dash_m: Option<(f32, f32)>) {
+    fn stroke(&mut self, pts: &[Vec2], p: &Paint, width_m: f32, dash_m: Option<(f32, f32)>) {
         if let Some(path) = self.view.path(pts, false) {
             let mut s = Stroke { width: (width_m * self.view.scale).max(1.0), ..Stroke::default() };
             if let Some((on, off)) = dash_m {
@@ -100,6 +100,12 @@ impl Canvas {
         for b in boxes {
             self.outline(&b.bev_corners(), &p, 2.0);
         }
+    }
+
+    /// A polyline in an RGB colour, `width_m` wide.
+    pub fn line(&mut self, pts: &[Vec2], rgb: (u8, u8, u8), width_m: f32) {
+        let p = paint(rgb.0, rgb.1, rgb.2, 255);
+        self.stroke(pts, &p, width_m, None);
     }
 
     /// Dots at local-frame points, each with its own RGB colour and a radius in pixels.
@@ -152,12 +158,12 @@ pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
             let s_left = ((a + b) * 0.5).dot(arm.normal);
             let at_median = (s_left.abs() - arm.median_half_width_m).abs() < 1e-3;
             if at_median {
-                c.line(&[a, b], &yellow, 0.15, None);
+                c.stroke(&[a, b], &yellow, 0.15, None);
             } else {
-                c.line(&[a, b], &white, 0.12, Some((3.0, 6.0)));
+                c.stroke(&[a, b], &white, 0.12, Some((3.0, 6.0)));
             }
         }
-        c.line(&arm.stop_line, &white, 0.45, None);
+        c.stroke(&arm.stop_line, &white, 0.45, None);
         // Zebra crosswalk: bars parallel to the traffic, spread across the road.
         let cw = &arm.crosswalk;
         let (along, across) = (cw[1] - cw[0], cw[3] - cw[0]);
@@ -202,12 +208,12 @@ pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
     for s in &scene.config.street_lights {
         let p = Vec2::from(s.position);
         let tip = p + Vec2::from_angle(s.arm_heading_deg.to_radians()) * s.arm_length_m;
-        c.line(&[p, tip], &paint(120, 120, 120, 255), 0.25, None);
+        c.stroke(&[p, tip], &paint(120, 120, 120, 255), 0.25, None);
         c.disc(p, 0.35, &paint(90, 90, 90, 255));
     }
     for m in &scene.mounts {
         let tip = m.base + m.arm_dir * m.arm_length_m;
-        c.line(&[m.base, tip], &paint(25, 25, 25, 255), 0.5, None);
+        c.stroke(&[m.base, tip], &paint(25, 25, 25, 255), 0.5, None);
         c.disc(m.base, 0.6, &paint(10, 10, 10, 255));
     }
     for p in &scene.config.signal_poles {
@@ -222,10 +228,10 @@ pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
     // Scale bar (20 m, 5 m ticks) bottom-left and a north arrow top-right.
     let bl = Vec2::new(g.min.x + 6.0, g.min.y + 6.0);
     let black = paint(0, 0, 0, 255);
-    c.line(&[bl, bl + Vec2::X * 20.0], &black, 0.5, None);
+    c.stroke(&[bl, bl + Vec2::X * 20.0], &black, 0.5, None);
     for k in 0..=4 {
         let x = bl + Vec2::X * (5.0 * k as f32);
-        c.line(&[x, x + Vec2::Y * if k % 2 == 0 { 2.0 } else { 1.0 }], &black, 0.3, None);
+        c.stroke(&[x, x + Vec2::Y * if k % 2 == 0 { 2.0 } else { 1.0 }], &black, 0.3, None);
     }
     let tr = Vec2::new(g.max.x - 8.0, g.max.y - 12.0);
     c.fill(&[tr + Vec2::new(0.0, 7.0), tr + Vec2::new(-2.5, 0.0), tr + Vec2::new(2.5, 0.0)], &black);

@@ -121,3 +121,60 @@ fn bench_sensors_json_reports_frame_times_and_model_error() {
     let (e, s) = (v["probe_car_expected_returns"].as_f64().unwrap(), v["probe_car_simulated_mean_returns"].as_f64().unwrap());
     assert!((e - s).abs() < 0.1 * e, "model {e} vs simulation {s}");
 }
+
+/// A coarse study (3 m cells, fewer mounts) so the test runs in seconds.
+fn coarse_study(dir: &std::path::Path, configurations: &str) -> std::path::PathBuf {
+    let text = format!(
+        "[placement]\ncell_m = 3.0\n[placement.candidates]\npole_step_m = 1.5\narm_step_m = 3.0\nlidar_yaw_offsets_deg = [0.0]\nradar_yaw_offsets_deg = [-30.0, 30.0]\n{configurations}"
+    );
+    let p = dir.join("study.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn place_writes_proven_placements_coverage_maps_and_exports() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"2x lidar-16 + radar\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\n[[configurations]]\nname = \"1x lidar-64 + radar\"\nsensors = { \"lidar-64\" = 1, \"radar-4d\" = 1 }\n",
+    );
+    let out = dir.path().join("placements");
+    let ex = dir.path().join("export");
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).arg("--json").arg("--export").arg(&ex).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(summary.as_array().unwrap().len(), 2);
+    let p: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("2x_lidar_16_radar.json")).unwrap()).unwrap();
+    assert_eq!(p["proven_optimal"], true);
+    assert_eq!(p["gap"].as_f64(), Some(0.0));
+    assert_eq!(p["sensors"].as_array().unwrap().len(), 3);
+    assert_eq!(p["cost_usd"].as_f64(), Some(10000.0));
+    assert!(p["objective"].as_f64().unwrap() >= p["greedy_objective"].as_f64().unwrap());
+    let cov = p["central_coverage"].as_f64().unwrap();
+    assert!(cov > 0.0 && cov <= 1.0);
+    assert!(tiny_skia::Pixmap::load_png(out.join("2x_lidar_16_radar.png")).is_ok());
+    for f in ["targets.json", "candidates.json", "visibility_lidar-16.json", "visibility_radar-4d.json", "2x_lidar_16_radar.mps.gz"] {
+        assert!(ex.join(f).exists(), "{f} not exported");
+    }
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(ex.join("visibility_lidar-16.json")).unwrap()).unwrap();
+    assert_eq!(v["candidate"].as_array().unwrap().len(), v["v"].as_array().unwrap().len());
+}
+
+#[test]
+fn place_with_bad_configurations_explains_itself() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"big\"\nsensors = { \"lidar-128\" = 1, \"radar-4d\" = 1 }\n");
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("lidar-128") && err.contains("lidar-16"), "{err}");
+    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"cheap\"\nbudget_usd = 500.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n");
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("cheap") && err.contains("500"), "{err}");
+    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"x\"\nsensors = { \"lidar-16\" = 1 }\nbudget_usd = 3.0\n");
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("either"));
+}

@@ -50,12 +50,13 @@ struct Window {
     range: (f32, f32),
 }
 
-fn window(pose: &SensorPose, b: &Box3) -> Window {
-    let c = pose.to_sensor(b.center);
+fn window(pose: &SensorPose, inv: glam::Quat, b: &Box3) -> Window {
+    let to_sensor = |p: Vec3| inv * (p - pose.position);
+    let c = to_sensor(b.center);
     let center_az = c.y.atan2(c.x);
     let mut w = Window { center_az, az: (f32::MAX, f32::MIN), el: (f32::MAX, f32::MIN), range: (f32::MAX, 0.0) };
     for corner in b.corners() {
-        let s = pose.to_sensor(corner);
+        let s = to_sensor(corner);
         let r = s.length();
         let daz = (s.y.atan2(s.x) - center_az + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU) - std::f32::consts::PI;
         let el = (s.z / r.max(1e-6)).clamp(-1.0, 1.0).asin();
@@ -69,7 +70,37 @@ fn window(pose: &SensorPose, b: &Box3) -> Window {
 
 /// Expected number of LiDAR returns from `probe` at box `b` (no occlusion).
 pub fn lidar_expected_returns(spec: &LidarSpec, pose: &SensorPose, probe: &Probe, b: &Box3) -> f32 {
-    let w = window(pose, b);
+    LidarPattern::new(spec).expected_returns(pose, probe, b)
+}
+
+/// A LiDAR's beam pattern prepared for many probability queries (sorted elevations cached).
+#[derive(Clone, Debug)]
+pub struct LidarPattern<'a> {
+    pub spec: &'a LidarSpec,
+    elevations: Vec<f32>,
+}
+
+impl<'a> LidarPattern<'a> {
+    pub fn new(spec: &'a LidarSpec) -> Self {
+        LidarPattern { spec, elevations: spec.elevations_rad() }
+    }
+
+    /// See [`lidar_expected_returns`].
+    pub fn expected_returns(&self, pose: &SensorPose, probe: &Probe, b: &Box3) -> f32 {
+        expected_returns_impl(self.spec, &self.elevations, pose, probe, b, f32::INFINITY)
+    }
+
+    /// The same, but counting stops once `cap` is reached (returns a value ≥ `cap` then). A
+    /// detection probability P(N ≥ m) is 1 to machine precision long before N's mean reaches a
+    /// few dozen, so placement need not count every return on a car next to the pole.
+    pub fn expected_returns_capped(&self, pose: &SensorPose, probe: &Probe, b: &Box3, cap: f32) -> f32 {
+        expected_returns_impl(self.spec, &self.elevations, pose, probe, b, cap)
+    }
+}
+
+fn expected_returns_impl(spec: &LidarSpec, elevations: &[f32], pose: &SensorPose, probe: &Probe, b: &Box3, cap: f32) -> f32 {
+    let rot = pose.rotation();
+    let w = window(pose, rot.inverse(), b);
     if w.range.0 > spec.max_range_m {
         return 0.0;
     }
@@ -79,27 +110,44 @@ pub fn lidar_expected_returns(spec: &LidarSpec, pose: &SensorPose, probe: &Probe
     let hfov = spec.hfov_deg.to_radians();
     let full = spec.hfov_deg >= 360.0;
     let step = hfov / cols as f32;
-    let rot = pose.rotation();
     let refl = probe.material().lidar_reflectivity();
     let mut expected = 0.0f32;
-    let elevations = spec.elevations_rad();
-    // Columns whose azimuth lies in the window.
+    // Only the columns and beams whose angles fall in the probe's window (plus a margin) are
+    // intersected: the window is found by index arithmetic, not by scanning the pattern.
     let margin = 1e-4;
-    for k in 0..cols {
-        let az = if full { k as f32 * step } else { -0.5 * hfov + (k as f32 + 0.5) * step };
-        let daz = (az - w.center_az + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU) - std::f32::consts::PI;
-        if !inside && (daz < w.az.0 - margin || daz > w.az.1 + margin) {
-            continue;
+    let az_at = |k: u32| if full { k as f32 * step } else { -0.5 * hfov + (k as f32 + 0.5) * step };
+    let columns: Vec<u32> = if inside {
+        (0..cols).collect()
+    } else {
+        let lo = w.center_az + w.az.0 - margin;
+        let hi = w.center_az + w.az.1 + margin;
+        if full {
+            let k0 = (lo / step).ceil() as i64;
+            let k1 = (hi / step).floor() as i64;
+            (k0..=k1).map(|k| k.rem_euclid(cols as i64) as u32).collect()
+        } else {
+            let base = -0.5 * hfov;
+            let k0 = ((lo - base) / step - 0.5).ceil().max(0.0) as i64;
+            let k1 = ((hi - base) / step - 0.5).floor().min(cols as f32 - 1.0) as i64;
+            (k0..=k1).map(|k| k as u32).collect()
         }
-        for &el in &elevations {
-            if !inside && (el < w.el.0 - margin || el > w.el.1 + margin) {
-                continue;
-            }
+    };
+    let (e0, e1) = if inside {
+        (0, elevations.len())
+    } else {
+        (elevations.partition_point(|&e| e < w.el.0 - margin), elevations.partition_point(|&e| e <= w.el.1 + margin))
+    };
+    for k in columns {
+        let az = az_at(k);
+        for &el in &elevations[e0..e1] {
             let ray = Ray { origin: pose.position, dir: rot * spherical_dir(az, el), t_min: spec.min_range_m, t_max: spec.max_range_m };
             if let Some((t, n)) = intersect_box(b, &ray, ray.t_max) {
                 let i = intensity(refl, n.dot(ray.dir), t, spec.atmosphere_attenuation_per_m);
                 expected += survival_probability(spec, i);
             }
+        }
+        if expected >= cap {
+            return expected;
         }
     }
     expected
@@ -108,7 +156,8 @@ pub fn lidar_expected_returns(spec: &LidarSpec, pose: &SensorPose, probe: &Probe
 /// Probability that the radar detects `probe` at box `b` (no occlusion): Swerling-I at the
 /// probe's nearest range if some ray of the radar grid reaches it within the field of view.
 pub fn radar_detection_probability(spec: &RadarSpec, pose: &SensorPose, probe: &Probe, b: &Box3) -> f32 {
-    let w = window(pose, b);
+    let rot = pose.rotation();
+    let w = window(pose, rot.inverse(), b);
     let (hh, hv) = (0.5 * spec.hfov_deg.to_radians(), 0.5 * spec.vfov_deg.to_radians());
     let az_lo = w.center_az + w.az.0;
     let az_hi = w.center_az + w.az.1;
@@ -120,9 +169,8 @@ pub fn radar_detection_probability(spec: &RadarSpec, pose: &SensorPose, probe: &
     let n_az = (spec.hfov_deg / spec.ray_azimuth_step_deg).round().max(1.0) as usize;
     let n_el = (spec.vfov_deg / spec.ray_elevation_step_deg).round().max(1.0) as usize;
     let (s_az, s_el) = (2.0 * hh / n_az as f32, 2.0 * hv / n_el as f32);
-    let rot = pose.rotation();
-    let mut nearest = f32::INFINITY;
-    for ia in 0..n_az {
+    let mut reached = false;
+    'grid: for ia in 0..n_az {
         let az = -hh + (ia as f32 + 0.5) * s_az;
         if az < az_lo - s_az || az > az_hi + s_az {
             continue;
@@ -133,13 +181,17 @@ pub fn radar_detection_probability(spec: &RadarSpec, pose: &SensorPose, probe: &
                 continue;
             }
             let ray = Ray { origin: pose.position, dir: rot * spherical_dir(az, el), t_min: spec.min_range_m, t_max: spec.max_range_m };
-            if let Some((t, _)) = intersect_box(b, &ray, ray.t_max) {
-                nearest = nearest.min(t);
+            if intersect_box(b, &ray, ray.t_max).is_some() {
+                reached = true;
+                break 'grid;
             }
         }
     }
-    if !nearest.is_finite() {
+    if !reached {
         return 0.0;
     }
+    // Range of the probe's nearest point (the radar equation's R).
+    let local = b.to_local(pose.position);
+    let nearest = (local.abs() - b.half_extents()).max(Vec3::ZERO).length().max(spec.min_range_m);
     swerling1_detection_probability(spec, snr_db(spec, spec.rcs_dbsm.get(probe.class), nearest))
 }

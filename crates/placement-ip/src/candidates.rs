@@ -1,0 +1,120 @@
+//! Candidate mounts along the scene's signal poles and mast arms, and sensor orientations.
+//!
+//! A *mount point* is a position on a pole (at several heights) or on a mast arm (at several
+//! distances from the pole, just above the arm). A LiDAR candidate is a mount point with the
+//! sensor tilted down by `lidar_tilt_deg` toward the junction centre (turned by each of
+//! `lidar_yaw_offsets_deg`); a radar candidate is a mount point with the radar aimed at the
+//! centre turned by each of `radar_yaw_offsets_deg` and tilted by `radar_tilt_deg` (its
+//! horizontal field of view is only 120°, so where it looks matters).
+
+use crate::error::PlacementError;
+use glam::{Vec2, Vec3};
+use hilo_raycast::Scene;
+use hilo_sensor_models::SensorPose;
+use serde::{Deserialize, Serialize};
+
+/// How candidates are sampled.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CandidateConfig {
+    /// Lowest mount height on a pole, metres.
+    pub pole_min_height_m: f32,
+    /// Step between mount heights on a pole.
+    pub pole_step_m: f32,
+    /// Step between mount points along a mast arm (from the pole outward).
+    pub arm_step_m: f32,
+    /// Mounts on an arm sit this far above its axis.
+    pub arm_clearance_m: f32,
+    pub lidar_tilt_deg: f32,
+    pub lidar_yaw_offsets_deg: Vec<f32>,
+    pub radar_tilt_deg: f32,
+    pub radar_yaw_offsets_deg: Vec<f32>,
+}
+
+impl Default for CandidateConfig {
+    fn default() -> Self {
+        CandidateConfig {
+            pole_min_height_m: 4.0,
+            pole_step_m: 0.5,
+            arm_step_m: 1.0,
+            arm_clearance_m: 0.3,
+            lidar_tilt_deg: 10.0,
+            lidar_yaw_offsets_deg: vec![-45.0, 0.0, 45.0],
+            radar_tilt_deg: 8.0,
+            radar_yaw_offsets_deg: vec![-45.0, -15.0, 15.0, 45.0],
+        }
+    }
+}
+
+/// Which modality a candidate is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Modality {
+    Lidar,
+    Radar,
+}
+
+/// A mount point and a sensor orientation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Candidate {
+    pub id: u32,
+    pub modality: Modality,
+    /// Mount point index: at most one sensor per mount point.
+    pub mount: u32,
+    /// The structure it is on, e.g. "NE/pole" or "NE/arm".
+    pub structure: String,
+    pub pose: SensorPose,
+}
+
+/// Samples LiDAR and radar candidates on every mounting structure of the scene.
+pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Candidate>, PlacementError> {
+    for (name, v) in [("pole_step_m", cfg.pole_step_m), ("arm_step_m", cfg.arm_step_m)] {
+        if !(v.is_finite() && v > 0.05) {
+            return Err(PlacementError::Invalid(format!("candidates.{name} = {v}: must be a step above 0.05 m")));
+        }
+    }
+    if scene.mounts.is_empty() {
+        return Err(PlacementError::Invalid(format!("scene {} has no signal poles to mount sensors on", scene.source_name())));
+    }
+    let gz = scene.ground.z_m;
+    let centre = scene.layout.central.iter().copied().sum::<Vec2>() / scene.layout.central.len().max(1) as f32;
+    let mut points: Vec<(String, Vec3)> = Vec::new();
+    let g = scene.ground;
+    for m in &scene.mounts {
+        let tip = m.base + m.arm_dir * m.arm_length_m;
+        for p in [m.base, tip] {
+            if p.x < g.min.x || p.y < g.min.y || p.x > g.max.x || p.y > g.max.y {
+                return Err(PlacementError::Invalid(format!(
+                    "signal pole {} reaches ({:.1}, {:.1}), outside the scene's ground ({:.0}..{:.0} m, {:.0}..{:.0} m)",
+                    m.name, p.x, p.y, g.min.x, g.max.x, g.min.y, g.max.y
+                )));
+            }
+        }
+        // Just outside the pole's surface, toward the junction.
+        let out = (centre - m.base).normalize_or(Vec2::X) * (m.pole_radius_m + 0.15);
+        let mut h = cfg.pole_min_height_m;
+        while h <= m.pole_height_m + 1e-3 {
+            points.push((format!("{}/pole", m.name), (m.base + out).extend(gz + h)));
+            h += cfg.pole_step_m;
+        }
+        let mut s = cfg.arm_step_m;
+        while s <= m.arm_length_m + 1e-3 {
+            points.push((format!("{}/arm", m.name), (m.base + m.arm_dir * s).extend(gz + m.arm_height_m + cfg.arm_clearance_m)));
+            s += cfg.arm_step_m;
+        }
+    }
+    let mut out = Vec::new();
+    for (mount, (structure, p)) in points.iter().enumerate() {
+        let to_centre = centre - p.truncate();
+        let yaw0 = to_centre.y.atan2(to_centre.x);
+        for off in &cfg.lidar_yaw_offsets_deg {
+            let pose = SensorPose::new(*p, yaw0 + off.to_radians(), cfg.lidar_tilt_deg.to_radians(), 0.0);
+            out.push(Candidate { id: out.len() as u32, modality: Modality::Lidar, mount: mount as u32, structure: structure.clone(), pose });
+        }
+        for off in &cfg.radar_yaw_offsets_deg {
+            let pose = SensorPose::new(*p, yaw0 + off.to_radians(), cfg.radar_tilt_deg.to_radians(), 0.0);
+            out.push(Candidate { id: out.len() as u32, modality: Modality::Radar, mount: mount as u32, structure: structure.clone(), pose });
+        }
+    }
+    Ok(out)
+}

@@ -1,0 +1,221 @@
+//! The placement problem as solvers see it, independent of the scene: target weights, sensor
+//! types with prices, sensor *options* (a candidate with a type, its visibility row), limits.
+//!
+//! Objective (the paper's Algorithm 1): maximise Σ_j t_j ρ_j with
+//! ρ_j = w_j Σ_{o ∈ S} V_oj, where t_j = 1 only if both modalities see target j:
+//! Σ_{o ∈ S_L} −ln(1 − V_oj) ≥ τ and Σ_{o ∈ S_R} −ln(1 − V_oj) ≥ τ, τ = −ln(1 − p_min)
+//! (the paper's "≥ 1" is p_min = 1 − e⁻¹ ≈ 0.632). For a given selection the best t is forced,
+//! so [`evaluate`] is the exact objective of any selection, whichever solver produced it.
+
+use crate::candidates::Modality;
+use crate::error::PlacementError;
+use serde::{Deserialize, Serialize};
+
+/// A sensor type offered to the solver.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorType {
+    pub name: String,
+    pub modality: Modality,
+    pub price_usd: f64,
+}
+
+/// A candidate with a sensor type: one binary decision.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorOption {
+    pub ty: usize,
+    pub candidate: u32,
+    /// At most one option per mount point is chosen.
+    pub mount: u32,
+    /// Visibility row: (target, V) with V in (0, 1], sorted by target.
+    pub row: Vec<(u32, f32)>,
+}
+
+/// How many sensors may be bought.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Limit {
+    /// At most `counts[t]` sensors of type t (the paper's configurations, e.g. 2 × 16-beam + radar).
+    Counts(Vec<u32>),
+    /// At most `n` sensors in all (the paper's constraint (2)).
+    Total(u32),
+    /// A dollar budget, with optional minimum and maximum counts per type.
+    Budget { usd: f64, min: Vec<u32>, max: Vec<u32> },
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Instance {
+    pub weights: Vec<f64>,
+    pub types: Vec<SensorType>,
+    pub options: Vec<SensorOption>,
+    /// Detection threshold p_min; the coverage right-hand side is τ = −ln(1 − p_min).
+    pub p_min: f64,
+}
+
+/// V is clamped to this before taking logs, so that V = 1 gives a finite coefficient.
+pub const V_MAX: f64 = 1.0 - 1e-12;
+
+/// The coverage coefficient −ln(1 − V), computed stably as −ln_1p(−V) with V clamped below 1.
+pub fn coverage_coef(v: f64) -> f64 {
+    -(-v.clamp(0.0, V_MAX)).ln_1p()
+}
+
+impl Instance {
+    pub fn tau(&self) -> f64 {
+        coverage_coef(self.p_min)
+    }
+
+    pub fn n_targets(&self) -> usize {
+        self.weights.len()
+    }
+
+    pub fn modality(&self, o: usize) -> Modality {
+        self.types[self.options[o].ty].modality
+    }
+
+    /// Checks shapes and values once; solvers trust a validated instance.
+    pub fn validate(&self) -> Result<(), PlacementError> {
+        let bad = |m: String| Err(PlacementError::Invalid(m));
+        if !(self.p_min > 0.0 && self.p_min < 1.0) {
+            return bad(format!("p_min = {}: must be in (0, 1)", self.p_min));
+        }
+        if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+            return bad("target weights must be finite and >= 0".into());
+        }
+        for (i, t) in self.types.iter().enumerate() {
+            if !(t.price_usd.is_finite() && t.price_usd >= 0.0) {
+                return bad(format!("type {i} ({}) has price {}", t.name, t.price_usd));
+            }
+        }
+        for (i, o) in self.options.iter().enumerate() {
+            if o.ty >= self.types.len() {
+                return bad(format!("option {i} has type {} of {}", o.ty, self.types.len()));
+            }
+            for &(j, v) in &o.row {
+                if j as usize >= self.weights.len() || !(v.is_finite() && (0.0..=1.0).contains(&v)) {
+                    return bad(format!("option {i}: entry (target {j}, V = {v}) out of range"));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether a selection respects the limit and the one-sensor-per-mount rule.
+    pub fn check(&self, limit: &Limit, sel: &[usize]) -> Result<(), String> {
+        let mut mounts = std::collections::HashSet::new();
+        let mut per_type = vec![0u32; self.types.len()];
+        let mut cost = 0.0;
+        for &o in sel {
+            let opt = self.options.get(o).ok_or(format!("option {o} does not exist"))?;
+            if !mounts.insert(opt.mount) {
+                return Err(format!("two sensors on mount {}", opt.mount));
+            }
+            per_type[opt.ty] += 1;
+            cost += self.types[opt.ty].price_usd;
+        }
+        match limit {
+            Limit::Counts(c) => {
+                if let Some(t) = (0..self.types.len()).find(|&t| per_type[t] > c.get(t).copied().unwrap_or(0)) {
+                    return Err(format!("{} x {} exceeds the limit", per_type[t], self.types[t].name));
+                }
+            }
+            Limit::Total(n) => {
+                if sel.len() as u32 > *n {
+                    return Err(format!("{} sensors exceed the limit {n}", sel.len()));
+                }
+            }
+            Limit::Budget { usd, min, max } => {
+                if cost > usd + 1e-6 {
+                    return Err(format!("cost {cost} exceeds the budget {usd}"));
+                }
+                for (t, &n) in per_type.iter().enumerate() {
+                    if n < min.get(t).copied().unwrap_or(0) || n > max.get(t).copied().unwrap_or(u32::MAX) {
+                        return Err(format!("{} x {} outside its min/max", per_type[t], self.types[t].name));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    pub fn cost(&self, sel: &[usize]) -> f64 {
+        sel.iter().map(|&o| self.types[self.options[o].ty].price_usd).sum()
+    }
+}
+
+/// Reusable buffers for evaluating selections.
+#[derive(Clone, Debug)]
+pub struct Scratch {
+    a_l: Vec<f64>,
+    a_r: Vec<f64>,
+    rho: Vec<f64>,
+    touched: Vec<u32>,
+}
+
+impl Scratch {
+    pub fn new(n_targets: usize) -> Self {
+        Scratch { a_l: vec![0.0; n_targets], a_r: vec![0.0; n_targets], rho: vec![0.0; n_targets], touched: Vec::new() }
+    }
+}
+
+/// The exact objective of a selection (see the module doc).
+pub fn evaluate(inst: &Instance, sel: &[usize]) -> f64 {
+    evaluate_with(inst, sel, &mut Scratch::new(inst.n_targets()))
+}
+
+/// [`evaluate`] with caller-owned buffers.
+pub fn evaluate_with(inst: &Instance, sel: &[usize], s: &mut Scratch) -> f64 {
+    let tau = inst.tau() * (1.0 - 1e-9);
+    for &o in sel {
+        let lidar = inst.modality(o) == Modality::Lidar;
+        for &(j, v) in &inst.options[o].row {
+            let j = j as usize;
+            if s.a_l[j] == 0.0 && s.a_r[j] == 0.0 && s.rho[j] == 0.0 {
+                s.touched.push(j as u32);
+            }
+            let a = coverage_coef(v as f64);
+            if lidar {
+                s.a_l[j] += a;
+            } else {
+                s.a_r[j] += a;
+            }
+            s.rho[j] += v as f64;
+        }
+    }
+    let mut f = 0.0;
+    for &j in &s.touched {
+        let j = j as usize;
+        if s.a_l[j] >= tau && s.a_r[j] >= tau {
+            f += inst.weights[j] * s.rho[j];
+        }
+        s.a_l[j] = 0.0;
+        s.a_r[j] = 0.0;
+        s.rho[j] = 0.0;
+    }
+    s.touched.clear();
+    f
+}
+
+/// The result of a solver.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Outcome {
+    /// Chosen option indices.
+    pub selection: Vec<usize>,
+    /// Exact objective of the selection ([`evaluate`]).
+    pub objective: f64,
+    /// Proven upper bound on the optimum.
+    pub bound: f64,
+    /// (bound − objective) / max(|objective|, 1e-9).
+    pub gap: f64,
+    pub proven_optimal: bool,
+    pub solve_seconds: f64,
+    /// Which method produced it.
+    pub method: String,
+}
+
+impl Outcome {
+    pub fn new(inst: &Instance, selection: Vec<usize>, bound: f64, proven: bool, seconds: f64, method: &str) -> Self {
+        let objective = evaluate(inst, &selection);
+        let bound = if proven { objective } else { bound.max(objective) };
+        let gap = (bound - objective) / objective.abs().max(1e-9);
+        Outcome { selection, objective, bound, gap, proven_optimal: proven, solve_seconds: seconds, method: method.to_owned() }
+    }
+}

@@ -1,0 +1,135 @@
+//! From a scene and a catalog to solved placements: targets, candidates, line of sight,
+//! visibility per sensor type, instances, and the solver chosen for the limit.
+
+use crate::candidates::{Candidate, CandidateConfig, Modality, sample_candidates};
+use crate::error::PlacementError;
+use crate::exact::exact_counts;
+use crate::greedy::greedy;
+use crate::instance::{Instance, Limit, Outcome, SensorOption, SensorType};
+use crate::mip::{Formulation, solve as solve_mip};
+use crate::targets::{Target, roi_targets};
+use crate::visibility::{LineOfSight, Visibility, VisibilityConfig, compute_visibility};
+use hilo_raycast::{QueryRegion, Scene, World};
+use hilo_sensor_models::{Catalog, SensorSpec};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// Placement settings (the `[placement]` table of a study).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlacementConfig {
+    pub cell_m: f32,
+    /// Detection probability a target needs from each modality (the paper: 1 − e⁻¹).
+    pub p_min: f64,
+    /// Time limit of CBC when the exact search does not apply.
+    pub time_limit_s: f64,
+    pub candidates: CandidateConfig,
+    pub visibility: VisibilityConfig,
+}
+
+impl Default for PlacementConfig {
+    fn default() -> Self {
+        PlacementConfig {
+            cell_m: 1.0,
+            p_min: 1.0 - (-1.0f64).exp(),
+            time_limit_s: 60.0,
+            candidates: CandidateConfig::default(),
+            visibility: VisibilityConfig::default(),
+        }
+    }
+}
+
+/// Everything placement computes once per scene.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    pub targets: Vec<Target>,
+    pub candidates: Vec<Candidate>,
+    /// Per sensor type name.
+    pub visibility: BTreeMap<String, Visibility>,
+    pub seconds_line_of_sight: f64,
+    pub seconds_visibility: f64,
+}
+
+/// Computes targets, candidates and the visibility of every named sensor type.
+pub fn prepare(scene: &Scene, catalog: &Catalog, types: &[String], cfg: &PlacementConfig) -> Result<Prepared, PlacementError> {
+    cfg.visibility.validate()?;
+    let targets = roi_targets(scene, cfg.cell_m)?;
+    let candidates = sample_candidates(scene, &cfg.candidates)?;
+    let specs: Vec<&SensorSpec> = types.iter().map(|t| catalog.get(t)).collect::<Result<_, _>>()?;
+    let range = specs
+        .iter()
+        .map(|s| match s {
+            SensorSpec::Lidar(l) => l.max_range_m,
+            SensorSpec::Radar(r) => r.max_range_m,
+        })
+        .fold(0.0, f32::max);
+    let mut mounts = vec![glam::Vec3::ZERO; candidates.iter().map(|c| c.mount as usize + 1).max().unwrap_or(0)];
+    for c in &candidates {
+        mounts[c.mount as usize] = c.pose.position;
+    }
+    let t = Instant::now();
+    let region = QueryRegion::spheres(mounts.iter().map(|m| (*m, range + 5.0)));
+    let world = World::build(scene, &region)?;
+    let los = LineOfSight::compute(&world, scene.ground.z_m, &mounts, &targets, &cfg.visibility, range + 5.0)?;
+    let seconds_line_of_sight = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let mut visibility = BTreeMap::new();
+    for (name, spec) in types.iter().zip(specs) {
+        visibility.insert(name.clone(), compute_visibility(spec, &candidates, &targets, &los, scene.ground.z_m, &cfg.visibility));
+    }
+    Ok(Prepared { targets, candidates, visibility, seconds_line_of_sight, seconds_visibility: t.elapsed().as_secs_f64() })
+}
+
+/// The instance over the given sensor types (each with all candidates of its modality).
+pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64) -> Result<Instance, PlacementError> {
+    let mut inst = Instance { weights: prep.targets.iter().map(|t| t.weight as f64).collect(), types: Vec::new(), options: Vec::new(), p_min };
+    for (ty, name) in types.iter().enumerate() {
+        let spec = catalog.get(name)?;
+        let vis = prep.visibility.get(name).ok_or_else(|| PlacementError::Invalid(format!("no visibility computed for {name}")))?;
+        inst.types.push(SensorType { name: name.clone(), modality: vis.modality, price_usd: spec.price_usd() });
+        for (row, &cand) in vis.rows.iter().zip(&vis.candidates) {
+            let c = &prep.candidates[cand as usize];
+            inst.options.push(SensorOption { ty, candidate: cand, mount: c.mount, row: row.clone() });
+        }
+    }
+    inst.validate()?;
+    Ok(inst)
+}
+
+/// Nonzeros above which CBC is not tried: at the default scale (millions of nonzeros) CBC spends
+/// minutes in the root LP, where its time limit is not checked.
+pub const CBC_MAX_NONZEROS: usize = 2_000_000;
+
+/// Solves an instance for a limit: greedy for a first solution; the exact search when the limit
+/// asks for counts with one radar, or a budget (exact over the one-radar count vectors, with a
+/// proven bound over the rest); otherwise CBC on the strengthened model, warm-started from
+/// greedy, within the time limit, if the model is small enough. A result that is not proven
+/// optimal carries its bound and gap.
+pub fn solve(inst: &Instance, limit: &Limit, time_limit_s: f64) -> Result<Outcome, PlacementError> {
+    let g = greedy(inst, limit);
+    if let Limit::Counts(c) = limit {
+        let radars: u32 = c.iter().enumerate().filter(|(t, _)| inst.types.get(*t).is_some_and(|x| x.modality == Modality::Radar)).map(|(_, n)| *n).sum();
+        if radars == 1 {
+            let (mut out, _) = exact_counts(inst, c, &g.selection)?;
+            out.solve_seconds += g.solve_seconds;
+            return Ok(out);
+        }
+    }
+    let mut fallback = g.clone();
+    if let Limit::Budget { usd, min, max } = limit {
+        let (mut out, _) = crate::exact::exact_budget(inst, *usd, min, max, &g.selection)?;
+        out.solve_seconds += g.solve_seconds;
+        if out.proven_optimal {
+            return Ok(out);
+        }
+        fallback = out;
+    }
+    let nonzeros: usize = inst.options.iter().map(|o| o.row.len()).sum::<usize>() * 3;
+    if nonzeros > CBC_MAX_NONZEROS {
+        return Ok(fallback);
+    }
+    let out = solve_mip(inst, limit, Formulation::Strengthened, time_limit_s, Some(&g.selection))?;
+    // CBC may stop with something worse than its warm start: never return less than greedy.
+    Ok(if out.objective + 1e-9 < g.objective { Outcome { selection: g.selection, objective: g.objective, gap: (out.bound - g.objective) / g.objective.max(1e-9), ..out } } else { out })
+}

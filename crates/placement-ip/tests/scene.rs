@@ -1,0 +1,69 @@
+//! Placement on the default scene: the physics of coverage and visibility, and bad inputs.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use glam::Vec2;
+use hilo_placement_ip::coverage::lidar_hit_targets;
+use hilo_placement_ip::pipeline::{PlacementConfig, prepare};
+use hilo_placement_ip::{CandidateConfig, roi_targets, sample_candidates};
+use hilo_raycast::{QueryRegion, Scene, World};
+use hilo_sensor_models::{Catalog, SensorPose};
+
+#[test]
+fn at_one_pose_coverage_does_not_fall_with_beam_count() {
+    let scene = Scene::default_fixture().unwrap();
+    let world = World::build(&scene, &QueryRegion::everything()).unwrap();
+    let targets = roi_targets(&scene, 1.0).unwrap();
+    let catalog = Catalog::default_catalog().unwrap();
+    for (pos, yaw) in [(glam::Vec3::new(13.0, 16.3, 6.0), -2.2f32), (glam::Vec3::new(-12.8, -16.3, 4.5), 0.9)] {
+        let pose = SensorPose::new(pos, yaw, 10f32.to_radians(), 0.0);
+        let cov: Vec<usize> = ["lidar-16", "lidar-32", "lidar-64"]
+            .iter()
+            .map(|n| lidar_hit_targets(&scene, &world, &targets, 1.0, &[(catalog.lidar(n).unwrap().clone(), pose)]).unwrap().len())
+            .collect();
+        assert!(cov[0] <= cov[1] && cov[1] <= cov[2], "{pos}: {cov:?}");
+        assert!(cov[0] > 100, "{cov:?}");
+    }
+}
+
+#[test]
+fn visibility_grows_with_resolution_and_candidates_number_about_six_hundred() {
+    let scene = Scene::default_fixture().unwrap();
+    let catalog = Catalog::default_catalog().unwrap();
+    let mut cfg = PlacementConfig { cell_m: 3.0, ..PlacementConfig::default() };
+    cfg.candidates.pole_step_m = 1.5;
+    let full = sample_candidates(&scene, &CandidateConfig::default()).unwrap();
+    assert!((550..=700).contains(&full.len()), "{} candidates", full.len());
+    let types: Vec<String> = ["lidar-16", "lidar-32", "lidar-64", "radar-4d"].iter().map(|s| s.to_string()).collect();
+    let prep = prepare(&scene, &catalog, &types, &cfg).unwrap();
+    let total = |t: &str| prep.visibility[t].rows.iter().flatten().map(|(_, v)| *v as f64).sum::<f64>();
+    let (v16, v32, v64) = (total("lidar-16"), total("lidar-32"), total("lidar-64"));
+    assert!(v16 < v32 && v32 <= v64, "{v16} {v32} {v64}");
+    // Everything in [0, 1], sparse rows sorted by target.
+    for v in prep.visibility.values() {
+        for row in &v.rows {
+            assert!(row.windows(2).all(|w| w[0].0 < w[1].0));
+            assert!(row.iter().all(|(_, x)| *x > 0.0 && *x <= 1.0));
+        }
+    }
+}
+
+#[test]
+fn targets_are_weighted_by_the_heaviest_roi() {
+    let scene = Scene::default_fixture().unwrap();
+    let t = roi_targets(&scene, 1.0).unwrap();
+    assert!((4000..6000).contains(&t.len()), "{}", t.len());
+    let centre = t.iter().find(|x| (x.center - Vec2::new(0.5, 0.5)).length() < 0.8).unwrap();
+    assert_eq!(centre.weight, 3.0);
+    assert!(t.iter().any(|x| x.weight == 1.0));
+    assert!(roi_targets(&scene, 0.0).is_err());
+}
+
+#[test]
+fn a_pole_outside_the_scene_is_refused() {
+    let mut cfg = Scene::default_fixture().unwrap().config;
+    cfg.signal_poles[0].position = [400.0, 0.0];
+    let scene = Scene::from_config(cfg, std::path::Path::new("."), std::path::Path::new("s.toml")).unwrap();
+    let e = sample_candidates(&scene, &CandidateConfig::default()).unwrap_err().to_string();
+    assert!(e.contains("NE") && e.contains("outside"), "{e}");
+}

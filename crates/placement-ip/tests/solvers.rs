@@ -1,0 +1,170 @@
+//! Solvers against the exhaustive oracle, greedy against the optimum, and the IP's numerics.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use hilo_placement_ip::exact::exact_counts;
+use hilo_placement_ip::exhaustive::exhaustive;
+use hilo_placement_ip::greedy::greedy;
+use hilo_placement_ip::instance::{coverage_coef, evaluate};
+use hilo_placement_ip::mip::{Formulation, build, solve};
+use hilo_placement_ip::{Instance, Limit, Modality, SensorOption, SensorType};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn types() -> Vec<SensorType> {
+    vec![
+        SensorType { name: "lidar-a".into(), modality: Modality::Lidar, price_usd: 4000.0 },
+        SensorType { name: "lidar-b".into(), modality: Modality::Lidar, price_usd: 11000.0 },
+        SensorType { name: "radar".into(), modality: Modality::Radar, price_usd: 2000.0 },
+    ]
+}
+
+/// A random small instance: sparse visibility with a mix of weak and strong entries, shared
+/// mounts, and targets only one modality sees.
+fn random_instance(seed: u64) -> Instance {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let n_t = rng.random_range(12..30);
+    let weights = (0..n_t).map(|_| if rng.random_bool(0.3) { 3.0 } else { 1.0 }).collect();
+    let mut options = Vec::new();
+    for ty in [0usize, 1, 2] {
+        for k in 0..rng.random_range(3..6) {
+            let mut row = Vec::new();
+            for j in 0..n_t as u32 {
+                if rng.random_bool(0.5) {
+                    let v = if rng.random_bool(0.5) { rng.random_range(0.6..1.0) } else { rng.random_range(0.01..0.6) };
+                    row.push((j, v));
+                }
+            }
+            options.push(SensorOption { ty, candidate: options.len() as u32, mount: (k % 4) as u32 + 10 * (ty == 2) as u32 * (k % 2) as u32, row });
+        }
+    }
+    Instance { weights, types: types(), options, p_min: 1.0 - (-1.0f64).exp() }
+}
+
+#[test]
+fn ip_and_exact_search_equal_exhaustive_and_beat_greedy_on_random_instances() {
+    let limits = [Limit::Counts(vec![2, 0, 1]), Limit::Counts(vec![1, 1, 1]), Limit::Counts(vec![0, 1, 1])];
+    let mut checked = 0;
+    let mut strictly_better = 0;
+    for seed in 0..24u64 {
+        let inst = random_instance(seed);
+        let limit = &limits[seed as usize % 3];
+        let oracle = exhaustive(&inst, limit, 10_000_000).unwrap();
+        let g = greedy(&inst, limit);
+        let Limit::Counts(c) = limit else { unreachable!() };
+        let (e, _) = exact_counts(&inst, c, &g.selection).unwrap();
+        let cbc = solve(&inst, limit, Formulation::Strengthened, 30.0, None).unwrap();
+        let plain = solve(&inst, limit, Formulation::Plain, 30.0, None).unwrap();
+        for (name, o) in [("exact", &e), ("cbc strengthened", &cbc), ("cbc plain", &plain)] {
+            assert!(o.proven_optimal, "seed {seed}: {name} not proven");
+            assert!((o.objective - oracle.objective).abs() < 1e-6 * oracle.objective.max(1.0), "seed {seed}: {name} {} vs exhaustive {}", o.objective, oracle.objective);
+            assert!(inst.check(limit, &o.selection).is_ok());
+        }
+        // CBC's own objective value is the exact objective of its selection.
+        assert!((cbc.bound - oracle.objective).abs() < 1e-4 * oracle.objective.max(1.0), "seed {seed}: bound {} vs {}", cbc.bound, oracle.objective);
+        assert!(g.objective <= oracle.objective + 1e-9);
+        strictly_better += (g.objective < oracle.objective - 1e-9) as usize;
+        checked += 1;
+    }
+    assert!(checked >= 20);
+    eprintln!("greedy strictly worse on {strictly_better} of {checked}");
+}
+
+/// Radar R sees all three targets. LiDAR A sees all three weakly (but enough on its own), B and
+/// C see two each strongly. Greedy takes R, then A (the best single gain), then B: 6.63. The
+/// optimum is R + B + C: 6.66.
+#[test]
+fn greedy_is_strictly_worse_on_a_constructed_instance() {
+    let opt = |ty, mount, row: Vec<(u32, f32)>| SensorOption { ty, candidate: mount, mount, row };
+    let inst = Instance {
+        weights: vec![1.0; 3],
+        types: types(),
+        options: vec![
+            opt(2, 0, vec![(0, 0.9), (1, 0.9), (2, 0.9)]),
+            opt(0, 1, vec![(0, 0.65), (1, 0.65), (2, 0.65)]),
+            opt(0, 2, vec![(0, 0.99), (1, 0.99)]),
+            opt(0, 3, vec![(0, 0.99), (2, 0.99)]),
+        ],
+        p_min: 1.0 - (-1.0f64).exp(),
+    };
+    let limit = Limit::Counts(vec![2, 0, 1]);
+    let g = greedy(&inst, &limit);
+    let best = exhaustive(&inst, &limit, 1000).unwrap();
+    assert_eq!(best.selection, vec![0, 2, 3]);
+    assert!((best.objective - 6.66).abs() < 1e-5, "{}", best.objective);
+    assert!((g.objective - 6.63).abs() < 1e-5, "{}", g.objective);
+    let (e, _) = exact_counts(&inst, &[2, 0, 1], &g.selection).unwrap();
+    assert_eq!(e.selection, vec![0, 2, 3]);
+}
+
+#[test]
+fn coefficients_are_finite_at_v_one_zero_and_tiny() {
+    for v in [1.0, 0.0, 1e-12, 1e-300, 0.999_999_999_999_9] {
+        let a = coverage_coef(v);
+        assert!(a.is_finite() && a >= 0.0, "V = {v}: {a}");
+    }
+    assert_eq!(coverage_coef(0.0), 0.0);
+    assert!((coverage_coef(1e-12) - 1e-12).abs() < 1e-20, "ln1p keeps tiny V exact");
+    assert!(coverage_coef(1.0) > 27.0 && coverage_coef(1.0) < 28.0);
+    // An instance with V = 1 and V = 1e-12 builds and solves.
+    let inst = Instance {
+        weights: vec![1.0, 1.0],
+        types: types(),
+        options: vec![
+            SensorOption { ty: 0, candidate: 0, mount: 0, row: vec![(0, 1.0), (1, 1e-12)] },
+            SensorOption { ty: 2, candidate: 1, mount: 1, row: vec![(0, 1.0), (1, 1.0)] },
+        ],
+        p_min: 1.0 - (-1.0f64).exp(),
+    };
+    let o = solve(&inst, &Limit::Counts(vec![1, 0, 1]), Formulation::Plain, 10.0, None).unwrap();
+    assert!((o.objective - 2.0).abs() < 1e-9, "{}", o.objective);
+}
+
+#[test]
+fn a_target_seen_by_one_modality_never_counts() {
+    // Target 0: LiDAR only. Target 1: radar only. Target 2: both.
+    let inst = Instance {
+        weights: vec![5.0, 5.0, 1.0],
+        types: types(),
+        options: vec![
+            SensorOption { ty: 0, candidate: 0, mount: 0, row: vec![(0, 1.0), (2, 0.9)] },
+            SensorOption { ty: 2, candidate: 1, mount: 1, row: vec![(1, 1.0), (2, 0.9)] },
+        ],
+        p_min: 0.5,
+    };
+    let sel = [0usize, 1];
+    assert!((evaluate(&inst, &sel) - 1.8).abs() < 1e-6);
+    let limit = Limit::Counts(vec![1, 0, 1]);
+    for form in [Formulation::Plain, Formulation::Strengthened] {
+        let o = solve(&inst, &limit, form, 10.0, None).unwrap();
+        assert!((o.objective - 1.8).abs() < 1e-6 && (o.bound - 1.8).abs() < 1e-4, "{form:?}: {o:?}");
+    }
+    // In the strengthened model those targets have no t variable at all.
+    let m = build(&inst, &limit, Formulation::Strengthened).unwrap();
+    assert_eq!(m.t.iter().map(|(j, _)| *j).collect::<Vec<_>>(), vec![2]);
+}
+
+#[test]
+fn infeasible_and_bad_inputs_are_errors() {
+    let inst = random_instance(1);
+    let e = exhaustive(&inst, &Limit::Budget { usd: 100.0, min: vec![1, 0, 1], max: vec![] }, 1000).unwrap_err();
+    assert!(e.to_string().contains("infeasible"), "{e}");
+    let e = hilo_placement_ip::exact::exact_budget(&inst, 100.0, &[1, 0, 1], &[], &[]).unwrap_err();
+    assert!(e.to_string().contains("budget"), "{e}");
+    let mut bad = random_instance(2);
+    bad.options[0].row.push((999, 0.5));
+    assert!(bad.validate().unwrap_err().to_string().contains("999"));
+    let mut bad = random_instance(2);
+    bad.p_min = 1.0;
+    assert!(bad.validate().is_err());
+    // All-zero visibility: nothing can be covered; solvers return objective 0, no panic.
+    let mut zero = random_instance(3);
+    for o in &mut zero.options {
+        o.row.clear();
+    }
+    let limit = Limit::Counts(vec![2, 0, 1]);
+    assert_eq!(exhaustive(&zero, &limit, 100_000).unwrap().objective, 0.0);
+    assert_eq!(solve(&zero, &limit, Formulation::Strengthened, 5.0, None).unwrap().objective, 0.0);
+    let g = greedy(&zero, &limit);
+    assert_eq!(exact_counts(&zero, &[2, 0, 1], &g.selection).unwrap().0.objective, 0.0);
+}
