@@ -2,6 +2,7 @@
 
 mod bench;
 mod demo;
+mod eval;
 mod place;
 mod render;
 mod scan;
@@ -30,6 +31,8 @@ enum Command {
     Scan(scan::ScanArgs),
     /// Place each configuration of a study optimally (integer programming over visibility).
     Place(place::PlaceArgs),
+    /// nuScenes detection metrics (AP, TP errors, NDS) of a submission.
+    Eval(eval::EvalArgs),
     /// Benchmarks that report speed together with the error paid for it.
     Bench {
         #[command(subcommand)]
@@ -82,6 +85,17 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The nuScenes metric on synthetic frames (6 classes, up to 500 predictions a frame).
+    Eval {
+        #[arg(long, default_value_t = 3000)]
+        frames: usize,
+        #[arg(long, default_value_t = 500)]
+        max_pred: usize,
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        #[arg(long)]
+        json: bool,
+    },
     /// One frame of the paper's cheapest suite (2 x 16-beam LiDAR + radar) with moving actors,
     /// and of a 64-beam LiDAR + radar, on the default scene.
     Sensors {
@@ -121,8 +135,13 @@ fn main() -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&render::scene_summary(&scene))?);
         }
         Command::Scan(args) => scan::run(&args)?,
+        Command::Eval(args) => eval::run(&args)?,
         Command::Place(args) => {
             place::run(&args)?;
+        }
+        Command::Bench { command: BenchCommand::Eval { frames, max_pred, repeats, json } } => {
+            let report = bench::eval(frames.max(1), max_pred, repeats.max(1))?;
+            println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
         }
         Command::Bench { command: BenchCommand::Placement { cbc_seconds, json } } => {
             let report = bench::placement(cbc_seconds)?;

@@ -178,3 +178,29 @@ fn place_with_bad_configurations_explains_itself() {
     let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("either"));
 }
+
+#[test]
+fn eval_writes_a_devkit_shaped_summary_and_refuses_mismatched_samples() {
+    let dir = tempfile::tempdir().unwrap();
+    let gt = r#"{"samples": {"a": {"scene": "s0", "ego_translation": [0, 0, 0]}, "b": {"scene": "s0", "ego_translation": [0, 0, 0]}},
+      "boxes": {"a": [{"sample_token": "a", "translation": [5, 0, 0.8], "size": [1.9, 4.6, 1.6], "rotation": [1, 0, 0, 0], "velocity": [1, 0], "detection_name": "car", "attribute_name": "vehicle.moving", "num_pts": 20}],
+                "b": [{"sample_token": "b", "translation": [0, 8, 0.9], "size": [0.6, 0.6, 1.75], "rotation": [1, 0, 0, 0], "velocity": [0, 1], "detection_name": "pedestrian", "attribute_name": "pedestrian.moving", "num_pts": 5}]}}"#;
+    let res = r#"{"meta": {"use_lidar": true}, "results": {
+      "a": [{"sample_token": "a", "translation": [5.2, 0, 0.8], "size": [1.9, 4.6, 1.6], "rotation": [1, 0, 0, 0], "velocity": [1, 0], "detection_name": "car", "detection_score": 0.9, "attribute_name": "vehicle.moving"}],
+      "b": [{"sample_token": "b", "translation": [0, 8.1, 0.9], "size": [0.6, 0.6, 1.75], "rotation": [1, 0, 0, 0], "velocity": [0, 1], "detection_name": "pedestrian", "detection_score": 0.8, "attribute_name": "pedestrian.moving"}]}}"#;
+    let (g, r, out) = (dir.path().join("gt.json"), dir.path().join("results.json"), dir.path().join("metrics"));
+    std::fs::write(&g, gt).unwrap();
+    std::fs::write(&r, res).unwrap();
+    let o = hilo().arg("eval").arg("--gt").arg(&g).arg("--results").arg(&r).arg("--out").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
+    for key in ["label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score", "eval_time", "cfg"] {
+        assert!(m.get(key).is_some(), "missing {key}");
+    }
+    assert!((m["mean_dist_aps"]["car"].as_f64().unwrap() - 1.0).abs() < 1e-12);
+    assert!((m["label_aps"]["pedestrian"]["0.5"].as_f64().unwrap() - 1.0).abs() < 1e-12);
+    std::fs::write(&r, res.replace("\"b\": [", "\"c\": [").replace("\"sample_token\": \"b\"", "\"sample_token\": \"c\"")).unwrap();
+    let o = hilo().arg("eval").arg("--gt").arg(&g).arg("--results").arg(&r).arg("--out").arg(&out).output().unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("samples differ"));
+}

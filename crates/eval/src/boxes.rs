@@ -1,0 +1,178 @@
+//! Boxes as the nuScenes evaluation sees them, and the files that carry them.
+//!
+//! - Predictions: the nuScenes submission JSON, `{"meta": {...}, "results": {sample_token:
+//!   [box, ...]}}`, each box with `sample_token`, `translation` (m, x y z of the centre),
+//!   `size` (m, width length height), `rotation` (quaternion w x y z), `velocity` (m/s, x y),
+//!   `detection_name`, `detection_score`, `attribute_name`.
+//! - Ground truth: the same box fields plus `num_pts` (LiDAR + radar points inside), grouped as
+//!   `{"samples": {sample_token: {"scene": scene_token, "ego_translation": [x, y, z]}},
+//!   "boxes": {sample_token: [box, ...]}}`. For roadside data the "ego" is the scene origin the
+//!   dataset declares, so the devkit's range filter measures from it.
+
+use crate::error::EvalError;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// One box (prediction or ground truth).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalBox {
+    pub sample_token: String,
+    pub translation: [f64; 3],
+    pub size: [f64; 3],
+    pub rotation: [f64; 4],
+    #[serde(default)]
+    pub velocity: [f64; 2],
+    pub detection_name: String,
+    #[serde(default = "one")]
+    pub detection_score: f64,
+    #[serde(default)]
+    pub attribute_name: String,
+    /// Points inside a ground-truth box; -1 (unknown) for predictions.
+    #[serde(default = "minus_one")]
+    pub num_pts: i64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+fn minus_one() -> i64 {
+    -1
+}
+
+impl EvalBox {
+    /// Yaw of the rotation (the devkit's `quaternion_yaw`: the rotated x axis, projected).
+    pub fn yaw(&self) -> f64 {
+        let [w, x, y, z] = self.rotation;
+        let n = (w * w + x * x + y * y + z * z).sqrt();
+        let (w, x, y, z) = (w / n, x / n, y / n, z / n);
+        (2.0 * (x * y + w * z)).atan2(1.0 - 2.0 * (y * y + z * z))
+    }
+
+    /// A yaw-only box.
+    pub fn from_yaw(sample: &str, class: &str, center: [f64; 3], wlh: [f64; 3], yaw: f64, velocity: [f64; 2], score: f64) -> Self {
+        EvalBox {
+            sample_token: sample.to_owned(),
+            translation: center,
+            size: wlh,
+            rotation: [(yaw / 2.0).cos(), 0.0, 0.0, (yaw / 2.0).sin()],
+            velocity,
+            detection_name: class.to_owned(),
+            detection_score: score,
+            attribute_name: String::new(),
+            num_pts: -1,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SampleInfo {
+    pub scene: String,
+    pub ego_translation: [f64; 3],
+}
+
+/// Ground truth of an evaluation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+pub struct GroundTruth {
+    pub samples: BTreeMap<String, SampleInfo>,
+    pub boxes: BTreeMap<String, Vec<EvalBox>>,
+}
+
+/// A submission.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Submission {
+    #[serde(default)]
+    pub meta: serde_json::Value,
+    /// Sample order is kept: it decides the order of equal-score predictions, as in the devkit.
+    pub results: serde_json::Map<String, serde_json::Value>,
+}
+
+fn check_box(b: &EvalBox, file: &Path, sample: &str, k: usize, pred: bool) -> Result<(), EvalError> {
+    let bad = |field: &str, v: String| Err(EvalError::Field { path: file.to_path_buf(), sample: sample.to_owned(), index: k, field: field.to_owned(), value: v });
+    if b.sample_token != sample {
+        return bad("sample_token", format!("{:?} (listed under {sample:?})", b.sample_token));
+    }
+    if b.translation.iter().any(|v| !v.is_finite()) {
+        return bad("translation", format!("{:?}", b.translation));
+    }
+    if b.size.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        return bad("size", format!("{:?} (must be finite and > 0)", b.size));
+    }
+    if b.rotation.iter().any(|v| !v.is_finite()) || b.rotation.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+        return bad("rotation", format!("{:?}", b.rotation));
+    }
+    if pred && !(b.detection_score.is_finite() && (0.0..=1.0).contains(&b.detection_score)) {
+        return bad("detection_score", format!("{}", b.detection_score));
+    }
+    if b.velocity.iter().any(|v| v.is_infinite()) {
+        return bad("velocity", format!("{:?}", b.velocity));
+    }
+    Ok(())
+}
+
+/// A JSON syntax error with the sample it occurred in (the last `"sample_token"` before it):
+/// Python writes NaN and Infinity as bare words that JSON does not allow.
+fn json_error(path: &Path, text: &str, e: &serde_json::Error) -> EvalError {
+    let offset: usize = text.lines().take(e.line().saturating_sub(1)).map(|l| l.len() + 1).sum::<usize>() + e.column();
+    let before = &text[..offset.min(text.len())];
+    let sample = before.rfind("\"sample_token\"").and_then(|i| {
+        let rest = &before[i + 14..];
+        let q0 = rest.find('"')? + 1;
+        let q1 = rest[q0..].find('"')?;
+        Some(rest[q0..q0 + q1].to_owned())
+    });
+    let hint = if text[offset.saturating_sub(1).min(text.len())..].starts_with(['N', 'I', '-']) { " (NaN and Infinity are not JSON numbers)" } else { "" };
+    let message = match sample {
+        Some(s) => format!("sample {s:?}: {e}{hint}"),
+        None => format!("{e}{hint}"),
+    };
+    EvalError::Json { path: path.to_path_buf(), message }
+}
+
+/// Reads and checks a submission; returns boxes grouped by sample in file order.
+pub fn read_submission(path: &Path, max_boxes_per_sample: usize) -> Result<Vec<(String, Vec<EvalBox>)>, EvalError> {
+    let text = std::fs::read_to_string(path).map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
+    let sub: Submission = serde_json::from_str(&text).map_err(|e| json_error(path, &text, &e))?;
+    let mut out = Vec::new();
+    for (sample, v) in sub.results {
+        let boxes: Vec<EvalBox> = serde_json::from_value(v).map_err(|e| EvalError::Json { path: path.to_path_buf(), message: format!("sample {sample:?}: {e}") })?;
+        if boxes.len() > max_boxes_per_sample {
+            return Err(EvalError::Json { path: path.to_path_buf(), message: format!("sample {sample:?} has {} boxes, above the limit {max_boxes_per_sample}", boxes.len()) });
+        }
+        for (k, b) in boxes.iter().enumerate() {
+            check_box(b, path, &sample, k, true)?;
+        }
+        out.push((sample, boxes));
+    }
+    Ok(out)
+}
+
+/// Reads and checks a ground-truth file.
+pub fn read_ground_truth(path: &Path) -> Result<GroundTruth, EvalError> {
+    let text = std::fs::read_to_string(path).map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
+    let gt: GroundTruth = serde_json::from_str(&text).map_err(|e| json_error(path, &text, &e))?;
+    for (sample, boxes) in &gt.boxes {
+        if !gt.samples.contains_key(sample) {
+            return Err(EvalError::Json { path: path.to_path_buf(), message: format!("boxes listed for sample {sample:?}, which is not in `samples`") });
+        }
+        for (k, b) in boxes.iter().enumerate() {
+            check_box(b, path, sample, k, false)?;
+        }
+    }
+    Ok(gt)
+}
+
+/// The devkit's `filter_eval_boxes` (without its bike-rack rule, which roadside data lacks):
+/// drops boxes farther than their class range from the sample's ego (here: scene origin)
+/// position, boxes of classes not evaluated, and ground-truth boxes with no points.
+pub fn filter_boxes(boxes: &[EvalBox], ego: [f64; 3], class_range: &BTreeMap<String, f64>) -> Vec<EvalBox> {
+    boxes
+        .iter()
+        .filter(|b| {
+            let d = ((b.translation[0] - ego[0]).powi(2) + (b.translation[1] - ego[1]).powi(2)).sqrt();
+            class_range.get(&b.detection_name).is_some_and(|r| d < *r)
+        })
+        .filter(|b| b.num_pts != 0)
+        .cloned()
+        .collect()
+}

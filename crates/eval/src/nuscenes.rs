@@ -1,0 +1,359 @@
+//! The nuScenes detection metric, exactly as nuscenes-devkit 1.2 computes it
+//! (`nuscenes/eval/detection/algo.py`, `data_classes.py`, `evaluate.py`): center-distance
+//! matching, 101-point interpolated precision, AP above min_recall and min_precision, TP errors
+//! averaged over the recall range, mAP and NDS.
+//!
+//! Where the devkit's numerics decide a result, hilo reproduces them rather than improving them:
+//! predictions are ordered by (score, index) descending, so among equal scores the later box
+//! comes first; `np.interp`'s handling of repeated recall values is reproduced by
+//! [`np_interp`]; a class without ground truth gets AP 0 and TP errors 1 (the devkit's
+//! "no predictions"), and an error that is NaN for every class gives that TP score 0 in NDS.
+
+use crate::boxes::EvalBox;
+use crate::config::DetectionConfig;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Number of recall points.
+pub const NELEM: usize = 101;
+/// The TP metrics in the devkit's order.
+pub const TP_METRICS: [&str; 5] = ["trans_err", "scale_err", "orient_err", "vel_err", "attr_err"];
+
+/// `numpy.linspace(0, 1, NELEM)` bit for bit: `i * step` with `step = 1 / (NELEM - 1)` and the
+/// end point set to 1 (so point 70 is 0.7000000000000001, not 0.7: that decides whether a curve
+/// whose maximum recall is exactly 0.7 reaches it).
+pub fn recall_points() -> Vec<f64> {
+    let step = 1.0 / (NELEM - 1) as f64;
+    let mut r: Vec<f64> = (0..NELEM).map(|i| i as f64 * step).collect();
+    r[NELEM - 1] = 1.0;
+    r
+}
+
+/// `numpy.interp(x, xp, fp, left, right)` for non-decreasing `xp`, including numpy's choice of
+/// the last of several equal `xp` values and its exact-hit shortcut.
+pub fn np_interp(x: &[f64], xp: &[f64], fp: &[f64], left: Option<f64>, right: Option<f64>) -> Vec<f64> {
+    let n = xp.len();
+    let lval = left.unwrap_or(fp[0]);
+    let rval = right.unwrap_or(fp[n - 1]);
+    x.iter()
+        .map(|&v| {
+            if v.is_nan() {
+                return v;
+            }
+            if v > xp[n - 1] {
+                return rval;
+            }
+            if v < xp[0] {
+                return lval;
+            }
+            // Last j with xp[j] <= v.
+            let j = xp.partition_point(|&q| q <= v) - 1;
+            if j == n - 1 || xp[j] == v {
+                return fp[j];
+            }
+            let slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j]);
+            let mut r = slope * (v - xp[j]) + fp[j];
+            if r.is_nan() {
+                r = slope * (v - xp[j + 1]) + fp[j + 1];
+                if r.is_nan() && fp[j] == fp[j + 1] {
+                    r = fp[j];
+                }
+            }
+            r
+        })
+        .collect()
+}
+
+/// The devkit's NaN-aware cumulative mean (all NaN → ones).
+pub fn cummean(x: &[f64]) -> Vec<f64> {
+    if x.iter().all(|v| v.is_nan()) {
+        return vec![1.0; x.len()];
+    }
+    let (mut s, mut c) = (0.0, 0usize);
+    x.iter()
+        .map(|&v| {
+            if !v.is_nan() {
+                s += v;
+                c += 1;
+            }
+            if c == 0 { 0.0 } else { s / c as f64 }
+        })
+        .collect()
+}
+
+/// Per class and threshold: precision, confidence and TP errors on the 101 recall points.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MetricData {
+    pub recall: Vec<f64>,
+    pub precision: Vec<f64>,
+    pub confidence: Vec<f64>,
+    pub trans_err: Vec<f64>,
+    pub vel_err: Vec<f64>,
+    pub scale_err: Vec<f64>,
+    pub orient_err: Vec<f64>,
+    pub attr_err: Vec<f64>,
+}
+
+impl MetricData {
+    pub fn no_predictions() -> Self {
+        MetricData {
+            recall: recall_points(),
+            precision: vec![0.0; NELEM],
+            confidence: vec![0.0; NELEM],
+            trans_err: vec![1.0; NELEM],
+            vel_err: vec![1.0; NELEM],
+            scale_err: vec![1.0; NELEM],
+            orient_err: vec![1.0; NELEM],
+            attr_err: vec![1.0; NELEM],
+        }
+    }
+
+    /// Index of the last non-zero confidence (0 when there is none).
+    pub fn max_recall_ind(&self) -> usize {
+        self.confidence.iter().rposition(|&c| c != 0.0).unwrap_or(0)
+    }
+
+    fn get(&self, metric: &str) -> &[f64] {
+        match metric {
+            "trans_err" => &self.trans_err,
+            "vel_err" => &self.vel_err,
+            "scale_err" => &self.scale_err,
+            "orient_err" => &self.orient_err,
+            _ => &self.attr_err,
+        }
+    }
+}
+
+/// Signed smallest difference from y to x for the given period, as the devkit computes it.
+pub fn angle_diff(x: f64, y: f64, period: f64) -> f64 {
+    let mut d = (x - y + period / 2.0).rem_euclid(period) - period / 2.0;
+    if d > std::f64::consts::PI {
+        d -= 2.0 * std::f64::consts::PI;
+    }
+    d
+}
+
+fn center_distance(a: &EvalBox, b: &EvalBox) -> f64 {
+    ((a.translation[0] - b.translation[0]).powi(2) + (a.translation[1] - b.translation[1]).powi(2)).sqrt()
+}
+
+fn scale_iou(a: &EvalBox, b: &EvalBox) -> f64 {
+    let inter: f64 = (0..3).map(|k| a.size[k].min(b.size[k])).product();
+    let va: f64 = a.size.iter().product();
+    let vb: f64 = b.size.iter().product();
+    inter / (va + vb - inter)
+}
+
+/// One class's boxes prepared once for all thresholds: ground truth per sample (this class
+/// only) and the predictions in the devkit's order.
+#[derive(Debug)]
+pub struct ClassData<'a> {
+    npos: usize,
+    gt: Vec<Vec<&'a EvalBox>>,
+    /// (sample index or None when the sample has no ground truth, box), in matching order.
+    pred: Vec<(Option<usize>, &'a EvalBox)>,
+}
+
+impl<'a> ClassData<'a> {
+    pub fn new(gt: &'a BTreeMap<String, Vec<EvalBox>>, pred: &'a [(String, Vec<EvalBox>)], class: &str) -> Self {
+        let index: std::collections::HashMap<&str, usize> = gt.keys().enumerate().map(|(i, k)| (k.as_str(), i)).collect();
+        let gtc: Vec<Vec<&EvalBox>> = gt.values().map(|v| v.iter().filter(|b| b.detection_name == class).collect()).collect();
+        let npos = gtc.iter().map(Vec::len).sum();
+        let list: Vec<&EvalBox> = pred.iter().flat_map(|(_, v)| v.iter()).filter(|b| b.detection_name == class).collect();
+        let mut order: Vec<usize> = (0..list.len()).collect();
+        // sorted((score, index)) reversed: score descending, then index descending.
+        order.sort_by(|&a, &b| list[b].detection_score.total_cmp(&list[a].detection_score).then(b.cmp(&a)));
+        let pred = order.into_iter().map(|i| (index.get(list[i].sample_token.as_str()).copied(), list[i])).collect();
+        ClassData { npos, gt: gtc, pred }
+    }
+
+    /// The devkit's `accumulate` at one distance threshold.
+    pub fn accumulate(&self, class: &str, dist_th: f64) -> MetricData {
+        if self.npos == 0 {
+            return MetricData::no_predictions();
+        }
+        let n = self.pred.len();
+        let (mut tp, mut conf) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        let (mut e_trans, mut e_vel, mut e_scale, mut e_orient, mut e_attr) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut m_conf = Vec::new();
+        let mut taken: Vec<Vec<bool>> = self.gt.iter().map(|v| vec![false; v.len()]).collect();
+        let period = if class == "barrier" { std::f64::consts::PI } else { 2.0 * std::f64::consts::PI };
+        for &(si, p) in &self.pred {
+            conf.push(p.detection_score);
+            let mut min_dist = f64::INFINITY;
+            let mut best = None;
+            if let Some(si) = si {
+                for (gi, g) in self.gt[si].iter().enumerate() {
+                    if !taken[si][gi] {
+                        let d = center_distance(g, p);
+                        if d < min_dist {
+                            min_dist = d;
+                            best = Some(gi);
+                        }
+                    }
+                }
+            }
+            match (si, best.filter(|_| min_dist < dist_th)) {
+                (Some(si), Some(gi)) => {
+                    taken[si][gi] = true;
+                    tp.push(true);
+                    let g = self.gt[si][gi];
+                    let v = ((p.velocity[0] - g.velocity[0]).powi(2) + (p.velocity[1] - g.velocity[1]).powi(2)).sqrt();
+                    let attr = if g.attribute_name.is_empty() { f64::NAN } else { (g.attribute_name == p.attribute_name) as u8 as f64 };
+                    e_trans.push(center_distance(g, p));
+                    e_vel.push(if v.is_nan() { f64::INFINITY } else { v });
+                    e_scale.push(1.0 - scale_iou(g, p));
+                    e_orient.push(angle_diff(g.yaw(), p.yaw(), period).abs());
+                    e_attr.push(1.0 - attr);
+                    m_conf.push(p.detection_score);
+                }
+                _ => tp.push(false),
+            }
+        }
+        if m_conf.is_empty() {
+            return MetricData::no_predictions();
+        }
+        let (mut ctp, mut cfp) = (0.0, 0.0);
+        let (mut prec, mut rec) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for &t in &tp {
+            if t { ctp += 1.0 } else { cfp += 1.0 }
+            prec.push(ctp / (cfp + ctp));
+            rec.push(ctp / self.npos as f64);
+        }
+        let rec_interp = recall_points();
+        let precision = np_interp(&rec_interp, &rec, &prec, None, Some(0.0));
+        let confidence = np_interp(&rec_interp, &rec, &conf, None, Some(0.0));
+        let conf_rev: Vec<f64> = confidence.iter().rev().copied().collect();
+        let mconf_rev: Vec<f64> = m_conf.iter().rev().copied().collect();
+        let resample = |errors: &[f64]| {
+            let tmp = cummean(errors);
+            let tmp_rev: Vec<f64> = tmp.iter().rev().copied().collect();
+            let mut r = np_interp(&conf_rev, &mconf_rev, &tmp_rev, None, None);
+            r.reverse();
+            r
+        };
+        MetricData {
+            recall: rec_interp,
+            precision,
+            trans_err: resample(&e_trans),
+            vel_err: resample(&e_vel),
+            scale_err: resample(&e_scale),
+            orient_err: resample(&e_orient),
+            attr_err: resample(&e_attr),
+            confidence,
+        }
+    }
+}
+
+/// Matches predictions of one class to ground truth at one distance threshold and builds the
+/// interpolated curves (the devkit's `accumulate`). Boxes are grouped by sample in `gt`/`pred`.
+pub fn accumulate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], class: &str, dist_th: f64) -> MetricData {
+    ClassData::new(gt, pred, class).accumulate(class, dist_th)
+}
+
+/// The devkit's `calc_ap`.
+pub fn calc_ap(md: &MetricData, min_recall: f64, min_precision: f64) -> f64 {
+    let start = (100.0 * min_recall).round() as usize + 1;
+    let p = &md.precision[start.min(NELEM)..];
+    let mean = p.iter().map(|v| (v - min_precision).max(0.0)).sum::<f64>() / p.len().max(1) as f64;
+    mean / (1.0 - min_precision)
+}
+
+/// The devkit's `calc_tp`.
+pub fn calc_tp(md: &MetricData, min_recall: f64, metric: &str) -> f64 {
+    let first = (100.0 * min_recall).round() as usize + 1;
+    let last = md.max_recall_ind();
+    if last < first {
+        return 1.0;
+    }
+    let v = &md.get(metric)[first..=last];
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+/// The summary the devkit writes as `metrics_summary.json` (same keys).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DetectionMetrics {
+    pub label_aps: BTreeMap<String, BTreeMap<String, f64>>,
+    pub mean_dist_aps: BTreeMap<String, f64>,
+    pub mean_ap: f64,
+    pub label_tp_errors: BTreeMap<String, BTreeMap<String, f64>>,
+    pub tp_errors: BTreeMap<String, f64>,
+    pub tp_scores: BTreeMap<String, f64>,
+    pub nd_score: f64,
+    pub eval_time: f64,
+    pub cfg: DetectionConfig,
+}
+
+/// Formats a threshold as Python prints a float key (`0.5`, `1.0`).
+pub fn th_key(t: f64) -> String {
+    if t.fract() == 0.0 { format!("{t:.1}") } else { format!("{t}") }
+}
+
+/// Evaluates already filtered boxes (see [`crate::boxes::filter_boxes`]).
+pub fn evaluate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig) -> DetectionMetrics {
+    use rayon::prelude::*;
+    let start = std::time::Instant::now();
+    let classes = cfg.class_names();
+    let data: Vec<(String, f64, MetricData)> = classes
+        .par_iter()
+        .flat_map_iter(|c| {
+            let cd = ClassData::new(gt, pred, c);
+            let mut ths = cfg.dist_ths.clone();
+            if !ths.contains(&cfg.dist_th_tp) {
+                ths.push(cfg.dist_th_tp);
+            }
+            ths.into_iter().map(|t| (c.clone(), t, cd.accumulate(c, t))).collect::<Vec<_>>()
+        })
+        .collect();
+    let find = |c: &str, t: f64| data.iter().find(|(dc, dt, _)| dc == c && *dt == t).map(|x| &x.2);
+    let mut label_aps = BTreeMap::new();
+    let mut label_tp_errors = BTreeMap::new();
+    for c in &classes {
+        let mut aps = BTreeMap::new();
+        for &t in &cfg.dist_ths {
+            let md = find(c, t).cloned().unwrap_or_else(MetricData::no_predictions);
+            aps.insert(th_key(t), calc_ap(&md, cfg.min_recall, cfg.min_precision));
+        }
+        label_aps.insert(c.clone(), aps);
+        let md = find(c, cfg.dist_th_tp).cloned().unwrap_or_else(MetricData::no_predictions);
+        let mut errs = BTreeMap::new();
+        for metric in TP_METRICS {
+            // The devkit's exemptions for its cone and barrier classes (unused by hilo's classes,
+            // kept so a user's config with them evaluates as the devkit does).
+            let exempt = (c == "traffic_cone" && ["attr_err", "vel_err", "orient_err"].contains(&metric))
+                || (c == "barrier" && ["attr_err", "vel_err"].contains(&metric));
+            let tp = if exempt {
+                f64::NAN
+            } else {
+                calc_tp(&md, cfg.min_recall, metric)
+            };
+            errs.insert(metric.to_owned(), tp);
+        }
+        label_tp_errors.insert(c.clone(), errs);
+    }
+    let mean_dist_aps: BTreeMap<String, f64> =
+        label_aps.iter().map(|(c, d)| (c.clone(), d.values().sum::<f64>() / d.len().max(1) as f64)).collect();
+    let mean_ap = mean_dist_aps.values().sum::<f64>() / mean_dist_aps.len().max(1) as f64;
+    let mut tp_errors = BTreeMap::new();
+    let mut tp_scores = BTreeMap::new();
+    for metric in TP_METRICS {
+        let vals: Vec<f64> = classes.iter().map(|c| label_tp_errors[c][metric]).filter(|v: &f64| !v.is_nan()).collect();
+        let e = if vals.is_empty() { f64::NAN } else { vals.iter().sum::<f64>() / vals.len() as f64 };
+        tp_errors.insert(metric.to_owned(), e);
+        // Python's max(0.0, nan) is 0.0.
+        let s = 1.0 - e;
+        tp_scores.insert(metric.to_owned(), if s > 0.0 { s } else { 0.0 });
+    }
+    let nd_score = (cfg.mean_ap_weight * mean_ap + tp_scores.values().sum::<f64>()) / (cfg.mean_ap_weight + tp_scores.len() as f64);
+    DetectionMetrics {
+        label_aps,
+        mean_dist_aps,
+        mean_ap,
+        label_tp_errors,
+        tp_errors,
+        tp_scores,
+        nd_score,
+        eval_time: start.elapsed().as_secs_f64(),
+        cfg: cfg.clone(),
+    }
+}
