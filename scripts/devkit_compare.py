@@ -156,7 +156,7 @@ def main():
         gt_p, res_p = os.path.join(d, "gt.json"), os.path.join(d, "results.json")
         json.dump(gt_doc, open(gt_p, "w"))
         json.dump(res_doc, open(res_p, "w"))
-        subprocess.run([args.hilo, "eval", "--gt", gt_p, "--results", res_p, "--out", d], check=True, stdout=subprocess.DEVNULL)
+        subprocess.run([args.hilo, "eval", "--gt", gt_p, "--results", res_p, "--out", d, "--bootstrap", "0"], check=True, stdout=subprocess.DEVNULL)
         ours = json.load(open(os.path.join(d, "metrics_summary.json")))
     ref = devkit_metrics(gt_doc, res_doc)
     diffs = []

@@ -20,6 +20,15 @@ pub struct EvalArgs {
     /// Evaluation settings (JSON with the devkit's config keys); hilo's default otherwise.
     #[arg(long)]
     config: Option<PathBuf>,
+    /// Scene-bootstrap resamples for 95% intervals (0 = none); written to bootstrap.json.
+    #[arg(long, default_value_t = 1000)]
+    bootstrap: usize,
+    /// A second submission on the same ground truth: the paired bootstrap of (it − --results),
+    /// written to paired.json.
+    #[arg(long)]
+    compare: Option<PathBuf>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
 }
 
 pub fn run(args: &EvalArgs) -> Result<()> {
@@ -41,11 +50,53 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let m = evaluate_files(&gt, &pred, &cfg);
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     write_atomic(&args.out.join("metrics_summary.json"), serde_json::to_string_pretty(&m)?.as_bytes())?;
+    let bins = hilo_eval::evaluate_distance_bins(&gt, &pred, &cfg, &[0.0, 30.0, 50.0]);
+    let by_distance: serde_json::Map<String, serde_json::Value> =
+        bins.iter().map(|(label, bm)| (label.clone(), serde_json::json!({"mean_ap": bm.mean_ap, "nd_score": bm.nd_score, "mean_dist_aps": bm.mean_dist_aps}))).collect();
+    write_atomic(&args.out.join("metrics_by_distance.json"), serde_json::to_string_pretty(&by_distance)?.as_bytes())?;
+    // IoU-based AP (KITTI R40): 0.7 for cars, trucks and buses, 0.5 for the rest.
+    let (gt_f, pred_f) = hilo_eval::filtered(&gt, &pred, &cfg);
+    let mut iou_ap = serde_json::Map::new();
+    for c in cfg.class_names() {
+        let th = if ["car", "truck", "bus"].contains(&c.as_str()) { 0.7 } else { 0.5 };
+        let bev = hilo_eval::iou::ap_r40(&gt_f, &pred_f, &c, th, hilo_eval::iou::IouKind::Bev);
+        let d3 = hilo_eval::iou::ap_r40(&gt_f, &pred_f, &c, th, hilo_eval::iou::IouKind::ThreeD);
+        iou_ap.insert(c, serde_json::json!({"iou_threshold": th, "bev_ap_r40": bev, "ap3d_r40": d3}));
+    }
+    write_atomic(&args.out.join("metrics_iou.json"), serde_json::to_string_pretty(&iou_ap)?.as_bytes())?;
     println!("mAP {:.4}  NDS {:.4}  ({} samples, {:.2} s)", m.mean_ap, m.nd_score, gt.samples.len(), m.eval_time);
     println!("{:<12} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}", "class", "AP", "ATE", "ASE", "AOE", "AVE", "AAE");
     for (c, ap) in &m.mean_dist_aps {
         let e = &m.label_tp_errors[c];
         println!("{:<12} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3}", c, ap, e["trans_err"], e["scale_err"], e["orient_err"], e["vel_err"], e["attr_err"]);
+    }
+    for (label, bm) in &bins {
+        println!("range {label:<10} mAP {:.4}", bm.mean_ap);
+    }
+    if args.bootstrap > 0 {
+        let b = hilo_eval::bootstrap::bootstrap(&gt, &pred, &cfg, args.bootstrap, 0.95, args.seed);
+        write_atomic(&args.out.join("bootstrap.json"), serde_json::to_string_pretty(&b)?.as_bytes())?;
+        println!(
+            "95% intervals over {} scenes ({} resamples): mAP [{:.4}, {:.4}], NDS [{:.4}, {:.4}]",
+            b.scenes, b.resamples, b.mean_ap.lo, b.mean_ap.hi, b.nd_score.lo, b.nd_score.hi
+        );
+        if let Some(other) = &args.compare {
+            let pred_b = read_submission(other, cfg.max_boxes_per_sample)?;
+            let p = hilo_eval::bootstrap::paired(&gt, &pred, &pred_b, &cfg, args.bootstrap, 0.95, args.seed);
+            write_atomic(&args.out.join("paired.json"), serde_json::to_string_pretty(&p)?.as_bytes())?;
+            println!(
+                "{} − {}: mAP {:+.4} [{:+.4}, {:+.4}] (P[not better] = {:.3}), NDS {:+.4} [{:+.4}, {:+.4}]",
+                other.display(),
+                args.results.display(),
+                p.mean_ap_diff.estimate,
+                p.mean_ap_diff.lo,
+                p.mean_ap_diff.hi,
+                p.p_mean_ap_not_better,
+                p.nd_score_diff.estimate,
+                p.nd_score_diff.lo,
+                p.nd_score_diff.hi
+            );
+        }
     }
     Ok(())
 }

@@ -6,8 +6,10 @@
 //!   field, and the devkit's range / empty-box filter.
 
 pub mod boxes;
+pub mod bootstrap;
 pub mod config;
 pub mod error;
+pub mod iou;
 pub mod nuscenes;
 
 pub use boxes::{EvalBox, GroundTruth, filter_boxes, read_ground_truth, read_submission};
@@ -17,11 +19,43 @@ pub use nuscenes::{DetectionMetrics, evaluate};
 
 use std::collections::BTreeMap;
 
+/// Ground truth (every sample, possibly empty) and predictions after the devkit's filter.
+pub type Filtered = (BTreeMap<String, Vec<EvalBox>>, Vec<(String, Vec<EvalBox>)>);
+
+/// Filters ground truth and predictions as the devkit does.
+pub fn filtered(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig) -> Filtered {
+    let ego = |s: &str| gt.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
+    let gt_f = gt.samples.keys().map(|s| (s.clone(), filter_boxes(gt.boxes.get(s).map_or(&[][..], |v| &v[..]), ego(s), &cfg.class_range))).collect();
+    let pred_f = pred.iter().map(|(s, b)| (s.clone(), filter_boxes(b, ego(s), &cfg.class_range))).collect();
+    (gt_f, pred_f)
+}
+
 /// Filters ground truth and predictions as the devkit does, then evaluates.
 pub fn evaluate_files(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig) -> DetectionMetrics {
-    let ego = |s: &str| gt.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
-    let gt_f: BTreeMap<String, Vec<EvalBox>> =
-        gt.samples.keys().map(|s| (s.clone(), filter_boxes(gt.boxes.get(s).map_or(&[][..], |v| &v[..]), ego(s), &cfg.class_range))).collect();
-    let pred_f: Vec<(String, Vec<EvalBox>)> = pred.iter().map(|(s, b)| (s.clone(), filter_boxes(b, ego(s), &cfg.class_range))).collect();
+    let (gt_f, pred_f) = filtered(gt, pred, cfg);
     evaluate(&gt_f, &pred_f, cfg)
+}
+
+/// The metric per range bin from the sample's origin (e.g. 0–30, 30–50, 50+ m): ground truth
+/// and predictions outside a bin are left out of it.
+pub fn evaluate_distance_bins(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig, edges: &[f64]) -> Vec<(String, DetectionMetrics)> {
+    let (gt_f, pred_f) = filtered(gt, pred, cfg);
+    let ego = |s: &str| gt.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
+    let dist = |b: &EvalBox| {
+        let e = ego(&b.sample_token);
+        ((b.translation[0] - e[0]).powi(2) + (b.translation[1] - e[1]).powi(2)).sqrt()
+    };
+    let mut bins: Vec<(f64, f64)> = edges.windows(2).map(|w| (w[0], w[1])).collect();
+    if let Some(&last) = edges.last() {
+        bins.push((last, f64::INFINITY));
+    }
+    bins.into_iter()
+        .map(|(lo, hi)| {
+            let keep = |v: &Vec<EvalBox>| v.iter().filter(|b| (lo..hi).contains(&dist(b))).cloned().collect::<Vec<_>>();
+            let g: BTreeMap<String, Vec<EvalBox>> = gt_f.iter().map(|(k, v)| (k.clone(), keep(v))).collect();
+            let p: Vec<(String, Vec<EvalBox>)> = pred_f.iter().map(|(k, v)| (k.clone(), keep(v))).collect();
+            let label = if hi.is_finite() { format!("{lo:.0}-{hi:.0} m") } else { format!("{lo:.0}+ m") };
+            (label, evaluate(&g, &p, cfg))
+        })
+        .collect()
 }

@@ -148,7 +148,6 @@ fn scale_iou(a: &EvalBox, b: &EvalBox) -> f64 {
 /// only) and the predictions in the devkit's order.
 #[derive(Debug)]
 pub struct ClassData<'a> {
-    npos: usize,
     gt: Vec<Vec<&'a EvalBox>>,
     /// (sample index or None when the sample has no ground truth, box), in matching order.
     pred: Vec<(Option<usize>, &'a EvalBox)>,
@@ -158,28 +157,27 @@ impl<'a> ClassData<'a> {
     pub fn new(gt: &'a BTreeMap<String, Vec<EvalBox>>, pred: &'a [(String, Vec<EvalBox>)], class: &str) -> Self {
         let index: std::collections::HashMap<&str, usize> = gt.keys().enumerate().map(|(i, k)| (k.as_str(), i)).collect();
         let gtc: Vec<Vec<&EvalBox>> = gt.values().map(|v| v.iter().filter(|b| b.detection_name == class).collect()).collect();
-        let npos = gtc.iter().map(Vec::len).sum();
         let list: Vec<&EvalBox> = pred.iter().flat_map(|(_, v)| v.iter()).filter(|b| b.detection_name == class).collect();
         let mut order: Vec<usize> = (0..list.len()).collect();
         // sorted((score, index)) reversed: score descending, then index descending.
         order.sort_by(|&a, &b| list[b].detection_score.total_cmp(&list[a].detection_score).then(b.cmp(&a)));
         let pred = order.into_iter().map(|i| (index.get(list[i].sample_token.as_str()).copied(), list[i])).collect();
-        ClassData { npos, gt: gtc, pred }
+        ClassData { gt: gtc, pred }
     }
 
     /// The devkit's `accumulate` at one distance threshold.
     pub fn accumulate(&self, class: &str, dist_th: f64) -> MetricData {
-        if self.npos == 0 {
-            return MetricData::no_predictions();
-        }
-        let n = self.pred.len();
-        let (mut tp, mut conf) = (Vec::with_capacity(n), Vec::with_capacity(n));
-        let (mut e_trans, mut e_vel, mut e_scale, mut e_orient, mut e_attr) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        let mut m_conf = Vec::new();
+        self.matches(class, dist_th).curves(None)
+    }
+
+    /// Matches every prediction (in the devkit's order) at one distance threshold. Matching is
+    /// decided within each sample, so the table can be reweighted by sample (the bootstrap)
+    /// without matching again.
+    pub fn matches(&self, class: &str, dist_th: f64) -> Matches {
+        let mut entries = Vec::with_capacity(self.pred.len());
         let mut taken: Vec<Vec<bool>> = self.gt.iter().map(|v| vec![false; v.len()]).collect();
         let period = if class == "barrier" { std::f64::consts::PI } else { 2.0 * std::f64::consts::PI };
         for &(si, p) in &self.pred {
-            conf.push(p.detection_score);
             let mut min_dist = f64::INFINITY;
             let mut best = None;
             if let Some(si) = si {
@@ -193,32 +191,84 @@ impl<'a> ClassData<'a> {
                     }
                 }
             }
-            match (si, best.filter(|_| min_dist < dist_th)) {
+            let errors = match (si, best.filter(|_| min_dist < dist_th)) {
                 (Some(si), Some(gi)) => {
                     taken[si][gi] = true;
-                    tp.push(true);
                     let g = self.gt[si][gi];
                     let v = ((p.velocity[0] - g.velocity[0]).powi(2) + (p.velocity[1] - g.velocity[1]).powi(2)).sqrt();
                     let attr = if g.attribute_name.is_empty() { f64::NAN } else { (g.attribute_name == p.attribute_name) as u8 as f64 };
-                    e_trans.push(center_distance(g, p));
-                    e_vel.push(if v.is_nan() { f64::INFINITY } else { v });
-                    e_scale.push(1.0 - scale_iou(g, p));
-                    e_orient.push(angle_diff(g.yaw(), p.yaw(), period).abs());
-                    e_attr.push(1.0 - attr);
-                    m_conf.push(p.detection_score);
+                    Some([center_distance(g, p), if v.is_nan() { f64::INFINITY } else { v }, 1.0 - scale_iou(g, p), angle_diff(g.yaw(), p.yaw(), period).abs(), 1.0 - attr])
                 }
-                _ => tp.push(false),
+                _ => None,
+            };
+            entries.push(MatchEntry { score: p.detection_score, sample: si, errors });
+        }
+        Matches { entries, npos_per_sample: self.gt.iter().map(Vec::len).collect() }
+    }
+}
+
+/// One prediction's outcome: its score, its sample (None when the sample has no ground truth)
+/// and, for a true positive, its errors (trans, vel, scale, orient, attr).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MatchEntry {
+    pub score: f64,
+    pub sample: Option<usize>,
+    pub errors: Option<[f64; 5]>,
+}
+
+/// All predictions of one class at one threshold, matched, in the devkit's order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Matches {
+    pub entries: Vec<MatchEntry>,
+    /// Ground-truth boxes of the class per sample.
+    pub npos_per_sample: Vec<usize>,
+}
+
+impl Matches {
+    /// The devkit's curves, with every prediction and ground-truth box of sample s counted
+    /// `weights[s]` times (all 1 when `None`: then this is `accumulate` exactly). A sample counted
+    /// k times adds its predictions as one step of weight k.
+    pub fn curves(&self, weights: Option<&[f64]>) -> MetricData {
+        let w = |s: Option<usize>| match (weights, s) {
+            (Some(ws), Some(s)) => ws[s],
+            (Some(_), None) => 1.0,
+            (None, _) => 1.0,
+        };
+        let npos: f64 = match weights {
+            Some(ws) => self.npos_per_sample.iter().zip(ws).map(|(n, w)| *n as f64 * w).sum(),
+            None => self.npos_per_sample.iter().sum::<usize>() as f64,
+        };
+        if npos == 0.0 {
+            return MetricData::no_predictions();
+        }
+        let n = self.entries.len();
+        let (mut prec, mut rec, mut conf) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+        let mut m_conf = Vec::new();
+        let mut errs: [Vec<f64>; 5] = Default::default();
+        let mut m_w = Vec::new();
+        let (mut ctp, mut cfp) = (0.0, 0.0);
+        for e in &self.entries {
+            let k = w(e.sample);
+            if k == 0.0 {
+                continue;
             }
+            match e.errors {
+                Some(er) => {
+                    ctp += k;
+                    for (v, x) in errs.iter_mut().zip(er) {
+                        v.push(x);
+                    }
+                    m_conf.push(e.score);
+                    m_w.push(k);
+                }
+                None => cfp += k,
+            }
+            prec.push(ctp / (cfp + ctp));
+            rec.push(ctp / npos);
+            conf.push(e.score);
         }
         if m_conf.is_empty() {
             return MetricData::no_predictions();
-        }
-        let (mut ctp, mut cfp) = (0.0, 0.0);
-        let (mut prec, mut rec) = (Vec::with_capacity(n), Vec::with_capacity(n));
-        for &t in &tp {
-            if t { ctp += 1.0 } else { cfp += 1.0 }
-            prec.push(ctp / (cfp + ctp));
-            rec.push(ctp / self.npos as f64);
         }
         let rec_interp = recall_points();
         let precision = np_interp(&rec_interp, &rec, &prec, None, Some(0.0));
@@ -226,7 +276,7 @@ impl<'a> ClassData<'a> {
         let conf_rev: Vec<f64> = confidence.iter().rev().copied().collect();
         let mconf_rev: Vec<f64> = m_conf.iter().rev().copied().collect();
         let resample = |errors: &[f64]| {
-            let tmp = cummean(errors);
+            let tmp = weighted_cummean(errors, &m_w);
             let tmp_rev: Vec<f64> = tmp.iter().rev().copied().collect();
             let mut r = np_interp(&conf_rev, &mconf_rev, &tmp_rev, None, None);
             r.reverse();
@@ -235,14 +285,32 @@ impl<'a> ClassData<'a> {
         MetricData {
             recall: rec_interp,
             precision,
-            trans_err: resample(&e_trans),
-            vel_err: resample(&e_vel),
-            scale_err: resample(&e_scale),
-            orient_err: resample(&e_orient),
-            attr_err: resample(&e_attr),
+            trans_err: resample(&errs[0]),
+            vel_err: resample(&errs[1]),
+            scale_err: resample(&errs[2]),
+            orient_err: resample(&errs[3]),
+            attr_err: resample(&errs[4]),
             confidence,
         }
     }
+}
+
+/// [`cummean`] with weights (all weights 1 gives the same numbers).
+fn weighted_cummean(x: &[f64], w: &[f64]) -> Vec<f64> {
+    if x.iter().all(|v| v.is_nan()) {
+        return vec![1.0; x.len()];
+    }
+    let (mut s, mut c) = (0.0, 0.0);
+    x.iter()
+        .zip(w)
+        .map(|(&v, &k)| {
+            if !v.is_nan() {
+                s += k * v;
+                c += k;
+            }
+            if c == 0.0 { 0.0 } else { s / c }
+        })
+        .collect()
 }
 
 /// Matches predictions of one class to ground truth at one distance threshold and builds the
@@ -305,23 +373,31 @@ pub fn evaluate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBo
             ths.into_iter().map(|t| (c.clone(), t, cd.accumulate(c, t))).collect::<Vec<_>>()
         })
         .collect();
-    let find = |c: &str, t: f64| data.iter().find(|(dc, dt, _)| dc == c && *dt == t).map(|x| &x.2);
-    let mut label_aps = BTreeMap::new();
-    let mut label_tp_errors = BTreeMap::new();
-    for c in &classes {
+    let mut m = summarize(&classes, cfg, |c, t| data.iter().find(|(dc, dt, _)| dc == c && *dt == t).map(|x| x.2.clone()));
+    m.eval_time = start.elapsed().as_secs_f64();
+    m
+}
+
+/// AP per class and threshold, TP errors per class, mAP, TP scores and NDS from the metric data
+/// (`md(class, threshold)`), as the devkit's `DetectionEval.evaluate` assembles them.
+pub fn summarize(classes: &[String], cfg: &DetectionConfig, md: impl Fn(&str, f64) -> Option<MetricData>) -> DetectionMetrics {
+    let find = |c: &str, t: f64| md(c, t);
+    let mut label_aps: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+    let mut label_tp_errors: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
+    for c in classes {
         let mut aps = BTreeMap::new();
         for &t in &cfg.dist_ths {
-            let md = find(c, t).cloned().unwrap_or_else(MetricData::no_predictions);
+            let md = find(c, t).unwrap_or_else(MetricData::no_predictions);
             aps.insert(th_key(t), calc_ap(&md, cfg.min_recall, cfg.min_precision));
         }
         label_aps.insert(c.clone(), aps);
-        let md = find(c, cfg.dist_th_tp).cloned().unwrap_or_else(MetricData::no_predictions);
+        let md = find(c, cfg.dist_th_tp).unwrap_or_else(MetricData::no_predictions);
         let mut errs = BTreeMap::new();
         for metric in TP_METRICS {
             // The devkit's exemptions for its cone and barrier classes (unused by hilo's classes,
             // kept so a user's config with them evaluates as the devkit does).
-            let exempt = (c == "traffic_cone" && ["attr_err", "vel_err", "orient_err"].contains(&metric))
-                || (c == "barrier" && ["attr_err", "vel_err"].contains(&metric));
+            let exempt = (c.as_str() == "traffic_cone" && ["attr_err", "vel_err", "orient_err"].contains(&metric))
+                || (c.as_str() == "barrier" && ["attr_err", "vel_err"].contains(&metric));
             let tp = if exempt {
                 f64::NAN
             } else {
@@ -337,7 +413,8 @@ pub fn evaluate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBo
     let mut tp_errors = BTreeMap::new();
     let mut tp_scores = BTreeMap::new();
     for metric in TP_METRICS {
-        let vals: Vec<f64> = classes.iter().map(|c| label_tp_errors[c][metric]).filter(|v: &f64| !v.is_nan()).collect();
+        let vals: Vec<f64> = classes
+            .iter().map(|c| label_tp_errors[c][metric]).filter(|v: &f64| !v.is_nan()).collect();
         let e = if vals.is_empty() { f64::NAN } else { vals.iter().sum::<f64>() / vals.len() as f64 };
         tp_errors.insert(metric.to_owned(), e);
         // Python's max(0.0, nan) is 0.0.
@@ -353,7 +430,7 @@ pub fn evaluate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBo
         tp_errors,
         tp_scores,
         nd_score,
-        eval_time: start.elapsed().as_secs_f64(),
+        eval_time: 0.0,
         cfg: cfg.clone(),
     }
 }

@@ -1,0 +1,78 @@
+//! Scene bootstrap and paired bootstrap.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use hilo_eval::boxes::SampleInfo;
+use hilo_eval::bootstrap::{bootstrap, paired};
+use hilo_eval::nuscenes::ClassData;
+use hilo_eval::{DetectionConfig, EvalBox, GroundTruth, evaluate_files, filtered};
+use rand::{Rng, SeedableRng};
+
+/// 24 scenes of 10 frames; predictions with position noise `noise` (m) and some misses.
+fn data(noise: f64, seed: u64) -> (GroundTruth, Vec<(String, Vec<EvalBox>)>) {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let mut prng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut gt = GroundTruth::default();
+    let mut pred = Vec::new();
+    for f in 0..240 {
+        let token = format!("f{f:04}");
+        gt.samples.insert(token.clone(), SampleInfo { scene: format!("scene{}", f / 10), ego_translation: [0.0; 3] });
+        let mut g = Vec::new();
+        let mut p = Vec::new();
+        for _ in 0..8 {
+            let class = ["car", "pedestrian", "bus"][rng.random_range(0..3)];
+            let (x, y) = (rng.random_range(-35.0..35.0), rng.random_range(-35.0..35.0));
+            let mut b = EvalBox::from_yaw(&token, class, [x, y, 0.8], [1.9, 4.5, 1.6], 0.3, [1.0, 0.0], 1.0);
+            b.num_pts = 12;
+            g.push(b);
+            if prng.random_bool(0.85) {
+                let (dx, dy) = (prng.random_range(-noise..noise), prng.random_range(-noise..noise));
+                p.push(EvalBox::from_yaw(&token, class, [x + dx, y + dy, 0.8], [1.9, 4.5, 1.6], 0.35, [1.0, 0.1], prng.random_range(0.2..1.0)));
+            }
+        }
+        gt.boxes.insert(token.clone(), g);
+        pred.push((token, p));
+    }
+    (gt, pred)
+}
+
+#[test]
+fn unit_weights_reproduce_the_plain_curves_exactly() {
+    let (gt, pred) = data(1.0, 1);
+    let cfg = DetectionConfig::default();
+    let (g, p) = filtered(&gt, &pred, &cfg);
+    let cd = ClassData::new(&g, &p, "car");
+    let m = cd.matches("car", 1.0);
+    let ones = vec![1.0; g.len()];
+    assert_eq!(m.curves(None), m.curves(Some(&ones)));
+    assert_eq!(m.curves(None), cd.accumulate("car", 1.0));
+}
+
+#[test]
+fn intervals_are_deterministic_and_bracket_the_estimate() {
+    let (gt, pred) = data(1.0, 1);
+    let cfg = DetectionConfig::default();
+    let a = bootstrap(&gt, &pred, &cfg, 200, 0.95, 42);
+    let b = bootstrap(&gt, &pred, &cfg, 200, 0.95, 42);
+    assert_eq!(a, b);
+    let c = bootstrap(&gt, &pred, &cfg, 200, 0.95, 43);
+    assert_ne!(a.mean_ap.lo, c.mean_ap.lo);
+    let m = evaluate_files(&gt, &pred, &cfg);
+    assert!((a.mean_ap.estimate - m.mean_ap).abs() < 1e-12 && (a.nd_score.estimate - m.nd_score).abs() < 1e-12);
+    assert!(a.mean_ap.lo <= a.mean_ap.estimate && a.mean_ap.estimate <= a.mean_ap.hi, "{:?}", a.mean_ap);
+    assert!(a.mean_ap.hi - a.mean_ap.lo > 0.0 && a.mean_ap.std > 0.0);
+    assert_eq!(a.scenes, 24);
+}
+
+#[test]
+fn paired_bootstrap_finds_a_real_gain_and_no_gain_against_itself() {
+    let cfg = DetectionConfig::default();
+    let (gt, sloppy) = data(2.5, 1);
+    let (_, sharp) = data(0.3, 1);
+    let same = paired(&gt, &sloppy, &sloppy, &cfg, 200, 0.95, 5);
+    assert_eq!((same.mean_ap_diff.lo, same.mean_ap_diff.hi), (0.0, 0.0));
+    assert_eq!(same.p_mean_ap_not_better, 1.0);
+    let gain = paired(&gt, &sloppy, &sharp, &cfg, 200, 0.95, 5);
+    assert!(gain.mean_ap_diff.lo > 0.0, "{:?}", gain.mean_ap_diff);
+    assert!(gain.p_mean_ap_not_better < 0.01);
+}
