@@ -1,0 +1,16 @@
+use std::path::PathBuf;
+
+/// Dataset errors; each names the file, table, token or field at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    #[error("cannot read or write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Json { path: PathBuf, message: String },
+    #[error("table {table}: record {token:?} field `{field}` refers to {target} {missing:?}, which does not exist")]
+    Dangling { table: &'static str, token: String, field: &'static str, target: &'static str, missing: String },
+    #[error("{path}: {message}")]
+    PointFile { path: PathBuf, message: String },
+    #[error("invalid dataset input: {0}")]
+    Invalid(String),
+}

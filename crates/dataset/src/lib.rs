@@ -1,0 +1,16 @@
+//! Roadside datasets in the nuScenes v1.0 layout, readable unchanged by nuscenes-devkit.
+//!
+//! - [`tables`]: the thirteen v1.0 tables;
+//! - [`writer`]: tables and point files from frames (deterministic tokens, atomic files);
+//! - [`reader`]: loading with every link between tables checked, and point files read back.
+//!
+//! The traffic simulation that produces the frames is the next part of this crate to come.
+
+pub mod error;
+pub mod reader;
+pub mod tables;
+pub mod writer;
+
+pub use error::DatasetError;
+pub use reader::Dataset;
+pub use writer::{Annotation, DatasetWriter, FrameData, SceneData, SensorModality, SensorSetup};

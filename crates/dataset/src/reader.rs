@@ -1,0 +1,133 @@
+//! Reads a nuScenes-layout dataset back: tables, link checks, point files.
+
+use crate::error::DatasetError;
+use crate::tables::*;
+use hilo_core::{LidarPoint, RadarPoint};
+use serde::de::DeserializeOwned;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+fn load<T: DeserializeOwned>(dir: &Path, name: &str) -> Result<Vec<T>, DatasetError> {
+    let p = dir.join(format!("{name}.json"));
+    let text = std::fs::read_to_string(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+    serde_json::from_str(&text).map_err(|e| DatasetError::Json { path: p, message: e.to_string() })
+}
+
+/// A loaded dataset.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dataset {
+    pub root: PathBuf,
+    pub version: String,
+    pub tables: Tables,
+}
+
+impl Dataset {
+    /// Loads `<root>/<version>/*.json` and checks every link between tables.
+    pub fn open(root: &Path, version: &str) -> Result<Self, DatasetError> {
+        let dir = root.join(version);
+        let tables = Tables {
+            category: load(&dir, "category")?,
+            attribute: load(&dir, "attribute")?,
+            visibility: load(&dir, "visibility")?,
+            instance: load(&dir, "instance")?,
+            sensor: load(&dir, "sensor")?,
+            calibrated_sensor: load(&dir, "calibrated_sensor")?,
+            ego_pose: load(&dir, "ego_pose")?,
+            log: load(&dir, "log")?,
+            scene: load(&dir, "scene")?,
+            sample: load(&dir, "sample")?,
+            sample_data: load(&dir, "sample_data")?,
+            sample_annotation: load(&dir, "sample_annotation")?,
+            map: load(&dir, "map")?,
+        };
+        check_links(&tables)?;
+        Ok(Dataset { root: root.to_path_buf(), version: version.to_owned(), tables })
+    }
+
+    /// The LiDAR points of a sample_data record (sensor frame; time is not stored).
+    pub fn lidar_points(&self, sd: &SampleData) -> Result<Vec<LidarPoint>, DatasetError> {
+        let p = self.root.join(&sd.filename);
+        let bytes = std::fs::read(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+        if bytes.len() % 20 != 0 {
+            return Err(DatasetError::PointFile { path: p, message: format!("truncated: {} bytes is not a whole number of 20-byte points", bytes.len()) });
+        }
+        Ok(bytes
+            .chunks_exact(20)
+            .map(|c| {
+                let f = |k: usize| f32::from_le_bytes([c[4 * k], c[4 * k + 1], c[4 * k + 2], c[4 * k + 3]]);
+                LidarPoint { x: f(0), y: f(1), z: f(2), intensity: f(3), ring: f(4) as u16, time_s: 0.0 }
+            })
+            .collect())
+    }
+
+    /// The radar points of a sample_data record (sensor frame).
+    pub fn radar_points(&self, sd: &SampleData) -> Result<Vec<RadarPoint>, DatasetError> {
+        let p = self.root.join(&sd.filename);
+        let bytes = std::fs::read(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+        hilo_sensor_models::export::from_pcd(&bytes, &p).map_err(|e| DatasetError::PointFile { path: p, message: e.to_string() })
+    }
+}
+
+fn check_links(t: &Tables) -> Result<(), DatasetError> {
+    let set = |v: Vec<&String>| -> HashSet<String> { v.into_iter().cloned().collect() };
+    let scenes = set(t.scene.iter().map(|r| &r.token).collect());
+    let samples = set(t.sample.iter().map(|r| &r.token).collect());
+    let sds = set(t.sample_data.iter().map(|r| &r.token).collect());
+    let anns = set(t.sample_annotation.iter().map(|r| &r.token).collect());
+    let instances = set(t.instance.iter().map(|r| &r.token).collect());
+    let categories = set(t.category.iter().map(|r| &r.token).collect());
+    let attributes = set(t.attribute.iter().map(|r| &r.token).collect());
+    let visibilities = set(t.visibility.iter().map(|r| &r.token).collect());
+    let sensors = set(t.sensor.iter().map(|r| &r.token).collect());
+    let calibrated = set(t.calibrated_sensor.iter().map(|r| &r.token).collect());
+    let egos = set(t.ego_pose.iter().map(|r| &r.token).collect());
+    let logs = set(t.log.iter().map(|r| &r.token).collect());
+    let need = |table: &'static str, token: &str, field: &'static str, target: &'static str, set: &HashSet<String>, value: &str, optional: bool| {
+        if (optional && value.is_empty()) || set.contains(value) {
+            Ok(())
+        } else {
+            Err(DatasetError::Dangling { table, token: token.to_owned(), field, target, missing: value.to_owned() })
+        }
+    };
+    for r in &t.scene {
+        need("scene", &r.token, "log_token", "log", &logs, &r.log_token, false)?;
+        need("scene", &r.token, "first_sample_token", "sample", &samples, &r.first_sample_token, false)?;
+        need("scene", &r.token, "last_sample_token", "sample", &samples, &r.last_sample_token, false)?;
+    }
+    for r in &t.sample {
+        need("sample", &r.token, "scene_token", "scene", &scenes, &r.scene_token, false)?;
+        need("sample", &r.token, "prev", "sample", &samples, &r.prev, true)?;
+        need("sample", &r.token, "next", "sample", &samples, &r.next, true)?;
+    }
+    for r in &t.sample_data {
+        need("sample_data", &r.token, "sample_token", "sample", &samples, &r.sample_token, false)?;
+        need("sample_data", &r.token, "ego_pose_token", "ego_pose", &egos, &r.ego_pose_token, false)?;
+        need("sample_data", &r.token, "calibrated_sensor_token", "calibrated_sensor", &calibrated, &r.calibrated_sensor_token, false)?;
+        need("sample_data", &r.token, "prev", "sample_data", &sds, &r.prev, true)?;
+        need("sample_data", &r.token, "next", "sample_data", &sds, &r.next, true)?;
+    }
+    for r in &t.calibrated_sensor {
+        need("calibrated_sensor", &r.token, "sensor_token", "sensor", &sensors, &r.sensor_token, false)?;
+    }
+    for r in &t.sample_annotation {
+        need("sample_annotation", &r.token, "sample_token", "sample", &samples, &r.sample_token, false)?;
+        need("sample_annotation", &r.token, "instance_token", "instance", &instances, &r.instance_token, false)?;
+        need("sample_annotation", &r.token, "visibility_token", "visibility", &visibilities, &r.visibility_token, false)?;
+        need("sample_annotation", &r.token, "prev", "sample_annotation", &anns, &r.prev, true)?;
+        need("sample_annotation", &r.token, "next", "sample_annotation", &anns, &r.next, true)?;
+        for a in &r.attribute_tokens {
+            need("sample_annotation", &r.token, "attribute_tokens", "attribute", &attributes, a, false)?;
+        }
+    }
+    for r in &t.instance {
+        need("instance", &r.token, "category_token", "category", &categories, &r.category_token, false)?;
+        need("instance", &r.token, "first_annotation_token", "sample_annotation", &anns, &r.first_annotation_token, false)?;
+        need("instance", &r.token, "last_annotation_token", "sample_annotation", &anns, &r.last_annotation_token, false)?;
+    }
+    for r in &t.map {
+        for l in &r.log_tokens {
+            need("map", &r.token, "log_tokens", "log", &logs, l, false)?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,324 @@
+//! Writes a dataset in the nuScenes v1.0 layout: `<root>/<version>/*.json` tables and
+//! `<root>/samples/<CHANNEL>/*` point files.
+//!
+//! Roadside conventions: the global frame is the scene's local frame; every ego pose is the
+//! identity (the "ego" is the intersection's origin, so the devkit's range filter measures from
+//! it); each sensor's calibrated pose is its mount pose. LiDAR files are nuScenes `.pcd.bin`
+//! (float32 x, y, z, intensity, ring, in the sensor frame; nuScenes has no per-point time, so
+//! point timestamps are not written: the sample_data timestamp is the start of the sweep). Radar
+//! files are binary PCD with the fields x y z rcs v_r v_r_compensated time (a documented variant
+//! of the nuScenes radar PCD, which has no radial velocity). Tokens are 32 hex digits derived from
+//! names, so the same input gives the same bytes; every file is written atomically.
+
+use crate::error::DatasetError;
+use crate::tables::*;
+use glam::Vec2;
+use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
+use hilo_sensor_models::SensorPose;
+use hilo_sensor_models::export::to_pcd;
+use std::path::{Path, PathBuf};
+
+/// Which kind of sensor a channel is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SensorModality {
+    Lidar,
+    Radar,
+}
+
+/// One sensor of the dataset.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SensorSetup {
+    /// Unique channel name, e.g. "LIDAR_0".
+    pub channel: String,
+    pub modality: SensorModality,
+    pub pose: SensorPose,
+}
+
+/// One annotated road user in one frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Annotation {
+    /// Stable within the scene.
+    pub instance: u32,
+    pub class: Class,
+    pub box3: Box3,
+    pub velocity_mps: Vec2,
+    /// nuScenes attribute name or empty.
+    pub attribute: String,
+    pub num_lidar_pts: u32,
+    pub num_radar_pts: u32,
+    /// nuScenes visibility level 1..=4 (0–40%, 40–60%, 60–80%, 80–100%).
+    pub visibility: u8,
+}
+
+/// One frame: timestamp, each sensor's points (in the order of the dataset's sensors of that
+/// modality), annotations.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameData {
+    pub timestamp_us: u64,
+    pub lidar: Vec<Vec<LidarPoint>>,
+    pub radar: Vec<Vec<RadarPoint>>,
+    pub annotations: Vec<Annotation>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneData {
+    pub name: String,
+    pub description: String,
+    pub frames: Vec<FrameData>,
+}
+
+/// nuScenes category name of a class.
+pub fn category_name(c: Class) -> &'static str {
+    match c {
+        Class::Car => "vehicle.car",
+        Class::Truck => "vehicle.truck",
+        Class::Bus => "vehicle.bus.rigid",
+        Class::Motorcycle => "vehicle.motorcycle",
+        Class::Pedestrian => "human.pedestrian.adult",
+        Class::GolfCart => "vehicle.golf_cart",
+    }
+}
+
+/// The class of a category name (inverse of [`category_name`]).
+pub fn class_of_category(name: &str) -> Option<Class> {
+    Class::ALL.into_iter().find(|c| category_name(*c) == name)
+}
+
+pub const ATTRIBUTES: [&str; 6] = ["vehicle.moving", "vehicle.stopped", "vehicle.parked", "pedestrian.moving", "pedestrian.standing", "cycle.with_rider"];
+
+/// A 32-hex-digit token from names (two independent 64-bit FNV-1a hashes).
+pub fn token(parts: &[&str]) -> String {
+    let mut a: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut b: u64 = 0x8422_2325_cbf2_9ce4;
+    for p in parts {
+        for &byte in p.as_bytes().iter().chain(b"\x1f") {
+            a = (a ^ byte as u64).wrapping_mul(0x0000_0100_0000_01b3);
+            b = (b ^ byte as u64).wrapping_mul(0x0000_0100_0000_01b3).rotate_left(7);
+        }
+    }
+    format!("{a:016x}{b:016x}")
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
+    let io = |e| DatasetError::Io { path: path.to_path_buf(), source: e };
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(io)?;
+    }
+    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+    std::fs::write(&tmp, bytes).map_err(|e| DatasetError::Io { path: tmp.clone(), source: e })?;
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+/// LiDAR points as nuScenes `.pcd.bin` bytes.
+pub fn lidar_bin(points: &[LidarPoint]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(points.len() * 20);
+    for p in points {
+        for v in [p.x, p.y, p.z, p.intensity, p.ring as f32] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out
+}
+
+fn quat_wxyz(q: glam::Quat) -> [f64; 4] {
+    [q.w as f64, q.x as f64, q.y as f64, q.z as f64]
+}
+
+/// Builds the tables scene by scene; point files are written as scenes arrive.
+#[derive(Debug)]
+pub struct DatasetWriter {
+    root: PathBuf,
+    version: String,
+    namespace: String,
+    sensors: Vec<SensorSetup>,
+    tables: Tables,
+}
+
+impl DatasetWriter {
+    /// `namespace` (e.g. the configuration name) makes tokens unique across datasets.
+    pub fn new(root: &Path, version: &str, namespace: &str, sensors: Vec<SensorSetup>) -> Result<Self, DatasetError> {
+        let mut seen = std::collections::HashSet::new();
+        if let Some(s) = sensors.iter().find(|s| !seen.insert(s.channel.clone())) {
+            return Err(DatasetError::Invalid(format!("sensor channel {:?} appears twice", s.channel)));
+        }
+        let ns = namespace.to_owned();
+        let mut t = Tables::default();
+        for c in Class::ALL {
+            t.category.push(Category { token: token(&[&ns, "category", category_name(c)]), name: category_name(c).into(), description: format!("hilo class {c}") });
+        }
+        for a in ATTRIBUTES {
+            t.attribute.push(Attribute { token: token(&[&ns, "attribute", a]), name: a.into(), description: String::new() });
+        }
+        for (i, lvl) in ["v0-40", "v40-60", "v60-80", "v80-100"].iter().enumerate() {
+            t.visibility.push(Visibility { token: (i + 1).to_string(), level: (*lvl).into(), description: format!("visible fraction {lvl}") });
+        }
+        for s in &sensors {
+            let st = token(&[&ns, "sensor", &s.channel]);
+            let modality = match s.modality {
+                SensorModality::Lidar => "lidar",
+                SensorModality::Radar => "radar",
+            };
+            t.sensor.push(Sensor { token: st.clone(), channel: s.channel.clone(), modality: modality.into() });
+            let p = s.pose.position;
+            t.calibrated_sensor.push(CalibratedSensor {
+                token: token(&[&ns, "calibrated_sensor", &s.channel]),
+                sensor_token: st,
+                translation: [p.x as f64, p.y as f64, p.z as f64],
+                rotation: quat_wxyz(s.pose.rotation()),
+                camera_intrinsic: Vec::new(),
+            });
+        }
+        t.map.push(Map { token: token(&[&ns, "map"]), log_tokens: Vec::new(), category: "semantic_prior".into(), filename: String::new() });
+        Ok(DatasetWriter { root: root.to_path_buf(), version: version.to_owned(), namespace: ns, sensors, tables: t })
+    }
+
+    /// Adds a scene: writes its point files and records its rows.
+    pub fn add_scene(&mut self, scene: &SceneData, location: &str) -> Result<(), DatasetError> {
+        let ns = self.namespace.clone();
+        let t = &mut self.tables;
+        let lidar: Vec<&SensorSetup> = self.sensors.iter().filter(|s| s.modality == SensorModality::Lidar).collect();
+        let radar: Vec<&SensorSetup> = self.sensors.iter().filter(|s| s.modality == SensorModality::Radar).collect();
+        if scene.frames.is_empty() {
+            return Err(DatasetError::Invalid(format!("scene {:?} has no frames", scene.name)));
+        }
+        // nuscenes-devkit sorts scenes by start time and cannot order two equal ones.
+        let start = scene.frames[0].timestamp_us;
+        if let Some(other) = t.scene.iter().find(|s| t.sample.iter().any(|x| x.token == s.first_sample_token && x.timestamp == start)) {
+            return Err(DatasetError::Invalid(format!("scene {:?} starts at {start} µs, as scene {:?} does: scene start times must differ", scene.name, other.name)));
+        }
+        if scene.frames.windows(2).any(|w| w[1].timestamp_us <= w[0].timestamp_us) {
+            return Err(DatasetError::Invalid(format!("scene {:?}: frame timestamps must increase", scene.name)));
+        }
+        let log_token = token(&[&ns, "log", &scene.name]);
+        t.log.push(Log { token: log_token.clone(), logfile: scene.name.clone(), vehicle: "roadside".into(), date_captured: "2026-01-01".into(), location: location.into() });
+        t.map[0].log_tokens.push(log_token.clone());
+        let scene_token = token(&[&ns, "scene", &scene.name]);
+        let sample_tokens: Vec<String> = scene.frames.iter().map(|f| token(&[&ns, "sample", &scene.name, &f.timestamp_us.to_string()])).collect();
+        // Instances and their annotation chains.
+        let mut chains: std::collections::BTreeMap<u32, Vec<(usize, usize)>> = std::collections::BTreeMap::new();
+        for (fi, f) in scene.frames.iter().enumerate() {
+            if f.lidar.len() != lidar.len() || f.radar.len() != radar.len() {
+                return Err(DatasetError::Invalid(format!("scene {:?} frame {fi}: {} LiDAR and {} radar clouds for {} and {} sensors", scene.name, f.lidar.len(), f.radar.len(), lidar.len(), radar.len())));
+            }
+            for (ai, a) in f.annotations.iter().enumerate() {
+                chains.entry(a.instance).or_default().push((fi, ai));
+            }
+        }
+        let ann_token = |inst: u32, fi: usize| token(&[&ns, "annotation", &scene.name, &inst.to_string(), &sample_tokens[fi]]);
+        for (inst, chain) in &chains {
+            let first = &scene.frames[chain[0].0].annotations[chain[0].1];
+            let cat = t.category.iter().find(|c| c.name == category_name(first.class)).map(|c| c.token.clone()).unwrap_or_default();
+            let inst_token = token(&[&ns, "instance", &scene.name, &inst.to_string()]);
+            t.instance.push(Instance {
+                token: inst_token.clone(),
+                category_token: cat,
+                nbr_annotations: chain.len(),
+                first_annotation_token: ann_token(*inst, chain[0].0),
+                last_annotation_token: ann_token(*inst, chain[chain.len() - 1].0),
+            });
+            for (k, &(fi, ai)) in chain.iter().enumerate() {
+                let a = &scene.frames[fi].annotations[ai];
+                let b = a.box3;
+                let attrs = if a.attribute.is_empty() {
+                    Vec::new()
+                } else {
+                    match t.attribute.iter().find(|x| x.name == a.attribute) {
+                        Some(x) => vec![x.token.clone()],
+                        None => return Err(DatasetError::Invalid(format!("unknown attribute {:?}", a.attribute))),
+                    }
+                };
+                t.sample_annotation.push(SampleAnnotation {
+                    token: ann_token(*inst, fi),
+                    sample_token: sample_tokens[fi].clone(),
+                    instance_token: inst_token.clone(),
+                    visibility_token: a.visibility.clamp(1, 4).to_string(),
+                    attribute_tokens: attrs,
+                    translation: [b.center.x as f64, b.center.y as f64, b.center.z as f64],
+                    size: [b.width_m as f64, b.length_m as f64, b.height_m as f64],
+                    rotation: [(b.yaw as f64 / 2.0).cos(), 0.0, 0.0, (b.yaw as f64 / 2.0).sin()],
+                    prev: if k > 0 { ann_token(*inst, chain[k - 1].0) } else { String::new() },
+                    next: if k + 1 < chain.len() { ann_token(*inst, chain[k + 1].0) } else { String::new() },
+                    num_lidar_pts: a.num_lidar_pts,
+                    num_radar_pts: a.num_radar_pts,
+                });
+            }
+        }
+        // Samples and sample data.
+        for (fi, f) in scene.frames.iter().enumerate() {
+            t.sample.push(Sample {
+                token: sample_tokens[fi].clone(),
+                timestamp: f.timestamp_us,
+                prev: if fi > 0 { sample_tokens[fi - 1].clone() } else { String::new() },
+                next: sample_tokens.get(fi + 1).cloned().unwrap_or_default(),
+                scene_token: scene_token.clone(),
+            });
+            let clouds: Vec<(&SensorSetup, Vec<u8>, &str)> = lidar
+                .iter()
+                .zip(&f.lidar)
+                .map(|(s, p)| (*s, lidar_bin(p), "pcd.bin"))
+                .chain(radar.iter().zip(&f.radar).map(|(s, p)| (*s, to_pcd(p), "pcd")))
+                .collect();
+            for (s, bytes, ext) in clouds {
+                let sd_token = token(&[&ns, "sample_data", &s.channel, &sample_tokens[fi]]);
+                let filename = format!("samples/{}/{}__{}__{}.{ext}", s.channel, scene.name, s.channel, f.timestamp_us);
+                write_atomic(&self.root.join(&filename), &bytes)?;
+                let ego = token(&[&ns, "ego_pose", &s.channel, &sample_tokens[fi]]);
+                t.ego_pose.push(EgoPose { token: ego.clone(), timestamp: f.timestamp_us, rotation: [1.0, 0.0, 0.0, 0.0], translation: [0.0; 3] });
+                let link = |k: usize| token(&[&ns, "sample_data", &s.channel, &sample_tokens[k]]);
+                t.sample_data.push(SampleData {
+                    token: sd_token,
+                    sample_token: sample_tokens[fi].clone(),
+                    ego_pose_token: ego,
+                    calibrated_sensor_token: token(&[&ns, "calibrated_sensor", &s.channel]),
+                    timestamp: f.timestamp_us,
+                    fileformat: "pcd".into(),
+                    is_key_frame: true,
+                    height: 0,
+                    width: 0,
+                    filename,
+                    prev: if fi > 0 { link(fi - 1) } else { String::new() },
+                    next: if fi + 1 < scene.frames.len() { link(fi + 1) } else { String::new() },
+                });
+            }
+        }
+        t.scene.push(Scene {
+            token: scene_token,
+            log_token,
+            nbr_samples: scene.frames.len(),
+            first_sample_token: sample_tokens[0].clone(),
+            last_sample_token: sample_tokens[sample_tokens.len() - 1].clone(),
+            name: scene.name.clone(),
+            description: scene.description.clone(),
+        });
+        Ok(())
+    }
+
+    /// Writes the tables and returns them.
+    pub fn finish(self) -> Result<Tables, DatasetError> {
+        let dir = self.root.join(&self.version);
+        let t = self.tables;
+        macro_rules! put {
+            ($name:ident) => {
+                let p = dir.join(concat!(stringify!($name), ".json"));
+                let bytes = serde_json::to_vec_pretty(&t.$name).map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
+                write_atomic(&p, &bytes)?;
+            };
+        }
+        put!(category);
+        put!(attribute);
+        put!(visibility);
+        put!(instance);
+        put!(sensor);
+        put!(calibrated_sensor);
+        put!(ego_pose);
+        put!(log);
+        put!(scene);
+        put!(sample);
+        put!(sample_data);
+        put!(sample_annotation);
+        put!(map);
+        Ok(t)
+    }
+}
