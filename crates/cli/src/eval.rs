@@ -7,10 +7,17 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
-    /// Ground truth (hilo's ground-truth JSON: samples with scene and ego/origin position, boxes
-    /// with num_pts).
-    #[arg(long)]
-    gt: PathBuf,
+    /// Ground truth from a nuScenes-layout dataset (its `--split` scenes).
+    #[arg(long, conflicts_with = "gt")]
+    data: Option<PathBuf>,
+    #[arg(long, default_value = "v1.0-trainval")]
+    version: String,
+    #[arg(long, default_value = "val")]
+    split: String,
+    /// Ground truth as hilo's ground-truth JSON (samples with scene and origin, boxes with
+    /// num_pts), instead of `--data`.
+    #[arg(long, required_unless_present = "data")]
+    gt: Option<PathBuf>,
     /// Predictions in the nuScenes submission format.
     #[arg(long)]
     results: PathBuf,
@@ -37,7 +44,14 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             .with_context(|| format!("{}: invalid evaluation config", p.display()))?,
         None => DetectionConfig::default(),
     };
-    let gt = read_ground_truth(&args.gt)?;
+    let gt = match (&args.data, &args.gt) {
+        (Some(root), _) => {
+            let ds = hilo_dataset::Dataset::open(root, &args.version)?;
+            hilo_eval::ground_truth_from_dataset(&ds, &args.split)?
+        }
+        (None, Some(p)) => read_ground_truth(p)?,
+        (None, None) => bail!("give --data or --gt"),
+    };
     let pred = read_submission(&args.results, cfg.max_boxes_per_sample)?;
     // As the devkit: the submission must cover exactly the ground truth's samples.
     let pred_samples: std::collections::BTreeSet<&String> = pred.iter().map(|(s, _)| s).collect();

@@ -1,6 +1,7 @@
 //! `hilo`: which roadside sensors to mount where, and how well they will detect road users.
 
 mod bench;
+mod dataset;
 mod demo;
 mod eval;
 mod place;
@@ -33,6 +34,11 @@ enum Command {
     Place(place::PlaceArgs),
     /// nuScenes detection metrics (AP, TP errors, NDS) of a submission.
     Eval(eval::EvalArgs),
+    /// Inspect a dataset in the nuScenes layout.
+    Dataset {
+        #[command(subcommand)]
+        command: DatasetCommand,
+    },
     /// Benchmarks that report speed together with the error paid for it.
     Bench {
         #[command(subcommand)]
@@ -57,6 +63,12 @@ enum SceneCommand {
     Info {
         scene: Option<PathBuf>,
     },
+}
+
+#[derive(Subcommand, Debug)]
+enum DatasetCommand {
+    /// Frames, boxes per class and points per box; `--png` draws one frame.
+    Stats(dataset::StatsArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -136,6 +148,7 @@ fn main() -> Result<()> {
         }
         Command::Scan(args) => scan::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
+        Command::Dataset { command: DatasetCommand::Stats(args) } => dataset::stats(&args)?,
         Command::Place(args) => {
             place::run(&args)?;
         }

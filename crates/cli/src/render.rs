@@ -119,6 +119,15 @@ impl Canvas {
     }
 }
 
+/// An empty dark canvas over `min..max` (local metres), for pictures without a scene.
+pub fn blank_canvas(min: Vec2, max: Vec2, px_per_m: f32) -> Result<Canvas> {
+    let size = (max - min) * px_per_m;
+    let mut pm = Pixmap::new(size.x.ceil().max(1.0) as u32, size.y.ceil().max(1.0) as u32)
+        .with_context(|| format!("picture of {:.0}x{:.0} px is empty or too large", size.x, size.y))?;
+    pm.fill(Color::from_rgba8(20, 22, 28, 255));
+    Ok(Canvas { pm, view: View { min, max, scale: px_per_m } })
+}
+
 /// The scene drawn top-down, ready for more layers.
 pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
     let g = scene.ground;

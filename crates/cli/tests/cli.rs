@@ -204,3 +204,74 @@ fn eval_writes_a_devkit_shaped_summary_and_refuses_mismatched_samples() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("samples differ"));
 }
+
+/// A two-scene dataset written with hilo-dataset, with a split.
+fn small_dataset(root: &std::path::Path) -> Vec<String> {
+    use hilo_dataset::{Annotation, DatasetWriter, FrameData, SceneData, SensorModality, SensorSetup};
+    let sensors = vec![SensorSetup {
+        channel: "LIDAR_0".into(),
+        modality: SensorModality::Lidar,
+        pose: hilo_sensor_models::SensorPose::new(glam::Vec3::new(0.0, 0.0, 7.0), 0.0, 0.0, 0.0),
+    }];
+    let mut w = DatasetWriter::new(root, "v1.0-trainval", "cli", sensors).unwrap();
+    let mut samples = Vec::new();
+    for (k, name) in ["scene-a", "scene-b"].iter().enumerate() {
+        let frames: Vec<FrameData> = (0..3)
+            .map(|f| FrameData {
+                timestamp_us: 10_000_000 * (k as u64 + 1) + 50_000 * f,
+                lidar: vec![(0..20).map(|i| hilo_core::LidarPoint { x: i as f32, y: 1.0, z: -6.0, intensity: 0.5, ring: 3, time_s: 0.0 }).collect()],
+                radar: vec![],
+                annotations: vec![Annotation {
+                    instance: 1,
+                    class: hilo_core::Class::Car,
+                    box3: hilo_core::Box3::new(glam::Vec3::new(10.0 + 0.4 * f as f32, 2.0, 0.8), 4.6, 1.9, 1.6, 0.0),
+                    velocity_mps: glam::Vec2::new(8.0, 0.0),
+                    attribute: "vehicle.moving".into(),
+                    num_lidar_pts: 25,
+                    num_radar_pts: 1,
+                    visibility: 4,
+                }],
+            })
+            .collect();
+        w.add_scene(&SceneData { name: (*name).into(), description: String::new(), frames }, "x").unwrap();
+    }
+    w.write_splits(&[("val".to_owned(), vec!["scene-b".to_owned()])].into_iter().collect()).unwrap();
+    let t = w.finish().unwrap();
+    let scene_b = t.scene.iter().find(|s| s.name == "scene-b").unwrap().token.clone();
+    for s in t.sample.iter().filter(|s| s.scene_token == scene_b) {
+        samples.push(s.token.clone());
+    }
+    samples
+}
+
+#[test]
+fn dataset_stats_and_eval_against_a_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("data");
+    let samples = small_dataset(&root);
+    let png = dir.path().join("frame.png");
+    let o = hilo().args(["dataset", "stats"]).arg(&root).arg("--png").arg(&png).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("2 scenes, 6 frames") && text.contains("car") && text.contains("25.0"), "{text}");
+    assert!(tiny_skia::Pixmap::load_png(&png).is_ok());
+    // A perfect submission for the val split.
+    let results: serde_json::Map<String, serde_json::Value> = samples
+        .iter()
+        .enumerate()
+        .map(|(f, s)| {
+            let b = serde_json::json!({"sample_token": s, "translation": [10.0 + 0.4 * f as f64, 2.0, 0.8], "size": [1.9, 4.6, 1.6], "rotation": [1.0, 0.0, 0.0, 0.0], "velocity": [8.0, 0.0], "detection_name": "car", "detection_score": 0.9, "attribute_name": "vehicle.moving"});
+            (s.clone(), serde_json::json!([b]))
+        })
+        .collect();
+    let res = dir.path().join("results.json");
+    std::fs::write(&res, serde_json::json!({"meta": {}, "results": results}).to_string()).unwrap();
+    let out = dir.path().join("metrics");
+    let o = hilo().arg("eval").arg("--data").arg(&root).arg("--results").arg(&res).arg("--out").arg(&out).args(["--bootstrap", "50"]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
+    assert!((m["mean_dist_aps"]["car"].as_f64().unwrap() - 1.0).abs() < 1e-9);
+    // Without the split: a clear error.
+    let o = hilo().arg("eval").arg("--data").arg(&root).args(["--split", "train", "--results"]).arg(&res).arg("--out").arg(&out).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("no split \"train\""));
+}

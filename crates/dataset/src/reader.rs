@@ -44,6 +44,38 @@ impl Dataset {
         Ok(Dataset { root: root.to_path_buf(), version: version.to_owned(), tables })
     }
 
+    /// The scene names of a split (`<version>/splits.json`).
+    pub fn split(&self, name: &str) -> Result<Vec<String>, DatasetError> {
+        let p = self.root.join(&self.version).join("splits.json");
+        let text = std::fs::read_to_string(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+        let splits: std::collections::BTreeMap<String, Vec<String>> =
+            serde_json::from_str(&text).map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
+        splits.get(name).cloned().ok_or_else(|| DatasetError::Json {
+            path: p,
+            message: format!("no split {name:?}; splits: {}", splits.keys().cloned().collect::<Vec<_>>().join(", ")),
+        })
+    }
+
+    /// The devkit's `box_velocity`: centred difference over the previous and next annotation of
+    /// the instance (one-sided at the ends), NaN when there is neither or the time gap exceeds
+    /// 1.5 s (3 s for a centred difference). Metres per second, x y z.
+    pub fn box_velocity(&self, ann: &SampleAnnotation) -> [f64; 3] {
+        let by_token = |t: &str| self.tables.sample_annotation.iter().find(|a| a.token == t);
+        let time = |a: &SampleAnnotation| self.tables.sample.iter().find(|s| s.token == a.sample_token).map_or(0.0, |s| 1e-6 * s.timestamp as f64);
+        let (has_prev, has_next) = (!ann.prev.is_empty(), !ann.next.is_empty());
+        if !has_prev && !has_next {
+            return [f64::NAN; 3];
+        }
+        let first = if has_prev { by_token(&ann.prev).unwrap_or(ann) } else { ann };
+        let last = if has_next { by_token(&ann.next).unwrap_or(ann) } else { ann };
+        let dt = time(last) - time(first);
+        let max = if has_prev && has_next { 3.0 } else { 1.5 };
+        if dt > max {
+            return [f64::NAN; 3];
+        }
+        [0, 1, 2].map(|k| (last.translation[k] - first.translation[k]) / dt)
+    }
+
     /// The LiDAR points of a sample_data record (sensor frame; time is not stored).
     pub fn lidar_points(&self, sd: &SampleData) -> Result<Vec<LidarPoint>, DatasetError> {
         let p = self.root.join(&sd.filename);

@@ -295,6 +295,20 @@ impl DatasetWriter {
         Ok(())
     }
 
+    /// Records the train/val split by scene name (`<version>/splits.json`; nuScenes keeps its
+    /// splits in code, the devkit ignores this file).
+    pub fn write_splits(&self, splits: &std::collections::BTreeMap<String, Vec<String>>) -> Result<(), DatasetError> {
+        let names: std::collections::HashSet<&str> = self.tables.scene.iter().map(|s| s.name.as_str()).collect();
+        for (split, scenes) in splits {
+            if let Some(s) = scenes.iter().find(|s| !names.contains(s.as_str())) {
+                return Err(DatasetError::Invalid(format!("split {split:?} names scene {s:?}, which the dataset does not have")));
+            }
+        }
+        let p = self.root.join(&self.version).join("splits.json");
+        let bytes = serde_json::to_vec_pretty(splits).map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
+        write_atomic(&p, &bytes)
+    }
+
     /// Writes the tables and returns them.
     pub fn finish(self) -> Result<Tables, DatasetError> {
         let dir = self.root.join(&self.version);

@@ -59,3 +59,39 @@ pub fn evaluate_distance_bins(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)],
         })
         .collect()
 }
+
+/// Ground truth of the scenes of `split` in a nuScenes-layout dataset, as the devkit's `load_gt`
+/// builds it: classes from categories, sizes and rotations as annotated, velocity by the
+/// devkit's finite difference, points = LiDAR + radar points, the attribute if there is one.
+/// Every ego pose of a roadside dataset is the origin, which is what ranges are measured from.
+pub fn ground_truth_from_dataset(ds: &hilo_dataset::Dataset, split: &str) -> Result<GroundTruth, hilo_dataset::DatasetError> {
+    let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
+    let t = &ds.tables;
+    let scene_of: BTreeMap<&str, &hilo_dataset::tables::Scene> = t.scene.iter().map(|s| (s.token.as_str(), s)).collect();
+    let mut gt = GroundTruth::default();
+    for s in &t.sample {
+        if let Some(sc) = scene_of.get(s.scene_token.as_str()).filter(|sc| scenes.contains(&sc.name)) {
+            gt.samples.insert(s.token.clone(), boxes::SampleInfo { scene: sc.name.clone(), ego_translation: [0.0; 3] });
+            gt.boxes.insert(s.token.clone(), Vec::new());
+        }
+    }
+    let category: BTreeMap<&str, &str> = t.instance.iter().filter_map(|i| t.category.iter().find(|c| c.token == i.category_token).map(|c| (i.token.as_str(), c.name.as_str()))).collect();
+    let attribute: BTreeMap<&str, &str> = t.attribute.iter().map(|a| (a.token.as_str(), a.name.as_str())).collect();
+    for a in &t.sample_annotation {
+        let Some(list) = gt.boxes.get_mut(&a.sample_token) else { continue };
+        let Some(class) = category.get(a.instance_token.as_str()).and_then(|c| hilo_dataset::writer::class_of_category(c)) else { continue };
+        let v = ds.box_velocity(a);
+        list.push(EvalBox {
+            sample_token: a.sample_token.clone(),
+            translation: a.translation,
+            size: a.size,
+            rotation: a.rotation,
+            velocity: [v[0], v[1]],
+            detection_name: class.name().to_owned(),
+            detection_score: -1.0,
+            attribute_name: a.attribute_tokens.first().and_then(|x| attribute.get(x.as_str())).map_or(String::new(), |s| (*s).to_owned()),
+            num_pts: (a.num_lidar_pts + a.num_radar_pts) as i64,
+        });
+    }
+    Ok(gt)
+}

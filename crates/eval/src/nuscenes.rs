@@ -197,7 +197,7 @@ impl<'a> ClassData<'a> {
                     let g = self.gt[si][gi];
                     let v = ((p.velocity[0] - g.velocity[0]).powi(2) + (p.velocity[1] - g.velocity[1]).powi(2)).sqrt();
                     let attr = if g.attribute_name.is_empty() { f64::NAN } else { (g.attribute_name == p.attribute_name) as u8 as f64 };
-                    Some([center_distance(g, p), if v.is_nan() { f64::INFINITY } else { v }, 1.0 - scale_iou(g, p), angle_diff(g.yaw(), p.yaw(), period).abs(), 1.0 - attr])
+                    Some([center_distance(g, p), v, 1.0 - scale_iou(g, p), angle_diff(g.yaw(), p.yaw(), period).abs(), 1.0 - attr])
                 }
                 _ => None,
             };
