@@ -265,6 +265,39 @@ pub fn counts_upper_bound(inst: &Instance, counts: &[u32], tops: &[Vec<Vec<f32>>
         .sum()
 }
 
+/// A second upper bound for a count vector, consistent across targets: each sensor is worth at
+/// most its weighted visibility over the targets both modalities could cover with these counts,
+/// u_o = Σ_{j coverable} w_j V_oj, and a selection at most the sum of the best `counts[t]` u_o
+/// of each type. It is never looser than [`counts_upper_bound`] (which lets every target pick
+/// its own best sensors).
+pub fn separable_upper_bound(inst: &Instance, counts: &[u32], tops: &[Vec<Vec<f32>>]) -> f64 {
+    let tau = inst.tau() * (1.0 - 1e-9);
+    let coverable: Vec<bool> = (0..inst.n_targets())
+        .map(|j| {
+            let (mut a_l, mut a_r) = (0.0, 0.0);
+            for (t, ty) in inst.types.iter().enumerate() {
+                for &v in tops[t][j].iter().take(counts.get(t).copied().unwrap_or(0) as usize) {
+                    let a = coverage_coef(v as f64);
+                    if ty.modality == Modality::Lidar { a_l += a } else { a_r += a }
+                }
+            }
+            a_l >= tau && a_r >= tau
+        })
+        .collect();
+    (0..inst.types.len())
+        .map(|t| {
+            let mut u: Vec<f64> = inst
+                .options
+                .iter()
+                .filter(|o| o.ty == t)
+                .map(|o| o.row.iter().filter(|(j, _)| coverable[*j as usize]).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum())
+                .collect();
+            u.sort_by(|a, b| b.total_cmp(a));
+            u.iter().take(counts.get(t).copied().unwrap_or(0) as usize).sum::<f64>()
+        })
+        .sum()
+}
+
 /// Per type, per target: the visibilities sorted descending, at most `k` kept.
 pub fn top_visibilities(inst: &Instance, k: usize) -> Vec<Vec<Vec<f32>>> {
     (0..inst.types.len())
@@ -301,7 +334,10 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
     }
     let kmax = vectors.iter().flatten().copied().max().unwrap_or(0) as usize;
     let tops = top_visibilities(inst, kmax);
-    let mut ranked: Vec<(f64, Vec<u32>)> = vectors.into_par_iter().map(|c| (counts_upper_bound(inst, &c, &tops), c)).collect();
+    let mut ranked: Vec<(f64, Vec<u32>)> = vectors
+        .into_par_iter()
+        .map(|c| (counts_upper_bound(inst, &c, &tops).min(separable_upper_bound(inst, &c, &tops)), c))
+        .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
     let mut best_sel = incumbent.to_vec();
     let mut best = crate::instance::evaluate(inst, incumbent);

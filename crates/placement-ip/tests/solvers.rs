@@ -168,3 +168,18 @@ fn infeasible_and_bad_inputs_are_errors() {
     let g = greedy(&zero, &limit);
     assert_eq!(exact_counts(&zero, &[2, 0, 1], &g.selection).unwrap().0.objective, 0.0);
 }
+
+#[test]
+fn both_count_vector_bounds_are_upper_bounds_and_the_separable_one_is_tighter() {
+    use hilo_placement_ip::exact::{counts_upper_bound, separable_upper_bound, top_visibilities};
+    for seed in 0..20u64 {
+        let inst = random_instance(seed);
+        let tops = top_visibilities(&inst, 4);
+        for counts in [vec![2, 0, 1], vec![1, 1, 1], vec![1, 0, 2], vec![2, 1, 2]] {
+            let opt = exhaustive(&inst, &Limit::Counts(counts.clone()), 10_000_000).unwrap().objective;
+            let (per_target, separable) = (counts_upper_bound(&inst, &counts, &tops), separable_upper_bound(&inst, &counts, &tops));
+            assert!(opt <= separable + 1e-9 && opt <= per_target + 1e-9, "seed {seed} {counts:?}: {opt} > {separable} or {per_target}");
+            assert!(separable <= per_target + 1e-9, "seed {seed} {counts:?}: {separable} > {per_target}");
+        }
+    }
+}
