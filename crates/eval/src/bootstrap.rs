@@ -80,7 +80,21 @@ fn tables(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], 
 
 /// (mAP, NDS, per-class mean AP) with sample weights.
 fn score(t: &Tables, cfg: &DetectionConfig, w: Option<&[f64]>) -> Replicate {
-    let m = summarize(&t.classes, cfg, |c, th| t.by_key.iter().find(|(kc, kt, _)| kc == c && *kt == th).map(|x| x.2.curves(w)));
+    // Thresholds that only feed AP need only the precision, streamed; the TP threshold needs the
+    // full curves.
+    let m = summarize(&t.classes, cfg, |c, th| {
+        t.by_key.iter().find(|(kc, kt, _)| kc == c && *kt == th).map(|x| {
+            if th == cfg.dist_th_tp {
+                x.2.curves(w)
+            } else {
+                let mut p = [0.0; crate::nuscenes::NELEM];
+                x.2.precision_only(w, &mut p);
+                let mut md = crate::nuscenes::MetricData::no_predictions();
+                md.precision = p.to_vec();
+                md
+            }
+        })
+    });
     (m.mean_ap, m.nd_score, m.mean_dist_aps)
 }
 

@@ -203,7 +203,8 @@ impl<'a> ClassData<'a> {
             };
             entries.push(MatchEntry { score: p.detection_score, sample: si, errors });
         }
-        Matches { entries, npos_per_sample: self.gt.iter().map(Vec::len).collect() }
+        let packed = entries.iter().map(|e| e.sample.map_or(NO_SAMPLE, |s| s as u32) | if e.errors.is_some() { TP_BIT } else { 0 }).collect();
+        Matches { entries, npos_per_sample: self.gt.iter().map(Vec::len).collect(), packed }
     }
 }
 
@@ -222,7 +223,14 @@ pub struct Matches {
     pub entries: Vec<MatchEntry>,
     /// Ground-truth boxes of the class per sample.
     pub npos_per_sample: Vec<usize>,
+    /// The same entries packed for replicates: sample index (or [`NO_SAMPLE`]) | [`TP_BIT`].
+    pub packed: Vec<u32>,
 }
+
+/// Packed entry flag: a true positive.
+pub const TP_BIT: u32 = 1 << 31;
+/// Packed sample index of a prediction whose sample has no ground truth.
+pub const NO_SAMPLE: u32 = TP_BIT - 1;
 
 impl Matches {
     /// The devkit's curves, with every prediction and ground-truth box of sample s counted
@@ -291,6 +299,78 @@ impl Matches {
             orient_err: resample(&errs[3]),
             attr_err: resample(&errs[4]),
             confidence,
+        }
+    }
+}
+
+impl Matches {
+    /// Only the interpolated precision (what AP needs), in one pass without allocation:
+    /// `np.interp(recall_points, rec, prec, right=0)` evaluated as `rec` streams by, with the same
+    /// choices as [`np_interp`] (the last of equal recalls; exact hits; linear in between).
+    pub fn precision_only(&self, weights: Option<&[f64]>, out: &mut [f64; NELEM]) {
+        let npos: f64 = match weights {
+            Some(ws) => self.npos_per_sample.iter().zip(ws).map(|(n, w)| *n as f64 * w).sum(),
+            None => self.npos_per_sample.iter().sum::<usize>() as f64,
+        };
+        out.fill(0.0);
+        let any_tp = self.packed.iter().any(|&e| {
+            let s = e & !TP_BIT;
+            e & TP_BIT != 0 && weights.is_none_or(|ws| s == NO_SAMPLE || ws[s as usize] > 0.0)
+        });
+        if npos == 0.0 || !any_tp {
+            return;
+        }
+        let step = 1.0 / (NELEM - 1) as f64;
+        let x = |i: usize| if i == NELEM - 1 { 1.0 } else { i as f64 * step };
+        let (mut ctp, mut cfp) = (0.0, 0.0);
+        // Previous entry's (tp, fp) sums; recall and precision are only divided out where a
+        // recall point is crossed (`x < ctp / npos` is tested as `x * npos < ctp` by the exact
+        // division, at most once per point).
+        let mut prev: Option<(f64, f64)> = None;
+        let mut i = 0usize;
+        let mut next_x = x(0);
+        for &e in &self.packed {
+            let s = e & !TP_BIT;
+            let k = match weights {
+                Some(ws) if s != NO_SAMPLE => ws[s as usize],
+                _ => 1.0,
+            };
+            if k == 0.0 {
+                continue;
+            }
+            if e & TP_BIT != 0 { ctp += k } else { cfp += k }
+            // Cheap pre-test; the exact comparison below decides.
+            if i < NELEM && next_x * npos <= ctp * (1.0 + 1e-12) {
+                let (r, p) = (ctp / npos, ctp / (cfp + ctp));
+                while i < NELEM && x(i) < r {
+                    out[i] = match prev {
+                        None => p, // below the first recall: numpy's left value, fp[0]
+                        Some((t0, f0)) => {
+                            let (r0, p0) = (t0 / npos, t0 / (f0 + t0));
+                            if r0 == x(i) {
+                                p0
+                            } else {
+                                let slope = (p - p0) / (r - r0);
+                                let v = slope * (x(i) - r0) + p0;
+                                if v.is_nan() { slope * (x(i) - r) + p } else { v }
+                            }
+                        }
+                    };
+                    i += 1;
+                }
+                if i < NELEM {
+                    next_x = x(i);
+                }
+            }
+            prev = Some((ctp, cfp));
+        }
+        // The rest: equal to the last recall gives its precision, above it numpy's right value 0.
+        if let Some((t0, f0)) = prev {
+            let (r, p) = (t0 / npos, t0 / (f0 + t0));
+            while i < NELEM && x(i) <= r {
+                out[i] = p;
+                i += 1;
+            }
         }
     }
 }

@@ -76,3 +76,23 @@ fn paired_bootstrap_finds_a_real_gain_and_no_gain_against_itself() {
     assert!(gain.mean_ap_diff.lo > 0.0, "{:?}", gain.mean_ap_diff);
     assert!(gain.p_mean_ap_not_better < 0.01);
 }
+
+#[test]
+fn streamed_precision_equals_the_interpolated_curve() {
+    let (gt, pred) = data(1.5, 3);
+    let cfg = DetectionConfig::default();
+    let (g, p) = filtered(&gt, &pred, &cfg);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    for class in ["car", "pedestrian", "bus", "truck"] {
+        let cd = ClassData::new(&g, &p, class);
+        for th in [0.5, 1.0, 2.0, 4.0] {
+            let m = cd.matches(class, th);
+            for trial in 0..20 {
+                let w: Option<Vec<f64>> = (trial > 0).then(|| (0..g.len()).map(|_| rng.random_range(0..3) as f64).collect());
+                let mut streamed = [0.0; hilo_eval::nuscenes::NELEM];
+                m.precision_only(w.as_deref(), &mut streamed);
+                assert_eq!(streamed.to_vec(), m.curves(w.as_deref()).precision, "{class} {th} trial {trial}");
+            }
+        }
+    }
+}
