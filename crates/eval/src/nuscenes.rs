@@ -204,7 +204,9 @@ impl<'a> ClassData<'a> {
             entries.push(MatchEntry { score: p.detection_score, sample: si, errors });
         }
         let packed = entries.iter().map(|e| e.sample.map_or(NO_SAMPLE, |s| s as u32) | if e.errors.is_some() { TP_BIT } else { 0 }).collect();
-        Matches { entries, npos_per_sample: self.gt.iter().map(Vec::len).collect(), packed }
+        let scores = entries.iter().map(|e| e.score).collect();
+        let tp_errors = entries.iter().filter_map(|e| e.errors).collect();
+        Matches { entries, npos_per_sample: self.gt.iter().map(Vec::len).collect(), packed, scores, tp_errors }
     }
 }
 
@@ -225,6 +227,10 @@ pub struct Matches {
     pub npos_per_sample: Vec<usize>,
     /// The same entries packed for replicates: sample index (or [`NO_SAMPLE`]) | [`TP_BIT`].
     pub packed: Vec<u32>,
+    /// Scores of the entries, in order.
+    pub scores: Vec<f64>,
+    /// Errors of the true positives, in order.
+    pub tp_errors: Vec<[f64; 5]>,
 }
 
 /// Packed entry flag: a true positive.
@@ -237,11 +243,6 @@ impl Matches {
     /// `weights[s]` times (all 1 when `None`: then this is `accumulate` exactly). A sample counted
     /// k times adds its predictions as one step of weight k.
     pub fn curves(&self, weights: Option<&[f64]>) -> MetricData {
-        let w = |s: Option<usize>| match (weights, s) {
-            (Some(ws), Some(s)) => ws[s],
-            (Some(_), None) => 1.0,
-            (None, _) => 1.0,
-        };
         let npos: f64 = match weights {
             Some(ws) => self.npos_per_sample.iter().zip(ws).map(|(n, w)| *n as f64 * w).sum(),
             None => self.npos_per_sample.iter().sum::<usize>() as f64,
@@ -249,31 +250,49 @@ impl Matches {
         if npos == 0.0 {
             return MetricData::no_predictions();
         }
-        let n = self.entries.len();
-        let (mut prec, mut rec, mut conf) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
-        let mut m_conf = Vec::new();
-        let mut errs: [Vec<f64>; 5] = Default::default();
-        let mut m_w = Vec::new();
+        let n = self.packed.len();
+        let nt = self.tp_errors.len();
+        // Branch-free compaction: every entry is written at the current end, which only advances
+        // for entries of drawn scenes (k > 0).
+        let (mut prec, mut rec, mut conf) = (vec![0.0; n + 1], vec![0.0; n + 1], vec![0.0; n + 1]);
+        let mut m_conf = vec![0.0; nt + 1];
+        let mut m_w = vec![0.0; nt + 1];
+        let mut errs: [Vec<f64>; 5] = std::array::from_fn(|_| vec![0.0; nt + 1]);
         let (mut ctp, mut cfp) = (0.0, 0.0);
-        for e in &self.entries {
-            let k = w(e.sample);
-            if k == 0.0 {
-                continue;
-            }
-            match e.errors {
-                Some(er) => {
-                    ctp += k;
-                    for (v, x) in errs.iter_mut().zip(er) {
-                        v.push(x);
-                    }
-                    m_conf.push(e.score);
-                    m_w.push(k);
+        let (mut len, mut mlen, mut tp_index) = (0usize, 0usize, 0usize);
+        for (&e, &score) in self.packed.iter().zip(&self.scores) {
+            let s = e & !TP_BIT;
+            let is_tp = e & TP_BIT != 0;
+            let k = match weights {
+                Some(ws) if s != NO_SAMPLE => ws[s as usize],
+                _ => 1.0,
+            };
+            let live = k > 0.0;
+            let kt = if is_tp { k } else { 0.0 };
+            ctp += kt;
+            cfp += k - kt;
+            prec[len] = ctp / (cfp + ctp);
+            rec[len] = ctp / npos;
+            conf[len] = score;
+            len += live as usize;
+            if is_tp {
+                let er = self.tp_errors[tp_index];
+                for (v, x) in errs.iter_mut().zip(er) {
+                    v[mlen] = x;
                 }
-                None => cfp += k,
+                m_conf[mlen] = score;
+                m_w[mlen] = k;
+                mlen += live as usize;
+                tp_index += 1;
             }
-            prec.push(ctp / (cfp + ctp));
-            rec.push(ctp / npos);
-            conf.push(e.score);
+        }
+        prec.truncate(len);
+        rec.truncate(len);
+        conf.truncate(len);
+        m_conf.truncate(mlen);
+        m_w.truncate(mlen);
+        for v in &mut errs {
+            v.truncate(mlen);
         }
         if m_conf.is_empty() {
             return MetricData::no_predictions();
@@ -327,6 +346,7 @@ impl Matches {
         // recall point is crossed (`x < ctp / npos` is tested as `x * npos < ctp` by the exact
         // division, at most once per point).
         let mut prev: Option<(f64, f64)> = None;
+        let (mut prev_t, mut prev_f) = (0.0, 0.0);
         let mut i = 0usize;
         let mut next_x = x(0);
         for &e in &self.packed {
@@ -335,12 +355,12 @@ impl Matches {
                 Some(ws) if s != NO_SAMPLE => ws[s as usize],
                 _ => 1.0,
             };
-            if k == 0.0 {
-                continue;
-            }
-            if e & TP_BIT != 0 { ctp += k } else { cfp += k }
+            // Branch-free: an entry of a scene not drawn (k = 0) adds nothing and changes nothing.
+            let kt = if e & TP_BIT != 0 { k } else { 0.0 };
+            ctp += kt;
+            cfp += k - kt;
             // Cheap pre-test; the exact comparison below decides.
-            if i < NELEM && next_x * npos <= ctp * (1.0 + 1e-12) {
+            if k > 0.0 && i < NELEM && next_x * npos <= ctp * (1.0 + 1e-12) {
                 let (r, p) = (ctp / npos, ctp / (cfp + ctp));
                 while i < NELEM && x(i) < r {
                     out[i] = match prev {
@@ -362,7 +382,15 @@ impl Matches {
                     next_x = x(i);
                 }
             }
-            prev = Some((ctp, cfp));
+            let live = k > 0.0;
+            prev_t = if live { ctp } else { prev_t };
+            prev_f = if live { cfp } else { prev_f };
+            if live && prev.is_none() {
+                prev = Some((ctp, cfp));
+            }
+            if prev.is_some() {
+                prev = Some((prev_t, prev_f));
+            }
         }
         // The rest: equal to the last recall gives its precision, above it numpy's right value 0.
         if let Some((t0, f0)) = prev {
