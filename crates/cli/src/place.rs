@@ -6,7 +6,6 @@ use crate::{load_scene, write_atomic};
 use anyhow::{Context, Result, bail};
 use glam::{Vec2, Vec3};
 use hilo_placement_ip::greedy::greedy;
-use hilo_placement_ip::instance::coverage_coef;
 use hilo_placement_ip::mip::{Formulation, write_mps};
 use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve};
 use hilo_placement_ip::{Instance, Limit, Modality};
@@ -207,14 +206,7 @@ fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> 
 }
 
 fn radar_covered(inst: &Instance, sel: &[usize]) -> HashSet<usize> {
-    let mut a = vec![0.0; inst.n_targets()];
-    for &o in sel.iter().filter(|&&o| inst.modality(o) == Modality::Radar) {
-        for &(j, v) in &inst.options[o].row {
-            a[j as usize] += coverage_coef(v as f64);
-        }
-    }
-    let tau = inst.tau() * (1.0 - 1e-9);
-    (0..a.len()).filter(|&j| a[j] >= tau).collect()
+    hilo_placement_ip::instance::covered_targets(inst, sel, Modality::Radar).into_iter().collect()
 }
 
 fn coverage_png(scene: &Scene, prep: &Prepared, p: &Placement, hits: &HashSet<usize>, radar: &HashSet<usize>) -> Result<Vec<u8>> {

@@ -15,14 +15,8 @@ use std::time::Instant;
 /// Modality-relaxed score: weighted V on targets covered by the option's own modality.
 fn relaxed(inst: &Instance, sel: &[usize]) -> f64 {
     let tau = inst.tau() * (1.0 - 1e-9);
-    let n = inst.n_targets();
-    let (mut a_l, mut a_r) = (vec![0.0; n], vec![0.0; n]);
-    for &o in sel {
-        let acc = if inst.modality(o) == Modality::Lidar { &mut a_l } else { &mut a_r };
-        for &(j, v) in &inst.options[o].row {
-            acc[j as usize] += crate::instance::coverage_coef(v as f64);
-        }
-    }
+    let a_l = crate::instance::modality_coverage(inst, sel, Modality::Lidar);
+    let a_r = crate::instance::modality_coverage(inst, sel, Modality::Radar);
     sel.iter()
         .map(|&o| {
             let a = if inst.modality(o) == Modality::Lidar { &a_l } else { &a_r };

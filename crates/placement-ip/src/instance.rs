@@ -141,6 +141,23 @@ impl Instance {
     }
 }
 
+/// Per target, the coverage sum Σ −ln(1 − V) of the selected sensors of one modality.
+pub fn modality_coverage(inst: &Instance, sel: &[usize], modality: Modality) -> Vec<f64> {
+    let mut a = vec![0.0; inst.n_targets()];
+    for &o in sel.iter().filter(|&&o| inst.modality(o) == modality) {
+        for &(j, v) in &inst.options[o].row {
+            a[j as usize] += coverage_coef(v as f64);
+        }
+    }
+    a
+}
+
+/// Targets the selected sensors of one modality cover (coverage sum ≥ τ).
+pub fn covered_targets(inst: &Instance, sel: &[usize], modality: Modality) -> Vec<usize> {
+    let tau = inst.tau() * (1.0 - 1e-9);
+    modality_coverage(inst, sel, modality).iter().enumerate().filter(|(_, a)| **a >= tau).map(|(j, _)| j).collect()
+}
+
 /// Reusable buffers for evaluating selections.
 #[derive(Clone, Debug)]
 pub struct Scratch {
