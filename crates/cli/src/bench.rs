@@ -1,6 +1,6 @@
 //! `hilo bench raycast`: hilo's engine against parry3d's TriMesh and raw obvhs on the same rays.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use glam::Vec3;
 use hilo_raycast::reference::{compare_with_parry, ground_triangles, parry_trimesh, pole_top_sweeps};
 use hilo_raycast::{QueryRegion, Ray, Scene, World};
@@ -315,7 +315,7 @@ pub fn placement(cbc_seconds: f64) -> Result<PlacementReport> {
     let budget = catalog.get("lidar-64")?.price_usd() + catalog.get("radar-4d")?.price_usd();
     let limit = Limit::Budget { usd: budget, min: vec![], max: vec![] };
     let b = solve(&inst, &limit, cbc_seconds)?;
-    let (inst, limit, best) = two16.context_missing()?;
+    let (inst, limit, best) = two16.context("no configuration was solved")?;
     let m = build(&inst, &limit, Formulation::Plain)?;
     let (rows, nonzeros) = (m.rows, m.nonzeros);
     drop(m);
@@ -348,15 +348,6 @@ pub fn placement(cbc_seconds: f64) -> Result<PlacementReport> {
     })
 }
 
-trait ContextMissing<T> {
-    fn context_missing(self) -> Result<T>;
-}
-
-impl<T> ContextMissing<T> for Option<T> {
-    fn context_missing(self) -> Result<T> {
-        self.ok_or_else(|| anyhow::anyhow!("no configuration was solved"))
-    }
-}
 
 /// `hilo bench eval`.
 #[derive(Serialize, Debug)]
@@ -416,7 +407,7 @@ pub fn eval(frames: usize, max_pred: usize, repeats: usize) -> Result<EvalReport
         last = Some(evaluate(&gt, &pred, &cfg));
         times.push(t.elapsed().as_secs_f64());
     }
-    let m = last.context_missing()?;
+    let m = last.context("no evaluation was run")?;
     let mut gtf = hilo_eval::GroundTruth::default();
     for (k, v) in &gt {
         let f: usize = k.trim_start_matches("sample").parse().unwrap_or(0);
