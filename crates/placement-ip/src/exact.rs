@@ -199,10 +199,13 @@ fn dfs(
         dfs(inst, lists, types, future, k + 1, 0, next_slots, partial, chosen, best, scratch, leaves);
         return;
     }
+    let mut descended = false;
+    let mut cut = false;
     for p in start..list.len() {
         // Bound: this option and the next best ones fill the open slots of this type.
         let this_type: f64 = list[p..].iter().take(slots).map(|x| x.0).sum();
         if partial + this_type + future[k + 1] <= best.value() + 1e-12 {
+            cut = true;
             break; // sorted descending: no later p can do better
         }
         let (h, o) = list[p];
@@ -210,9 +213,16 @@ fn dfs(
         if chosen.iter().any(|&c| inst.options[c].mount == mount) {
             continue;
         }
+        descended = true;
         chosen.push(o);
         dfs(inst, lists, types, future, k, p + 1, slots - 1, partial + h, chosen, best, scratch, leaves);
         chosen.pop();
+    }
+    // Every remaining option sits on a mount already used: this type stops short of its count
+    // ("at most"), and the search goes on with the next type.
+    if !descended && !cut {
+        let next_slots = types.get(k + 1).map_or(0, |x| x.1);
+        dfs(inst, lists, types, future, k + 1, 0, next_slots, partial, chosen, best, scratch, leaves);
     }
 }
 
@@ -318,11 +328,12 @@ pub fn top_visibilities(inst: &Instance, k: usize) -> Vec<Vec<Vec<f32>>> {
 }
 
 /// The budgeted problem (sensor types chosen per candidate, a dollar budget, per-type min/max):
-/// decomposed into the maximal count vectors the budget allows, each bounded by
-/// [`counts_upper_bound`]; those with one radar are solved exactly in bound order, and the
-/// search stops when no remaining vector's bound beats the incumbent. A vector with several
-/// radars whose bound still beats the incumbent is not searched exactly: the outcome is then
-/// labelled unproven, with that bound.
+/// decomposed into the maximal count vectors the budget allows, each bounded by the smaller of
+/// [`counts_upper_bound`] and [`separable_upper_bound`]; vectors are solved exactly in bound order
+/// (one radar: [`exact_counts`]; several radars and at most two LiDARs of one type:
+/// [`exact_lidar_first`]) until no remaining vector's bound beats the incumbent. Any other vector
+/// whose bound still beats the incumbent is not searched: the outcome is then labelled unproven,
+/// with that bound.
 /// Per count vector searched: the counts and the optimum found (NaN where not searched).
 pub type VectorReport = Vec<(Vec<u32>, f64)>;
 
@@ -348,7 +359,18 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
             break;
         }
         let radars: u32 = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(|t| counts[t]).sum();
-        if radars == 1 {
+        let lidar_types: Vec<usize> = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && counts[t] > 0).collect();
+        if radars >= 2 && lidar_types.len() == 1 && counts[lidar_types[0]] <= 2 {
+            let (out, proven) = exact_lidar_first(inst, counts, &best_sel, 50_000_000)?;
+            report.push((counts.clone(), out.objective));
+            if out.objective > best + 1e-12 {
+                best = out.objective;
+                best_sel = out.selection;
+            }
+            if !proven {
+                open_bound = open_bound.max(*ub);
+            }
+        } else if radars == 1 {
             let (out, _) = exact_counts(inst, counts, &best_sel)?;
             report.push((counts.clone(), out.objective));
             if out.objective > best + 1e-12 {
@@ -364,4 +386,240 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
     let bound = if proven { best } else { open_bound };
     best_sel.sort_unstable();
     Ok((Outcome::new(inst, best_sel, bound, proven, start.elapsed().as_secs_f64(), "exact search over budget-maximal sensor counts"), report))
+}
+
+/// Exact search for a count vector with one LiDAR type (at most two LiDARs) and several radars:
+/// the LiDAR set is fixed first, which fixes the LiDAR-covered targets C_L; every radar r is then
+/// worth at most h(r) = Σ_{j ∈ C_L} w_j V_rj, a tight, consistent bound. LiDAR sets are tried in
+/// the order of a cheap bound and skipped when it cannot beat the incumbent; for the rest, the
+/// best h per mount (one sensor per mount) bounds the radar part, and a depth-first search over
+/// radars in h order finds the best completion. `node_budget` caps the radar search; when it runs
+/// out the result is returned unproven. Returns (outcome, proven).
+pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], node_budget: u64) -> Result<(Outcome, bool), PlacementError> {
+    let start = Instant::now();
+    let tau = inst.tau() * (1.0 - 1e-9);
+    let count = |t: usize| counts.get(t).copied().unwrap_or(0) as usize;
+    let lidar_types: Vec<usize> = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && count(t) > 0).collect();
+    let n_r: usize = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(count).sum();
+    if lidar_types.len() != 1 || count(lidar_types[0]) > 2 || n_r == 0 {
+        return Err(PlacementError::Invalid("the LiDAR-first search takes one LiDAR type (at most two) and some radars".into()));
+    }
+    let (lt, n_l) = (lidar_types[0], count(lidar_types[0]));
+    let lidars: Vec<usize> = (0..inst.options.len()).filter(|&o| inst.options[o].ty == lt).collect();
+    let radars: Vec<usize> = (0..inst.options.len()).filter(|&o| inst.modality(o) == Modality::Radar && count(inst.options[o].ty) > 0).collect();
+    let n = inst.n_targets();
+    // Per target, the best n_r radar visibilities (for the cheap bound).
+    let mut radar_top = vec![Vec::<f32>::new(); n];
+    for &r in &radars {
+        for &(j, v) in &inst.options[r].row {
+            let l = &mut radar_top[j as usize];
+            l.push(v);
+            if l.len() > n_r {
+                l.sort_by(|a, b| b.total_cmp(a));
+                l.truncate(n_r);
+            }
+        }
+    }
+    let rt: Vec<f64> = radar_top.iter().map(|l| l.iter().map(|&v| v as f64).sum()).collect();
+    // LiDAR sets with their covered targets, base value and cheap bound.
+    let sets: Vec<Vec<usize>> = if n_l == 1 {
+        lidars.iter().map(|&a| vec![a]).collect()
+    } else {
+        // Pairs, and singles: with one sensor per mount, fewer LiDARs can be optimal.
+        let mut v: Vec<Vec<usize>> = lidars.iter().map(|&a| vec![a]).collect();
+        for (i, &a) in lidars.iter().enumerate() {
+            for &b in &lidars[i + 1..] {
+                if inst.options[a].mount != inst.options[b].mount {
+                    v.push(vec![a, b]);
+                }
+            }
+        }
+        v
+    };
+    struct Cand {
+        set: Vec<usize>,
+        covered: Vec<u32>,
+        base: f64,
+        ub0: f64,
+    }
+    let mut cands: Vec<Cand> = sets
+        .into_par_iter()
+        .map_init(
+            || (vec![0.0f64; n], vec![0.0f64; n], Vec::<u32>::new()),
+            |(a, rho, touched), set| {
+                for &o in &set {
+                    for &(j, v) in &inst.options[o].row {
+                        if a[j as usize] == 0.0 && rho[j as usize] == 0.0 {
+                            touched.push(j);
+                        }
+                        a[j as usize] += coverage_coef(v as f64);
+                        rho[j as usize] += v as f64;
+                    }
+                }
+                let mut covered = Vec::new();
+                let (mut base, mut ub0) = (0.0, 0.0);
+                for &j in touched.iter() {
+                    let ju = j as usize;
+                    if a[ju] >= tau && rt[ju] > 0.0 {
+                        covered.push(j);
+                        base += inst.weights[ju] * rho[ju];
+                        ub0 += inst.weights[ju] * (rho[ju] + rt[ju]);
+                    }
+                    a[ju] = 0.0;
+                    rho[ju] = 0.0;
+                }
+                touched.clear();
+                covered.sort_unstable();
+                Cand { set, covered, base, ub0 }
+            },
+        )
+        .collect();
+    // For pairs: each single LiDAR's radar values H1[l][r] = Σ_{j ∈ C_l} w_j V_rj, computed once.
+    // A pair covers C_l1 ∪ C_l2 plus targets only the two together cover (J), so its radar value
+    // is at most H1[l1][r] + H1[l2][r] + Σ_{j ∈ J} w_j V_rj ≤ … + Σ_{j ∈ J} w_j max_r V_rj: a
+    // cheap bound that is tight for pairs that overlap little, the ones worth searching.
+    let radar_max: Vec<f64> = {
+        let mut m = vec![0.0f64; n];
+        for &r in &radars {
+            for &(j, v) in &inst.options[r].row {
+                m[j as usize] = m[j as usize].max(v as f64);
+            }
+        }
+        m
+    };
+    if n_l == 2 {
+        let index: std::collections::HashMap<usize, usize> = lidars.iter().enumerate().map(|(i, &o)| (o, i)).collect();
+        let single: Vec<Vec<bool>> = lidars
+            .par_iter()
+            .map(|&l| {
+                let mut c = vec![false; n];
+                for &(j, v) in &inst.options[l].row {
+                    c[j as usize] = coverage_coef(v as f64) >= tau;
+                }
+                c
+            })
+            .collect();
+        let h1: Vec<Vec<f64>> = single
+            .par_iter()
+            .map(|c| radars.iter().map(|&r| inst.options[r].row.iter().filter(|(j, _)| c[*j as usize]).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum()).collect())
+            .collect();
+        let radar_mount: Vec<u32> = radars.iter().map(|&r| inst.options[r].mount).collect();
+        cands.par_iter_mut().filter(|c| c.set.len() == 2).for_each(|c| {
+            let (a, b) = (index[&c.set[0]], index[&c.set[1]]);
+            let joint: f64 = c.covered.iter().filter(|&&j| !single[a][j as usize] && !single[b][j as usize]).map(|&j| inst.weights[j as usize] * radar_max[j as usize]).sum();
+            let mut per_mount: std::collections::HashMap<u32, f64> = std::collections::HashMap::new();
+            for (k, m) in radar_mount.iter().enumerate() {
+                let v = h1[a][k] + h1[b][k];
+                let e = per_mount.entry(*m).or_insert(0.0);
+                *e = e.max(v);
+            }
+            let mut vals: Vec<f64> = per_mount.into_values().collect();
+            vals.sort_by(|x, y| y.total_cmp(x));
+            let ub2 = c.base + vals.iter().take(n_r).sum::<f64>() + n_r as f64 * joint;
+            c.ub0 = c.ub0.min(ub2);
+        });
+    }
+    cands.sort_by(|x, y| y.ub0.total_cmp(&x.ub0));
+    let mut best_sel = incumbent.to_vec();
+    let mut best = crate::instance::evaluate(inst, incumbent);
+    let mut scratch = Scratch::new(n);
+    let mut nodes = 0u64;
+    let mut exhausted = false;
+    let mut in_c = vec![false; n];
+    for c in &cands {
+        if c.ub0 <= best + 1e-9 {
+            break;
+        }
+        for &j in &c.covered {
+            in_c[j as usize] = true;
+        }
+        let lidar_mounts: Vec<u32> = c.set.iter().map(|&o| inst.options[o].mount).collect();
+        let mut h: Vec<(f64, usize)> = radars
+            .par_iter()
+            .filter(|&&r| !lidar_mounts.contains(&inst.options[r].mount))
+            .map(|&r| (inst.options[r].row.iter().filter(|(j, _)| in_c[*j as usize]).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum::<f64>(), r))
+            .filter(|(x, _)| *x > 0.0)
+            .collect();
+        for &j in &c.covered {
+            in_c[j as usize] = false;
+        }
+        h.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        // Best h per mount, top n_r of them: the radar part's bound.
+        let mut seen = std::collections::HashSet::new();
+        let ub1 = c.base + h.iter().filter(|(_, r)| seen.insert(inst.options[*r].mount)).take(n_r).map(|x| x.0).sum::<f64>();
+        if ub1 <= best + 1e-9 {
+            continue;
+        }
+        let mut chosen = c.set.clone();
+        let mut used: Vec<u32> = lidar_mounts.clone();
+        radar_dfs(inst, &h, 0, n_r, c.base, &mut chosen, &mut used, &mut best, &mut best_sel, &mut scratch, &mut nodes, node_budget);
+        if nodes >= node_budget {
+            exhausted = true;
+            break;
+        }
+    }
+    best_sel.sort_unstable();
+    let proven = !exhausted;
+    let bound = if proven { best } else { f64::INFINITY };
+    Ok((Outcome::new(inst, best_sel, bound, proven, start.elapsed().as_secs_f64(), "exact LiDAR-first search"), proven))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn radar_dfs(
+    inst: &Instance,
+    h: &[(f64, usize)],
+    start: usize,
+    slots: usize,
+    partial: f64,
+    chosen: &mut Vec<usize>,
+    used: &mut Vec<u32>,
+    best: &mut f64,
+    best_sel: &mut Vec<usize>,
+    scratch: &mut Scratch,
+    nodes: &mut u64,
+    budget: u64,
+) {
+    *nodes += 1;
+    if *nodes >= budget {
+        return;
+    }
+    if slots == 0 || start >= h.len() {
+        let f = evaluate_with(inst, chosen, scratch);
+        if f > *best + 1e-12 {
+            *best = f;
+            *best_sel = chosen.clone();
+        }
+        return;
+    }
+    let mut descended = false;
+    let mut cut = false;
+    for p in start..h.len() {
+        let bound: f64 = partial + h[p..].iter().take(slots).map(|x| x.0).sum::<f64>();
+        if bound <= *best + 1e-9 {
+            cut = true;
+            break;
+        }
+        let (v, r) = h[p];
+        let m = inst.options[r].mount;
+        if used.contains(&m) {
+            continue;
+        }
+        descended = true;
+        chosen.push(r);
+        used.push(m);
+        radar_dfs(inst, h, p + 1, slots - 1, partial + v, chosen, used, best, best_sel, scratch, nodes, budget);
+        chosen.pop();
+        used.pop();
+        if *nodes >= budget {
+            return;
+        }
+    }
+    // Every remaining radar sits on a used mount: evaluate what is chosen ("at most").
+    if !descended && !cut {
+        let f = evaluate_with(inst, chosen, scratch);
+        if f > *best + 1e-12 {
+            *best = f;
+            *best_sel = chosen.clone();
+        }
+    }
 }

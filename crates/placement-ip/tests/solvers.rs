@@ -183,3 +183,20 @@ fn both_count_vector_bounds_are_upper_bounds_and_the_separable_one_is_tighter() 
         }
     }
 }
+
+#[test]
+fn lidar_first_search_equals_exhaustive_with_several_radars() {
+    use hilo_placement_ip::exact::exact_lidar_first;
+    for seed in 0..16u64 {
+        let inst = random_instance(seed);
+        for counts in [vec![1, 0, 2], vec![2, 0, 2], vec![0, 2, 3]] {
+            let limit = Limit::Counts(counts.clone());
+            let oracle = exhaustive(&inst, &limit, 10_000_000).unwrap();
+            let g = greedy(&inst, &limit);
+            let (o, proven) = exact_lidar_first(&inst, &counts, &g.selection, 10_000_000).unwrap();
+            assert!(proven);
+            assert!((o.objective - oracle.objective).abs() < 1e-9 * oracle.objective.max(1.0), "seed {seed} {counts:?}: {} vs {}", o.objective, oracle.objective);
+            assert!(inst.check(&limit, &o.selection).is_ok());
+        }
+    }
+}
