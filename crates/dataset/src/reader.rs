@@ -4,7 +4,7 @@ use crate::error::DatasetError;
 use crate::tables::*;
 use hilo_core::{LidarPoint, RadarPoint};
 use serde::de::DeserializeOwned;
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 fn load<T: DeserializeOwned>(dir: &Path, name: &str) -> Result<Vec<T>, DatasetError> {
@@ -19,6 +19,10 @@ pub struct Dataset {
     pub root: PathBuf,
     pub version: String,
     pub tables: Tables,
+    /// Annotation token → index in `tables.sample_annotation`.
+    annotation_index: HashMap<String, usize>,
+    /// Sample token → timestamp, µs.
+    sample_time: HashMap<String, u64>,
 }
 
 impl Dataset {
@@ -41,7 +45,9 @@ impl Dataset {
             map: load(&dir, "map")?,
         };
         check_links(&tables)?;
-        Ok(Dataset { root: root.to_path_buf(), version: version.to_owned(), tables })
+        let annotation_index = tables.sample_annotation.iter().enumerate().map(|(i, a)| (a.token.clone(), i)).collect();
+        let sample_time = tables.sample.iter().map(|s| (s.token.clone(), s.timestamp)).collect();
+        Ok(Dataset { root: root.to_path_buf(), version: version.to_owned(), tables, annotation_index, sample_time })
     }
 
     /// The scene names of a split (`<version>/splits.json`).
@@ -60,8 +66,8 @@ impl Dataset {
     /// the instance (one-sided at the ends), NaN when there is neither or the time gap exceeds
     /// 1.5 s (3 s for a centred difference). Metres per second, x y z.
     pub fn box_velocity(&self, ann: &SampleAnnotation) -> [f64; 3] {
-        let by_token = |t: &str| self.tables.sample_annotation.iter().find(|a| a.token == t);
-        let time = |a: &SampleAnnotation| self.tables.sample.iter().find(|s| s.token == a.sample_token).map_or(0.0, |s| 1e-6 * s.timestamp as f64);
+        let by_token = |t: &str| self.annotation_index.get(t).map(|&i| &self.tables.sample_annotation[i]);
+        let time = |a: &SampleAnnotation| self.sample_time.get(&a.sample_token).map_or(0.0, |&t| 1e-6 * t as f64);
         let (has_prev, has_next) = (!ann.prev.is_empty(), !ann.next.is_empty());
         if !has_prev && !has_next {
             return [f64::NAN; 3];
