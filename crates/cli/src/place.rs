@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use glam::{Vec2, Vec3};
 use hilo_placement_ip::greedy::greedy;
 use hilo_placement_ip::mip::{Formulation, write_mps};
-use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve};
+use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve_from};
 use hilo_placement_ip::{Instance, Limit, Modality};
 use hilo_raycast::scene::config::RoiKind;
 use hilo_raycast::{QueryRegion, Scene, World};
@@ -135,7 +135,7 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
             }
         }
         let g = greedy(&inst, &limit);
-        let o = solve(&inst, &limit, cfg.time_limit_s)?;
+        let o = solve_from(&inst, &limit, cfg.time_limit_s, &g)?;
         let sensors = placed(&inst, &prep, &o.selection);
         let hits = lidar_hit_cells(&scene, &world, &catalog, &prep, cfg.cell_m, &sensors)?;
         let radar_cov = radar_covered(&inst, &o.selection);

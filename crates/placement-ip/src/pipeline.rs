@@ -107,7 +107,13 @@ pub const CBC_MAX_NONZEROS: usize = 2_000_000;
 /// greedy, within the time limit, if the model is small enough. A result that is not proven
 /// optimal carries its bound and gap.
 pub fn solve(inst: &Instance, limit: &Limit, time_limit_s: f64) -> Result<Outcome, PlacementError> {
-    let g = greedy(inst, limit);
+    solve_from(inst, limit, time_limit_s, &greedy(inst, limit))
+}
+
+/// [`solve`] from a greedy outcome the caller already has (`greedy(inst, limit)`), so a caller
+/// that also reports the greedy objective does not run greedy twice. Its seconds are counted in
+/// the result's `solve_seconds`.
+pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome) -> Result<Outcome, PlacementError> {
     if let Limit::Counts(c) = limit {
         let radars: u32 = c.iter().enumerate().filter(|(t, _)| inst.types.get(*t).is_some_and(|x| x.modality == Modality::Radar)).map(|(_, n)| *n).sum();
         if radars == 1 {
@@ -131,5 +137,5 @@ pub fn solve(inst: &Instance, limit: &Limit, time_limit_s: f64) -> Result<Outcom
     }
     let out = solve_mip(inst, limit, Formulation::Strengthened, time_limit_s, Some(&g.selection))?;
     // CBC may stop with something worse than its warm start: never return less than greedy.
-    Ok(if out.objective + 1e-9 < g.objective { Outcome { selection: g.selection, objective: g.objective, gap: (out.bound - g.objective) / g.objective.max(1e-9), ..out } } else { out })
+    Ok(if out.objective + 1e-9 < g.objective { Outcome { selection: g.selection.clone(), objective: g.objective, gap: (out.bound - g.objective) / g.objective.max(1e-9), ..out } } else { out })
 }
