@@ -7,7 +7,6 @@ use glam::{Vec2, Vec3};
 use hilo_core::Box3;
 use hilo_dataset::Dataset;
 use hilo_dataset::writer::class_of_category;
-use hilo_sensor_models::SensorPose;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -54,14 +53,14 @@ pub fn stats(args: &StatsArgs) -> Result<()> {
         for (k, sd) in t.sample_data.iter().filter(|s| s.sample_token == sample.token).enumerate() {
             let cs = t.calibrated_sensor.iter().find(|c| c.token == sd.calibrated_sensor_token).context("calibrated sensor")?;
             let q = glam::Quat::from_xyzw(cs.rotation[1] as f32, cs.rotation[2] as f32, cs.rotation[3] as f32, cs.rotation[0] as f32);
-            let pose = SensorPose { position: Vec3::new(cs.translation[0] as f32, cs.translation[1] as f32, cs.translation[2] as f32), yaw: 0.0, pitch: 0.0, roll: 0.0 };
+            let position = Vec3::new(cs.translation[0] as f32, cs.translation[1] as f32, cs.translation[2] as f32);
             let col = PALETTE[k % PALETTE.len()];
             let pts: Vec<Vec3> = if sd.filename.ends_with(".pcd.bin") {
                 ds.lidar_points(sd)?.iter().map(|p| Vec3::new(p.x, p.y, p.z)).collect()
             } else {
                 ds.radar_points(sd)?.iter().map(|p| Vec3::new(p.x, p.y, p.z)).collect()
             };
-            dots.extend(pts.into_iter().map(|p| ((pose.position + q * p).truncate(), col)));
+            dots.extend(pts.into_iter().map(|p| ((position + q * p).truncate(), col)));
         }
         let boxes: Vec<(Box3, (u8, u8, u8))> = t
             .sample_annotation
