@@ -7,6 +7,7 @@ mod eval;
 mod place;
 mod render;
 mod scan;
+mod simulate;
 mod study;
 
 use anyhow::{Context, Result};
@@ -32,6 +33,8 @@ enum Command {
     Scan(scan::ScanArgs),
     /// Place each configuration of a study optimally (integer programming over visibility).
     Place(place::PlaceArgs),
+    /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
+    Simulate(simulate::SimulateArgs),
     /// nuScenes detection metrics (AP, TP errors, NDS) of a submission.
     Eval(eval::EvalArgs),
     /// Inspect a dataset in the nuScenes layout.
@@ -97,6 +100,21 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Dataset generation at the paper's scale (37 scenes x 20 s x 20 Hz) for the default
+    /// study's 2 x 16-beam LiDAR + radar: frames/s and MB written.
+    Simulate {
+        #[arg(long, default_value_t = 37)]
+        scenes: usize,
+        #[arg(long, default_value_t = 20.0)]
+        seconds: f64,
+        #[arg(long, default_value_t = 20.0)]
+        rate_hz: f64,
+        /// Keep the dataset in this folder (a temporary folder otherwise).
+        #[arg(long)]
+        keep: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// The nuScenes metric on synthetic frames (6 classes, up to 500 predictions a frame).
     Eval {
         #[arg(long, default_value_t = 3000)]
@@ -148,12 +166,17 @@ fn main() -> Result<()> {
         }
         Command::Scan(args) => scan::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
+        Command::Simulate(args) => simulate::run(&args)?,
         Command::Dataset { command: DatasetCommand::Stats(args) } => dataset::stats(&args)?,
         Command::Place(args) => {
             place::run(&args)?;
         }
         Command::Bench { command: BenchCommand::Eval { frames, max_pred, repeats, json } } => {
             let report = bench::eval(frames.max(1), max_pred, repeats.max(1))?;
+            println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
+        }
+        Command::Bench { command: BenchCommand::Simulate { scenes, seconds, rate_hz, keep, json } } => {
+            let report = simulate::bench(scenes, seconds, rate_hz, keep.as_deref())?;
             println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
         }
         Command::Bench { command: BenchCommand::Placement { cbc_seconds, json } } => {

@@ -17,6 +17,9 @@ pub struct StudyFile {
     pub catalog: Option<PathBuf>,
     #[serde(default)]
     pub placement: PlacementConfig,
+    /// Traffic and recording settings for `hilo simulate`.
+    #[serde(default)]
+    pub dataset: hilo_dataset::simulate::SimulateConfig,
     pub configurations: Vec<Configuration>,
 }
 

@@ -4,11 +4,14 @@
 //! - [`writer`]: tables and point files from frames (deterministic tokens, atomic files);
 //! - [`reader`]: loading with every link between tables checked, and point files read back.
 //!
-//! The traffic simulation that produces the frames is the next part of this crate to come.
+//! - [`simulate`]: frames of a sensor rig over that traffic (scans, annotations, visibility);
+//! - [`traffic`]: the road users (lane graph, signal plan, IDM, gap acceptance, pedestrians).
 
 pub mod error;
 pub mod reader;
+pub mod simulate;
 pub mod tables;
+pub mod traffic;
 pub mod writer;
 
 pub use error::DatasetError;

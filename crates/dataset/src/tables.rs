@@ -129,7 +129,7 @@ pub struct Map {
 }
 
 /// All tables of one dataset version.
-#[derive(Clone, Debug, PartialEq, Default)]
+#[derive(Clone, Debug, PartialEq, Default, Serialize, Deserialize)]
 pub struct Tables {
     pub scene: Vec<Scene>,
     pub sample: Vec<Sample>,

@@ -295,6 +295,51 @@ impl DatasetWriter {
         Ok(())
     }
 
+    /// Adds a scene like [`Self::add_scene`] and returns the rows it added, so that a
+    /// resumable run can store them and later [`Self::add_rows`] instead of simulating again.
+    pub fn add_scene_rows(&mut self, scene: &SceneData, location: &str) -> Result<Tables, DatasetError> {
+        let t = &self.tables;
+        let before = (t.scene.len(), t.sample.len(), t.sample_data.len(), t.sample_annotation.len(), t.instance.len(), t.ego_pose.len(), t.log.len());
+        self.add_scene(scene, location)?;
+        let t = &self.tables;
+        Ok(Tables {
+            scene: t.scene[before.0..].to_vec(),
+            sample: t.sample[before.1..].to_vec(),
+            sample_data: t.sample_data[before.2..].to_vec(),
+            sample_annotation: t.sample_annotation[before.3..].to_vec(),
+            instance: t.instance[before.4..].to_vec(),
+            ego_pose: t.ego_pose[before.5..].to_vec(),
+            log: t.log[before.6..].to_vec(),
+            ..Tables::default()
+        })
+    }
+
+    /// Adds the rows of a scene written earlier (by [`Self::add_scene_rows`] with the same
+    /// namespace and sensors); its point files must already be in place.
+    pub fn add_rows(&mut self, rows: Tables) -> Result<(), DatasetError> {
+        let t = &mut self.tables;
+        for s in &rows.scene {
+            if t.scene.iter().any(|x| x.token == s.token) {
+                return Err(DatasetError::Invalid(format!("scene {:?} added twice", s.name)));
+            }
+        }
+        for s in &rows.sample_data {
+            let path = self.root.join(&s.filename);
+            if !path.is_file() {
+                return Err(DatasetError::PointFile { path, message: format!("missing (sample_data {})", s.token) });
+            }
+        }
+        t.map[0].log_tokens.extend(rows.log.iter().map(|l| l.token.clone()));
+        t.scene.extend(rows.scene);
+        t.sample.extend(rows.sample);
+        t.sample_data.extend(rows.sample_data);
+        t.sample_annotation.extend(rows.sample_annotation);
+        t.instance.extend(rows.instance);
+        t.ego_pose.extend(rows.ego_pose);
+        t.log.extend(rows.log);
+        Ok(())
+    }
+
     /// Records the train/val split by scene name (`<version>/splits.json`; nuScenes keeps its
     /// splits in code, the devkit ignores this file).
     pub fn write_splits(&self, splits: &std::collections::BTreeMap<String, Vec<String>>) -> Result<(), DatasetError> {

@@ -1,0 +1,306 @@
+//! Frames for a sensor rig: the traffic of [`crate::traffic`] scanned by every sensor.
+//!
+//! Each scene has its own traffic seed derived from the dataset seed and the scene's index,
+//! never from the sensors, so every rig records the same traffic. All sensors of a frame scan
+//! the same instant (synchronised sensors; a spinning LiDAR's 50 ms sweep is treated as
+//! instantaneous, the same simplification the radar makes for its chirps). Ground truth lists
+//! the road users within `annotate_radius_m` of the scene origin, each with its LiDAR and radar
+//! point counts and a nuScenes visibility level: the share of nine probe points of its box
+//! (centre and eight inner corners) in line of sight of at least one LiDAR.
+
+use crate::error::DatasetError;
+use crate::traffic::{ActorState, Traffic, TrafficConfig};
+use crate::writer::{Annotation, FrameData, SceneData};
+use glam::Vec3;
+use hilo_raycast::{Actor, ActorSet, HitTarget, Ray, Scene, World};
+use hilo_sensor_models::{SensorPose, SensorSpec, simulate_lidar, simulate_radar};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Dataset settings (`[dataset]` in a study file).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimulateConfig {
+    pub scenes: usize,
+    pub seconds: f64,
+    /// Frames per second (keyframes; every frame is annotated).
+    pub rate_hz: f64,
+    /// Seed of the traffic and of the sensor noise.
+    pub seed: u64,
+    /// Share of scenes in the validation split (the paper: 20%).
+    pub val_fraction: f64,
+    /// Road users farther than this from the scene origin are not annotated.
+    pub annotate_radius_m: f32,
+    pub traffic: TrafficConfig,
+}
+
+impl Default for SimulateConfig {
+    fn default() -> Self {
+        SimulateConfig { scenes: 10, seconds: 20.0, rate_hz: 10.0, seed: 0, val_fraction: 0.2, annotate_radius_m: 70.0, traffic: TrafficConfig::default() }
+    }
+}
+
+impl SimulateConfig {
+    pub fn validate(&self) -> Result<(), DatasetError> {
+        let bad = |f: &str, v: String, why: &str| Err(DatasetError::Invalid(format!("dataset.{f} = {v}: {why}")));
+        if self.scenes == 0 {
+            return bad("scenes", "0".into(), "at least one scene is needed");
+        }
+        if !(self.seconds > 0.0 && self.seconds <= 3600.0) {
+            return bad("seconds", self.seconds.to_string(), "must be in (0, 3600]");
+        }
+        let step = self.traffic.step_s;
+        let per = 1.0 / (self.rate_hz * step);
+        if self.rate_hz.is_nan() || self.rate_hz <= 0.0 || (per - per.round()).abs() > 1e-6 || per.round() < 1.0 {
+            return bad("rate_hz", self.rate_hz.to_string(), &format!("must divide the traffic rate {} Hz (1 / traffic.step_s)", 1.0 / step));
+        }
+        if !(0.0..1.0).contains(&self.val_fraction) {
+            return bad("val_fraction", self.val_fraction.to_string(), "must be in [0, 1)");
+        }
+        if self.annotate_radius_m.is_nan() || self.annotate_radius_m <= 0.0 {
+            return bad("annotate_radius_m", self.annotate_radius_m.to_string(), "must be > 0");
+        }
+        Ok(())
+    }
+
+    pub fn frames_per_scene(&self) -> usize {
+        (self.seconds * self.rate_hz).round() as usize
+    }
+
+    /// Scene names in order, and which are in the validation split (the last ones, so that
+    /// adding scenes never moves an existing scene between splits… unless the count changes
+    /// the rounding; the split is recorded in the dataset).
+    pub fn splits(&self) -> BTreeMap<String, Vec<String>> {
+        let n_val = ((self.scenes as f64) * self.val_fraction).round() as usize;
+        let n_val = if self.val_fraction > 0.0 { n_val.clamp(1, self.scenes.saturating_sub(1).max(1)) } else { 0 };
+        let names: Vec<String> = (0..self.scenes).map(scene_name).collect();
+        let cut = self.scenes - n_val.min(self.scenes);
+        BTreeMap::from([("train".to_string(), names[..cut].to_vec()), ("val".to_string(), names[cut..].to_vec())])
+    }
+}
+
+pub fn scene_name(index: usize) -> String {
+    format!("scene-{index:04}")
+}
+
+/// SplitMix64 of the dataset seed and a stream: independent seeds per scene, frame, sensor.
+pub fn derive_seed(seed: u64, stream: &[u64]) -> u64 {
+    let mut x = seed ^ 0x9e37_79b9_7f4a_7c15;
+    for &s in stream {
+        x = x.wrapping_add(s.wrapping_mul(0xbf58_476d_1ce4_e5b9)).wrapping_add(0x9e37_79b9_7f4a_7c15);
+        x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        x ^= x >> 31;
+    }
+    x
+}
+
+/// One mounted sensor.
+#[derive(Clone, Debug)]
+pub struct RigSensor {
+    pub channel: String,
+    pub spec: SensorSpec,
+    pub pose: SensorPose,
+}
+
+/// The start of scene `index` in µs: scenes are an hour apart (the devkit orders scenes by start
+/// time and needs them distinct).
+pub fn scene_start_us(index: usize) -> u64 {
+    1_767_225_600_000_000 + index as u64 * 3_600_000_000
+}
+
+fn actor_of(a: &ActorState) -> Actor {
+    Actor::from_box(a.id, a.class, a.box3).with_velocity(a.velocity_mps.extend(0.0))
+}
+
+/// nuScenes visibility level (1..=4) of a box seen from the LiDAR positions.
+fn visibility(world: &World, actors: &ActorSet, a: &ActorState, eyes: &[Vec3]) -> u8 {
+    if eyes.is_empty() {
+        return 4;
+    }
+    let b = a.box3;
+    let mut probes = vec![b.center];
+    probes.extend(b.corners().iter().map(|c| b.center + (*c - b.center) * 0.8));
+    let seen = probes
+        .iter()
+        .filter(|p| {
+            eyes.iter().any(|e| {
+                let d = **p - *e;
+                let dist = d.length();
+                if dist < 1e-3 {
+                    return true;
+                }
+                let ray = Ray::new(*e, d / dist, dist + 0.5);
+                match world.closest_hit(&ray, Some(actors)) {
+                    None => true,
+                    Some(h) => matches!(h.target, HitTarget::Actor { id, .. } if id == a.id) || h.t >= dist - 0.05,
+                }
+            })
+        })
+        .count();
+    let frac = seen as f32 / probes.len() as f32;
+    match frac {
+        f if f <= 0.4 => 1,
+        f if f <= 0.6 => 2,
+        f if f <= 0.8 => 3,
+        _ => 4,
+    }
+}
+
+/// Simulates scene `index` for the rig: traffic, scans, annotations.
+pub fn simulate_scene(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &SimulateConfig, index: usize) -> Result<SceneData, DatasetError> {
+    simulate_scene_with(scene, world, rig, cfg, index, &|_| {})
+}
+
+/// [`simulate_scene`], calling `on_frame` with the number of frames done after each frame.
+pub fn simulate_scene_with(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &SimulateConfig, index: usize, on_frame: &(dyn Fn(usize) + Sync)) -> Result<SceneData, DatasetError> {
+    cfg.validate()?;
+    let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, index as u64]))?;
+    let steps_per_frame = (1.0 / (cfg.rate_hz * cfg.traffic.step_s)).round() as usize;
+    let start = scene_start_us(index);
+    let frame_us = (1e6 / cfg.rate_hz).round() as u64;
+    let eyes: Vec<Vec3> = rig.iter().filter(|s| matches!(s.spec, SensorSpec::Lidar(_))).map(|s| s.pose.position).collect();
+    let mut frames = Vec::with_capacity(cfg.frames_per_scene());
+    for f in 0..cfg.frames_per_scene() {
+        let states = traffic.snapshot();
+        let set = ActorSet::new(states.iter().map(actor_of).collect()).map_err(|e| DatasetError::Invalid(format!("scene {index} frame {f}: {e}")))?;
+        let mut lidar = Vec::new();
+        let mut radar = Vec::new();
+        let mut lidar_pts: BTreeMap<u32, u32> = BTreeMap::new();
+        let mut radar_pts: BTreeMap<u32, u32> = BTreeMap::new();
+        for (k, s) in rig.iter().enumerate() {
+            let noise = derive_seed(cfg.seed, &[2, index as u64, f as u64, k as u64]);
+            let err = |e: hilo_sensor_models::SensorError| DatasetError::Invalid(format!("sensor {}: {e}", s.channel));
+            match &s.spec {
+                SensorSpec::Lidar(l) => {
+                    let scan = simulate_lidar(l, &s.pose, world, Some(&set), noise).map_err(err)?;
+                    for (id, n) in scan.points_per_actor() {
+                        *lidar_pts.entry(id).or_default() += n as u32;
+                    }
+                    lidar.push(scan.points);
+                }
+                SensorSpec::Radar(r) => {
+                    let scan = simulate_radar(r, &s.pose, world, Some(&set), noise).map_err(err)?;
+                    for src in &scan.sources {
+                        if let Some(id) = src.actor() {
+                            *radar_pts.entry(id).or_default() += 1;
+                        }
+                    }
+                    radar.push(scan.points);
+                }
+            }
+        }
+        let annotations = states
+            .iter()
+            .filter(|a| a.box3.center.truncate().length() <= cfg.annotate_radius_m)
+            .map(|a| Annotation {
+                instance: a.id,
+                class: a.class,
+                box3: a.box3,
+                velocity_mps: a.velocity_mps,
+                attribute: a.attribute.to_string(),
+                num_lidar_pts: lidar_pts.get(&a.id).copied().unwrap_or(0),
+                num_radar_pts: radar_pts.get(&a.id).copied().unwrap_or(0),
+                visibility: visibility(world, &set, a, &eyes),
+            })
+            .collect();
+        frames.push(FrameData { timestamp_us: start + f as u64 * frame_us, lidar, radar, annotations });
+        on_frame(f + 1);
+        for _ in 0..steps_per_frame {
+            traffic.step();
+        }
+    }
+    Ok(SceneData { name: scene_name(index), description: format!("hilo traffic, seed {}, {} s at {} Hz", cfg.seed, cfg.seconds, cfg.rate_hz), frames })
+}
+
+/// What [`write_dataset`] did.
+#[derive(Clone, Debug, Serialize)]
+pub struct WriteSummary {
+    pub scenes: usize,
+    /// Scenes found complete from an earlier run and kept.
+    pub resumed_scenes: usize,
+    pub frames: usize,
+    pub annotations: usize,
+    pub bytes_written: u64,
+    pub seconds: f64,
+}
+
+const RUN_FILE: &str = ".hilo/run.json";
+
+fn parts_dir(root: &std::path::Path) -> std::path::PathBuf {
+    root.join(".hilo").join("parts")
+}
+
+/// Simulates every scene of `cfg` for `rig` and writes the dataset under `root` in the nuScenes
+/// layout (`version` folder for the tables). Resumable: each finished scene's rows are kept in
+/// `<root>/.hilo/parts/`, so a rerun after an interruption simulates only the missing scenes
+/// (bit-identical, as the seeds are per scene). A folder made with other settings is refused.
+/// `progress` is called with the frames finished so far (resumed ones included).
+#[allow(clippy::too_many_arguments)]
+pub fn write_dataset(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &SimulateConfig, root: &std::path::Path, version: &str, namespace: &str, progress: &(dyn Fn(usize) + Sync)) -> Result<WriteSummary, DatasetError> {
+    use crate::writer::{DatasetWriter, SensorModality, SensorSetup, token, write_atomic};
+    let t0 = std::time::Instant::now();
+    cfg.validate()?;
+    let fingerprint = token(&[&format!("{cfg:?}"), &format!("{rig:?}"), &format!("{:?}", scene.config), version, namespace]);
+    let run_path = root.join(RUN_FILE);
+    let run = serde_json::json!({ "fingerprint": fingerprint, "namespace": namespace, "version": version, "scenes": cfg.scenes });
+    match std::fs::read(&run_path) {
+        Ok(bytes) => {
+            let old: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
+            if old.get("fingerprint") != run.get("fingerprint") {
+                return Err(DatasetError::Invalid(format!("{} holds a dataset made with other settings (fingerprint {} here, {} now); choose another output folder or delete it", root.display(), old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?"), fingerprint)));
+            }
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            if root.join(version).join("scene.json").exists() {
+                return Err(DatasetError::Invalid(format!("{} already holds a dataset not written by this run; choose another output folder", root.display())));
+            }
+            let bytes = serde_json::to_vec_pretty(&run).map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
+            write_atomic(&run_path, &bytes)?;
+        }
+        Err(e) => return Err(DatasetError::Io { path: run_path, source: e }),
+    }
+    let setups: Vec<SensorSetup> = rig
+        .iter()
+        .map(|s| {
+            let modality = match s.spec {
+                SensorSpec::Lidar(_) => SensorModality::Lidar,
+                SensorSpec::Radar(_) => SensorModality::Radar,
+            };
+            SensorSetup { channel: s.channel.clone(), modality, pose: s.pose }
+        })
+        .collect();
+    let mut writer = DatasetWriter::new(root, version, namespace, setups)?;
+    let location = scene.config.name.clone();
+    let per_scene = cfg.frames_per_scene();
+    let mut summary = WriteSummary { scenes: cfg.scenes, resumed_scenes: 0, frames: 0, annotations: 0, bytes_written: 0, seconds: 0.0 };
+    for index in 0..cfg.scenes {
+        let part = parts_dir(root).join(format!("{}.json", scene_name(index)));
+        let rows: Option<crate::tables::Tables> = match std::fs::read(&part) {
+            Ok(bytes) => Some(serde_json::from_slice(&bytes).map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?),
+            Err(_) => None,
+        };
+        match rows {
+            Some(rows) => {
+                summary.annotations += rows.sample_annotation.len();
+                writer.add_rows(rows)?;
+                summary.resumed_scenes += 1;
+            }
+            None => {
+                let done = summary.frames;
+                let data = simulate_scene_with(scene, world, rig, cfg, index, &|f| progress(done + f))?;
+                summary.bytes_written += data.frames.iter().map(|f| f.lidar.iter().map(|c| c.len() as u64 * 20).sum::<u64>() + f.radar.iter().map(|c| c.len() as u64 * 28).sum::<u64>()).sum::<u64>();
+                let rows = writer.add_scene_rows(&data, &location)?;
+                summary.annotations += rows.sample_annotation.len();
+                let bytes = serde_json::to_vec(&rows).map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?;
+                write_atomic(&part, &bytes)?;
+            }
+        }
+        summary.frames += per_scene;
+        progress(summary.frames);
+    }
+    writer.write_splits(&cfg.splits())?;
+    writer.finish()?;
+    summary.seconds = t0.elapsed().as_secs_f64();
+    Ok(summary)
+}

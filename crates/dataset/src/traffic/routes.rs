@@ -1,0 +1,289 @@
+//! The lane graph: one route per (approach, inbound lane, movement), as a densely sampled
+//! centreline from the end of the arm, through the junction, to the end of the exit arm.
+//!
+//! Movements are found by angle, so any number of straight arms works: through is the exit arm
+//! within 35° of straight on, left and right the arms nearest to ±90°. Left turns use the
+//! left-turn bay when the arm has one (entering it by a 30 m taper from the innermost lane),
+//! right turns the outermost lane. Junction connectors are cubic Bézier curves between the
+//! junction-side edges of the two crosswalks; the speed on a route is capped by its curvature
+//! (lateral acceleration ≤ 2.5 m/s²) with comfortable braking into curves.
+
+use glam::Vec2;
+use hilo_raycast::scene::layout::{ArmLayout, LaneKind, Layout, point_in_polygon};
+
+/// Route sample spacing.
+pub const DS: f32 = 0.5;
+const LATERAL_ACCEL: f32 = 2.5;
+const CURVE_BRAKING: f32 = 2.0;
+const TAPER_M: f32 = 30.0;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Movement {
+    Left,
+    Through,
+    Right,
+}
+
+/// A path sampled every [`DS`] metres.
+#[derive(Clone, Debug)]
+pub struct Path {
+    pub points: Vec<Vec2>,
+    pub dirs: Vec<Vec2>,
+}
+
+impl Path {
+    /// Resamples a polyline every [`DS`] metres.
+    pub fn from_polyline(poly: &[Vec2]) -> Path {
+        let mut points = Vec::new();
+        let mut carry = 0.0f32;
+        for w in poly.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            let len = (b - a).length();
+            if len < 1e-6 {
+                continue;
+            }
+            let mut t = carry;
+            while t < len {
+                points.push(a + (b - a) * (t / len));
+                t += DS;
+            }
+            carry = t - len;
+        }
+        if let Some(&last) = poly.last() {
+            points.push(last);
+        }
+        let n = points.len();
+        let dirs = (0..n)
+            .map(|k| {
+                let (a, b) = (points[k.saturating_sub(1)], points[(k + 1).min(n - 1)]);
+                (b - a).normalize_or(Vec2::X)
+            })
+            .collect();
+        Path { points, dirs }
+    }
+
+    pub fn length(&self) -> f32 {
+        (self.points.len().saturating_sub(1)) as f32 * DS
+    }
+
+    /// Position and unit direction at arc length `s` (clamped to the path).
+    pub fn at(&self, s: f32) -> (Vec2, Vec2) {
+        let n = self.points.len();
+        let x = (s / DS).clamp(0.0, (n - 1) as f32);
+        let k = (x.floor() as usize).min(n.saturating_sub(2));
+        let f = x - k as f32;
+        if n < 2 {
+            return (self.points[0], self.dirs[0]);
+        }
+        let p = self.points[k].lerp(self.points[k + 1], f);
+        let d = self.dirs[k].lerp(self.dirs[k + 1], f).normalize_or(self.dirs[k]);
+        (p, d)
+    }
+}
+
+/// One vehicle route.
+#[derive(Clone, Debug)]
+pub struct Route {
+    pub approach: usize,
+    pub exit: usize,
+    pub movement: Movement,
+    pub path: Path,
+    /// Arc length of the stop line.
+    pub stop_s: f32,
+    /// Arc length where the route leaves the junction (far edge of the exit crosswalk).
+    pub clear_s: f32,
+    /// Curvature speed cap per sample (m/s).
+    pub v_cap: Vec<f32>,
+    /// The crosswalks the route crosses: (arm, first and last arc length inside it).
+    pub crosswalks: Vec<(usize, f32, f32)>,
+}
+
+impl Route {
+    pub fn v_cap_at(&self, s: f32) -> f32 {
+        let k = ((s / DS).round().max(0.0) as usize).min(self.v_cap.len() - 1);
+        self.v_cap[k]
+    }
+}
+
+fn bezier(p0: Vec2, p1: Vec2, p2: Vec2, p3: Vec2, n: usize) -> Vec<Vec2> {
+    (0..=n)
+        .map(|i| {
+            let t = i as f32 / n as f32;
+            let u = 1.0 - t;
+            p0 * (u * u * u) + p1 * (3.0 * u * u * t) + p2 * (3.0 * u * t * t) + p3 * (t * t * t)
+        })
+        .collect()
+}
+
+/// Signed angle from `a` to `b`, radians.
+fn signed_angle(a: Vec2, b: Vec2) -> f32 {
+    a.perp_dot(b).atan2(a.dot(b))
+}
+
+/// The exit arm of each movement from arm `i`, if the junction has one.
+pub fn exit_arm(layout: &Layout, i: usize, m: Movement) -> Option<usize> {
+    let h = -layout.arms[i].dir;
+    let target = match m {
+        Movement::Through => 0.0f32,
+        Movement::Left => std::f32::consts::FRAC_PI_2,
+        Movement::Right => -std::f32::consts::FRAC_PI_2,
+    };
+    layout
+        .arms
+        .iter()
+        .enumerate()
+        .filter(|(j, _)| *j != i)
+        .map(|(j, a)| (j, signed_angle(h, a.dir)))
+        .filter(|(_, ang)| match m {
+            Movement::Through => ang.abs() < 35f32.to_radians(),
+            Movement::Left => *ang >= 35f32.to_radians() && *ang <= 145f32.to_radians(),
+            Movement::Right => *ang <= -35f32.to_radians() && *ang >= -145f32.to_radians(),
+        })
+        .min_by(|a, b| (a.1 - target).abs().total_cmp(&(b.1 - target).abs()))
+        .map(|(j, _)| j)
+}
+
+/// Along-arm distance of the junction-side crosswalk edge.
+pub fn cw0(arm: &ArmLayout) -> f32 {
+    arm.crosswalk[0].dot(arm.dir)
+}
+
+/// Width of an arm's crosswalk (along the arm).
+pub fn crosswalk_width(arm: &ArmLayout) -> f32 {
+    (arm.crosswalk[1] - arm.crosswalk[0]).dot(arm.dir)
+}
+
+fn lanes(arm: &ArmLayout, kind: LaneKind) -> Vec<hilo_raycast::scene::layout::Lane> {
+    arm.lanes.iter().copied().filter(|l| l.kind == kind).collect()
+}
+
+/// Every route of the layout.
+pub fn build_routes(layout: &Layout) -> Vec<Route> {
+    let mut routes = Vec::new();
+    for (i, arm) in layout.arms.iter().enumerate() {
+        let ins = lanes(arm, LaneKind::Inbound);
+        let bays = lanes(arm, LaneKind::LeftTurnBay);
+        if ins.is_empty() {
+            continue;
+        }
+        for m in [Movement::Left, Movement::Through, Movement::Right] {
+            let Some(j) = exit_arm(layout, i, m) else { continue };
+            let out = lanes(&layout.arms[j], LaneKind::Outbound);
+            if out.is_empty() {
+                continue;
+            }
+            // (inbound polyline, exit lane index) pairs for this movement.
+            let mut starts: Vec<(Vec<Vec2>, usize)> = Vec::new();
+            match m {
+                Movement::Through => {
+                    for (k, l) in ins.iter().enumerate() {
+                        starts.push((vec![l.start, l.end], k.min(out.len() - 1)));
+                    }
+                }
+                Movement::Right => {
+                    let l = ins[ins.len() - 1];
+                    starts.push((vec![l.start, l.end], out.len() - 1));
+                }
+                Movement::Left => match bays.first() {
+                    Some(bay) => {
+                        let l0 = ins[0];
+                        let dir = (l0.end - l0.start).normalize_or_zero();
+                        // The taper ends where the bay starts.
+                        let bay_start_on_l0 = l0.end - dir * (bay.start - bay.end).length();
+                        let taper_start = bay_start_on_l0 - dir * TAPER_M;
+                        let mut poly = vec![l0.start];
+                        if (taper_start - l0.start).dot(dir) > 0.0 {
+                            poly.push(taper_start);
+                        }
+                        poly.push(bay.start);
+                        poly.push(bay.end);
+                        starts.push((poly, 0));
+                    }
+                    None => starts.push((vec![ins[0].start, ins[0].end], 0)),
+                },
+            }
+            let exit = &layout.arms[j];
+            for (mut poly, k) in starts {
+                let o = out[k];
+                let stop_line = *poly.last().unwrap_or(&o.start);
+                let h = (stop_line - poly[poly.len() - 2]).normalize_or(-arm.dir);
+                let stop_s = poly.windows(2).map(|w| (w[1] - w[0]).length()).sum::<f32>();
+                // Straight over the own crosswalk to its junction-side edge.
+                let entry = stop_line + h * (stop_line.dot(arm.dir) - cw0(arm)).max(0.0);
+                poly.push(entry);
+                let exit_dir = (o.end - o.start).normalize_or(exit.dir);
+                let chord = (o.start - entry).length();
+                let c = 0.45 * chord;
+                let curve = bezier(entry, entry + h * c, o.start - exit_dir * c, o.start, 24);
+                poly.extend_from_slice(&curve[1..]);
+                poly.push(o.end);
+                let path = Path::from_polyline(&poly);
+                let clear_s = path.length() - (o.end - o.start).length() + crosswalk_width(exit);
+                let v_cap = speed_caps(&path);
+                let crosswalks = [i, j]
+                    .iter()
+                    .filter_map(|&arm| {
+                        let inside: Vec<f32> = path.points.iter().enumerate().filter(|(_, p)| point_in_polygon(**p, &layout.arms[arm].crosswalk)).map(|(k, _)| k as f32 * DS).collect();
+                        Some((arm, *inside.first()?, *inside.last()?))
+                    })
+                    .collect();
+                routes.push(Route { approach: i, exit: j, movement: m, path, stop_s, clear_s, v_cap, crosswalks });
+            }
+        }
+    }
+    routes
+}
+
+/// Curvature speed cap per sample with a backward pass for braking into curves.
+fn speed_caps(path: &Path) -> Vec<f32> {
+    let n = path.points.len();
+    let window = 4usize;
+    let mut caps: Vec<f32> = (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(window), (k + window).min(n - 1));
+            if b <= a {
+                return f32::INFINITY;
+            }
+            let turn = signed_angle(path.dirs[a], path.dirs[b]).abs();
+            let len = (b - a) as f32 * DS;
+            let kappa = turn / len;
+            if kappa < 1e-4 { f32::INFINITY } else { (LATERAL_ACCEL / kappa).sqrt() }
+        })
+        .collect();
+    for k in (0..n.saturating_sub(1)).rev() {
+        let next = caps[k + 1];
+        if next.is_finite() {
+            caps[k] = caps[k].min((next * next + 2.0 * CURVE_BRAKING * DS).sqrt());
+        }
+    }
+    caps
+}
+
+/// For each ordered pair of routes (a, b): if b's path through the junction comes within
+/// `clearance_m` of a's, the arc length on b after which b's rear has left the conflict.
+/// Routes that start on the same lane are never in conflict here (they follow each other).
+pub fn junction_conflicts(routes: &[Route], clearance_m: f32) -> Vec<Vec<Option<f32>>> {
+    let span = |r: &Route| {
+        let (k0, k1) = ((r.stop_s / DS).floor() as usize, ((r.clear_s / DS).ceil() as usize).min(r.path.points.len() - 1));
+        (k0..=k1).map(|k| (k as f32 * DS, r.path.points[k])).collect::<Vec<_>>()
+    };
+    let spans: Vec<_> = routes.iter().map(span).collect();
+    let c2 = clearance_m * clearance_m;
+    routes
+        .iter()
+        .enumerate()
+        .map(|(ia, a)| {
+            routes
+                .iter()
+                .enumerate()
+                .map(|(ib, b)| {
+                    if ia == ib || a.path.points[0].distance(b.path.points[0]) < 0.1 {
+                        return None;
+                    }
+                    spans[ib].iter().filter(|(_, pb)| spans[ia].iter().any(|(_, pa)| pa.distance_squared(*pb) < c2)).map(|(s, _)| *s).fold(None, |m: Option<f32>, s| Some(m.map_or(s, |m| m.max(s))))
+                })
+                .collect()
+        })
+        .collect()
+}

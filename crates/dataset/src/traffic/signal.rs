@@ -1,0 +1,156 @@
+//! A fixed-time signal plan. Opposing arms (directions within 20° of opposite) form a group;
+//! the groups run in turn, each with an optional protected-left interval, a green for through,
+//! right and permissive left, a yellow and an all-red. Pedestrians get WALK on an arm's
+//! crosswalk while a group that does not contain that arm is green (the crosswalk runs parallel
+//! to that traffic). Right turns on red are not allowed.
+
+use super::routes::Movement;
+use glam::Vec2;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct SignalConfig {
+    /// Green for through/right/permissive-left, per group.
+    pub green_s: f64,
+    /// Protected left before the green, for groups with a left-turn bay (0 disables it).
+    pub protected_left_s: f64,
+    /// Yellow; when absent, the ITE formula 1 s + v / (2 · 3.05 m/s²) at the group's speed limit.
+    pub yellow_s: Option<f64>,
+    pub all_red_s: f64,
+}
+
+impl Default for SignalConfig {
+    fn default() -> Self {
+        SignalConfig { green_s: 24.0, protected_left_s: 8.0, yellow_s: None, all_red_s: 2.0 }
+    }
+}
+
+/// What a signal head shows a movement.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Light {
+    /// Green; `protected` when conflicting traffic is held.
+    Green { protected: bool },
+    Yellow,
+    Red,
+}
+
+#[derive(Clone, Debug)]
+struct Group {
+    arms: Vec<usize>,
+    left_s: f64,
+    green_s: f64,
+    yellow_s: f64,
+    all_red_s: f64,
+    /// Cycle offset of this group's start.
+    offset_s: f64,
+}
+
+impl Group {
+    fn duration(&self) -> f64 {
+        self.left_s + self.green_s + self.yellow_s + self.all_red_s
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct SignalPlan {
+    groups: Vec<Group>,
+    group_of_arm: Vec<usize>,
+    cycle_s: f64,
+}
+
+impl SignalPlan {
+    /// `dirs`: each arm's outward direction; `speed_mps`: its speed limit; `has_bay`: whether it
+    /// has a left-turn bay.
+    pub fn new(cfg: &SignalConfig, dirs: &[Vec2], speed_mps: &[f32], has_bay: &[bool]) -> SignalPlan {
+        let n = dirs.len();
+        let mut group_of_arm = vec![usize::MAX; n];
+        let mut groups: Vec<Group> = Vec::new();
+        for i in 0..n {
+            if group_of_arm[i] != usize::MAX {
+                continue;
+            }
+            let mut arms = vec![i];
+            if let Some(j) = (i + 1..n).find(|&j| group_of_arm[j] == usize::MAX && dirs[i].dot(dirs[j]) < -(20f32.to_radians().cos())) {
+                arms.push(j);
+            }
+            let g = groups.len();
+            for &a in &arms {
+                group_of_arm[a] = g;
+            }
+            let v = arms.iter().map(|&a| speed_mps[a]).fold(0.0f32, f32::max) as f64;
+            let yellow_s = cfg.yellow_s.unwrap_or((1.0 + v / (2.0 * 3.05)).max(3.0));
+            let left_s = if arms.iter().any(|&a| has_bay[a]) { cfg.protected_left_s } else { 0.0 };
+            groups.push(Group { arms, left_s, green_s: cfg.green_s, yellow_s, all_red_s: cfg.all_red_s, offset_s: 0.0 });
+        }
+        let mut t = 0.0;
+        for g in &mut groups {
+            g.offset_s = t;
+            t += g.duration();
+        }
+        SignalPlan { groups, group_of_arm, cycle_s: t }
+    }
+
+    pub fn cycle_s(&self) -> f64 {
+        self.cycle_s
+    }
+
+    /// The group running at `t` and the time since its start.
+    fn active(&self, t: f64) -> (usize, f64) {
+        let c = t.rem_euclid(self.cycle_s);
+        for (k, g) in self.groups.iter().enumerate() {
+            if c < g.offset_s + g.duration() {
+                return (k, c - g.offset_s);
+            }
+        }
+        (self.groups.len() - 1, c - self.groups[self.groups.len() - 1].offset_s)
+    }
+
+    /// The light a movement from arm `arm` sees at time `t`.
+    pub fn light(&self, arm: usize, m: Movement, t: f64) -> Light {
+        let (k, dt) = self.active(t);
+        if self.group_of_arm[arm] != k {
+            return Light::Red;
+        }
+        let g = &self.groups[k];
+        if dt < g.left_s {
+            return if m == Movement::Left { Light::Green { protected: true } } else { Light::Red };
+        }
+        let dt = dt - g.left_s;
+        if dt < g.green_s {
+            // Left is permissive when an opposing arm runs with it.
+            let protected = m != Movement::Left || g.arms.len() == 1;
+            return Light::Green { protected };
+        }
+        if dt < g.green_s + g.yellow_s { Light::Yellow } else { Light::Red }
+    }
+
+    /// While a movement sees yellow, the seconds until its red.
+    pub fn yellow_left(&self, arm: usize, m: Movement, t: f64) -> Option<f64> {
+        if self.light(arm, m, t) != Light::Yellow {
+            return None;
+        }
+        let (k, dt) = self.active(t);
+        let g = &self.groups[k];
+        Some(g.left_s + g.green_s + g.yellow_s - dt)
+    }
+
+    /// Whether a pedestrian may start crossing arm `arm` at `t`, and until when the crossing
+    /// stays protected from the traffic it runs parallel to (seconds from `t`).
+    pub fn walk(&self, arm: usize, t: f64) -> Option<f64> {
+        let (k, dt) = self.active(t);
+        if self.group_of_arm[arm] == k {
+            return None;
+        }
+        let g = &self.groups[k];
+        if dt < g.left_s || dt >= g.left_s + g.green_s {
+            return None;
+        }
+        Some(g.duration() - dt)
+    }
+
+    /// The arms of the group that opposes `arm` in its own green (the other arm of its pair).
+    pub fn opposing(&self, arm: usize) -> Vec<usize> {
+        self.groups[self.group_of_arm[arm]].arms.iter().copied().filter(|&a| a != arm).collect()
+    }
+}
