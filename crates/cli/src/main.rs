@@ -9,6 +9,7 @@ mod render;
 mod scan;
 mod simulate;
 mod study;
+mod train;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -35,6 +36,10 @@ enum Command {
     Place(place::PlaceArgs),
     /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
     Simulate(simulate::SimulateArgs),
+    /// Train a detector (centerpoint, pointpillars) on a dataset's train split, on the CPU.
+    Train(train::TrainArgs),
+    /// Run a trained detector on a split and write a nuScenes submission.
+    Detect(train::DetectArgs),
     /// nuScenes detection metrics (AP, TP errors, NDS) of a submission.
     Eval(eval::EvalArgs),
     /// Inspect a dataset in the nuScenes layout.
@@ -167,6 +172,8 @@ fn main() -> Result<()> {
         Command::Scan(args) => scan::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
         Command::Simulate(args) => simulate::run(&args)?,
+        Command::Train(args) => train::run_train(&args)?,
+        Command::Detect(args) => train::run_detect(&args)?,
         Command::Dataset { command: DatasetCommand::Stats(args) } => dataset::stats(&args)?,
         Command::Place(args) => {
             place::run(&args)?;

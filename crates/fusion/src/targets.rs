@@ -1,0 +1,112 @@
+//! Training targets on the head's grid, built on the host.
+
+use crate::data::GtBox;
+use crate::grid::BevGrid;
+use crate::modules::REG_CHANNELS;
+
+/// How ground truth is assigned to the head's cells.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Assignment {
+    /// CenterPoint: a Gaussian peak at each box centre; regression at the centre cell.
+    Center,
+    /// Anchor-free PointPillars: every cell whose centre lies in a box footprint is positive
+    /// (the centre cell when none does) and regresses that box.
+    Inside,
+}
+
+/// Targets of a batch: class map (B, K, H, W), regression (B, 10, H, W), positive mask
+/// (B, 1, H, W), all row-major, and the number of positives.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Targets {
+    pub cls: Vec<f32>,
+    pub reg: Vec<f32>,
+    pub mask: Vec<f32>,
+    pub num_pos: f32,
+    pub size: usize,
+}
+
+/// CenterNet's Gaussian radius for a box of `l × w` cells at overlap `min_overlap`.
+pub fn gaussian_radius(l: f32, w: f32, min_overlap: f32) -> f32 {
+    let (a1, b1, c1) = (1.0, l + w, w * l * (1.0 - min_overlap) / (1.0 + min_overlap));
+    let r1 = (b1 + (b1 * b1 - 4.0 * a1 * c1).max(0.0).sqrt()) / 2.0;
+    let (a2, b2, c2) = (4.0, 2.0 * (l + w), (1.0 - min_overlap) * w * l);
+    let r2 = (b2 + (b2 * b2 - 4.0 * a2 * c2).max(0.0).sqrt()) / 2.0;
+    let (a3, b3, c3) = (4.0 * min_overlap, -2.0 * min_overlap * (l + w), (min_overlap - 1.0) * w * l);
+    let r3 = (b3 + (b3 * b3 - 4.0 * a3 * c3).max(0.0).sqrt()) / 2.0;
+    r1.min(r2).min(r3)
+}
+
+pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBox]], how: Assignment) -> Targets {
+    let n = grid.cells() / out_stride;
+    let cell = grid.cell_m * out_stride as f32;
+    let hw = n * n;
+    let b = frames.len();
+    let mut t = Targets { cls: vec![0.0; b * classes * hw], reg: vec![0.0; b * REG_CHANNELS * hw], mask: vec![0.0; b * hw], num_pos: 0.0, size: n };
+    for (bi, boxes) in frames.iter().enumerate() {
+        for g in boxes.iter() {
+            let u = (g.center[0] + grid.half_extent_m) / cell;
+            let v = (g.center[1] + grid.half_extent_m) / cell;
+            if !(u >= 0.0 && v >= 0.0 && u < n as f32 && v < n as f32) || g.class >= classes {
+                continue;
+            }
+            let (ci, ri) = (u as usize, v as usize);
+            let put_reg = |t: &mut Targets, r: usize, c: usize| {
+                let base = bi * REG_CHANNELS * hw + r * n + c;
+                let vals = [u - (c as f32 + 0.5), v - (r as f32 + 0.5), g.center[2], g.wlh[0].max(0.05).ln(), g.wlh[1].max(0.05).ln(), g.wlh[2].max(0.05).ln(), g.yaw.sin(), g.yaw.cos(), g.velocity[0], g.velocity[1]];
+                for (k, val) in vals.iter().enumerate() {
+                    t.reg[base + k * hw] = *val;
+                }
+                if t.mask[bi * hw + r * n + c] == 0.0 {
+                    t.num_pos += 1.0;
+                }
+                t.mask[bi * hw + r * n + c] = 1.0;
+            };
+            let cls_base = bi * classes * hw + g.class * hw;
+            match how {
+                Assignment::Center => {
+                    let r = gaussian_radius(g.wlh[1] / cell, g.wlh[0] / cell, 0.1).floor().max(1.0) as i64;
+                    let sigma = (2 * r + 1) as f32 / 6.0;
+                    for dr in -r..=r {
+                        for dc in -r..=r {
+                            let (rr, cc) = (ri as i64 + dr, ci as i64 + dc);
+                            if rr < 0 || cc < 0 || rr >= n as i64 || cc >= n as i64 {
+                                continue;
+                            }
+                            let val = (-((dr * dr + dc * dc) as f32) / (2.0 * sigma * sigma)).exp();
+                            let k = cls_base + rr as usize * n + cc as usize;
+                            t.cls[k] = t.cls[k].max(val);
+                        }
+                    }
+                    t.cls[cls_base + ri * n + ci] = 1.0;
+                    put_reg(&mut t, ri, ci);
+                }
+                Assignment::Inside => {
+                    let (cy, sy) = (g.yaw.cos(), g.yaw.sin());
+                    let reach = (0.5 * (g.wlh[0].hypot(g.wlh[1])) / cell).ceil() as i64 + 1;
+                    let mut any = false;
+                    for dr in -reach..=reach {
+                        for dc in -reach..=reach {
+                            let (rr, cc) = (ri as i64 + dr, ci as i64 + dc);
+                            if rr < 0 || cc < 0 || rr >= n as i64 || cc >= n as i64 {
+                                continue;
+                            }
+                            let (x, y) = ((cc as f32 + 0.5) * cell - grid.half_extent_m - g.center[0], (rr as f32 + 0.5) * cell - grid.half_extent_m - g.center[1]);
+                            let (along, across) = (x * cy + y * sy, -x * sy + y * cy);
+                            if along.abs() <= 0.5 * g.wlh[1] && across.abs() <= 0.5 * g.wlh[0] {
+                                t.cls[cls_base + rr as usize * n + cc as usize] = 1.0;
+                                put_reg(&mut t, rr as usize, cc as usize);
+                                any = true;
+                            }
+                        }
+                    }
+                    if !any {
+                        t.cls[cls_base + ri * n + ci] = 1.0;
+                        put_reg(&mut t, ri, ci);
+                    }
+                }
+            }
+        }
+    }
+    t
+}
