@@ -6,9 +6,11 @@ mod demo;
 mod eval;
 mod place;
 mod render;
+mod report;
 mod scan;
 mod simulate;
 mod study;
+mod study_run;
 mod train;
 
 use anyhow::{Context, Result};
@@ -32,6 +34,8 @@ enum Command {
     },
     /// Simulate one frame of one sensor on a scene with a few road users; write PCD or PLY.
     Scan(scan::ScanArgs),
+    /// The end-to-end study: placement, datasets, training, evaluation, report.
+    Study(study_run::StudyArgs),
     /// Place each configuration of a study optimally (integer programming over visibility).
     Place(place::PlaceArgs),
     /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
@@ -173,6 +177,9 @@ fn main() -> Result<()> {
         Command::Eval(args) => eval::run(&args)?,
         Command::Simulate(args) => simulate::run(&args)?,
         Command::Train(args) => train::run_train(&args)?,
+        Command::Study(args) => {
+            study_run::run(&args)?;
+        }
         Command::Detect(args) => train::run_detect(&args)?,
         Command::Dataset { command: DatasetCommand::Stats(args) } => dataset::stats(&args)?,
         Command::Place(args) => {

@@ -16,9 +16,13 @@ pub struct TrainArgs {
     pub version: String,
     #[arg(long, default_value = "train")]
     pub split: String,
-    /// Detector preset (centerpoint, pointpillars).
+    /// Detector preset: centerpoint, pointpillars (LiDAR only); pointpillars-lr, l4dr-like,
+    /// lirafusion-like, bi-lrfusion-like (LiDAR + radar).
     #[arg(long, default_value = "centerpoint")]
     pub detector: String,
+    /// Remove the early fusion stage (l4dr-like, lirafusion-like): the paper's ablation.
+    #[arg(long)]
+    pub no_early: bool,
     /// Run folder: weights, optimizer state, run.json, loss.jsonl. Rerunning resumes.
     #[arg(long)]
     pub out: PathBuf,
@@ -31,14 +35,25 @@ pub struct TrainArgs {
     pub seed: Option<u64>,
 }
 
-pub fn registry() -> Registry {
-    Registry::with_builtin()
+/// Every fusion plugin hilo ships: adding one is one crate and one line here.
+pub fn registry() -> Result<Registry> {
+    let mut r = Registry::with_builtin();
+    hilo_fusion_raw::register(&mut r)?;
+    hilo_fusion_early::register(&mut r)?;
+    hilo_fusion_middle::register(&mut r)?;
+    Ok(r)
+}
+
+/// A preset by name, optionally without its early stage (the paper's ablation).
+pub fn detector(name: &str, no_early: bool) -> Result<hilo_fusion::DetectorConfig> {
+    let cfg = preset(name)?;
+    Ok(if no_early { hilo_fusion::detector::without_early(&cfg)? } else { cfg })
 }
 
 pub fn run_train(args: &TrainArgs) -> Result<()> {
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version).with_context(|| format!("opening dataset {}", args.data.display()))?;
     let frames = hilo_fusion::data::load_split(&ds, &args.split).with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
-    let det = preset(&args.detector)?;
+    let det = detector(&args.detector, args.no_early)?;
     let mut cfg = TrainConfig::default();
     if let Some(s) = args.samples {
         cfg.samples = s;
@@ -60,7 +75,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         let _ = writeln!(log, "{}", serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s }));
         true
     };
-    let info = hilo_fusion::train::train(&args.out, &det, &cfg, &frames, &registry(), &Device::Cpu, &mut on_step).with_context(|| format!("training {} in {}", args.detector, args.out.display()))?;
+    let info = hilo_fusion::train::train(&args.out, &det, &cfg, &frames, &registry()?, &Device::Cpu, &mut on_step).with_context(|| format!("training {} in {}", args.detector, args.out.display()))?;
     bar.finish_and_clear();
     eprintln!("trained {} on {} frames: {} steps, {} samples in {:.1} s; weights in {}", args.detector, frames.len(), info.step, info.samples_seen, info.seconds, hilo_fusion::train::weights_path(&args.out).display());
     Ok(())
@@ -85,7 +100,7 @@ pub struct DetectArgs {
 }
 
 pub fn run_detect(args: &DetectArgs) -> Result<()> {
-    let (det, info) = hilo_fusion::train::load_run(&args.run, &registry(), &Device::Cpu).with_context(|| format!("loading run {}", args.run.display()))?;
+    let (det, info) = hilo_fusion::train::load_run(&args.run, &registry()?, &Device::Cpu).with_context(|| format!("loading run {}", args.run.display()))?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version).with_context(|| format!("opening dataset {}", args.data.display()))?;
     let frames = hilo_fusion::data::load_split(&ds, &args.split).with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     let bar = indicatif::ProgressBar::new(frames.len() as u64);

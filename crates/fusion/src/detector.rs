@@ -32,8 +32,26 @@ pub struct DetectorConfig {
     pub decode: DecodeConfig,
 }
 
-/// The LiDAR-only presets of this crate.
-pub const PRESETS: [&str; 2] = ["centerpoint", "pointpillars"];
+/// Every preset: the paper's detector rows. The LiDAR-only ones build with this crate's
+/// registry alone; the others need their plugin crate registered (`raw`, `early`, `middle`).
+pub const PRESETS: [&str; 6] = ["centerpoint", "pointpillars", "pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like"];
+
+/// Presets that see radar.
+pub fn uses_radar(name: &str) -> bool {
+    !matches!(name, "centerpoint" | "pointpillars")
+}
+
+/// The paper's ablation: the preset without its early stage (only `l4dr-like` and
+/// `lirafusion-like` have one).
+pub fn without_early(cfg: &DetectorConfig) -> Result<DetectorConfig> {
+    if cfg.fusion != "early" {
+        return Err(FusionError::Config(format!("detector {} has no early fusion stage to remove", cfg.name)));
+    }
+    let mut c = cfg.clone();
+    c.fusion_config["early"] = serde_json::Value::Bool(false);
+    c.name = format!("{}-no-early", cfg.name);
+    Ok(c)
+}
 
 /// A preset by name.
 ///
@@ -69,6 +87,34 @@ pub fn preset(name: &str) -> Result<DetectorConfig> {
             assignment: Assignment::Inside,
             head_channels: 0,
             decode: DecodeConfig { score_threshold: 0.1, ..DecodeConfig::default() },
+        }),
+        // PointPillars plus a radar branch (raw fusion): the paper's PointPillars-LR.
+        "pointpillars-lr" => Ok(DetectorConfig { name: name.into(), fusion: "raw".into(), fusion_config: serde_json::json!({ "channels": 48 }), ..preset("pointpillars")? }),
+        // L4DR: early LiDAR–4D-radar fusion and gated middle fusion. Taken: radar and LiDAR
+        // points in one early encoder (max), pixel-wise gating against a LiDAR branch. Left out:
+        // L4DR's LiDAR-guided radar denoising and its multi-scale gates inside the backbone.
+        "l4dr-like" => Ok(DetectorConfig {
+            name: name.into(),
+            fusion: "early".into(),
+            fusion_config: serde_json::json!({ "channels": 32, "aggregation": "max", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_pixel" } }),
+            ..preset("centerpoint")?
+        }),
+        // LiRaFusion: a joint voxel encoder over both modalities (early, mean) and adaptive
+        // gated fusion (per channel). Left out: the 3-D voxel encoder (pillars instead) and the
+        // exact gating network.
+        "lirafusion-like" => Ok(DetectorConfig {
+            name: name.into(),
+            fusion: "early".into(),
+            fusion_config: serde_json::json!({ "channels": 32, "aggregation": "mean", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_channel" } }),
+            ..preset("centerpoint")?
+        }),
+        // Bi-LRFusion: LiDAR features enrich the radar BEV map, which then enhances the LiDAR
+        // map. Left out: its query-based height feature transfer (a 3×3 convolution here).
+        "bi-lrfusion-like" => Ok(DetectorConfig {
+            name: name.into(),
+            fusion: "middle".into(),
+            fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "bidirectional" }),
+            ..preset("centerpoint")?
         }),
         other => Err(FusionError::Config(format!("unknown detector {other:?}; known: {}", PRESETS.join(", ")))),
     }

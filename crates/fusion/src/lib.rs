@@ -10,7 +10,9 @@
 pub mod data;
 pub mod decode;
 pub mod detector;
+pub mod conformance;
 pub mod error;
+pub mod fuse;
 pub mod fusion;
 pub mod grid;
 pub mod infer;

@@ -7,8 +7,10 @@ use candle_core::{D, DType, Device, Tensor};
 use candle_nn::{BatchNorm, BatchNormConfig, Conv2d, Conv2dConfig, Linear, Module, ModuleT, VarBuilder};
 use serde::{Deserialize, Serialize};
 
+/// BatchNorm with momentum 0.1: training runs are short (hundreds of steps), and with 0.01 the
+/// running statistics used at inference would still lag the trained ones.
 fn bn_cfg() -> BatchNormConfig {
-    BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.01 }
+    BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 }
 }
 
 /// Pillars of one modality on the device.

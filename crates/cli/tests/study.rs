@@ -1,0 +1,67 @@
+//! `hilo study` end to end on the tiny profile: every stage runs, the report has its sections
+//! and every figure is written; rerunning skips finished stages; bad input is refused.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::process::Command;
+
+fn hilo() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_hilo"))
+}
+
+#[test]
+fn tiny_study_runs_every_stage_and_writes_the_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    let run = || hilo().args(["study", "--profile", "tiny", "--out"]).arg(&out).output().unwrap();
+    let o = run();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for section in ["## Configurations", "## Accuracy", "## Is the difference real?", "## Figures", "## Speed against error", "2x lidar-16 + radar", "centerpoint", "pointpillars-lr"] {
+        assert!(md.contains(section), "report.md lacks {section:?}");
+    }
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["entries"].as_array().unwrap().len(), 4);
+    assert!(json["cost_reduction"].as_object().unwrap().values().all(|v| v.as_f64().unwrap() > 0.0));
+    for f in ["map_vs_cost.svg", "map_vs_cost.png", "pedestrian_ap.svg", "pedestrian_ap.png", "coverage_2x_lidar_16_radar.png", "detections/2x_lidar_16_radar__centerpoint.png", "detections/1x_lidar_32_radar__pointpillars-lr.png"] {
+        let p = out.join("figures").join(f);
+        assert!(std::fs::metadata(&p).map(|m| m.len() > 100).unwrap_or(false), "{} missing or empty", p.display());
+    }
+    // Every figure the report links exists.
+    for link in md.split("](").skip(1).filter_map(|s| s.split(')').next()) {
+        assert!(out.join(link).exists(), "report links {link}, which is missing");
+    }
+    // A rerun finds every stage done.
+    let o = run();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("scenes resumed") && !err.contains("[study] placement"), "{err}");
+    // Another study in the same folder is refused, and nothing is overwritten.
+    let before = std::fs::read(out.join("report.json")).unwrap();
+    let o = hilo().args(["study", "--profile", "quick", "--out"]).arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("holds another study"), "{err}");
+    assert_eq!(before, std::fs::read(out.join("report.json")).unwrap());
+}
+
+#[test]
+fn bad_studies_are_refused_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = hilo().args(["study", "--profile", "tiny", "--presets", "centerpoint,pointrcnn", "--out"]).arg(dir.path().join("a")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("pointrcnn") && err.contains("lirafusion-like"), "{err}");
+    let o = hilo().args(["study", "--profile", "fast", "--out"]).arg(dir.path().join("b")).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--profile"));
+    // A configuration the budget cannot buy.
+    let study = dir.path().join("s.toml");
+    std::fs::write(&study, "[[configurations]]\nname = \"pennies\"\nbudget_usd = 10.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n").unwrap();
+    let o = hilo().arg("study").arg(&study).args(["--profile", "tiny", "--out"]).arg(dir.path().join("c")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("pennies") && err.contains("buys no sensor"), "{err}");
+    // A folder that is not a study.
+    let d = dir.path().join("d");
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("keep.txt"), "mine").unwrap();
+    let o = hilo().args(["study", "--profile", "tiny", "--out"]).arg(&d).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("not a study folder"));
+    assert_eq!(std::fs::read_to_string(d.join("keep.txt")).unwrap(), "mine");
+}

@@ -1,0 +1,140 @@
+//! The conformance suite every fusion plugin runs by adding one line to its tests:
+//! `hilo_fusion::conformance::check(&registry, &config)`. It checks output shapes, that
+//! gradients reach every parameter, save/load identity, determinism with a seed, and finite
+//! losses on an empty radar frame, a radar-only frame and a frame with no points at all.
+//! It also provides the synthetic frames the suites use.
+
+use crate::data::{Frame, GtBox};
+use crate::detector::{Detector, DetectorConfig, HostBatch};
+use crate::fusion::Registry;
+use crate::grid::BevGrid;
+use candle_core::Device;
+use rand::{Rng, SeedableRng};
+
+/// A 32 × 32 grid of 0.8 m pillars: small enough for tests.
+pub fn small_grid() -> BevGrid {
+    BevGrid { half_extent_m: 12.8, cell_m: 0.8, max_pillars: 2000, ..BevGrid::default() }
+}
+
+/// A frame with LiDAR points on the boxes' surfaces and on the ground, and radar detections on
+/// the boxes carrying their radial velocity seen from a radar at `radar_at` (and a few static
+/// clutter detections).
+pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> Frame {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let radar_at = [0.0f32, -14.0, 5.0];
+    let mut lp = Vec::new();
+    let mut rp = Vec::new();
+    if lidar {
+        for _ in 0..500 {
+            lp.push([rng.random_range(-12.5..12.5), rng.random_range(-12.5..12.5), rng.random_range(-0.05..0.05), 0.1]);
+        }
+    }
+    for b in boxes {
+        let (c, s) = (b.yaw.cos(), b.yaw.sin());
+        let on_box = |rng: &mut rand_chacha::ChaCha8Rng| {
+            let (u, v, h) = (rng.random_range(-0.5..0.5) * b.wlh[1], rng.random_range(-0.5..0.5) * b.wlh[0], rng.random_range(0.0..1.0) * b.wlh[2]);
+            [b.center[0] + c * u - s * v, b.center[1] + s * u + c * v, b.center[2] - 0.5 * b.wlh[2] + h]
+        };
+        if lidar {
+            for _ in 0..60 {
+                let p = on_box(&mut rng);
+                lp.push([p[0], p[1], p[2], 0.6]);
+            }
+        }
+        if radar {
+            for _ in 0..8 {
+                let p = on_box(&mut rng);
+                let (dx, dy) = (p[0] - radar_at[0], p[1] - radar_at[1]);
+                let n = (dx * dx + dy * dy).sqrt().max(1e-3);
+                let (lx, ly) = (dx / n, dy / n);
+                let vr = b.velocity[0] * lx + b.velocity[1] * ly + rng.random_range(-0.05..0.05);
+                rp.push([p[0], p[1], p[2], rng.random_range(5.0..12.0), vr, lx, ly]);
+            }
+        }
+    }
+    if radar {
+        for _ in 0..10 {
+            let (x, y) = (rng.random_range(-12.5f32..12.5), rng.random_range(-12.5f32..12.5));
+            let n = ((x - radar_at[0]).powi(2) + (y - radar_at[1]).powi(2)).sqrt().max(1e-3);
+            rp.push([x, y, 0.2, rng.random_range(-5.0..5.0), 0.0, (x - radar_at[0]) / n, (y - radar_at[1]) / n]);
+        }
+    }
+    Frame { sample_token: format!("synthetic-{seed}"), lidar: lp, radar: rp, boxes: boxes.to_vec() }
+}
+
+pub fn car(x: f32, y: f32, yaw: f32, speed: f32) -> GtBox {
+    GtBox { class: 0, center: [x, y, 0.8], wlh: [1.9, 4.6, 1.6], yaw, velocity: [speed * yaw.cos(), speed * yaw.sin()] }
+}
+
+fn fail(name: &str, what: impl std::fmt::Display) -> String {
+    format!("conformance of {name}: {what}")
+}
+
+/// Runs the suite on `cfg` (its grid is replaced by [`small_grid`]).
+pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
+    let mut cfg = cfg.clone();
+    cfg.grid = small_grid();
+    let name = cfg.name.clone();
+    let e = |what: &str, err: crate::error::FusionError| fail(&name, format!("{what}: {err}"));
+    let dev = Device::Cpu;
+    let det = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
+    let boxes = [car(2.0, 3.0, 0.3, 6.0), car(-5.0, -4.0, 1.2, 0.0)];
+    let frames = vec![synthetic_frame(1, &boxes, true, true), synthetic_frame(2, &boxes[..1], true, true)];
+    let b = HostBatch::new(&cfg, &frames, det.uses_radar());
+    // Shapes.
+    let (cls, reg) = det.forward(&b, true).map_err(|x| e("forward", x))?;
+    let n = cfg.grid.cells() / cfg.backbone.out_stride;
+    if cls.dims() != [2, 6, n, n] || reg.dims() != [2, 10, n, n] {
+        return Err(fail(&name, format!("output shapes {:?} and {:?}, expected [2, 6, {n}, {n}] and [2, 10, {n}, {n}]", cls.dims(), reg.dims())));
+    }
+    // Gradients reach every parameter.
+    let loss = det.loss(&cls, &reg, &b.targets).map_err(|x| e("loss", x))?;
+    let grads = loss.total.backward().map_err(|x| e("backward", x.into()))?;
+    for (vn, v) in det.trainable() {
+        let g = grads.get(&v).ok_or_else(|| fail(&name, format!("no gradient reaches {vn}")))?;
+        let s = g.abs().and_then(|a| a.sum_all()).and_then(|a| a.to_scalar::<f32>()).map_err(|x| e("gradient", x.into()))?;
+        if !(s.is_finite() && s > 0.0) {
+            return Err(fail(&name, format!("gradient of {vn} is {s}")));
+        }
+    }
+    // Save → load identity, and determinism with a seed.
+    let dir = tempfile_dir().map_err(|x| fail(&name, x))?;
+    let path = dir.join("weights.safetensors");
+    det.save(&path).map_err(|x| e("save", x))?;
+    let mut other = Detector::new(&cfg, registry, &dev, 8).map_err(|x| e("build", x))?;
+    other.load(&path).map_err(|x| e("load", x))?;
+    let same = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
+    let out = |d: &Detector| -> Result<Vec<f32>, String> {
+        let (c, r) = d.forward(&b, false).map_err(|x| e("forward", x))?;
+        let mut v = c.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|x| e("read", x.into()))?;
+        v.extend(r.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|x| e("read", x.into()))?);
+        Ok(v)
+    };
+    let (o1, o2) = (out(&det)?, out(&other)?);
+    if o1 != o2 {
+        return Err(fail(&name, "outputs differ after save and load"));
+    }
+    let fresh = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
+    if out(&fresh)? != out(&same)? {
+        return Err(fail(&name, "two detectors built with the same seed differ"));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    // Hard frames: no radar, radar only, nothing at all.
+    for (what, f) in [("an empty radar frame", synthetic_frame(3, &boxes, true, false)), ("a radar-only frame", synthetic_frame(4, &boxes, false, true)), ("a frame with no points", synthetic_frame(5, &boxes, false, false))] {
+        let hb = HostBatch::new(&cfg, std::slice::from_ref(&f), det.uses_radar());
+        let (c, r) = det.forward(&hb, true).map_err(|x| e(what, x))?;
+        let l = det.loss(&c, &r, &hb.targets).map_err(|x| e(what, x))?;
+        let v = l.total.to_scalar::<f32>().map_err(|x| e(what, x.into()))?;
+        if !v.is_finite() {
+            return Err(fail(&name, format!("loss on {what} is {v}")));
+        }
+        det.detect(&hb).map_err(|x| e(what, x))?;
+    }
+    Ok(())
+}
+
+fn tempfile_dir() -> Result<std::path::PathBuf, String> {
+    let d = std::env::temp_dir().join(format!("hilo-conformance-{}-{:?}", std::process::id(), std::thread::current().id()));
+    std::fs::create_dir_all(&d).map_err(|x| format!("creating {}: {x}", d.display()))?;
+    Ok(d)
+}
