@@ -124,7 +124,18 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
         export_visibility(dir, &prep, &all_types)?;
     }
     let mut out = Vec::new();
+    let single_modality = |conf: &Configuration| -> Result<bool> {
+        let mods: HashSet<Modality> = conf.type_names().iter().map(|t| Ok(if catalog.lidar(t).is_ok() { Modality::Lidar } else { Modality::Radar })).collect::<Result<_>>()?;
+        Ok(mods.len() == 1)
+    };
+    let mut deferred = Vec::new();
     for conf in &study.file.configurations {
+        // One modality: the paper's objective (targets covered by both) is zero whatever the
+        // placement; placed after the others, from a configuration that adds the other modality.
+        if single_modality(conf)? {
+            deferred.push(conf);
+            continue;
+        }
         let types = conf.type_names();
         let inst = instance(&prep, &catalog, &types, cfg.p_min)?;
         let limit = limit_for(conf, &types);
@@ -174,6 +185,49 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
             100.0 * p.central_coverage,
             p.cost_usd
         );
+        out.push(p);
+    }
+    for conf in deferred {
+        let want = &conf.sensors;
+        let sibling = out.iter().find(|p| {
+            let mut counts: std::collections::BTreeMap<String, u32> = std::collections::BTreeMap::new();
+            for s in p.sensors.iter().filter(|s| want.contains_key(&s.ty)) {
+                *counts.entry(s.ty.clone()).or_default() += 1;
+            }
+            conf.budget_usd.is_none() && &counts == want && p.sensors.len() > want.values().sum::<u32>() as usize
+        });
+        let Some(sib) = sibling else {
+            bail!(
+                "{}: configuration {:?} has a single modality, for which the paper's objective (targets seen by both LiDAR and radar) is zero whatever the placement; add a configuration with the same sensors plus the other modality (hilo then uses its poses), e.g. {:?} + a radar",
+                study.source,
+                conf.name,
+                conf.name
+            );
+        };
+        let sensors: Vec<PlacedSensor> = sib.sensors.iter().filter(|s| want.contains_key(&s.ty)).cloned().collect();
+        let hits = lidar_hit_cells(&scene, &world, &catalog, &prep, cfg.cell_m, &sensors)?;
+        let cost_usd = sensors.iter().map(|s| catalog.get(&s.ty).map(|c| c.price_usd())).sum::<Result<f64, _>>()?;
+        let p = Placement {
+            name: conf.name.clone(),
+            sensors,
+            objective: 0.0,
+            bound: 0.0,
+            gap: 0.0,
+            proven_optimal: false,
+            solve_seconds: 0.0,
+            method: format!("the {} poses of {:?} (one modality: the multimodal objective is zero)", conf.type_names().join(", "), sib.name),
+            greedy_objective: 0.0,
+            central_coverage: hilo_placement_ip::coverage::share(&central, &hits),
+            lidar_radar_overlap: 0.0,
+            cost_usd,
+            targets: prep.targets.len(),
+            candidates: prep.candidates.len(),
+        };
+        let slug = conf.slug();
+        write_atomic(&args.out.join(format!("{slug}.json")), serde_json::to_string_pretty(&p)?.as_bytes())?;
+        let png = coverage_png(&scene, &prep, &p, &hits, &HashSet::new())?;
+        write_atomic(&args.out.join(format!("{slug}.png")), &png)?;
+        eprintln!("  {:<24} {}, central coverage {:.1}%, cost {} USD", p.name, p.method, 100.0 * p.central_coverage, p.cost_usd);
         out.push(p);
     }
     if args.json {
