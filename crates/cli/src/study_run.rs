@@ -11,7 +11,7 @@ use crate::study::{Configuration, Study};
 use anyhow::{Context, Result, bail};
 use candle_core::Device;
 use hilo_dataset::simulate::SimulateConfig;
-use hilo_eval::bootstrap::{BootstrapSummary, PairedSummary, bootstrap, paired};
+use hilo_eval::bootstrap::{BootstrapSummary, PairedSummary, bootstrap, paired_between};
 use hilo_eval::{DetectionConfig, DetectionMetrics, EvalBox, GroundTruth};
 use hilo_fusion::train::{TrainConfig, load_run, train};
 use serde::Serialize;
@@ -200,6 +200,10 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     let mut entries = Vec::new();
     let mut results_by: ResultsBy = BTreeMap::new();
     let mut gts: BTreeMap<String, GroundTruth> = BTreeMap::new();
+    // Whole-study progress: detectors to train, and an ETA from the ones done so far.
+    let total_detectors: usize = configs.iter().map(|c| prof.presets.iter().filter(|p| !hilo_fusion::detector::uses_radar(p) || has_radar(c)).count()).sum::<usize>() * args.seeds as usize;
+    let mut done_detectors = 0usize;
+    let t_detectors = std::time::Instant::now();
     for conf in &configs {
         let slug = conf.slug();
         let ppath = placements.join(format!("{slug}.json"));
@@ -223,7 +227,14 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         let ds = hilo_dataset::Dataset::open(&data, "v1.0-trainval")?;
         let train_frames = hilo_fusion::data::load_split(&ds, "train")?;
         let val_frames = hilo_fusion::data::load_split(&ds, "val")?;
-        let gt = hilo_eval::ground_truth_from_dataset(&ds, "val")?;
+        let mut gt = hilo_eval::ground_truth_from_dataset(&ds, "val")?;
+        // Scene names (not tokens) so that configurations' scenes can be paired.
+        let scene_name: BTreeMap<&str, &str> = ds.tables.scene.iter().map(|s| (s.token.as_str(), s.name.as_str())).collect();
+        for info in gt.samples.values_mut() {
+            if let Some(n) = scene_name.get(info.scene.as_str()) {
+                info.scene = (*n).to_owned();
+            }
+        }
         gts.insert(conf.name.clone(), gt.clone());
         for preset in &prof.presets {
             if hilo_fusion::detector::uses_radar(preset) && !has_radar(conf) {
@@ -260,7 +271,16 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                 let m: DetectionMetrics = hilo_eval::evaluate_files(&gt, &pred, &eval_cfg);
                 let bs = bootstrap(&gt, &pred, &eval_cfg, prof.bootstrap, 0.95, 0);
                 let class_ap = m.label_aps.iter().map(|(k, v)| (k.clone(), v.values().sum::<f64>() / v.len().max(1) as f64)).collect();
-                stage(&format!("{preset} on {} (seed {seed}): mAP {:.3}, NDS {:.3}, {:.0} s training", conf.name, m.mean_ap, m.nd_score, info.seconds));
+                done_detectors += 1;
+                let per = t_detectors.elapsed().as_secs_f64() / done_detectors as f64;
+                stage(&format!(
+                    "{preset} on {} (seed {seed}): mAP {:.3}, NDS {:.3}, {:.0} s training; {done_detectors}/{total_detectors} detectors, study ETA {:.0} min",
+                    conf.name,
+                    m.mean_ap,
+                    m.nd_score,
+                    info.seconds,
+                    per * (total_detectors - done_detectors) as f64 / 60.0
+                ));
                 entries.push(Entry {
                     configuration: conf.name.clone(),
                     preset: preset.clone(),
@@ -283,11 +303,10 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         for other in summaries.iter().filter(|s| s.name != cheap.name) {
             for preset in &prof.presets {
                 let (Some(a), Some(b)) = (results_by.get(&(other.name.clone(), preset.clone(), 0)), results_by.get(&(cheap.name.clone(), preset.clone(), 0))) else { continue };
-                // Same traffic, so both datasets have the same boxes; token spaces differ, so
-                // compare each on its own ground truth through per-sample order.
+                // Same traffic and scene names, different tokens: each configuration on its own
+                // ground truth (the boxes its sensors saw), the same scenes drawn for both.
                 let (Some(ga), Some(gb)) = (gts.get(&other.name), gts.get(&cheap.name)) else { continue };
-                let (gt_common, a2, b2) = align(ga, a, gb, b);
-                let p = paired(&gt_common, &a2, &b2, &eval_cfg, prof.bootstrap, 0.95, 0);
+                let p = paired_between(ga, a, gb, b, &eval_cfg, prof.bootstrap, 0.95, 0);
                 let ped = |cfg: &str| entries.iter().find(|e| e.configuration == cfg && e.preset == *preset && e.seed == 0).and_then(|e| e.class_ap.get("pedestrian").copied()).unwrap_or(f64::NAN);
                 comparisons.push(Comparison { preset: preset.clone(), a: other.name.clone(), b: cheap.name.clone(), paired: p, pedestrian_ap_a: ped(&other.name), pedestrian_ap_b: ped(&cheap.name) });
             }
@@ -303,27 +322,4 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     crate::report::write(out, &report, &results_by, &placements, &configs)?;
     stage(&format!("report: {} ({:.0} s)", out.join("report.md").display(), report.seconds));
     Ok(report)
-}
-
-/// Two configurations' datasets hold the same traffic (same seeds) under different tokens:
-/// pairs their samples by position (scene order, then time) so the paired bootstrap resamples
-/// the same scenes. Predictions of B are re-keyed to A's sample tokens; ground truth is A's.
-fn align(ga: &GroundTruth, a: &[(String, Vec<EvalBox>)], gb: &GroundTruth, b: &[(String, Vec<EvalBox>)]) -> (GroundTruth, Predictions, Predictions) {
-    let order = |g: &GroundTruth, p: &[(String, Vec<EvalBox>)]| -> Vec<String> {
-        let mut v: Vec<String> = p.iter().map(|x| x.0.clone()).filter(|t| g.samples.contains_key(t)).collect();
-        v.dedup();
-        v
-    };
-    let (oa, ob) = (order(ga, a), order(gb, b));
-    let map: BTreeMap<&String, &String> = ob.iter().zip(oa.iter()).collect();
-    let b2 = b
-        .iter()
-        .filter_map(|(t, boxes)| {
-            map.get(t).map(|ta| {
-                let boxes = boxes.iter().map(|x| EvalBox { sample_token: (*ta).clone(), ..x.clone() }).collect();
-                ((*ta).clone(), boxes)
-            })
-        })
-        .collect();
-    (ga.clone(), a.to_vec(), b2)
 }

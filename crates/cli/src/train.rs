@@ -41,6 +41,7 @@ pub fn registry() -> Result<Registry> {
     hilo_fusion_raw::register(&mut r)?;
     hilo_fusion_early::register(&mut r)?;
     hilo_fusion_middle::register(&mut r)?;
+    hilo_fusion_late::register(&mut r)?;
     Ok(r)
 }
 

@@ -110,13 +110,19 @@ fn interval(estimate: f64, mut v: Vec<f64>, level: f64) -> Interval {
     Interval { estimate, lo: q(0.5 * (1.0 - level)), hi: q(1.0 - 0.5 * (1.0 - level)), std }
 }
 
-/// Sample weights of one replicate: scenes drawn with replacement.
-fn weights(sample_scene: &[usize], n_scenes: usize, seed: u64, i: usize) -> Vec<f64> {
+/// How often each scene is drawn in replicate `i` (scenes drawn with replacement).
+fn scene_counts(n_scenes: usize, seed: u64, i: usize) -> Vec<f64> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
     let mut count = vec![0.0; n_scenes];
     for _ in 0..n_scenes {
         count[rng.random_range(0..n_scenes)] += 1.0;
     }
+    count
+}
+
+/// Sample weights of one replicate.
+fn weights(sample_scene: &[usize], n_scenes: usize, seed: u64, i: usize) -> Vec<f64> {
+    let count = scene_counts(n_scenes, seed, i);
     sample_scene.iter().map(|&s| count[s]).collect()
 }
 
@@ -172,6 +178,48 @@ pub fn paired(gt: &GroundTruth, a: &[(String, Vec<EvalBox>)], b: &[(String, Vec<
         mean_ap_diff: interval(mb - ma, reps.iter().map(|r| r.0).collect(), level),
         nd_score_diff: interval(nb - na, reps.iter().map(|r| r.1).collect(), level),
         class_ap_diff: cb.iter().map(|(c, v)| (c.clone(), interval(v - ca[c], reps.iter().map(|r| r.2[c]).collect(), level))).collect(),
+        p_mean_ap_not_better: share(&|r| r.0 <= 0.0),
+        p_nd_score_not_better: share(&|r| r.1 <= 0.0),
+    }
+}
+
+/// The paired bootstrap of B − A where A and B have their own ground truth over the same
+/// scenes (e.g. two sensor configurations recording the same traffic: each keeps the boxes its
+/// own sensors saw, as the nuScenes loader does). Scenes are matched by `SampleInfo::scene`,
+/// which must name the same scene in both; each replicate draws the same scenes for both.
+#[allow(clippy::too_many_arguments)]
+pub fn paired_between(gt_a: &GroundTruth, a: &[(String, Vec<EvalBox>)], gt_b: &GroundTruth, b: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig, resamples: usize, level: f64, seed: u64) -> PairedSummary {
+    let (ga_f, a_f) = crate::filtered(gt_a, a, cfg);
+    let (gb_f, b_f) = crate::filtered(gt_b, b, cfg);
+    let (ta, tb) = (tables(&ga_f, &a_f, cfg), tables(&gb_f, &b_f, cfg));
+    let (ma, na, ca) = score(&ta, cfg, None);
+    let (mb, nb, cb) = score(&tb, cfg, None);
+    let mut ids: BTreeMap<&str, usize> = BTreeMap::new();
+    for info in gt_a.samples.values().chain(gt_b.samples.values()) {
+        let n = ids.len();
+        ids.entry(info.scene.as_str()).or_insert(n);
+    }
+    let sa: Vec<usize> = gt_a.samples.values().map(|i| ids[i.scene.as_str()]).collect();
+    let sb: Vec<usize> = gt_b.samples.values().map(|i| ids[i.scene.as_str()]).collect();
+    let n_scenes = ids.len();
+    let reps: Vec<Replicate> = (0..resamples)
+        .into_par_iter()
+        .map(|i| {
+            let count = scene_counts(n_scenes, seed, i);
+            let wa: Vec<f64> = sa.iter().map(|&s| count[s]).collect();
+            let wb: Vec<f64> = sb.iter().map(|&s| count[s]).collect();
+            let (xa, ya, za) = score(&ta, cfg, Some(&wa));
+            let (xb, yb, zb) = score(&tb, cfg, Some(&wb));
+            (xb - xa, yb - ya, zb.iter().map(|(c, v)| (c.clone(), v - za.get(c).copied().unwrap_or(f64::NAN))).collect())
+        })
+        .collect();
+    let share = |f: &dyn Fn(&Replicate) -> bool| reps.iter().filter(|r| f(r)).count() as f64 / reps.len().max(1) as f64;
+    PairedSummary {
+        resamples,
+        level,
+        mean_ap_diff: interval(mb - ma, reps.iter().map(|r| r.0).collect(), level),
+        nd_score_diff: interval(nb - na, reps.iter().map(|r| r.1).collect(), level),
+        class_ap_diff: cb.iter().map(|(c, v)| (c.clone(), interval(v - ca.get(c).copied().unwrap_or(f64::NAN), reps.iter().map(|r| r.2.get(c).copied().unwrap_or(f64::NAN)).collect(), level))).collect(),
         p_mean_ap_not_better: share(&|r| r.0 <= 0.0),
         p_nd_score_not_better: share(&|r| r.1 <= 0.0),
     }

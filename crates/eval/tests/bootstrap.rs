@@ -96,3 +96,32 @@ fn streamed_precision_equals_the_interpolated_curve() {
         }
     }
 }
+
+#[test]
+fn paired_between_pairs_scenes_across_token_spaces() {
+    use hilo_eval::bootstrap::paired_between;
+    use hilo_eval::boxes::{EvalBox, GroundTruth, SampleInfo};
+    let gt = |prefix: &str| {
+        let mut g = GroundTruth::default();
+        for s in 0..4 {
+            for f in 0..2 {
+                let t = format!("{prefix}{s}-{f}");
+                g.samples.insert(t.clone(), SampleInfo { scene: format!("scene-{s}"), ego_translation: [0.0; 3] });
+                g.boxes.insert(t.clone(), vec![EvalBox { num_pts: 10, ..EvalBox::from_yaw(&t, "car", [5.0 + s as f64, f as f64, 0.8], [1.9, 4.6, 1.6], 0.0, [0.0; 2], 1.0) }]);
+            }
+        }
+        g
+    };
+    let (ga, gb) = (gt("a"), gt("b"));
+    let perfect = |g: &GroundTruth| -> Vec<(String, Vec<EvalBox>)> { g.boxes.iter().map(|(t, b)| (t.clone(), b.iter().map(|x| EvalBox { detection_score: 0.9, num_pts: -1, ..x.clone() }).collect())).collect() };
+    let mut cfg = hilo_eval::DetectionConfig::default();
+    cfg.class_range.retain(|k, _| k == "car");
+    // The same detector under two token spaces: no difference, in every replicate.
+    let p = paired_between(&ga, &perfect(&ga), &gb, &perfect(&gb), &cfg, 200, 0.95, 1);
+    assert_eq!((p.mean_ap_diff.estimate, p.mean_ap_diff.lo, p.mean_ap_diff.hi), (0.0, 0.0, 0.0));
+    // B finds nothing: B − A = −1, certainly not better.
+    let empty: Vec<(String, Vec<EvalBox>)> = gb.boxes.keys().map(|t| (t.clone(), Vec::new())).collect();
+    let p = paired_between(&ga, &perfect(&ga), &gb, &empty, &cfg, 200, 0.95, 1);
+    assert!((p.mean_ap_diff.estimate + 1.0).abs() < 1e-9 && p.mean_ap_diff.hi < 0.0, "{:?}", p.mean_ap_diff);
+    assert_eq!(p.p_mean_ap_not_better, 1.0);
+}

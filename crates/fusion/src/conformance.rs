@@ -82,13 +82,15 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     let frames = vec![synthetic_frame(1, &boxes, true, true), synthetic_frame(2, &boxes[..1], true, true)];
     let b = HostBatch::new(&cfg, &frames, det.uses_radar());
     // Shapes.
-    let (cls, reg) = det.forward(&b, true).map_err(|x| e("forward", x))?;
+    let heads = det.forward_heads(&b, true).map_err(|x| e("forward", x))?;
     let n = cfg.grid.cells() / cfg.backbone.out_stride;
-    if cls.dims() != [2, 6, n, n] || reg.dims() != [2, 10, n, n] {
-        return Err(fail(&name, format!("output shapes {:?} and {:?}, expected [2, 6, {n}, {n}] and [2, 10, {n}, {n}]", cls.dims(), reg.dims())));
+    for (cls, reg) in &heads {
+        if cls.dims() != [2, 6, n, n] || reg.dims() != [2, 10, n, n] {
+            return Err(fail(&name, format!("output shapes {:?} and {:?}, expected [2, 6, {n}, {n}] and [2, 10, {n}, {n}]", cls.dims(), reg.dims())));
+        }
     }
     // Gradients reach every parameter.
-    let loss = det.loss(&cls, &reg, &b.targets).map_err(|x| e("loss", x))?;
+    let loss = det.loss_all(&heads, &b.targets).map_err(|x| e("loss", x))?;
     let grads = loss.total.backward().map_err(|x| e("backward", x.into()))?;
     for (vn, v) in det.trainable() {
         let g = grads.get(&v).ok_or_else(|| fail(&name, format!("no gradient reaches {vn}")))?;
@@ -105,9 +107,11 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     other.load(&path).map_err(|x| e("load", x))?;
     let same = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
     let out = |d: &Detector| -> Result<Vec<f32>, String> {
-        let (c, r) = d.forward(&b, false).map_err(|x| e("forward", x))?;
-        let mut v = c.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|x| e("read", x.into()))?;
-        v.extend(r.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|x| e("read", x.into()))?);
+        let mut v = Vec::new();
+        for (c, r) in d.forward_heads(&b, false).map_err(|x| e("forward", x))? {
+            v.extend(c.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|x| e("read", x.into()))?);
+            v.extend(r.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|x| e("read", x.into()))?);
+        }
         Ok(v)
     };
     let (o1, o2) = (out(&det)?, out(&other)?);
@@ -122,8 +126,8 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     // Hard frames: no radar, radar only, nothing at all.
     for (what, f) in [("an empty radar frame", synthetic_frame(3, &boxes, true, false)), ("a radar-only frame", synthetic_frame(4, &boxes, false, true)), ("a frame with no points", synthetic_frame(5, &boxes, false, false))] {
         let hb = HostBatch::new(&cfg, std::slice::from_ref(&f), det.uses_radar());
-        let (c, r) = det.forward(&hb, true).map_err(|x| e(what, x))?;
-        let l = det.loss(&c, &r, &hb.targets).map_err(|x| e(what, x))?;
+        let heads = det.forward_heads(&hb, true).map_err(|x| e(what, x))?;
+        let l = det.loss_all(&heads, &hb.targets).map_err(|x| e(what, x))?;
         let v = l.total.to_scalar::<f32>().map_err(|x| e(what, x.into()))?;
         if !v.is_finite() {
             return Err(fail(&name, format!("loss on {what} is {v}")));

@@ -95,3 +95,49 @@ pub fn decode_frame(grid: &BevGrid, out_stride: usize, classes: usize, cls: &[f3
     let _ = REG_CHANNELS;
     out
 }
+
+/// Late fusion's merge Ψ of a LiDAR detector's boxes `l` and a radar detector's boxes `r`:
+/// same-class pairs with 3-D IoU ≥ 0.1 are matched greedily by score. A matched pair becomes one
+/// box: position and size weighted by score with LiDAR counted twice (it measures shape far
+/// better), the radar's velocity (Doppler support), and the noisy-OR of the scores. Unmatched
+/// LiDAR boxes are kept as they are; unmatched radar boxes are kept at half their score (radar
+/// alone localises coarsely, but may see what LiDAR misses).
+pub fn merge_late(l: &[Det], r: &[Det], cfg: &DecodeConfig) -> Vec<Det> {
+    let e = |d: &Det| hilo_eval::boxes::EvalBox::from_yaw("", "", d.center.map(|v| v as f64), d.wlh.map(|v| v as f64), d.yaw as f64, [0.0; 2], 0.0);
+    let mut used = vec![false; r.len()];
+    let mut out = Vec::with_capacity(l.len() + r.len());
+    for a in l {
+        let best = r
+            .iter()
+            .enumerate()
+            .filter(|(k, b)| !used[*k] && b.class == a.class)
+            .map(|(k, b)| (k, hilo_eval::iou::iou_3d(&e(a), &e(b))))
+            .filter(|(_, iou)| *iou >= 0.1)
+            .max_by(|x, y| x.1.total_cmp(&y.1).then(y.0.cmp(&x.0)));
+        match best {
+            Some((k, _)) => {
+                used[k] = true;
+                let b = &r[k];
+                let (wa, wb) = (2.0 * a.score, b.score);
+                let mix = |x: f32, y: f32| (wa * x + wb * y) / (wa + wb).max(1e-6);
+                out.push(Det {
+                    class: a.class,
+                    score: 1.0 - (1.0 - a.score) * (1.0 - b.score),
+                    center: [mix(a.center[0], b.center[0]), mix(a.center[1], b.center[1]), mix(a.center[2], b.center[2])],
+                    wlh: [mix(a.wlh[0], b.wlh[0]), mix(a.wlh[1], b.wlh[1]), mix(a.wlh[2], b.wlh[2])],
+                    yaw: if a.score >= b.score { a.yaw } else { b.yaw },
+                    velocity: b.velocity,
+                });
+            }
+            None => out.push(*a),
+        }
+    }
+    for (k, b) in r.iter().enumerate() {
+        if !used[k] {
+            out.push(Det { score: 0.5 * b.score, ..*b });
+        }
+    }
+    out.sort_by(|x, y| y.score.total_cmp(&x.score));
+    out.truncate(cfg.max_per_frame);
+    out
+}

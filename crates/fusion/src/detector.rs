@@ -34,7 +34,7 @@ pub struct DetectorConfig {
 
 /// Every preset: the paper's detector rows. The LiDAR-only ones build with this crate's
 /// registry alone; the others need their plugin crate registered (`raw`, `early`, `middle`).
-pub const PRESETS: [&str; 6] = ["centerpoint", "pointpillars", "pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like"];
+pub const PRESETS: [&str; 7] = ["centerpoint", "pointpillars", "pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"];
 
 /// Presets that see radar.
 pub fn uses_radar(name: &str) -> bool {
@@ -116,6 +116,17 @@ pub fn preset(name: &str) -> Result<DetectorConfig> {
             fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "bidirectional" }),
             ..preset("centerpoint")?
         }),
+        // Late fusion: a CenterPoint-style detector per modality (LiDAR 32 channels, radar 16),
+        // boxes merged by 3-D IoU matching (see `decode::merge_late`).
+        "late" => {
+            let base = preset("centerpoint")?;
+            Ok(DetectorConfig {
+                name: name.into(),
+                fusion: "late".into(),
+                fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "backbone": base.backbone, "head_channels": base.head_channels }),
+                ..base
+            })
+        }
         other => Err(FusionError::Config(format!("unknown detector {other:?}; known: {}", PRESETS.join(", ")))),
     }
 }
@@ -157,8 +168,9 @@ pub struct Detector {
     pub cfg: DetectorConfig,
     pub varmap: VarMap,
     fusion: Box<dyn Fusion>,
-    backbone: Backbone,
-    head: Head,
+    /// The shared backbone and head (none for late fusion, whose plugin owns its detectors).
+    backbone: Option<Backbone>,
+    head: Option<Head>,
     device: Device,
 }
 
@@ -207,8 +219,13 @@ impl Detector {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
         let fusion = registry.build(&cfg.fusion, &cfg.fusion_config, &cfg.grid, vb.pp("fusion"))?;
-        let backbone = Backbone::new(fusion.out_channels(), &cfg.backbone, vb.pp("backbone"))?;
-        let head = Head::new(backbone.out_channels, cfg.head_channels.max(1), CLASSES.len(), cfg.head_channels > 0, vb.pp("head"))?;
+        let (backbone, head) = if fusion.stage() == crate::fusion::Stage::Late {
+            (None, None)
+        } else {
+            let backbone = Backbone::new(fusion.out_channels(), &cfg.backbone, vb.pp("backbone"))?;
+            let head = Head::new(backbone.out_channels, cfg.head_channels.max(1), CLASSES.len(), cfg.head_channels > 0, vb.pp("head"))?;
+            (Some(backbone), Some(head))
+        };
         seeded_init(&varmap, seed)?;
         Ok(Detector { cfg: cfg.clone(), varmap, fusion, backbone, head, device: device.clone() })
     }
@@ -229,14 +246,38 @@ impl Detector {
         v
     }
 
-    /// Class logits (B, K, H, W) and regression (B, 10, H, W).
-    pub fn forward(&self, b: &HostBatch, train: bool) -> Result<(Tensor, Tensor)> {
+    /// Class logits (B, K, H, W) and regression (B, 10, H, W) of every head: one for the raw,
+    /// early and middle stages, one per modality for late fusion.
+    pub fn forward_heads(&self, b: &HostBatch, train: bool) -> Result<Vec<(Tensor, Tensor)>> {
         let lidar = PillarTensors::new(&b.lidar, &self.device)?;
         let radar = PillarTensors::new(&b.radar, &self.device)?;
         let input = FusionInput { lidar: &lidar, radar: &radar, batch: b.size, grid: self.cfg.grid };
-        let FusionOutput::Bev(bev) = self.fusion.forward(&input, train)?;
-        let x = self.backbone.forward(&bev, self.cfg.backbone.out_stride, train)?;
-        self.head.forward(&x, train)
+        match (self.fusion.forward(&input, train)?, &self.backbone, &self.head) {
+            (FusionOutput::Bev(bev), Some(backbone), Some(head)) => {
+                let x = backbone.forward(&bev, self.cfg.backbone.out_stride, train)?;
+                Ok(vec![head.forward(&x, train)?])
+            }
+            (FusionOutput::Heads(h), _, _) if !h.is_empty() => Ok(h),
+            _ => Err(FusionError::Config(format!("detector {}: fusion plugin {:?} returned an output its stage does not allow", self.cfg.name, self.cfg.fusion))),
+        }
+    }
+
+    /// The first head's outputs (the only one except for late fusion).
+    pub fn forward(&self, b: &HostBatch, train: bool) -> Result<(Tensor, Tensor)> {
+        self.forward_heads(b, train)?.into_iter().next().ok_or_else(|| FusionError::Config("no head output".into()))
+    }
+
+    /// The sum of every head's loss against the same targets.
+    pub fn loss_all(&self, heads: &[(Tensor, Tensor)], t: &Targets) -> Result<Loss> {
+        let mut total: Option<Loss> = None;
+        for (c, r) in heads {
+            let l = self.loss(c, r, t)?;
+            total = Some(match total {
+                None => l,
+                Some(a) => Loss { total: (&a.total + &l.total)?, cls: a.cls + l.cls, reg: a.reg + l.reg },
+            });
+        }
+        total.ok_or_else(|| FusionError::Config("no head output".into()))
     }
 
     pub fn loss(&self, cls: &Tensor, reg: &Tensor, t: &Targets) -> Result<Loss> {
@@ -256,13 +297,21 @@ impl Detector {
 
     /// Boxes per frame of a batch.
     pub fn detect(&self, b: &HostBatch) -> Result<Vec<Vec<Det>>> {
-        let (cls, reg) = self.forward(b, false)?;
-        let (bn, k, h, w) = cls.dims4()?;
-        let cls = cls.flatten_all()?.to_vec1::<f32>()?;
-        let reg = reg.flatten_all()?.to_vec1::<f32>()?;
-        Ok((0..bn)
-            .map(|i| decode_frame(&self.cfg.grid, self.cfg.backbone.out_stride, k, &cls[i * k * h * w..(i + 1) * k * h * w], &reg[i * REG_CHANNELS * h * w..(i + 1) * REG_CHANNELS * h * w], self.cfg.assignment, &self.cfg.decode))
-            .collect())
+        let mut per_head = Vec::new();
+        for (cls, reg) in self.forward_heads(b, false)? {
+            let (bn, k, h, w) = cls.dims4()?;
+            let stride = self.cfg.grid.cells() / h.max(1);
+            let cls = cls.flatten_all()?.to_vec1::<f32>()?;
+            let reg = reg.flatten_all()?.to_vec1::<f32>()?;
+            let dets: Vec<Vec<Det>> = (0..bn).map(|i| decode_frame(&self.cfg.grid, stride, k, &cls[i * k * h * w..(i + 1) * k * h * w], &reg[i * REG_CHANNELS * h * w..(i + 1) * REG_CHANNELS * h * w], self.cfg.assignment, &self.cfg.decode)).collect();
+            per_head.push(dets);
+        }
+        let mut it = per_head.into_iter();
+        let first = it.next().unwrap_or_default();
+        Ok(match it.next() {
+            None => first,
+            Some(radar) => first.into_iter().zip(radar).map(|(l, r)| crate::decode::merge_late(&l, &r, &self.cfg.decode)).collect(),
+        })
     }
 
     /// Weights (and BatchNorm statistics) to safetensors.

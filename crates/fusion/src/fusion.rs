@@ -41,6 +41,10 @@ pub struct FusionInput<'a> {
 pub enum FusionOutput {
     /// (B, C, H, W) on the pillar grid, for the shared backbone and head.
     Bev(Tensor),
+    /// Late fusion: complete per-modality detectors' head outputs (class logits, regression),
+    /// each on the head's grid; the detector trains each against the same targets and merges
+    /// their boxes (see [`crate::decode::merge_late`]).
+    Heads(Vec<(Tensor, Tensor)>),
 }
 
 pub trait Fusion: Send + Sync + std::fmt::Debug {

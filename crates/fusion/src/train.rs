@@ -236,8 +236,8 @@ pub fn train(run: &Path, det_cfg: &DetectorConfig, cfg: &TrainConfig, frames: &[
         let mut window = std::time::Instant::now();
         for step in start..steps {
             let batch = rx.recv().map_err(|_| FusionError::Config("the batch thread stopped".into()))?;
-            let (cls, reg) = det.forward(&batch, true)?;
-            let loss = det.loss(&cls, &reg, &batch.targets)?;
+            let heads = det.forward_heads(&batch, true)?;
+            let loss = det.loss_all(&heads, &batch.targets)?;
             let grads = loss.total.backward()?;
             let lr = cfg.lr(step);
             opt.step(&grads, lr, cfg.clip_norm)?;

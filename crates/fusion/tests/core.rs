@@ -181,3 +181,22 @@ fn bad_input_is_a_clear_error() {
     let e = Detector::new(&cfg, &r, &Device::Cpu, 0).unwrap_err().to_string();
     assert!(e.contains("lidar") && e.contains("chanels"), "{e}");
 }
+
+#[test]
+fn late_merge_fuses_matches_and_keeps_the_rest_by_rule() {
+    use hilo_fusion::decode::{DecodeConfig, Det, merge_late};
+    let l = Det { class: 0, score: 0.8, center: [10.0, 0.0, 0.8], wlh: [1.9, 4.6, 1.6], yaw: 0.0, velocity: [0.0, 0.0] };
+    let r = Det { class: 0, score: 0.6, center: [10.6, 0.3, 0.8], wlh: [2.0, 4.4, 1.5], yaw: 0.1, velocity: [7.0, 0.5] };
+    let r_alone = Det { class: 4, score: 0.4, center: [-5.0, 3.0, 0.9], wlh: [0.6, 0.6, 1.7], yaw: 0.0, velocity: [0.0, 1.0] };
+    let l_alone = Det { class: 0, score: 0.3, center: [30.0, 0.0, 0.8], ..l };
+    let m = merge_late(&[l, l_alone], &[r, r_alone], &DecodeConfig::default());
+    assert_eq!(m.len(), 3);
+    let fused = m.iter().find(|d| d.class == 0 && d.center[0] < 20.0).unwrap();
+    assert!((fused.score - (1.0 - 0.2 * 0.4)).abs() < 1e-6);
+    assert_eq!(fused.velocity, [7.0, 0.5], "velocity from radar");
+    let w = (2.0 * 0.8, 0.6);
+    assert!((fused.center[0] - (w.0 * 10.0 + w.1 * 10.6) / (w.0 + w.1)).abs() < 1e-5, "LiDAR-weighted position");
+    assert!(m.iter().any(|d| d.class == 4 && (d.score - 0.2).abs() < 1e-6), "unmatched radar box at half score");
+    assert!(m.iter().any(|d| d.center[0] == 30.0 && d.score == 0.3), "unmatched LiDAR box unchanged");
+    assert!(m.windows(2).all(|w| w[0].score >= w[1].score));
+}
