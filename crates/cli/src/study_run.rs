@@ -50,6 +50,9 @@ pub struct Profile {
     pub presets: Vec<String>,
     /// How many of the study's configurations (in order); all when None.
     pub configurations: Option<usize>,
+    /// Only configurations with a radar (the paper's three).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub with_radar_only: bool,
     pub train_samples: usize,
     pub bootstrap: usize,
 }
@@ -62,15 +65,17 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             dataset: SimulateConfig { scenes: 4, seconds: 8.0, rate_hz: 10.0, ..base },
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             configurations: Some(2),
+            with_radar_only: false,
             train_samples: 160,
             bootstrap: 200,
         },
-        "default" => Profile { name: name.into(), dataset: base, presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()], configurations: None, train_samples: 480, bootstrap: 500 },
+        "default" => Profile { name: name.into(), dataset: base, presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()], configurations: None, with_radar_only: false, train_samples: 480, bootstrap: 500 },
         "paper" => Profile {
             name: name.into(),
             dataset: SimulateConfig { scenes: 37, seconds: 20.0, rate_hz: 20.0, ..base },
             presets: hilo_fusion::detector::PRESETS.iter().map(|s| s.to_string()).collect(),
-            configurations: Some(3),
+            configurations: None,
+            with_radar_only: true,
             train_samples: 12_000,
             bootstrap: 1000,
         },
@@ -79,6 +84,7 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, ..base },
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             configurations: Some(2),
+            with_radar_only: false,
             train_samples: 8,
             bootstrap: 20,
         },
@@ -175,7 +181,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     }
     std::fs::create_dir_all(out)?;
     crate::write_atomic(&marker, serde_json::to_string_pretty(&serde_json::json!({ "fingerprint": fp, "study": study.source, "profile": prof.name, "seeds": args.seeds }))?.as_bytes())?;
-    let configs: Vec<Configuration> = study.file.configurations.iter().take(prof.configurations.unwrap_or(usize::MAX)).cloned().collect();
+    let configs: Vec<Configuration> = study.file.configurations.iter().filter(|c| !prof.with_radar_only || has_radar(c)).take(prof.configurations.unwrap_or(usize::MAX)).cloned().collect();
     if prof.name == "paper" {
         let frames = prof.dataset.scenes * prof.dataset.frames_per_scene();
         let hours = (configs.len() * prof.presets.len() * args.seeds as usize) as f64 * prof.train_samples as f64 / 4.0 / 3600.0 + (configs.len() * frames) as f64 / 130.0 / 3600.0;
