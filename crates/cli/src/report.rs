@@ -2,7 +2,8 @@
 //! geometry — the PNG renderer has no fonts, so its labels are in the SVG and the report).
 
 use crate::study::Configuration;
-use crate::study_run::{Report, ResultsBy};
+use crate::study_run::{Pictures, Report, ResultsBy};
+use hilo_fusion::data::Frame;
 use anyhow::{Context, Result};
 use glam::{Vec2, Vec3};
 use hilo_core::Box3;
@@ -134,18 +135,13 @@ fn to_box(b: &EvalBox) -> Box3 {
 /// A bird's-eye picture of one validation frame: points, ground truth (green; yellow when
 /// missed), detections with score ≥ 0.3 (blue when within 2 m of a same-class box, red when
 /// false).
-fn detection_png(data: &Path, token_index: usize, preds: &[(String, Vec<EvalBox>)], path: &Path) -> Result<()> {
-    let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")?;
-    let frames = hilo_fusion::data::load_split(&ds, "val")?;
-    let Some(frame) = frames.get(token_index.min(frames.len().saturating_sub(1))) else { return Ok(()) };
-    let gt = hilo_eval::ground_truth_from_dataset(&ds, "val")?;
-    let gboxes = gt.boxes.get(&frame.sample_token).cloned().unwrap_or_default();
+fn detection_png(frame: &Frame, gboxes: &[EvalBox], preds: &[(String, Vec<EvalBox>)], path: &Path) -> Result<()> {
     let pboxes: Vec<EvalBox> = preds.iter().find(|p| p.0 == frame.sample_token).map(|p| p.1.iter().filter(|b| b.detection_score >= 0.3).cloned().collect()).unwrap_or_default();
     let mut canvas = crate::render::blank_canvas(Vec2::splat(-55.0), Vec2::splat(55.0), 7.0)?;
     let dots: Vec<(Vec2, (u8, u8, u8))> = frame.lidar.iter().map(|p| (Vec2::new(p[0], p[1]), (150, 150, 150))).chain(frame.radar.iter().map(|p| (Vec2::new(p[0], p[1]), (230, 0, 230)))).collect();
     canvas.dots(&dots, 1.0);
     let near = |a: &EvalBox, b: &EvalBox| a.detection_name == b.detection_name && (a.translation[0] - b.translation[0]).hypot(a.translation[1] - b.translation[1]) <= 2.0;
-    for g in &gboxes {
+    for g in gboxes {
         let col = if pboxes.iter().any(|p| near(p, g)) { (0, 200, 0) } else { (255, 220, 0) };
         canvas.boxes(&[to_box(g)], col);
     }
@@ -156,7 +152,7 @@ fn detection_png(data: &Path, token_index: usize, preds: &[(String, Vec<EvalBox>
     crate::write_atomic(path, &canvas.png()?)
 }
 
-pub fn write(out: &Path, r: &Report, results: &ResultsBy, placements: &Path, configs: &[Configuration]) -> Result<()> {
+pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, placements: &Path, configs: &[Configuration]) -> Result<()> {
     let fig = out.join("figures");
     std::fs::create_dir_all(fig.join("detections"))?;
     crate::write_atomic(&out.join("report.json"), serde_json::to_string_pretty(r)?.as_bytes())?;
@@ -206,9 +202,8 @@ pub fn write(out: &Path, r: &Report, results: &ResultsBy, placements: &Path, con
             std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug()))).with_context(|| format!("copying {}", src.display()))?;
         }
         for p in &presets {
-            if let Some(pred) = results.get(&(c.name.clone(), p.clone(), 0)) {
-                let n_val = pred.len();
-                detection_png(&out.join("data").join(c.slug()), n_val / 2, pred, &fig.join("detections").join(format!("{}__{}.png", c.slug(), p)))?;
+            if let (Some(pred), Some((frame, gboxes))) = (results.get(&(c.name.clone(), p.clone(), 0)), pictures.get(&c.name)) {
+                detection_png(frame, gboxes, pred, &fig.join("detections").join(format!("{}__{}.png", c.slug(), p)))?;
             }
         }
     }

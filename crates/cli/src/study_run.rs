@@ -42,6 +42,9 @@ pub type Predictions = Vec<(String, Vec<EvalBox>)>;
 /// Predictions by (configuration, preset, seed).
 pub type ResultsBy = BTreeMap<(String, String, u64), Predictions>;
 
+/// Per configuration, the validation frame the report draws (the middle one) and its ground truth.
+pub type Pictures = BTreeMap<String, (hilo_fusion::data::Frame, Vec<EvalBox>)>;
+
 /// The scale of a study.
 #[derive(Clone, Debug, Serialize)]
 pub struct Profile {
@@ -206,6 +209,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     let mut entries = Vec::new();
     let mut results_by: ResultsBy = BTreeMap::new();
     let mut gts: BTreeMap<String, GroundTruth> = BTreeMap::new();
+    let mut pictures: Pictures = BTreeMap::new();
     // Whole-study progress: detectors to train, and an ETA from the ones done so far.
     let total_detectors: usize = configs.iter().map(|c| prof.presets.iter().filter(|p| !hilo_fusion::detector::uses_radar(p) || has_radar(c)).count()).sum::<usize>() * args.seeds as usize;
     let mut done_detectors = 0usize;
@@ -240,6 +244,9 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
             if let Some(n) = scene_name.get(info.scene.as_str()) {
                 info.scene = (*n).to_owned();
             }
+        }
+        if let Some(f) = val_frames.get(val_frames.len() / 2) {
+            pictures.insert(conf.name.clone(), (f.clone(), gt.boxes.get(&f.sample_token).cloned().unwrap_or_default()));
         }
         gts.insert(conf.name.clone(), gt.clone());
         for preset in &prof.presets {
@@ -325,7 +332,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         }
     }
     let report = Report { study: study.source.clone(), profile: prof.clone(), seeds: args.seeds, configurations: summaries, entries, comparisons, cost_reduction, seconds: t0.elapsed().as_secs_f64() };
-    crate::report::write(out, &report, &results_by, &placements, &configs)?;
+    crate::report::write(out, &report, &results_by, &pictures, &placements, &configs)?;
     stage(&format!("report: {} ({:.0} s)", out.join("report.md").display(), report.seconds));
     Ok(report)
 }

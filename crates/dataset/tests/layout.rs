@@ -2,6 +2,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod common;
+
 use glam::{Vec2, Vec3};
 use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
 use hilo_dataset::tables::TABLE_NAMES;
@@ -85,16 +87,7 @@ fn written_datasets_read_back_exactly_and_the_same_input_gives_the_same_bytes() 
         let f = format!("v1.0-trainval/{name}.json");
         assert_eq!(std::fs::read(a.path().join(&f)).unwrap(), std::fs::read(b.path().join(&f)).unwrap(), "{f}");
     }
-    if std::env::var("HILO_DEVKIT_CHECK").is_ok() {
-        let out = std::process::Command::new("python3")
-            .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scripts/check_nuscenes_layout.py"))
-            .arg(a.path())
-            .arg("v1.0-trainval")
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-        eprintln!("{}", String::from_utf8_lossy(&out.stdout));
-    }
+    common::devkit_check(a.path());
 }
 
 #[test]

@@ -3,6 +3,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod common;
+
 use glam::{Vec2, Vec3};
 use hilo_dataset::Dataset;
 use hilo_dataset::simulate::{RigSensor, SimulateConfig, simulate_scene, write_dataset};
@@ -88,15 +90,7 @@ fn simulated_datasets_round_trip_are_deterministic_and_resume() {
     let other = SimulateConfig { seed: 6, ..c.clone() };
     let e = write_dataset(&scene, &w, &r, &other, b.path(), "v1.0-trainval", "test", &|_| {}).unwrap_err().to_string();
     assert!(e.contains("other settings"), "{e}");
-    if std::env::var("HILO_DEVKIT_CHECK").is_ok() {
-        let out = std::process::Command::new("python3")
-            .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scripts/check_nuscenes_layout.py"))
-            .arg(a.path())
-            .arg("v1.0-trainval")
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{}\n{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
-    }
+    common::devkit_check(a.path());
 }
 
 #[test]

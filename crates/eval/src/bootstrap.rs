@@ -156,31 +156,7 @@ pub fn bootstrap(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &Detect
 
 /// The paired bootstrap of B − A on the same ground truth.
 pub fn paired(gt: &GroundTruth, a: &[(String, Vec<EvalBox>)], b: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig, resamples: usize, level: f64, seed: u64) -> PairedSummary {
-    let (gt_f, a_f) = crate::filtered(gt, a, cfg);
-    let (_, b_f) = crate::filtered(gt, b, cfg);
-    let (ta, tb) = (tables(&gt_f, &a_f, cfg), tables(&gt_f, &b_f, cfg));
-    let (ma, na, ca) = score(&ta, cfg, None);
-    let (mb, nb, cb) = score(&tb, cfg, None);
-    let (sample_scene, n_scenes) = scene_index(gt);
-    let reps: Vec<Replicate> = (0..resamples)
-        .into_par_iter()
-        .map(|i| {
-            let w = weights(&sample_scene, n_scenes, seed, i);
-            let (xa, ya, za) = score(&ta, cfg, Some(&w));
-            let (xb, yb, zb) = score(&tb, cfg, Some(&w));
-            (xb - xa, yb - ya, zb.iter().map(|(c, v)| (c.clone(), v - za[c])).collect())
-        })
-        .collect();
-    let share = |f: &dyn Fn(&Replicate) -> bool| reps.iter().filter(|r| f(r)).count() as f64 / reps.len().max(1) as f64;
-    PairedSummary {
-        resamples,
-        level,
-        mean_ap_diff: interval(mb - ma, reps.iter().map(|r| r.0).collect(), level),
-        nd_score_diff: interval(nb - na, reps.iter().map(|r| r.1).collect(), level),
-        class_ap_diff: cb.iter().map(|(c, v)| (c.clone(), interval(v - ca[c], reps.iter().map(|r| r.2[c]).collect(), level))).collect(),
-        p_mean_ap_not_better: share(&|r| r.0 <= 0.0),
-        p_nd_score_not_better: share(&|r| r.1 <= 0.0),
-    }
+    paired_between(gt, a, gt, b, cfg, resamples, level, seed)
 }
 
 /// The paired bootstrap of B − A where A and B have their own ground truth over the same

@@ -8,20 +8,8 @@ use hilo_dataset::Dataset;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-/// The detection classes, in head-channel order.
-pub const CLASSES: [Class; 6] = [Class::Car, Class::Truck, Class::Bus, Class::Motorcycle, Class::Pedestrian, Class::GolfCart];
-
-/// nuScenes detection name of a class (as hilo-eval names them).
-pub fn class_name(c: Class) -> &'static str {
-    match c {
-        Class::Car => "car",
-        Class::Truck => "truck",
-        Class::Bus => "bus",
-        Class::Motorcycle => "motorcycle",
-        Class::Pedestrian => "pedestrian",
-        Class::GolfCart => "golf_cart",
-    }
-}
+/// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).
+pub const CLASSES: [Class; 6] = Class::ALL;
 
 /// A ground-truth box in the scene's local frame.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -118,7 +106,7 @@ pub fn load_split(ds: &Dataset, split: &str) -> Result<Vec<Frame>> {
             if a.num_lidar_pts + a.num_radar_pts == 0 {
                 continue;
             }
-            let Some(k) = CLASSES.iter().position(|c| c == class) else { continue };
+            let k = class.index();
             let [w, x, y, z] = a.rotation;
             let yaw = (2.0 * (x * y + w * z)).atan2(1.0 - 2.0 * (y * y + z * z)) as f32;
             let v = ds.box_velocity(a);

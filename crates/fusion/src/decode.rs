@@ -2,7 +2,6 @@
 //! BEV non-maximum suppression (PointPillars).
 
 use crate::grid::BevGrid;
-use crate::modules::REG_CHANNELS;
 use crate::targets::Assignment;
 
 /// A detected box in the scene's local frame.
@@ -92,7 +91,6 @@ pub fn decode_frame(grid: &BevGrid, out_stride: usize, classes: usize, cls: &[f3
             break;
         }
     }
-    let _ = REG_CHANNELS;
     out
 }
 

@@ -36,9 +36,9 @@ pub struct DetectorConfig {
 /// registry alone; the others need their plugin crate registered (`raw`, `early`, `middle`).
 pub const PRESETS: [&str; 7] = ["centerpoint", "pointpillars", "pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"];
 
-/// Presets that see radar.
+/// Whether a preset sees radar: every fusion plugin but the LiDAR-only one does.
 pub fn uses_radar(name: &str) -> bool {
-    !matches!(name, "centerpoint" | "pointpillars")
+    preset(name).is_ok_and(|c| c.fusion != "lidar")
 }
 
 /// The paper's ablation: the preset without its early stage (only `l4dr-like` and

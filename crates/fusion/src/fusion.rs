@@ -56,6 +56,11 @@ pub trait Fusion: Send + Sync + std::fmt::Debug {
     fn forward(&self, input: &FusionInput, train: bool) -> Result<FusionOutput>;
 }
 
+/// A plugin's typed config from its JSON; the error names the plugin, the field and the JSON.
+pub fn parse_config<T: serde::de::DeserializeOwned>(plugin: &str, cfg: &serde_json::Value) -> Result<T> {
+    serde_json::from_value(cfg.clone()).map_err(|e| FusionError::Config(format!("fusion plugin {plugin:?}: {e} in {cfg}")))
+}
+
 /// Builds a plugin from its JSON config on a grid.
 pub type Builder = fn(&serde_json::Value, &BevGrid, VarBuilder) -> Result<Box<dyn Fusion>>;
 
@@ -113,7 +118,7 @@ pub struct LidarOnly {
 }
 
 fn build_lidar_only(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: LidarOnlyConfig = serde_json::from_value(cfg.clone()).map_err(|e| FusionError::Config(format!("fusion plugin \"lidar\": {e} in {cfg}")))?;
+    let c: LidarOnlyConfig = parse_config("lidar", cfg)?;
     let net = PillarNet::new(crate::data::LIDAR_FEATURES + 5, c.channels, vb.pp("lidar_pfn"))?;
     Ok(Box::new(LidarOnly { net, cells: grid.cells() }))
 }

@@ -1,6 +1,6 @@
 //! Inference over a split, written as a nuScenes detection submission (what `hilo eval` reads).
 
-use crate::data::{CLASSES, Frame, class_name};
+use crate::data::{CLASSES, Frame};
 use crate::decode::Det;
 use crate::detector::{Detector, HostBatch};
 use crate::error::Result;
@@ -20,7 +20,7 @@ fn attribute(class: usize, speed: f32) -> &'static str {
 }
 
 pub fn to_eval_box(token: &str, d: &Det) -> EvalBox {
-    let mut b = EvalBox::from_yaw(token, class_name(CLASSES[d.class]), d.center.map(|v| v as f64), d.wlh.map(|v| v as f64), d.yaw as f64, d.velocity.map(|v| v as f64), d.score.clamp(0.0, 1.0) as f64);
+    let mut b = EvalBox::from_yaw(token, CLASSES[d.class].name(), d.center.map(|v| v as f64), d.wlh.map(|v| v as f64), d.yaw as f64, d.velocity.map(|v| v as f64), d.score.clamp(0.0, 1.0) as f64);
     b.attribute_name = attribute(d.class, (d.velocity[0].powi(2) + d.velocity[1].powi(2)).sqrt()).to_owned();
     b
 }

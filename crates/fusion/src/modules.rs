@@ -3,7 +3,7 @@
 
 use crate::data::Pillars;
 use crate::error::Result;
-use candle_core::{D, DType, Device, Tensor};
+use candle_core::{DType, Device, Tensor};
 use candle_nn::{BatchNorm, BatchNormConfig, Conv2d, Conv2dConfig, Linear, Module, ModuleT, VarBuilder};
 use serde::{Deserialize, Serialize};
 
@@ -208,9 +208,4 @@ impl Head {
         };
         Ok((self.cls.forward(&c)?, self.reg.forward(&r)?))
     }
-}
-
-/// Max over the last two dims kept as (B, C, 1, 1); used by tests.
-pub fn spatial_max(x: &Tensor) -> Result<Tensor> {
-    Ok(x.max_keepdim(D::Minus1)?.max_keepdim(D::Minus2)?)
 }

@@ -76,7 +76,7 @@ fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
 }
 
 pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: EarlyConfig = serde_json::from_value(cfg.clone()).map_err(|e| FusionError::Config(format!("fusion plugin \"early\": {e} in {cfg}")))?;
+    let c: EarlyConfig = hilo_fusion::fusion::parse_config("early", cfg)?;
     let bn = candle_nn::batch_norm(c.channels, candle_nn::BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 }, vb.pp("joint_bn"))?;
     let (lidar, fuse) = match &c.middle {
         Some(m) => (Some(PillarNet::new(LIDAR_FEATURES + 5, m.lidar_channels, vb.pp("lidar"))?), Some(BevFuse::new(m.lidar_channels, c.channels, m.out_channels, m.op, vb.pp("fuse"))?)),

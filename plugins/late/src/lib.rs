@@ -8,7 +8,7 @@ use candle_nn::VarBuilder;
 use hilo_fusion::data::{CLASSES, LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{Backbone, BackboneConfig, Head, PillarNet};
-use hilo_fusion::{Fusion, FusionError, FusionInput, FusionOutput, Registry, Result, Stage};
+use hilo_fusion::{Fusion, FusionInput, FusionOutput, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -44,7 +44,7 @@ fn branch(features: usize, channels: usize, c: &LateConfig, vb: VarBuilder) -> R
 }
 
 pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: LateConfig = serde_json::from_value(cfg.clone()).map_err(|e| FusionError::Config(format!("fusion plugin \"late\": {e} in {cfg}")))?;
+    let c: LateConfig = hilo_fusion::fusion::parse_config("late", cfg)?;
     Ok(Box::new(LateFusion {
         lidar: branch(LIDAR_FEATURES + 5, c.lidar_channels, &c, vb.pp("lidar"))?,
         radar: branch(RADAR_FEATURES + 5, c.radar_channels, &c, vb.pp("radar"))?,

@@ -10,7 +10,7 @@ use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::fuse::{BevFuse, FuseOp};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{ConvBn, PillarNet};
-use hilo_fusion::{Fusion, FusionError, FusionInput, FusionOutput, Registry, Result, Stage};
+use hilo_fusion::{Fusion, FusionInput, FusionOutput, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -32,7 +32,7 @@ pub struct MiddleFusion {
 }
 
 pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: MiddleConfig = serde_json::from_value(cfg.clone()).map_err(|e| FusionError::Config(format!("fusion plugin \"middle\": {e} in {cfg}")))?;
+    let c: MiddleConfig = hilo_fusion::fusion::parse_config("middle", cfg)?;
     Ok(Box::new(MiddleFusion {
         lidar: PillarNet::new(LIDAR_FEATURES + 5, c.lidar_channels, vb.pp("lidar"))?,
         radar: PillarNet::new(RADAR_FEATURES + 5, c.radar_channels, vb.pp("radar"))?,

@@ -11,7 +11,7 @@ use candle_nn::VarBuilder;
 use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::PillarNet;
-use hilo_fusion::{Fusion, FusionError, FusionInput, FusionOutput, Registry, Result, Stage};
+use hilo_fusion::{Fusion, FusionInput, FusionOutput, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -29,7 +29,7 @@ pub struct RawFusion {
 }
 
 pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: RawConfig = serde_json::from_value(cfg.clone()).map_err(|e| FusionError::Config(format!("fusion plugin \"raw\": {e} in {cfg}")))?;
+    let c: RawConfig = hilo_fusion::fusion::parse_config("raw", cfg)?;
     Ok(Box::new(RawFusion { f_l: PillarNet::new(LIDAR_FEATURES + 5, c.channels, vb.pp("f_l"))?, f_r: PillarNet::new(RADAR_FEATURES + 5, c.channels, vb.pp("f_r"))?, cells: grid.cells() }))
 }
 

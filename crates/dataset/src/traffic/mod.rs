@@ -850,6 +850,8 @@ impl Traffic {
                 self.pending[route].push(PendingVehicle { class, size, v_desired, critical_gap_s });
             }
         }
+        // Footprints of everyone present, kept in step with `agents` as road users enter.
+        let mut rects: Vec<Rect> = self.agents.iter().map(|a| self.rect(a)).collect();
         for route in 0..self.pending.len() {
             if self.pending[route].is_empty() {
                 continue;
@@ -869,13 +871,14 @@ impl Traffic {
                 a: 0.0,
                 role: Role::Vehicle { route, yellow_stop: None, committed: false, critical_gap_s: p.critical_gap_s },
             };
+            rects.push(self.rect(&probe));
             self.agents.push(probe);
             let i = self.agents.len() - 1;
-            let rects: Vec<Rect> = self.agents.iter().map(|a| self.rect(a)).collect();
             let hit = self.sweep(i, &rects, 80.0).into_iter().min_by(|x, y| x.gap.total_cmp(&y.gap));
             let (gap, v_lead) = hit.map_or((f32::INFINITY, 0.0), |h| (h.gap, h.v_along));
             if gap < m.s0 + 1.0 {
                 self.agents.pop();
+                rects.pop();
                 continue;
             }
             // Enter at a speed the gap allows (IDM equilibrium-ish, never faster than the leader
@@ -904,7 +907,7 @@ impl Traffic {
             let slot = self.rng.random_range(0..self.ped_sources[k].paths.len());
             let (path, curb_s, far_s) = self.ped_sources[k].paths[slot].clone();
             let start = path.points[0];
-            let free = self.agents.iter().all(|o| (self.rect(o).center - start).length() > 1.2 + 0.5 * o.length.max(o.width));
+            let free = self.agents.iter().zip(&rects).all(|(o, r)| (r.center - start).length() > 1.2 + 0.5 * o.length.max(o.width));
             if !free {
                 continue;
             }
@@ -914,7 +917,7 @@ impl Traffic {
             let id = self.next_id;
             self.next_id += 1;
             let (arm, jaywalk) = (self.ped_sources[k].arm, self.ped_sources[k].jaywalk);
-            self.agents.push(Agent {
+            let walker = Agent {
                 id,
                 class: Class::Pedestrian,
                 length: size.0,
@@ -925,7 +928,9 @@ impl Traffic {
                 v: 0.0,
                 a: 0.0,
                 role: Role::Pedestrian { path, curb_s, far_s, arm, jaywalk, started: false },
-            });
+            };
+            rects.push(self.rect(&walker));
+            self.agents.push(walker);
         }
     }
 
