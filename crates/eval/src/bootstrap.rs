@@ -14,7 +14,7 @@
 
 use crate::boxes::{EvalBox, GroundTruth};
 use crate::config::DetectionConfig;
-use crate::nuscenes::{ClassData, Matches, summarize};
+use crate::nuscenes::{ClassData, Matches, MetricData, NELEM, summarize};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -79,23 +79,59 @@ fn tables(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], 
 }
 
 /// (mAP, NDS, per-class mean AP) with sample weights.
-fn score(t: &Tables, cfg: &DetectionConfig, w: Option<&[f64]>) -> Replicate {
-    // Thresholds that only feed AP need only the precision, streamed; the TP threshold needs the
-    // full curves.
-    let m = summarize(&t.classes, cfg, |c, th| {
-        t.by_key.iter().find(|(kc, kt, _)| kc == c && *kt == th).map(|x| {
-            if th == cfg.dist_th_tp {
-                x.2.curves(w)
-            } else {
-                let mut p = [0.0; crate::nuscenes::NELEM];
-                x.2.precision_only(w, &mut p);
-                let mut md = crate::nuscenes::MetricData::no_predictions();
-                md.precision = p.to_vec();
-                md
-            }
-        })
-    });
+fn score(t: &Tables, cfg: &DetectionConfig, w: Option<&[u32]>) -> Replicate {
+    let m = summarize(&t.classes, cfg, |c, th| t.by_key.iter().find(|(kc, kt, _)| kc == c && *kt == th).map(|x| x.2.curves(w)));
     (m.mean_ap, m.nd_score, m.mean_dist_aps)
+}
+
+/// Replicates scored together: every matched entry is read once for all of them.
+const LANES: usize = 8;
+
+/// (mAP, NDS, per-class mean AP) of `LANES` replicates; `w[s][r]` counts sample s in replicate r.
+/// Thresholds that only feed AP need only the precision, streamed for all lanes in one pass; the
+/// TP threshold needs the full curves, one lane at a time.
+fn score_lanes(t: &Tables, cfg: &DetectionConfig, w: &[[u32; LANES]]) -> Vec<Replicate> {
+    let precision: Vec<Option<[[f64; NELEM]; LANES]>> = t
+        .by_key
+        .iter()
+        .map(|(_, th, m)| {
+            (*th != cfg.dist_th_tp).then(|| {
+                let mut p = [[0.0; NELEM]; LANES];
+                m.precision_batch(w, &mut p);
+                p
+            })
+        })
+        .collect();
+    (0..LANES)
+        .map(|r| {
+            let lane: Vec<u32> = w.iter().map(|c| c[r]).collect();
+            let m = summarize(&t.classes, cfg, |c, th| {
+                let k = t.by_key.iter().position(|(kc, kt, _)| kc == c && *kt == th)?;
+                Some(match &precision[k] {
+                    Some(p) => {
+                        let mut md = MetricData::no_predictions();
+                        md.precision = p[r].to_vec();
+                        md
+                    }
+                    None => t.by_key[k].2.curves(Some(&lane)),
+                })
+            });
+            (m.mean_ap, m.nd_score, m.mean_dist_aps)
+        })
+        .collect()
+}
+
+/// All replicates, `LANES` at a time in parallel; `sample_scene[s]` is sample s's scene.
+fn replicates(t: &Tables, cfg: &DetectionConfig, sample_scene: &[usize], n_scenes: usize, resamples: usize, seed: u64) -> Vec<Replicate> {
+    let chunks: Vec<Vec<Replicate>> = (0..resamples.div_ceil(LANES))
+        .into_par_iter()
+        .map(|chunk| {
+            let counts: Vec<Vec<u32>> = (0..LANES).map(|r| scene_counts(n_scenes, seed, chunk * LANES + r)).collect();
+            let w: Vec<[u32; LANES]> = sample_scene.iter().map(|&s| std::array::from_fn(|r| counts[r][s])).collect();
+            score_lanes(t, cfg, &w)
+        })
+        .collect();
+    chunks.into_iter().flatten().take(resamples).collect()
 }
 
 fn interval(estimate: f64, mut v: Vec<f64>, level: f64) -> Interval {
@@ -111,19 +147,13 @@ fn interval(estimate: f64, mut v: Vec<f64>, level: f64) -> Interval {
 }
 
 /// How often each scene is drawn in replicate `i` (scenes drawn with replacement).
-fn scene_counts(n_scenes: usize, seed: u64, i: usize) -> Vec<f64> {
+fn scene_counts(n_scenes: usize, seed: u64, i: usize) -> Vec<u32> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-    let mut count = vec![0.0; n_scenes];
+    let mut count = vec![0; n_scenes];
     for _ in 0..n_scenes {
-        count[rng.random_range(0..n_scenes)] += 1.0;
+        count[rng.random_range(0..n_scenes)] += 1;
     }
     count
-}
-
-/// Sample weights of one replicate.
-fn weights(sample_scene: &[usize], n_scenes: usize, seed: u64, i: usize) -> Vec<f64> {
-    let count = scene_counts(n_scenes, seed, i);
-    sample_scene.iter().map(|&s| count[s]).collect()
 }
 
 fn scene_index(gt: &GroundTruth) -> (Vec<usize>, usize) {
@@ -141,8 +171,7 @@ pub fn bootstrap(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &Detect
     let t = tables(&gt_f, &pred_f, cfg);
     let (map0, nds0, cls0) = score(&t, cfg, None);
     let (sample_scene, n_scenes) = scene_index(gt);
-    let reps: Vec<Replicate> =
-        (0..resamples).into_par_iter().map(|i| score(&t, cfg, Some(&weights(&sample_scene, n_scenes, seed, i)))).collect();
+    let reps = replicates(&t, cfg, &sample_scene, n_scenes, resamples, seed);
     let class_ap = cls0.iter().map(|(c, e)| (c.clone(), interval(*e, reps.iter().map(|r| r.2[c]).collect(), level))).collect();
     BootstrapSummary {
         resamples,
@@ -178,16 +207,13 @@ pub fn paired_between(gt_a: &GroundTruth, a: &[(String, Vec<EvalBox>)], gt_b: &G
     let sa: Vec<usize> = gt_a.samples.values().map(|i| ids[i.scene.as_str()]).collect();
     let sb: Vec<usize> = gt_b.samples.values().map(|i| ids[i.scene.as_str()]).collect();
     let n_scenes = ids.len();
-    let reps: Vec<Replicate> = (0..resamples)
-        .into_par_iter()
-        .map(|i| {
-            let count = scene_counts(n_scenes, seed, i);
-            let wa: Vec<f64> = sa.iter().map(|&s| count[s]).collect();
-            let wb: Vec<f64> = sb.iter().map(|&s| count[s]).collect();
-            let (xa, ya, za) = score(&ta, cfg, Some(&wa));
-            let (xb, yb, zb) = score(&tb, cfg, Some(&wb));
-            (xb - xa, yb - ya, zb.iter().map(|(c, v)| (c.clone(), v - za.get(c).copied().unwrap_or(f64::NAN))).collect())
-        })
+    // Same seed, same draws: replicate i of A and of B see the same scenes.
+    let ra = replicates(&ta, cfg, &sa, n_scenes, resamples, seed);
+    let rb = replicates(&tb, cfg, &sb, n_scenes, resamples, seed);
+    let reps: Vec<Replicate> = ra
+        .into_iter()
+        .zip(rb)
+        .map(|((xa, ya, za), (xb, yb, zb))| (xb - xa, yb - ya, zb.iter().map(|(c, v)| (c.clone(), v - za.get(c).copied().unwrap_or(f64::NAN))).collect()))
         .collect();
     let share = |f: &dyn Fn(&Replicate) -> bool| reps.iter().filter(|r| f(r)).count() as f64 / reps.len().max(1) as f64;
     PairedSummary {

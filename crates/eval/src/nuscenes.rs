@@ -242,9 +242,9 @@ impl Matches {
     /// The devkit's curves, with every prediction and ground-truth box of sample s counted
     /// `weights[s]` times (all 1 when `None`: then this is `accumulate` exactly). A sample counted
     /// k times adds its predictions as one step of weight k.
-    pub fn curves(&self, weights: Option<&[f64]>) -> MetricData {
+    pub fn curves(&self, weights: Option<&[u32]>) -> MetricData {
         let npos: f64 = match weights {
-            Some(ws) => self.npos_per_sample.iter().zip(ws).map(|(n, w)| *n as f64 * w).sum(),
+            Some(ws) => self.npos_per_sample.iter().zip(ws).map(|(n, w)| (*n as u64 * u64::from(*w)) as f64).sum(),
             None => self.npos_per_sample.iter().sum::<usize>() as f64,
         };
         if npos == 0.0 {
@@ -264,7 +264,7 @@ impl Matches {
             let s = e & !TP_BIT;
             let is_tp = e & TP_BIT != 0;
             let k = match weights {
-                Some(ws) if s != NO_SAMPLE => ws[s as usize],
+                Some(ws) if s != NO_SAMPLE => f64::from(ws[s as usize]),
                 _ => 1.0,
             };
             let live = k > 0.0;
@@ -326,78 +326,113 @@ impl Matches {
     /// Only the interpolated precision (what AP needs), in one pass without allocation:
     /// `np.interp(recall_points, rec, prec, right=0)` evaluated as `rec` streams by, with the same
     /// choices as [`np_interp`] (the last of equal recalls; exact hits; linear in between).
-    pub fn precision_only(&self, weights: Option<&[f64]>, out: &mut [f64; NELEM]) {
-        let npos: f64 = match weights {
-            Some(ws) => self.npos_per_sample.iter().zip(ws).map(|(n, w)| *n as f64 * w).sum(),
-            None => self.npos_per_sample.iter().sum::<usize>() as f64,
-        };
-        out.fill(0.0);
-        let any_tp = self.packed.iter().any(|&e| {
-            let s = e & !TP_BIT;
-            e & TP_BIT != 0 && weights.is_none_or(|ws| s == NO_SAMPLE || ws[s as usize] > 0.0)
-        });
-        if npos == 0.0 || !any_tp {
-            return;
+    ///
+    /// Counts are integers, so the running sums are integers: the loop carries two integer adds
+    /// (one cycle each) instead of two dependent float adds, and a recall point is crossed exactly
+    /// when the true-positive sum reaches a precomputed integer threshold, the only place where
+    /// anything is divided.
+    pub fn precision_only(&self, counts: Option<&[u32]>, out: &mut [f64; NELEM]) {
+        let mut o = [[0.0; NELEM]; 1];
+        match counts {
+            None => self.stream_precision(|_| [1], &mut o),
+            Some(c) => self.stream_precision(|s| [c.get(s as usize).copied().unwrap_or(1)], &mut o),
         }
+        *out = o[0];
+    }
+
+    /// [`Matches::precision_only`] for `R` replicates in one pass: `counts[s][r]` is how often
+    /// sample s is drawn in replicate r. Each entry is read once for all of them and the `R`
+    /// running sums are independent, so the pass costs little more than one.
+    pub fn precision_batch<const R: usize>(&self, counts: &[[u32; R]], out: &mut [[f64; NELEM]; R]) {
+        self.stream_precision(|s| counts.get(s as usize).copied().unwrap_or([1; R]), out);
+    }
+
+    fn stream_precision<const R: usize>(&self, count: impl Fn(u32) -> [u32; R], out: &mut [[f64; NELEM]; R]) {
+        for o in out.iter_mut() {
+            o.fill(0.0);
+        }
+        let mut npos_i = [0u64; R];
+        for (s, &n) in self.npos_per_sample.iter().enumerate() {
+            for (a, k) in npos_i.iter_mut().zip(count(s as u32)) {
+                *a += n as u64 * u64::from(k);
+            }
+        }
+        let npos = npos_i.map(|n| n as f64);
         let step = 1.0 / (NELEM - 1) as f64;
         let x = |i: usize| if i == NELEM - 1 { 1.0 } else { i as f64 * step };
-        let (mut ctp, mut cfp) = (0.0, 0.0);
-        // Previous entry's (tp, fp) sums; recall and precision are only divided out where a
-        // recall point is crossed (`x < ctp / npos` is tested as `x * npos < ctp` by the exact
-        // division, at most once per point).
-        let mut prev: Option<(f64, f64)> = None;
-        let (mut prev_t, mut prev_f) = (0.0, 0.0);
-        let mut i = 0usize;
-        let mut next_x = x(0);
+        // The smallest true-positive sum t with x(i) < t / npos (division is monotone in t, so
+        // the search from floor(x · npos) moves a step or two); never reached when done.
+        let threshold = |i: usize, npos: f64| -> u64 {
+            if i >= NELEM || npos == 0.0 {
+                return u64::MAX;
+            }
+            let xi = x(i);
+            let mut t = (xi * npos).floor().max(0.0) as u64;
+            while t > 0 && xi < (t - 1) as f64 / npos {
+                t -= 1;
+            }
+            while xi >= t as f64 / npos {
+                t += 1;
+            }
+            t
+        };
+        let (mut ctp, mut cfp) = ([0u64; R], [0u64; R]);
+        let mut i = [0usize; R];
+        let mut next: [u64; R] = std::array::from_fn(|r| threshold(0, npos[r]));
         for &e in &self.packed {
-            let s = e & !TP_BIT;
-            let k = match weights {
-                Some(ws) if s != NO_SAMPLE => ws[s as usize],
-                _ => 1.0,
-            };
-            // Branch-free: an entry of a scene not drawn (k = 0) adds nothing and changes nothing.
-            let kt = if e & TP_BIT != 0 { k } else { 0.0 };
-            ctp += kt;
-            cfp += k - kt;
-            // Cheap pre-test; the exact comparison below decides.
-            if k > 0.0 && i < NELEM && next_x * npos <= ctp * (1.0 + 1e-12) {
-                let (r, p) = (ctp / npos, ctp / (cfp + ctp));
-                while i < NELEM && x(i) < r {
-                    out[i] = match prev {
-                        None => p, // below the first recall: numpy's left value, fp[0]
-                        Some((t0, f0)) => {
-                            let (r0, p0) = (t0 / npos, t0 / (f0 + t0));
-                            if r0 == x(i) {
-                                p0
-                            } else {
-                                let slope = (p - p0) / (r - r0);
-                                let v = slope * (x(i) - r0) + p0;
-                                if v.is_nan() { slope * (x(i) - r) + p } else { v }
-                            }
+            let k = count(e & !TP_BIT).map(u64::from);
+            let tp_mask = if e & TP_BIT != 0 { u64::MAX } else { 0 };
+            let mut crossed = false;
+            for r in 0..R {
+                let kt = k[r] & tp_mask;
+                ctp[r] += kt;
+                cfp[r] += k[r] - kt;
+                crossed |= ctp[r] >= next[r];
+            }
+            if !crossed {
+                continue;
+            }
+            // A recall point is crossed: only by a drawn true positive (the sum grew past it).
+            for r in 0..R {
+                if ctp[r] < next[r] {
+                    continue;
+                }
+                let kt = k[r] & tp_mask;
+                // The sums at the previous drawn entry (entries of scenes not drawn add nothing).
+                let (t0, f0) = (ctp[r] - kt, cfp[r] - (k[r] - kt));
+                let (r1, p1) = (ctp[r] as f64 / npos[r], ctp[r] as f64 / (cfp[r] + ctp[r]) as f64);
+                let o = &mut out[r];
+                let mut j = i[r];
+                while j < NELEM && x(j) < r1 {
+                    o[j] = if t0 + f0 == 0 {
+                        p1 // below the first recall: numpy's left value, fp[0]
+                    } else {
+                        let (r0, p0) = (t0 as f64 / npos[r], t0 as f64 / (f0 + t0) as f64);
+                        if r0 == x(j) {
+                            p0
+                        } else {
+                            let slope = (p1 - p0) / (r1 - r0);
+                            let v = slope * (x(j) - r0) + p0;
+                            if v.is_nan() { slope * (x(j) - r1) + p1 } else { v }
                         }
                     };
-                    i += 1;
+                    j += 1;
                 }
-                if i < NELEM {
-                    next_x = x(i);
-                }
-            }
-            let live = k > 0.0;
-            prev_t = if live { ctp } else { prev_t };
-            prev_f = if live { cfp } else { prev_f };
-            if live && prev.is_none() {
-                prev = Some((ctp, cfp));
-            }
-            if prev.is_some() {
-                prev = Some((prev_t, prev_f));
+                i[r] = j;
+                next[r] = threshold(j, npos[r]);
             }
         }
         // The rest: equal to the last recall gives its precision, above it numpy's right value 0.
-        if let Some((t0, f0)) = prev {
-            let (r, p) = (t0 / npos, t0 / (f0 + t0));
-            while i < NELEM && x(i) <= r {
-                out[i] = p;
-                i += 1;
+        // (No drawn true positive: all zero, as `curves` gives for no predictions.)
+        for r in 0..R {
+            if npos_i[r] == 0 || ctp[r] == 0 {
+                continue;
+            }
+            let (r1, p1) = (ctp[r] as f64 / npos[r], ctp[r] as f64 / (cfp[r] + ctp[r]) as f64);
+            let mut j = i[r];
+            while j < NELEM && x(j) <= r1 {
+                out[r][j] = p1;
+                j += 1;
             }
         }
     }

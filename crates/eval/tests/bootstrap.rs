@@ -43,7 +43,7 @@ fn unit_weights_reproduce_the_plain_curves_exactly() {
     let (g, p) = filtered(&gt, &pred, &cfg);
     let cd = ClassData::new(&g, &p, "car");
     let m = cd.matches("car", 1.0);
-    let ones = vec![1.0; g.len()];
+    let ones = vec![1u32; g.len()];
     assert_eq!(m.curves(None), m.curves(Some(&ones)));
     assert_eq!(m.curves(None), cd.accumulate("car", 1.0));
 }
@@ -88,10 +88,20 @@ fn streamed_precision_equals_the_interpolated_curve() {
         for th in [0.5, 1.0, 2.0, 4.0] {
             let m = cd.matches(class, th);
             for trial in 0..20 {
-                let w: Option<Vec<f64>> = (trial > 0).then(|| (0..g.len()).map(|_| rng.random_range(0..3) as f64).collect());
+                // Small counts (many scenes not drawn) and large ones (recall points crossed mid-step).
+                let top = if trial % 2 == 0 { 3u32 } else { 40 };
+                let w: Option<Vec<u32>> = (trial > 0).then(|| (0..g.len()).map(|_| rng.random_range(0..top)).collect());
                 let mut streamed = [0.0; hilo_eval::nuscenes::NELEM];
                 m.precision_only(w.as_deref(), &mut streamed);
                 assert_eq!(streamed.to_vec(), m.curves(w.as_deref()).precision, "{class} {th} trial {trial}");
+            }
+            // Eight replicates in one pass give each one's curve.
+            let lanes: Vec<[u32; 8]> = (0..g.len()).map(|_| std::array::from_fn(|r| rng.random_range(0..[3, 40][r % 2]))).collect();
+            let mut batch = [[0.0; hilo_eval::nuscenes::NELEM]; 8];
+            m.precision_batch(&lanes, &mut batch);
+            for (r, got) in batch.iter().enumerate() {
+                let lane: Vec<u32> = lanes.iter().map(|c| c[r]).collect();
+                assert_eq!(got.to_vec(), m.curves(Some(&lane)).precision, "{class} {th} lane {r}");
             }
         }
     }
