@@ -327,6 +327,9 @@ pub fn top_visibilities(inst: &Instance, k: usize) -> Vec<Vec<Vec<f32>>> {
         .collect()
 }
 
+/// Per count vector searched: the counts and the optimum found (NaN where not searched).
+pub type VectorReport = Vec<(Vec<u32>, f64)>;
+
 /// The budgeted problem (sensor types chosen per candidate, a dollar budget, per-type min/max):
 /// decomposed into the maximal count vectors the budget allows, each bounded by the smaller of
 /// [`counts_upper_bound`] and [`separable_upper_bound`]; vectors are solved exactly in bound order
@@ -334,9 +337,6 @@ pub fn top_visibilities(inst: &Instance, k: usize) -> Vec<Vec<Vec<f32>>> {
 /// [`exact_lidar_first`]) until no remaining vector's bound beats the incumbent. Any other vector
 /// whose bound still beats the incumbent is not searched: the outcome is then labelled unproven,
 /// with that bound.
-/// Per count vector searched: the counts and the optimum found (NaN where not searched).
-pub type VectorReport = Vec<(Vec<u32>, f64)>;
-
 pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbent: &[usize]) -> Result<(Outcome, VectorReport), PlacementError> {
     let start = Instant::now();
     let vectors = maximal_count_vectors(inst, usd, min, max);
@@ -390,11 +390,17 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
 
 /// Exact search for a count vector with one LiDAR type (at most two LiDARs) and several radars:
 /// the LiDAR set is fixed first, which fixes the LiDAR-covered targets C_L; every radar r is then
-/// worth at most h(r) = Σ_{j ∈ C_L} w_j V_rj, a tight, consistent bound. LiDAR sets are tried in
-/// the order of a cheap bound and skipped when it cannot beat the incumbent; for the rest, the
-/// best h per mount (one sensor per mount) bounds the radar part, and a depth-first search over
-/// radars in h order finds the best completion. `node_budget` caps the radar search; when it runs
-/// out the result is returned unproven. Returns (outcome, proven).
+/// worth at most h(r) = Σ_{j ∈ C_L} w_j V_rj, a tight, consistent bound, and the radar part of
+/// the set at most the best `n_r` of h, one per mount. A depth-first search over radars in h
+/// order finds the best completion of each set whose bound beats the incumbent, best bound first.
+///
+/// What makes it fast is computing h for every LiDAR pair cheaply: with each single LiDAR's
+/// values H(l) = Σ_{j ∈ C_l} w_j V_·j computed once, a pair's covered set is C_a ∪ C_b plus the
+/// targets J only the two together cover, so h = H(a) + Σ_{C_b \ C_a} + Σ_J, or H(b) + Σ_{C_a \
+/// C_b} + Σ_J, or H(a) + H(b) − Σ_{C_a ∩ C_b} + Σ_J: whichever touches the fewest targets, each
+/// target adding one row of a dense target × radar table (a vectorised loop over the radars).
+/// `node_budget` caps the radar search; when it runs out the result is returned unproven.
+/// Returns (outcome, proven).
 pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], node_budget: u64) -> Result<(Outcome, bool), PlacementError> {
     let start = Instant::now();
     let tau = inst.tau() * (1.0 - 1e-9);
@@ -408,6 +414,7 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
     let lidars: Vec<usize> = (0..inst.options.len()).filter(|&o| inst.options[o].ty == lt).collect();
     let radars: Vec<usize> = (0..inst.options.len()).filter(|&o| inst.modality(o) == Modality::Radar && count(inst.options[o].ty) > 0).collect();
     let n = inst.n_targets();
+    let nr = radars.len();
     // Per target, the best n_r radar visibilities (for the cheap bound).
     let mut radar_top = vec![Vec::<f32>::new(); n];
     for &r in &radars {
@@ -421,138 +428,86 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
         }
     }
     let rt: Vec<f64> = radar_top.iter().map(|l| l.iter().map(|&v| v as f64).sum()).collect();
-    // LiDAR sets with their covered targets, base value and cheap bound.
-    let sets: Vec<Vec<usize>> = if n_l == 1 {
-        lidars.iter().map(|&a| vec![a]).collect()
-    } else {
-        // Pairs, and singles: with one sensor per mount, fewer LiDARs can be optimal.
-        let mut v: Vec<Vec<usize>> = lidars.iter().map(|&a| vec![a]).collect();
-        for (i, &a) in lidars.iter().enumerate() {
-            for &b in &lidars[i + 1..] {
-                if inst.options[a].mount != inst.options[b].mount {
-                    v.push(vec![a, b]);
+    let tables = RadarTables::new(inst, &lidars, &radars, &rt, tau);
+    // Radar mounts as dense indices, for "one sensor per mount" in the bound.
+    let mut mount_ids: std::collections::BTreeMap<u32, usize> = std::collections::BTreeMap::new();
+    for &r in &radars {
+        let k = mount_ids.len();
+        mount_ids.entry(inst.options[r].mount).or_insert(k);
+    }
+    let radar_mount: Vec<usize> = radars.iter().map(|&r| mount_ids[&inst.options[r].mount]).collect();
+    let n_mounts = mount_ids.len();
+    // The radar part's bound of a LiDAR set: the best h per mount, top n_r of them.
+    let radar_bound = |h: &[f64], lidar_mounts: &[u32], per_mount: &mut Vec<f64>| -> f64 {
+        per_mount.clear();
+        per_mount.resize(n_mounts, 0.0);
+        for (k, &x) in h.iter().enumerate() {
+            if !lidar_mounts.contains(&inst.options[radars[k]].mount) {
+                let m = &mut per_mount[radar_mount[k]];
+                *m = m.max(x);
+            }
+        }
+        per_mount.sort_by(|a, b| b.total_cmp(a));
+        per_mount.iter().take(n_r).sum()
+    };
+    // LiDAR sets as indices into `lidars`: singles, and pairs on different mounts (with one
+    // sensor per mount, fewer LiDARs than the count can be optimal).
+    let mut sets: Vec<Vec<usize>> = (0..lidars.len()).map(|a| vec![a]).collect();
+    if n_l == 2 {
+        for a in 0..lidars.len() {
+            for b in a + 1..lidars.len() {
+                if inst.options[lidars[a]].mount != inst.options[lidars[b]].mount {
+                    sets.push(vec![a, b]);
                 }
             }
         }
-        v
-    };
+    }
+    let best0 = crate::instance::evaluate(inst, incumbent);
     struct Cand {
         set: Vec<usize>,
-        covered: Vec<u32>,
         base: f64,
-        ub0: f64,
+        ub: f64,
     }
     let mut cands: Vec<Cand> = sets
         .into_par_iter()
         .map_init(
-            || (vec![0.0f64; n], vec![0.0f64; n], Vec::<u32>::new()),
-            |(a, rho, touched), set| {
-                for &o in &set {
-                    for &(j, v) in &inst.options[o].row {
-                        if a[j as usize] == 0.0 && rho[j as usize] == 0.0 {
-                            touched.push(j);
-                        }
-                        a[j as usize] += coverage_coef(v as f64);
-                        rho[j as usize] += v as f64;
-                    }
+            || (SetScratch::new(n), vec![0.0; nr], Vec::new()),
+            |(sc, h, per_mount), set| {
+                let opts: Vec<usize> = set.iter().map(|&i| lidars[i]).collect();
+                let (base, ub0) = sc.cover(inst, &opts, &rt, tau);
+                let mut ub = ub0;
+                // The tight bound only where the cheap one does not already prune.
+                if ub0 > best0 + 1e-9 {
+                    tables.values(&set, &sc.joint, h);
+                    let mounts: Vec<u32> = opts.iter().map(|&o| inst.options[o].mount).collect();
+                    ub = ub.min(base + radar_bound(h, &mounts, per_mount));
                 }
-                let mut covered = Vec::new();
-                let (mut base, mut ub0) = (0.0, 0.0);
-                for &j in touched.iter() {
-                    let ju = j as usize;
-                    if a[ju] >= tau && rt[ju] > 0.0 {
-                        covered.push(j);
-                        base += inst.weights[ju] * rho[ju];
-                        ub0 += inst.weights[ju] * (rho[ju] + rt[ju]);
-                    }
-                    a[ju] = 0.0;
-                    rho[ju] = 0.0;
-                }
-                touched.clear();
-                covered.sort_unstable();
-                Cand { set, covered, base, ub0 }
+                Cand { set, base, ub }
             },
         )
         .collect();
-    // For pairs: each single LiDAR's radar values H1[l][r] = Σ_{j ∈ C_l} w_j V_rj, computed once.
-    // A pair covers C_l1 ∪ C_l2 plus targets only the two together cover (J), so its radar value
-    // is at most H1[l1][r] + H1[l2][r] + Σ_{j ∈ J} w_j V_rj ≤ … + Σ_{j ∈ J} w_j max_r V_rj: a
-    // cheap bound that is tight for pairs that overlap little, the ones worth searching.
-    let radar_max: Vec<f64> = {
-        let mut m = vec![0.0f64; n];
-        for &r in &radars {
-            for &(j, v) in &inst.options[r].row {
-                m[j as usize] = m[j as usize].max(v as f64);
-            }
-        }
-        m
-    };
-    if n_l == 2 {
-        let index: std::collections::HashMap<usize, usize> = lidars.iter().enumerate().map(|(i, &o)| (o, i)).collect();
-        let single: Vec<Vec<bool>> = lidars
-            .par_iter()
-            .map(|&l| {
-                let mut c = vec![false; n];
-                for &(j, v) in &inst.options[l].row {
-                    c[j as usize] = coverage_coef(v as f64) >= tau;
-                }
-                c
-            })
-            .collect();
-        let h1: Vec<Vec<f64>> = single
-            .par_iter()
-            .map(|c| radars.iter().map(|&r| inst.options[r].row.iter().filter(|(j, _)| c[*j as usize]).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum()).collect())
-            .collect();
-        let radar_mount: Vec<u32> = radars.iter().map(|&r| inst.options[r].mount).collect();
-        cands.par_iter_mut().filter(|c| c.set.len() == 2).for_each(|c| {
-            let (a, b) = (index[&c.set[0]], index[&c.set[1]]);
-            let joint: f64 = c.covered.iter().filter(|&&j| !single[a][j as usize] && !single[b][j as usize]).map(|&j| inst.weights[j as usize] * radar_max[j as usize]).sum();
-            let mut per_mount: std::collections::HashMap<u32, f64> = std::collections::HashMap::new();
-            for (k, m) in radar_mount.iter().enumerate() {
-                let v = h1[a][k] + h1[b][k];
-                let e = per_mount.entry(*m).or_insert(0.0);
-                *e = e.max(v);
-            }
-            let mut vals: Vec<f64> = per_mount.into_values().collect();
-            vals.sort_by(|x, y| y.total_cmp(x));
-            let ub2 = c.base + vals.iter().take(n_r).sum::<f64>() + n_r as f64 * joint;
-            c.ub0 = c.ub0.min(ub2);
-        });
-    }
-    cands.sort_by(|x, y| y.ub0.total_cmp(&x.ub0));
+    cands.sort_by(|x, y| y.ub.total_cmp(&x.ub).then_with(|| x.set.cmp(&y.set)));
     let mut best_sel = incumbent.to_vec();
-    let mut best = crate::instance::evaluate(inst, incumbent);
+    let mut best = best0;
     let mut scratch = Scratch::new(n);
+    let mut sc = SetScratch::new(n);
+    let mut h = vec![0.0; nr];
     let mut nodes = 0u64;
     let mut exhausted = false;
-    let mut in_c = vec![false; n];
     for c in &cands {
-        if c.ub0 <= best + 1e-9 {
+        if c.ub <= best + 1e-9 {
             break;
         }
-        for &j in &c.covered {
-            in_c[j as usize] = true;
-        }
-        let lidar_mounts: Vec<u32> = c.set.iter().map(|&o| inst.options[o].mount).collect();
-        let mut h: Vec<(f64, usize)> = radars
-            .par_iter()
-            .filter(|&&r| !lidar_mounts.contains(&inst.options[r].mount))
-            .map(|&r| (inst.options[r].row.iter().filter(|(j, _)| in_c[*j as usize]).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum::<f64>(), r))
-            .filter(|(x, _)| *x > 0.0)
-            .collect();
-        for &j in &c.covered {
-            in_c[j as usize] = false;
-        }
-        h.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-        // Best h per mount, top n_r of them: the radar part's bound.
-        let mut seen = std::collections::HashSet::new();
-        let ub1 = c.base + h.iter().filter(|(_, r)| seen.insert(inst.options[*r].mount)).take(n_r).map(|x| x.0).sum::<f64>();
-        if ub1 <= best + 1e-9 {
-            continue;
-        }
-        let mut chosen = c.set.clone();
-        let mut used: Vec<u32> = lidar_mounts.clone();
-        radar_dfs(inst, &h, 0, n_r, c.base, &mut chosen, &mut used, &mut best, &mut best_sel, &mut scratch, &mut nodes, node_budget);
+        let opts: Vec<usize> = c.set.iter().map(|&i| lidars[i]).collect();
+        sc.cover(inst, &opts, &rt, tau);
+        tables.values(&c.set, &sc.joint, &mut h);
+        let lidar_mounts: Vec<u32> = opts.iter().map(|&o| inst.options[o].mount).collect();
+        let mut order: Vec<(f64, usize)> =
+            h.iter().zip(&radars).filter(|&(&x, &r)| x > 0.0 && !lidar_mounts.contains(&inst.options[r].mount)).map(|(&x, &r)| (x, r)).collect();
+        order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let mut chosen = opts.clone();
+        let mut used: Vec<u32> = lidar_mounts;
+        radar_dfs(inst, &order, 0, n_r, c.base, &mut chosen, &mut used, &mut best, &mut best_sel, &mut scratch, &mut nodes, node_budget);
         if nodes >= node_budget {
             exhausted = true;
             break;
@@ -562,6 +517,151 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
     let proven = !exhausted;
     let bound = if proven { best } else { f64::INFINITY };
     Ok((Outcome::new(inst, best_sel, bound, proven, start.elapsed().as_secs_f64(), "exact LiDAR-first search"), proven))
+}
+
+/// Buffers for the targets a LiDAR set covers.
+struct SetScratch {
+    a: Vec<f64>,
+    rho: Vec<f64>,
+    touched: Vec<u32>,
+    single: Vec<bool>,
+    /// Covered targets that no single LiDAR of the set covers alone (J).
+    joint: Vec<u32>,
+}
+
+impl SetScratch {
+    fn new(n: usize) -> Self {
+        SetScratch { a: vec![0.0; n], rho: vec![0.0; n], touched: Vec::new(), single: vec![false; n], joint: Vec::new() }
+    }
+
+    /// (base, cheap bound) of a LiDAR set: base = Σ_{j ∈ C_L} w_j ρ_L(j) over the covered targets
+    /// some radar sees; the bound adds each target's best possible radar sum. Fills `joint`.
+    fn cover(&mut self, inst: &Instance, set: &[usize], rt: &[f64], tau: f64) -> (f64, f64) {
+        for &o in set {
+            for &(j, v) in &inst.options[o].row {
+                let ju = j as usize;
+                if self.a[ju] == 0.0 && self.rho[ju] == 0.0 {
+                    self.touched.push(j);
+                }
+                let c = coverage_coef(v as f64);
+                self.a[ju] += c;
+                self.rho[ju] += v as f64;
+                self.single[ju] |= c >= tau;
+            }
+        }
+        self.joint.clear();
+        let (mut base, mut ub0) = (0.0, 0.0);
+        for &j in &self.touched {
+            let ju = j as usize;
+            if self.a[ju] >= tau && rt[ju] > 0.0 {
+                base += inst.weights[ju] * self.rho[ju];
+                ub0 += inst.weights[ju] * (self.rho[ju] + rt[ju]);
+                if !self.single[ju] {
+                    self.joint.push(j);
+                }
+            }
+            self.a[ju] = 0.0;
+            self.rho[ju] = 0.0;
+            self.single[ju] = false;
+        }
+        self.touched.clear();
+        (base, ub0)
+    }
+}
+
+/// Radar values of LiDAR sets: a dense target-major table `w_j V_rj` over the radars, and each
+/// single LiDAR's covered targets and values.
+struct RadarTables {
+    nr: usize,
+    table: Vec<f64>,
+    /// Per LiDAR (index into the LiDAR list): covered targets that some radar sees, sorted.
+    covered: Vec<Vec<u32>>,
+    covers: Vec<Vec<bool>>,
+    /// Per LiDAR: H(l) = Σ_{j ∈ C_l} w_j V_rj for every radar.
+    single: Vec<Vec<f64>>,
+}
+
+impl RadarTables {
+    fn new(inst: &Instance, lidars: &[usize], radars: &[usize], rt: &[f64], tau: f64) -> Self {
+        let (n, nr) = (inst.n_targets(), radars.len());
+        let mut table = vec![0.0; n * nr];
+        for (k, &r) in radars.iter().enumerate() {
+            for &(j, v) in &inst.options[r].row {
+                table[j as usize * nr + k] = inst.weights[j as usize] * v as f64;
+            }
+        }
+        let covered: Vec<Vec<u32>> = lidars
+            .iter()
+            .map(|&l| inst.options[l].row.iter().filter(|&&(j, v)| coverage_coef(v as f64) >= tau && rt[j as usize] > 0.0).map(|&(j, _)| j).collect())
+            .collect();
+        let covers: Vec<Vec<bool>> = covered
+            .iter()
+            .map(|c| {
+                let mut b = vec![false; n];
+                for &j in c {
+                    b[j as usize] = true;
+                }
+                b
+            })
+            .collect();
+        let mut t = RadarTables { nr, table, covered, covers, single: Vec::new() };
+        t.single = t
+            .covered
+            .par_iter()
+            .map(|c| {
+                let mut h = vec![0.0; nr];
+                t.add(&mut h, c.iter().copied());
+                h
+            })
+            .collect();
+        t
+    }
+
+    fn add(&self, acc: &mut [f64], targets: impl Iterator<Item = u32>) {
+        for j in targets {
+            let row = &self.table[j as usize * self.nr..][..self.nr];
+            for (a, x) in acc.iter_mut().zip(row) {
+                *a += x;
+            }
+        }
+    }
+
+    fn sub(&self, acc: &mut [f64], targets: impl Iterator<Item = u32>) {
+        for j in targets {
+            let row = &self.table[j as usize * self.nr..][..self.nr];
+            for (a, x) in acc.iter_mut().zip(row) {
+                *a -= x;
+            }
+        }
+    }
+
+    /// h(r) for every radar, for a set of one or two LiDARs whose jointly covered targets (covered
+    /// by neither alone) are `joint`.
+    fn values(&self, set: &[usize], joint: &[u32], h: &mut [f64]) {
+        match *set {
+            [a] => h.copy_from_slice(&self.single[a]),
+            [a, b] => {
+                let (ca, cb) = (&self.covered[a], &self.covered[b]);
+                let (ia, ib) = (&self.covers[a], &self.covers[b]);
+                let both = ca.iter().filter(|&&j| ib[j as usize]).count();
+                let (only_a, only_b) = (ca.len() - both, cb.len() - both);
+                if both <= only_a.min(only_b) {
+                    for ((x, ha), hb) in h.iter_mut().zip(&self.single[a]).zip(&self.single[b]) {
+                        *x = ha + hb;
+                    }
+                    self.sub(h, ca.iter().copied().filter(|&j| ib[j as usize]));
+                } else if only_b <= only_a {
+                    h.copy_from_slice(&self.single[a]);
+                    self.add(h, cb.iter().copied().filter(|&j| !ia[j as usize]));
+                } else {
+                    h.copy_from_slice(&self.single[b]);
+                    self.add(h, ca.iter().copied().filter(|&j| !ib[j as usize]));
+                }
+            }
+            _ => h.fill(0.0),
+        }
+        self.add(h, joint.iter().copied());
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -620,6 +720,65 @@ fn radar_dfs(
         if f > *best + 1e-12 {
             *best = f;
             *best_sel = chosen.clone();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use crate::instance::{SensorOption, SensorType};
+    use rand::{Rng, SeedableRng};
+
+    /// Every pair's radar values, by whichever of the three formulas the sizes pick, equal the
+    /// direct sum over the pair's covered targets (overlapping, nested and disjoint pairs).
+    #[test]
+    fn pair_values_equal_the_direct_sum() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n = 60;
+        let types = vec![
+            SensorType { name: "l".into(), modality: Modality::Lidar, price_usd: 1.0 },
+            SensorType { name: "r".into(), modality: Modality::Radar, price_usd: 1.0 },
+        ];
+        let mut options = Vec::new();
+        for (ty, k) in [(0usize, 12), (1, 6)] {
+            for i in 0..k {
+                // LiDARs see windows of different widths (nested, overlapping, disjoint).
+                let (lo, hi) = if ty == 0 { (rng.random_range(0..40), rng.random_range(45..n)) } else { (0, n) };
+                let mut row = Vec::new();
+                for j in lo..hi {
+                    if rng.random_bool(0.8) {
+                        row.push((j as u32, rng.random_range(0.05f32..1.0)));
+                    }
+                }
+                options.push(SensorOption { ty, candidate: options.len() as u32, mount: i as u32 + 100 * ty as u32, row });
+            }
+        }
+        let inst = Instance { weights: (0..n).map(|j| 1.0 + (j % 3) as f64).collect(), types, options, p_min: 0.5 };
+        let tau = inst.tau() * (1.0 - 1e-9);
+        let lidars: Vec<usize> = (0..12).collect();
+        let radars: Vec<usize> = (12..18).collect();
+        let rt = vec![1.0; n];
+        let tables = RadarTables::new(&inst, &lidars, &radars, &rt, tau);
+        let mut sc = SetScratch::new(n);
+        let mut h = vec![0.0; radars.len()];
+        for a in 0..12 {
+            for b in a..12 {
+                let set = if a == b { vec![a] } else { vec![a, b] };
+                sc.cover(&inst, &set, &rt, tau);
+                tables.values(&set, &sc.joint, &mut h);
+                let mut cov = vec![0.0; n];
+                for &o in &set {
+                    for &(j, v) in &inst.options[o].row {
+                        cov[j as usize] += coverage_coef(v as f64);
+                    }
+                }
+                for (k, &r) in radars.iter().enumerate() {
+                    let direct: f64 = inst.options[r].row.iter().filter(|(j, _)| cov[*j as usize] >= tau).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum();
+                    assert!((h[k] - direct).abs() < 1e-9, "{set:?} radar {k}: {} vs {direct}", h[k]);
+                }
+            }
         }
     }
 }
