@@ -46,6 +46,15 @@ impl Best {
     }
 }
 
+fn past(deadline: Option<Instant>) -> bool {
+    deadline.is_some_and(|d| Instant::now() >= d)
+}
+
+/// Raises an atomic f64 (stored as bits) to at least `v`.
+fn raise(a: &AtomicU64, v: f64) {
+    let _ = a.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |bits| (v > f64::from_bits(bits)).then_some(v.to_bits()));
+}
+
 /// Statistics of a search.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SearchStats {
@@ -55,8 +64,10 @@ pub struct SearchStats {
 }
 
 /// Solves `Limit::Counts(counts)` exactly when the counts ask for exactly one radar in total.
-/// `incumbent` (e.g. greedy's selection) seeds the pruning.
-pub fn exact_counts(inst: &Instance, counts: &[u32], incumbent: &[usize]) -> Result<(Outcome, SearchStats), PlacementError> {
+/// `incumbent` (e.g. greedy's selection) seeds the pruning. At `deadline` the search stops and
+/// returns its best selection with a proven bound: the largest bound of the radars it did not
+/// finish.
+pub fn exact_counts(inst: &Instance, counts: &[u32], incumbent: &[usize], deadline: Option<Instant>) -> Result<(Outcome, SearchStats), PlacementError> {
     let start = Instant::now();
     let tau = inst.tau() * (1.0 - 1e-9);
     let count = |t: usize| counts.get(t).copied().unwrap_or(0);
@@ -109,16 +120,24 @@ pub fn exact_counts(inst: &Instance, counts: &[u32], incumbent: &[usize]) -> Res
     let best = Best { value_bits: AtomicU64::new(seed.to_bits()), selection: Mutex::new(incumbent.to_vec()) };
     let explored = AtomicU64::new(0);
     let leaves = AtomicU64::new(0);
+    let open = AtomicU64::new(f64::NEG_INFINITY.to_bits());
     order.par_iter().with_max_len(1).for_each_init(
         || Scratch::new(n),
         |scratch, &(ub, r)| {
             if ub <= best.value() + 1e-12 {
                 return;
             }
+            if past(deadline) {
+                raise(&open, ub);
+                return;
+            }
             explored.fetch_add(1, Ordering::Relaxed);
-            search_radar(inst, r, &lidar_types, tau, &best, scratch, &leaves);
+            if !search_radar(inst, r, &lidar_types, tau, &best, scratch, &leaves, deadline) {
+                raise(&open, ub);
+            }
         },
     );
+    let open = f64::from_bits(open.load(Ordering::Relaxed));
     let selection = match best.selection.lock() {
         Ok(g) => g.clone(),
         Err(p) => p.into_inner().clone(),
@@ -130,10 +149,14 @@ pub fn exact_counts(inst: &Instance, counts: &[u32], incumbent: &[usize]) -> Res
         radars_total: radars.len(),
         leaves_evaluated: leaves.load(Ordering::Relaxed),
     };
-    Ok((Outcome::new(inst, selection, best.value(), true, start.elapsed().as_secs_f64(), "exact branch and bound"), stats))
+    let proven = open <= best.value() + 1e-9;
+    let bound = if proven { best.value() } else { open };
+    Ok((Outcome::new(inst, selection, bound, proven, start.elapsed().as_secs_f64(), "exact branch and bound"), stats))
 }
 
-fn search_radar(inst: &Instance, r: usize, lidar_types: &[(usize, usize)], tau: f64, best: &Best, scratch: &mut Scratch, leaves: &AtomicU64) {
+/// Searches the LiDAR completions of radar `r`; false when the deadline cut it short.
+#[allow(clippy::too_many_arguments)]
+fn search_radar(inst: &Instance, r: usize, lidar_types: &[(usize, usize)], tau: f64, best: &Best, scratch: &mut Scratch, leaves: &AtomicU64, deadline: Option<Instant>) -> bool {
     let n = inst.n_targets();
     let mut covered = vec![false; n];
     let mut base = 0.0;
@@ -167,7 +190,28 @@ fn search_radar(inst: &Instance, r: usize, lidar_types: &[(usize, usize)], tau: 
         future[k] = future[k + 1] + top;
     }
     let mut chosen = vec![r];
-    dfs(inst, &lists, lidar_types, &future, 0, 0, lidar_types.first().map_or(0, |x| x.1), base, &mut chosen, best, scratch, leaves);
+    let mut stop = Stop { deadline, stopped: false, nodes: 0, budget: u64::MAX };
+    dfs(inst, &lists, lidar_types, &future, 0, 0, lidar_types.first().map_or(0, |x| x.1), base, &mut chosen, best, scratch, leaves, &mut stop);
+    !stop.stopped
+}
+
+/// When a search must stop: a deadline, or a node budget.
+struct Stop {
+    deadline: Option<Instant>,
+    stopped: bool,
+    nodes: u64,
+    budget: u64,
+}
+
+impl Stop {
+    /// Counts a node; true when the search must stop (the clock is read every 64 nodes).
+    fn tick(&mut self) -> bool {
+        self.nodes += 1;
+        if self.nodes >= self.budget || (self.nodes % 64 == 0 && past(self.deadline)) {
+            self.stopped = true;
+        }
+        self.stopped
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -184,7 +228,11 @@ fn dfs(
     best: &Best,
     scratch: &mut Scratch,
     leaves: &AtomicU64,
+    stop: &mut Stop,
 ) {
+    if stop.stopped || stop.tick() {
+        return;
+    }
     if k == types.len() {
         leaves.fetch_add(1, Ordering::Relaxed);
         let f = evaluate_with(inst, chosen, scratch);
@@ -196,7 +244,7 @@ fn dfs(
     let list = &lists[k];
     if slots == 0 || start >= list.len() {
         let next_slots = types.get(k + 1).map_or(0, |x| x.1);
-        dfs(inst, lists, types, future, k + 1, 0, next_slots, partial, chosen, best, scratch, leaves);
+        dfs(inst, lists, types, future, k + 1, 0, next_slots, partial, chosen, best, scratch, leaves, stop);
         return;
     }
     let mut descended = false;
@@ -215,14 +263,17 @@ fn dfs(
         }
         descended = true;
         chosen.push(o);
-        dfs(inst, lists, types, future, k, p + 1, slots - 1, partial + h, chosen, best, scratch, leaves);
+        dfs(inst, lists, types, future, k, p + 1, slots - 1, partial + h, chosen, best, scratch, leaves, stop);
         chosen.pop();
+        if stop.stopped {
+            return;
+        }
     }
     // Every remaining option sits on a mount already used: this type stops short of its count
     // ("at most"), and the search goes on with the next type.
     if !descended && !cut {
         let next_slots = types.get(k + 1).map_or(0, |x| x.1);
-        dfs(inst, lists, types, future, k + 1, 0, next_slots, partial, chosen, best, scratch, leaves);
+        dfs(inst, lists, types, future, k + 1, 0, next_slots, partial, chosen, best, scratch, leaves, stop);
     }
 }
 
@@ -336,8 +387,9 @@ pub type VectorReport = Vec<(Vec<u32>, f64)>;
 /// (one radar: [`exact_counts`]; several radars and at most two LiDARs of one type:
 /// [`exact_lidar_first`]) until no remaining vector's bound beats the incumbent. Any other vector
 /// whose bound still beats the incumbent is not searched: the outcome is then labelled unproven,
-/// with that bound.
-pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbent: &[usize]) -> Result<(Outcome, VectorReport), PlacementError> {
+/// with that bound. At `deadline` the search stops with the best selection and the largest bound
+/// of what it did not finish.
+pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbent: &[usize], deadline: Option<Instant>) -> Result<(Outcome, VectorReport), PlacementError> {
     let start = Instant::now();
     let vectors = maximal_count_vectors(inst, usd, min, max);
     if vectors.is_empty() {
@@ -358,21 +410,28 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
         if *ub <= best + 1e-9 {
             break;
         }
+        if past(deadline) {
+            open_bound = open_bound.max(*ub); // the vectors left are bounded by this one's
+            break;
+        }
         let radars: u32 = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(|t| counts[t]).sum();
         let lidar_types: Vec<usize> = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && counts[t] > 0).collect();
         if radars >= 2 && lidar_types.len() == 1 && counts[lidar_types[0]] <= 2 {
-            let (out, proven) = exact_lidar_first(inst, counts, &best_sel, 50_000_000)?;
+            let (out, proven) = exact_lidar_first(inst, counts, &best_sel, 50_000_000, deadline)?;
             report.push((counts.clone(), out.objective));
+            if !proven {
+                open_bound = open_bound.max(out.bound.min(*ub));
+            }
             if out.objective > best + 1e-12 {
                 best = out.objective;
                 best_sel = out.selection;
             }
-            if !proven {
-                open_bound = open_bound.max(*ub);
-            }
         } else if radars == 1 {
-            let (out, _) = exact_counts(inst, counts, &best_sel)?;
+            let (out, _) = exact_counts(inst, counts, &best_sel, deadline)?;
             report.push((counts.clone(), out.objective));
+            if !out.proven_optimal {
+                open_bound = open_bound.max(out.bound.min(*ub));
+            }
             if out.objective > best + 1e-12 {
                 best = out.objective;
                 best_sel = out.selection;
@@ -399,9 +458,10 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
 /// targets J only the two together cover, so h = H(a) + Σ_{C_b \ C_a} + Σ_J, or H(b) + Σ_{C_a \
 /// C_b} + Σ_J, or H(a) + H(b) − Σ_{C_a ∩ C_b} + Σ_J: whichever touches the fewest targets, each
 /// target adding one row of a dense target × radar table (a vectorised loop over the radars).
-/// `node_budget` caps the radar search; when it runs out the result is returned unproven.
-/// Returns (outcome, proven).
-pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], node_budget: u64) -> Result<(Outcome, bool), PlacementError> {
+/// `node_budget` caps the radar search and `deadline` its time; when either runs out the result
+/// is returned unproven, with the bound of the first LiDAR set not finished (sets are searched
+/// in bound order, so it bounds the rest). Returns (outcome, proven).
+pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], node_budget: u64, deadline: Option<Instant>) -> Result<(Outcome, bool), PlacementError> {
     let start = Instant::now();
     let tau = inst.tau() * (1.0 - 1e-9);
     let count = |t: usize| counts.get(t).copied().unwrap_or(0) as usize;
@@ -476,8 +536,9 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
                 let opts: Vec<usize> = set.iter().map(|&i| lidars[i]).collect();
                 let (base, ub0) = sc.cover(inst, &opts, &rt, tau);
                 let mut ub = ub0;
-                // The tight bound only where the cheap one does not already prune.
-                if ub0 > best0 + 1e-9 {
+                // The tight bound only where the cheap one does not already prune (and time is
+                // left: the cheap one is a valid bound too).
+                if ub0 > best0 + 1e-9 && !past(deadline) {
                     tables.values(&set, &sc.joint, h);
                     let mounts: Vec<u32> = opts.iter().map(|&o| inst.options[o].mount).collect();
                     ub = ub.min(base + radar_bound(h, &mounts, per_mount));
@@ -492,10 +553,17 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
     let mut scratch = Scratch::new(n);
     let mut sc = SetScratch::new(n);
     let mut h = vec![0.0; nr];
-    let mut nodes = 0u64;
-    let mut exhausted = false;
+    let mut stop = Stop { deadline, stopped: false, nodes: 0, budget: node_budget };
+    let mut open = f64::NEG_INFINITY;
     for c in &cands {
         if c.ub <= best + 1e-9 {
+            break;
+        }
+        if past(deadline) {
+            stop.stopped = true;
+        }
+        if stop.stopped {
+            open = c.ub;
             break;
         }
         let opts: Vec<usize> = c.set.iter().map(|&i| lidars[i]).collect();
@@ -507,15 +575,15 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
         order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         let mut chosen = opts.clone();
         let mut used: Vec<u32> = lidar_mounts;
-        radar_dfs(inst, &order, 0, n_r, c.base, &mut chosen, &mut used, &mut best, &mut best_sel, &mut scratch, &mut nodes, node_budget);
-        if nodes >= node_budget {
-            exhausted = true;
+        radar_dfs(inst, &order, 0, n_r, c.base, &mut chosen, &mut used, &mut best, &mut best_sel, &mut scratch, &mut stop);
+        if stop.stopped {
+            open = c.ub;
             break;
         }
     }
     best_sel.sort_unstable();
-    let proven = !exhausted;
-    let bound = if proven { best } else { f64::INFINITY };
+    let proven = open <= best + 1e-9;
+    let bound = if proven { best } else { open };
     Ok((Outcome::new(inst, best_sel, bound, proven, start.elapsed().as_secs_f64(), "exact LiDAR-first search"), proven))
 }
 
@@ -676,11 +744,9 @@ fn radar_dfs(
     best: &mut f64,
     best_sel: &mut Vec<usize>,
     scratch: &mut Scratch,
-    nodes: &mut u64,
-    budget: u64,
+    stop: &mut Stop,
 ) {
-    *nodes += 1;
-    if *nodes >= budget {
+    if stop.stopped || stop.tick() {
         return;
     }
     if slots == 0 || start >= h.len() {
@@ -707,10 +773,10 @@ fn radar_dfs(
         descended = true;
         chosen.push(r);
         used.push(m);
-        radar_dfs(inst, h, p + 1, slots - 1, partial + v, chosen, used, best, best_sel, scratch, nodes, budget);
+        radar_dfs(inst, h, p + 1, slots - 1, partial + v, chosen, used, best, best_sel, scratch, stop);
         chosen.pop();
         used.pop();
-        if *nodes >= budget {
+        if stop.stopped {
             return;
         }
     }

@@ -114,17 +114,19 @@ pub fn solve(inst: &Instance, limit: &Limit, time_limit_s: f64) -> Result<Outcom
 /// that also reports the greedy objective does not run greedy twice. Its seconds are counted in
 /// the result's `solve_seconds`.
 pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome) -> Result<Outcome, PlacementError> {
+    // The exact searches stop at the time limit too, with their best selection and bound.
+    let deadline = (time_limit_s.is_finite() && time_limit_s >= 0.0).then(|| std::time::Instant::now() + std::time::Duration::from_secs_f64(time_limit_s.min(1e7)));
     if let Limit::Counts(c) = limit {
         let radars: u32 = c.iter().enumerate().filter(|(t, _)| inst.types.get(*t).is_some_and(|x| x.modality == Modality::Radar)).map(|(_, n)| *n).sum();
         if radars == 1 {
-            let (mut out, _) = exact_counts(inst, c, &g.selection)?;
+            let (mut out, _) = exact_counts(inst, c, &g.selection, deadline)?;
             out.solve_seconds += g.solve_seconds;
             return Ok(out);
         }
     }
     let mut fallback = g.clone();
     if let Limit::Budget { usd, min, max } = limit {
-        let (mut out, _) = crate::exact::exact_budget(inst, *usd, min, max, &g.selection)?;
+        let (mut out, _) = crate::exact::exact_budget(inst, *usd, min, max, &g.selection, deadline)?;
         out.solve_seconds += g.solve_seconds;
         if out.proven_optimal {
             return Ok(out);
@@ -132,10 +134,12 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
         fallback = out;
     }
     let nonzeros: usize = inst.options.iter().map(|o| o.row.len()).sum::<usize>() * 3;
-    if nonzeros > CBC_MAX_NONZEROS {
+    // CBC gets what is left of the time limit (none left: the exact search's result stands).
+    let left = deadline.map_or(time_limit_s, |d| d.saturating_duration_since(std::time::Instant::now()).as_secs_f64());
+    if nonzeros > CBC_MAX_NONZEROS || left <= 0.0 {
         return Ok(fallback);
     }
-    let out = solve_mip(inst, limit, Formulation::Strengthened, time_limit_s, Some(&g.selection))?;
+    let out = solve_mip(inst, limit, Formulation::Strengthened, left, Some(&g.selection))?;
     // CBC may stop with something worse than its warm start: never return less than greedy.
     Ok(if out.objective + 1e-9 < g.objective { Outcome { selection: g.selection.clone(), objective: g.objective, gap: (out.bound - g.objective) / g.objective.max(1e-9), ..out } } else { out })
 }

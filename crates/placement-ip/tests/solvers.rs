@@ -52,7 +52,7 @@ fn ip_and_exact_search_equal_exhaustive_and_beat_greedy_on_random_instances() {
         let oracle = exhaustive(&inst, limit, 10_000_000).unwrap();
         let g = greedy(&inst, limit);
         let Limit::Counts(c) = limit else { unreachable!() };
-        let (e, _) = exact_counts(&inst, c, &g.selection).unwrap();
+        let (e, _) = exact_counts(&inst, c, &g.selection, None).unwrap();
         let cbc = solve(&inst, limit, Formulation::Strengthened, 30.0, None).unwrap();
         let plain = solve(&inst, limit, Formulation::Plain, 30.0, None).unwrap();
         for (name, o) in [("exact", &e), ("cbc strengthened", &cbc), ("cbc plain", &plain)] {
@@ -93,7 +93,7 @@ fn greedy_is_strictly_worse_on_a_constructed_instance() {
     assert_eq!(best.selection, vec![0, 2, 3]);
     assert!((best.objective - 6.66).abs() < 1e-5, "{}", best.objective);
     assert!((g.objective - 6.63).abs() < 1e-5, "{}", g.objective);
-    let (e, _) = exact_counts(&inst, &[2, 0, 1], &g.selection).unwrap();
+    let (e, _) = exact_counts(&inst, &[2, 0, 1], &g.selection, None).unwrap();
     assert_eq!(e.selection, vec![0, 2, 3]);
 }
 
@@ -149,7 +149,7 @@ fn infeasible_and_bad_inputs_are_errors() {
     let inst = random_instance(1);
     let e = exhaustive(&inst, &Limit::Budget { usd: 100.0, min: vec![1, 0, 1], max: vec![] }, 1000).unwrap_err();
     assert!(e.to_string().contains("infeasible"), "{e}");
-    let e = hilo_placement_ip::exact::exact_budget(&inst, 100.0, &[1, 0, 1], &[], &[]).unwrap_err();
+    let e = hilo_placement_ip::exact::exact_budget(&inst, 100.0, &[1, 0, 1], &[], &[], None).unwrap_err();
     assert!(e.to_string().contains("budget"), "{e}");
     let mut bad = random_instance(2);
     bad.options[0].row.push((999, 0.5));
@@ -166,7 +166,7 @@ fn infeasible_and_bad_inputs_are_errors() {
     assert_eq!(exhaustive(&zero, &limit, 100_000).unwrap().objective, 0.0);
     assert_eq!(solve(&zero, &limit, Formulation::Strengthened, 5.0, None).unwrap().objective, 0.0);
     let g = greedy(&zero, &limit);
-    assert_eq!(exact_counts(&zero, &[2, 0, 1], &g.selection).unwrap().0.objective, 0.0);
+    assert_eq!(exact_counts(&zero, &[2, 0, 1], &g.selection, None).unwrap().0.objective, 0.0);
 }
 
 #[test]
@@ -193,10 +193,39 @@ fn lidar_first_search_equals_exhaustive_with_several_radars() {
             let limit = Limit::Counts(counts.clone());
             let oracle = exhaustive(&inst, &limit, 10_000_000).unwrap();
             let g = greedy(&inst, &limit);
-            let (o, proven) = exact_lidar_first(&inst, &counts, &g.selection, 10_000_000).unwrap();
+            let (o, proven) = exact_lidar_first(&inst, &counts, &g.selection, 10_000_000, None).unwrap();
             assert!(proven);
             assert!((o.objective - oracle.objective).abs() < 1e-9 * oracle.objective.max(1.0), "seed {seed} {counts:?}: {} vs {}", o.objective, oracle.objective);
             assert!(inst.check(&limit, &o.selection).is_ok());
         }
     }
+}
+
+#[test]
+fn a_deadline_returns_a_valid_bound_and_a_feasible_selection() {
+    use hilo_placement_ip::exact::{exact_budget, exact_lidar_first};
+    let now = Some(std::time::Instant::now());
+    let mut cut_short = 0;
+    for seed in 0..12u64 {
+        let inst = random_instance(seed);
+        for (counts, search) in [(vec![2, 0, 1], 0), (vec![2, 0, 2], 1)] {
+            let limit = Limit::Counts(counts.clone());
+            let oracle = exhaustive(&inst, &limit, 10_000_000).unwrap().objective;
+            let g = greedy(&inst, &limit);
+            let o = if search == 0 { exact_counts(&inst, &counts, &g.selection, now).unwrap().0 } else { exact_lidar_first(&inst, &counts, &g.selection, 10_000_000, now).unwrap().0 };
+            assert!(inst.check(&limit, &o.selection).is_ok());
+            assert!(o.objective >= g.objective - 1e-9 && o.objective <= oracle + 1e-9);
+            assert!(o.bound >= oracle - 1e-9, "seed {seed} {counts:?}: bound {} below the optimum {oracle}", o.bound);
+            if o.proven_optimal {
+                assert!((o.objective - oracle).abs() < 1e-9);
+            } else {
+                cut_short += 1;
+            }
+        }
+        let b = exact_budget(&inst, 10_000.0, &[], &[], &[], now).unwrap().0;
+        let full = exact_budget(&inst, 10_000.0, &[], &[], &[], None).unwrap().0;
+        assert!(b.bound >= full.objective - 1e-9 && b.objective <= full.objective + 1e-9);
+    }
+    // Where greedy is not optimal, a search with no time left cannot have proven anything.
+    assert!(cut_short > 0);
 }
