@@ -27,7 +27,7 @@ pub enum FuseOp {
 pub struct BevFuse {
     op: FuseOp,
     out: ConvBn,
-    gate: Option<candle_nn::Conv2d>,
+    gate: Option<crate::conv::Conv>,
     proj: Option<ConvBn>,
     back: Option<ConvBn>,
     alpha: Option<Tensor>,
@@ -44,8 +44,8 @@ impl BevFuse {
                 f.out = ConvBn::new(cl, out, 1, 1, vb.pp("out"))?;
                 f.alpha = Some(vb.get_with_hints(1, "alpha", candle_nn::Init::Const(0.5))?);
             }
-            FuseOp::GatedChannel => f.gate = Some(candle_nn::conv2d(cl + cr, 2, 1, Default::default(), vb.pp("gate"))?),
-            FuseOp::GatedPixel => f.gate = Some(candle_nn::conv2d(cl + cr, 2, 3, candle_nn::Conv2dConfig { padding: 1, ..Default::default() }, vb.pp("gate"))?),
+            FuseOp::GatedChannel => f.gate = Some(crate::conv::Conv::new(cl + cr, 2, 1, 1, 0, true, vb.pp("gate"))?),
+            FuseOp::GatedPixel => f.gate = Some(crate::conv::Conv::new(cl + cr, 2, 3, 1, 1, true, vb.pp("gate"))?),
             FuseOp::Bidirectional => {
                 f.proj = Some(ConvBn::new(cl, cr, 3, 1, vb.pp("l_to_r"))?);
                 f.back = Some(ConvBn::new(cr, cl, 3, 1, vb.pp("r_to_l"))?);
@@ -55,7 +55,6 @@ impl BevFuse {
     }
 
     pub fn forward(&self, l: &Tensor, r: &Tensor, train: bool) -> Result<Tensor> {
-        use candle_nn::Module;
         match self.op {
             FuseOp::Concat => self.out.forward(&Tensor::cat(&[l, r], 1)?, train),
             FuseOp::Weighted => {

@@ -11,6 +11,7 @@ pub mod data;
 pub mod decode;
 pub mod detector;
 pub mod conformance;
+pub mod conv;
 pub mod error;
 pub mod fuse;
 pub mod fusion;

@@ -4,7 +4,8 @@
 use crate::data::Pillars;
 use crate::error::Result;
 use candle_core::{DType, Device, Tensor};
-use candle_nn::{BatchNorm, BatchNormConfig, Conv2d, Conv2dConfig, Linear, Module, ModuleT, VarBuilder};
+use crate::conv::Conv;
+use candle_nn::{BatchNorm, BatchNormConfig, Linear, Module, ModuleT, VarBuilder};
 use serde::{Deserialize, Serialize};
 
 /// BatchNorm with momentum 0.1: training runs are short (hundreds of steps), and with 0.01 the
@@ -85,14 +86,13 @@ impl PillarNet {
 /// Convolution, BatchNorm, ReLU.
 #[derive(Debug)]
 pub struct ConvBn {
-    conv: Conv2d,
+    conv: Conv,
     bn: BatchNorm,
 }
 
 impl ConvBn {
     pub fn new(cin: usize, cout: usize, k: usize, stride: usize, vb: VarBuilder) -> Result<Self> {
-        let cfg = Conv2dConfig { padding: k / 2, stride, ..Default::default() };
-        Ok(ConvBn { conv: candle_nn::conv2d_no_bias(cin, cout, k, cfg, vb.pp("conv"))?, bn: candle_nn::batch_norm(cout, bn_cfg(), vb.pp("bn"))? })
+        Ok(ConvBn { conv: Conv::new(cin, cout, k, stride, k / 2, false, vb.pp("conv"))?, bn: candle_nn::batch_norm(cout, bn_cfg(), vb.pp("bn"))? })
     }
 
     pub fn forward(&self, x: &Tensor, train: bool) -> Result<Tensor> {
@@ -164,7 +164,10 @@ impl Backbone {
             for l in layers {
                 x = l.forward(&x, train)?;
             }
-            let y = if *stride > out_stride { n.forward(&x.upsample_nearest2d(th, tw)?, train)? } else { n.forward(&x, train)? };
+            // A coarser map goes through its 1×1 neck convolution first and is upsampled after:
+            // the same values as upsampling first (nearest upsampling repeats each pixel equally
+            // often, so BatchNorm's statistics are unchanged), at a fraction of the cost.
+            let y = if *stride > out_stride { n.forward(&x, train)?.upsample_nearest2d(th, tw)? } else { n.forward(&x, train)? };
             outs.push(y);
         }
         Ok(Tensor::cat(&outs, 1)?)
@@ -182,8 +185,8 @@ pub const REG_CHANNELS: usize = 10;
 pub struct Head {
     cls_pre: Option<ConvBn>,
     reg_pre: Option<ConvBn>,
-    cls: Conv2d,
-    reg: Conv2d,
+    cls: Conv,
+    reg: Conv,
 }
 
 impl Head {
@@ -192,8 +195,8 @@ impl Head {
         Ok(Head {
             cls_pre,
             reg_pre,
-            cls: candle_nn::conv2d(c, classes, 1, Default::default(), vb.pp("cls"))?,
-            reg: candle_nn::conv2d(c, REG_CHANNELS, 1, Default::default(), vb.pp("reg"))?,
+            cls: Conv::new(c, classes, 1, 1, 0, true, vb.pp("cls"))?,
+            reg: Conv::new(c, REG_CHANNELS, 1, 1, 0, true, vb.pp("reg"))?,
         })
     }
 

@@ -54,9 +54,12 @@ fn module_shapes() {
         assert_eq!(b.lidar.width, 9);
         assert_eq!(b.lidar.features.len(), b.lidar.count() * b.lidar.points_per_pillar * 9);
         let (cls, reg) = det.forward(&b, false).unwrap();
-        assert_eq!(cls.dims(), &[2, 6, 16, 16], "{name}");
-        assert_eq!(reg.dims(), &[2, 10, 16, 16], "{name}");
-        assert_eq!(b.targets.cls.len(), 2 * 6 * 16 * 16);
+        // The head's grid: the 32 × 32 pillar grid divided by the preset's output stride.
+        let n = cfg.grid.cells() / cfg.backbone.out_stride;
+        assert_eq!(n, if name == "centerpoint" { 32 } else { 16 });
+        assert_eq!(cls.dims(), &[2, 6, n, n], "{name}");
+        assert_eq!(reg.dims(), &[2, 10, n, n], "{name}");
+        assert_eq!(b.targets.cls.len(), 2 * 6 * n * n);
         assert!(b.targets.num_pos >= 2.0);
     }
 }
