@@ -11,6 +11,7 @@ mod scan;
 mod simulate;
 mod study;
 mod study_run;
+mod tradeoff;
 mod train;
 
 use anyhow::{Context, Result};

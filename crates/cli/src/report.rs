@@ -254,8 +254,39 @@ pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, p
     for c in &r.configurations {
         let _ = writeln!(md, "| placement, {} | {:.2} s | {} |", c.name, c.placement_seconds, if c.placement_proven_optimal { "none: proven optimal" } else { "gap reported in placements/" });
     }
+    let t = &r.tradeoffs;
+    for l in &t.los {
+        let _ = writeln!(
+            md,
+            "| visibility of {}, {} line-of-sight sample{} per probe and cell | {:.2} s | mean \\|ΔV\\| {:.4} (max {:.3}) against {} samples; the placement it gives is worth {:.2}% less on that V |",
+            t.configuration,
+            l.samples_per_probe,
+            if l.samples_per_probe == 1 { "" } else { "s" },
+            l.seconds,
+            l.mean_abs_dv,
+            l.max_abs_dv,
+            t.los.last().map_or(0, |x| x.samples_per_probe),
+            100.0 * l.placement_loss
+        );
+    }
+    for l in &t.limits {
+        let _ = writeln!(
+            md,
+            "| placement under a budget of {:.0} USD (any of {}), time limit {} s | {:.2} s | {}: objective {:.1}, bound {:.1}, gap {:.2}% ({}; greedy {:.1}) |",
+            t.budget_usd,
+            t.types.join(", "),
+            l.time_limit_s,
+            l.seconds,
+            l.selection,
+            l.objective,
+            l.bound,
+            100.0 * l.gap,
+            if l.proven_optimal { "proven optimal" } else { "not proven" },
+            t.greedy_objective
+        );
+    }
     for e in r.entries.iter().filter(|e| e.seed == 0) {
-        let _ = writeln!(md, "| detector {} on {} | {:.0} ms/frame, trained in {:.0} s | mAP {:.3} |", e.preset, e.configuration, e.ms_per_frame, e.train_seconds, e.mean_ap);
+        let _ = writeln!(md, "| detector {} on {} ({:.2} M parameters) | {:.0} ms/frame, trained in {:.0} s | mAP {:.3} |", e.preset, e.configuration, e.parameters as f64 / 1e6, e.ms_per_frame, e.train_seconds, e.mean_ap);
     }
     crate::write_atomic(&out.join("report.md"), md.as_bytes())
 }

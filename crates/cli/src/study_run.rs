@@ -58,6 +58,9 @@ pub struct Profile {
     pub with_radar_only: bool,
     pub train_samples: usize,
     pub bootstrap: usize,
+    /// Target cell size of the placement speed-against-error sweeps (the study's when None).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tradeoff_cell_m: Option<f32>,
 }
 
 pub fn profile(name: &str, study: &Study) -> Result<Profile> {
@@ -71,8 +74,9 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             with_radar_only: false,
             train_samples: 160,
             bootstrap: 200,
+            tradeoff_cell_m: None,
         },
-        "default" => Profile { name: name.into(), dataset: base, presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()], configurations: None, with_radar_only: false, train_samples: 480, bootstrap: 500 },
+        "default" => Profile { name: name.into(), dataset: base, presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()], configurations: None, with_radar_only: false, train_samples: 480, bootstrap: 500, tradeoff_cell_m: None },
         "paper" => Profile {
             name: name.into(),
             dataset: SimulateConfig { scenes: 37, seconds: 20.0, rate_hz: 20.0, ..base },
@@ -81,6 +85,7 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             with_radar_only: true,
             train_samples: 12_000,
             bootstrap: 1000,
+            tradeoff_cell_m: None,
         },
         "tiny" => Profile {
             name: name.into(),
@@ -90,6 +95,7 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             with_radar_only: false,
             train_samples: 8,
             bootstrap: 20,
+            tradeoff_cell_m: Some(5.0),
         },
         other => bail!("--profile {other:?}: use quick, default or paper"),
     };
@@ -113,6 +119,8 @@ pub struct Entry {
     pub train_seconds: f64,
     pub ms_per_frame: f64,
     pub samples: usize,
+    /// Trainable parameters of the detector.
+    pub parameters: usize,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -146,6 +154,8 @@ pub struct Report {
     pub entries: Vec<Entry>,
     pub comparisons: Vec<Comparison>,
     pub cost_reduction: BTreeMap<String, f64>,
+    /// Placement's speed against error: line-of-sight samples and solver time limits.
+    pub tradeoffs: crate::tradeoff::Tradeoffs,
     pub seconds: f64,
 }
 
@@ -202,6 +212,16 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     let catalog = match &study.file.catalog {
         Some(p) => hilo_sensor_models::Catalog::load(&study.resolve(p))?,
         None => hilo_sensor_models::Catalog::default_catalog()?,
+    };
+    let tradeoff_path = placements.join("tradeoffs.json");
+    let tradeoffs: crate::tradeoff::Tradeoffs = match std::fs::read(&tradeoff_path) {
+        Ok(bytes) => serde_json::from_slice(&bytes).with_context(|| format!("reading {}", tradeoff_path.display()))?,
+        Err(_) => {
+            stage("placement speed against error (line-of-sight samples, solver time limits)");
+            let t = crate::tradeoff::compute(&study, &scene, &catalog, prof.tradeoff_cell_m)?;
+            crate::write_atomic(&tradeoff_path, serde_json::to_string_pretty(&t)?.as_bytes())?;
+            t
+        }
     };
     let registry = crate::train::registry()?;
     let eval_cfg = DetectionConfig::default();
@@ -305,6 +325,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                     train_seconds: info.seconds,
                     ms_per_frame: meta["ms_per_frame"].as_f64().unwrap_or(f64::NAN),
                     samples: info.samples_seen,
+                    parameters: hilo_fusion::Detector::new(&det_cfg, &registry, &Device::Cpu, 0)?.parameters(),
                 });
                 results_by.insert((conf.name.clone(), preset.clone(), seed), pred);
             }
@@ -331,7 +352,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
             cost_reduction.insert(s.name.clone(), 1.0 - cheap.cost_usd / s.cost_usd);
         }
     }
-    let report = Report { study: study.source.clone(), profile: prof.clone(), seeds: args.seeds, configurations: summaries, entries, comparisons, cost_reduction, seconds: t0.elapsed().as_secs_f64() };
+    let report = Report { study: study.source.clone(), profile: prof.clone(), seeds: args.seeds, configurations: summaries, entries, comparisons, cost_reduction, tradeoffs, seconds: t0.elapsed().as_secs_f64() };
     crate::report::write(out, &report, &results_by, &pictures, &placements, &configs)?;
     stage(&format!("report: {} ({:.0} s)", out.join("report.md").display(), report.seconds));
     Ok(report)

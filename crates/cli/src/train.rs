@@ -23,6 +23,14 @@ pub struct TrainArgs {
     /// Remove the early fusion stage (l4dr-like, lirafusion-like): the paper's ablation.
     #[arg(long)]
     pub no_early: bool,
+    /// A detector of one's own: a JSON file with the fields of run.json's "detector" (grid,
+    /// backbone, head, fusion plugin and its config); replaces --detector.
+    #[arg(long, conflicts_with_all = ["detector", "no_early"])]
+    pub detector_config: Option<PathBuf>,
+    /// A training schedule: a JSON file with any fields of run.json's "train" (the rest keep
+    /// their defaults); --samples, --batch and --seed override it.
+    #[arg(long)]
+    pub train_config: Option<PathBuf>,
     /// Run folder: weights, optimizer state, run.json, loss.jsonl. Rerunning resumes.
     #[arg(long)]
     pub out: PathBuf,
@@ -51,11 +59,23 @@ pub fn detector(name: &str, no_early: bool) -> Result<hilo_fusion::DetectorConfi
     Ok(if no_early { hilo_fusion::detector::without_early(&cfg)? } else { cfg })
 }
 
+/// A JSON file into `T`; errors name the file and serde's field and position.
+fn read_json<T: serde::de::DeserializeOwned>(path: &std::path::Path) -> Result<T> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not a valid configuration", path.display()))
+}
+
 pub fn run_train(args: &TrainArgs) -> Result<()> {
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version).with_context(|| format!("opening dataset {}", args.data.display()))?;
     let frames = hilo_fusion::data::load_split(&ds, &args.split).with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
-    let det = detector(&args.detector, args.no_early)?;
-    let mut cfg = TrainConfig::default();
+    let det = match &args.detector_config {
+        Some(path) => read_json::<hilo_fusion::DetectorConfig>(path)?,
+        None => detector(&args.detector, args.no_early)?,
+    };
+    let mut cfg = match &args.train_config {
+        Some(path) => read_json::<TrainConfig>(path)?,
+        None => TrainConfig::default(),
+    };
     if let Some(s) = args.samples {
         cfg.samples = s;
     }
@@ -72,13 +92,13 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
     let mut on_step = |r: &StepReport| {
         bar.set_position(r.step as u64);
-        bar.set_message(format!("{} loss {:.3} (cls {:.3}, reg {:.3}) {:.1} samples/s", args.detector, r.loss, r.cls, r.reg, r.samples_per_s));
+        bar.set_message(format!("{} loss {:.3} (cls {:.3}, reg {:.3}) {:.1} samples/s", det.name, r.loss, r.cls, r.reg, r.samples_per_s));
         let _ = writeln!(log, "{}", serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s }));
         true
     };
-    let info = hilo_fusion::train::train(&args.out, &det, &cfg, &frames, &registry()?, &Device::Cpu, &mut on_step).with_context(|| format!("training {} in {}", args.detector, args.out.display()))?;
+    let info = hilo_fusion::train::train(&args.out, &det, &cfg, &frames, &registry()?, &Device::Cpu, &mut on_step).with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
     bar.finish_and_clear();
-    eprintln!("trained {} on {} frames: {} steps, {} samples in {:.1} s; weights in {}", args.detector, frames.len(), info.step, info.samples_seen, info.seconds, hilo_fusion::train::weights_path(&args.out).display());
+    eprintln!("trained {} on {} frames: {} steps, {} samples in {:.1} s; weights in {}", det.name, frames.len(), info.step, info.samples_seen, info.seconds, hilo_fusion::train::weights_path(&args.out).display());
     Ok(())
 }
 

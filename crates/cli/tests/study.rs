@@ -23,6 +23,17 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["entries"].as_array().unwrap().len(), 4);
     assert!(json["cost_reduction"].as_object().unwrap().values().all(|v| v.as_f64().unwrap() > 0.0));
+    // Placement's speed against error: line-of-sight samples (the most samples is the reference)
+    // and solver time limits (every bound valid, the last one proven).
+    let t = &json["tradeoffs"];
+    let los = t["los"].as_array().unwrap();
+    assert_eq!(los.len(), 3);
+    assert_eq!(los[2]["mean_abs_dv"].as_f64().unwrap(), 0.0);
+    assert!(los.iter().all(|r| r["placement_loss"].as_f64().unwrap() >= -1e-9 && r["seconds"].as_f64().unwrap() > 0.0));
+    let limits = t["limits"].as_array().unwrap();
+    assert!(limits.iter().all(|r| r["bound"].as_f64().unwrap() >= r["objective"].as_f64().unwrap() - 1e-9));
+    assert_eq!(limits.last().unwrap()["proven_optimal"], true);
+    assert!(md.contains("line-of-sight samples per probe") && md.contains("time limit") && md.contains("M parameters"));
     for f in ["map_vs_cost.svg", "map_vs_cost.png", "pedestrian_ap.svg", "pedestrian_ap.png", "coverage_2x_lidar_16_radar.png", "detections/2x_lidar_16_radar__centerpoint.png", "detections/1x_lidar_32_radar__pointpillars-lr.png"] {
         let p = out.join("figures").join(f);
         assert!(std::fs::metadata(&p).map(|m| m.len() > 100).unwrap_or(false), "{} missing or empty", p.display());
