@@ -72,11 +72,11 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             configurations: Some(2),
             with_radar_only: false,
-            train_samples: 160,
+            train_samples: 240,
             bootstrap: 200,
             tradeoff_cell_m: None,
         },
-        "default" => Profile { name: name.into(), dataset: base, presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()], configurations: None, with_radar_only: false, train_samples: 480, bootstrap: 500, tradeoff_cell_m: None },
+        "default" => Profile { name: name.into(), dataset: base, presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()], configurations: None, with_radar_only: false, train_samples: 600, bootstrap: 500, tradeoff_cell_m: None },
         "paper" => Profile {
             name: name.into(),
             dataset: SimulateConfig { scenes: 37, seconds: 20.0, rate_hz: 20.0, ..base },

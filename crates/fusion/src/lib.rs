@@ -2,7 +2,9 @@
 //! detector modules ([`modules`]: pillar feature net, BEV backbone and neck, heads), targets
 //! and losses, decoding, the LiDAR-only presets `centerpoint` and `pointpillars`
 //! ([`detector::preset`]), training on CPU ([`train`]) and inference to the nuScenes
-//! submission format ([`infer`]).
+//! submission format ([`infer`]). Convolutions go through [`conv`]: on the CPU an im2col
+//! matrix product with its own custom ops (candle's CPU conv2d was most of a training step),
+//! candle's conv2d on other devices.
 //!
 //! Fusion plugins (raw, early, middle, late) live in their own crates under `plugins/` and only
 //! depend on this one; they register themselves in a [`fusion::Registry`].
