@@ -207,7 +207,7 @@ impl Stop {
     /// Counts a node; true when the search must stop (the clock is read every 64 nodes).
     fn tick(&mut self) -> bool {
         self.nodes += 1;
-        if self.nodes >= self.budget || (self.nodes % 64 == 0 && past(self.deadline)) {
+        if self.nodes >= self.budget || (self.nodes.is_multiple_of(64) && past(self.deadline)) {
             self.stopped = true;
         }
         self.stopped
