@@ -75,7 +75,7 @@ fn lidar_hit_cells(scene: &Scene, world: &World, catalog: &Catalog, prep: &Prepa
     Ok(hilo_placement_ip::coverage::lidar_hit_targets(scene, world, &prep.targets, cell, &lidars)?)
 }
 
-fn limit_for(cfg: &Configuration, types: &[String]) -> Limit {
+pub(crate) fn limit_for(cfg: &Configuration, types: &[String]) -> Limit {
     match cfg.budget_usd {
         Some(usd) => Limit::Budget {
             usd,
@@ -93,9 +93,7 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
         Some(p) => Catalog::load(&study.resolve(p))?,
         None => Catalog::default_catalog()?,
     };
-    let mut all_types: Vec<String> = study.file.configurations.iter().flat_map(|c| c.type_names()).collect();
-    all_types.sort();
-    all_types.dedup();
+    let all_types = study.type_names();
     for t in &all_types {
         catalog.get(t).with_context(|| format!("{}: a configuration names sensor {t:?}", study.source))?;
     }

@@ -92,6 +92,14 @@ impl Study {
         Ok(Study { file, dir, source })
     }
 
+    /// Every sensor type any configuration names, sorted, once each.
+    pub fn type_names(&self) -> Vec<String> {
+        let mut all: Vec<String> = self.file.configurations.iter().flat_map(|c| c.type_names()).collect();
+        all.sort();
+        all.dedup();
+        all
+    }
+
     pub fn resolve(&self, p: &Path) -> PathBuf {
         if p.is_absolute() { p.to_path_buf() } else { self.dir.join(p) }
     }

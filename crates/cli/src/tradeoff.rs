@@ -96,8 +96,12 @@ fn row_diff(a: &[(u32, f32)], b: &[(u32, f32)]) -> (f64, f64, usize) {
     (sum, max, n)
 }
 
-fn cost(catalog: &Catalog, c: &Configuration) -> f64 {
-    c.budget_usd.unwrap_or_else(|| c.sensors.iter().map(|(t, n)| catalog.get(t).map(|s| s.price_usd()).unwrap_or(0.0) * *n as f64).sum())
+/// A configuration's price: its budget, or its sensors at catalog prices.
+fn cost(catalog: &Catalog, c: &Configuration) -> Result<f64> {
+    match c.budget_usd {
+        Some(usd) => Ok(usd),
+        None => c.sensors.iter().map(|(t, n)| Ok(catalog.get(t)?.price_usd() * *n as f64)).sum(),
+    }
 }
 
 /// Both sweeps. `cell_m` overrides the study's target cell size (a coarse grid for quick tests).
@@ -118,10 +122,8 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
         None => Vec::new(),
     };
     // Time limits, on the budgeted problem over every type of the study.
-    let mut all: Vec<String> = study.file.configurations.iter().flat_map(|c| c.type_names()).collect();
-    all.sort();
-    all.dedup();
-    let budget_usd = study.file.configurations.iter().map(|c| cost(catalog, c)).fold(0.0, f64::max);
+    let all = study.type_names();
+    let budget_usd = study.file.configurations.iter().map(|c| cost(catalog, c)).collect::<Result<Vec<f64>>>()?.into_iter().fold(0.0, f64::max);
     let prep = prepare(scene, catalog, &all, &cfg)?;
     let inst = instance(&prep, catalog, &all, cfg.p_min)?;
     let blimit = Limit::Budget { usd: budget_usd, min: vec![], max: vec![] };
@@ -148,7 +150,7 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
 
 fn los_rows(scene: &Scene, catalog: &Catalog, cfg: &PlacementConfig, conf: &Configuration) -> Result<Vec<LosRow>> {
     let types = conf.type_names();
-    let limit = Limit::Counts(types.iter().map(|t| conf.sensors.get(t).copied().unwrap_or(0)).collect());
+    let limit = crate::place::limit_for(conf, &types);
     let mut runs: Vec<(usize, f64, Prepared)> = Vec::new();
     for &k in &LOS_SAMPLES {
         let mut c = cfg.clone();

@@ -41,6 +41,24 @@ impl Geometry {
         let iy = (y * self.stride + kh) as isize - self.pad as isize;
         (iy >= 0 && iy < self.h as isize).then_some(iy as usize)
     }
+
+    /// Every run of one (channel) plane that the column matrix shares with its input: for tap
+    /// (kh, kw) and output row y, output columns [x0, x1) read input row iy from column
+    /// x0·s + kw − p on. Calls `f(tap, y, iy, x0, x1, kw)`; [`Im2Col`] copies these runs and
+    /// [`Col2Im`] adds them back, so both walk the same index map.
+    fn runs(&self, mut f: impl FnMut(usize, usize, usize, usize, usize, usize)) {
+        let (ho, wo) = self.out();
+        for kh in 0..self.k {
+            for kw in 0..self.k {
+                let (x0, x1) = self.columns(kw, wo);
+                for y in 0..ho {
+                    if let Some(iy) = self.row(y, kh) {
+                        f(kh * self.k + kw, y, iy, x0, x1, kw);
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// (B, C, H, W) → (B, C·k·k, Ho·Wo): row (c, kh, kw) holds input (c, y·s + kh − p, x·s + kw − p).
@@ -74,24 +92,17 @@ impl CustomOp1 for Im2Col {
         // One (batch, channel) plane per task: its k·k rows of the column matrix.
         out.par_chunks_mut(kk * plane).enumerate().for_each(|(bc, rows)| {
             let src = &x[bc * g.h * g.w..(bc + 1) * g.h * g.w];
-            for kh in 0..g.k {
-                for kw in 0..g.k {
-                    let row = &mut rows[(kh * g.k + kw) * plane..(kh * g.k + kw + 1) * plane];
-                    let (x0, x1) = g.columns(kw, wo);
-                    for y in 0..ho {
-                        let Some(iy) = g.row(y, kh) else { continue };
-                        let (srow, drow) = (&src[iy * g.w..(iy + 1) * g.w], &mut row[y * wo..(y + 1) * wo]);
-                        if g.stride == 1 {
-                            let ix0 = x0 + kw - g.pad;
-                            drow[x0..x1].copy_from_slice(&srow[ix0..ix0 + (x1 - x0)]);
-                        } else {
-                            for (xo, d) in drow.iter_mut().enumerate().take(x1).skip(x0) {
-                                *d = srow[xo * g.stride + kw - g.pad];
-                            }
-                        }
+            g.runs(|tap, y, iy, x0, x1, kw| {
+                let (srow, drow) = (&src[iy * g.w..(iy + 1) * g.w], &mut rows[tap * plane + y * wo..tap * plane + (y + 1) * wo]);
+                if g.stride == 1 {
+                    let ix0 = x0 + kw - g.pad;
+                    drow[x0..x1].copy_from_slice(&srow[ix0..ix0 + (x1 - x0)]);
+                } else {
+                    for (xo, d) in drow.iter_mut().enumerate().take(x1).skip(x0) {
+                        *d = srow[xo * g.stride + kw - g.pad];
                     }
                 }
-            }
+            });
         });
         Ok((CpuStorage::F32(out), Shape::from((b, g.channels * kk, plane))))
     }
@@ -116,26 +127,19 @@ impl CustomOp1 for Col2Im {
         // Each task owns one (batch, channel) input plane, so the sums need no synchronisation.
         out.par_chunks_mut(g.h * g.w).enumerate().for_each(|(bc, dst)| {
             let rows = &cols[bc * kk * plane..(bc + 1) * kk * plane];
-            for kh in 0..g.k {
-                for kw in 0..g.k {
-                    let row = &rows[(kh * g.k + kw) * plane..(kh * g.k + kw + 1) * plane];
-                    let (x0, x1) = g.columns(kw, wo);
-                    for y in 0..ho {
-                        let Some(iy) = g.row(y, kh) else { continue };
-                        let (drow, srow) = (&mut dst[iy * g.w..(iy + 1) * g.w], &row[y * wo..(y + 1) * wo]);
-                        if g.stride == 1 {
-                            let ix0 = x0 + kw - g.pad;
-                            for (d, s) in drow[ix0..ix0 + (x1 - x0)].iter_mut().zip(&srow[x0..x1]) {
-                                *d += s;
-                            }
-                        } else {
-                            for (xo, s) in srow.iter().enumerate().take(x1).skip(x0) {
-                                drow[xo * g.stride + kw - g.pad] += s;
-                            }
-                        }
+            g.runs(|tap, y, iy, x0, x1, kw| {
+                let (drow, srow) = (&mut dst[iy * g.w..(iy + 1) * g.w], &rows[tap * plane + y * wo..tap * plane + (y + 1) * wo]);
+                if g.stride == 1 {
+                    let ix0 = x0 + kw - g.pad;
+                    for (d, s) in drow[ix0..ix0 + (x1 - x0)].iter_mut().zip(&srow[x0..x1]) {
+                        *d += s;
+                    }
+                } else {
+                    for (xo, s) in srow.iter().enumerate().take(x1).skip(x0) {
+                        drow[xo * g.stride + kw - g.pad] += s;
                     }
                 }
-            }
+            });
         });
         Ok((CpuStorage::F32(out), Shape::from((b, g.channels, g.h, g.w))))
     }
