@@ -41,7 +41,7 @@ enum Command {
     Place(place::PlaceArgs),
     /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
     Simulate(simulate::SimulateArgs),
-    /// Train a detector (centerpoint, pointpillars) on a dataset's train split, on the CPU.
+    /// Train a detector (a preset or a detector config of one's own) on a dataset's train split, on the CPU.
     Train(train::TrainArgs),
     /// Run a trained detector on a split and write a nuScenes submission.
     Detect(train::DetectArgs),

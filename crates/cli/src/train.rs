@@ -17,7 +17,7 @@ pub struct TrainArgs {
     #[arg(long, default_value = "train")]
     pub split: String,
     /// Detector preset: centerpoint, pointpillars (LiDAR only); pointpillars-lr, l4dr-like,
-    /// lirafusion-like, bi-lrfusion-like (LiDAR + radar).
+    /// lirafusion-like, bi-lrfusion-like, late (LiDAR + radar).
     #[arg(long, default_value = "centerpoint")]
     pub detector: String,
     /// Remove the early fusion stage (l4dr-like, lirafusion-like): the paper's ablation.
@@ -34,7 +34,8 @@ pub struct TrainArgs {
     /// Run folder: weights, optimizer state, run.json, loss.jsonl. Rerunning resumes.
     #[arg(long)]
     pub out: PathBuf,
-    /// Training samples in total (overrides the default schedule).
+    /// Training samples in total (overrides the default schedule: the preset's samples that fit
+    /// 5 minutes of training here, 900–1,400).
     #[arg(long)]
     pub samples: Option<usize>,
     #[arg(long)]
@@ -74,7 +75,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     };
     let mut cfg = match &args.train_config {
         Some(path) => read_json::<TrainConfig>(path)?,
-        None => TrainConfig::default(),
+        None => TrainConfig::for_preset(&det.name),
     };
     if let Some(s) = args.samples {
         cfg.samples = s;

@@ -39,10 +39,8 @@ fn frames(seed: u64, n: usize) -> Vec<Frame> {
 fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame]) -> f64 {
     let mut cfg = preset(name).unwrap();
     cfg.grid = small_grid();
-    // The head at stride 2 (1.6 m cells, 32 channels), as the presets had before their
-    // full-resolution head: what is tested is that Doppler and RCS flow through each plugin, and
-    // with 24 training frames the stride-1 head with 16 channels does not separate the classes
-    // within 250 steps for every preset (lirafusion-like 0.38 against centerpoint's 0.39).
+    // The head at stride 2 (1.6 m cells, 32 channels): what is tested is that Doppler and RCS
+    // flow through each plugin, and the coarser head trains faster on this small grid.
     cfg.backbone.out_stride = 2;
     cfg.backbone.neck_channels = 32;
     cfg.head_channels = 32;
@@ -79,16 +77,20 @@ fn every_fusion_preset_separates_classes_that_differ_only_by_motion() {
     hilo_fusion_early::register(&mut r).unwrap();
     hilo_fusion_middle::register(&mut r).unwrap();
     hilo_fusion_late::register(&mut r).unwrap();
-    let (tr, val) = (frames(1, 24), frames(2, 12));
+    // 200 training frames: with 24, a detector could tell the classes apart by memorising where
+    // each object stood (the point features hold absolute x, y), and every preset, LiDAR-only
+    // or not, ended between 0.3 and 0.7 with gaps within run-to-run noise. With 200 no position
+    // repeats: LiDAR-only stays near 0.4 (the class is a coin toss) and a detector reaches 0.9
+    // only through the radar's Doppler.
+    let (tr, val) = (frames(1, 200), frames(2, 12));
     // Each fusion preset against the LiDAR-only preset it extends (same backbone and head).
-    // Not asserted, printed: pointpillars-lr (0.49 against pointpillars' 0.51 after 250 steps)
-    // and lirafusion-like (0.39 against 0.30; it was 0.43 before the convolution's rounding
-    // changed, so its gap on this fixture is within run-to-run noise: its joint encoder averages
-    // a cell's few radar points with its many LiDAR points). See the [fusion-plugins] note.
-    let cp = map_for("centerpoint", &r, &tr, &val);
-    eprintln!("lirafusion-like (not asserted): mAP {:.3}", map_for("lirafusion-like", &r, &tr, &val));
-    for name in ["l4dr-like", "bi-lrfusion-like", "late"] {
+    let lidar_only = [("pointpillars", map_for("pointpillars", &r, &tr, &val)), ("centerpoint", map_for("centerpoint", &r, &tr, &val))];
+    for (lidar, base) in lidar_only {
+        assert!(base < 0.6, "{lidar} (LiDAR only) separates the classes: mAP {base:.3}; the fixture leaks the class into LiDAR");
+    }
+    for name in ["pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"] {
+        let (base_name, base) = if name == "pointpillars-lr" { lidar_only[0] } else { lidar_only[1] };
         let fused = map_for(name, &r, &tr, &val);
-        assert!(fused >= cp + 0.1, "{name}: mAP {fused:.3} against LiDAR-only centerpoint {cp:.3}");
+        assert!(fused >= base + 0.25, "{name}: mAP {fused:.3} against LiDAR-only {base_name} {base:.3}");
     }
 }

@@ -103,13 +103,14 @@ pub fn preset(name: &str) -> Result<DetectorConfig> {
             fusion_config: serde_json::json!({ "channels": 32, "aggregation": "max", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_pixel" } }),
             ..preset("centerpoint")?
         }),
-        // LiRaFusion: a joint voxel encoder over both modalities (early, mean) and adaptive
-        // gated fusion (per channel). Left out: the 3-D voxel encoder (pillars instead) and the
-        // exact gating network.
+        // LiRaFusion: a joint voxel encoder over both modalities (early; per-cell means taken
+        // per modality, so a cell's few radar points are not averaged away by its LiDAR points)
+        // and adaptive gated fusion (per channel). Left out: the 3-D voxel encoder (pillars
+        // instead) and the exact gating network.
         "lirafusion-like" => Ok(DetectorConfig {
             name: name.into(),
             fusion: "early".into(),
-            fusion_config: serde_json::json!({ "channels": 32, "aggregation": "mean", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_channel" } }),
+            fusion_config: serde_json::json!({ "channels": 32, "aggregation": "modality_mean", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_channel" } }),
             ..preset("centerpoint")?
         }),
         // Bi-LRFusion: LiDAR features enrich the radar BEV map, which then enhances the LiDAR

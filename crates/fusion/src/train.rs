@@ -2,8 +2,11 @@
 //! another thread, checkpoints (weights, optimizer state, progress) after every epoch and every
 //! `checkpoint_steps`, exact resume, and the same weights from the same seed.
 //!
-//! Budgets are counted in samples, not epochs: on two cores the default detector trains at
-//! about 5.3 samples/s, so the default schedule is 1,400 samples (about 4.4 minutes).
+//! Budgets are counted in samples, not epochs (a time limit would make the weights depend on the
+//! machine's load): on two cores the default detector trains at about 5.3 samples/s, so the
+//! default schedule is 1,400 samples (about 4.4 minutes). Presets with a second branch at full
+//! resolution are slower per sample; [`TrainConfig::for_preset`] gives each preset the samples
+//! that fit the same 5 minutes.
 
 use crate::data::{Augmentation, Frame};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
@@ -40,6 +43,20 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// The default schedule of a preset: as many samples as it trains in under 5 minutes on a
+    /// 2-core CPU (measured throughput on the default dataset, see the README's detector table:
+    /// `l4dr-like` 3.9 samples/s, `lirafusion-like` 4.4, `bi-lrfusion-like` and `late` 3.3; the
+    /// others 4.7–6.1 keep 1,400). Unknown names (a detector of one's own) get the default.
+    pub fn for_preset(name: &str) -> TrainConfig {
+        let samples = match name {
+            "l4dr-like" | "l4dr-like-no-early" => 1100,
+            "lirafusion-like" | "lirafusion-like-no-early" => 1200,
+            "bi-lrfusion-like" | "late" => 900,
+            _ => TrainConfig::default().samples,
+        };
+        TrainConfig { samples, ..TrainConfig::default() }
+    }
+
     pub fn steps(&self) -> usize {
         self.samples.div_ceil(self.batch.max(1))
     }

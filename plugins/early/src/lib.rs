@@ -1,10 +1,15 @@
 //! Early fusion: the combined point space is pillarised with one joint encoder over mixed
-//! features, and aggregated per cell by A (mean or max). Every point, LiDAR or radar, is
-//! written in one layout: x, y, z, PointPillars' five decorations, LiDAR intensity, radar RCS,
+//! features, and aggregated per cell by A (max, mean, or mean per modality). Every point, LiDAR
+//! or radar, is written in one layout: x, y, z, PointPillars' five decorations, LiDAR intensity, radar RCS,
 //! radial velocity and line of sight (zeros where a modality has no such field) and a modality
-//! flag; a shared linear layer, BatchNorm and ReLU encode it; a cell's feature is the mean or
-//! maximum over all its points of both modalities. Decorations are taken per modality (offsets
-//! from the modality's own pillar mean), a simplification of a joint pillar mean.
+//! flag; a shared linear layer, BatchNorm and ReLU encode it; a cell's feature aggregates the
+//! encodings of all its points of both modalities by A: the maximum, the mean, or the mean per
+//! modality summed (`modality_mean`: LiDAR's mean plus radar's mean, so each modality counts
+//! once in a cell). The plain mean lets a cell's many LiDAR points drown its one or two radar
+//! points: on the motion fixture (`crates/cli/tests/fusion_motion.rs`) `lirafusion-like` with
+//! it stayed at LiDAR-only mAP (0.41 against 0.43), with `modality_mean` it reaches 0.97.
+//! Decorations are taken per modality (offsets from the modality's own pillar mean), a
+//! simplification of a joint pillar mean.
 //!
 //! Optionally (`middle`), a LiDAR-only pillar branch is fused with the joint map by φ
 //! (LiRaFusion's joint voxel encoder + adaptive gating; L4DR's early radar–LiDAR fusion +
@@ -25,7 +30,11 @@ const JOINT: usize = 14;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Aggregation {
+    /// Mean over all of a cell's points, LiDAR and radar alike.
     Mean,
+    /// Mean over the cell's LiDAR points plus mean over its radar points: each modality counts
+    /// once in a cell, whatever its point count.
+    ModalityMean,
     Max,
 }
 
@@ -77,6 +86,11 @@ fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
 
 pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     let c: EarlyConfig = hilo_fusion::fusion::parse_config("early", cfg)?;
+    Ok(Box::new(EarlyFusion::new(c, grid, vb)?))
+}
+
+impl EarlyFusion {
+    fn new(c: EarlyConfig, grid: &BevGrid, vb: VarBuilder) -> Result<Self> {
     let bn = candle_nn::batch_norm(c.channels, candle_nn::BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 }, vb.pp("joint_bn"))?;
     let (lidar, fuse) = match &c.middle {
         Some(m) => (Some(PillarNet::new(LIDAR_FEATURES + 5, m.lidar_channels, vb.pp("lidar"))?), Some(BevFuse::new(m.lidar_channels, c.channels, m.out_channels, m.op, vb.pp("fuse"))?)),
@@ -85,7 +99,8 @@ pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<
     if c.middle.is_none() && !c.early {
         return Err(FusionError::Config("fusion plugin \"early\": early = false needs a middle stage (otherwise LiDAR is never used)".into()));
     }
-    Ok(Box::new(EarlyFusion { linear: candle_nn::linear_no_bias(JOINT, c.channels, vb.pp("joint"))?, bn, lidar, fuse, cells: grid.cells(), cfg: c }))
+    Ok(EarlyFusion { linear: candle_nn::linear_no_bias(JOINT, c.channels, vb.pp("joint"))?, bn, lidar, fuse, cells: grid.cells(), cfg: c })
+    }
 }
 
 /// Registers `early`.
@@ -142,6 +157,10 @@ impl EarlyFusion {
                     acc = acc.index_add(&p.index, &x.sum(1)?, 0)?;
                     count = count.index_add(&p.index, &p.mask.sum(1)?, 0)?;
                 }
+                Aggregation::ModalityMean => {
+                    let mean = x.sum(1)?.broadcast_div(&p.mask.sum(1)?.clamp(1.0, f32::MAX)?)?;
+                    acc = acc.index_add(&p.index, &mean, 0)?;
+                }
             }
         }
         if self.cfg.aggregation == Aggregation::Mean {
@@ -169,6 +188,71 @@ impl Fusion for EarlyFusion {
                 Ok(FusionOutput::Bev(f.forward(&lm, &joint, train)?))
             }
             _ => Ok(FusionOutput::Bev(joint)),
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used)]
+mod tests {
+    use super::*;
+    use candle_core::Device;
+    use hilo_fusion::conformance::small_grid;
+    use hilo_fusion::data::pillarize;
+
+    /// Per pillar, the encodings of its real points (inference-mode BatchNorm, so per point).
+    fn encodings(f: &EarlyFusion, p: &PillarTensors, map: &[usize], flag: bool) -> Vec<Vec<Vec<f32>>> {
+        let x = EarlyFusion::to_joint(p, map, flag).unwrap();
+        let (n, npp, _) = x.dims3().unwrap();
+        let e = f.bn.forward_t(&f.linear.forward(&x.reshape((n * npp, JOINT)).unwrap()).unwrap(), false).unwrap().relu().unwrap();
+        let e = e.reshape((n, npp, f.cfg.channels)).unwrap().to_vec3::<f32>().unwrap();
+        let mask = p.mask.squeeze(2).unwrap().to_vec2::<f32>().unwrap();
+        e.into_iter().zip(mask).map(|(rows, m)| rows.into_iter().zip(m).filter(|(_, m)| *m > 0.5).map(|(r, _)| r).collect()).collect()
+    }
+
+    /// The joint map of each aggregation against a per-cell loop over the points' encodings: a
+    /// cell with nine LiDAR points and one radar point, a LiDAR-only cell, a radar-only cell.
+    #[test]
+    fn aggregations_match_a_per_cell_oracle() {
+        let grid = small_grid();
+        let lidar: Vec<[f32; 4]> = (0..9).map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3]).chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8])).collect();
+        let radar: Vec<[f32; 7]> = vec![[1.2, 2.2, 0.9, 8.0, 7.0, 0.1, 0.99], [6.1, -3.3, 0.4, 3.0, -2.0, 0.8, 0.6], [6.2, -3.4, 0.6, 5.0, -2.5, 0.8, 0.6]];
+        let dev = Device::Cpu;
+        let (lt, rt) = (PillarTensors::new(&pillarize(&grid, &[&lidar]), &dev).unwrap(), PillarTensors::new(&pillarize(&grid, &[&radar]), &dev).unwrap());
+        for aggregation in [Aggregation::Max, Aggregation::Mean, Aggregation::ModalityMean] {
+            let varmap = candle_nn::VarMap::new();
+            let cfg = EarlyConfig { channels: 8, aggregation, early: true, middle: None };
+            let f = EarlyFusion::new(cfg, &grid, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
+            let map = f.joint_map(&FusionInput { lidar: &lt, radar: &rt, batch: 1, grid }, false).unwrap();
+            let map = map.squeeze(0).unwrap().to_vec3::<f32>().unwrap();
+            // Points per cell, per modality.
+            let mut cells: std::collections::BTreeMap<u32, [Vec<Vec<f32>>; 2]> = Default::default();
+            for (m, (p, layout, flag)) in [(&lt, &LIDAR_TO_JOINT[..], false), (&rt, &RADAR_TO_JOINT[..], true)].into_iter().enumerate() {
+                let index = p.index.to_vec1::<u32>().unwrap();
+                for (cell, points) in index.into_iter().zip(encodings(&f, p, layout, flag)) {
+                    cells.entry(cell).or_default()[m].extend(points);
+                }
+            }
+            assert_eq!(cells.len(), 3, "three occupied cells");
+            let n = grid.cells();
+            for (cell, [l, r]) in &cells {
+                let (row, col) = (*cell as usize / n, *cell as usize % n);
+                for c in 0..8 {
+                    let mean = |v: &Vec<Vec<f32>>| if v.is_empty() { 0.0 } else { v.iter().map(|e| e[c]).sum::<f32>() / v.len() as f32 };
+                    let all: Vec<f32> = l.iter().chain(r).map(|e| e[c]).collect();
+                    let want = match aggregation {
+                        Aggregation::Max => all.iter().fold(0.0f32, |a, &b| a.max(b)),
+                        Aggregation::Mean => all.iter().sum::<f32>() / all.len() as f32,
+                        Aggregation::ModalityMean => mean(l) + mean(r),
+                    };
+                    let got = map[c][row][col];
+                    assert!((got - want).abs() <= 1e-5 * (1.0 + want.abs()), "{aggregation:?}, cell {cell}, channel {c}: {got} against {want}");
+                }
+            }
+            // Everywhere else the map is zero.
+            let total: f32 = map.iter().flatten().flatten().map(|v| v.abs()).sum();
+            let occupied: f32 = cells.keys().map(|&cell| (0..8).map(|c| map[c][cell as usize / n][cell as usize % n].abs()).sum::<f32>()).sum();
+            assert!((total - occupied).abs() <= 1e-4 * (1.0 + total), "{aggregation:?}: values outside the occupied cells");
         }
     }
 }
