@@ -528,11 +528,20 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
         base: f64,
         ub: f64,
     }
-    let mut cands: Vec<Cand> = sets
+    if past(deadline) {
+        return Ok((Outcome::new(inst, sorted(incumbent), f64::INFINITY, false, start.elapsed().as_secs_f64(), "exact LiDAR-first search (stopped before bounding)"), false));
+    }
+    // Bounding every LiDAR set is most of the search's time at the default scale: past the
+    // deadline the remaining sets are not bounded (`None`), and the search returns its
+    // incumbent with no bound of its own (the caller holds one for the whole count vector).
+    let cands: Option<Vec<Cand>> = sets
         .into_par_iter()
         .map_init(
             || (SetScratch::new(n), vec![0.0; nr], Vec::new()),
             |(sc, h, per_mount), set| {
+                if past(deadline) {
+                    return None;
+                }
                 let opts: Vec<usize> = set.iter().map(|&i| lidars[i]).collect();
                 let (base, ub0) = sc.cover(inst, &opts, &rt, tau);
                 let mut ub = ub0;
@@ -543,10 +552,13 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
                     let mounts: Vec<u32> = opts.iter().map(|&o| inst.options[o].mount).collect();
                     ub = ub.min(base + radar_bound(h, &mounts, per_mount));
                 }
-                Cand { set, base, ub }
+                Some(Cand { set, base, ub })
             },
         )
         .collect();
+    let Some(mut cands) = cands else {
+        return Ok((Outcome::new(inst, sorted(incumbent), f64::INFINITY, false, start.elapsed().as_secs_f64(), "exact LiDAR-first search (stopped while bounding)"), false));
+    };
     cands.sort_by(|x, y| y.ub.total_cmp(&x.ub).then_with(|| x.set.cmp(&y.set)));
     let mut best_sel = incumbent.to_vec();
     let mut best = best0;
@@ -585,6 +597,12 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
     let proven = open <= best + 1e-9;
     let bound = if proven { best } else { open };
     Ok((Outcome::new(inst, best_sel, bound, proven, start.elapsed().as_secs_f64(), "exact LiDAR-first search"), proven))
+}
+
+fn sorted(selection: &[usize]) -> Vec<usize> {
+    let mut s = selection.to_vec();
+    s.sort_unstable();
+    s
 }
 
 /// Buffers for the targets a LiDAR set covers.
