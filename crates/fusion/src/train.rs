@@ -4,7 +4,12 @@
 //!
 //! Budgets are counted in samples, not epochs (a time limit would make the weights depend on the
 //! machine's load): on two cores the default detector trains at about 5.3 samples/s, so the
-//! default schedule is 1,400 samples (about 4.4 minutes). Presets with a second branch at full
+//! default schedule is 1,400 samples (about 4.4 minutes). At such budgets the number of updates
+//! matters more than their precision: batches of 2 at a peak learning rate of 6e-3 train
+//! `centerpoint` on the default dataset to mAP 0.171 in 600 samples (107 s), where batches of 4
+//! at 3e-3 reach 0.040 in the same samples and time (6e-3 alone: 0.086; batches of 2 alone:
+//! 0.115), and `lirafusion-like` to 0.200. A CPU step costs the same per sample at
+//! either batch size. Presets with a second branch at full
 //! resolution are slower per sample; [`TrainConfig::for_preset`] gives each preset the samples
 //! that fit the same 5 minutes.
 
@@ -38,7 +43,7 @@ pub struct TrainConfig {
 
 impl Default for TrainConfig {
     fn default() -> Self {
-        TrainConfig { samples: 1400, batch: 4, lr_max: 3e-3, weight_decay: 0.01, clip_norm: 10.0, warmup: 0.3, seed: 0, augmentation: Augmentation::default(), checkpoint_steps: 50 }
+        TrainConfig { samples: 1400, batch: 2, lr_max: 6e-3, weight_decay: 0.01, clip_norm: 10.0, warmup: 0.3, seed: 0, augmentation: Augmentation::default(), checkpoint_steps: 50 }
     }
 }
 
