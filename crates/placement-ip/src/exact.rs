@@ -528,12 +528,17 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
         base: f64,
         ub: f64,
     }
+    // Stopped before the sets are bounded: the incumbent, and the count vector's bound.
+    let stopped = |what: &str| {
+        let tops = top_visibilities(inst, counts.iter().copied().max().unwrap_or(0) as usize);
+        let bound = counts_upper_bound(inst, counts, &tops).min(separable_upper_bound(inst, counts, &tops));
+        Outcome::new(inst, sorted(incumbent), bound, false, start.elapsed().as_secs_f64(), &format!("exact LiDAR-first search ({what})"))
+    };
     if past(deadline) {
-        return Ok((Outcome::new(inst, sorted(incumbent), f64::INFINITY, false, start.elapsed().as_secs_f64(), "exact LiDAR-first search (stopped before bounding)"), false));
+        return Ok((stopped("stopped before bounding"), false));
     }
     // Bounding every LiDAR set is most of the search's time at the default scale: past the
-    // deadline the remaining sets are not bounded (`None`), and the search returns its
-    // incumbent with no bound of its own (the caller holds one for the whole count vector).
+    // deadline the remaining sets are not bounded (`None`).
     let cands: Option<Vec<Cand>> = sets
         .into_par_iter()
         .map_init(
@@ -557,7 +562,7 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
         )
         .collect();
     let Some(mut cands) = cands else {
-        return Ok((Outcome::new(inst, sorted(incumbent), f64::INFINITY, false, start.elapsed().as_secs_f64(), "exact LiDAR-first search (stopped while bounding)"), false));
+        return Ok((stopped("stopped while bounding"), false));
     };
     cands.sort_by(|x, y| y.ub.total_cmp(&x.ub).then_with(|| x.set.cmp(&y.set)));
     let mut best_sel = incumbent.to_vec();

@@ -216,6 +216,7 @@ fn a_deadline_returns_a_valid_bound_and_a_feasible_selection() {
             assert!(inst.check(&limit, &o.selection).is_ok());
             assert!(o.objective >= g.objective - 1e-9 && o.objective <= oracle + 1e-9);
             assert!(o.bound >= oracle - 1e-9, "seed {seed} {counts:?}: bound {} below the optimum {oracle}", o.bound);
+            assert!(o.bound.is_finite(), "seed {seed} {counts:?}: a stopped search still gives a finite bound");
             if o.proven_optimal {
                 assert!((o.objective - oracle).abs() < 1e-9);
             } else {
