@@ -4,14 +4,15 @@
 //!
 //! Budgets are counted in samples, not epochs (a time limit would make the weights depend on the
 //! machine's load): on two cores the default detector trains at about 5.3 samples/s, so the
-//! default schedule is 1,400 samples (about 4.4 minutes). At such budgets the number of updates
-//! matters more than their precision: batches of 2 at a peak learning rate of 6e-3 train
-//! `centerpoint` on the default dataset to mAP 0.171 in 600 samples (107 s), where batches of 4
-//! at 3e-3 reach 0.040 in the same samples and time (6e-3 alone: 0.086; batches of 2 alone:
-//! 0.115), and `lirafusion-like` to 0.200. A CPU step costs the same per sample at
-//! either batch size. Presets with a second branch at full
+//! default schedule is 1,400 samples (about 4.4 minutes). Presets with a second branch at full
 //! resolution are slower per sample; [`TrainConfig::for_preset`] gives each preset the samples
 //! that fit the same 5 minutes.
+//!
+//! At such budgets the number of updates matters more than their precision: batches of 2 at a
+//! peak learning rate of 6e-3 train `centerpoint` on the default dataset to mAP 0.171 in 600
+//! samples (107 s), where batches of 4 at 3e-3 reach 0.040 in the same samples and time (6e-3
+//! alone: 0.086; batches of 2 alone: 0.115), and `lirafusion-like` to 0.200. A CPU step costs
+//! the same per sample at either batch size.
 
 use crate::data::{Augmentation, Frame};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
