@@ -3,8 +3,8 @@
 //! `checkpoint_steps`, exact resume, and the same weights from the same seed.
 //!
 //! Budgets are counted in samples, not epochs (a time limit would make the weights depend on the
-//! machine's load): on two cores the default detector trains at about 5.3 samples/s, so the
-//! default schedule is 1,400 samples (about 4.4 minutes). Presets with a second branch at full
+//! machine's load): on two cores the default detector trains at about 6 samples/s, so the
+//! default schedule is 1,400 samples (234 s measured). Presets with a second branch at full
 //! resolution are slower per sample; [`TrainConfig::for_preset`] gives each preset the samples
 //! that fit the same 5 minutes.
 //!
@@ -50,9 +50,10 @@ impl Default for TrainConfig {
 
 impl TrainConfig {
     /// The default schedule of a preset: as many samples as it trains in under 5 minutes on a
-    /// 2-core CPU (measured throughput on the default dataset, see the README's detector table:
-    /// `l4dr-like` 3.9 samples/s, `lirafusion-like` 4.4, `bi-lrfusion-like` and `late` 3.3; the
-    /// others 4.7–6.1 keep 1,400). Unknown names (a detector of one's own) get the default.
+    /// 2-core CPU (measured on the default dataset, see the README's detector table: `l4dr-like`
+    /// 4.4 samples/s, `lirafusion-like` 5.0, `bi-lrfusion-like` 3.7, `late` 3.3, so 241–276 s;
+    /// the others, 6.0–8.7 samples/s, keep 1,400). Unknown names (a detector of one's own) get
+    /// the default.
     pub fn for_preset(name: &str) -> TrainConfig {
         let samples = match name {
             "l4dr-like" | "l4dr-like-no-early" => 1100,
