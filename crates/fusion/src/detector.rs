@@ -61,8 +61,9 @@ pub fn without_early(cfg: &DetectorConfig) -> Result<DetectorConfig> {
 ///   task, peak extraction). The full-resolution head separates pedestrians walking side by side
 ///   that a 1.6 m head merges: on the default dataset at 1,200 samples (batches of 4 at 3e-3),
 ///   pedestrian AP 0.13 with a stride-2 neck of 32 channels, 0.16–0.27 with this one (single
-///   runs; about the same training time); 0.555 at 1,400 samples with the current schedule. Left out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second
-///   refinement stage, multi-group heads, circular NMS.
+///   runs; about the same training time); 0.555 at 1,400 samples with the current schedule. Left
+///   out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second refinement stage,
+///   multi-group heads, circular NMS.
 /// - `pointpillars`: the same encoder at 48 channels, a backbone at strides 2/4/8 (48/96/128),
 ///   neck to stride 2, and an anchor-free version of PointPillars' SSD head: 1×1 convolutions,
 ///   every cell inside a box footprint is positive (instead of anchors matched by IoU), sigmoid

@@ -1,15 +1,15 @@
-//! Early fusion: the combined point space is pillarised with one joint encoder over mixed
-//! features, and aggregated per cell by A (max, mean, or mean per modality). Every point, LiDAR
-//! or radar, is written in one layout: x, y, z, PointPillars' five decorations, LiDAR intensity, radar RCS,
+//! Early fusion: the combined point space is pillarised with one joint encoder over mixed features,
+//! and aggregated per cell by A (max, mean, or mean per modality). Every point, LiDAR or radar, is
+//! written in one layout: x, y, z, PointPillars' five decorations, LiDAR intensity, radar RCS,
 //! radial velocity and line of sight (zeros where a modality has no such field) and a modality
 //! flag; a shared linear layer, BatchNorm and ReLU encode it; a cell's feature aggregates the
 //! encodings of all its points of both modalities by A: the maximum, the mean, or the mean per
-//! modality summed (`modality_mean`: LiDAR's mean plus radar's mean, so each modality counts
-//! once in a cell). The plain mean lets a cell's many LiDAR points drown its one or two radar
-//! points: on the motion fixture (`crates/cli/tests/fusion_motion.rs`) `lirafusion-like` with
-//! it stayed at LiDAR-only mAP (0.41 against 0.43), with `modality_mean` it reaches 0.97.
-//! Decorations are taken per modality (offsets from the modality's own pillar mean), a
-//! simplification of a joint pillar mean.
+//! modality summed (`modality_mean`: LiDAR's mean plus radar's mean, so each modality counts once
+//! in a cell). The plain mean lets a cell's many LiDAR points drown its one or two radar points: on
+//! the motion fixture (`crates/cli/tests/fusion_motion.rs`) `lirafusion-like` with it stayed at
+//! LiDAR-only mAP (0.41 against 0.43), with `modality_mean` it reaches 0.97. Decorations are taken
+//! per modality (offsets from the modality's own pillar mean), a simplification of a joint pillar
+//! mean.
 //!
 //! Optionally (`middle`), a LiDAR-only pillar branch is fused with the joint map by φ
 //! (LiRaFusion's joint voxel encoder + adaptive gating; L4DR's early radar–LiDAR fusion +
@@ -91,15 +91,15 @@ pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<
 
 impl EarlyFusion {
     fn new(c: EarlyConfig, grid: &BevGrid, vb: VarBuilder) -> Result<Self> {
-    let bn = candle_nn::batch_norm(c.channels, candle_nn::BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 }, vb.pp("joint_bn"))?;
-    let (lidar, fuse) = match &c.middle {
-        Some(m) => (Some(PillarNet::new(LIDAR_FEATURES + 5, m.lidar_channels, vb.pp("lidar"))?), Some(BevFuse::new(m.lidar_channels, c.channels, m.out_channels, m.op, vb.pp("fuse"))?)),
-        None => (None, None),
-    };
-    if c.middle.is_none() && !c.early {
-        return Err(FusionError::Config("fusion plugin \"early\": early = false needs a middle stage (otherwise LiDAR is never used)".into()));
-    }
-    Ok(EarlyFusion { linear: candle_nn::linear_no_bias(JOINT, c.channels, vb.pp("joint"))?, bn, lidar, fuse, cells: grid.cells(), cfg: c })
+        let bn = candle_nn::batch_norm(c.channels, candle_nn::BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 }, vb.pp("joint_bn"))?;
+        let (lidar, fuse) = match &c.middle {
+            Some(m) => (Some(PillarNet::new(LIDAR_FEATURES + 5, m.lidar_channels, vb.pp("lidar"))?), Some(BevFuse::new(m.lidar_channels, c.channels, m.out_channels, m.op, vb.pp("fuse"))?)),
+            None => (None, None),
+        };
+        if c.middle.is_none() && !c.early {
+            return Err(FusionError::Config("fusion plugin \"early\": early = false needs a middle stage (otherwise LiDAR is never used)".into()));
+        }
+        Ok(EarlyFusion { linear: candle_nn::linear_no_bias(JOINT, c.channels, vb.pp("joint"))?, bn, lidar, fuse, cells: grid.cells(), cfg: c })
     }
 }
 
