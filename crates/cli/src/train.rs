@@ -1,6 +1,6 @@
 //! `hilo train` and `hilo detect`.
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use candle_core::Device;
 use hilo_fusion::train::{StepReport, TrainConfig};
 use hilo_fusion::{Registry, preset};
@@ -28,7 +28,7 @@ pub struct TrainArgs {
     #[arg(long, conflicts_with_all = ["detector", "no_early"])]
     pub detector_config: Option<PathBuf>,
     /// A training schedule: a JSON file with any fields of run.json's "train" (the rest keep
-    /// their defaults); --samples, --batch and --seed override it.
+    /// the preset's default schedule); --samples, --batch and --seed override it.
     #[arg(long)]
     pub train_config: Option<PathBuf>,
     /// Run folder: weights, optimizer state, run.json, loss.jsonl. Rerunning resumes.
@@ -66,6 +66,16 @@ fn read_json<T: serde::de::DeserializeOwned>(path: &std::path::Path) -> Result<T
     serde_json::from_str(&text).with_context(|| format!("{}: not a valid configuration", path.display()))
 }
 
+/// A training schedule from a JSON object: its fields over the preset's default schedule.
+fn schedule(preset: &str, fields: &serde_json::Value) -> Result<TrainConfig> {
+    let Some(fields) = fields.as_object() else { bail!("a training schedule is a JSON object, not {fields}") };
+    let mut cfg = serde_json::to_value(TrainConfig::for_preset(preset))?;
+    if let Some(base) = cfg.as_object_mut() {
+        base.extend(fields.iter().map(|(k, v)| (k.clone(), v.clone())));
+    }
+    Ok(serde_json::from_value(cfg)?)
+}
+
 pub fn run_train(args: &TrainArgs) -> Result<()> {
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version).with_context(|| format!("opening dataset {}", args.data.display()))?;
     let frames = hilo_fusion::data::load_split(&ds, &args.split).with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
@@ -74,7 +84,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         None => detector(&args.detector, args.no_early)?,
     };
     let mut cfg = match &args.train_config {
-        Some(path) => read_json::<TrainConfig>(path)?,
+        Some(path) => schedule(&det.name, &read_json::<serde_json::Value>(path)?).with_context(|| format!("{}: not a valid training schedule", path.display()))?,
         None => TrainConfig::for_preset(&det.name),
     };
     if let Some(s) = args.samples {
@@ -131,4 +141,21 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     crate::write_atomic(&args.out, serde_json::to_string(&json)?.as_bytes())?;
     eprintln!("{} ({}) on {} frames: {:.1} ms per frame; wrote {}", info.detector.name, args.run.display(), frames.len(), per_frame * 1e3, args.out.display());
     Ok(())
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_schedule_file_overrides_only_its_fields_of_the_preset_schedule() {
+        let c = schedule("late", &serde_json::json!({ "lr_max": 0.001, "augmentation": { "rotate_deg": 0.0, "flip_p": 0.0, "scale": 0.0 } })).unwrap();
+        let preset = TrainConfig::for_preset("late");
+        assert_eq!((c.samples, c.batch, c.lr_max, c.augmentation.flip_p), (preset.samples, preset.batch, 0.001, 0.0));
+        assert_ne!(preset.samples, TrainConfig::default().samples, "late's schedule differs from the default");
+        let bad = schedule("late", &serde_json::json!({ "sampels": 10 })).unwrap_err();
+        assert!(format!("{bad:#}").contains("sampels"), "{bad:#}");
+        assert!(schedule("late", &serde_json::json!([1, 2])).is_err());
+    }
 }
