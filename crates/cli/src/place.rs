@@ -75,6 +75,18 @@ fn lidar_hit_cells(scene: &Scene, world: &World, catalog: &Catalog, prep: &Prepa
     Ok(hilo_placement_ip::coverage::lidar_hit_targets(scene, world, &prep.targets, cell, &lidars)?)
 }
 
+/// The modalities of a configuration's sensor types.
+pub(crate) fn modalities(conf: &Configuration, catalog: &Catalog) -> HashSet<Modality> {
+    conf.type_names().iter().map(|t| if catalog.lidar(t).is_ok() { Modality::Lidar } else { Modality::Radar }).collect()
+}
+
+/// Whether a configuration has sensors of one modality only: the paper's objective (targets
+/// covered by both) is then zero whatever the placement, so it takes the poses of a sibling
+/// configuration instead of being optimised.
+pub(crate) fn single_modality(conf: &Configuration, catalog: &Catalog) -> bool {
+    modalities(conf, catalog).len() == 1
+}
+
 pub(crate) fn limit_for(cfg: &Configuration, types: &[String]) -> Limit {
     match cfg.budget_usd {
         Some(usd) => Limit::Budget {
@@ -122,15 +134,11 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
         export_visibility(dir, &prep, &all_types)?;
     }
     let mut out = Vec::new();
-    let single_modality = |conf: &Configuration| -> Result<bool> {
-        let mods: HashSet<Modality> = conf.type_names().iter().map(|t| Ok(if catalog.lidar(t).is_ok() { Modality::Lidar } else { Modality::Radar })).collect::<Result<_>>()?;
-        Ok(mods.len() == 1)
-    };
     let mut deferred = Vec::new();
     for conf in &study.file.configurations {
         // One modality: the paper's objective (targets covered by both) is zero whatever the
         // placement; placed after the others, from a configuration that adds the other modality.
-        if single_modality(conf)? {
+        if single_modality(conf, &catalog) {
             deferred.push(conf);
             continue;
         }

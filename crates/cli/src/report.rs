@@ -118,12 +118,12 @@ impl Chart {
 /// How a configuration was placed, and whether it was solved (a single-modality configuration
 /// takes its poses from a sibling: its own multimodal objective is zero, so there is no gap).
 fn placement_status(c: &crate::study_run::ConfigSummary) -> (String, bool) {
-    if c.placement_proven_optimal {
-        ("proven optimal".into(), true)
-    } else if c.placement_gap > 0.0 || c.placement_gap.is_nan() {
-        (format!("not proven, gap {:.2}%", 100.0 * c.placement_gap), true)
-    } else {
+    if !c.placement_solved {
         (c.placement_method.clone(), false)
+    } else if c.placement_proven_optimal {
+        ("proven optimal".into(), true)
+    } else {
+        (format!("not proven, gap {:.2}%", 100.0 * c.placement_gap), true)
     }
 }
 

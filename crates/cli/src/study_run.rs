@@ -131,6 +131,9 @@ pub struct ConfigSummary {
     pub sensors: Vec<String>,
     pub placement_proven_optimal: bool,
     pub placement_seconds: f64,
+    /// Whether the placement was optimised (a single-modality configuration takes a sibling's
+    /// poses instead).
+    pub placement_solved: bool,
     /// Relative gap of an unproven placement.
     pub placement_gap: f64,
     /// How the placement was found (for a single-modality configuration: whose poses it took).
@@ -255,6 +258,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
             sensors: placement.sensors.iter().map(|s| format!("{} at ({:.1}, {:.1}, {:.1}) m", s.ty, s.pose.position.x, s.pose.position.y, s.pose.position.z)).collect(),
             placement_proven_optimal: pjson["proven_optimal"].as_bool().unwrap_or(false),
             placement_seconds: pjson["solve_seconds"].as_f64().unwrap_or(f64::NAN),
+            placement_solved: !crate::place::single_modality(conf, &catalog),
             placement_gap: pjson["gap"].as_f64().unwrap_or(f64::NAN),
             placement_method: pjson["method"].as_str().unwrap_or_default().to_owned(),
             frames: summary.frames,

@@ -5,7 +5,7 @@
 use crate::study::{Configuration, Study};
 use anyhow::{Context, Result};
 use hilo_placement_ip::greedy::greedy;
-use hilo_placement_ip::instance::evaluate;
+use hilo_placement_ip::instance::{Instance, Outcome, evaluate};
 use hilo_placement_ip::Limit;
 use hilo_placement_ip::pipeline::{PlacementConfig, Prepared, instance, prepare, solve_from};
 use hilo_raycast::Scene;
@@ -116,7 +116,7 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
         .file
         .configurations
         .iter()
-        .find(|c| c.budget_usd.is_none() && c.type_names().iter().any(|t| catalog.lidar(t).is_ok()) && c.type_names().iter().any(|t| catalog.lidar(t).is_err()));
+        .find(|c| c.budget_usd.is_none() && crate::place::modalities(c, catalog).len() == 2);
     let los = match conf {
         Some(conf) => los_rows(scene, catalog, &cfg, conf)?,
         None => Vec::new(),
@@ -151,7 +151,8 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
 fn los_rows(scene: &Scene, catalog: &Catalog, cfg: &PlacementConfig, conf: &Configuration) -> Result<Vec<LosRow>> {
     let types = conf.type_names();
     let limit = crate::place::limit_for(conf, &types);
-    let mut runs: Vec<(usize, f64, Prepared)> = Vec::new();
+    // Each sample count's visibility, instance and placement, built and solved once.
+    let mut runs: Vec<(usize, f64, Prepared, Instance, Outcome)> = Vec::new();
     for &k in &LOS_SAMPLES {
         let mut c = cfg.clone();
         for p in &mut c.visibility.probes {
@@ -159,13 +160,15 @@ fn los_rows(scene: &Scene, catalog: &Catalog, cfg: &PlacementConfig, conf: &Conf
         }
         let t = Instant::now();
         let prep = prepare(scene, catalog, &types, &c)?;
-        runs.push((k, t.elapsed().as_secs_f64(), prep));
+        let seconds = t.elapsed().as_secs_f64();
+        let inst = instance(&prep, catalog, &types, cfg.p_min)?;
+        let o = solve_from(&inst, &limit, cfg.time_limit_s, &greedy(&inst, &limit))?;
+        runs.push((k, seconds, prep, inst, o));
     }
-    let (_, _, reference) = runs.last().context("no line-of-sight run")?;
-    let ref_inst = instance(reference, catalog, &types, cfg.p_min)?;
-    let ref_opt = solve_from(&ref_inst, &limit, cfg.time_limit_s, &greedy(&ref_inst, &limit))?.objective;
+    let (_, _, reference, ref_inst, ref_out) = runs.last().context("no line-of-sight run")?;
+    let ref_opt = ref_out.objective;
     let mut los = Vec::new();
-    for (k, seconds, prep) in &runs {
+    for (k, seconds, prep, _, o) in &runs {
         let (mut sum, mut max, mut n) = (0.0, 0.0f64, 0usize);
         for t in &types {
             let (a, b) = (&prep.visibility[t], &reference.visibility[t]);
@@ -176,10 +179,8 @@ fn los_rows(scene: &Scene, catalog: &Catalog, cfg: &PlacementConfig, conf: &Conf
                 n += c;
             }
         }
-        let inst = instance(prep, catalog, &types, cfg.p_min)?;
-        let o = solve_from(&inst, &limit, cfg.time_limit_s, &greedy(&inst, &limit))?;
         // Options are (type, candidate) in the same order in both instances.
-        let on_ref = evaluate(&ref_inst, &o.selection);
+        let on_ref = evaluate(ref_inst, &o.selection);
         los.push(LosRow {
             samples_per_probe: *k,
             seconds: *seconds,
