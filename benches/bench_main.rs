@@ -21,7 +21,9 @@ fn raycast(c: &mut Criterion) {
 
     let mut g = c.benchmark_group("closest_hit_64x1024_sweep");
     g.throughput(Throughput::Elements(rays.len() as u64));
-    g.bench_function("hilo", |b| b.iter(|| rays.iter().filter(|r| world.closest_hit(black_box(r), None).is_some()).count()));
+    g.bench_function("hilo", |b| {
+        b.iter(|| rays.iter().filter(|r| world.closest_hit(black_box(r), None).is_some()).count())
+    });
     g.bench_function("parry3d_trimesh", |b| {
         b.iter(|| {
             rays.iter()
@@ -29,11 +31,15 @@ fn raycast(c: &mut Criterion) {
                 .count()
         })
     });
-    g.bench_function("hilo_occlusion", |b| b.iter(|| rays.iter().filter(|r| world.occluded(black_box(r), None)).count()));
+    g.bench_function("hilo_occlusion", |b| {
+        b.iter(|| rays.iter().filter(|r| world.occluded(black_box(r), None)).count())
+    });
     g.finish();
 
     let mut g = c.benchmark_group("build_default_scene");
-    g.bench_function("hilo_world", |b| b.iter(|| World::build(black_box(&scene), &QueryRegion::everything()).expect("world")));
+    g.bench_function("hilo_world", |b| {
+        b.iter(|| World::build(black_box(&scene), &QueryRegion::everything()).expect("world"))
+    });
     g.bench_function("parry3d_trimesh", |b| b.iter(|| parry_trimesh(black_box(&scene), 10.0).expect("parry")));
     g.finish();
 }
@@ -50,7 +56,9 @@ fn sensors(c: &mut Criterion) {
         g.bench_function(name, |b| b.iter(|| simulate_lidar(spec, &pose, &world, None, 1).expect("scan").points.len()));
     }
     let radar = catalog.radar("radar-4d").expect("radar");
-    g.bench_function("radar-4d", |b| b.iter(|| simulate_radar(radar, &pose, &world, None, 1).expect("scan").points.len()));
+    g.bench_function("radar-4d", |b| {
+        b.iter(|| simulate_radar(radar, &pose, &world, None, 1).expect("scan").points.len())
+    });
     g.finish();
 }
 

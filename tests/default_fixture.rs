@@ -3,7 +3,6 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-
 use hilo::raycast::{HitTarget, QueryRegion, Ray, Scene, World};
 use std::path::Path;
 

@@ -46,8 +46,14 @@ impl RaycastReport {
     pub fn print_table(&self) {
         println!("rays: {} ({} threads), {:.1}% hit something", self.rays, self.threads, 100.0 * self.hit_fraction);
         println!("{:<28} {:>12} {:>12} {:>10}", "engine", "Mrays/s", "1 thread", "build ms");
-        println!("{:<28} {:>12.2} {:>12.2} {:>10.1}", "hilo (watertight)", self.hilo_mrays_per_s, self.hilo_1t_mrays_per_s, self.hilo_build_ms);
-        println!("{:<28} {:>12.2} {:>12.2} {:>10.1}", "parry3d TriMesh", self.parry_mrays_per_s, self.parry_1t_mrays_per_s, self.parry_build_ms);
+        println!(
+            "{:<28} {:>12.2} {:>12.2} {:>10.1}",
+            "hilo (watertight)", self.hilo_mrays_per_s, self.hilo_1t_mrays_per_s, self.hilo_build_ms
+        );
+        println!(
+            "{:<28} {:>12.2} {:>12.2} {:>10.1}",
+            "parry3d TriMesh", self.parry_mrays_per_s, self.parry_1t_mrays_per_s, self.parry_build_ms
+        );
         println!("{:<28} {:>12.2} {:>12} {:>10}", "obvhs BVH2 raw (reference)", self.obvhs_raw_mrays_per_s, "-", "-");
         println!("speed-up over parry3d: {:.2}x", self.speedup_vs_parry);
         println!(
@@ -97,8 +103,10 @@ pub fn raycast(scene: &Scene, azimuth_steps: usize, repeats: usize) -> Result<Ra
         parry.cast_local_ray(&pr, r.t_max, false)
     };
     let chunk = 1024;
-    let (hilo_s, hilo_t) = time(repeats, || rays.par_chunks(chunk).flat_map_iter(|c| c.iter().map(hilo_cast)).collect::<Vec<_>>());
-    let (parry_s, parry_t) = time(repeats, || rays.par_chunks(chunk).flat_map_iter(|c| c.iter().map(parry_cast)).collect::<Vec<_>>());
+    let (hilo_s, hilo_t) =
+        time(repeats, || rays.par_chunks(chunk).flat_map_iter(|c| c.iter().map(hilo_cast)).collect::<Vec<_>>());
+    let (parry_s, parry_t) =
+        time(repeats, || rays.par_chunks(chunk).flat_map_iter(|c| c.iter().map(parry_cast)).collect::<Vec<_>>());
 
     // Raw obvhs: its BVH2 and Möller–Trumbore test over the same triangles, ground tiled.
     let tris: Vec<Triangle> = ground_triangles(scene, tile)
@@ -113,7 +121,8 @@ pub fn raycast(scene: &Scene, azimuth_steps: usize, repeats: usize) -> Result<Ra
         let mut hit = obvhs::ray::RayHit::none();
         bvh.ray_traverse(ray, &mut hit, |ray, id| ordered[id].intersect(ray)).then_some(hit.t)
     };
-    let (obvhs_s, obvhs_t) = time(repeats, || rays.par_chunks(chunk).flat_map_iter(|c| c.iter().map(obvhs_cast)).collect::<Vec<_>>());
+    let (obvhs_s, obvhs_t) =
+        time(repeats, || rays.par_chunks(chunk).flat_map_iter(|c| c.iter().map(obvhs_cast)).collect::<Vec<_>>());
 
     let single = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let (hilo_1t, parry_1t) = single.install(|| {
@@ -173,8 +182,20 @@ impl SensorsReport {
     pub fn print_table(&self) {
         println!("{} moving actors, {} frames, {} threads", self.actors, self.frames, self.threads);
         println!("{:<28} {:>10} {:>10} {:>12}", "suite", "ms/frame", "rays", "points");
-        println!("{:<28} {:>10.2} {:>10} {:>12.0}", "2 x lidar-16 + radar-4d", self.cheap_suite_frame_ms, self.cheap_suite_rays_per_frame, self.cheap_suite_points_per_frame);
-        println!("{:<28} {:>10.2} {:>10} {:>12.0}", "lidar-64 + radar-4d", self.lidar64_radar_frame_ms, self.lidar64_radar_rays_per_frame, self.lidar64_radar_points_per_frame);
+        println!(
+            "{:<28} {:>10.2} {:>10} {:>12.0}",
+            "2 x lidar-16 + radar-4d",
+            self.cheap_suite_frame_ms,
+            self.cheap_suite_rays_per_frame,
+            self.cheap_suite_points_per_frame
+        );
+        println!(
+            "{:<28} {:>10.2} {:>10} {:>12.0}",
+            "lidar-64 + radar-4d",
+            self.lidar64_radar_frame_ms,
+            self.lidar64_radar_rays_per_frame,
+            self.lidar64_radar_points_per_frame
+        );
         println!("cheap suite runs {:.1}x faster than real time at 20 Hz", self.realtime_factor_cheap_suite);
         println!(
             "placement model vs simulation (car probe, lidar-16): expected {:.1} returns, simulated mean {:.1}",
@@ -208,14 +229,22 @@ pub fn sensors(n_actors: usize, frames: usize) -> Result<SensorsReport> {
         // The sensors of a frame are independent: simulate them concurrently.
         let set = ActorSet::new(actors.clone())?;
         let ((a, b), r) = rayon::join(
-            || rayon::join(|| simulate_lidar(l16, &ne, &world, Some(&set), 3 * f as u64), || simulate_lidar(l16, &sw, &world, Some(&set), 3 * f as u64 + 1)),
+            || {
+                rayon::join(
+                    || simulate_lidar(l16, &ne, &world, Some(&set), 3 * f as u64),
+                    || simulate_lidar(l16, &sw, &world, Some(&set), 3 * f as u64 + 1),
+                )
+            },
             || simulate_radar(radar, &rp, &world, Some(&set), 3 * f as u64 + 2),
         );
         let (a, b, r) = (a?, b?, r?);
         let t_cheap = t.elapsed().as_secs_f64();
         let t = Instant::now();
         let set = ActorSet::new(actors)?;
-        let (c, r2) = rayon::join(|| simulate_lidar(l64, &ne, &world, Some(&set), 3 * f as u64), || simulate_radar(radar, &rp, &world, Some(&set), 3 * f as u64 + 2));
+        let (c, r2) = rayon::join(
+            || simulate_lidar(l64, &ne, &world, Some(&set), 3 * f as u64),
+            || simulate_radar(radar, &rp, &world, Some(&set), 3 * f as u64 + 2),
+        );
         let (c, r2) = (c?, r2?);
         let t_high = t.elapsed().as_secs_f64();
         if f > 0 {
@@ -242,10 +271,14 @@ pub fn sensors(n_actors: usize, frames: usize) -> Result<SensorsReport> {
         frames,
         threads: rayon::current_num_threads(),
         cheap_suite_frame_ms: cheap_ms,
-        cheap_suite_rays_per_frame: 2 * l16.rays_per_frame() + (radar.hfov_deg / radar.ray_azimuth_step_deg).round() as usize * (radar.vfov_deg / radar.ray_elevation_step_deg).round() as usize,
+        cheap_suite_rays_per_frame: 2 * l16.rays_per_frame()
+            + (radar.hfov_deg / radar.ray_azimuth_step_deg).round() as usize
+                * (radar.vfov_deg / radar.ray_elevation_step_deg).round() as usize,
         cheap_suite_points_per_frame: cheap_pts as f64 / frames as f64,
         lidar64_radar_frame_ms: median(high),
-        lidar64_radar_rays_per_frame: l64.rays_per_frame() + (radar.hfov_deg / radar.ray_azimuth_step_deg).round() as usize * (radar.vfov_deg / radar.ray_elevation_step_deg).round() as usize,
+        lidar64_radar_rays_per_frame: l64.rays_per_frame()
+            + (radar.hfov_deg / radar.ray_azimuth_step_deg).round() as usize
+                * (radar.vfov_deg / radar.ray_elevation_step_deg).round() as usize,
         lidar64_radar_points_per_frame: high_pts as f64 / frames as f64,
         probe_car_expected_returns: expected,
         probe_car_simulated_mean_returns: sum as f64 / trials as f64,
@@ -286,9 +319,9 @@ pub struct PlacementReport {
 }
 
 pub fn placement(cbc_seconds: f64) -> Result<PlacementReport> {
+    use hilo_placement_ip::Limit;
     use hilo_placement_ip::mip::{Formulation, build, solve as cbc};
     use hilo_placement_ip::pipeline::{PlacementConfig, instance, prepare, solve};
-    use hilo_placement_ip::Limit;
     use hilo_sensor_models::Catalog;
     let scene = Scene::default_fixture()?;
     let catalog = Catalog::default_catalog()?;
@@ -300,7 +333,11 @@ pub fn placement(cbc_seconds: f64) -> Result<PlacementReport> {
     let mut configurations = Vec::new();
     let mut hilo_seconds: f64 = 0.0;
     let mut two16 = None;
-    for (label, lidar, n) in [("2x lidar-16 + radar", "lidar-16", 2u32), ("1x lidar-32 + radar", "lidar-32", 1), ("1x lidar-64 + radar", "lidar-64", 1)] {
+    for (label, lidar, n) in [
+        ("2x lidar-16 + radar", "lidar-16", 2u32),
+        ("1x lidar-32 + radar", "lidar-32", 1),
+        ("1x lidar-64 + radar", "lidar-64", 1),
+    ] {
         let types = vec![lidar.to_owned(), "radar-4d".to_owned()];
         let inst = instance(&prep, &catalog, &types, cfg.p_min)?;
         let limit = Limit::Counts(vec![n, 1]);
@@ -348,7 +385,6 @@ pub fn placement(cbc_seconds: f64) -> Result<PlacementReport> {
     })
 }
 
-
 /// `hilo bench eval`.
 #[derive(Serialize, Debug)]
 pub struct EvalReport {
@@ -389,12 +425,28 @@ pub fn eval(frames: usize, max_pred: usize, repeats: usize) -> Result<EvalReport
             b.num_pts = 10;
             g.push(b);
             if rng.random_bool(0.8) && p.len() < max_pred {
-                p.push(EvalBox::from_yaw(&token, c, [x + rng.random_range(-1.5..1.5), y + rng.random_range(-1.5..1.5), 0.8], [2.0, 4.4, 1.5], yaw + 0.1, [1.5, 0.2], rng.random_range(0.0..1.0)));
+                p.push(EvalBox::from_yaw(
+                    &token,
+                    c,
+                    [x + rng.random_range(-1.5..1.5), y + rng.random_range(-1.5..1.5), 0.8],
+                    [2.0, 4.4, 1.5],
+                    yaw + 0.1,
+                    [1.5, 0.2],
+                    rng.random_range(0.0..1.0),
+                ));
             }
         }
         while p.len() < max_pred {
             let c = classes[rng.random_range(0..classes.len())];
-            p.push(EvalBox::from_yaw(&token, c, [rng.random_range(-45.0..45.0), rng.random_range(-45.0..45.0), 0.8], [1.9, 4.5, 1.6], 0.0, [0.0, 0.0], rng.random_range(0.0..0.5)));
+            p.push(EvalBox::from_yaw(
+                &token,
+                c,
+                [rng.random_range(-45.0..45.0), rng.random_range(-45.0..45.0), 0.8],
+                [1.9, 4.5, 1.6],
+                0.0,
+                [0.0, 0.0],
+                rng.random_range(0.0..0.5),
+            ));
         }
         gt.insert(token.clone(), g);
         pred.push((token, p));
@@ -411,7 +463,10 @@ pub fn eval(frames: usize, max_pred: usize, repeats: usize) -> Result<EvalReport
     let mut gtf = hilo_eval::GroundTruth::default();
     for (k, v) in &gt {
         let f: usize = k.trim_start_matches("sample").parse().unwrap_or(0);
-        gtf.samples.insert(k.clone(), hilo_eval::boxes::SampleInfo { scene: format!("scene{}", f / 10), ego_translation: [0.0; 3] });
+        gtf.samples.insert(
+            k.clone(),
+            hilo_eval::boxes::SampleInfo { scene: format!("scene{}", f / 10), ego_translation: [0.0; 3] },
+        );
         gtf.boxes.insert(k.clone(), v.clone());
     }
     let t = Instant::now();

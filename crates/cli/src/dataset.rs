@@ -24,16 +24,21 @@ pub struct StatsArgs {
     pub frame: usize,
 }
 
-const PALETTE: [(u8, u8, u8); 6] = [(80, 170, 255), (255, 170, 60), (120, 230, 120), (255, 90, 200), (250, 250, 120), (160, 120, 255)];
+const PALETTE: [(u8, u8, u8); 6] =
+    [(80, 170, 255), (255, 170, 60), (120, 230, 120), (255, 90, 200), (250, 250, 120), (160, 120, 255)];
 
 pub fn stats(args: &StatsArgs) -> Result<()> {
     let ds = Dataset::open(&args.root, &args.version)?;
     let t = &ds.tables;
-    let class_of: BTreeMap<&str, String> = t
-        .instance
-        .iter()
-        .filter_map(|i| t.category.iter().find(|c| c.token == i.category_token).map(|c| (i.token.as_str(), class_of_category(&c.name).map_or(c.name.clone(), |k| k.name().to_owned()))))
-        .collect();
+    let class_of: BTreeMap<&str, String> =
+        t.instance
+            .iter()
+            .filter_map(|i| {
+                t.category.iter().find(|c| c.token == i.category_token).map(|c| {
+                    (i.token.as_str(), class_of_category(&c.name).map_or(c.name.clone(), |k| k.name().to_owned()))
+                })
+            })
+            .collect();
     let mut per_class: BTreeMap<String, (usize, u64, u64)> = BTreeMap::new();
     for a in &t.sample_annotation {
         let c = class_of.get(a.instance_token.as_str()).cloned().unwrap_or_else(|| "?".into());
@@ -42,17 +47,37 @@ pub fn stats(args: &StatsArgs) -> Result<()> {
         e.1 += a.num_lidar_pts as u64;
         e.2 += a.num_radar_pts as u64;
     }
-    println!("{}: {} scenes, {} frames, {} sensors, {} boxes, {} instances", args.root.display(), t.scene.len(), t.sample.len(), t.sensor.len(), t.sample_annotation.len(), t.instance.len());
+    println!(
+        "{}: {} scenes, {} frames, {} sensors, {} boxes, {} instances",
+        args.root.display(),
+        t.scene.len(),
+        t.sample.len(),
+        t.sensor.len(),
+        t.sample_annotation.len(),
+        t.instance.len()
+    );
     println!("{:<12} {:>9} {:>16} {:>16}", "class", "boxes", "LiDAR pts/box", "radar pts/box");
     for (c, (n, l, r)) in &per_class {
         println!("{:<12} {:>9} {:>16.1} {:>16.2}", c, n, *l as f64 / *n as f64, *r as f64 / *n as f64);
     }
     if let Some(png) = &args.png {
-        let sample = t.sample.get(args.frame).with_context(|| format!("--frame {}: the dataset has {} frames", args.frame, t.sample.len()))?;
+        let sample = t
+            .sample
+            .get(args.frame)
+            .with_context(|| format!("--frame {}: the dataset has {} frames", args.frame, t.sample.len()))?;
         let mut dots = Vec::new();
         for (k, sd) in t.sample_data.iter().filter(|s| s.sample_token == sample.token).enumerate() {
-            let cs = t.calibrated_sensor.iter().find(|c| c.token == sd.calibrated_sensor_token).context("calibrated sensor")?;
-            let q = glam::Quat::from_xyzw(cs.rotation[1] as f32, cs.rotation[2] as f32, cs.rotation[3] as f32, cs.rotation[0] as f32);
+            let cs = t
+                .calibrated_sensor
+                .iter()
+                .find(|c| c.token == sd.calibrated_sensor_token)
+                .context("calibrated sensor")?;
+            let q = glam::Quat::from_xyzw(
+                cs.rotation[1] as f32,
+                cs.rotation[2] as f32,
+                cs.rotation[3] as f32,
+                cs.rotation[0] as f32,
+            );
             let position = Vec3::new(cs.translation[0] as f32, cs.translation[1] as f32, cs.translation[2] as f32);
             let col = PALETTE[k % PALETTE.len()];
             let pts: Vec<Vec3> = if sd.filename.ends_with(".pcd.bin") {
@@ -68,8 +93,17 @@ pub fn stats(args: &StatsArgs) -> Result<()> {
             .filter(|a| a.sample_token == sample.token)
             .map(|a| {
                 let yaw = 2.0 * a.rotation[3].atan2(a.rotation[0]);
-                let b = Box3::new(Vec3::new(a.translation[0] as f32, a.translation[1] as f32, a.translation[2] as f32), a.size[1] as f32, a.size[0] as f32, a.size[2] as f32, yaw as f32);
-                let c = class_of.get(a.instance_token.as_str()).and_then(|c| c.parse::<hilo_core::Class>().ok()).map_or(0, |c| c.index());
+                let b = Box3::new(
+                    Vec3::new(a.translation[0] as f32, a.translation[1] as f32, a.translation[2] as f32),
+                    a.size[1] as f32,
+                    a.size[0] as f32,
+                    a.size[2] as f32,
+                    yaw as f32,
+                );
+                let c = class_of
+                    .get(a.instance_token.as_str())
+                    .and_then(|c| c.parse::<hilo_core::Class>().ok())
+                    .map_or(0, |c| c.index());
                 (b, PALETTE[c])
             })
             .collect();

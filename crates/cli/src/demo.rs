@@ -4,8 +4,8 @@
 
 use hilo_core::{Box3, Class};
 use hilo_raycast::Actor;
-use hilo_raycast::scene::layout::LaneKind;
 use hilo_raycast::Scene;
+use hilo_raycast::scene::layout::LaneKind;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -27,20 +27,32 @@ pub fn demo_actors(scene: &Scene, n: usize, moving: bool, seed: u64) -> Vec<Acto
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut out = Vec::new();
     let gz = scene.ground.z_m;
-    let lanes: Vec<_> = scene.layout.arms.iter().flat_map(|a| a.lanes.iter()).filter(|l| l.kind != LaneKind::LeftTurnBay).collect();
+    let lanes: Vec<_> =
+        scene.layout.arms.iter().flat_map(|a| a.lanes.iter()).filter(|l| l.kind != LaneKind::LeftTurnBay).collect();
     let crosswalks: Vec<_> = scene.layout.arms.iter().map(|a| a.crosswalk.clone()).collect();
     let n_ped = if crosswalks.is_empty() { 0 } else { n / 6 };
     for k in 0..n_ped {
         let cw = &crosswalks[k % crosswalks.len()];
         let (along, across) = (cw[1] - cw[0], cw[3] - cw[0]);
-        let p = cw[0] + along * rng.random_range(0.2..0.8) + across * ((k / crosswalks.len()) as f32 * 0.17 + 0.1).fract();
+        let p =
+            cw[0] + along * rng.random_range(0.2..0.8) + across * ((k / crosswalks.len()) as f32 * 0.17 + 0.1).fract();
         let dir = across.normalize_or_zero();
         let speed = if moving { rng.random_range(1.0..1.6) } else { 0.0 };
         let (l, w, h) = size(Class::Pedestrian);
         let b = Box3::new(p.extend(gz + 0.5 * h), l, w, h, dir.y.atan2(dir.x));
         out.push(Actor::from_box(out.len() as u32, Class::Pedestrian, b).with_velocity((dir * speed).extend(0.0)));
     }
-    let classes = [Class::Car, Class::Car, Class::Car, Class::Truck, Class::Car, Class::Bus, Class::Motorcycle, Class::GolfCart, Class::Car];
+    let classes = [
+        Class::Car,
+        Class::Car,
+        Class::Car,
+        Class::Truck,
+        Class::Car,
+        Class::Bus,
+        Class::Motorcycle,
+        Class::GolfCart,
+        Class::Car,
+    ];
     let mut slot = 0usize;
     while out.len() < n && !lanes.is_empty() && slot < 40 * lanes.len() {
         let lane = lanes[slot % lanes.len()];
@@ -72,7 +84,12 @@ pub fn advance(actors: &[Actor], dt: f32) -> Vec<Actor> {
             let d = a.velocity_mps * dt;
             a.shape = match a.shape {
                 hilo_raycast::ActorShape::Box(b) => hilo_raycast::ActorShape::Box(Box3 { center: b.center + d, ..b }),
-                hilo_raycast::ActorShape::Capsule(c) => hilo_raycast::ActorShape::Capsule(hilo_raycast::shapes::Capsule { center: c.center + d.truncate(), ..c }),
+                hilo_raycast::ActorShape::Capsule(c) => {
+                    hilo_raycast::ActorShape::Capsule(hilo_raycast::shapes::Capsule {
+                        center: c.center + d.truncate(),
+                        ..c
+                    })
+                }
             };
             a
         })
@@ -88,4 +105,3 @@ pub fn actor_box(a: &Actor) -> Box3 {
         }
     }
 }
-

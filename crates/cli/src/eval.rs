@@ -40,8 +40,10 @@ pub struct EvalArgs {
 
 pub fn run(args: &EvalArgs) -> Result<()> {
     let cfg: DetectionConfig = match &args.config {
-        Some(p) => serde_json::from_str(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
-            .with_context(|| format!("{}: invalid evaluation config", p.display()))?,
+        Some(p) => {
+            serde_json::from_str(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
+                .with_context(|| format!("{}: invalid evaluation config", p.display()))?
+        }
         None => DetectionConfig::default(),
     };
     let gt = match (&args.data, &args.gt) {
@@ -59,14 +61,24 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     if pred_samples != gt_samples {
         let missing: Vec<_> = gt_samples.difference(&pred_samples).take(3).collect();
         let extra: Vec<_> = pred_samples.difference(&gt_samples).take(3).collect();
-        bail!("{}: samples differ from the ground truth's (missing e.g. {missing:?}, unknown e.g. {extra:?})", args.results.display());
+        bail!(
+            "{}: samples differ from the ground truth's (missing e.g. {missing:?}, unknown e.g. {extra:?})",
+            args.results.display()
+        );
     }
     let m = evaluate_files(&gt, &pred, &cfg);
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     write_atomic(&args.out.join("metrics_summary.json"), serde_json::to_string_pretty(&m)?.as_bytes())?;
     let bins = hilo_eval::evaluate_distance_bins(&gt, &pred, &cfg, &[0.0, 30.0, 50.0]);
-    let by_distance: serde_json::Map<String, serde_json::Value> =
-        bins.iter().map(|(label, bm)| (label.clone(), serde_json::json!({"mean_ap": bm.mean_ap, "nd_score": bm.nd_score, "mean_dist_aps": bm.mean_dist_aps}))).collect();
+    let by_distance: serde_json::Map<String, serde_json::Value> = bins
+        .iter()
+        .map(|(label, bm)| {
+            (
+                label.clone(),
+                serde_json::json!({"mean_ap": bm.mean_ap, "nd_score": bm.nd_score, "mean_dist_aps": bm.mean_dist_aps}),
+            )
+        })
+        .collect();
     write_atomic(&args.out.join("metrics_by_distance.json"), serde_json::to_string_pretty(&by_distance)?.as_bytes())?;
     // IoU-based AP (KITTI R40): 0.7 for cars, trucks and buses, 0.5 for the rest.
     let (gt_f, pred_f) = hilo_eval::filtered(&gt, &pred, &cfg);
@@ -82,7 +94,10 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     println!("{:<12} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}", "class", "AP", "ATE", "ASE", "AOE", "AVE", "AAE");
     for (c, ap) in &m.mean_dist_aps {
         let e = &m.label_tp_errors[c];
-        println!("{:<12} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3}", c, ap, e["trans_err"], e["scale_err"], e["orient_err"], e["vel_err"], e["attr_err"]);
+        println!(
+            "{:<12} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3}",
+            c, ap, e["trans_err"], e["scale_err"], e["orient_err"], e["vel_err"], e["attr_err"]
+        );
     }
     for (label, bm) in &bins {
         println!("range {label:<10} mAP {:.4}", bm.mean_ap);

@@ -73,9 +73,7 @@ enum SceneCommand {
         px_per_m: f32,
     },
     /// Print a JSON summary: triangles, objects, mounts, ROIs and their areas.
-    Info {
-        scene: Option<PathBuf>,
-    },
+    Info { scene: Option<PathBuf> },
 }
 
 #[derive(Subcommand, Debug)]

@@ -66,7 +66,14 @@ pub struct Placement {
 }
 
 /// Which targets the chosen LiDARs hit with at least one ray.
-fn lidar_hit_cells(scene: &Scene, world: &World, catalog: &Catalog, prep: &Prepared, cell: f32, sensors: &[PlacedSensor]) -> Result<HashSet<usize>> {
+fn lidar_hit_cells(
+    scene: &Scene,
+    world: &World,
+    catalog: &Catalog,
+    prep: &Prepared,
+    cell: f32,
+    sensors: &[PlacedSensor],
+) -> Result<HashSet<usize>> {
     let lidars = sensors
         .iter()
         .filter(|s| s.modality == Modality::Lidar)
@@ -120,15 +127,10 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
         prep.seconds_visibility
     );
     let world = World::build(&scene, &QueryRegion::everything())?;
-    let central_roi: Vec<usize> = scene
-        .config
-        .roi
-        .iter()
-        .enumerate()
-        .filter(|(_, r)| r.kind == RoiKind::Central)
-        .map(|(i, _)| i)
-        .collect();
-    let central: Vec<usize> = (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect();
+    let central_roi: Vec<usize> =
+        scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
+    let central: Vec<usize> =
+        (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect();
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     if let Some(dir) = &args.export {
         export_visibility(dir, &prep, &all_types)?;
@@ -148,7 +150,11 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
         if let Limit::Budget { usd, .. } = &limit {
             let cheapest = inst.types.iter().map(|t| t.price_usd).fold(f64::INFINITY, f64::min);
             if cheapest > *usd {
-                bail!("{}: configuration {:?}: the budget of {usd} USD buys no sensor (cheapest {cheapest} USD)", study.source, conf.name);
+                bail!(
+                    "{}: configuration {:?}: the budget of {usd} USD buys no sensor (cheapest {cheapest} USD)",
+                    study.source,
+                    conf.name
+                );
             }
         }
         let g = greedy(&inst, &limit);
@@ -157,7 +163,8 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
         let hits = lidar_hit_cells(&scene, &world, &catalog, &prep, cfg.cell_m, &sensors)?;
         let radar_cov = radar_covered(&inst, &o.selection);
         let central_coverage = hilo_placement_ip::coverage::share(&central, &hits);
-        let overlap = (0..prep.targets.len()).filter(|j| hits.contains(j) && radar_cov.contains(j)).count() as f64 / prep.targets.len() as f64;
+        let overlap = (0..prep.targets.len()).filter(|j| hits.contains(j) && radar_cov.contains(j)).count() as f64
+            / prep.targets.len() as f64;
         let p = Placement {
             name: conf.name.clone(),
             sensors,
@@ -221,7 +228,11 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
             gap: 0.0,
             proven_optimal: false,
             solve_seconds: 0.0,
-            method: format!("the {} poses of {:?} (one modality: the multimodal objective is zero)", conf.type_names().join(", "), sib.name),
+            method: format!(
+                "the {} poses of {:?} (one modality: the multimodal objective is zero)",
+                conf.type_names().join(", "),
+                sib.name
+            ),
             greedy_objective: 0.0,
             central_coverage: hilo_placement_ip::coverage::share(&central, &hits),
             lidar_radar_overlap: 0.0,
@@ -233,7 +244,13 @@ pub fn run(args: &PlaceArgs) -> Result<Vec<Placement>> {
         write_atomic(&args.out.join(format!("{slug}.json")), serde_json::to_string_pretty(&p)?.as_bytes())?;
         let png = coverage_png(&scene, &prep, &p, &hits, &HashSet::new())?;
         write_atomic(&args.out.join(format!("{slug}.png")), &png)?;
-        eprintln!("  {:<24} {}, central coverage {:.1}%, cost {} USD", p.name, p.method, 100.0 * p.central_coverage, p.cost_usd);
+        eprintln!(
+            "  {:<24} {}, central coverage {:.1}%, cost {} USD",
+            p.name,
+            p.method,
+            100.0 * p.central_coverage,
+            p.cost_usd
+        );
         out.push(p);
     }
     if args.json {
@@ -269,7 +286,13 @@ fn radar_covered(inst: &Instance, sel: &[usize]) -> HashSet<usize> {
     hilo_placement_ip::instance::covered_targets(inst, sel, Modality::Radar).into_iter().collect()
 }
 
-fn coverage_png(scene: &Scene, prep: &Prepared, p: &Placement, hits: &HashSet<usize>, radar: &HashSet<usize>) -> Result<Vec<u8>> {
+fn coverage_png(
+    scene: &Scene,
+    prep: &Prepared,
+    p: &Placement,
+    hits: &HashSet<usize>,
+    radar: &HashSet<usize>,
+) -> Result<Vec<u8>> {
     let mut c = scene_canvas(scene, 4.0)?;
     let cells: Vec<(Vec2, (u8, u8, u8))> = prep
         .targets
@@ -283,7 +306,8 @@ fn coverage_png(scene: &Scene, prep: &Prepared, p: &Placement, hits: &HashSet<us
         })
         .collect();
     c.dots(&cells, 1.6);
-    let cands: Vec<(Vec2, (u8, u8, u8))> = prep.candidates.iter().map(|k| (k.pose.position.truncate(), (120, 120, 120))).collect();
+    let cands: Vec<(Vec2, (u8, u8, u8))> =
+        prep.candidates.iter().map(|k| (k.pose.position.truncate(), (120, 120, 120))).collect();
     c.dots(&cands, 1.2);
     for s in &p.sensors {
         let pos = Vec3::from(s.position_m).truncate();
@@ -298,7 +322,11 @@ fn coverage_png(scene: &Scene, prep: &Prepared, p: &Placement, hits: &HashSet<us
 
 fn export_visibility(dir: &Path, prep: &Prepared, types: &[String]) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let targets: Vec<_> = prep.targets.iter().map(|t| json!({"x": t.center.x, "y": t.center.y, "weight": t.weight, "roi": t.roi})).collect();
+    let targets: Vec<_> = prep
+        .targets
+        .iter()
+        .map(|t| json!({"x": t.center.x, "y": t.center.y, "weight": t.weight, "roi": t.roi}))
+        .collect();
     let candidates: Vec<_> = prep
         .candidates
         .iter()
@@ -317,7 +345,8 @@ fn export_visibility(dir: &Path, prep: &Prepared, types: &[String]) -> Result<()
                 vv.push(x);
             }
         }
-        let doc = json!({"sensor": t, "format": "coo", "n_targets": v.n_targets, "candidate": ci, "target": tj, "v": vv});
+        let doc =
+            json!({"sensor": t, "format": "coo", "n_targets": v.n_targets, "candidate": ci, "target": tj, "v": vv});
         write_atomic(&dir.join(format!("visibility_{t}.json")), serde_json::to_string(&doc)?.as_bytes())?;
     }
     Ok(())

@@ -252,7 +252,9 @@ pub fn scene_summary(scene: &Scene) -> serde_json::Value {
     let mut kinds = std::collections::BTreeMap::<String, usize>::new();
     for (k, _) in scene.mesh.triangles.iter().enumerate() {
         let kind = scene.objects[scene.mesh.object[k] as usize].kind;
-        *kinds.entry(serde_json::to_value(kind).map(|v| v.as_str().unwrap_or("?").to_owned()).unwrap_or_default()).or_default() += 1;
+        *kinds
+            .entry(serde_json::to_value(kind).map(|v| v.as_str().unwrap_or("?").to_owned()).unwrap_or_default())
+            .or_default() += 1;
     }
     let rois: Vec<_> = scene
         .rois

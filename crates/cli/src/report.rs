@@ -3,15 +3,16 @@
 
 use crate::study::Configuration;
 use crate::study_run::{Pictures, Report, ResultsBy};
-use hilo_fusion::data::Frame;
 use anyhow::{Context, Result};
 use glam::{Vec2, Vec3};
 use hilo_core::Box3;
 use hilo_eval::EvalBox;
+use hilo_fusion::data::Frame;
 use std::fmt::Write as _;
 use std::path::Path;
 
-const COLORS: [(u8, u8, u8); 6] = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75)];
+const COLORS: [(u8, u8, u8); 6] =
+    [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75)];
 
 /// A chart in data coordinates, rendered to SVG and PNG.
 struct Chart {
@@ -32,7 +33,18 @@ impl Chart {
         if let Some(p) = &mut c.pix {
             p.fill(tiny_skia::Color::WHITE);
         }
-        let _ = write!(c.svg, r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="100%" height="100%" fill="white"/><text x="{}" y="20" text-anchor="middle" font-size="15">{}</text><text x="{}" y="{}" text-anchor="middle">{}</text><text x="14" y="{}" transform="rotate(-90 14 {})" text-anchor="middle">{}</text>"#, w / 2.0, esc(title), w / 2.0, h - 10.0, esc(xl), h / 2.0, h / 2.0, esc(yl));
+        let _ = write!(
+            c.svg,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="100%" height="100%" fill="white"/><text x="{}" y="20" text-anchor="middle" font-size="15">{}</text><text x="{}" y="{}" text-anchor="middle">{}</text><text x="14" y="{}" transform="rotate(-90 14 {})" text-anchor="middle">{}</text>"#,
+            w / 2.0,
+            esc(title),
+            w / 2.0,
+            h - 10.0,
+            esc(xl),
+            h / 2.0,
+            h / 2.0,
+            esc(yl)
+        );
         // Axes and ticks.
         let (x0, y0, x1, y1) = (Self::M, h - Self::M, w - 20.0, 35.0);
         c.raw_line((x0, y0), (x1, y0), (0, 0, 0), 1.0);
@@ -55,7 +67,11 @@ impl Chart {
     }
 
     fn raw_line(&mut self, a: (f32, f32), b: (f32, f32), c: (u8, u8, u8), width: f32) {
-        let _ = write!(self.svg, r#"<line x1="{}" y1="{}" x2="{}" y2="{}" stroke="rgb({},{},{})" stroke-width="{width}"/>"#, a.0, a.1, b.0, b.1, c.0, c.1, c.2);
+        let _ = write!(
+            self.svg,
+            r#"<line x1="{}" y1="{}" x2="{}" y2="{}" stroke="rgb({},{},{})" stroke-width="{width}"/>"#,
+            a.0, a.1, b.0, b.1, c.0, c.1, c.2
+        );
         if let Some(p) = &mut self.pix {
             let mut pb = tiny_skia::PathBuilder::new();
             pb.move_to(a.0, a.1);
@@ -64,7 +80,13 @@ impl Chart {
                 let mut paint = tiny_skia::Paint::default();
                 paint.set_color_rgba8(c.0, c.1, c.2, 255);
                 paint.anti_alias = true;
-                p.stroke_path(&path, &paint, &tiny_skia::Stroke { width, ..Default::default() }, tiny_skia::Transform::identity(), None);
+                p.stroke_path(
+                    &path,
+                    &paint,
+                    &tiny_skia::Stroke { width, ..Default::default() },
+                    tiny_skia::Transform::identity(),
+                    None,
+                );
             }
         }
     }
@@ -72,7 +94,15 @@ impl Chart {
     fn rect(&mut self, x0: f32, x1: f32, y: f32, c: (u8, u8, u8)) {
         let (a, b) = (self.px(x0), self.px(x1));
         let (top, bottom) = (self.py(y.max(self.y.0)), self.py(self.y.0));
-        let _ = write!(self.svg, r#"<rect x="{a}" y="{top}" width="{}" height="{}" fill="rgb({},{},{})"/>"#, b - a, bottom - top, c.0, c.1, c.2);
+        let _ = write!(
+            self.svg,
+            r#"<rect x="{a}" y="{top}" width="{}" height="{}" fill="rgb({},{},{})"/>"#,
+            b - a,
+            bottom - top,
+            c.0,
+            c.1,
+            c.2
+        );
         if let (Some(p), Some(r)) = (&mut self.pix, tiny_skia::Rect::from_ltrb(a, top, b, bottom)) {
             let mut paint = tiny_skia::Paint::default();
             paint.set_color_rgba8(c.0, c.1, c.2, 255);
@@ -96,13 +126,29 @@ impl Chart {
     }
 
     fn text(&mut self, x: f32, y: f32, s: &str, anchor: &str) {
-        let _ = write!(self.svg, r#"<text x="{}" y="{}" text-anchor="{anchor}">{}</text>"#, self.px(x), self.py(y) + 14.0, esc(s));
+        let _ = write!(
+            self.svg,
+            r#"<text x="{}" y="{}" text-anchor="{anchor}">{}</text>"#,
+            self.px(x),
+            self.py(y) + 14.0,
+            esc(s)
+        );
     }
 
     fn legend(&mut self, items: &[(String, (u8, u8, u8))]) {
         for (k, (name, c)) in items.iter().enumerate() {
             let (x, y) = (self.w - 200.0, 45.0 + 16.0 * k as f32);
-            let _ = write!(self.svg, r#"<rect x="{x}" y="{}" width="10" height="10" fill="rgb({},{},{})"/><text x="{}" y="{}">{}</text>"#, y - 9.0, c.0, c.1, c.2, x + 14.0, y, esc(name));
+            let _ = write!(
+                self.svg,
+                r#"<rect x="{x}" y="{}" width="10" height="10" fill="rgb({},{},{})"/><text x="{}" y="{}">{}</text>"#,
+                y - 9.0,
+                c.0,
+                c.1,
+                c.2,
+                x + 14.0,
+                y,
+                esc(name)
+            );
         }
     }
 
@@ -131,7 +177,12 @@ fn esc(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
 }
 
-fn mean_over_seeds(r: &Report, conf: &str, preset: &str, f: impl Fn(&crate::study_run::Entry) -> f64) -> Option<(f64, f64, f64)> {
+fn mean_over_seeds(
+    r: &Report,
+    conf: &str,
+    preset: &str,
+    f: impl Fn(&crate::study_run::Entry) -> f64,
+) -> Option<(f64, f64, f64)> {
     let v: Vec<f64> = r.entries.iter().filter(|e| e.configuration == conf && e.preset == preset).map(f).collect();
     if v.is_empty() {
         return None;
@@ -141,18 +192,36 @@ fn mean_over_seeds(r: &Report, conf: &str, preset: &str, f: impl Fn(&crate::stud
 }
 
 fn to_box(b: &EvalBox) -> Box3 {
-    Box3::new(Vec3::new(b.translation[0] as f32, b.translation[1] as f32, b.translation[2] as f32), b.size[1] as f32, b.size[0] as f32, b.size[2] as f32, b.yaw() as f32)
+    Box3::new(
+        Vec3::new(b.translation[0] as f32, b.translation[1] as f32, b.translation[2] as f32),
+        b.size[1] as f32,
+        b.size[0] as f32,
+        b.size[2] as f32,
+        b.yaw() as f32,
+    )
 }
 
 /// A bird's-eye picture of one validation frame: points, ground truth (green; yellow when
 /// missed), detections with score ≥ 0.3 (blue when within 2 m of a same-class box, red when
 /// false).
 fn detection_png(frame: &Frame, gboxes: &[EvalBox], preds: &[(String, Vec<EvalBox>)], path: &Path) -> Result<()> {
-    let pboxes: Vec<EvalBox> = preds.iter().find(|p| p.0 == frame.sample_token).map(|p| p.1.iter().filter(|b| b.detection_score >= 0.3).cloned().collect()).unwrap_or_default();
+    let pboxes: Vec<EvalBox> = preds
+        .iter()
+        .find(|p| p.0 == frame.sample_token)
+        .map(|p| p.1.iter().filter(|b| b.detection_score >= 0.3).cloned().collect())
+        .unwrap_or_default();
     let mut canvas = crate::render::blank_canvas(Vec2::splat(-55.0), Vec2::splat(55.0), 7.0)?;
-    let dots: Vec<(Vec2, (u8, u8, u8))> = frame.lidar.iter().map(|p| (Vec2::new(p[0], p[1]), (150, 150, 150))).chain(frame.radar.iter().map(|p| (Vec2::new(p[0], p[1]), (230, 0, 230)))).collect();
+    let dots: Vec<(Vec2, (u8, u8, u8))> = frame
+        .lidar
+        .iter()
+        .map(|p| (Vec2::new(p[0], p[1]), (150, 150, 150)))
+        .chain(frame.radar.iter().map(|p| (Vec2::new(p[0], p[1]), (230, 0, 230))))
+        .collect();
     canvas.dots(&dots, 1.0);
-    let near = |a: &EvalBox, b: &EvalBox| a.detection_name == b.detection_name && (a.translation[0] - b.translation[0]).hypot(a.translation[1] - b.translation[1]) <= 2.0;
+    let near = |a: &EvalBox, b: &EvalBox| {
+        a.detection_name == b.detection_name
+            && (a.translation[0] - b.translation[0]).hypot(a.translation[1] - b.translation[1]) <= 2.0
+    };
     for g in gboxes {
         let col = if pboxes.iter().any(|p| near(p, g)) { (0, 200, 0) } else { (255, 220, 0) };
         canvas.boxes(&[to_box(g)], col);
@@ -164,7 +233,14 @@ fn detection_png(frame: &Frame, gboxes: &[EvalBox], preds: &[(String, Vec<EvalBo
     crate::write_atomic(path, &canvas.png()?)
 }
 
-pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, placements: &Path, configs: &[Configuration]) -> Result<()> {
+pub fn write(
+    out: &Path,
+    r: &Report,
+    results: &ResultsBy,
+    pictures: &Pictures,
+    placements: &Path,
+    configs: &[Configuration],
+) -> Result<()> {
     let fig = out.join("figures");
     std::fs::create_dir_all(fig.join("detections"))?;
     crate::write_atomic(&out.join("report.json"), serde_json::to_string_pretty(r)?.as_bytes())?;
@@ -172,11 +248,21 @@ pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, p
     // mAP against cost.
     let max_cost = r.configurations.iter().map(|c| c.cost_usd).fold(0.0, f64::max) as f32;
     let max_map = r.entries.iter().map(|e| e.bootstrap.mean_ap.hi.max(e.mean_ap)).fold(0.05, f64::max) as f32;
-    let mut ch = Chart::new("mAP against hardware cost", "cost (USD)", "mAP (val)", (0.0, max_cost * 1.1), (0.0, max_map * 1.15));
+    let mut ch = Chart::new(
+        "mAP against hardware cost",
+        "cost (USD)",
+        "mAP (val)",
+        (0.0, max_cost * 1.1),
+        (0.0, max_map * 1.15),
+    );
     let mut legend = Vec::new();
     for (k, p) in presets.iter().enumerate() {
         let col = COLORS[k % COLORS.len()];
-        let mut pts: Vec<(f32, f32)> = r.configurations.iter().filter_map(|c| mean_over_seeds(r, &c.name, p, |e| e.mean_ap).map(|m| (c.cost_usd as f32, m.0 as f32))).collect();
+        let mut pts: Vec<(f32, f32)> = r
+            .configurations
+            .iter()
+            .filter_map(|c| mean_over_seeds(r, &c.name, p, |e| e.mean_ap).map(|m| (c.cost_usd as f32, m.0 as f32)))
+            .collect();
         pts.sort_by(|a, b| a.0.total_cmp(&b.0));
         for w in pts.windows(2) {
             ch.line(w[0], w[1], col);
@@ -194,7 +280,13 @@ pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, p
     // Pedestrian AP per configuration and preset.
     let max_ped = r.entries.iter().filter_map(|e| e.class_ap.get("pedestrian").copied()).fold(0.05, f64::max) as f32;
     let n = r.configurations.len() as f32;
-    let mut ch = Chart::new("Pedestrian AP per configuration", "configuration", "pedestrian AP (val)", (0.0, n), (0.0, max_ped * 1.15));
+    let mut ch = Chart::new(
+        "Pedestrian AP per configuration",
+        "configuration",
+        "pedestrian AP (val)",
+        (0.0, n),
+        (0.0, max_ped * 1.15),
+    );
     for (i, c) in r.configurations.iter().enumerate() {
         let w = 0.8 / presets.len().max(1) as f32;
         for (k, p) in presets.iter().enumerate() {
@@ -211,37 +303,107 @@ pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, p
     for c in configs {
         let src = placements.join(format!("{}.png", c.slug()));
         if src.exists() {
-            std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug()))).with_context(|| format!("copying {}", src.display()))?;
+            std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug())))
+                .with_context(|| format!("copying {}", src.display()))?;
         }
         for p in &presets {
-            if let (Some(pred), Some((frame, gboxes))) = (results.get(&(c.name.clone(), p.clone(), 0)), pictures.get(&c.name)) {
+            if let (Some(pred), Some((frame, gboxes))) =
+                (results.get(&(c.name.clone(), p.clone(), 0)), pictures.get(&c.name))
+            {
                 detection_png(frame, gboxes, pred, &fig.join("detections").join(format!("{}__{}.png", c.slug(), p)))?;
             }
         }
     }
     // Markdown.
     let mut md = String::new();
-    let _ = writeln!(md, "# hilo study report\n\nStudy `{}`, profile `{}`, {} seed(s); generated by `hilo study{} --out <dir>{}`; this invocation took {:.0} s on this machine (stages already complete in the folder are reused).\n", r.study, r.profile.name, r.seeds, if r.study.starts_with("<embedded>") { String::new() } else { format!(" {}", r.study) }, if r.profile.name == "default" { String::new() } else { format!(" --profile {}", r.profile.name) }, r.seconds);
+    let _ = writeln!(
+        md,
+        "# hilo study report\n\nStudy `{}`, profile `{}`, {} seed(s); generated by `hilo study{} --out <dir>{}`; this invocation took {:.0} s on this machine (stages already complete in the folder are reused).\n",
+        r.study,
+        r.profile.name,
+        r.seeds,
+        if r.study.starts_with("<embedded>") { String::new() } else { format!(" {}", r.study) },
+        if r.profile.name == "default" { String::new() } else { format!(" --profile {}", r.profile.name) },
+        r.seconds
+    );
     let d = &r.profile.dataset;
-    let _ = writeln!(md, "Dataset per configuration: {} scenes × {} s at {} Hz (same traffic seeds for every configuration), {}% of the scenes for validation. Each detector trained on {} samples.\n", d.scenes, d.seconds, d.rate_hz, (d.val_fraction * 100.0).round(), r.profile.train_samples);
-    let _ = writeln!(md, "## Configurations\n\n| configuration | cost (USD) | central coverage | placement | sensors |\n|---|---:|---:|---|---|");
+    let _ = writeln!(
+        md,
+        "Dataset per configuration: {} scenes × {} s at {} Hz (same traffic seeds for every configuration), {}% of the scenes for validation. Each detector trained on {} samples.\n",
+        d.scenes,
+        d.seconds,
+        d.rate_hz,
+        (d.val_fraction * 100.0).round(),
+        r.profile.train_samples
+    );
+    let _ = writeln!(
+        md,
+        "## Configurations\n\n| configuration | cost (USD) | central coverage | placement | sensors |\n|---|---:|---:|---|---|"
+    );
     for c in &r.configurations {
         let (status, solved) = placement_status(c);
         let how = if solved { format!("{status} in {:.2} s", c.placement_seconds) } else { status };
-        let _ = writeln!(md, "| {} | {:.0} | {:.1}% | {} | {} |", c.name, c.cost_usd, c.central_coverage * 100.0, esc(&how), c.sensors.join(", "));
+        let _ = writeln!(
+            md,
+            "| {} | {:.0} | {:.1}% | {} | {} |",
+            c.name,
+            c.cost_usd,
+            c.central_coverage * 100.0,
+            esc(&how),
+            c.sensors.join(", ")
+        );
     }
     if !r.cost_reduction.is_empty() {
-        let _ = writeln!(md, "\nCost of the cheapest configuration against the others: {}.", r.cost_reduction.iter().map(|(k, v)| format!("−{:.1}% against {k}", v * 100.0)).collect::<Vec<_>>().join(", "));
+        let _ = writeln!(
+            md,
+            "\nCost of the cheapest configuration against the others: {}.",
+            r.cost_reduction
+                .iter()
+                .map(|(k, v)| format!("−{:.1}% against {k}", v * 100.0))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
-    let _ = writeln!(md, "\n## Accuracy (validation split, nuScenes metric; 95% scene-bootstrap intervals)\n\n| configuration | preset | mAP | NDS | car AP | pedestrian AP | training | inference |\n|---|---|---|---|---|---|---:|---:|");
+    let _ = writeln!(
+        md,
+        "\n## Accuracy (validation split, nuScenes metric; 95% scene-bootstrap intervals)\n\n| configuration | preset | mAP | NDS | car AP | pedestrian AP | training | inference |\n|---|---|---|---|---|---|---:|---:|"
+    );
     for e in &r.entries {
-        let ci = |k: &str| e.bootstrap.class_ap.get(k).map_or("–".to_owned(), |i| format!("{:.3} [{:.3}, {:.3}]", i.estimate, i.lo, i.hi));
-        let _ = writeln!(md, "| {} | {}{} | {:.3} [{:.3}, {:.3}] | {:.3} [{:.3}, {:.3}] | {} | {} | {:.0} s ({} samples) | {:.0} ms/frame |", e.configuration, e.preset, if r.seeds > 1 { format!(" (seed {})", e.seed) } else { String::new() }, e.mean_ap, e.bootstrap.mean_ap.lo, e.bootstrap.mean_ap.hi, e.nd_score, e.bootstrap.nd_score.lo, e.bootstrap.nd_score.hi, ci("car"), ci("pedestrian"), e.train_seconds, e.samples, e.ms_per_frame);
+        let ci = |k: &str| {
+            e.bootstrap
+                .class_ap
+                .get(k)
+                .map_or("–".to_owned(), |i| format!("{:.3} [{:.3}, {:.3}]", i.estimate, i.lo, i.hi))
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {}{} | {:.3} [{:.3}, {:.3}] | {:.3} [{:.3}, {:.3}] | {} | {} | {:.0} s ({} samples) | {:.0} ms/frame |",
+            e.configuration,
+            e.preset,
+            if r.seeds > 1 { format!(" (seed {})", e.seed) } else { String::new() },
+            e.mean_ap,
+            e.bootstrap.mean_ap.lo,
+            e.bootstrap.mean_ap.hi,
+            e.nd_score,
+            e.bootstrap.nd_score.lo,
+            e.bootstrap.nd_score.hi,
+            ci("car"),
+            ci("pedestrian"),
+            e.train_seconds,
+            e.samples,
+            e.ms_per_frame
+        );
     }
-    let _ = writeln!(md, "\nPer-class AP of every detector is in `report.json` (`entries[].class_ap`, with intervals in `entries[].bootstrap.class_ap`).");
+    let _ = writeln!(
+        md,
+        "\nPer-class AP of every detector is in `report.json` (`entries[].class_ap`, with intervals in `entries[].bootstrap.class_ap`)."
+    );
     if !r.comparisons.is_empty() {
         let n_val = r.entries.first().map_or(0, |e| e.bootstrap.scenes);
-        let _ = writeln!(md, "\n## Is the difference real? (paired scene bootstrap, same traffic)\n\nEach configuration is scored on its own ground truth (the boxes its sensors saw); every replicate draws the same validation scenes for both. With {n_val} validation scene(s) the intervals understate the uncertainty of a different day's traffic: more scenes (`[dataset] scenes`) or `--seeds` narrow the question.\n\n| preset | cheaper (B) | against (A) | mAP B − A [95%] | P[B not better] | pedestrian AP A → B |\n|---|---|---|---|---:|---|");
+        let _ = writeln!(
+            md,
+            "\n## Is the difference real? (paired scene bootstrap, same traffic)\n\nEach configuration is scored on its own ground truth (the boxes its sensors saw); every replicate draws the same validation scenes for both. With {n_val} validation scene(s) the intervals understate the uncertainty of a different day's traffic: more scenes (`[dataset] scenes`) or `--seeds` narrow the question.\n\n| preset | cheaper (B) | against (A) | mAP B − A [95%] | P[B not better] | pedestrian AP A → B |\n|---|---|---|---|---:|---|"
+        );
         for c in &r.comparisons {
             let i = c.paired.mean_ap_diff;
             let verdict = if i.lo > 0.0 {
@@ -251,23 +413,63 @@ pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, p
             } else {
                 "not significant"
             };
-            let _ = writeln!(md, "| {} | {} | {} | {:+.3} [{:+.3}, {:+.3}] ({verdict}) | {:.3} | {:.3} → {:.3} |", c.preset, c.b, c.a, i.estimate, i.lo, i.hi, c.paired.p_mean_ap_not_better, c.pedestrian_ap_a, c.pedestrian_ap_b);
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:+.3} [{:+.3}, {:+.3}] ({verdict}) | {:.3} | {:.3} → {:.3} |",
+                c.preset,
+                c.b,
+                c.a,
+                i.estimate,
+                i.lo,
+                i.hi,
+                c.paired.p_mean_ap_not_better,
+                c.pedestrian_ap_a,
+                c.pedestrian_ap_b
+            );
         }
     }
-    let _ = writeln!(md, "\n## Figures\n\n![mAP against cost](figures/map_vs_cost.svg)\n\n![pedestrian AP](figures/pedestrian_ap.svg)\n\nCoverage maps (green: LiDAR-hit cells, red: radar-covered, yellow: both): {}\n", configs.iter().map(|c| format!("[{}](figures/coverage_{}.png)", c.name, c.slug())).collect::<Vec<_>>().join(", "));
-    let _ = writeln!(md, "Detections on one validation frame (grey LiDAR, magenta radar; ground truth green, missed yellow; detections blue, false red):\n");
-    let _ = writeln!(md, "| configuration | {} |\n|---|{}", presets.join(" | "), presets.iter().map(|_| "---|").collect::<String>());
+    let _ = writeln!(
+        md,
+        "\n## Figures\n\n![mAP against cost](figures/map_vs_cost.svg)\n\n![pedestrian AP](figures/pedestrian_ap.svg)\n\nCoverage maps (green: LiDAR-hit cells, red: radar-covered, yellow: both): {}\n",
+        configs
+            .iter()
+            .map(|c| format!("[{}](figures/coverage_{}.png)", c.name, c.slug()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(
+        md,
+        "Detections on one validation frame (grey LiDAR, magenta radar; ground truth green, missed yellow; detections blue, false red):\n"
+    );
+    let _ = writeln!(
+        md,
+        "| configuration | {} |\n|---|{}",
+        presets.join(" | "),
+        presets.iter().map(|_| "---|").collect::<String>()
+    );
     for c in configs {
         let cells: Vec<String> = presets
             .iter()
-            .map(|p| if results.contains_key(&(c.name.clone(), p.clone(), 0)) { format!("![{} {}](figures/detections/{}__{}.png)", c.name, p, c.slug(), p) } else { "n/a (no radar)".into() })
+            .map(|p| {
+                if results.contains_key(&(c.name.clone(), p.clone(), 0)) {
+                    format!("![{} {}](figures/detections/{}__{}.png)", c.name, p, c.slug(), p)
+                } else {
+                    "n/a (no radar)".into()
+                }
+            })
             .collect();
         let _ = writeln!(md, "| {} | {} |", c.name, cells.join(" | "));
     }
     let _ = writeln!(md, "\n## Speed against error\n\n| stage | speed | error paid |\n|---|---|---|");
     for c in &r.configurations {
         let (status, solved) = placement_status(c);
-        let paid = if !solved { "none: not an optimisation".to_owned() } else if c.placement_proven_optimal { "none: proven optimal".to_owned() } else { status };
+        let paid = if !solved {
+            "none: not an optimisation".to_owned()
+        } else if c.placement_proven_optimal {
+            "none: proven optimal".to_owned()
+        } else {
+            status
+        };
         let _ = writeln!(md, "| placement, {} | {:.2} s | {} |", c.name, c.placement_seconds, esc(&paid));
     }
     let t = &r.tradeoffs;
@@ -302,7 +504,16 @@ pub fn write(out: &Path, r: &Report, results: &ResultsBy, pictures: &Pictures, p
         );
     }
     for e in r.entries.iter().filter(|e| e.seed == 0) {
-        let _ = writeln!(md, "| detector {} on {} ({:.2} M parameters) | {:.0} ms/frame, trained in {:.0} s | mAP {:.3} |", e.preset, e.configuration, e.parameters as f64 / 1e6, e.ms_per_frame, e.train_seconds, e.mean_ap);
+        let _ = writeln!(
+            md,
+            "| detector {} on {} ({:.2} M parameters) | {:.0} ms/frame, trained in {:.0} s | mAP {:.3} |",
+            e.preset,
+            e.configuration,
+            e.parameters as f64 / 1e6,
+            e.ms_per_frame,
+            e.train_seconds,
+            e.mean_ap
+        );
     }
     crate::write_atomic(&out.join("report.md"), md.as_bytes())
 }

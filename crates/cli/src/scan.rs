@@ -72,7 +72,10 @@ pub fn run(args: &ScanArgs) -> Result<()> {
                 .iter()
                 .map(|p| {
                     let h = ((p.z - scene.ground.z_m) / 4.0).clamp(0.0, 1.0);
-                    (Vec2::new(p.x, p.y), ((40.0 + 215.0 * h) as u8, (200.0 - 120.0 * h) as u8, (255.0 - 200.0 * h) as u8))
+                    (
+                        Vec2::new(p.x, p.y),
+                        ((40.0 + 215.0 * h) as u8, (200.0 - 120.0 * h) as u8, (255.0 - 200.0 * h) as u8),
+                    )
                 })
                 .collect();
             let b = if ext == "pcd" { to_pcd(&s.points) } else { to_ply(&s.points) };
@@ -86,7 +89,11 @@ pub fn run(args: &ScanArgs) -> Result<()> {
                 .map(|p| {
                     // Approaching red, receding blue, static white.
                     let k = (p.v_r_mps / 10.0).clamp(-1.0, 1.0);
-                    let c = if k < 0.0 { (255, (255.0 * (1.0 + k)) as u8, (255.0 * (1.0 + k)) as u8) } else { ((255.0 * (1.0 - k)) as u8, (255.0 * (1.0 - k)) as u8, 255) };
+                    let c = if k < 0.0 {
+                        (255, (255.0 * (1.0 + k)) as u8, (255.0 * (1.0 + k)) as u8)
+                    } else {
+                        ((255.0 * (1.0 - k)) as u8, (255.0 * (1.0 - k)) as u8, 255)
+                    };
                     (Vec2::new(p.x, p.y), c)
                 })
                 .collect();

@@ -55,7 +55,8 @@ pub struct PlacedSensorFile {
 impl PlacementFile {
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("reading placement {}", path.display()))?;
-        let p: PlacementFile = serde_json::from_str(&text).with_context(|| format!("{}: not a placement written by `hilo place`", path.display()))?;
+        let p: PlacementFile = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a placement written by `hilo place`", path.display()))?;
         if p.sensors.is_empty() {
             bail!("{}: the placement has no sensors", path.display());
         }
@@ -67,7 +68,10 @@ impl PlacementFile {
         let mut lidars = Vec::new();
         let mut radars = Vec::new();
         for (i, s) in self.sensors.iter().enumerate() {
-            let spec = catalog.get(&s.ty).with_context(|| format!("{}: sensors[{i}].type = {:?}", source.display(), s.ty))?.clone();
+            let spec = catalog
+                .get(&s.ty)
+                .with_context(|| format!("{}: sensors[{i}].type = {:?}", source.display(), s.ty))?
+                .clone();
             let p = s.pose.position;
             if !(p.is_finite() && s.pose.yaw.is_finite() && s.pose.pitch.is_finite() && s.pose.roll.is_finite()) {
                 bail!("{}: sensors[{i}].pose is not finite: {:?}", source.display(), s.pose);
@@ -80,8 +84,16 @@ impl PlacementFile {
                 SensorSpec::Radar(_) => radars.push((spec, s.pose)),
             }
         }
-        let mut rig: Vec<RigSensor> = lidars.into_iter().enumerate().map(|(k, (spec, pose))| RigSensor { channel: format!("LIDAR_{k}"), spec, pose }).collect();
-        rig.extend(radars.into_iter().enumerate().map(|(k, (spec, pose))| RigSensor { channel: format!("RADAR_{k}"), spec, pose }));
+        let mut rig: Vec<RigSensor> = lidars
+            .into_iter()
+            .enumerate()
+            .map(|(k, (spec, pose))| RigSensor { channel: format!("LIDAR_{k}"), spec, pose })
+            .collect();
+        rig.extend(radars.into_iter().enumerate().map(|(k, (spec, pose))| RigSensor {
+            channel: format!("RADAR_{k}"),
+            spec,
+            pose,
+        }));
         Ok(rig)
     }
 }
@@ -117,14 +129,28 @@ pub fn rig_world(scene: &Scene, rig: &[RigSensor]) -> Result<World> {
 }
 
 /// Writes the dataset with a progress bar; returns the summary.
-pub fn write_with_progress(scene: &Scene, rig: &[RigSensor], cfg: &SimulateConfig, out: &Path, version: &str, namespace: &str, label: &str) -> Result<WriteSummary> {
+pub fn write_with_progress(
+    scene: &Scene,
+    rig: &[RigSensor],
+    cfg: &SimulateConfig,
+    out: &Path,
+    version: &str,
+    namespace: &str,
+    label: &str,
+) -> Result<WriteSummary> {
     cfg.validate()?;
     let world = rig_world(scene, rig)?;
     let total = (cfg.scenes * cfg.frames_per_scene()) as u64;
     let bar = indicatif::ProgressBar::new(total);
-    bar.set_style(indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames, {per_sec}, ETA {eta}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()).progress_chars("=> "));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} frames, {per_sec}, ETA {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
     bar.set_message(label.to_owned());
-    let summary = write_dataset(scene, &world, rig, cfg, out, version, namespace, &|done| bar.set_position(done as u64)).with_context(|| format!("writing the dataset to {}", out.display()))?;
+    let summary =
+        write_dataset(scene, &world, rig, cfg, out, version, namespace, &|done| bar.set_position(done as u64))
+            .with_context(|| format!("writing the dataset to {}", out.display()))?;
     bar.finish_and_clear();
     Ok(summary)
 }
@@ -139,7 +165,15 @@ pub fn run(args: &SimulateArgs) -> Result<()> {
     let placement = PlacementFile::load(&args.placement)?;
     let rig = placement.rig(&catalog, &scene, &args.placement)?;
     let cfg = settings(&study, args);
-    let summary = write_with_progress(&scene, &rig, &cfg, &args.out, &args.version, &placement.name, &format!("simulating {}", placement.name))?;
+    let summary = write_with_progress(
+        &scene,
+        &rig,
+        &cfg,
+        &args.out,
+        &args.version,
+        &placement.name,
+        &format!("simulating {}", placement.name),
+    )?;
     if args.json {
         println!("{}", serde_json::to_string(&summary)?);
     } else {
@@ -199,10 +233,18 @@ fn dir_bytes(root: &Path) -> u64 {
 pub fn bench(scenes: usize, seconds: f64, rate_hz: f64, keep: Option<&Path>) -> Result<SimulateBench> {
     let tmp = tempfile::tempdir().context("creating a temporary folder")?;
     let t0 = std::time::Instant::now();
-    let placements = crate::place::run(&crate::place::PlaceArgs { study: None, out: tmp.path().join("placements"), json: false, export: None })?;
+    let placements = crate::place::run(&crate::place::PlaceArgs {
+        study: None,
+        out: tmp.path().join("placements"),
+        json: false,
+        export: None,
+    })?;
     let placement_seconds = t0.elapsed().as_secs_f64();
     let first = placements.first().context("the default study has no configuration")?;
-    let path = tmp.path().join("placements").join(format!("{}.json", crate::study::Study::load(None)?.file.configurations[0].slug()));
+    let path = tmp
+        .path()
+        .join("placements")
+        .join(format!("{}.json", crate::study::Study::load(None)?.file.configurations[0].slug()));
     let placement = PlacementFile::load(&path)?;
     let scene = crate::load_scene(None)?;
     let catalog = Catalog::default_catalog()?;

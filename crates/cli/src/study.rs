@@ -50,7 +50,8 @@ impl Configuration {
 
     /// A file-name-safe form of the name.
     pub fn slug(&self) -> String {
-        let s: String = self.name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect();
+        let s: String =
+            self.name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect();
         s.split('_').filter(|p| !p.is_empty()).collect::<Vec<_>>().join("_")
     }
 }
@@ -84,9 +85,15 @@ impl Study {
             }
             match (c.budget_usd, c.sensors.is_empty()) {
                 (Some(b), true) if b.is_finite() && b > 0.0 && !c.types.is_empty() => {}
-                (Some(b), true) => bail!("{source}: configurations[{i}] ({}): budget_usd = {b} needs a positive budget and a `types` list", c.name),
+                (Some(b), true) => bail!(
+                    "{source}: configurations[{i}] ({}): budget_usd = {b} needs a positive budget and a `types` list",
+                    c.name
+                ),
                 (None, false) => {}
-                _ => bail!("{source}: configurations[{i}] ({}): give either `sensors` or `budget_usd` with `types`", c.name),
+                _ => bail!(
+                    "{source}: configurations[{i}] ({}): give either `sensors` or `budget_usd` with `types`",
+                    c.name
+                ),
             }
         }
         Ok(Study { file, dir, source })

@@ -76,7 +76,16 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             bootstrap: 200,
             tradeoff_cell_m: None,
         },
-        "default" => Profile { name: name.into(), dataset: base, presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()], configurations: None, with_radar_only: false, train_samples: 600, bootstrap: 500, tradeoff_cell_m: None },
+        "default" => Profile {
+            name: name.into(),
+            dataset: base,
+            presets: vec!["centerpoint".into(), "pointpillars-lr".into(), "lirafusion-like".into()],
+            configurations: None,
+            with_radar_only: false,
+            train_samples: 600,
+            bootstrap: 500,
+            tradeoff_cell_m: None,
+        },
         "paper" => Profile {
             name: name.into(),
             dataset: SimulateConfig { scenes: 37, seconds: 20.0, rate_hz: 20.0, ..base },
@@ -192,20 +201,46 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     let fp = fingerprint(&study, &prof, args.seeds)?;
     let marker = out.join("study.json");
     if marker.exists() {
-        let old: serde_json::Value = serde_json::from_slice(&std::fs::read(&marker)?).with_context(|| format!("reading {}", marker.display()))?;
+        let old: serde_json::Value = serde_json::from_slice(&std::fs::read(&marker)?)
+            .with_context(|| format!("reading {}", marker.display()))?;
         if old.get("fingerprint").and_then(|v| v.as_str()) != Some(fp.as_str()) {
-            bail!("{} holds another study (study file, profile or seeds differ: fingerprint {} there, {fp} now); choose another --out", out.display(), old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?"));
+            bail!(
+                "{} holds another study (study file, profile or seeds differ: fingerprint {} there, {fp} now); choose another --out",
+                out.display(),
+                old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?")
+            );
         }
     } else if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(false) {
         bail!("{} exists and is not a study folder; choose another --out", out.display());
     }
     std::fs::create_dir_all(out)?;
-    crate::write_atomic(&marker, serde_json::to_string_pretty(&serde_json::json!({ "fingerprint": fp, "study": study.source, "profile": prof.name, "seeds": args.seeds }))?.as_bytes())?;
-    let configs: Vec<Configuration> = study.file.configurations.iter().filter(|c| !prof.with_radar_only || has_radar(c)).take(prof.configurations.unwrap_or(usize::MAX)).cloned().collect();
+    crate::write_atomic(
+        &marker,
+        serde_json::to_string_pretty(
+            &serde_json::json!({ "fingerprint": fp, "study": study.source, "profile": prof.name, "seeds": args.seeds }),
+        )?
+        .as_bytes(),
+    )?;
+    let configs: Vec<Configuration> = study
+        .file
+        .configurations
+        .iter()
+        .filter(|c| !prof.with_radar_only || has_radar(c))
+        .take(prof.configurations.unwrap_or(usize::MAX))
+        .cloned()
+        .collect();
     if prof.name == "paper" {
         let frames = prof.dataset.scenes * prof.dataset.frames_per_scene();
-        let hours = (configs.len() * prof.presets.len() * args.seeds as usize) as f64 * prof.train_samples as f64 / 4.0 / 3600.0 + (configs.len() * frames) as f64 / 130.0 / 3600.0;
-        stage(&format!("paper profile: {} configurations × {} presets × {} seeds, {frames} frames each; about {hours:.1} h on this machine (4 samples/s training, 130 frames/s simulation)", configs.len(), prof.presets.len(), args.seeds));
+        let hours = (configs.len() * prof.presets.len() * args.seeds as usize) as f64 * prof.train_samples as f64
+            / 4.0
+            / 3600.0
+            + (configs.len() * frames) as f64 / 130.0 / 3600.0;
+        stage(&format!(
+            "paper profile: {} configurations × {} presets × {} seeds, {frames} frames each; about {hours:.1} h on this machine (4 samples/s training, 130 frames/s simulation)",
+            configs.len(),
+            prof.presets.len(),
+            args.seeds
+        ));
     }
     // 1. Placement.
     let placements = out.join("placements");
@@ -213,7 +248,12 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     if !all_placed {
         stage("placement");
         let study_path = args.study.clone();
-        crate::place::run(&crate::place::PlaceArgs { study: study_path, out: placements.clone(), json: false, export: None })?;
+        crate::place::run(&crate::place::PlaceArgs {
+            study: study_path,
+            out: placements.clone(),
+            json: false,
+            export: None,
+        })?;
     }
     let scene = crate::load_scene(study.file.scene.as_ref().map(|p| study.resolve(p)).as_deref())?;
     let catalog = match &study.file.catalog {
@@ -238,7 +278,11 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     let mut gts: BTreeMap<String, GroundTruth> = BTreeMap::new();
     let mut pictures: Pictures = BTreeMap::new();
     // Whole-study progress: detectors to train, and an ETA from the ones done so far.
-    let total_detectors: usize = configs.iter().map(|c| prof.presets.iter().filter(|p| !hilo_fusion::detector::uses_radar(p) || has_radar(c)).count()).sum::<usize>() * args.seeds as usize;
+    let total_detectors: usize = configs
+        .iter()
+        .map(|c| prof.presets.iter().filter(|p| !hilo_fusion::detector::uses_radar(p) || has_radar(c)).count())
+        .sum::<usize>()
+        * args.seeds as usize;
     let mut done_detectors = 0usize;
     let t_detectors = std::time::Instant::now();
     for conf in &configs {
@@ -249,13 +293,33 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         let rig = placement.rig(&catalog, &scene, &ppath)?;
         // 2. Dataset (same traffic seeds for every configuration).
         let data = out.join("data").join(&slug);
-        let summary = write_with_progress(&scene, &rig, &prof.dataset, &data, "v1.0-trainval", &placement.name, &format!("dataset {}", conf.name))?;
-        stage(&format!("dataset {}: {} frames, {} annotations ({} scenes resumed)", conf.name, summary.frames, summary.annotations, summary.resumed_scenes));
+        let summary = write_with_progress(
+            &scene,
+            &rig,
+            &prof.dataset,
+            &data,
+            "v1.0-trainval",
+            &placement.name,
+            &format!("dataset {}", conf.name),
+        )?;
+        stage(&format!(
+            "dataset {}: {} frames, {} annotations ({} scenes resumed)",
+            conf.name, summary.frames, summary.annotations, summary.resumed_scenes
+        ));
         summaries.push(ConfigSummary {
             name: conf.name.clone(),
             cost_usd: pjson["cost_usd"].as_f64().unwrap_or(f64::NAN),
             central_coverage: pjson["central_coverage"].as_f64().unwrap_or(f64::NAN),
-            sensors: placement.sensors.iter().map(|s| format!("{} at ({:.1}, {:.1}, {:.1}) m", s.ty, s.pose.position.x, s.pose.position.y, s.pose.position.z)).collect(),
+            sensors: placement
+                .sensors
+                .iter()
+                .map(|s| {
+                    format!(
+                        "{} at ({:.1}, {:.1}, {:.1}) m",
+                        s.ty, s.pose.position.x, s.pose.position.y, s.pose.position.z
+                    )
+                })
+                .collect(),
             placement_proven_optimal: pjson["proven_optimal"].as_bool().unwrap_or(false),
             placement_seconds: pjson["solve_seconds"].as_f64().unwrap_or(f64::NAN),
             placement_solved: !crate::place::single_modality(conf, &catalog),
@@ -269,7 +333,8 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         let val_frames = hilo_fusion::data::load_split(&ds, "val")?;
         let mut gt = hilo_eval::ground_truth_from_dataset(&ds, "val")?;
         // Scene names (not tokens) so that configurations' scenes can be paired.
-        let scene_name: BTreeMap<&str, &str> = ds.tables.scene.iter().map(|s| (s.token.as_str(), s.name.as_str())).collect();
+        let scene_name: BTreeMap<&str, &str> =
+            ds.tables.scene.iter().map(|s| (s.token.as_str(), s.name.as_str())).collect();
         for info in gt.samples.values_mut() {
             if let Some(n) = scene_name.get(info.scene.as_str()) {
                 info.scene = (*n).to_owned();
@@ -290,7 +355,10 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                 let det_cfg = hilo_fusion::preset(preset)?;
                 let tc = TrainConfig { samples: prof.train_samples, seed, ..TrainConfig::default() };
                 let bar = indicatif::ProgressBar::new(tc.steps() as u64);
-                bar.set_style(indicatif::ProgressStyle::with_template("{msg} [{bar:25}] {pos}/{len} steps, ETA {eta}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()));
+                bar.set_style(
+                    indicatif::ProgressStyle::with_template("{msg} [{bar:25}] {pos}/{len} steps, ETA {eta}")
+                        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+                );
                 let label = format!("train {preset} on {}", conf.name);
                 let info = train(&run, &det_cfg, &tc, &train_frames, &registry, &Device::Cpu, &mut |r| {
                     bar.set_position(r.step as u64);
@@ -306,14 +374,21 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                     let (det, _) = load_run(&run, &registry, &Device::Cpu)?;
                     let (json, per_frame) = hilo_fusion::infer::detect_frames(&det, &val_frames, 4, &mut |_| {})?;
                     crate::write_atomic(&res_path, serde_json::to_string(&json)?.as_bytes())?;
-                    crate::write_atomic(&meta_path, serde_json::to_string(&serde_json::json!({ "ms_per_frame": per_frame * 1e3 }))?.as_bytes())?;
+                    crate::write_atomic(
+                        &meta_path,
+                        serde_json::to_string(&serde_json::json!({ "ms_per_frame": per_frame * 1e3 }))?.as_bytes(),
+                    )?;
                 }
                 let meta: serde_json::Value = serde_json::from_slice(&std::fs::read(&meta_path)?)?;
                 let pred = hilo_eval::read_submission(&res_path, 500)?;
                 // 5. Evaluation.
                 let m: DetectionMetrics = hilo_eval::evaluate_files(&gt, &pred, &eval_cfg);
                 let bs = bootstrap(&gt, &pred, &eval_cfg, prof.bootstrap, 0.95, 0);
-                let class_ap = m.label_aps.iter().map(|(k, v)| (k.clone(), v.values().sum::<f64>() / v.len().max(1) as f64)).collect();
+                let class_ap = m
+                    .label_aps
+                    .iter()
+                    .map(|(k, v)| (k.clone(), v.values().sum::<f64>() / v.len().max(1) as f64))
+                    .collect();
                 done_detectors += 1;
                 let per = t_detectors.elapsed().as_secs_f64() / done_detectors as f64;
                 stage(&format!(
@@ -346,13 +421,31 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     if let Some(cheap) = summaries.iter().min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd)) {
         for other in summaries.iter().filter(|s| s.name != cheap.name) {
             for preset in &prof.presets {
-                let (Some(a), Some(b)) = (results_by.get(&(other.name.clone(), preset.clone(), 0)), results_by.get(&(cheap.name.clone(), preset.clone(), 0))) else { continue };
+                let (Some(a), Some(b)) = (
+                    results_by.get(&(other.name.clone(), preset.clone(), 0)),
+                    results_by.get(&(cheap.name.clone(), preset.clone(), 0)),
+                ) else {
+                    continue;
+                };
                 // Same traffic and scene names, different tokens: each configuration on its own
                 // ground truth (the boxes its sensors saw), the same scenes drawn for both.
                 let (Some(ga), Some(gb)) = (gts.get(&other.name), gts.get(&cheap.name)) else { continue };
                 let p = paired_between(ga, a, gb, b, &eval_cfg, prof.bootstrap, 0.95, 0);
-                let ped = |cfg: &str| entries.iter().find(|e| e.configuration == cfg && e.preset == *preset && e.seed == 0).and_then(|e| e.class_ap.get("pedestrian").copied()).unwrap_or(f64::NAN);
-                comparisons.push(Comparison { preset: preset.clone(), a: other.name.clone(), b: cheap.name.clone(), paired: p, pedestrian_ap_a: ped(&other.name), pedestrian_ap_b: ped(&cheap.name) });
+                let ped = |cfg: &str| {
+                    entries
+                        .iter()
+                        .find(|e| e.configuration == cfg && e.preset == *preset && e.seed == 0)
+                        .and_then(|e| e.class_ap.get("pedestrian").copied())
+                        .unwrap_or(f64::NAN)
+                };
+                comparisons.push(Comparison {
+                    preset: preset.clone(),
+                    a: other.name.clone(),
+                    b: cheap.name.clone(),
+                    paired: p,
+                    pedestrian_ap_a: ped(&other.name),
+                    pedestrian_ap_b: ped(&cheap.name),
+                });
             }
         }
     }
@@ -362,7 +455,17 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
             cost_reduction.insert(s.name.clone(), 1.0 - cheap.cost_usd / s.cost_usd);
         }
     }
-    let report = Report { study: study.source.clone(), profile: prof.clone(), seeds: args.seeds, configurations: summaries, entries, comparisons, cost_reduction, tradeoffs, seconds: t0.elapsed().as_secs_f64() };
+    let report = Report {
+        study: study.source.clone(),
+        profile: prof.clone(),
+        seeds: args.seeds,
+        configurations: summaries,
+        entries,
+        comparisons,
+        cost_reduction,
+        tradeoffs,
+        seconds: t0.elapsed().as_secs_f64(),
+    };
     crate::report::write(out, &report, &results_by, &pictures, &placements, &configs)?;
     stage(&format!("report: {} ({:.0} s)", out.join("report.md").display(), report.seconds));
     Ok(report)

@@ -4,9 +4,9 @@
 
 use crate::study::{Configuration, Study};
 use anyhow::{Context, Result};
+use hilo_placement_ip::Limit;
 use hilo_placement_ip::greedy::greedy;
 use hilo_placement_ip::instance::{Instance, Outcome, evaluate};
-use hilo_placement_ip::Limit;
 use hilo_placement_ip::pipeline::{PlacementConfig, Prepared, instance, prepare, solve_from};
 use hilo_raycast::Scene;
 use hilo_sensor_models::Catalog;
@@ -123,7 +123,14 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
     };
     // Time limits, on the budgeted problem over every type of the study.
     let all = study.type_names();
-    let budget_usd = study.file.configurations.iter().map(|c| cost(catalog, c)).collect::<Result<Vec<f64>>>()?.into_iter().fold(0.0, f64::max);
+    let budget_usd = study
+        .file
+        .configurations
+        .iter()
+        .map(|c| cost(catalog, c))
+        .collect::<Result<Vec<f64>>>()?
+        .into_iter()
+        .fold(0.0, f64::max);
     let prep = prepare(scene, catalog, &all, &cfg)?;
     let inst = instance(&prep, catalog, &all, cfg.p_min)?;
     let blimit = Limit::Budget { usd: budget_usd, min: vec![], max: vec![] };
@@ -145,7 +152,14 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
             selection: counts.iter().map(|(t, n)| format!("{n}x {t}")).collect::<Vec<_>>().join(" + "),
         });
     }
-    Ok(Tradeoffs { configuration: conf.map(|c| c.name.clone()).unwrap_or_default(), los, budget_usd, types: all, greedy_objective: g.objective, limits })
+    Ok(Tradeoffs {
+        configuration: conf.map(|c| c.name.clone()).unwrap_or_default(),
+        los,
+        budget_usd,
+        types: all,
+        greedy_objective: g.objective,
+        limits,
+    })
 }
 
 fn los_rows(scene: &Scene, catalog: &Catalog, cfg: &PlacementConfig, conf: &Configuration) -> Result<Vec<LosRow>> {

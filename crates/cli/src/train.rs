@@ -77,14 +77,17 @@ fn schedule(preset: &str, fields: &serde_json::Value) -> Result<TrainConfig> {
 }
 
 pub fn run_train(args: &TrainArgs) -> Result<()> {
-    let ds = hilo_dataset::Dataset::open(&args.data, &args.version).with_context(|| format!("opening dataset {}", args.data.display()))?;
-    let frames = hilo_fusion::data::load_split(&ds, &args.split).with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
+    let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
+        .with_context(|| format!("opening dataset {}", args.data.display()))?;
+    let frames = hilo_fusion::data::load_split(&ds, &args.split)
+        .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     let det = match &args.detector_config {
         Some(path) => read_json::<hilo_fusion::DetectorConfig>(path)?,
         None => detector(&args.detector, args.no_early)?,
     };
     let mut cfg = match &args.train_config {
-        Some(path) => schedule(&det.name, &read_json::<serde_json::Value>(path)?).with_context(|| format!("{}: not a valid training schedule", path.display()))?,
+        Some(path) => schedule(&det.name, &read_json::<serde_json::Value>(path)?)
+            .with_context(|| format!("{}: not a valid training schedule", path.display()))?,
         None => TrainConfig::for_preset(&det.name),
     };
     if let Some(s) = args.samples {
@@ -98,18 +101,42 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let bar = indicatif::ProgressBar::new(cfg.steps() as u64);
-    bar.set_style(indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps, ETA {eta}").unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()).progress_chars("=> "));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps, ETA {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
     let log_path = args.out.join("loss.jsonl");
-    let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path).with_context(|| format!("opening {}", log_path.display()))?;
+    let mut log = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log_path)
+        .with_context(|| format!("opening {}", log_path.display()))?;
     let mut on_step = |r: &StepReport| {
         bar.set_position(r.step as u64);
-        bar.set_message(format!("{} loss {:.3} (cls {:.3}, reg {:.3}) {:.1} samples/s", det.name, r.loss, r.cls, r.reg, r.samples_per_s));
-        let _ = writeln!(log, "{}", serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s }));
+        bar.set_message(format!(
+            "{} loss {:.3} (cls {:.3}, reg {:.3}) {:.1} samples/s",
+            det.name, r.loss, r.cls, r.reg, r.samples_per_s
+        ));
+        let _ = writeln!(
+            log,
+            "{}",
+            serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s })
+        );
         true
     };
-    let info = hilo_fusion::train::train(&args.out, &det, &cfg, &frames, &registry()?, &Device::Cpu, &mut on_step).with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
+    let info = hilo_fusion::train::train(&args.out, &det, &cfg, &frames, &registry()?, &Device::Cpu, &mut on_step)
+        .with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
     bar.finish_and_clear();
-    eprintln!("trained {} on {} frames: {} steps, {} samples in {:.1} s; weights in {}", det.name, frames.len(), info.step, info.samples_seen, info.seconds, hilo_fusion::train::weights_path(&args.out).display());
+    eprintln!(
+        "trained {} on {} frames: {} steps, {} samples in {:.1} s; weights in {}",
+        det.name,
+        frames.len(),
+        info.step,
+        info.samples_seen,
+        info.seconds,
+        hilo_fusion::train::weights_path(&args.out).display()
+    );
     Ok(())
 }
 
@@ -132,14 +159,25 @@ pub struct DetectArgs {
 }
 
 pub fn run_detect(args: &DetectArgs) -> Result<()> {
-    let (det, info) = hilo_fusion::train::load_run(&args.run, &registry()?, &Device::Cpu).with_context(|| format!("loading run {}", args.run.display()))?;
-    let ds = hilo_dataset::Dataset::open(&args.data, &args.version).with_context(|| format!("opening dataset {}", args.data.display()))?;
-    let frames = hilo_fusion::data::load_split(&ds, &args.split).with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
+    let (det, info) = hilo_fusion::train::load_run(&args.run, &registry()?, &Device::Cpu)
+        .with_context(|| format!("loading run {}", args.run.display()))?;
+    let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
+        .with_context(|| format!("opening dataset {}", args.data.display()))?;
+    let frames = hilo_fusion::data::load_split(&ds, &args.split)
+        .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     let bar = indicatif::ProgressBar::new(frames.len() as u64);
-    let (json, per_frame) = hilo_fusion::infer::detect_frames(&det, &frames, args.batch, &mut |n| bar.set_position(n as u64))?;
+    let (json, per_frame) =
+        hilo_fusion::infer::detect_frames(&det, &frames, args.batch, &mut |n| bar.set_position(n as u64))?;
     bar.finish_and_clear();
     crate::write_atomic(&args.out, serde_json::to_string(&json)?.as_bytes())?;
-    eprintln!("{} ({}) on {} frames: {:.1} ms per frame; wrote {}", info.detector.name, args.run.display(), frames.len(), per_frame * 1e3, args.out.display());
+    eprintln!(
+        "{} ({}) on {} frames: {:.1} ms per frame; wrote {}",
+        info.detector.name,
+        args.run.display(),
+        frames.len(),
+        per_frame * 1e3,
+        args.out.display()
+    );
     Ok(())
 }
 
@@ -150,7 +188,11 @@ mod tests {
 
     #[test]
     fn a_schedule_file_overrides_only_its_fields_of_the_preset_schedule() {
-        let c = schedule("late", &serde_json::json!({ "lr_max": 0.001, "augmentation": { "rotate_deg": 0.0, "flip_p": 0.0, "scale": 0.0 } })).unwrap();
+        let c = schedule(
+            "late",
+            &serde_json::json!({ "lr_max": 0.001, "augmentation": { "rotate_deg": 0.0, "flip_p": 0.0, "scale": 0.0 } }),
+        )
+        .unwrap();
         let preset = TrainConfig::for_preset("late");
         assert_eq!((c.samples, c.batch, c.lr_max, c.augmentation.flip_p), (preset.samples, preset.batch, 0.001, 0.0));
         assert_ne!(preset.samples, TrainConfig::default().samples, "late's schedule differs from the default");

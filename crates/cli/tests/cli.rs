@@ -84,12 +84,20 @@ fn scan_writes_a_readable_cloud_and_a_picture() {
     assert!(tiny_skia::Pixmap::load_png(&png).is_ok());
     // Same seed, same bytes.
     let again = dir.path().join("again.pcd");
-    let st = hilo().args(["scan", "--sensor", "lidar-16", "--pose", "13,16.6,7.8,-127,10", "--out"]).arg(&again).status().unwrap();
+    let st = hilo()
+        .args(["scan", "--sensor", "lidar-16", "--pose", "13,16.6,7.8,-127,10", "--out"])
+        .arg(&again)
+        .status()
+        .unwrap();
     assert!(st.success());
     assert_eq!(std::fs::read(&pcd).unwrap(), std::fs::read(&again).unwrap());
     // Radar to PLY, with approaching and receding road users.
     let ply = dir.path().join("radar.ply");
-    let st = hilo().args(["scan", "--sensor", "radar-4d", "--pose", "16.6,-7,6.4,165,8", "--out"]).arg(&ply).status().unwrap();
+    let st = hilo()
+        .args(["scan", "--sensor", "radar-4d", "--pose", "16.6,-7,6.4,165,8", "--out"])
+        .arg(&ply)
+        .status()
+        .unwrap();
     assert!(st.success());
     let r: Vec<RadarPoint> = from_ply(&std::fs::read(&ply).unwrap(), &ply).unwrap();
     assert!(r.iter().any(|p| p.v_r_mps < -1.0) && r.iter().any(|p| p.v_r_mps > 1.0));
@@ -118,7 +126,8 @@ fn bench_sensors_json_reports_frame_times_and_model_error() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(v["cheap_suite_frame_ms"].as_f64().unwrap() > 0.0);
     assert!(v["lidar64_radar_rays_per_frame"].as_u64().unwrap() > v["cheap_suite_rays_per_frame"].as_u64().unwrap());
-    let (e, s) = (v["probe_car_expected_returns"].as_f64().unwrap(), v["probe_car_simulated_mean_returns"].as_f64().unwrap());
+    let (e, s) =
+        (v["probe_car_expected_returns"].as_f64().unwrap(), v["probe_car_simulated_mean_returns"].as_f64().unwrap());
     assert!((e - s).abs() < 0.1 * e, "model {e} vs simulation {s}");
 }
 
@@ -141,11 +150,13 @@ fn place_writes_proven_placements_coverage_maps_and_exports() {
     );
     let out = dir.path().join("placements");
     let ex = dir.path().join("export");
-    let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).arg("--json").arg("--export").arg(&ex).output().unwrap();
+    let o =
+        hilo().arg("place").arg(&study).arg("--out").arg(&out).arg("--json").arg("--export").arg(&ex).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(summary.as_array().unwrap().len(), 2);
-    let p: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("2x_lidar_16_radar.json")).unwrap()).unwrap();
+    let p: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("2x_lidar_16_radar.json")).unwrap()).unwrap();
     assert_eq!(p["proven_optimal"], true);
     assert_eq!(p["gap"].as_f64(), Some(0.0));
     assert_eq!(p["sensors"].as_array().unwrap().len(), 3);
@@ -154,22 +165,34 @@ fn place_writes_proven_placements_coverage_maps_and_exports() {
     let cov = p["central_coverage"].as_f64().unwrap();
     assert!(cov > 0.0 && cov <= 1.0);
     assert!(tiny_skia::Pixmap::load_png(out.join("2x_lidar_16_radar.png")).is_ok());
-    for f in ["targets.json", "candidates.json", "visibility_lidar-16.json", "visibility_radar-4d.json", "2x_lidar_16_radar.mps.gz"] {
+    for f in [
+        "targets.json",
+        "candidates.json",
+        "visibility_lidar-16.json",
+        "visibility_radar-4d.json",
+        "2x_lidar_16_radar.mps.gz",
+    ] {
         assert!(ex.join(f).exists(), "{f} not exported");
     }
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(ex.join("visibility_lidar-16.json")).unwrap()).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(ex.join("visibility_lidar-16.json")).unwrap()).unwrap();
     assert_eq!(v["candidate"].as_array().unwrap().len(), v["v"].as_array().unwrap().len());
 }
 
 #[test]
 fn a_lidar_only_configuration_takes_the_lidar_poses_of_its_multimodal_sibling() {
     let dir = tempfile::tempdir().unwrap();
-    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"16 alone\"\nsensors = { \"lidar-16\" = 1 }\n[[configurations]]\nname = \"16 + radar\"\nsensors = { \"lidar-16\" = 1, \"radar-4d\" = 1 }\n");
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"16 alone\"\nsensors = { \"lidar-16\" = 1 }\n[[configurations]]\nname = \"16 + radar\"\nsensors = { \"lidar-16\" = 1, \"radar-4d\" = 1 }\n",
+    );
     let out = dir.path().join("p");
     let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let alone: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("16_alone.json")).unwrap()).unwrap();
-    let both: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("16_radar.json")).unwrap()).unwrap();
+    let alone: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("16_alone.json")).unwrap()).unwrap();
+    let both: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("16_radar.json")).unwrap()).unwrap();
     assert_eq!(alone["sensors"].as_array().unwrap().len(), 1);
     let lidar = both["sensors"].as_array().unwrap().iter().find(|s| s["type"] == "lidar-16").unwrap();
     assert_eq!(alone["sensors"][0]["pose"], lidar["pose"]);
@@ -185,17 +208,26 @@ fn a_lidar_only_configuration_takes_the_lidar_poses_of_its_multimodal_sibling() 
 #[test]
 fn place_with_bad_configurations_explains_itself() {
     let dir = tempfile::tempdir().unwrap();
-    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"big\"\nsensors = { \"lidar-128\" = 1, \"radar-4d\" = 1 }\n");
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"big\"\nsensors = { \"lidar-128\" = 1, \"radar-4d\" = 1 }\n",
+    );
     let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("lidar-128") && err.contains("lidar-16"), "{err}");
-    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"cheap\"\nbudget_usd = 500.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n");
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"cheap\"\nbudget_usd = 500.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n",
+    );
     let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("cheap") && err.contains("500"), "{err}");
-    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"x\"\nsensors = { \"lidar-16\" = 1 }\nbudget_usd = 3.0\n");
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"x\"\nsensors = { \"lidar-16\" = 1 }\nbudget_usd = 3.0\n",
+    );
     let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("either"));
 }
@@ -214,13 +246,28 @@ fn eval_writes_a_devkit_shaped_summary_and_refuses_mismatched_samples() {
     std::fs::write(&r, res).unwrap();
     let o = hilo().arg("eval").arg("--gt").arg(&g).arg("--results").arg(&r).arg("--out").arg(&out).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
-    for key in ["label_aps", "mean_dist_aps", "mean_ap", "label_tp_errors", "tp_errors", "tp_scores", "nd_score", "eval_time", "cfg"] {
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
+    for key in [
+        "label_aps",
+        "mean_dist_aps",
+        "mean_ap",
+        "label_tp_errors",
+        "tp_errors",
+        "tp_scores",
+        "nd_score",
+        "eval_time",
+        "cfg",
+    ] {
         assert!(m.get(key).is_some(), "missing {key}");
     }
     assert!((m["mean_dist_aps"]["car"].as_f64().unwrap() - 1.0).abs() < 1e-12);
     assert!((m["label_aps"]["pedestrian"]["0.5"].as_f64().unwrap() - 1.0).abs() < 1e-12);
-    std::fs::write(&r, res.replace("\"b\": [", "\"c\": [").replace("\"sample_token\": \"b\"", "\"sample_token\": \"c\"")).unwrap();
+    std::fs::write(
+        &r,
+        res.replace("\"b\": [", "\"c\": [").replace("\"sample_token\": \"b\"", "\"sample_token\": \"c\""),
+    )
+    .unwrap();
     let o = hilo().arg("eval").arg("--gt").arg(&g).arg("--results").arg(&r).arg("--out").arg(&out).output().unwrap();
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("samples differ"));
@@ -240,7 +287,18 @@ fn small_dataset(root: &std::path::Path) -> Vec<String> {
         let frames: Vec<FrameData> = (0..3)
             .map(|f| FrameData {
                 timestamp_us: 10_000_000 * (k as u64 + 1) + 50_000 * f,
-                lidar: vec![(0..20).map(|i| hilo_core::LidarPoint { x: i as f32, y: 1.0, z: -6.0, intensity: 0.5, ring: 3, time_s: 0.0 }).collect()],
+                lidar: vec![
+                    (0..20)
+                        .map(|i| hilo_core::LidarPoint {
+                            x: i as f32,
+                            y: 1.0,
+                            z: -6.0,
+                            intensity: 0.5,
+                            ring: 3,
+                            time_s: 0.0,
+                        })
+                        .collect(),
+                ],
                 radar: vec![],
                 annotations: vec![Annotation {
                     instance: 1,
@@ -288,11 +346,31 @@ fn dataset_stats_and_eval_against_a_dataset() {
     let res = dir.path().join("results.json");
     std::fs::write(&res, serde_json::json!({"meta": {}, "results": results}).to_string()).unwrap();
     let out = dir.path().join("metrics");
-    let o = hilo().arg("eval").arg("--data").arg(&root).arg("--results").arg(&res).arg("--out").arg(&out).args(["--bootstrap", "50"]).output().unwrap();
+    let o = hilo()
+        .arg("eval")
+        .arg("--data")
+        .arg(&root)
+        .arg("--results")
+        .arg(&res)
+        .arg("--out")
+        .arg(&out)
+        .args(["--bootstrap", "50"])
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
     assert!((m["mean_dist_aps"]["car"].as_f64().unwrap() - 1.0).abs() < 1e-9);
     // Without the split: a clear error.
-    let o = hilo().arg("eval").arg("--data").arg(&root).args(["--split", "train", "--results"]).arg(&res).arg("--out").arg(&out).output().unwrap();
+    let o = hilo()
+        .arg("eval")
+        .arg("--data")
+        .arg(&root)
+        .args(["--split", "train", "--results"])
+        .arg(&res)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("no split \"train\""));
 }

@@ -24,10 +24,17 @@ fn frames(seed: u64, n: usize) -> Vec<Frame> {
                     continue;
                 }
                 // Heading mostly along the radar's line of sight, so motion shows in v_r.
-                let yaw = std::f32::consts::FRAC_PI_2 * if rng.random::<bool>() { 1.0 } else { -1.0 } + rng.random_range(-0.4..0.4);
+                let yaw = std::f32::consts::FRAC_PI_2 * if rng.random::<bool>() { 1.0 } else { -1.0 }
+                    + rng.random_range(-0.4..0.4);
                 let moving = rng.random::<bool>();
                 let speed = if moving { rng.random_range(6.0..10.0) } else { 0.0 };
-                boxes.push(GtBox { class: if moving { 0 } else { 5 }, center: [x, y, 0.8], wlh: [1.9, 4.6, 1.6], yaw, velocity: [speed * yaw.cos(), speed * yaw.sin()] });
+                boxes.push(GtBox {
+                    class: if moving { 0 } else { 5 },
+                    center: [x, y, 0.8],
+                    wlh: [1.9, 4.6, 1.6],
+                    yaw,
+                    velocity: [speed * yaw.cos(), speed * yaw.sin()],
+                });
             }
             let mut f = synthetic_frame(seed * 1000 + k as u64, &boxes, true, true);
             f.sample_token = format!("m{seed}-{k}");
@@ -48,7 +55,14 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
         *b = serde_json::to_value(&cfg.backbone).unwrap();
         cfg.fusion_config["head_channels"] = serde_json::json!(32);
     }
-    let tc = TrainConfig { samples: 4 * 250, batch: 4, lr_max: 5e-3, augmentation: Augmentation { rotate_deg: 0.0, flip_p: 0.0, scale: 0.02 }, checkpoint_steps: 10_000, ..TrainConfig::default() };
+    let tc = TrainConfig {
+        samples: 4 * 250,
+        batch: 4,
+        lr_max: 5e-3,
+        augmentation: Augmentation { rotate_deg: 0.0, flip_p: 0.0, scale: 0.02 },
+        checkpoint_steps: 10_000,
+        ..TrainConfig::default()
+    };
     let dir = tempfile::tempdir().unwrap();
     train(dir.path(), &cfg, &tc, train_frames, registry, &Device::Cpu, &mut |_| true).unwrap();
     let (det, _) = load_run(dir.path(), registry, &Device::Cpu).unwrap();
@@ -57,7 +71,22 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
     let mut pred = Vec::new();
     for f in val {
         gt.samples.insert(f.sample_token.clone(), SampleInfo { scene: "s".into(), ego_translation: [0.0; 3] });
-        let boxes = f.boxes.iter().map(|b| EvalBox { num_pts: 50, ..EvalBox::from_yaw(&f.sample_token, if b.class == 0 { "car" } else { "golf_cart" }, b.center.map(f64::from), b.wlh.map(f64::from), b.yaw as f64, b.velocity.map(f64::from), 1.0) }).collect();
+        let boxes = f
+            .boxes
+            .iter()
+            .map(|b| EvalBox {
+                num_pts: 50,
+                ..EvalBox::from_yaw(
+                    &f.sample_token,
+                    if b.class == 0 { "car" } else { "golf_cart" },
+                    b.center.map(f64::from),
+                    b.wlh.map(f64::from),
+                    b.yaw as f64,
+                    b.velocity.map(f64::from),
+                    1.0,
+                )
+            })
+            .collect();
         gt.boxes.insert(f.sample_token.clone(), boxes);
         let p: Vec<EvalBox> = serde_json::from_value(json["results"][&f.sample_token].clone()).unwrap();
         pred.push((f.sample_token.clone(), p));
@@ -66,7 +95,11 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
     let mut ec = DetectionConfig { dist_ths: vec![2.0, 4.0], ..DetectionConfig::default() };
     ec.class_range.retain(|k, _| k == "car" || k == "golf_cart");
     let m = hilo_eval::evaluate_files(&gt, &pred, &ec);
-    eprintln!("{name}: mAP {:.3} ({:?})", m.mean_ap, m.label_aps.iter().map(|(k, v)| (k.clone(), v.values().sum::<f64>() / v.len() as f64)).collect::<Vec<_>>());
+    eprintln!(
+        "{name}: mAP {:.3} ({:?})",
+        m.mean_ap,
+        m.label_aps.iter().map(|(k, v)| (k.clone(), v.values().sum::<f64>() / v.len() as f64)).collect::<Vec<_>>()
+    );
     m.mean_ap
 }
 
@@ -84,9 +117,15 @@ fn every_fusion_preset_separates_classes_that_differ_only_by_motion() {
     // only through the radar's Doppler.
     let (tr, val) = (frames(1, 200), frames(2, 12));
     // Each fusion preset against the LiDAR-only preset it extends (same backbone and head).
-    let lidar_only = [("pointpillars", map_for("pointpillars", &r, &tr, &val)), ("centerpoint", map_for("centerpoint", &r, &tr, &val))];
+    let lidar_only = [
+        ("pointpillars", map_for("pointpillars", &r, &tr, &val)),
+        ("centerpoint", map_for("centerpoint", &r, &tr, &val)),
+    ];
     for (lidar, base) in lidar_only {
-        assert!(base < 0.6, "{lidar} (LiDAR only) separates the classes: mAP {base:.3}; the fixture leaks the class into LiDAR");
+        assert!(
+            base < 0.6,
+            "{lidar} (LiDAR only) separates the classes: mAP {base:.3}; the fixture leaks the class into LiDAR"
+        );
     }
     for name in ["pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"] {
         let (base_name, base) = if name == "pointpillars-lr" { lidar_only[0] } else { lidar_only[1] };

@@ -17,7 +17,16 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     let o = run();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
-    for section in ["## Configurations", "## Accuracy", "## Is the difference real?", "## Figures", "## Speed against error", "2x lidar-16 + radar", "centerpoint", "pointpillars-lr"] {
+    for section in [
+        "## Configurations",
+        "## Accuracy",
+        "## Is the difference real?",
+        "## Figures",
+        "## Speed against error",
+        "2x lidar-16 + radar",
+        "centerpoint",
+        "pointpillars-lr",
+    ] {
         assert!(md.contains(section), "report.md lacks {section:?}");
     }
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
@@ -34,7 +43,15 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     assert!(limits.iter().all(|r| r["bound"].as_f64().unwrap() >= r["objective"].as_f64().unwrap() - 1e-9));
     assert_eq!(limits.last().unwrap()["proven_optimal"], true);
     assert!(md.contains("line-of-sight samples per probe") && md.contains("time limit") && md.contains("M parameters"));
-    for f in ["map_vs_cost.svg", "map_vs_cost.png", "pedestrian_ap.svg", "pedestrian_ap.png", "coverage_2x_lidar_16_radar.png", "detections/2x_lidar_16_radar__centerpoint.png", "detections/1x_lidar_32_radar__pointpillars-lr.png"] {
+    for f in [
+        "map_vs_cost.svg",
+        "map_vs_cost.png",
+        "pedestrian_ap.svg",
+        "pedestrian_ap.png",
+        "coverage_2x_lidar_16_radar.png",
+        "detections/2x_lidar_16_radar__centerpoint.png",
+        "detections/1x_lidar_32_radar__pointpillars-lr.png",
+    ] {
         let p = out.join("figures").join(f);
         assert!(std::fs::metadata(&p).map(|m| m.len() > 100).unwrap_or(false), "{} missing or empty", p.display());
     }
@@ -57,15 +74,29 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
 #[test]
 fn bad_studies_are_refused_clearly() {
     let dir = tempfile::tempdir().unwrap();
-    let o = hilo().args(["study", "--profile", "tiny", "--presets", "centerpoint,pointrcnn", "--out"]).arg(dir.path().join("a")).output().unwrap();
+    let o = hilo()
+        .args(["study", "--profile", "tiny", "--presets", "centerpoint,pointrcnn", "--out"])
+        .arg(dir.path().join("a"))
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("pointrcnn") && err.contains("lirafusion-like"), "{err}");
     let o = hilo().args(["study", "--profile", "fast", "--out"]).arg(dir.path().join("b")).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--profile"));
     // A configuration the budget cannot buy.
     let study = dir.path().join("s.toml");
-    std::fs::write(&study, "[[configurations]]\nname = \"pennies\"\nbudget_usd = 10.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n").unwrap();
-    let o = hilo().arg("study").arg(&study).args(["--profile", "tiny", "--out"]).arg(dir.path().join("c")).output().unwrap();
+    std::fs::write(
+        &study,
+        "[[configurations]]\nname = \"pennies\"\nbudget_usd = 10.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n",
+    )
+    .unwrap();
+    let o = hilo()
+        .arg("study")
+        .arg(&study)
+        .args(["--profile", "tiny", "--out"])
+        .arg(dir.path().join("c"))
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("pennies") && err.contains("buys no sensor"), "{err}");
     // A folder that is not a study.

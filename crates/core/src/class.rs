@@ -17,14 +17,8 @@ pub enum Class {
 
 impl Class {
     /// All classes in a fixed order (the order of per-class tables and heatmap channels).
-    pub const ALL: [Class; 6] = [
-        Class::Car,
-        Class::Truck,
-        Class::Bus,
-        Class::Motorcycle,
-        Class::Pedestrian,
-        Class::GolfCart,
-    ];
+    pub const ALL: [Class; 6] =
+        [Class::Car, Class::Truck, Class::Bus, Class::Motorcycle, Class::Pedestrian, Class::GolfCart];
 
     /// The snake_case name used in files.
     pub const fn name(self) -> &'static str {
@@ -58,10 +52,7 @@ pub struct UnknownClass(pub String);
 impl FromStr for Class {
     type Err = UnknownClass;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Class::ALL
-            .into_iter()
-            .find(|c| c.name() == s)
-            .ok_or_else(|| UnknownClass(s.to_owned()))
+        Class::ALL.into_iter().find(|c| c.name() == s).ok_or_else(|| UnknownClass(s.to_owned()))
     }
 }
 

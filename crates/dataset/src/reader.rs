@@ -87,7 +87,10 @@ impl Dataset {
         let p = self.root.join(&sd.filename);
         let bytes = std::fs::read(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
         if bytes.len() % 20 != 0 {
-            return Err(DatasetError::PointFile { path: p, message: format!("truncated: {} bytes is not a whole number of 20-byte points", bytes.len()) });
+            return Err(DatasetError::PointFile {
+                path: p,
+                message: format!("truncated: {} bytes is not a whole number of 20-byte points", bytes.len()),
+            });
         }
         Ok(bytes
             .chunks_exact(20)
@@ -102,7 +105,8 @@ impl Dataset {
     pub fn radar_points(&self, sd: &SampleData) -> Result<Vec<RadarPoint>, DatasetError> {
         let p = self.root.join(&sd.filename);
         let bytes = std::fs::read(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
-        hilo_sensor_models::export::from_pcd(&bytes, &p).map_err(|e| DatasetError::PointFile { path: p, message: e.to_string() })
+        hilo_sensor_models::export::from_pcd(&bytes, &p)
+            .map_err(|e| DatasetError::PointFile { path: p, message: e.to_string() })
     }
 }
 
@@ -120,7 +124,13 @@ fn check_links(t: &Tables) -> Result<(), DatasetError> {
     let calibrated = set(t.calibrated_sensor.iter().map(|r| &r.token).collect());
     let egos = set(t.ego_pose.iter().map(|r| &r.token).collect());
     let logs = set(t.log.iter().map(|r| &r.token).collect());
-    let need = |table: &'static str, token: &str, field: &'static str, target: &'static str, set: &HashSet<String>, value: &str, optional: bool| {
+    let need = |table: &'static str,
+                token: &str,
+                field: &'static str,
+                target: &'static str,
+                set: &HashSet<String>,
+                value: &str,
+                optional: bool| {
         if (optional && value.is_empty()) || set.contains(value) {
             Ok(())
         } else {
@@ -140,7 +150,15 @@ fn check_links(t: &Tables) -> Result<(), DatasetError> {
     for r in &t.sample_data {
         need("sample_data", &r.token, "sample_token", "sample", &samples, &r.sample_token, false)?;
         need("sample_data", &r.token, "ego_pose_token", "ego_pose", &egos, &r.ego_pose_token, false)?;
-        need("sample_data", &r.token, "calibrated_sensor_token", "calibrated_sensor", &calibrated, &r.calibrated_sensor_token, false)?;
+        need(
+            "sample_data",
+            &r.token,
+            "calibrated_sensor_token",
+            "calibrated_sensor",
+            &calibrated,
+            &r.calibrated_sensor_token,
+            false,
+        )?;
         need("sample_data", &r.token, "prev", "sample_data", &sds, &r.prev, true)?;
         need("sample_data", &r.token, "next", "sample_data", &sds, &r.next, true)?;
     }
@@ -150,7 +168,15 @@ fn check_links(t: &Tables) -> Result<(), DatasetError> {
     for r in &t.sample_annotation {
         need("sample_annotation", &r.token, "sample_token", "sample", &samples, &r.sample_token, false)?;
         need("sample_annotation", &r.token, "instance_token", "instance", &instances, &r.instance_token, false)?;
-        need("sample_annotation", &r.token, "visibility_token", "visibility", &visibilities, &r.visibility_token, false)?;
+        need(
+            "sample_annotation",
+            &r.token,
+            "visibility_token",
+            "visibility",
+            &visibilities,
+            &r.visibility_token,
+            false,
+        )?;
         need("sample_annotation", &r.token, "prev", "sample_annotation", &anns, &r.prev, true)?;
         need("sample_annotation", &r.token, "next", "sample_annotation", &anns, &r.next, true)?;
         for a in &r.attribute_tokens {
@@ -159,8 +185,24 @@ fn check_links(t: &Tables) -> Result<(), DatasetError> {
     }
     for r in &t.instance {
         need("instance", &r.token, "category_token", "category", &categories, &r.category_token, false)?;
-        need("instance", &r.token, "first_annotation_token", "sample_annotation", &anns, &r.first_annotation_token, false)?;
-        need("instance", &r.token, "last_annotation_token", "sample_annotation", &anns, &r.last_annotation_token, false)?;
+        need(
+            "instance",
+            &r.token,
+            "first_annotation_token",
+            "sample_annotation",
+            &anns,
+            &r.first_annotation_token,
+            false,
+        )?;
+        need(
+            "instance",
+            &r.token,
+            "last_annotation_token",
+            "sample_annotation",
+            &anns,
+            &r.last_annotation_token,
+            false,
+        )?;
     }
     for r in &t.map {
         for l in &r.log_tokens {

@@ -36,7 +36,15 @@ pub struct SimulateConfig {
 
 impl Default for SimulateConfig {
     fn default() -> Self {
-        SimulateConfig { scenes: 10, seconds: 20.0, rate_hz: 10.0, seed: 0, val_fraction: 0.2, annotate_radius_m: 70.0, traffic: TrafficConfig::default() }
+        SimulateConfig {
+            scenes: 10,
+            seconds: 20.0,
+            rate_hz: 10.0,
+            seed: 0,
+            val_fraction: 0.2,
+            annotate_radius_m: 70.0,
+            traffic: TrafficConfig::default(),
+        }
     }
 }
 
@@ -52,7 +60,11 @@ impl SimulateConfig {
         let step = self.traffic.step_s;
         let per = 1.0 / (self.rate_hz * step);
         if self.rate_hz.is_nan() || self.rate_hz <= 0.0 || (per - per.round()).abs() > 1e-6 || per.round() < 1.0 {
-            return bad("rate_hz", self.rate_hz.to_string(), &format!("must divide the traffic rate {} Hz (1 / traffic.step_s)", 1.0 / step));
+            return bad(
+                "rate_hz",
+                self.rate_hz.to_string(),
+                &format!("must divide the traffic rate {} Hz (1 / traffic.step_s)", 1.0 / step),
+            );
         }
         if !(0.0..1.0).contains(&self.val_fraction) {
             return bad("val_fraction", self.val_fraction.to_string(), "must be in [0, 1)");
@@ -148,22 +160,38 @@ fn visibility(world: &World, actors: &ActorSet, a: &ActorState, eyes: &[Vec3]) -
 }
 
 /// Simulates scene `index` for the rig: traffic, scans, annotations.
-pub fn simulate_scene(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &SimulateConfig, index: usize) -> Result<SceneData, DatasetError> {
+pub fn simulate_scene(
+    scene: &Scene,
+    world: &World,
+    rig: &[RigSensor],
+    cfg: &SimulateConfig,
+    index: usize,
+) -> Result<SceneData, DatasetError> {
     simulate_scene_with(scene, world, rig, cfg, index, &|_| {})
 }
 
 /// [`simulate_scene`], calling `on_frame` with the number of frames done after each frame.
-pub fn simulate_scene_with(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &SimulateConfig, index: usize, on_frame: &(dyn Fn(usize) + Sync)) -> Result<SceneData, DatasetError> {
+pub fn simulate_scene_with(
+    scene: &Scene,
+    world: &World,
+    rig: &[RigSensor],
+    cfg: &SimulateConfig,
+    index: usize,
+    on_frame: &(dyn Fn(usize) + Sync),
+) -> Result<SceneData, DatasetError> {
     cfg.validate()?;
-    let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, index as u64]))?;
+    let mut traffic =
+        Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, index as u64]))?;
     let steps_per_frame = (1.0 / (cfg.rate_hz * cfg.traffic.step_s)).round() as usize;
     let start = scene_start_us(index);
     let frame_us = (1e6 / cfg.rate_hz).round() as u64;
-    let eyes: Vec<Vec3> = rig.iter().filter(|s| matches!(s.spec, SensorSpec::Lidar(_))).map(|s| s.pose.position).collect();
+    let eyes: Vec<Vec3> =
+        rig.iter().filter(|s| matches!(s.spec, SensorSpec::Lidar(_))).map(|s| s.pose.position).collect();
     let mut frames = Vec::with_capacity(cfg.frames_per_scene());
     for f in 0..cfg.frames_per_scene() {
         let states = traffic.snapshot();
-        let set = ActorSet::new(states.iter().map(actor_of).collect()).map_err(|e| DatasetError::Invalid(format!("scene {index} frame {f}: {e}")))?;
+        let set = ActorSet::new(states.iter().map(actor_of).collect())
+            .map_err(|e| DatasetError::Invalid(format!("scene {index} frame {f}: {e}")))?;
         let mut lidar = Vec::new();
         let mut radar = Vec::new();
         let mut lidar_pts: BTreeMap<u32, u32> = BTreeMap::new();
@@ -210,7 +238,11 @@ pub fn simulate_scene_with(scene: &Scene, world: &World, rig: &[RigSensor], cfg:
             traffic.step();
         }
     }
-    Ok(SceneData { name: scene_name(index), description: format!("hilo traffic, seed {}, {} s at {} Hz", cfg.seed, cfg.seconds, cfg.rate_hz), frames })
+    Ok(SceneData {
+        name: scene_name(index),
+        description: format!("hilo traffic, seed {}, {} s at {} Hz", cfg.seed, cfg.seconds, cfg.rate_hz),
+        frames,
+    })
 }
 
 /// What [`write_dataset`] did.
@@ -237,25 +269,45 @@ fn parts_dir(root: &std::path::Path) -> std::path::PathBuf {
 /// (bit-identical, as the seeds are per scene). A folder made with other settings is refused.
 /// `progress` is called with the frames finished so far (resumed ones included).
 #[allow(clippy::too_many_arguments)]
-pub fn write_dataset(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &SimulateConfig, root: &std::path::Path, version: &str, namespace: &str, progress: &(dyn Fn(usize) + Sync)) -> Result<WriteSummary, DatasetError> {
+pub fn write_dataset(
+    scene: &Scene,
+    world: &World,
+    rig: &[RigSensor],
+    cfg: &SimulateConfig,
+    root: &std::path::Path,
+    version: &str,
+    namespace: &str,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<WriteSummary, DatasetError> {
     use crate::writer::{DatasetWriter, SensorModality, SensorSetup, token, write_atomic};
     let t0 = std::time::Instant::now();
     cfg.validate()?;
-    let fingerprint = token(&[&format!("{cfg:?}"), &format!("{rig:?}"), &format!("{:?}", scene.config), version, namespace]);
+    let fingerprint =
+        token(&[&format!("{cfg:?}"), &format!("{rig:?}"), &format!("{:?}", scene.config), version, namespace]);
     let run_path = root.join(RUN_FILE);
     let run = serde_json::json!({ "fingerprint": fingerprint, "namespace": namespace, "version": version, "scenes": cfg.scenes });
     match std::fs::read(&run_path) {
         Ok(bytes) => {
-            let old: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
+            let old: serde_json::Value = serde_json::from_slice(&bytes)
+                .map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
             if old.get("fingerprint") != run.get("fingerprint") {
-                return Err(DatasetError::Invalid(format!("{} holds a dataset made with other settings (fingerprint {} here, {} now); choose another output folder or delete it", root.display(), old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?"), fingerprint)));
+                return Err(DatasetError::Invalid(format!(
+                    "{} holds a dataset made with other settings (fingerprint {} here, {} now); choose another output folder or delete it",
+                    root.display(),
+                    old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?"),
+                    fingerprint
+                )));
             }
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
             if root.join(version).join("scene.json").exists() {
-                return Err(DatasetError::Invalid(format!("{} already holds a dataset not written by this run; choose another output folder", root.display())));
+                return Err(DatasetError::Invalid(format!(
+                    "{} already holds a dataset not written by this run; choose another output folder",
+                    root.display()
+                )));
             }
-            let bytes = serde_json::to_vec_pretty(&run).map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
+            let bytes = serde_json::to_vec_pretty(&run)
+                .map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
             write_atomic(&run_path, &bytes)?;
         }
         Err(e) => return Err(DatasetError::Io { path: run_path, source: e }),
@@ -273,11 +325,21 @@ pub fn write_dataset(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &Simu
     let mut writer = DatasetWriter::new(root, version, namespace, setups)?;
     let location = scene.config.name.clone();
     let per_scene = cfg.frames_per_scene();
-    let mut summary = WriteSummary { scenes: cfg.scenes, resumed_scenes: 0, frames: 0, annotations: 0, bytes_written: 0, seconds: 0.0 };
+    let mut summary = WriteSummary {
+        scenes: cfg.scenes,
+        resumed_scenes: 0,
+        frames: 0,
+        annotations: 0,
+        bytes_written: 0,
+        seconds: 0.0,
+    };
     for index in 0..cfg.scenes {
         let part = parts_dir(root).join(format!("{}.json", scene_name(index)));
         let rows: Option<crate::tables::Tables> = match std::fs::read(&part) {
-            Ok(bytes) => Some(serde_json::from_slice(&bytes).map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?),
+            Ok(bytes) => Some(
+                serde_json::from_slice(&bytes)
+                    .map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?,
+            ),
             Err(_) => None,
         };
         match rows {
@@ -289,10 +351,18 @@ pub fn write_dataset(scene: &Scene, world: &World, rig: &[RigSensor], cfg: &Simu
             None => {
                 let done = summary.frames;
                 let data = simulate_scene_with(scene, world, rig, cfg, index, &|f| progress(done + f))?;
-                summary.bytes_written += data.frames.iter().map(|f| f.lidar.iter().map(|c| c.len() as u64 * 20).sum::<u64>() + f.radar.iter().map(|c| c.len() as u64 * 28).sum::<u64>()).sum::<u64>();
+                summary.bytes_written += data
+                    .frames
+                    .iter()
+                    .map(|f| {
+                        f.lidar.iter().map(|c| c.len() as u64 * 20).sum::<u64>()
+                            + f.radar.iter().map(|c| c.len() as u64 * 28).sum::<u64>()
+                    })
+                    .sum::<u64>();
                 let rows = writer.add_scene_rows(&data, &location)?;
                 summary.annotations += rows.sample_annotation.len();
-                let bytes = serde_json::to_vec(&rows).map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?;
+                let bytes = serde_json::to_vec(&rows)
+                    .map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?;
                 write_atomic(&part, &bytes)?;
             }
         }

@@ -85,7 +85,14 @@ pub fn class_of_category(name: &str) -> Option<Class> {
     Class::ALL.into_iter().find(|c| category_name(*c) == name)
 }
 
-pub const ATTRIBUTES: [&str; 6] = ["vehicle.moving", "vehicle.stopped", "vehicle.parked", "pedestrian.moving", "pedestrian.standing", "cycle.with_rider"];
+pub const ATTRIBUTES: [&str; 6] = [
+    "vehicle.moving",
+    "vehicle.stopped",
+    "vehicle.parked",
+    "pedestrian.moving",
+    "pedestrian.standing",
+    "cycle.with_rider",
+];
 
 /// A 32-hex-digit token from names (two independent 64-bit FNV-1a hashes).
 pub fn token(parts: &[&str]) -> String {
@@ -146,13 +153,25 @@ impl DatasetWriter {
         let ns = namespace.to_owned();
         let mut t = Tables::default();
         for c in Class::ALL {
-            t.category.push(Category { token: token(&[&ns, "category", category_name(c)]), name: category_name(c).into(), description: format!("hilo class {c}") });
+            t.category.push(Category {
+                token: token(&[&ns, "category", category_name(c)]),
+                name: category_name(c).into(),
+                description: format!("hilo class {c}"),
+            });
         }
         for a in ATTRIBUTES {
-            t.attribute.push(Attribute { token: token(&[&ns, "attribute", a]), name: a.into(), description: String::new() });
+            t.attribute.push(Attribute {
+                token: token(&[&ns, "attribute", a]),
+                name: a.into(),
+                description: String::new(),
+            });
         }
         for (i, lvl) in ["v0-40", "v40-60", "v60-80", "v80-100"].iter().enumerate() {
-            t.visibility.push(Visibility { token: (i + 1).to_string(), level: (*lvl).into(), description: format!("visible fraction {lvl}") });
+            t.visibility.push(Visibility {
+                token: (i + 1).to_string(),
+                level: (*lvl).into(),
+                description: format!("visible fraction {lvl}"),
+            });
         }
         for s in &sensors {
             let st = token(&[&ns, "sensor", &s.channel]);
@@ -170,7 +189,12 @@ impl DatasetWriter {
                 camera_intrinsic: Vec::new(),
             });
         }
-        t.map.push(Map { token: token(&[&ns, "map"]), log_tokens: Vec::new(), category: "semantic_prior".into(), filename: String::new() });
+        t.map.push(Map {
+            token: token(&[&ns, "map"]),
+            log_tokens: Vec::new(),
+            category: "semantic_prior".into(),
+            filename: String::new(),
+        });
         Ok(DatasetWriter { root: root.to_path_buf(), version: version.to_owned(), namespace: ns, sensors, tables: t })
     }
 
@@ -185,31 +209,56 @@ impl DatasetWriter {
         }
         // nuscenes-devkit sorts scenes by start time and cannot order two equal ones.
         let start = scene.frames[0].timestamp_us;
-        if let Some(other) = t.scene.iter().find(|s| t.sample.iter().any(|x| x.token == s.first_sample_token && x.timestamp == start)) {
-            return Err(DatasetError::Invalid(format!("scene {:?} starts at {start} µs, as scene {:?} does: scene start times must differ", scene.name, other.name)));
+        if let Some(other) =
+            t.scene.iter().find(|s| t.sample.iter().any(|x| x.token == s.first_sample_token && x.timestamp == start))
+        {
+            return Err(DatasetError::Invalid(format!(
+                "scene {:?} starts at {start} µs, as scene {:?} does: scene start times must differ",
+                scene.name, other.name
+            )));
         }
         if scene.frames.windows(2).any(|w| w[1].timestamp_us <= w[0].timestamp_us) {
             return Err(DatasetError::Invalid(format!("scene {:?}: frame timestamps must increase", scene.name)));
         }
         let log_token = token(&[&ns, "log", &scene.name]);
-        t.log.push(Log { token: log_token.clone(), logfile: scene.name.clone(), vehicle: "roadside".into(), date_captured: "2026-01-01".into(), location: location.into() });
+        t.log.push(Log {
+            token: log_token.clone(),
+            logfile: scene.name.clone(),
+            vehicle: "roadside".into(),
+            date_captured: "2026-01-01".into(),
+            location: location.into(),
+        });
         t.map[0].log_tokens.push(log_token.clone());
         let scene_token = token(&[&ns, "scene", &scene.name]);
-        let sample_tokens: Vec<String> = scene.frames.iter().map(|f| token(&[&ns, "sample", &scene.name, &f.timestamp_us.to_string()])).collect();
+        let sample_tokens: Vec<String> =
+            scene.frames.iter().map(|f| token(&[&ns, "sample", &scene.name, &f.timestamp_us.to_string()])).collect();
         // Instances and their annotation chains.
         let mut chains: std::collections::BTreeMap<u32, Vec<(usize, usize)>> = std::collections::BTreeMap::new();
         for (fi, f) in scene.frames.iter().enumerate() {
             if f.lidar.len() != lidar.len() || f.radar.len() != radar.len() {
-                return Err(DatasetError::Invalid(format!("scene {:?} frame {fi}: {} LiDAR and {} radar clouds for {} and {} sensors", scene.name, f.lidar.len(), f.radar.len(), lidar.len(), radar.len())));
+                return Err(DatasetError::Invalid(format!(
+                    "scene {:?} frame {fi}: {} LiDAR and {} radar clouds for {} and {} sensors",
+                    scene.name,
+                    f.lidar.len(),
+                    f.radar.len(),
+                    lidar.len(),
+                    radar.len()
+                )));
             }
             for (ai, a) in f.annotations.iter().enumerate() {
                 chains.entry(a.instance).or_default().push((fi, ai));
             }
         }
-        let ann_token = |inst: u32, fi: usize| token(&[&ns, "annotation", &scene.name, &inst.to_string(), &sample_tokens[fi]]);
+        let ann_token =
+            |inst: u32, fi: usize| token(&[&ns, "annotation", &scene.name, &inst.to_string(), &sample_tokens[fi]]);
         for (inst, chain) in &chains {
             let first = &scene.frames[chain[0].0].annotations[chain[0].1];
-            let cat = t.category.iter().find(|c| c.name == category_name(first.class)).map(|c| c.token.clone()).unwrap_or_default();
+            let cat = t
+                .category
+                .iter()
+                .find(|c| c.name == category_name(first.class))
+                .map(|c| c.token.clone())
+                .unwrap_or_default();
             let inst_token = token(&[&ns, "instance", &scene.name, &inst.to_string()]);
             t.instance.push(Instance {
                 token: inst_token.clone(),
@@ -265,7 +314,12 @@ impl DatasetWriter {
                 let filename = format!("samples/{}/{}__{}__{}.{ext}", s.channel, scene.name, s.channel, f.timestamp_us);
                 write_atomic(&self.root.join(&filename), &bytes)?;
                 let ego = token(&[&ns, "ego_pose", &s.channel, &sample_tokens[fi]]);
-                t.ego_pose.push(EgoPose { token: ego.clone(), timestamp: f.timestamp_us, rotation: [1.0, 0.0, 0.0, 0.0], translation: [0.0; 3] });
+                t.ego_pose.push(EgoPose {
+                    token: ego.clone(),
+                    timestamp: f.timestamp_us,
+                    rotation: [1.0, 0.0, 0.0, 0.0],
+                    translation: [0.0; 3],
+                });
                 let link = |k: usize| token(&[&ns, "sample_data", &s.channel, &sample_tokens[k]]);
                 t.sample_data.push(SampleData {
                     token: sd_token,
@@ -299,7 +353,15 @@ impl DatasetWriter {
     /// resumable run can store them and later [`Self::add_rows`] instead of simulating again.
     pub fn add_scene_rows(&mut self, scene: &SceneData, location: &str) -> Result<Tables, DatasetError> {
         let t = &self.tables;
-        let before = (t.scene.len(), t.sample.len(), t.sample_data.len(), t.sample_annotation.len(), t.instance.len(), t.ego_pose.len(), t.log.len());
+        let before = (
+            t.scene.len(),
+            t.sample.len(),
+            t.sample_data.len(),
+            t.sample_annotation.len(),
+            t.instance.len(),
+            t.ego_pose.len(),
+            t.log.len(),
+        );
         self.add_scene(scene, location)?;
         let t = &self.tables;
         Ok(Tables {
@@ -346,11 +408,14 @@ impl DatasetWriter {
         let names: std::collections::HashSet<&str> = self.tables.scene.iter().map(|s| s.name.as_str()).collect();
         for (split, scenes) in splits {
             if let Some(s) = scenes.iter().find(|s| !names.contains(s.as_str())) {
-                return Err(DatasetError::Invalid(format!("split {split:?} names scene {s:?}, which the dataset does not have")));
+                return Err(DatasetError::Invalid(format!(
+                    "split {split:?} names scene {s:?}, which the dataset does not have"
+                )));
             }
         }
         let p = self.root.join(&self.version).join("splits.json");
-        let bytes = serde_json::to_vec_pretty(splits).map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
+        let bytes = serde_json::to_vec_pretty(splits)
+            .map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
         write_atomic(&p, &bytes)
     }
 
@@ -361,7 +426,8 @@ impl DatasetWriter {
         macro_rules! put {
             ($name:ident) => {
                 let p = dir.join(concat!(stringify!($name), ".json"));
-                let bytes = serde_json::to_vec_pretty(&t.$name).map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
+                let bytes = serde_json::to_vec_pretty(&t.$name)
+                    .map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
                 write_atomic(&p, &bytes)?;
             };
         }

@@ -7,15 +7,29 @@ mod common;
 use glam::{Vec2, Vec3};
 use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
 use hilo_dataset::tables::TABLE_NAMES;
-use hilo_dataset::{Annotation, Dataset, DatasetError, DatasetWriter, FrameData, SceneData, SensorModality, SensorSetup};
+use hilo_dataset::{
+    Annotation, Dataset, DatasetError, DatasetWriter, FrameData, SceneData, SensorModality, SensorSetup,
+};
 use hilo_sensor_models::SensorPose;
 use std::path::Path;
 
 fn sensors() -> Vec<SensorSetup> {
     vec![
-        SensorSetup { channel: "LIDAR_0".into(), modality: SensorModality::Lidar, pose: SensorPose::new(Vec3::new(13.0, 16.6, 7.8), -2.2, 0.17, 0.0) },
-        SensorSetup { channel: "LIDAR_1".into(), modality: SensorModality::Lidar, pose: SensorPose::new(Vec3::new(-13.0, -16.6, 7.8), 0.9, 0.17, 0.0) },
-        SensorSetup { channel: "RADAR_0".into(), modality: SensorModality::Radar, pose: SensorPose::new(Vec3::new(16.6, -7.0, 6.4), 2.9, 0.14, 0.0) },
+        SensorSetup {
+            channel: "LIDAR_0".into(),
+            modality: SensorModality::Lidar,
+            pose: SensorPose::new(Vec3::new(13.0, 16.6, 7.8), -2.2, 0.17, 0.0),
+        },
+        SensorSetup {
+            channel: "LIDAR_1".into(),
+            modality: SensorModality::Lidar,
+            pose: SensorPose::new(Vec3::new(-13.0, -16.6, 7.8), 0.9, 0.17, 0.0),
+        },
+        SensorSetup {
+            channel: "RADAR_0".into(),
+            modality: SensorModality::Radar,
+            pose: SensorPose::new(Vec3::new(16.6, -7.0, 6.4), 2.9, 0.14, 0.0),
+        },
     ]
 }
 
@@ -25,9 +39,32 @@ fn scene(name: &str, frames: usize) -> SceneData {
         .map(|f| {
             let t = f as f32 * 0.05;
             let lidar = (0..2)
-                .map(|s| (0..50 + 7 * f).map(|i| LidarPoint { x: i as f32 * 0.31 + s as f32, y: -(i as f32) * 0.07, z: 0.1 * (i % 5) as f32, intensity: (i % 11) as f32 / 11.0, ring: (i % 16) as u16, time_s: 0.0 }).collect())
+                .map(|s| {
+                    (0..50 + 7 * f)
+                        .map(|i| LidarPoint {
+                            x: i as f32 * 0.31 + s as f32,
+                            y: -(i as f32) * 0.07,
+                            z: 0.1 * (i % 5) as f32,
+                            intensity: (i % 11) as f32 / 11.0,
+                            ring: (i % 16) as u16,
+                            time_s: 0.0,
+                        })
+                        .collect()
+                })
                 .collect();
-            let radar = vec![(0..9).map(|i| RadarPoint { x: 20.0 + i as f32, y: 1.0, z: 0.5, rcs_dbsm: 10.0 - i as f32, v_r_mps: -8.0 + i as f32, v_r_comp_mps: -8.0 + i as f32, time_s: 0.0 }).collect()];
+            let radar = vec![
+                (0..9)
+                    .map(|i| RadarPoint {
+                        x: 20.0 + i as f32,
+                        y: 1.0,
+                        z: 0.5,
+                        rcs_dbsm: 10.0 - i as f32,
+                        v_r_mps: -8.0 + i as f32,
+                        v_r_comp_mps: -8.0 + i as f32,
+                        time_s: 0.0,
+                    })
+                    .collect(),
+            ];
             // Instance 1 in every frame, instance 2 from frame 1 on.
             let mut annotations = vec![Annotation {
                 instance: 1,
@@ -78,9 +115,11 @@ fn written_datasets_read_back_exactly_and_the_same_input_gives_the_same_bytes() 
     assert_eq!(ds.tables.sample_annotation.len(), 4 + 3 + 3 + 2);
     // Point files round trip (LiDAR keeps x y z intensity ring).
     let src = scene("scene-0001", 4);
-    let sd = ds.tables.sample_data.iter().find(|s| s.filename.contains("scene-0001__LIDAR_1__1700000000050000")).unwrap();
+    let sd =
+        ds.tables.sample_data.iter().find(|s| s.filename.contains("scene-0001__LIDAR_1__1700000000050000")).unwrap();
     assert_eq!(ds.lidar_points(sd).unwrap(), src.frames[1].lidar[1]);
-    let sd = ds.tables.sample_data.iter().find(|s| s.filename.contains("scene-0001__RADAR_0__1700000000100000")).unwrap();
+    let sd =
+        ds.tables.sample_data.iter().find(|s| s.filename.contains("scene-0001__RADAR_0__1700000000100000")).unwrap();
     assert_eq!(ds.radar_points(sd).unwrap(), src.frames[2].radar[0]);
     // Byte-identical datasets from the same input.
     for name in TABLE_NAMES {

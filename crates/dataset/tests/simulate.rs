@@ -19,8 +19,16 @@ fn rig(scene: &Scene) -> Vec<RigSensor> {
     let yaw = (-p.y).atan2(-p.x);
     let pos = p.extend(scene.ground.z_m + m.arm_height_m + 0.4);
     vec![
-        RigSensor { channel: "LIDAR_0".into(), spec: catalog.get("lidar-16").unwrap().clone(), pose: SensorPose::new(pos, yaw, 10f32.to_radians(), 0.0) },
-        RigSensor { channel: "RADAR_0".into(), spec: catalog.get("radar-4d").unwrap().clone(), pose: SensorPose::new(pos - Vec3::Z * 0.3, yaw, 8f32.to_radians(), 0.0) },
+        RigSensor {
+            channel: "LIDAR_0".into(),
+            spec: catalog.get("lidar-16").unwrap().clone(),
+            pose: SensorPose::new(pos, yaw, 10f32.to_radians(), 0.0),
+        },
+        RigSensor {
+            channel: "RADAR_0".into(),
+            spec: catalog.get("radar-4d").unwrap().clone(),
+            pose: SensorPose::new(pos - Vec3::Z * 0.3, yaw, 8f32.to_radians(), 0.0),
+        },
     ]
 }
 
@@ -71,10 +79,15 @@ fn simulated_datasets_round_trip_are_deterministic_and_resume() {
         assert_eq!(x.num_lidar_pts, y.num_lidar_pts);
         assert_eq!(x.num_radar_pts, y.num_radar_pts);
     }
-    let sd = ds.tables.sample_data.iter().find(|s| s.sample_token == first.token && s.filename.contains("LIDAR_0")).unwrap();
+    let sd =
+        ds.tables.sample_data.iter().find(|s| s.sample_token == first.token && s.filename.contains("LIDAR_0")).unwrap();
     let pts = ds.lidar_points(sd).unwrap();
     assert_eq!(pts.len(), direct.frames[0].lidar[0].len());
-    assert!(pts.iter().zip(&direct.frames[0].lidar[0]).all(|(p, q)| p.x == q.x && p.y == q.y && p.z == q.z && p.intensity == q.intensity && p.ring == q.ring));
+    assert!(pts.iter().zip(&direct.frames[0].lidar[0]).all(|(p, q)| p.x == q.x
+        && p.y == q.y
+        && p.z == q.z
+        && p.intensity == q.intensity
+        && p.ring == q.ring));
     assert!(anns.iter().any(|x| x.num_lidar_pts > 0) && anns.iter().any(|x| x.num_radar_pts > 0));
     // Same seed, same bytes.
     write_dataset(&scene, &w, &r, &c, b.path(), "v1.0-trainval", "test", &|_| {}).unwrap();

@@ -21,7 +21,12 @@ fn scene() -> Scene {
 
 fn rect(a: &ActorState, shrink: f32) -> Rect {
     let b = a.box3;
-    Rect { center: b.center.truncate(), dir: b.heading(), half_l: 0.5 * b.length_m - shrink, half_w: 0.5 * b.width_m - shrink }
+    Rect {
+        center: b.center.truncate(),
+        dir: b.heading(),
+        half_l: 0.5 * b.length_m - shrink,
+        half_w: 0.5 * b.width_m - shrink,
+    }
 }
 
 type Frames = Vec<(f64, Vec<ActorState>, BTreeMap<(usize, Movement), Light>)>;
@@ -44,7 +49,9 @@ fn run(seed: u64, seconds: f64, cfg: &TrafficConfig) -> (Traffic, Frames) {
 
 #[test]
 fn traffic_is_physically_sane() {
-    let seeds: Vec<u64> = std::env::var("HILO_TRAFFIC_SEEDS").ok().map_or(vec![7, 8], |s| s.split(',').filter_map(|x| x.parse().ok()).collect());
+    let seeds: Vec<u64> = std::env::var("HILO_TRAFFIC_SEEDS")
+        .ok()
+        .map_or(vec![7, 8], |s| s.split(',').filter_map(|x| x.parse().ok()).collect());
     let seconds: f64 = std::env::var("HILO_TRAFFIC_SECONDS").ok().and_then(|s| s.parse().ok()).unwrap_or(150.0);
     for seed in seeds {
         eprintln!("seed {seed}");
@@ -68,14 +75,30 @@ fn sane(seed: u64, seconds: f64) {
     for (t, actors, lights) in &frames {
         for a in actors {
             if let Some(r) = a.route {
-                hist.entry(a.id).or_default().push(format!("t {t:.2} {:?} front {:.2} stop {:.2} v {:.2} a {:.2}", lights[&(r.approach, r.movement)], r.front_s, r.stop_s, a.velocity_mps.length(), a.accel_mps2));
+                hist.entry(a.id).or_default().push(format!(
+                    "t {t:.2} {:?} front {:.2} stop {:.2} v {:.2} a {:.2}",
+                    lights[&(r.approach, r.movement)],
+                    r.front_s,
+                    r.stop_s,
+                    a.velocity_mps.length(),
+                    a.accel_mps2
+                ));
             }
         }
         max_count = max_count.max(actors.len());
         // No overlaps (1 cm tolerance for touching).
         for i in 0..actors.len() {
             for j in i + 1..actors.len() {
-                assert!(!rect(&actors[i], 0.01).overlaps(&rect(&actors[j], 0.01)), "t = {t:.2}: {:?} {} and {:?} {} overlap\n{:?}\n{:?}", actors[i].class, actors[i].id, actors[j].class, actors[j].id, actors[i].box3, actors[j].box3);
+                assert!(
+                    !rect(&actors[i], 0.01).overlaps(&rect(&actors[j], 0.01)),
+                    "t = {t:.2}: {:?} {} and {:?} {} overlap\n{:?}\n{:?}",
+                    actors[i].class,
+                    actors[i].id,
+                    actors[j].class,
+                    actors[j].id,
+                    actors[i].box3,
+                    actors[j].box3
+                );
             }
         }
         for a in actors {
@@ -84,11 +107,21 @@ fn sane(seed: u64, seconds: f64) {
             let v = a.velocity_mps.length();
             assert!(v <= m.v_max + 1e-3, "t = {t:.2}: {:?} {} at {v} m/s", a.class, a.id);
             if a.class != Class::Pedestrian {
-                assert!(v <= 72.0 / 3.6 * 1.15 + 1e-3, "t = {t:.2}: {:?} {} at {v} m/s exceeds the speed limit by >15%", a.class, a.id);
+                assert!(
+                    v <= 72.0 / 3.6 * 1.15 + 1e-3,
+                    "t = {t:.2}: {:?} {} at {v} m/s exceeds the speed limit by >15%",
+                    a.class,
+                    a.id
+                );
             }
             if let Some(p) = prev.get(&a.id) {
                 let acc = (v - p.velocity_mps.length()) / dt;
-                assert!(acc >= -m.b_max - 1e-3 && acc <= m.a + 1e-3, "t = {t:.2}: {:?} {} accelerates at {acc} m/s²", a.class, a.id);
+                assert!(
+                    acc >= -m.b_max - 1e-3 && acc <= m.a + 1e-3,
+                    "t = {t:.2}: {:?} {} accelerates at {acc} m/s²",
+                    a.class,
+                    a.id
+                );
                 // Red means stop: the front may not pass the stop line during a step that starts
                 // on red.
                 if let (Some(r0), Some(r1), Some(lights)) = (p.route, a.route, prev_lights)
@@ -100,13 +133,24 @@ fn sane(seed: u64, seconds: f64) {
                         let h = &hist[&a.id];
                         eprintln!("{}", h[h.len().saturating_sub(80)..].join("\n"));
                     }
-                    assert_ne!(lights[&(r1.approach, r1.movement)], Light::Red, "t = {t:.2}: vehicle {} ({:?}) crosses its stop line on red: {:?} -> {:?}, v {} -> {}", a.id, a.class, r0, r1, p.velocity_mps.length(), v);
+                    assert_ne!(
+                        lights[&(r1.approach, r1.movement)],
+                        Light::Red,
+                        "t = {t:.2}: vehicle {} ({:?}) crosses its stop line on red: {:?} -> {:?}, v {} -> {}",
+                        a.id,
+                        a.class,
+                        r0,
+                        r1,
+                        p.velocity_mps.length(),
+                        v
+                    );
                 }
             }
             if a.class == Class::Pedestrian {
                 let p = a.box3.center.truncate();
-                let on_walkable = s.layout.arms.iter().any(|arm| point_in_polygon(p, &arm.crosswalk) || arm.sidewalks.iter().any(|w| point_in_polygon(p, w)))
-                    || s.layout.corner_sidewalks.iter().any(|w| point_in_polygon(p, w));
+                let on_walkable = s.layout.arms.iter().any(|arm| {
+                    point_in_polygon(p, &arm.crosswalk) || arm.sidewalks.iter().any(|w| point_in_polygon(p, w))
+                }) || s.layout.corner_sidewalks.iter().any(|w| point_in_polygon(p, w));
                 if a.jaywalking {
                     jay += 1;
                 } else {
@@ -117,7 +161,10 @@ fn sane(seed: u64, seconds: f64) {
         prev = actors.iter().map(|a| (a.id, a.clone())).collect();
         prev_lights = Some(lights);
     }
-    eprintln!("max actors {max_count}, stop-line crossings {crossings}, jaywalker-frames {jay}, clamps {}", traffic.clamps);
+    eprintln!(
+        "max actors {max_count}, stop-line crossings {crossings}, jaywalker-frames {jay}, clamps {}",
+        traffic.clamps
+    );
     // Emergency stops are rare: well under one per ten vehicles through the junction.
     assert!(traffic.clamps * 10 <= crossings, "{} emergency stops for {crossings} vehicles", traffic.clamps);
     assert!(crossings as f64 > seconds / 8.0, "only {crossings} vehicles crossed a stop line in {seconds} s");

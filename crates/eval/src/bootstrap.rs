@@ -80,7 +80,9 @@ fn tables(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], 
 
 /// (mAP, NDS, per-class mean AP) with sample weights.
 fn score(t: &Tables, cfg: &DetectionConfig, w: Option<&[u32]>) -> Replicate {
-    let m = summarize(&t.classes, cfg, |c, th| t.by_key.iter().find(|(kc, kt, _)| kc == c && *kt == th).map(|x| x.2.curves(w)));
+    let m = summarize(&t.classes, cfg, |c, th| {
+        t.by_key.iter().find(|(kc, kt, _)| kc == c && *kt == th).map(|x| x.2.curves(w))
+    });
     (m.mean_ap, m.nd_score, m.mean_dist_aps)
 }
 
@@ -122,7 +124,14 @@ fn score_lanes(t: &Tables, cfg: &DetectionConfig, w: &[[u32; LANES]]) -> Vec<Rep
 }
 
 /// All replicates, `LANES` at a time in parallel; `sample_scene[s]` is sample s's scene.
-fn replicates(t: &Tables, cfg: &DetectionConfig, sample_scene: &[usize], n_scenes: usize, resamples: usize, seed: u64) -> Vec<Replicate> {
+fn replicates(
+    t: &Tables,
+    cfg: &DetectionConfig,
+    sample_scene: &[usize],
+    n_scenes: usize,
+    resamples: usize,
+    seed: u64,
+) -> Vec<Replicate> {
     let chunks: Vec<Vec<Replicate>> = (0..resamples.div_ceil(LANES))
         .into_par_iter()
         .map(|chunk| {
@@ -166,13 +175,21 @@ fn scene_index(gt: &GroundTruth) -> (Vec<usize>, usize) {
 }
 
 /// Percentile intervals of mAP, NDS and per-class AP at `level` (e.g. 0.95).
-pub fn bootstrap(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig, resamples: usize, level: f64, seed: u64) -> BootstrapSummary {
+pub fn bootstrap(
+    gt: &GroundTruth,
+    pred: &[(String, Vec<EvalBox>)],
+    cfg: &DetectionConfig,
+    resamples: usize,
+    level: f64,
+    seed: u64,
+) -> BootstrapSummary {
     let (gt_f, pred_f) = crate::filtered(gt, pred, cfg);
     let t = tables(&gt_f, &pred_f, cfg);
     let (map0, nds0, cls0) = score(&t, cfg, None);
     let (sample_scene, n_scenes) = scene_index(gt);
     let reps = replicates(&t, cfg, &sample_scene, n_scenes, resamples, seed);
-    let class_ap = cls0.iter().map(|(c, e)| (c.clone(), interval(*e, reps.iter().map(|r| r.2[c]).collect(), level))).collect();
+    let class_ap =
+        cls0.iter().map(|(c, e)| (c.clone(), interval(*e, reps.iter().map(|r| r.2[c]).collect(), level))).collect();
     BootstrapSummary {
         resamples,
         level,
@@ -184,7 +201,15 @@ pub fn bootstrap(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &Detect
 }
 
 /// The paired bootstrap of B − A on the same ground truth.
-pub fn paired(gt: &GroundTruth, a: &[(String, Vec<EvalBox>)], b: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig, resamples: usize, level: f64, seed: u64) -> PairedSummary {
+pub fn paired(
+    gt: &GroundTruth,
+    a: &[(String, Vec<EvalBox>)],
+    b: &[(String, Vec<EvalBox>)],
+    cfg: &DetectionConfig,
+    resamples: usize,
+    level: f64,
+    seed: u64,
+) -> PairedSummary {
     paired_between(gt, a, gt, b, cfg, resamples, level, seed)
 }
 
@@ -193,7 +218,16 @@ pub fn paired(gt: &GroundTruth, a: &[(String, Vec<EvalBox>)], b: &[(String, Vec<
 /// own sensors saw, as the nuScenes loader does). Scenes are matched by `SampleInfo::scene`,
 /// which must name the same scene in both; each replicate draws the same scenes for both.
 #[allow(clippy::too_many_arguments)]
-pub fn paired_between(gt_a: &GroundTruth, a: &[(String, Vec<EvalBox>)], gt_b: &GroundTruth, b: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig, resamples: usize, level: f64, seed: u64) -> PairedSummary {
+pub fn paired_between(
+    gt_a: &GroundTruth,
+    a: &[(String, Vec<EvalBox>)],
+    gt_b: &GroundTruth,
+    b: &[(String, Vec<EvalBox>)],
+    cfg: &DetectionConfig,
+    resamples: usize,
+    level: f64,
+    seed: u64,
+) -> PairedSummary {
     let (ga_f, a_f) = crate::filtered(gt_a, a, cfg);
     let (gb_f, b_f) = crate::filtered(gt_b, b, cfg);
     let (ta, tb) = (tables(&ga_f, &a_f, cfg), tables(&gb_f, &b_f, cfg));
@@ -213,7 +247,13 @@ pub fn paired_between(gt_a: &GroundTruth, a: &[(String, Vec<EvalBox>)], gt_b: &G
     let reps: Vec<Replicate> = ra
         .into_iter()
         .zip(rb)
-        .map(|((xa, ya, za), (xb, yb, zb))| (xb - xa, yb - ya, zb.iter().map(|(c, v)| (c.clone(), v - za.get(c).copied().unwrap_or(f64::NAN))).collect()))
+        .map(|((xa, ya, za), (xb, yb, zb))| {
+            (
+                xb - xa,
+                yb - ya,
+                zb.iter().map(|(c, v)| (c.clone(), v - za.get(c).copied().unwrap_or(f64::NAN))).collect(),
+            )
+        })
         .collect();
     let share = |f: &dyn Fn(&Replicate) -> bool| reps.iter().filter(|r| f(r)).count() as f64 / reps.len().max(1) as f64;
     PairedSummary {
@@ -221,7 +261,19 @@ pub fn paired_between(gt_a: &GroundTruth, a: &[(String, Vec<EvalBox>)], gt_b: &G
         level,
         mean_ap_diff: interval(mb - ma, reps.iter().map(|r| r.0).collect(), level),
         nd_score_diff: interval(nb - na, reps.iter().map(|r| r.1).collect(), level),
-        class_ap_diff: cb.iter().map(|(c, v)| (c.clone(), interval(v - ca.get(c).copied().unwrap_or(f64::NAN), reps.iter().map(|r| r.2.get(c).copied().unwrap_or(f64::NAN)).collect(), level))).collect(),
+        class_ap_diff: cb
+            .iter()
+            .map(|(c, v)| {
+                (
+                    c.clone(),
+                    interval(
+                        v - ca.get(c).copied().unwrap_or(f64::NAN),
+                        reps.iter().map(|r| r.2.get(c).copied().unwrap_or(f64::NAN)).collect(),
+                        level,
+                    ),
+                )
+            })
+            .collect(),
         p_mean_ap_not_better: share(&|r| r.0 <= 0.0),
         p_nd_score_not_better: share(&|r| r.1 <= 0.0),
     }

@@ -50,7 +50,15 @@ impl EvalBox {
     }
 
     /// A yaw-only box.
-    pub fn from_yaw(sample: &str, class: &str, center: [f64; 3], wlh: [f64; 3], yaw: f64, velocity: [f64; 2], score: f64) -> Self {
+    pub fn from_yaw(
+        sample: &str,
+        class: &str,
+        center: [f64; 3],
+        wlh: [f64; 3],
+        yaw: f64,
+        velocity: [f64; 2],
+        score: f64,
+    ) -> Self {
         EvalBox {
             sample_token: sample.to_owned(),
             translation: center,
@@ -88,7 +96,15 @@ pub struct Submission {
 }
 
 fn check_box(b: &EvalBox, file: &Path, sample: &str, k: usize, pred: bool) -> Result<(), EvalError> {
-    let bad = |field: &str, v: String| Err(EvalError::Field { path: file.to_path_buf(), sample: sample.to_owned(), index: k, field: field.to_owned(), value: v });
+    let bad = |field: &str, v: String| {
+        Err(EvalError::Field {
+            path: file.to_path_buf(),
+            sample: sample.to_owned(),
+            index: k,
+            field: field.to_owned(),
+            value: v,
+        })
+    };
     if b.sample_token != sample {
         return bad("sample_token", format!("{:?} (listed under {sample:?})", b.sample_token));
     }
@@ -121,7 +137,11 @@ fn json_error(path: &Path, text: &str, e: &serde_json::Error) -> EvalError {
         let q1 = rest[q0..].find('"')?;
         Some(rest[q0..q0 + q1].to_owned())
     });
-    let hint = if text[offset.saturating_sub(1).min(text.len())..].starts_with(['N', 'I', '-']) { " (NaN and Infinity are not JSON numbers)" } else { "" };
+    let hint = if text[offset.saturating_sub(1).min(text.len())..].starts_with(['N', 'I', '-']) {
+        " (NaN and Infinity are not JSON numbers)"
+    } else {
+        ""
+    };
     let message = match sample {
         Some(s) => format!("sample {s:?}: {e}{hint}"),
         None => format!("{e}{hint}"),
@@ -135,9 +155,13 @@ pub fn read_submission(path: &Path, max_boxes_per_sample: usize) -> Result<Vec<(
     let sub: Submission = serde_json::from_str(&text).map_err(|e| json_error(path, &text, &e))?;
     let mut out = Vec::new();
     for (sample, v) in sub.results {
-        let boxes: Vec<EvalBox> = serde_json::from_value(v).map_err(|e| EvalError::Json { path: path.to_path_buf(), message: format!("sample {sample:?}: {e}") })?;
+        let boxes: Vec<EvalBox> = serde_json::from_value(v)
+            .map_err(|e| EvalError::Json { path: path.to_path_buf(), message: format!("sample {sample:?}: {e}") })?;
         if boxes.len() > max_boxes_per_sample {
-            return Err(EvalError::Json { path: path.to_path_buf(), message: format!("sample {sample:?} has {} boxes, above the limit {max_boxes_per_sample}", boxes.len()) });
+            return Err(EvalError::Json {
+                path: path.to_path_buf(),
+                message: format!("sample {sample:?} has {} boxes, above the limit {max_boxes_per_sample}", boxes.len()),
+            });
         }
         for (k, b) in boxes.iter().enumerate() {
             check_box(b, path, &sample, k, true)?;
@@ -153,7 +177,10 @@ pub fn read_ground_truth(path: &Path) -> Result<GroundTruth, EvalError> {
     let gt: GroundTruth = serde_json::from_str(&text).map_err(|e| json_error(path, &text, &e))?;
     for (sample, boxes) in &gt.boxes {
         if !gt.samples.contains_key(sample) {
-            return Err(EvalError::Json { path: path.to_path_buf(), message: format!("boxes listed for sample {sample:?}, which is not in `samples`") });
+            return Err(EvalError::Json {
+                path: path.to_path_buf(),
+                message: format!("boxes listed for sample {sample:?}, which is not in `samples`"),
+            });
         }
         for (k, b) in boxes.iter().enumerate() {
             check_box(b, path, sample, k, false)?;

@@ -21,10 +21,17 @@ impl Default for DetectionConfig {
     /// The devkit's `detection_cvpr_2019` numbers; hilo's six classes with the ranges of their
     /// nearest nuScenes classes (golf carts as motorcycles: 40 m).
     fn default() -> Self {
-        let class_range = [("car", 50.0), ("truck", 50.0), ("bus", 50.0), ("motorcycle", 40.0), ("pedestrian", 40.0), ("golf_cart", 40.0)]
-            .into_iter()
-            .map(|(k, v)| (k.to_owned(), v))
-            .collect();
+        let class_range = [
+            ("car", 50.0),
+            ("truck", 50.0),
+            ("bus", 50.0),
+            ("motorcycle", 40.0),
+            ("pedestrian", 40.0),
+            ("golf_cart", 40.0),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_owned(), v))
+        .collect();
         DetectionConfig {
             class_range,
             dist_fcn: "center_distance".into(),

@@ -103,12 +103,19 @@ pub enum IouKind {
 }
 
 /// KITTI R40 average precision of one class at one IoU threshold.
-pub fn ap_r40(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], class: &str, threshold: f64, kind: IouKind) -> f64 {
+pub fn ap_r40(
+    gt: &BTreeMap<String, Vec<EvalBox>>,
+    pred: &[(String, Vec<EvalBox>)],
+    class: &str,
+    threshold: f64,
+    kind: IouKind,
+) -> f64 {
     let npos = gt.values().flatten().filter(|b| b.detection_name == class).count();
     if npos == 0 {
         return f64::NAN;
     }
-    let mut list: Vec<&EvalBox> = pred.iter().flat_map(|(_, v)| v.iter()).filter(|b| b.detection_name == class).collect();
+    let mut list: Vec<&EvalBox> =
+        pred.iter().flat_map(|(_, v)| v.iter()).filter(|b| b.detection_name == class).collect();
     list.sort_by(|a, b| b.detection_score.total_cmp(&a.detection_score));
     let mut taken: BTreeMap<&str, Vec<bool>> = gt.iter().map(|(k, v)| (k.as_str(), vec![false; v.len()])).collect();
     let (mut tp, mut fp) = (0.0, 0.0);

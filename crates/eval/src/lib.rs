@@ -5,8 +5,8 @@
 //! - [`boxes`]: the submission and ground-truth files, validated with errors naming sample and
 //!   field, and the devkit's range / empty-box filter.
 
-pub mod boxes;
 pub mod bootstrap;
+pub mod boxes;
 pub mod config;
 pub mod error;
 pub mod iou;
@@ -25,7 +25,11 @@ pub type Filtered = (BTreeMap<String, Vec<EvalBox>>, Vec<(String, Vec<EvalBox>)>
 /// Filters ground truth and predictions as the devkit does.
 pub fn filtered(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig) -> Filtered {
     let ego = |s: &str| gt.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
-    let gt_f = gt.samples.keys().map(|s| (s.clone(), filter_boxes(gt.boxes.get(s).map_or(&[][..], |v| &v[..]), ego(s), &cfg.class_range))).collect();
+    let gt_f = gt
+        .samples
+        .keys()
+        .map(|s| (s.clone(), filter_boxes(gt.boxes.get(s).map_or(&[][..], |v| &v[..]), ego(s), &cfg.class_range)))
+        .collect();
     let pred_f = pred.iter().map(|(s, b)| (s.clone(), filter_boxes(b, ego(s), &cfg.class_range))).collect();
     (gt_f, pred_f)
 }
@@ -38,7 +42,12 @@ pub fn evaluate_files(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &D
 
 /// The metric per range bin from the sample's origin (e.g. 0–30, 30–50, 50+ m): ground truth
 /// and predictions outside a bin are left out of it.
-pub fn evaluate_distance_bins(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig, edges: &[f64]) -> Vec<(String, DetectionMetrics)> {
+pub fn evaluate_distance_bins(
+    gt: &GroundTruth,
+    pred: &[(String, Vec<EvalBox>)],
+    cfg: &DetectionConfig,
+    edges: &[f64],
+) -> Vec<(String, DetectionMetrics)> {
     let (gt_f, pred_f) = filtered(gt, pred, cfg);
     let ego = |s: &str| gt.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
     let dist = |b: &EvalBox| {
@@ -64,10 +73,14 @@ pub fn evaluate_distance_bins(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)],
 /// builds it: classes from categories, sizes and rotations as annotated, velocity by the
 /// devkit's finite difference, points = LiDAR + radar points, the attribute if there is one.
 /// Every ego pose of a roadside dataset is the origin, which is what ranges are measured from.
-pub fn ground_truth_from_dataset(ds: &hilo_dataset::Dataset, split: &str) -> Result<GroundTruth, hilo_dataset::DatasetError> {
+pub fn ground_truth_from_dataset(
+    ds: &hilo_dataset::Dataset,
+    split: &str,
+) -> Result<GroundTruth, hilo_dataset::DatasetError> {
     let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
     let t = &ds.tables;
-    let scene_of: BTreeMap<&str, &hilo_dataset::tables::Scene> = t.scene.iter().map(|s| (s.token.as_str(), s)).collect();
+    let scene_of: BTreeMap<&str, &hilo_dataset::tables::Scene> =
+        t.scene.iter().map(|s| (s.token.as_str(), s)).collect();
     let mut gt = GroundTruth::default();
     for s in &t.sample {
         if let Some(sc) = scene_of.get(s.scene_token.as_str()).filter(|sc| scenes.contains(&sc.name)) {
@@ -75,11 +88,21 @@ pub fn ground_truth_from_dataset(ds: &hilo_dataset::Dataset, split: &str) -> Res
             gt.boxes.insert(s.token.clone(), Vec::new());
         }
     }
-    let category: BTreeMap<&str, &str> = t.instance.iter().filter_map(|i| t.category.iter().find(|c| c.token == i.category_token).map(|c| (i.token.as_str(), c.name.as_str()))).collect();
+    let category: BTreeMap<&str, &str> = t
+        .instance
+        .iter()
+        .filter_map(|i| {
+            t.category.iter().find(|c| c.token == i.category_token).map(|c| (i.token.as_str(), c.name.as_str()))
+        })
+        .collect();
     let attribute: BTreeMap<&str, &str> = t.attribute.iter().map(|a| (a.token.as_str(), a.name.as_str())).collect();
     for a in &t.sample_annotation {
         let Some(list) = gt.boxes.get_mut(&a.sample_token) else { continue };
-        let Some(class) = category.get(a.instance_token.as_str()).and_then(|c| hilo_dataset::writer::class_of_category(c)) else { continue };
+        let Some(class) =
+            category.get(a.instance_token.as_str()).and_then(|c| hilo_dataset::writer::class_of_category(c))
+        else {
+            continue;
+        };
         let v = ds.box_velocity(a);
         list.push(EvalBox {
             sample_token: a.sample_token.clone(),
@@ -89,7 +112,11 @@ pub fn ground_truth_from_dataset(ds: &hilo_dataset::Dataset, split: &str) -> Res
             velocity: [v[0], v[1]],
             detection_name: class.name().to_owned(),
             detection_score: -1.0,
-            attribute_name: a.attribute_tokens.first().and_then(|x| attribute.get(x.as_str())).map_or(String::new(), |s| (*s).to_owned()),
+            attribute_name: a
+                .attribute_tokens
+                .first()
+                .and_then(|x| attribute.get(x.as_str()))
+                .map_or(String::new(), |s| (*s).to_owned()),
             num_pts: (a.num_lidar_pts + a.num_radar_pts) as i64,
         });
     }

@@ -155,9 +155,12 @@ pub struct ClassData<'a> {
 
 impl<'a> ClassData<'a> {
     pub fn new(gt: &'a BTreeMap<String, Vec<EvalBox>>, pred: &'a [(String, Vec<EvalBox>)], class: &str) -> Self {
-        let index: std::collections::HashMap<&str, usize> = gt.keys().enumerate().map(|(i, k)| (k.as_str(), i)).collect();
-        let gtc: Vec<Vec<&EvalBox>> = gt.values().map(|v| v.iter().filter(|b| b.detection_name == class).collect()).collect();
-        let list: Vec<&EvalBox> = pred.iter().flat_map(|(_, v)| v.iter()).filter(|b| b.detection_name == class).collect();
+        let index: std::collections::HashMap<&str, usize> =
+            gt.keys().enumerate().map(|(i, k)| (k.as_str(), i)).collect();
+        let gtc: Vec<Vec<&EvalBox>> =
+            gt.values().map(|v| v.iter().filter(|b| b.detection_name == class).collect()).collect();
+        let list: Vec<&EvalBox> =
+            pred.iter().flat_map(|(_, v)| v.iter()).filter(|b| b.detection_name == class).collect();
         let mut order: Vec<usize> = (0..list.len()).collect();
         // sorted((score, index)) reversed: score descending, then index descending.
         order.sort_by(|&a, &b| list[b].detection_score.total_cmp(&list[a].detection_score).then(b.cmp(&a)));
@@ -196,14 +199,27 @@ impl<'a> ClassData<'a> {
                     taken[si][gi] = true;
                     let g = self.gt[si][gi];
                     let v = ((p.velocity[0] - g.velocity[0]).powi(2) + (p.velocity[1] - g.velocity[1]).powi(2)).sqrt();
-                    let attr = if g.attribute_name.is_empty() { f64::NAN } else { (g.attribute_name == p.attribute_name) as u8 as f64 };
-                    Some([center_distance(g, p), v, 1.0 - scale_iou(g, p), angle_diff(g.yaw(), p.yaw(), period).abs(), 1.0 - attr])
+                    let attr = if g.attribute_name.is_empty() {
+                        f64::NAN
+                    } else {
+                        (g.attribute_name == p.attribute_name) as u8 as f64
+                    };
+                    Some([
+                        center_distance(g, p),
+                        v,
+                        1.0 - scale_iou(g, p),
+                        angle_diff(g.yaw(), p.yaw(), period).abs(),
+                        1.0 - attr,
+                    ])
                 }
                 _ => None,
             };
             entries.push(MatchEntry { score: p.detection_score, sample: si, errors });
         }
-        let packed = entries.iter().map(|e| e.sample.map_or(NO_SAMPLE, |s| s as u32) | if e.errors.is_some() { TP_BIT } else { 0 }).collect();
+        let packed = entries
+            .iter()
+            .map(|e| e.sample.map_or(NO_SAMPLE, |s| s as u32) | if e.errors.is_some() { TP_BIT } else { 0 })
+            .collect();
         let scores = entries.iter().map(|e| e.score).collect();
         let tp_errors = entries.iter().filter_map(|e| e.errors).collect();
         Matches { entries, npos_per_sample: self.gt.iter().map(Vec::len).collect(), packed, scores, tp_errors }
@@ -458,7 +474,12 @@ fn weighted_cummean(x: &[f64], w: &[f64]) -> Vec<f64> {
 
 /// Matches predictions of one class to ground truth at one distance threshold and builds the
 /// interpolated curves (the devkit's `accumulate`). Boxes are grouped by sample in `gt`/`pred`.
-pub fn accumulate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], class: &str, dist_th: f64) -> MetricData {
+pub fn accumulate(
+    gt: &BTreeMap<String, Vec<EvalBox>>,
+    pred: &[(String, Vec<EvalBox>)],
+    class: &str,
+    dist_th: f64,
+) -> MetricData {
     ClassData::new(gt, pred, class).accumulate(class, dist_th)
 }
 
@@ -501,7 +522,11 @@ pub fn th_key(t: f64) -> String {
 }
 
 /// Evaluates already filtered boxes (see [`crate::boxes::filter_boxes`]).
-pub fn evaluate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig) -> DetectionMetrics {
+pub fn evaluate(
+    gt: &BTreeMap<String, Vec<EvalBox>>,
+    pred: &[(String, Vec<EvalBox>)],
+    cfg: &DetectionConfig,
+) -> DetectionMetrics {
     use rayon::prelude::*;
     let start = std::time::Instant::now();
     let classes = cfg.class_names();
@@ -516,14 +541,19 @@ pub fn evaluate(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBo
             ths.into_iter().map(|t| (c.clone(), t, cd.accumulate(c, t))).collect::<Vec<_>>()
         })
         .collect();
-    let mut m = summarize(&classes, cfg, |c, t| data.iter().find(|(dc, dt, _)| dc == c && *dt == t).map(|x| x.2.clone()));
+    let mut m =
+        summarize(&classes, cfg, |c, t| data.iter().find(|(dc, dt, _)| dc == c && *dt == t).map(|x| x.2.clone()));
     m.eval_time = start.elapsed().as_secs_f64();
     m
 }
 
 /// AP per class and threshold, TP errors per class, mAP, TP scores and NDS from the metric data
 /// (`md(class, threshold)`), as the devkit's `DetectionEval.evaluate` assembles them.
-pub fn summarize(classes: &[String], cfg: &DetectionConfig, md: impl Fn(&str, f64) -> Option<MetricData>) -> DetectionMetrics {
+pub fn summarize(
+    classes: &[String],
+    cfg: &DetectionConfig,
+    md: impl Fn(&str, f64) -> Option<MetricData>,
+) -> DetectionMetrics {
     let find = |c: &str, t: f64| md(c, t);
     let mut label_aps: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
     let mut label_tp_errors: BTreeMap<String, BTreeMap<String, f64>> = BTreeMap::new();
@@ -541,11 +571,7 @@ pub fn summarize(classes: &[String], cfg: &DetectionConfig, md: impl Fn(&str, f6
             // kept so a user's config with them evaluates as the devkit does).
             let exempt = (c.as_str() == "traffic_cone" && ["attr_err", "vel_err", "orient_err"].contains(&metric))
                 || (c.as_str() == "barrier" && ["attr_err", "vel_err"].contains(&metric));
-            let tp = if exempt {
-                f64::NAN
-            } else {
-                calc_tp(&md, cfg.min_recall, metric)
-            };
+            let tp = if exempt { f64::NAN } else { calc_tp(&md, cfg.min_recall, metric) };
             errs.insert(metric.to_owned(), tp);
         }
         label_tp_errors.insert(c.clone(), errs);
@@ -556,15 +582,15 @@ pub fn summarize(classes: &[String], cfg: &DetectionConfig, md: impl Fn(&str, f6
     let mut tp_errors = BTreeMap::new();
     let mut tp_scores = BTreeMap::new();
     for metric in TP_METRICS {
-        let vals: Vec<f64> = classes
-            .iter().map(|c| label_tp_errors[c][metric]).filter(|v: &f64| !v.is_nan()).collect();
+        let vals: Vec<f64> = classes.iter().map(|c| label_tp_errors[c][metric]).filter(|v: &f64| !v.is_nan()).collect();
         let e = if vals.is_empty() { f64::NAN } else { vals.iter().sum::<f64>() / vals.len() as f64 };
         tp_errors.insert(metric.to_owned(), e);
         // Python's max(0.0, nan) is 0.0.
         let s = 1.0 - e;
         tp_scores.insert(metric.to_owned(), if s > 0.0 { s } else { 0.0 });
     }
-    let nd_score = (cfg.mean_ap_weight * mean_ap + tp_scores.values().sum::<f64>()) / (cfg.mean_ap_weight + tp_scores.len() as f64);
+    let nd_score = (cfg.mean_ap_weight * mean_ap + tp_scores.values().sum::<f64>())
+        / (cfg.mean_ap_weight + tp_scores.len() as f64);
     DetectionMetrics {
         label_aps,
         mean_dist_aps,

@@ -2,8 +2,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use hilo_eval::boxes::SampleInfo;
 use hilo_eval::bootstrap::{bootstrap, paired};
+use hilo_eval::boxes::SampleInfo;
 use hilo_eval::nuscenes::ClassData;
 use hilo_eval::{DetectionConfig, EvalBox, GroundTruth, evaluate_files, filtered};
 use rand::{Rng, SeedableRng};
@@ -27,7 +27,15 @@ fn data(noise: f64, seed: u64) -> (GroundTruth, Vec<(String, Vec<EvalBox>)>) {
             g.push(b);
             if prng.random_bool(0.85) {
                 let (dx, dy) = (prng.random_range(-noise..noise), prng.random_range(-noise..noise));
-                p.push(EvalBox::from_yaw(&token, class, [x + dx, y + dy, 0.8], [1.9, 4.5, 1.6], 0.35, [1.0, 0.1], prng.random_range(0.2..1.0)));
+                p.push(EvalBox::from_yaw(
+                    &token,
+                    class,
+                    [x + dx, y + dy, 0.8],
+                    [1.9, 4.5, 1.6],
+                    0.35,
+                    [1.0, 0.1],
+                    prng.random_range(0.2..1.0),
+                ));
             }
         }
         gt.boxes.insert(token.clone(), g);
@@ -96,7 +104,8 @@ fn streamed_precision_equals_the_interpolated_curve() {
                 assert_eq!(streamed.to_vec(), m.curves(w.as_deref()).precision, "{class} {th} trial {trial}");
             }
             // Eight replicates in one pass give each one's curve.
-            let lanes: Vec<[u32; 8]> = (0..g.len()).map(|_| std::array::from_fn(|r| rng.random_range(0..[3, 40][r % 2]))).collect();
+            let lanes: Vec<[u32; 8]> =
+                (0..g.len()).map(|_| std::array::from_fn(|r| rng.random_range(0..[3, 40][r % 2]))).collect();
             let mut batch = [[0.0; hilo_eval::nuscenes::NELEM]; 8];
             m.precision_batch(&lanes, &mut batch);
             for (r, got) in batch.iter().enumerate() {
@@ -117,13 +126,34 @@ fn paired_between_pairs_scenes_across_token_spaces() {
             for f in 0..2 {
                 let t = format!("{prefix}{s}-{f}");
                 g.samples.insert(t.clone(), SampleInfo { scene: format!("scene-{s}"), ego_translation: [0.0; 3] });
-                g.boxes.insert(t.clone(), vec![EvalBox { num_pts: 10, ..EvalBox::from_yaw(&t, "car", [5.0 + s as f64, f as f64, 0.8], [1.9, 4.6, 1.6], 0.0, [0.0; 2], 1.0) }]);
+                g.boxes.insert(
+                    t.clone(),
+                    vec![EvalBox {
+                        num_pts: 10,
+                        ..EvalBox::from_yaw(
+                            &t,
+                            "car",
+                            [5.0 + s as f64, f as f64, 0.8],
+                            [1.9, 4.6, 1.6],
+                            0.0,
+                            [0.0; 2],
+                            1.0,
+                        )
+                    }],
+                );
             }
         }
         g
     };
     let (ga, gb) = (gt("a"), gt("b"));
-    let perfect = |g: &GroundTruth| -> Vec<(String, Vec<EvalBox>)> { g.boxes.iter().map(|(t, b)| (t.clone(), b.iter().map(|x| EvalBox { detection_score: 0.9, num_pts: -1, ..x.clone() }).collect())).collect() };
+    let perfect = |g: &GroundTruth| -> Vec<(String, Vec<EvalBox>)> {
+        g.boxes
+            .iter()
+            .map(|(t, b)| {
+                (t.clone(), b.iter().map(|x| EvalBox { detection_score: 0.9, num_pts: -1, ..x.clone() }).collect())
+            })
+            .collect()
+    };
     let mut cfg = hilo_eval::DetectionConfig::default();
     cfg.class_range.retain(|k, _| k == "car");
     // The same detector under two token spaces: no difference, in every replicate.

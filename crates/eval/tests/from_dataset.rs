@@ -9,7 +9,11 @@ use hilo_eval::{DetectionConfig, EvalBox, evaluate_files, ground_truth_from_data
 use hilo_sensor_models::SensorPose;
 
 fn dataset(root: &std::path::Path, with_splits: bool) {
-    let sensors = vec![SensorSetup { channel: "LIDAR_0".into(), modality: SensorModality::Lidar, pose: SensorPose::new(Vec3::new(0.0, 0.0, 7.0), 0.0, 0.0, 0.0) }];
+    let sensors = vec![SensorSetup {
+        channel: "LIDAR_0".into(),
+        modality: SensorModality::Lidar,
+        pose: SensorPose::new(Vec3::new(0.0, 0.0, 7.0), 0.0, 0.0, 0.0),
+    }];
     let mut w = DatasetWriter::new(root, "v1.0-trainval", "t", sensors).unwrap();
     for (k, name) in ["scene-a", "scene-b"].iter().enumerate() {
         let frames = (0..5)
@@ -38,13 +42,23 @@ fn dataset(root: &std::path::Path, with_splits: bool) {
                         visibility: 3,
                     });
                 }
-                FrameData { timestamp_us: 1_000_000 * (k as u64 + 1) * 100 + 50_000 * f, lidar: vec![vec![]], radar: vec![], annotations }
+                FrameData {
+                    timestamp_us: 1_000_000 * (k as u64 + 1) * 100 + 50_000 * f,
+                    lidar: vec![vec![]],
+                    radar: vec![],
+                    annotations,
+                }
             })
             .collect();
         w.add_scene(&SceneData { name: (*name).into(), description: String::new(), frames }, "test").unwrap();
     }
     if with_splits {
-        w.write_splits(&[("train".to_owned(), vec!["scene-a".to_owned()]), ("val".to_owned(), vec!["scene-b".to_owned()])].into_iter().collect()).unwrap();
+        w.write_splits(
+            &[("train".to_owned(), vec!["scene-a".to_owned()]), ("val".to_owned(), vec!["scene-b".to_owned()])]
+                .into_iter()
+                .collect(),
+        )
+        .unwrap();
     }
     w.finish().unwrap();
 }
@@ -72,8 +86,13 @@ fn ground_truth_of_a_split_with_devkit_velocities() {
         }
     }
     // Evaluating the ground truth against itself: AP 1 for both classes, AVE ignores the NaN.
-    let pred: Vec<(String, Vec<EvalBox>)> =
-        gt.boxes.iter().map(|(k, v)| (k.clone(), v.iter().map(|b| EvalBox { detection_score: 0.9, velocity: [8.0, 0.0], ..b.clone() }).collect())).collect();
+    let pred: Vec<(String, Vec<EvalBox>)> = gt
+        .boxes
+        .iter()
+        .map(|(k, v)| {
+            (k.clone(), v.iter().map(|b| EvalBox { detection_score: 0.9, velocity: [8.0, 0.0], ..b.clone() }).collect())
+        })
+        .collect();
     let m = evaluate_files(&gt, &pred, &DetectionConfig::default());
     assert!((m.mean_dist_aps["car"] - 1.0).abs() < 1e-12 && (m.mean_dist_aps["pedestrian"] - 1.0).abs() < 1e-12);
     assert!(m.label_tp_errors["car"]["vel_err"].abs() < 1e-4);

@@ -89,8 +89,17 @@ fn r40_ap_is_one_for_perfect_and_falls_with_misses() {
     let mut pred = Vec::new();
     for s in 0..10 {
         let token = format!("s{s}");
-        let boxes: Vec<EvalBox> = (0..4).map(|k| EvalBox { sample_token: token.clone(), ..bx(10.0 * k as f64, s as f64, 1.9, 4.5, 0.1 * k as f64) }).collect();
-        pred.push((token.clone(), boxes.iter().enumerate().map(|(i, b)| EvalBox { detection_score: 0.9 - 0.01 * i as f64, ..b.clone() }).collect()));
+        let boxes: Vec<EvalBox> = (0..4)
+            .map(|k| EvalBox { sample_token: token.clone(), ..bx(10.0 * k as f64, s as f64, 1.9, 4.5, 0.1 * k as f64) })
+            .collect();
+        pred.push((
+            token.clone(),
+            boxes
+                .iter()
+                .enumerate()
+                .map(|(i, b)| EvalBox { detection_score: 0.9 - 0.01 * i as f64, ..b.clone() })
+                .collect(),
+        ));
         gt.insert(token, boxes);
     }
     assert!((ap_r40(&gt, &pred, "car", 0.7, IouKind::Bev) - 1.0).abs() < 1e-12);

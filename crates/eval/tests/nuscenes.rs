@@ -64,7 +64,12 @@ fn each_tp_error_by_hand() {
     assert!((calc_tp(&md, 0.1, "vel_err") - 5.0).abs() < 1e-12);
     assert!((calc_tp(&md, 0.1, "attr_err") - 1.0).abs() < 1e-12);
     // Yaw wrap-around: π − ε against −π + ε is 2ε apart.
-    assert!((angle_diff(std::f64::consts::PI - 1e-6, -std::f64::consts::PI + 1e-6, 2.0 * std::f64::consts::PI).abs() - 2e-6).abs() < 1e-12);
+    assert!(
+        (angle_diff(std::f64::consts::PI - 1e-6, -std::f64::consts::PI + 1e-6, 2.0 * std::f64::consts::PI).abs()
+            - 2e-6)
+            .abs()
+            < 1e-12
+    );
 }
 
 #[test]
@@ -72,10 +77,18 @@ fn perfect_predictions_score_one_and_a_class_without_gt_scores_as_the_devkit_doe
     let mut gts = Vec::new();
     for s in 0..20 {
         for k in 0..5 {
-            gts.push(b(&format!("s{s}"), if k % 2 == 0 { "car" } else { "bus" }, 10.0 * k as f64 - 20.0, s as f64, 0.1 * k as f64, 1.0));
+            gts.push(b(
+                &format!("s{s}"),
+                if k % 2 == 0 { "car" } else { "bus" },
+                10.0 * k as f64 - 20.0,
+                s as f64,
+                0.1 * k as f64,
+                1.0,
+            ));
         }
     }
-    let preds: Vec<EvalBox> = gts.iter().enumerate().map(|(i, x)| EvalBox { detection_score: 0.5 + 0.001 * i as f64, ..x.clone() }).collect();
+    let preds: Vec<EvalBox> =
+        gts.iter().enumerate().map(|(i, x)| EvalBox { detection_score: 0.5 + 0.001 * i as f64, ..x.clone() }).collect();
     let m = evaluate(&gt_map(gts), &pred_list(preds), &DetectionConfig::default());
     for c in ["car", "bus"] {
         assert!((m.mean_dist_aps[c] - 1.0).abs() < 1e-12, "{c}");
@@ -111,7 +124,14 @@ fn scene(seed: u64) -> (BTreeMap<String, Vec<EvalBox>>, Vec<EvalBox>) {
             let class = ["car", "pedestrian"][rng.random_range(0..2)];
             gts.push(b(&format!("s{s}"), class, x, y, 0.0, 1.0));
             if rng.random_bool(0.8) {
-                preds.push(b(&format!("s{s}"), class, x + rng.random_range(-2.0..2.0), y + rng.random_range(-2.0..2.0), rng.random_range(-3.0..3.0), rng.random_range(0.0..1.0)));
+                preds.push(b(
+                    &format!("s{s}"),
+                    class,
+                    x + rng.random_range(-2.0..2.0),
+                    y + rng.random_range(-2.0..2.0),
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(0.0..1.0),
+                ));
             }
         }
     }
@@ -154,14 +174,24 @@ proptest! {
 fn bad_results_files_name_the_sample_and_field() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("results.json");
-    let boxj = |extra: &str| format!(r#"{{"sample_token": "abc", "translation": [1, 2, 0], "size": [1, 1, 1], "rotation": [1, 0, 0, 0], "velocity": [0, 0], "detection_name": "car", "detection_score": 0.5, "attribute_name": ""{extra}}}"#);
-    std::fs::write(&p, format!(r#"{{"meta": {{}}, "results": {{"abc": [{}]}}}}"#, boxj("").replace("0.5", "NaN"))).unwrap();
+    let boxj = |extra: &str| {
+        format!(
+            r#"{{"sample_token": "abc", "translation": [1, 2, 0], "size": [1, 1, 1], "rotation": [1, 0, 0, 0], "velocity": [0, 0], "detection_name": "car", "detection_score": 0.5, "attribute_name": ""{extra}}}"#
+        )
+    };
+    std::fs::write(&p, format!(r#"{{"meta": {{}}, "results": {{"abc": [{}]}}}}"#, boxj("").replace("0.5", "NaN")))
+        .unwrap();
     let e = read_submission(&p, 500).unwrap_err().to_string();
     assert!(e.contains("abc") && e.contains("NaN"), "{e}");
-    std::fs::write(&p, r#"{"meta": {}, "results": {"xyz": [{"sample_token": "xyz", "translation": [1, 2, 0]}]}}"#).unwrap();
+    std::fs::write(&p, r#"{"meta": {}, "results": {"xyz": [{"sample_token": "xyz", "translation": [1, 2, 0]}]}}"#)
+        .unwrap();
     let e = read_submission(&p, 500).unwrap_err().to_string();
     assert!(e.contains("xyz") && e.contains("size"), "{e}");
-    std::fs::write(&p, format!(r#"{{"meta": {{}}, "results": {{"abc": [{}]}}}}"#, boxj("").replace("[1, 1, 1]", "[0, 1, 1]"))).unwrap();
+    std::fs::write(
+        &p,
+        format!(r#"{{"meta": {{}}, "results": {{"abc": [{}]}}}}"#, boxj("").replace("[1, 1, 1]", "[0, 1, 1]")),
+    )
+    .unwrap();
     let e = read_submission(&p, 500).unwrap_err().to_string();
     assert!(e.contains("abc") && e.contains("size"), "{e}");
     std::fs::write(&p, format!(r#"{{"meta": {{}}, "results": {{"abc": [{}, {}]}}}}"#, boxj(""), boxj(""))).unwrap();

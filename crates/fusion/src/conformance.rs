@@ -32,7 +32,11 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
     for b in boxes {
         let (c, s) = (b.yaw.cos(), b.yaw.sin());
         let on_box = |rng: &mut rand_chacha::ChaCha8Rng| {
-            let (u, v, h) = (rng.random_range(-0.5..0.5) * b.wlh[1], rng.random_range(-0.5..0.5) * b.wlh[0], rng.random_range(0.0..1.0) * b.wlh[2]);
+            let (u, v, h) = (
+                rng.random_range(-0.5..0.5) * b.wlh[1],
+                rng.random_range(-0.5..0.5) * b.wlh[0],
+                rng.random_range(0.0..1.0) * b.wlh[2],
+            );
             [b.center[0] + c * u - s * v, b.center[1] + s * u + c * v, b.center[2] - 0.5 * b.wlh[2] + h]
         };
         if lidar {
@@ -86,7 +90,14 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     let n = cfg.grid.cells() / cfg.backbone.out_stride;
     for (cls, reg) in &heads {
         if cls.dims() != [2, 6, n, n] || reg.dims() != [2, 10, n, n] {
-            return Err(fail(&name, format!("output shapes {:?} and {:?}, expected [2, 6, {n}, {n}] and [2, 10, {n}, {n}]", cls.dims(), reg.dims())));
+            return Err(fail(
+                &name,
+                format!(
+                    "output shapes {:?} and {:?}, expected [2, 6, {n}, {n}] and [2, 10, {n}, {n}]",
+                    cls.dims(),
+                    reg.dims()
+                ),
+            ));
         }
     }
     // Gradients reach every parameter.
@@ -94,7 +105,11 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     let grads = loss.total.backward().map_err(|x| e("backward", x.into()))?;
     for (vn, v) in det.trainable() {
         let g = grads.get(&v).ok_or_else(|| fail(&name, format!("no gradient reaches {vn}")))?;
-        let s = g.abs().and_then(|a| a.sum_all()).and_then(|a| a.to_scalar::<f32>()).map_err(|x| e("gradient", x.into()))?;
+        let s = g
+            .abs()
+            .and_then(|a| a.sum_all())
+            .and_then(|a| a.to_scalar::<f32>())
+            .map_err(|x| e("gradient", x.into()))?;
         if !(s.is_finite() && s > 0.0) {
             return Err(fail(&name, format!("gradient of {vn} is {s}")));
         }
@@ -124,7 +139,11 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     }
     let _ = std::fs::remove_dir_all(&dir);
     // Hard frames: no radar, radar only, nothing at all.
-    for (what, f) in [("an empty radar frame", synthetic_frame(3, &boxes, true, false)), ("a radar-only frame", synthetic_frame(4, &boxes, false, true)), ("a frame with no points", synthetic_frame(5, &boxes, false, false))] {
+    for (what, f) in [
+        ("an empty radar frame", synthetic_frame(3, &boxes, true, false)),
+        ("a radar-only frame", synthetic_frame(4, &boxes, false, true)),
+        ("a frame with no points", synthetic_frame(5, &boxes, false, false)),
+    ] {
         let hb = HostBatch::new(&cfg, std::slice::from_ref(&f), det.uses_radar());
         let heads = det.forward_heads(&hb, true).map_err(|x| e(what, x))?;
         let l = det.loss_all(&heads, &hb.targets).map_err(|x| e(what, x))?;
@@ -138,7 +157,8 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
 }
 
 fn tempfile_dir() -> Result<std::path::PathBuf, String> {
-    let d = std::env::temp_dir().join(format!("hilo-conformance-{}-{:?}", std::process::id(), std::thread::current().id()));
+    let d =
+        std::env::temp_dir().join(format!("hilo-conformance-{}-{:?}", std::process::id(), std::thread::current().id()));
     std::fs::create_dir_all(&d).map_err(|x| format!("creating {}: {x}", d.display()))?;
     Ok(d)
 }

@@ -93,7 +93,8 @@ impl CustomOp1 for Im2Col {
         out.par_chunks_mut(kk * plane).enumerate().for_each(|(bc, rows)| {
             let src = &x[bc * g.h * g.w..(bc + 1) * g.h * g.w];
             g.runs(|tap, y, iy, x0, x1, kw| {
-                let (srow, drow) = (&src[iy * g.w..(iy + 1) * g.w], &mut rows[tap * plane + y * wo..tap * plane + (y + 1) * wo]);
+                let (srow, drow) =
+                    (&src[iy * g.w..(iy + 1) * g.w], &mut rows[tap * plane + y * wo..tap * plane + (y + 1) * wo]);
                 if g.stride == 1 {
                     let ix0 = x0 + kw - g.pad;
                     drow[x0..x1].copy_from_slice(&srow[ix0..ix0 + (x1 - x0)]);
@@ -128,7 +129,8 @@ impl CustomOp1 for Col2Im {
         out.par_chunks_mut(g.h * g.w).enumerate().for_each(|(bc, dst)| {
             let rows = &cols[bc * kk * plane..(bc + 1) * kk * plane];
             g.runs(|tap, y, iy, x0, x1, kw| {
-                let (drow, srow) = (&mut dst[iy * g.w..(iy + 1) * g.w], &rows[tap * plane + y * wo..tap * plane + (y + 1) * wo]);
+                let (drow, srow) =
+                    (&mut dst[iy * g.w..(iy + 1) * g.w], &rows[tap * plane + y * wo..tap * plane + (y + 1) * wo]);
                 if g.stride == 1 {
                     let ix0 = x0 + kw - g.pad;
                     for (d, s) in drow[ix0..ix0 + (x1 - x0)].iter_mut().zip(&srow[x0..x1]) {
@@ -155,7 +157,11 @@ pub fn conv2d(x: &Tensor, w: &Tensor, stride: usize, pad: usize) -> Result<Tenso
     let (co, _, k, _) = w.dims4()?;
     let g = Geometry { channels: c, h, w: wd, k, stride, pad };
     let (ho, wo) = g.out();
-    let cols = if k == 1 && stride == 1 && pad == 0 { x.reshape((b, c, h * wd))? } else { x.contiguous()?.apply_op1(Im2Col(g))? };
+    let cols = if k == 1 && stride == 1 && pad == 0 {
+        x.reshape((b, c, h * wd))?
+    } else {
+        x.contiguous()?.apply_op1(Im2Col(g))?
+    };
     Ok(w.reshape((co, c * k * k))?.broadcast_matmul(&cols)?.reshape((b, co, ho, wo))?)
 }
 
@@ -170,10 +176,23 @@ pub struct Conv {
 }
 
 impl Conv {
-    pub fn new(cin: usize, cout: usize, k: usize, stride: usize, pad: usize, bias: bool, vb: VarBuilder) -> Result<Self> {
+    pub fn new(
+        cin: usize,
+        cout: usize,
+        k: usize,
+        stride: usize,
+        pad: usize,
+        bias: bool,
+        vb: VarBuilder,
+    ) -> Result<Self> {
         let bound = 1.0 / ((cin * k * k) as f64).sqrt();
-        let weight = vb.get_with_hints((cout, cin, k, k), "weight", candle_nn::init::Init::Uniform { lo: -bound, up: bound })?;
-        let bias = if bias { Some(vb.get_with_hints(cout, "bias", candle_nn::init::Init::Uniform { lo: -bound, up: bound })?) } else { None };
+        let weight =
+            vb.get_with_hints((cout, cin, k, k), "weight", candle_nn::init::Init::Uniform { lo: -bound, up: bound })?;
+        let bias = if bias {
+            Some(vb.get_with_hints(cout, "bias", candle_nn::init::Init::Uniform { lo: -bound, up: bound })?)
+        } else {
+            None
+        };
         Ok(Conv { weight, bias, stride, pad })
     }
 

@@ -48,9 +48,12 @@ fn quat_rotate(q: [f64; 4], p: [f64; 3]) -> [f64; 3] {
 pub fn load_split(ds: &Dataset, split: &str) -> Result<Vec<Frame>> {
     let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
     let t = &ds.tables;
-    let scene_tokens: std::collections::HashSet<&str> = t.scene.iter().filter(|s| scenes.contains(&s.name)).map(|s| s.token.as_str()).collect();
-    let calib: std::collections::HashMap<&str, &hilo_dataset::tables::CalibratedSensor> = t.calibrated_sensor.iter().map(|c| (c.token.as_str(), c)).collect();
-    let sensors: std::collections::HashMap<&str, &hilo_dataset::tables::Sensor> = t.sensor.iter().map(|s| (s.token.as_str(), s)).collect();
+    let scene_tokens: std::collections::HashSet<&str> =
+        t.scene.iter().filter(|s| scenes.contains(&s.name)).map(|s| s.token.as_str()).collect();
+    let calib: std::collections::HashMap<&str, &hilo_dataset::tables::CalibratedSensor> =
+        t.calibrated_sensor.iter().map(|c| (c.token.as_str(), c)).collect();
+    let sensors: std::collections::HashMap<&str, &hilo_dataset::tables::Sensor> =
+        t.sensor.iter().map(|s| (s.token.as_str(), s)).collect();
     let instance_class: std::collections::HashMap<&str, Option<Class>> = t
         .instance
         .iter()
@@ -59,15 +62,18 @@ pub fn load_split(ds: &Dataset, split: &str) -> Result<Vec<Frame>> {
             (i.token.as_str(), hilo_dataset::writer::class_of_category(cat))
         })
         .collect();
-    let mut by_sample: std::collections::HashMap<&str, Vec<&hilo_dataset::tables::SampleData>> = std::collections::HashMap::new();
+    let mut by_sample: std::collections::HashMap<&str, Vec<&hilo_dataset::tables::SampleData>> =
+        std::collections::HashMap::new();
     for sd in &t.sample_data {
         by_sample.entry(sd.sample_token.as_str()).or_default().push(sd);
     }
-    let mut anns: std::collections::HashMap<&str, Vec<&hilo_dataset::tables::SampleAnnotation>> = std::collections::HashMap::new();
+    let mut anns: std::collections::HashMap<&str, Vec<&hilo_dataset::tables::SampleAnnotation>> =
+        std::collections::HashMap::new();
     for a in &t.sample_annotation {
         anns.entry(a.sample_token.as_str()).or_default().push(a);
     }
-    let mut samples: Vec<&hilo_dataset::tables::Sample> = t.sample.iter().filter(|s| scene_tokens.contains(s.scene_token.as_str())).collect();
+    let mut samples: Vec<&hilo_dataset::tables::Sample> =
+        t.sample.iter().filter(|s| scene_tokens.contains(s.scene_token.as_str())).collect();
     samples.sort_by(|a, b| (a.scene_token.as_str(), a.timestamp).cmp(&(b.scene_token.as_str(), b.timestamp)));
     let mut frames = Vec::with_capacity(samples.len());
     for s in samples {
@@ -111,7 +117,13 @@ pub fn load_split(ds: &Dataset, split: &str) -> Result<Vec<Frame>> {
             let yaw = (2.0 * (x * y + w * z)).atan2(1.0 - 2.0 * (y * y + z * z)) as f32;
             let v = ds.box_velocity(a);
             let velocity = if v[0].is_finite() && v[1].is_finite() { [v[0] as f32, v[1] as f32] } else { [0.0, 0.0] };
-            boxes.push(GtBox { class: k, center: a.translation.map(|v| v as f32), wlh: a.size.map(|v| v as f32), yaw, velocity });
+            boxes.push(GtBox {
+                class: k,
+                center: a.translation.map(|v| v as f32),
+                wlh: a.size.map(|v| v as f32),
+                yaw,
+                velocity,
+            });
         }
         frames.push(Frame { sample_token: s.token.clone(), lidar, radar, boxes });
     }
@@ -142,7 +154,8 @@ impl Augmentation {
     }
 
     pub fn apply(&self, f: &Frame, rng: &mut impl Rng) -> Frame {
-        let th = if self.rotate_deg > 0.0 { rng.random_range(-self.rotate_deg..=self.rotate_deg).to_radians() } else { 0.0 };
+        let th =
+            if self.rotate_deg > 0.0 { rng.random_range(-self.rotate_deg..=self.rotate_deg).to_radians() } else { 0.0 };
         let flip = self.flip_p > 0.0 && rng.random::<f32>() < self.flip_p;
         let s = if self.scale > 0.0 { rng.random_range(1.0 - self.scale..=1.0 + self.scale) } else { 1.0 };
         let (c, sn) = (th.cos(), th.sin());
@@ -164,7 +177,13 @@ impl Augmentation {
             let (x, y) = xy(b.center[0], b.center[1]);
             let (vx, vy) = xy(b.velocity[0], b.velocity[1]);
             let yaw = if flip { -b.yaw } else { b.yaw } + th;
-            *b = GtBox { class: b.class, center: [x * s, y * s, b.center[2] * s], wlh: b.wlh.map(|v| v * s), yaw, velocity: [vx * s, vy * s] };
+            *b = GtBox {
+                class: b.class,
+                center: [x * s, y * s, b.center[2] * s],
+                wlh: b.wlh.map(|v| v * s),
+                yaw,
+                velocity: [vx * s, vy * s],
+            };
         }
         out
     }
@@ -211,13 +230,21 @@ pub fn pillarize<const F: usize>(grid: &BevGrid, frames: &[&[[f32; F]]]) -> Pill
         for (cell, members) in cells.into_iter().take(grid.max_pillars) {
             let (cx, cy) = grid.center(cell % n, cell / n);
             let m = members.len() as f32;
-            let mean = members.iter().fold([0.0f32; 3], |a, &k| [a[0] + pts[k][0] / m, a[1] + pts[k][1] / m, a[2] + pts[k][2] / m]);
+            let mean = members
+                .iter()
+                .fold([0.0f32; 3], |a, &k| [a[0] + pts[k][0] / m, a[1] + pts[k][1] / m, a[2] + pts[k][2] / m]);
             for slot in 0..npp {
                 match members.get(slot) {
                     Some(&k) => {
                         let p = &pts[k];
                         out.features.extend_from_slice(p);
-                        out.features.extend_from_slice(&[p[0] - mean[0], p[1] - mean[1], p[2] - mean[2], p[0] - cx, p[1] - cy]);
+                        out.features.extend_from_slice(&[
+                            p[0] - mean[0],
+                            p[1] - mean[1],
+                            p[2] - mean[2],
+                            p[0] - cx,
+                            p[1] - cy,
+                        ]);
                         out.mask.push(1.0);
                     }
                     None => {

@@ -36,12 +36,30 @@ fn sigmoid(x: f32) -> f32 {
 
 /// Rotated BEV IoU of two boxes (hilo-eval's convex clipping).
 pub fn bev_iou(a: &Det, b: &Det) -> f64 {
-    let e = |d: &Det| hilo_eval::boxes::EvalBox::from_yaw("", "", d.center.map(|v| v as f64), d.wlh.map(|v| v as f64), d.yaw as f64, [0.0; 2], 0.0);
+    let e = |d: &Det| {
+        hilo_eval::boxes::EvalBox::from_yaw(
+            "",
+            "",
+            d.center.map(|v| v as f64),
+            d.wlh.map(|v| v as f64),
+            d.yaw as f64,
+            [0.0; 2],
+            0.0,
+        )
+    };
     hilo_eval::iou::bev_iou(&e(a), &e(b))
 }
 
 /// Decodes one frame: `cls` (K, H, W) logits and `reg` (10, H, W), row-major.
-pub fn decode_frame(grid: &BevGrid, out_stride: usize, classes: usize, cls: &[f32], reg: &[f32], how: Assignment, cfg: &DecodeConfig) -> Vec<Det> {
+pub fn decode_frame(
+    grid: &BevGrid,
+    out_stride: usize,
+    classes: usize,
+    cls: &[f32],
+    reg: &[f32],
+    how: Assignment,
+    cfg: &DecodeConfig,
+) -> Vec<Det> {
     let n = grid.cells() / out_stride;
     let hw = n * n;
     let cell = grid.cell_m * out_stride as f32;
@@ -59,7 +77,13 @@ pub fn decode_frame(grid: &BevGrid, out_stride: usize, classes: usize, cls: &[f3
                     for dr in -1i64..=1 {
                         for dc in -1i64..=1 {
                             let (rr, cc) = (r as i64 + dr, c as i64 + dc);
-                            if (dr, dc) != (0, 0) && rr >= 0 && cc >= 0 && rr < n as i64 && cc < n as i64 && cls[k * hw + rr as usize * n + cc as usize] > cls[k * hw + r * n + c] {
+                            if (dr, dc) != (0, 0)
+                                && rr >= 0
+                                && cc >= 0
+                                && rr < n as i64
+                                && cc < n as i64
+                                && cls[k * hw + rr as usize * n + cc as usize] > cls[k * hw + r * n + c]
+                            {
                                 peak = false;
                             }
                         }
@@ -82,7 +106,14 @@ pub fn decode_frame(grid: &BevGrid, out_stride: usize, classes: usize, cls: &[f3
         let x = (c as f32 + 0.5 + at(0, i)) * cell - grid.half_extent_m;
         let y = (r as f32 + 0.5 + at(1, i)) * cell - grid.half_extent_m;
         let wlh = [at(3, i).clamp(-3.0, 3.0).exp(), at(4, i).clamp(-3.0, 3.5).exp(), at(5, i).clamp(-3.0, 2.5).exp()];
-        let d = Det { class: k, score, center: [x, y, at(2, i)], wlh, yaw: at(6, i).atan2(at(7, i)), velocity: [at(8, i), at(9, i)] };
+        let d = Det {
+            class: k,
+            score,
+            center: [x, y, at(2, i)],
+            wlh,
+            yaw: at(6, i).atan2(at(7, i)),
+            velocity: [at(8, i), at(9, i)],
+        };
         if how == Assignment::Inside && out.iter().any(|o| o.class == d.class && bev_iou(o, &d) > cfg.nms_iou as f64) {
             continue;
         }
@@ -101,7 +132,17 @@ pub fn decode_frame(grid: &BevGrid, out_stride: usize, classes: usize, cls: &[f3
 /// LiDAR boxes are kept as they are; unmatched radar boxes are kept at half their score (radar
 /// alone localises coarsely, but may see what LiDAR misses).
 pub fn merge_late(l: &[Det], r: &[Det], cfg: &DecodeConfig) -> Vec<Det> {
-    let e = |d: &Det| hilo_eval::boxes::EvalBox::from_yaw("", "", d.center.map(|v| v as f64), d.wlh.map(|v| v as f64), d.yaw as f64, [0.0; 2], 0.0);
+    let e = |d: &Det| {
+        hilo_eval::boxes::EvalBox::from_yaw(
+            "",
+            "",
+            d.center.map(|v| v as f64),
+            d.wlh.map(|v| v as f64),
+            d.yaw as f64,
+            [0.0; 2],
+            0.0,
+        )
+    };
     let mut used = vec![false; r.len()];
     let mut out = Vec::with_capacity(l.len() + r.len());
     for a in l {
@@ -121,7 +162,11 @@ pub fn merge_late(l: &[Det], r: &[Det], cfg: &DecodeConfig) -> Vec<Det> {
                 out.push(Det {
                     class: a.class,
                     score: 1.0 - (1.0 - a.score) * (1.0 - b.score),
-                    center: [mix(a.center[0], b.center[0]), mix(a.center[1], b.center[1]), mix(a.center[2], b.center[2])],
+                    center: [
+                        mix(a.center[0], b.center[0]),
+                        mix(a.center[1], b.center[1]),
+                        mix(a.center[2], b.center[2]),
+                    ],
                     wlh: [mix(a.wlh[0], b.wlh[0]), mix(a.wlh[1], b.wlh[1]), mix(a.wlh[2], b.wlh[2])],
                     yaw: if a.score >= b.score { a.yaw } else { b.yaw },
                     velocity: b.velocity,

@@ -34,7 +34,8 @@ pub struct DetectorConfig {
 
 /// Every preset: the paper's detector rows. The LiDAR-only ones build with this crate's
 /// registry alone; the others need their plugin crate registered (`raw`, `early`, `middle`).
-pub const PRESETS: [&str; 7] = ["centerpoint", "pointpillars", "pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"];
+pub const PRESETS: [&str; 7] =
+    ["centerpoint", "pointpillars", "pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"];
 
 /// Whether a preset sees radar: every fusion plugin but the LiDAR-only one does.
 pub fn uses_radar(name: &str) -> bool {
@@ -78,7 +79,11 @@ pub fn preset(name: &str) -> Result<DetectorConfig> {
             fusion: "lidar".into(),
             fusion_config: serde_json::json!({ "channels": 32 }),
             grid,
-            backbone: BackboneConfig { blocks: vec![block(2, 32, 2), block(2, 64, 2), block(2, 128, 2)], neck_channels: 16, out_stride: 1 },
+            backbone: BackboneConfig {
+                blocks: vec![block(2, 32, 2), block(2, 64, 2), block(2, 128, 2)],
+                neck_channels: 16,
+                out_stride: 1,
+            },
             assignment: Assignment::Center,
             head_channels: 16,
             decode: DecodeConfig::default(),
@@ -88,13 +93,22 @@ pub fn preset(name: &str) -> Result<DetectorConfig> {
             fusion: "lidar".into(),
             fusion_config: serde_json::json!({ "channels": 48 }),
             grid,
-            backbone: BackboneConfig { blocks: vec![block(2, 48, 1), block(2, 96, 2), block(2, 128, 2)], neck_channels: 48, out_stride: 2 },
+            backbone: BackboneConfig {
+                blocks: vec![block(2, 48, 1), block(2, 96, 2), block(2, 128, 2)],
+                neck_channels: 48,
+                out_stride: 2,
+            },
             assignment: Assignment::Inside,
             head_channels: 0,
             decode: DecodeConfig { score_threshold: 0.1, ..DecodeConfig::default() },
         }),
         // PointPillars plus a radar branch (raw fusion): the paper's PointPillars-LR.
-        "pointpillars-lr" => Ok(DetectorConfig { name: name.into(), fusion: "raw".into(), fusion_config: serde_json::json!({ "channels": 48 }), ..preset("pointpillars")? }),
+        "pointpillars-lr" => Ok(DetectorConfig {
+            name: name.into(),
+            fusion: "raw".into(),
+            fusion_config: serde_json::json!({ "channels": 48 }),
+            ..preset("pointpillars")?
+        }),
         // L4DR: early LiDAR–4D-radar fusion and gated middle fusion. Taken: radar and LiDAR
         // points in one early encoder (max), pixel-wise gating against a LiDAR branch. Left out:
         // L4DR's LiDAR-guided radar denoising and its multi-scale gates inside the backbone.
@@ -150,7 +164,8 @@ pub struct HostBatch {
 impl HostBatch {
     pub fn new(cfg: &DetectorConfig, frames: &[Frame], with_radar: bool) -> HostBatch {
         let lidar: Vec<&[[f32; LIDAR_FEATURES]]> = frames.iter().map(|f| f.lidar.as_slice()).collect();
-        let radar: Vec<&[[f32; RADAR_FEATURES]]> = frames.iter().map(|f| if with_radar { f.radar.as_slice() } else { &[] }).collect();
+        let radar: Vec<&[[f32; RADAR_FEATURES]]> =
+            frames.iter().map(|f| if with_radar { f.radar.as_slice() } else { &[] }).collect();
         let boxes: Vec<&[GtBox]> = frames.iter().map(|f| f.boxes.as_slice()).collect();
         HostBatch {
             size: frames.len(),
@@ -220,7 +235,10 @@ impl Detector {
     pub fn new(cfg: &DetectorConfig, registry: &Registry, device: &Device, seed: u64) -> Result<Self> {
         cfg.grid.validate().map_err(FusionError::Config)?;
         if cfg.backbone.blocks.is_empty() || !cfg.backbone.out_stride.is_power_of_two() {
-            return Err(FusionError::Config(format!("detector {}: the backbone needs blocks and a power-of-two out_stride", cfg.name)));
+            return Err(FusionError::Config(format!(
+                "detector {}: the backbone needs blocks and a power-of-two out_stride",
+                cfg.name
+            )));
         }
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
@@ -229,7 +247,13 @@ impl Detector {
             (None, None)
         } else {
             let backbone = Backbone::new(fusion.out_channels(), &cfg.backbone, vb.pp("backbone"))?;
-            let head = Head::new(backbone.out_channels, cfg.head_channels.max(1), CLASSES.len(), cfg.head_channels > 0, vb.pp("head"))?;
+            let head = Head::new(
+                backbone.out_channels,
+                cfg.head_channels.max(1),
+                CLASSES.len(),
+                cfg.head_channels > 0,
+                vb.pp("head"),
+            )?;
             (Some(backbone), Some(head))
         };
         seeded_init(&varmap, seed)?;
@@ -251,7 +275,12 @@ impl Detector {
 
     /// Parameters that training updates (BatchNorm running statistics are not).
     pub fn trainable(&self) -> Vec<(String, candle_core::Var)> {
-        let data = self.varmap.data().lock().map(|d| d.iter().map(|(k, v)| (k.clone(), v.clone())).collect::<Vec<_>>()).unwrap_or_default();
+        let data = self
+            .varmap
+            .data()
+            .lock()
+            .map(|d| d.iter().map(|(k, v)| (k.clone(), v.clone())).collect::<Vec<_>>())
+            .unwrap_or_default();
         let mut v: Vec<_> = data.into_iter().filter(|(k, _)| !k.contains("running_")).collect();
         v.sort_by(|a, b| a.0.cmp(&b.0));
         v
@@ -269,7 +298,10 @@ impl Detector {
                 Ok(vec![head.forward(&x, train)?])
             }
             (FusionOutput::Heads(h), _, _) if !h.is_empty() => Ok(h),
-            _ => Err(FusionError::Config(format!("detector {}: fusion plugin {:?} returned an output its stage does not allow", self.cfg.name, self.cfg.fusion))),
+            _ => Err(FusionError::Config(format!(
+                "detector {}: fusion plugin {:?} returned an output its stage does not allow",
+                self.cfg.name, self.cfg.fusion
+            ))),
         }
     }
 
@@ -296,7 +328,11 @@ impl Detector {
         let tc = Tensor::from_slice(&t.cls, (b, k, h, w), &self.device)?;
         let tr = Tensor::from_slice(&t.reg, (b, REG_CHANNELS, h, w), &self.device)?;
         let tm = Tensor::from_slice(&t.mask, (b, 1, h, w), &self.device)?;
-        let cw = Tensor::from_slice(&[1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2], (1, REG_CHANNELS, 1, 1), &self.device)?;
+        let cw = Tensor::from_slice(
+            &[1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2],
+            (1, REG_CHANNELS, 1, 1),
+            &self.device,
+        )?;
         let lc = match self.cfg.assignment {
             Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
             Assignment::Inside => sigmoid_focal(cls, &tc, t.num_pos)?,
@@ -314,14 +350,28 @@ impl Detector {
             let stride = self.cfg.grid.cells() / h.max(1);
             let cls = cls.flatten_all()?.to_vec1::<f32>()?;
             let reg = reg.flatten_all()?.to_vec1::<f32>()?;
-            let dets: Vec<Vec<Det>> = (0..bn).map(|i| decode_frame(&self.cfg.grid, stride, k, &cls[i * k * h * w..(i + 1) * k * h * w], &reg[i * REG_CHANNELS * h * w..(i + 1) * REG_CHANNELS * h * w], self.cfg.assignment, &self.cfg.decode)).collect();
+            let dets: Vec<Vec<Det>> = (0..bn)
+                .map(|i| {
+                    decode_frame(
+                        &self.cfg.grid,
+                        stride,
+                        k,
+                        &cls[i * k * h * w..(i + 1) * k * h * w],
+                        &reg[i * REG_CHANNELS * h * w..(i + 1) * REG_CHANNELS * h * w],
+                        self.cfg.assignment,
+                        &self.cfg.decode,
+                    )
+                })
+                .collect();
             per_head.push(dets);
         }
         let mut it = per_head.into_iter();
         let first = it.next().unwrap_or_default();
         Ok(match it.next() {
             None => first,
-            Some(radar) => first.into_iter().zip(radar).map(|(l, r)| crate::decode::merge_late(&l, &r, &self.cfg.decode)).collect(),
+            Some(radar) => {
+                first.into_iter().zip(radar).map(|(l, r)| crate::decode::merge_late(&l, &r, &self.cfg.decode)).collect()
+            }
         })
     }
 
@@ -334,17 +384,41 @@ impl Detector {
 
     /// Loads weights saved by [`Self::save`] for the same architecture.
     pub fn load(&mut self, path: &Path) -> Result<()> {
-        let tensors = candle_core::safetensors::load(path, &self.device).map_err(|e| FusionError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
+        let tensors = candle_core::safetensors::load(path, &self.device)
+            .map_err(|e| FusionError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
         let data = self.varmap.data().lock().map_err(|_| FusionError::Config("variable map lock poisoned".into()))?;
         for (name, var) in data.iter() {
-            let t = tensors.get(name).ok_or_else(|| FusionError::Checkpoint { path: path.to_path_buf(), message: format!("has no tensor {name:?}: it was saved by another architecture than {} ({} tensors there)", self.cfg.name, tensors.len()) })?;
+            let t = tensors.get(name).ok_or_else(|| FusionError::Checkpoint {
+                path: path.to_path_buf(),
+                message: format!(
+                    "has no tensor {name:?}: it was saved by another architecture than {} ({} tensors there)",
+                    self.cfg.name,
+                    tensors.len()
+                ),
+            })?;
             if t.dims() != var.dims() {
-                return Err(FusionError::Checkpoint { path: path.to_path_buf(), message: format!("tensor {name:?} has shape {:?}, detector {} needs {:?}: another architecture", t.dims(), self.cfg.name, var.dims()) });
+                return Err(FusionError::Checkpoint {
+                    path: path.to_path_buf(),
+                    message: format!(
+                        "tensor {name:?} has shape {:?}, detector {} needs {:?}: another architecture",
+                        t.dims(),
+                        self.cfg.name,
+                        var.dims()
+                    ),
+                });
             }
             var.set(t)?;
         }
         if tensors.len() != data.len() {
-            return Err(FusionError::Checkpoint { path: path.to_path_buf(), message: format!("holds {} tensors, detector {} has {}: another architecture", tensors.len(), self.cfg.name, data.len()) });
+            return Err(FusionError::Checkpoint {
+                path: path.to_path_buf(),
+                message: format!(
+                    "holds {} tensors, detector {} has {}: another architecture",
+                    tensors.len(),
+                    self.cfg.name,
+                    data.len()
+                ),
+            });
         }
         Ok(())
     }

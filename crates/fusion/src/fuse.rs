@@ -36,7 +36,15 @@ pub struct BevFuse {
 
 impl BevFuse {
     pub fn new(cl: usize, cr: usize, out: usize, op: FuseOp, vb: VarBuilder) -> Result<Self> {
-        let mut f = BevFuse { op, out: ConvBn::new(cl + cr, out, 1, 1, vb.pp("out"))?, gate: None, proj: None, back: None, alpha: None, out_channels: out };
+        let mut f = BevFuse {
+            op,
+            out: ConvBn::new(cl + cr, out, 1, 1, vb.pp("out"))?,
+            gate: None,
+            proj: None,
+            back: None,
+            alpha: None,
+            out_channels: out,
+        };
         match op {
             FuseOp::Concat => {}
             FuseOp::Weighted => {
@@ -65,13 +73,19 @@ impl BevFuse {
             FuseOp::GatedChannel | FuseOp::GatedPixel => {
                 let cat = Tensor::cat(&[l, r], 1)?;
                 let Some(g) = &self.gate else { return self.out.forward(&cat, train) };
-                let src = if self.op == FuseOp::GatedChannel { cat.mean_keepdim(D::Minus1)?.mean_keepdim(D::Minus2)? } else { cat.clone() };
+                let src = if self.op == FuseOp::GatedChannel {
+                    cat.mean_keepdim(D::Minus1)?.mean_keepdim(D::Minus2)?
+                } else {
+                    cat.clone()
+                };
                 let w = candle_nn::ops::sigmoid(&g.forward(&src)?)?;
                 let (wl, wr) = (w.narrow(1, 0, 1)?, w.narrow(1, 1, 1)?);
                 self.out.forward(&Tensor::cat(&[l.broadcast_mul(&wl)?, r.broadcast_mul(&wr)?], 1)?, train)
             }
             FuseOp::Bidirectional => {
-                let (Some(p), Some(b)) = (&self.proj, &self.back) else { return self.out.forward(&Tensor::cat(&[l, r], 1)?, train) };
+                let (Some(p), Some(b)) = (&self.proj, &self.back) else {
+                    return self.out.forward(&Tensor::cat(&[l, r], 1)?, train);
+                };
                 let r2 = (r + p.forward(l, train)?)?;
                 let l2 = (l + b.forward(&r2, train)?)?;
                 self.out.forward(&Tensor::cat(&[&l2, &r2], 1)?, train)

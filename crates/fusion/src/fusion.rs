@@ -58,7 +58,8 @@ pub trait Fusion: Send + Sync + std::fmt::Debug {
 
 /// A plugin's typed config from its JSON; the error names the plugin, the field and the JSON.
 pub fn parse_config<T: serde::de::DeserializeOwned>(plugin: &str, cfg: &serde_json::Value) -> Result<T> {
-    serde_json::from_value(cfg.clone()).map_err(|e| FusionError::Config(format!("fusion plugin {plugin:?}: {e} in {cfg}")))
+    serde_json::from_value(cfg.clone())
+        .map_err(|e| FusionError::Config(format!("fusion plugin {plugin:?}: {e} in {cfg}")))
 }
 
 /// Builds a plugin from its JSON config on a grid.
@@ -96,10 +97,18 @@ impl Registry {
         self.builders.keys().cloned().collect()
     }
 
-    pub fn build(&self, name: &str, cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
+    pub fn build(
+        &self,
+        name: &str,
+        cfg: &serde_json::Value,
+        grid: &BevGrid,
+        vb: VarBuilder,
+    ) -> Result<Box<dyn Fusion>> {
         match self.builders.get(name) {
             Some(b) => b(cfg, grid, vb),
-            None => Err(FusionError::Config(format!("unknown fusion plugin {name:?}; known: {}", self.names().join(", ")))),
+            None => {
+                Err(FusionError::Config(format!("unknown fusion plugin {name:?}; known: {}", self.names().join(", "))))
+            }
         }
     }
 }

@@ -21,7 +21,14 @@ pub struct BevGrid {
 
 impl Default for BevGrid {
     fn default() -> Self {
-        BevGrid { half_extent_m: 51.2, cell_m: 0.8, z_min_m: -1.0, z_max_m: 5.0, max_points_per_pillar: 10, max_pillars: 8000 }
+        BevGrid {
+            half_extent_m: 51.2,
+            cell_m: 0.8,
+            z_min_m: -1.0,
+            z_max_m: 5.0,
+            max_points_per_pillar: 10,
+            max_pillars: 8000,
+        }
     }
 }
 
@@ -44,7 +51,10 @@ impl BevGrid {
 
     pub fn validate(&self) -> Result<(), String> {
         let n = 2.0 * self.half_extent_m / self.cell_m;
-        if !(self.half_extent_m > 0.0 && self.cell_m > 0.0) || (n - n.round()).abs() > 1e-3 || !(n.round() as usize).is_multiple_of(4) {
+        if !(self.half_extent_m > 0.0 && self.cell_m > 0.0)
+            || (n - n.round()).abs() > 1e-3
+            || !(n.round() as usize).is_multiple_of(4)
+        {
             return Err(format!("grid: 2 × half_extent_m / cell_m = {n} must be a whole multiple of 4"));
         }
         if self.z_max_m <= self.z_min_m || self.max_points_per_pillar == 0 || self.max_pillars == 0 {

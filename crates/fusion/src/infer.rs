@@ -10,23 +10,44 @@ use hilo_eval::boxes::EvalBox;
 fn attribute(class: usize, speed: f32) -> &'static str {
     match CLASSES[class] {
         hilo_core::Class::Pedestrian => {
-            if speed > 0.3 { "pedestrian.moving" } else { "pedestrian.standing" }
+            if speed > 0.3 {
+                "pedestrian.moving"
+            } else {
+                "pedestrian.standing"
+            }
         }
         hilo_core::Class::Motorcycle => "cycle.with_rider",
         _ => {
-            if speed > 0.5 { "vehicle.moving" } else { "vehicle.stopped" }
+            if speed > 0.5 {
+                "vehicle.moving"
+            } else {
+                "vehicle.stopped"
+            }
         }
     }
 }
 
 pub fn to_eval_box(token: &str, d: &Det) -> EvalBox {
-    let mut b = EvalBox::from_yaw(token, CLASSES[d.class].name(), d.center.map(|v| v as f64), d.wlh.map(|v| v as f64), d.yaw as f64, d.velocity.map(|v| v as f64), d.score.clamp(0.0, 1.0) as f64);
+    let mut b = EvalBox::from_yaw(
+        token,
+        CLASSES[d.class].name(),
+        d.center.map(|v| v as f64),
+        d.wlh.map(|v| v as f64),
+        d.yaw as f64,
+        d.velocity.map(|v| v as f64),
+        d.score.clamp(0.0, 1.0) as f64,
+    );
     b.attribute_name = attribute(d.class, (d.velocity[0].powi(2) + d.velocity[1].powi(2)).sqrt()).to_owned();
     b
 }
 
 /// Detects every frame (in batches) and returns the submission JSON and the seconds per frame.
-pub fn detect_frames(det: &Detector, frames: &[Frame], batch: usize, on_batch: &mut dyn FnMut(usize)) -> Result<(serde_json::Value, f64)> {
+pub fn detect_frames(
+    det: &Detector,
+    frames: &[Frame],
+    batch: usize,
+    on_batch: &mut dyn FnMut(usize),
+) -> Result<(serde_json::Value, f64)> {
     let t0 = std::time::Instant::now();
     let mut results = serde_json::Map::new();
     let with_radar = det.uses_radar();

@@ -9,11 +9,11 @@
 //! Fusion plugins (raw, early, middle, late) live in their own crates under `plugins/` and only
 //! depend on this one; they register themselves in a [`fusion::Registry`].
 
+pub mod conformance;
+pub mod conv;
 pub mod data;
 pub mod decode;
 pub mod detector;
-pub mod conformance;
-pub mod conv;
 pub mod error;
 pub mod fuse;
 pub mod fusion;

@@ -1,10 +1,10 @@
 //! Shared detector modules: the pillar feature net, the BEV backbone with its neck, and the
 //! two heads. Every module is built from a `VarBuilder` and runs on any candle device.
 
+use crate::conv::Conv;
 use crate::data::Pillars;
 use crate::error::Result;
 use candle_core::{DType, Device, Tensor};
-use crate::conv::Conv;
 use candle_nn::{BatchNorm, BatchNormConfig, Linear, Module, ModuleT, VarBuilder};
 use serde::{Deserialize, Serialize};
 
@@ -51,7 +51,11 @@ pub struct PillarNet {
 
 impl PillarNet {
     pub fn new(in_features: usize, channels: usize, vb: VarBuilder) -> Result<Self> {
-        Ok(PillarNet { linear: candle_nn::linear_no_bias(in_features, channels, vb.pp("linear"))?, bn: candle_nn::batch_norm(channels, bn_cfg(), vb.pp("bn"))?, channels })
+        Ok(PillarNet {
+            linear: candle_nn::linear_no_bias(in_features, channels, vb.pp("linear"))?,
+            bn: candle_nn::batch_norm(channels, bn_cfg(), vb.pp("bn"))?,
+            channels,
+        })
     }
 
     /// (P, C) pillar features.
@@ -64,7 +68,13 @@ impl PillarNet {
     }
 
     /// Dense BEV map (B, C, H, W) from pillar features (P, C).
-    pub fn scatter(feats: Option<(&Tensor, &Tensor)>, batch: usize, cells: usize, channels: usize, device: &Device) -> Result<Tensor> {
+    pub fn scatter(
+        feats: Option<(&Tensor, &Tensor)>,
+        batch: usize,
+        cells: usize,
+        channels: usize,
+        device: &Device,
+    ) -> Result<Tensor> {
         let zeros = Tensor::zeros((batch * cells * cells, channels), DType::F32, device)?;
         let flat = match feats {
             Some((f, index)) => zeros.index_add(index, f, 0)?,
@@ -92,7 +102,10 @@ pub struct ConvBn {
 
 impl ConvBn {
     pub fn new(cin: usize, cout: usize, k: usize, stride: usize, vb: VarBuilder) -> Result<Self> {
-        Ok(ConvBn { conv: Conv::new(cin, cout, k, stride, k / 2, false, vb.pp("conv"))?, bn: candle_nn::batch_norm(cout, bn_cfg(), vb.pp("bn"))? })
+        Ok(ConvBn {
+            conv: Conv::new(cin, cout, k, stride, k / 2, false, vb.pp("conv"))?,
+            bn: candle_nn::batch_norm(cout, bn_cfg(), vb.pp("bn"))?,
+        })
     }
 
     pub fn forward(&self, x: &Tensor, train: bool) -> Result<Tensor> {
@@ -167,7 +180,11 @@ impl Backbone {
             // A coarser map goes through its 1×1 neck convolution first and is upsampled after:
             // the same values as upsampling first (nearest upsampling repeats each pixel equally
             // often, so BatchNorm's statistics are unchanged), at a fraction of the cost.
-            let y = if *stride > out_stride { n.forward(&x, train)?.upsample_nearest2d(th, tw)? } else { n.forward(&x, train)? };
+            let y = if *stride > out_stride {
+                n.forward(&x, train)?.upsample_nearest2d(th, tw)?
+            } else {
+                n.forward(&x, train)?
+            };
             outs.push(y);
         }
         Ok(Tensor::cat(&outs, 1)?)
@@ -191,7 +208,15 @@ pub struct Head {
 
 impl Head {
     pub fn new(cin: usize, hidden: usize, classes: usize, with_convs: bool, vb: VarBuilder) -> Result<Self> {
-        let (cls_pre, reg_pre, c) = if with_convs { (Some(ConvBn::new(cin, hidden, 3, 1, vb.pp("cls_pre"))?), Some(ConvBn::new(cin, hidden, 3, 1, vb.pp("reg_pre"))?), hidden) } else { (None, None, cin) };
+        let (cls_pre, reg_pre, c) = if with_convs {
+            (
+                Some(ConvBn::new(cin, hidden, 3, 1, vb.pp("cls_pre"))?),
+                Some(ConvBn::new(cin, hidden, 3, 1, vb.pp("reg_pre"))?),
+                hidden,
+            )
+        } else {
+            (None, None, cin)
+        };
         Ok(Head {
             cls_pre,
             reg_pre,

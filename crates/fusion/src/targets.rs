@@ -42,7 +42,13 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
     let cell = grid.cell_m * out_stride as f32;
     let hw = n * n;
     let b = frames.len();
-    let mut t = Targets { cls: vec![0.0; b * classes * hw], reg: vec![0.0; b * REG_CHANNELS * hw], mask: vec![0.0; b * hw], num_pos: 0.0, size: n };
+    let mut t = Targets {
+        cls: vec![0.0; b * classes * hw],
+        reg: vec![0.0; b * REG_CHANNELS * hw],
+        mask: vec![0.0; b * hw],
+        num_pos: 0.0,
+        size: n,
+    };
     for (bi, boxes) in frames.iter().enumerate() {
         for g in boxes.iter() {
             let u = (g.center[0] + grid.half_extent_m) / cell;
@@ -53,7 +59,18 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
             let (ci, ri) = (u as usize, v as usize);
             let put_reg = |t: &mut Targets, r: usize, c: usize| {
                 let base = bi * REG_CHANNELS * hw + r * n + c;
-                let vals = [u - (c as f32 + 0.5), v - (r as f32 + 0.5), g.center[2], g.wlh[0].max(0.05).ln(), g.wlh[1].max(0.05).ln(), g.wlh[2].max(0.05).ln(), g.yaw.sin(), g.yaw.cos(), g.velocity[0], g.velocity[1]];
+                let vals = [
+                    u - (c as f32 + 0.5),
+                    v - (r as f32 + 0.5),
+                    g.center[2],
+                    g.wlh[0].max(0.05).ln(),
+                    g.wlh[1].max(0.05).ln(),
+                    g.wlh[2].max(0.05).ln(),
+                    g.yaw.sin(),
+                    g.yaw.cos(),
+                    g.velocity[0],
+                    g.velocity[1],
+                ];
                 for (k, val) in vals.iter().enumerate() {
                     t.reg[base + k * hw] = *val;
                 }
@@ -91,7 +108,10 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
                             if rr < 0 || cc < 0 || rr >= n as i64 || cc >= n as i64 {
                                 continue;
                             }
-                            let (x, y) = ((cc as f32 + 0.5) * cell - grid.half_extent_m - g.center[0], (rr as f32 + 0.5) * cell - grid.half_extent_m - g.center[1]);
+                            let (x, y) = (
+                                (cc as f32 + 0.5) * cell - grid.half_extent_m - g.center[0],
+                                (rr as f32 + 0.5) * cell - grid.half_extent_m - g.center[1],
+                            );
                             let (along, across) = (x * cy + y * sy, -x * sy + y * cy);
                             if along.abs() <= 0.5 * g.wlh[1] && across.abs() <= 0.5 * g.wlh[0] {
                                 t.cls[cls_base + rr as usize * n + cc as usize] = 1.0;

@@ -44,7 +44,17 @@ pub struct TrainConfig {
 
 impl Default for TrainConfig {
     fn default() -> Self {
-        TrainConfig { samples: 1400, batch: 2, lr_max: 6e-3, weight_decay: 0.01, clip_norm: 10.0, warmup: 0.3, seed: 0, augmentation: Augmentation::default(), checkpoint_steps: 50 }
+        TrainConfig {
+            samples: 1400,
+            batch: 2,
+            lr_max: 6e-3,
+            weight_decay: 0.01,
+            clip_norm: 10.0,
+            warmup: 0.3,
+            seed: 0,
+            augmentation: Augmentation::default(),
+            checkpoint_steps: 50,
+        }
     }
 }
 
@@ -74,7 +84,11 @@ impl TrainConfig {
         let up = (self.warmup * total).max(1.0);
         let t = step as f64;
         let cos = |a: f64, b: f64, f: f64| b + (a - b) * 0.5 * (1.0 + (std::f64::consts::PI * f.clamp(0.0, 1.0)).cos());
-        if t < up { cos(self.lr_max / 10.0, self.lr_max, t / up) } else { cos(self.lr_max, self.lr_max / 1e4, (t - up) / (total - up).max(1.0)) }
+        if t < up {
+            cos(self.lr_max / 10.0, self.lr_max, t / up)
+        } else {
+            cos(self.lr_max, self.lr_max / 1e4, (t - up) / (total - up).max(1.0))
+        }
     }
 }
 
@@ -131,15 +145,24 @@ impl AdamW {
             map.insert(format!("m.{name}"), self.m[k].clone());
             map.insert(format!("v.{name}"), self.v[k].clone());
         }
-        map.insert("step".into(), Tensor::new(&[self.step as u32], self.m.first().map_or(&Device::Cpu, |t| t.device()))?);
+        map.insert(
+            "step".into(),
+            Tensor::new(&[self.step as u32], self.m.first().map_or(&Device::Cpu, |t| t.device()))?,
+        );
         let tmp = path.with_extension("safetensors.tmp");
         candle_core::safetensors::save(&map, &tmp)?;
         std::fs::rename(&tmp, path).map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })
     }
 
     pub fn load(&mut self, path: &Path, device: &Device) -> Result<()> {
-        let t = candle_core::safetensors::load(path, device).map_err(|e| FusionError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
-        let get = |n: &str| t.get(n).cloned().ok_or_else(|| FusionError::Checkpoint { path: path.to_path_buf(), message: format!("optimizer state has no {n:?}") });
+        let t = candle_core::safetensors::load(path, device)
+            .map_err(|e| FusionError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
+        let get = |n: &str| {
+            t.get(n).cloned().ok_or_else(|| FusionError::Checkpoint {
+                path: path.to_path_buf(),
+                message: format!("optimizer state has no {n:?}"),
+            })
+        };
         for (k, (name, _)) in self.vars.iter().enumerate() {
             self.m[k] = get(&format!("m.{name}"))?;
             self.v[k] = get(&format!("v.{name}"))?;
@@ -174,12 +197,14 @@ fn info_path(run: &Path) -> PathBuf {
 
 pub fn read_info(run: &Path) -> Result<RunInfo> {
     let p = info_path(run);
-    let bytes = std::fs::read(&p).map_err(|e| FusionError::Io { path: p.clone(), message: format!("{e} (not a training run folder?)") })?;
+    let bytes = std::fs::read(&p)
+        .map_err(|e| FusionError::Io { path: p.clone(), message: format!("{e} (not a training run folder?)") })?;
     serde_json::from_slice(&bytes).map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })
 }
 
 fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
-    let bytes = serde_json::to_vec_pretty(value).map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })?;
+    let bytes = serde_json::to_vec_pretty(value)
+        .map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })?;
     let tmp = path.with_extension("json.tmp");
     std::fs::write(&tmp, bytes).map_err(|e| FusionError::Io { path: tmp.clone(), message: e.to_string() })?;
     std::fs::rename(&tmp, path).map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })
@@ -206,8 +231,12 @@ fn step_frames(frames: &[Frame], cfg: &TrainConfig, step: usize) -> Vec<Frame> {
         let k = step * cfg.batch + i;
         let (epoch, pos) = (k / n, k % n);
         let mut order: Vec<usize> = (0..n).collect();
-        order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(cfg.seed ^ (epoch as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)));
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.seed.wrapping_add(1 + k as u64).wrapping_mul(0xbf58_476d_1ce4_e5b9));
+        order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(
+            cfg.seed ^ (epoch as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+        ));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            cfg.seed.wrapping_add(1 + k as u64).wrapping_mul(0xbf58_476d_1ce4_e5b9),
+        );
         out.push(cfg.augmentation.apply(&frames[order[pos]], &mut rng));
     }
     out
@@ -216,21 +245,43 @@ fn step_frames(frames: &[Frame], cfg: &TrainConfig, step: usize) -> Vec<Frame> {
 /// Trains (or resumes) a detector in `run`. Batches are prepared one step ahead on another
 /// thread. `on_step` returning false stops the run after a checkpoint (rerunning resumes it).
 /// Returns the run's info.
-pub fn train(run: &Path, det_cfg: &DetectorConfig, cfg: &TrainConfig, frames: &[Frame], registry: &Registry, device: &Device, on_step: &mut dyn FnMut(&StepReport) -> bool) -> Result<RunInfo> {
+pub fn train(
+    run: &Path,
+    det_cfg: &DetectorConfig,
+    cfg: &TrainConfig,
+    frames: &[Frame],
+    registry: &Registry,
+    device: &Device,
+    on_step: &mut dyn FnMut(&StepReport) -> bool,
+) -> Result<RunInfo> {
     if frames.is_empty() {
         return Err(FusionError::Config("no training frames".into()));
     }
     if cfg.batch == 0 || cfg.samples == 0 {
-        return Err(FusionError::Config(format!("train: batch = {} and samples = {} must be positive", cfg.batch, cfg.samples)));
+        return Err(FusionError::Config(format!(
+            "train: batch = {} and samples = {} must be positive",
+            cfg.batch, cfg.samples
+        )));
     }
     std::fs::create_dir_all(run).map_err(|e| FusionError::Io { path: run.to_path_buf(), message: e.to_string() })?;
     let mut det = Detector::new(det_cfg, registry, device, cfg.seed)?;
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
-    let mut info = RunInfo { detector: det_cfg.clone(), train: cfg.clone(), step: 0, samples_seen: 0, seconds: 0.0, finished: false };
+    let mut info = RunInfo {
+        detector: det_cfg.clone(),
+        train: cfg.clone(),
+        step: 0,
+        samples_seen: 0,
+        seconds: 0.0,
+        finished: false,
+    };
     if info_path(run).exists() {
         let old = read_info(run)?;
         if old.detector != *det_cfg || old.train != *cfg {
-            return Err(FusionError::Config(format!("{} holds a run with other settings (detector {}); use another --out or delete it", run.display(), old.detector.name)));
+            return Err(FusionError::Config(format!(
+                "{} holds a run with other settings (detector {}); use another --out or delete it",
+                run.display(),
+                old.detector.name
+            )));
         }
         if old.step > 0 {
             det.load(&weights_path(run))?;
@@ -273,7 +324,15 @@ pub fn train(run: &Path, det_cfg: &DetectorConfig, cfg: &TrainConfig, frames: &[
             window = std::time::Instant::now();
             info.step = step + 1;
             info.samples_seen = info.step * cfg.batch;
-            let go_on = on_step(&StepReport { step: step + 1, steps, loss: total, cls: loss.cls, reg: loss.reg, lr, samples_per_s: cfg.batch as f64 / dt.max(1e-9) });
+            let go_on = on_step(&StepReport {
+                step: step + 1,
+                steps,
+                loss: total,
+                cls: loss.cls,
+                reg: loss.reg,
+                lr,
+                samples_per_s: cfg.batch as f64 / dt.max(1e-9),
+            });
             let end_of_epoch = (step + 1) % epoch_steps == 0;
             if !go_on || end_of_epoch || (step + 1) % cfg.checkpoint_steps.max(1) == 0 || step + 1 == steps {
                 info.seconds = seconds_before + t_run.elapsed().as_secs_f64();

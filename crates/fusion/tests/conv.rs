@@ -15,7 +15,15 @@ fn max_rel(a: &Tensor, b: &Tensor) -> f32 {
 #[test]
 fn im2col_convolution_equals_candle_in_value_and_gradients() {
     let dev = Device::Cpu;
-    for (c, co, h, w, k, stride, pad) in [(3, 5, 8, 8, 3, 1, 1), (4, 6, 9, 7, 3, 2, 1), (2, 3, 8, 8, 3, 2, 1), (5, 4, 6, 6, 1, 1, 0), (3, 2, 7, 5, 3, 1, 0), (1, 1, 1, 1, 3, 1, 1), (2, 2, 5, 5, 1, 2, 0)] {
+    for (c, co, h, w, k, stride, pad) in [
+        (3, 5, 8, 8, 3, 1, 1),
+        (4, 6, 9, 7, 3, 2, 1),
+        (2, 3, 8, 8, 3, 2, 1),
+        (5, 4, 6, 6, 1, 1, 0),
+        (3, 2, 7, 5, 3, 1, 0),
+        (1, 1, 1, 1, 3, 1, 1),
+        (2, 2, 5, 5, 1, 2, 0),
+    ] {
         let x = Var::from_tensor(&Tensor::randn(0f32, 1.0, (2, c, h, w), &dev).unwrap()).unwrap();
         let wt = Var::from_tensor(&Tensor::randn(0f32, 0.5, (co, c, k, k), &dev).unwrap()).unwrap();
         let ours = hilo_fusion::conv::conv2d(x.as_tensor(), wt.as_tensor(), stride, pad).unwrap();

@@ -29,8 +29,17 @@ fn frame(seed: u64, boxes: &[GtBox]) -> Frame {
     for b in boxes {
         let (c, s) = (b.yaw.cos(), b.yaw.sin());
         for _ in 0..80 {
-            let (u, v, h) = (rng.random_range(-0.5..0.5) * b.wlh[1], rng.random_range(-0.5..0.5) * b.wlh[0], rng.random_range(0.0..1.0) * b.wlh[2]);
-            lidar.push([b.center[0] + c * u - s * v, b.center[1] + s * u + c * v, b.center[2] - 0.5 * b.wlh[2] + h, 0.6]);
+            let (u, v, h) = (
+                rng.random_range(-0.5..0.5) * b.wlh[1],
+                rng.random_range(-0.5..0.5) * b.wlh[0],
+                rng.random_range(0.0..1.0) * b.wlh[2],
+            );
+            lidar.push([
+                b.center[0] + c * u - s * v,
+                b.center[1] + s * u + c * v,
+                b.center[2] - 0.5 * b.wlh[2] + h,
+                0.6,
+            ]);
         }
     }
     Frame { sample_token: format!("s{seed}"), lidar, radar: Vec::new(), boxes: boxes.to_vec() }
@@ -74,12 +83,18 @@ fn losses_are_finite_and_exact_for_extreme_logits() {
     }
     let logits = Tensor::new(&[[[[100f32, -100.0], [-100.0, 100.0]]]], &d).unwrap();
     let t = Tensor::new(&[[[[1f32, 0.0], [0.5, 0.0]]]], &d).unwrap();
-    for l in [centernet_focal(&logits, &t, 1.0).unwrap(), sigmoid_focal(&logits, &t.ge(0.999).unwrap().to_dtype(candle_core::DType::F32).unwrap(), 1.0).unwrap()] {
+    for l in [
+        centernet_focal(&logits, &t, 1.0).unwrap(),
+        sigmoid_focal(&logits, &t.ge(0.999).unwrap().to_dtype(candle_core::DType::F32).unwrap(), 1.0).unwrap(),
+    ] {
         let v = l.to_scalar::<f32>().unwrap();
         assert!(v.is_finite(), "{v}");
     }
     // Closed form: one positive at logit 0 → (1 − ½)² · ln 2 = 0.1733.
-    let v = centernet_focal(&Tensor::new(&[[[[0f32]]]], &d).unwrap(), &Tensor::new(&[[[[1f32]]]], &d).unwrap(), 1.0).unwrap().to_scalar::<f32>().unwrap();
+    let v = centernet_focal(&Tensor::new(&[[[[0f32]]]], &d).unwrap(), &Tensor::new(&[[[[1f32]]]], &d).unwrap(), 1.0)
+        .unwrap()
+        .to_scalar::<f32>()
+        .unwrap();
     assert!((v - 0.25 * std::f32::consts::LN_2).abs() < 1e-6, "{v}");
 }
 
@@ -102,8 +117,18 @@ fn empty_clouds_and_frames_without_boxes_give_finite_losses() {
 fn one_batch_overfits() {
     for name in ["centerpoint", "pointpillars"] {
         let cfg = small(name);
-        let frames = vec![frame(4, &[car(3.0, 2.0, 0.4), ped(-5.0, -3.0)]), frame(5, &[car(-6.0, 6.0, 2.0), car(6.0, -7.0, -1.0)])];
-        let tc = TrainConfig { samples: 2 * 120, batch: 2, lr_max: 5e-3, augmentation: Augmentation::none(), checkpoint_steps: 1000, ..TrainConfig::default() };
+        let frames = vec![
+            frame(4, &[car(3.0, 2.0, 0.4), ped(-5.0, -3.0)]),
+            frame(5, &[car(-6.0, 6.0, 2.0), car(6.0, -7.0, -1.0)]),
+        ];
+        let tc = TrainConfig {
+            samples: 2 * 120,
+            batch: 2,
+            lr_max: 5e-3,
+            augmentation: Augmentation::none(),
+            checkpoint_steps: 1000,
+            ..TrainConfig::default()
+        };
         let dir = tempfile::tempdir().unwrap();
         let mut losses = Vec::new();
         let one: Vec<Frame> = frames.clone();
@@ -118,7 +143,11 @@ fn one_batch_overfits() {
         // And the overfit detector finds the boxes it saw.
         let (det, _) = hilo_fusion::train::load_run(dir.path(), &Registry::with_builtin(), &Device::Cpu).unwrap();
         let found = det.detect(&HostBatch::new(&cfg, &frames[..1], false)).unwrap();
-        let best = found[0].iter().filter(|d| d.class == 0).map(|d| ((d.center[0] - 3.0).powi(2) + (d.center[1] - 2.0).powi(2)).sqrt()).fold(f32::INFINITY, f32::min);
+        let best = found[0]
+            .iter()
+            .filter(|d| d.class == 0)
+            .map(|d| ((d.center[0] - 3.0).powi(2) + (d.center[1] - 2.0).powi(2)).sqrt())
+            .fold(f32::INFINITY, f32::min);
         // Within half a car length: the detector found the car it was shown (centerpoint lands
         // within ~0.3 m; the dense head's border cells regress less precisely after 120 steps).
         assert!(best < 2.3, "{name}: nearest car detection {best} m from the car");
@@ -128,7 +157,8 @@ fn one_batch_overfits() {
 #[test]
 fn checkpoints_reload_bit_identically_and_training_is_deterministic_and_resumes() {
     let cfg = small("centerpoint");
-    let frames: Vec<Frame> = (0..6).map(|k| frame(10 + k, &[car(k as f32 - 3.0, 2.0, 0.1 * k as f32), ped(4.0, -(k as f32))])).collect();
+    let frames: Vec<Frame> =
+        (0..6).map(|k| frame(10 + k, &[car(k as f32 - 3.0, 2.0, 0.1 * k as f32), ped(4.0, -(k as f32))])).collect();
     let tc = TrainConfig { samples: 2 * 8, batch: 2, checkpoint_steps: 3, ..TrainConfig::default() };
     let reg = Registry::with_builtin();
     let (a, b, c) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
@@ -148,8 +178,14 @@ fn checkpoints_reload_bit_identically_and_training_is_deterministic_and_resumes(
     let hb = HostBatch::new(&cfg, &frames[..2], false);
     let (x1, y1) = d1.forward(&hb, false).unwrap();
     let (x2, y2) = d2.forward(&hb, false).unwrap();
-    assert_eq!(x1.flatten_all().unwrap().to_vec1::<f32>().unwrap(), x2.flatten_all().unwrap().to_vec1::<f32>().unwrap());
-    assert_eq!(y1.flatten_all().unwrap().to_vec1::<f32>().unwrap(), y2.flatten_all().unwrap().to_vec1::<f32>().unwrap());
+    assert_eq!(
+        x1.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+        x2.flatten_all().unwrap().to_vec1::<f32>().unwrap()
+    );
+    assert_eq!(
+        y1.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+        y2.flatten_all().unwrap().to_vec1::<f32>().unwrap()
+    );
     // Another seed, other weights.
     let d = tempfile::tempdir().unwrap();
     train(d.path(), &cfg, &TrainConfig { seed: 1, ..tc.clone() }, &frames, &reg, &Device::Cpu, &mut |_| true).unwrap();
@@ -161,7 +197,11 @@ fn bad_input_is_a_clear_error() {
     let e = preset("pointrcnn").unwrap_err().to_string();
     assert!(e.contains("pointrcnn") && e.contains("centerpoint") && e.contains("pointpillars"), "{e}");
     let mut r = Registry::with_builtin();
-    fn builder(_: &serde_json::Value, _: &BevGrid, _: candle_nn::VarBuilder) -> hilo_fusion::Result<Box<dyn hilo_fusion::Fusion>> {
+    fn builder(
+        _: &serde_json::Value,
+        _: &BevGrid,
+        _: candle_nn::VarBuilder,
+    ) -> hilo_fusion::Result<Box<dyn hilo_fusion::Fusion>> {
         Err(hilo_fusion::FusionError::Config("unused".into()))
     }
     let e = r.register("lidar", builder).unwrap_err().to_string();
@@ -188,9 +228,12 @@ fn bad_input_is_a_clear_error() {
 #[test]
 fn late_merge_fuses_matches_and_keeps_the_rest_by_rule() {
     use hilo_fusion::decode::{DecodeConfig, Det, merge_late};
-    let l = Det { class: 0, score: 0.8, center: [10.0, 0.0, 0.8], wlh: [1.9, 4.6, 1.6], yaw: 0.0, velocity: [0.0, 0.0] };
-    let r = Det { class: 0, score: 0.6, center: [10.6, 0.3, 0.8], wlh: [2.0, 4.4, 1.5], yaw: 0.1, velocity: [7.0, 0.5] };
-    let r_alone = Det { class: 4, score: 0.4, center: [-5.0, 3.0, 0.9], wlh: [0.6, 0.6, 1.7], yaw: 0.0, velocity: [0.0, 1.0] };
+    let l =
+        Det { class: 0, score: 0.8, center: [10.0, 0.0, 0.8], wlh: [1.9, 4.6, 1.6], yaw: 0.0, velocity: [0.0, 0.0] };
+    let r =
+        Det { class: 0, score: 0.6, center: [10.6, 0.3, 0.8], wlh: [2.0, 4.4, 1.5], yaw: 0.1, velocity: [7.0, 0.5] };
+    let r_alone =
+        Det { class: 4, score: 0.4, center: [-5.0, 3.0, 0.9], wlh: [0.6, 0.6, 1.7], yaw: 0.0, velocity: [0.0, 1.0] };
     let l_alone = Det { class: 0, score: 0.3, center: [30.0, 0.0, 0.8], ..l };
     let m = merge_late(&[l, l_alone], &[r, r_alone], &DecodeConfig::default());
     assert_eq!(m.len(), 3);

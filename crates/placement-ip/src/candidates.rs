@@ -74,7 +74,10 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
         }
     }
     if scene.mounts.is_empty() {
-        return Err(PlacementError::Invalid(format!("scene {} has no signal poles to mount sensors on", scene.source_name())));
+        return Err(PlacementError::Invalid(format!(
+            "scene {} has no signal poles to mount sensors on",
+            scene.source_name()
+        )));
     }
     let gz = scene.ground.z_m;
     let centre = scene.layout.central.iter().copied().sum::<Vec2>() / scene.layout.central.len().max(1) as f32;
@@ -99,7 +102,10 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
         }
         let mut s = cfg.arm_step_m;
         while s <= m.arm_length_m + 1e-3 {
-            points.push((format!("{}/arm", m.name), (m.base + m.arm_dir * s).extend(gz + m.arm_height_m + cfg.arm_clearance_m)));
+            points.push((
+                format!("{}/arm", m.name),
+                (m.base + m.arm_dir * s).extend(gz + m.arm_height_m + cfg.arm_clearance_m),
+            ));
             s += cfg.arm_step_m;
         }
     }
@@ -109,11 +115,23 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
         let yaw0 = to_centre.y.atan2(to_centre.x);
         for off in &cfg.lidar_yaw_offsets_deg {
             let pose = SensorPose::new(*p, yaw0 + off.to_radians(), cfg.lidar_tilt_deg.to_radians(), 0.0);
-            out.push(Candidate { id: out.len() as u32, modality: Modality::Lidar, mount: mount as u32, structure: structure.clone(), pose });
+            out.push(Candidate {
+                id: out.len() as u32,
+                modality: Modality::Lidar,
+                mount: mount as u32,
+                structure: structure.clone(),
+                pose,
+            });
         }
         for off in &cfg.radar_yaw_offsets_deg {
             let pose = SensorPose::new(*p, yaw0 + off.to_radians(), cfg.radar_tilt_deg.to_radians(), 0.0);
-            out.push(Candidate { id: out.len() as u32, modality: Modality::Radar, mount: mount as u32, structure: structure.clone(), pose });
+            out.push(Candidate {
+                id: out.len() as u32,
+                modality: Modality::Radar,
+                mount: mount as u32,
+                structure: structure.clone(),
+                pose,
+            });
         }
     }
     Ok(out)

@@ -11,7 +11,13 @@ use std::collections::{HashMap, HashSet};
 
 /// Targets whose cell holds at least one ground return of the given LiDARs (ideal scans of the
 /// static scene: no noise, no drop-off). `cell_m` is the target grid's cell size.
-pub fn lidar_hit_targets(scene: &Scene, world: &World, targets: &[Target], cell_m: f32, lidars: &[(LidarSpec, SensorPose)]) -> Result<HashSet<usize>, PlacementError> {
+pub fn lidar_hit_targets(
+    scene: &Scene,
+    world: &World,
+    targets: &[Target],
+    cell_m: f32,
+    lidars: &[(LidarSpec, SensorPose)],
+) -> Result<HashSet<usize>, PlacementError> {
     if targets.is_empty() {
         return Ok(HashSet::new());
     }

@@ -52,7 +52,8 @@ fn past(deadline: Option<Instant>) -> bool {
 
 /// Raises an atomic f64 (stored as bits) to at least `v`.
 fn raise(a: &AtomicU64, v: f64) {
-    let _ = a.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |bits| (v > f64::from_bits(bits)).then_some(v.to_bits()));
+    let _ =
+        a.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |bits| (v > f64::from_bits(bits)).then_some(v.to_bits()));
 }
 
 /// Statistics of a search.
@@ -67,13 +68,21 @@ pub struct SearchStats {
 /// `incumbent` (e.g. greedy's selection) seeds the pruning. At `deadline` the search stops and
 /// returns its best selection with a proven bound: the largest bound of the radars it did not
 /// finish.
-pub fn exact_counts(inst: &Instance, counts: &[u32], incumbent: &[usize], deadline: Option<Instant>) -> Result<(Outcome, SearchStats), PlacementError> {
+pub fn exact_counts(
+    inst: &Instance,
+    counts: &[u32],
+    incumbent: &[usize],
+    deadline: Option<Instant>,
+) -> Result<(Outcome, SearchStats), PlacementError> {
     let start = Instant::now();
     let tau = inst.tau() * (1.0 - 1e-9);
     let count = |t: usize| counts.get(t).copied().unwrap_or(0);
-    let radar_total: u32 = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(count).sum();
+    let radar_total: u32 =
+        (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(count).sum();
     if radar_total != 1 {
-        return Err(PlacementError::Invalid(format!("the exact search handles configurations with exactly one radar, not {radar_total}")));
+        return Err(PlacementError::Invalid(format!(
+            "the exact search handles configurations with exactly one radar, not {radar_total}"
+        )));
     }
     let lidar_types: Vec<(usize, usize)> = (0..inst.types.len())
         .filter(|&t| inst.types[t].modality == Modality::Lidar && count(t) > 0)
@@ -156,7 +165,16 @@ pub fn exact_counts(inst: &Instance, counts: &[u32], incumbent: &[usize], deadli
 
 /// Searches the LiDAR completions of radar `r`; false when the deadline cut it short.
 #[allow(clippy::too_many_arguments)]
-fn search_radar(inst: &Instance, r: usize, lidar_types: &[(usize, usize)], tau: f64, best: &Best, scratch: &mut Scratch, leaves: &AtomicU64, deadline: Option<Instant>) -> bool {
+fn search_radar(
+    inst: &Instance,
+    r: usize,
+    lidar_types: &[(usize, usize)],
+    tau: f64,
+    best: &Best,
+    scratch: &mut Scratch,
+    leaves: &AtomicU64,
+    deadline: Option<Instant>,
+) -> bool {
     let n = inst.n_targets();
     let mut covered = vec![false; n];
     let mut base = 0.0;
@@ -174,7 +192,12 @@ fn search_radar(inst: &Instance, r: usize, lidar_types: &[(usize, usize)], tau: 
             let mut l: Vec<(f64, usize)> = (0..inst.options.len())
                 .filter(|&o| inst.options[o].ty == t && inst.options[o].mount != radar_mount)
                 .map(|o| {
-                    let h = inst.options[o].row.iter().filter(|(j, _)| covered[*j as usize]).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum();
+                    let h = inst.options[o]
+                        .row
+                        .iter()
+                        .filter(|(j, _)| covered[*j as usize])
+                        .map(|&(j, v)| inst.weights[j as usize] * v as f64)
+                        .sum();
                     (h, o)
                 })
                 .filter(|(h, _)| *h > 0.0)
@@ -191,7 +214,21 @@ fn search_radar(inst: &Instance, r: usize, lidar_types: &[(usize, usize)], tau: 
     }
     let mut chosen = vec![r];
     let mut stop = Stop { deadline, stopped: false, nodes: 0, budget: u64::MAX };
-    dfs(inst, &lists, lidar_types, &future, 0, 0, lidar_types.first().map_or(0, |x| x.1), base, &mut chosen, best, scratch, leaves, &mut stop);
+    dfs(
+        inst,
+        &lists,
+        lidar_types,
+        &future,
+        0,
+        0,
+        lidar_types.first().map_or(0, |x| x.1),
+        base,
+        &mut chosen,
+        best,
+        scratch,
+        leaves,
+        &mut stop,
+    );
     !stop.stopped
 }
 
@@ -285,7 +322,15 @@ pub fn maximal_count_vectors(inst: &Instance, usd: f64, min: &[u32], max: &[u32]
     let cap = |t: usize| max.get(t).copied().unwrap_or(u32::MAX);
     let mut out = Vec::new();
     let mut cur = vec![0u32; nt];
-    fn rec(inst: &Instance, t: usize, left: f64, cur: &mut Vec<u32>, min: &[u32], cap: &dyn Fn(usize) -> u32, out: &mut Vec<Vec<u32>>) {
+    fn rec(
+        inst: &Instance,
+        t: usize,
+        left: f64,
+        cur: &mut Vec<u32>,
+        min: &[u32],
+        cap: &dyn Fn(usize) -> u32,
+        out: &mut Vec<Vec<u32>>,
+    ) {
         if t == inst.types.len() {
             let fits_more = (0..inst.types.len()).any(|k| inst.types[k].price_usd <= left + 1e-9 && cur[k] < cap(k));
             let mins = (0..inst.types.len()).all(|k| cur[k] >= min.get(k).copied().unwrap_or(0));
@@ -351,7 +396,13 @@ pub fn separable_upper_bound(inst: &Instance, counts: &[u32], tops: &[Vec<Vec<f3
                 .options
                 .iter()
                 .filter(|o| o.ty == t)
-                .map(|o| o.row.iter().filter(|(j, _)| coverable[*j as usize]).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum())
+                .map(|o| {
+                    o.row
+                        .iter()
+                        .filter(|(j, _)| coverable[*j as usize])
+                        .map(|&(j, v)| inst.weights[j as usize] * v as f64)
+                        .sum()
+                })
                 .collect();
             u.sort_by(|a, b| b.total_cmp(a));
             u.iter().take(counts.get(t).copied().unwrap_or(0) as usize).sum::<f64>()
@@ -389,11 +440,20 @@ pub type VectorReport = Vec<(Vec<u32>, f64)>;
 /// whose bound still beats the incumbent is not searched: the outcome is then labelled unproven,
 /// with that bound. At `deadline` the search stops with the best selection and the largest bound
 /// of what it did not finish.
-pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbent: &[usize], deadline: Option<Instant>) -> Result<(Outcome, VectorReport), PlacementError> {
+pub fn exact_budget(
+    inst: &Instance,
+    usd: f64,
+    min: &[u32],
+    max: &[u32],
+    incumbent: &[usize],
+    deadline: Option<Instant>,
+) -> Result<(Outcome, VectorReport), PlacementError> {
     let start = Instant::now();
     let vectors = maximal_count_vectors(inst, usd, min, max);
     if vectors.is_empty() {
-        return Err(PlacementError::Infeasible(format!("no combination of sensors fits the budget of {usd} USD and the per-type minimums")));
+        return Err(PlacementError::Infeasible(format!(
+            "no combination of sensors fits the budget of {usd} USD and the per-type minimums"
+        )));
     }
     let kmax = vectors.iter().flatten().copied().max().unwrap_or(0) as usize;
     let tops = top_visibilities(inst, kmax);
@@ -414,8 +474,10 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
             open_bound = open_bound.max(*ub); // the vectors left are bounded by this one's
             break;
         }
-        let radars: u32 = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(|t| counts[t]).sum();
-        let lidar_types: Vec<usize> = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && counts[t] > 0).collect();
+        let radars: u32 =
+            (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(|t| counts[t]).sum();
+        let lidar_types: Vec<usize> =
+            (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && counts[t] > 0).collect();
         if radars >= 2 && lidar_types.len() == 1 && counts[lidar_types[0]] <= 2 {
             let (out, proven) = exact_lidar_first(inst, counts, &best_sel, 50_000_000, deadline)?;
             report.push((counts.clone(), out.objective));
@@ -444,7 +506,17 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
     let proven = open_bound <= best + 1e-9;
     let bound = if proven { best } else { open_bound };
     best_sel.sort_unstable();
-    Ok((Outcome::new(inst, best_sel, bound, proven, start.elapsed().as_secs_f64(), "exact search over budget-maximal sensor counts"), report))
+    Ok((
+        Outcome::new(
+            inst,
+            best_sel,
+            bound,
+            proven,
+            start.elapsed().as_secs_f64(),
+            "exact search over budget-maximal sensor counts",
+        ),
+        report,
+    ))
 }
 
 /// Exact search for a count vector with one LiDAR type (at most two LiDARs) and several radars:
@@ -461,18 +533,29 @@ pub fn exact_budget(inst: &Instance, usd: f64, min: &[u32], max: &[u32], incumbe
 /// `node_budget` caps the radar search and `deadline` its time; when either runs out the result
 /// is returned unproven, with the bound of the first LiDAR set not finished (sets are searched
 /// in bound order, so it bounds the rest). Returns (outcome, proven).
-pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], node_budget: u64, deadline: Option<Instant>) -> Result<(Outcome, bool), PlacementError> {
+pub fn exact_lidar_first(
+    inst: &Instance,
+    counts: &[u32],
+    incumbent: &[usize],
+    node_budget: u64,
+    deadline: Option<Instant>,
+) -> Result<(Outcome, bool), PlacementError> {
     let start = Instant::now();
     let tau = inst.tau() * (1.0 - 1e-9);
     let count = |t: usize| counts.get(t).copied().unwrap_or(0) as usize;
-    let lidar_types: Vec<usize> = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && count(t) > 0).collect();
+    let lidar_types: Vec<usize> =
+        (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && count(t) > 0).collect();
     let n_r: usize = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(count).sum();
     if lidar_types.len() != 1 || count(lidar_types[0]) > 2 || n_r == 0 {
-        return Err(PlacementError::Invalid("the LiDAR-first search takes one LiDAR type (at most two) and some radars".into()));
+        return Err(PlacementError::Invalid(
+            "the LiDAR-first search takes one LiDAR type (at most two) and some radars".into(),
+        ));
     }
     let (lt, n_l) = (lidar_types[0], count(lidar_types[0]));
     let lidars: Vec<usize> = (0..inst.options.len()).filter(|&o| inst.options[o].ty == lt).collect();
-    let radars: Vec<usize> = (0..inst.options.len()).filter(|&o| inst.modality(o) == Modality::Radar && count(inst.options[o].ty) > 0).collect();
+    let radars: Vec<usize> = (0..inst.options.len())
+        .filter(|&o| inst.modality(o) == Modality::Radar && count(inst.options[o].ty) > 0)
+        .collect();
     let n = inst.n_targets();
     let nr = radars.len();
     // Per target, the best n_r radar visibilities (for the cheap bound).
@@ -532,7 +615,14 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
     let stopped = |what: &str| {
         let tops = top_visibilities(inst, counts.iter().copied().max().unwrap_or(0) as usize);
         let bound = counts_upper_bound(inst, counts, &tops).min(separable_upper_bound(inst, counts, &tops));
-        Outcome::new(inst, sorted(incumbent), bound, false, start.elapsed().as_secs_f64(), &format!("exact LiDAR-first search ({what})"))
+        Outcome::new(
+            inst,
+            sorted(incumbent),
+            bound,
+            false,
+            start.elapsed().as_secs_f64(),
+            &format!("exact LiDAR-first search ({what})"),
+        )
     };
     if past(deadline) {
         return Ok((stopped("stopped before bounding"), false));
@@ -587,12 +677,28 @@ pub fn exact_lidar_first(inst: &Instance, counts: &[u32], incumbent: &[usize], n
         sc.cover(inst, &opts, &rt, tau);
         tables.values(&c.set, &sc.joint, &mut h);
         let lidar_mounts: Vec<u32> = opts.iter().map(|&o| inst.options[o].mount).collect();
-        let mut order: Vec<(f64, usize)> =
-            h.iter().zip(&radars).filter(|&(&x, &r)| x > 0.0 && !lidar_mounts.contains(&inst.options[r].mount)).map(|(&x, &r)| (x, r)).collect();
+        let mut order: Vec<(f64, usize)> = h
+            .iter()
+            .zip(&radars)
+            .filter(|&(&x, &r)| x > 0.0 && !lidar_mounts.contains(&inst.options[r].mount))
+            .map(|(&x, &r)| (x, r))
+            .collect();
         order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         let mut chosen = opts.clone();
         let mut used: Vec<u32> = lidar_mounts;
-        radar_dfs(inst, &order, 0, n_r, c.base, &mut chosen, &mut used, &mut best, &mut best_sel, &mut scratch, &mut stop);
+        radar_dfs(
+            inst,
+            &order,
+            0,
+            n_r,
+            c.base,
+            &mut chosen,
+            &mut used,
+            &mut best,
+            &mut best_sel,
+            &mut scratch,
+            &mut stop,
+        );
         if stop.stopped {
             open = c.ub;
             break;
@@ -622,7 +728,13 @@ struct SetScratch {
 
 impl SetScratch {
     fn new(n: usize) -> Self {
-        SetScratch { a: vec![0.0; n], rho: vec![0.0; n], touched: Vec::new(), single: vec![false; n], joint: Vec::new() }
+        SetScratch {
+            a: vec![0.0; n],
+            rho: vec![0.0; n],
+            touched: Vec::new(),
+            single: vec![false; n],
+            joint: Vec::new(),
+        }
     }
 
     /// (base, cheap bound) of a LiDAR set: base = Σ_{j ∈ C_L} w_j ρ_L(j) over the covered targets
@@ -683,7 +795,14 @@ impl RadarTables {
         }
         let covered: Vec<Vec<u32>> = lidars
             .iter()
-            .map(|&l| inst.options[l].row.iter().filter(|&&(j, v)| coverage_coef(v as f64) >= tau && rt[j as usize] > 0.0).map(|&(j, _)| j).collect())
+            .map(|&l| {
+                inst.options[l]
+                    .row
+                    .iter()
+                    .filter(|&&(j, v)| coverage_coef(v as f64) >= tau && rt[j as usize] > 0.0)
+                    .map(|&(j, _)| j)
+                    .collect()
+            })
             .collect();
         let covers: Vec<Vec<bool>> = covered
             .iter()
@@ -841,7 +960,12 @@ mod tests {
                         row.push((j as u32, rng.random_range(0.05f32..1.0)));
                     }
                 }
-                options.push(SensorOption { ty, candidate: options.len() as u32, mount: i as u32 + 100 * ty as u32, row });
+                options.push(SensorOption {
+                    ty,
+                    candidate: options.len() as u32,
+                    mount: i as u32 + 100 * ty as u32,
+                    row,
+                });
             }
         }
         let inst = Instance { weights: (0..n).map(|j| 1.0 + (j % 3) as f64).collect(), types, options, p_min: 0.5 };
@@ -864,7 +988,12 @@ mod tests {
                     }
                 }
                 for (k, &r) in radars.iter().enumerate() {
-                    let direct: f64 = inst.options[r].row.iter().filter(|(j, _)| cov[*j as usize] >= tau).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum();
+                    let direct: f64 = inst.options[r]
+                        .row
+                        .iter()
+                        .filter(|(j, _)| cov[*j as usize] >= tau)
+                        .map(|&(j, v)| inst.weights[j as usize] * v as f64)
+                        .sum();
                     assert!((h[k] - direct).abs() < 1e-9, "{set:?} radar {k}: {} vs {direct}", h[k]);
                 }
             }

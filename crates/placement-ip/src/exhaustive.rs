@@ -29,7 +29,9 @@ pub fn exhaustive(inst: &Instance, limit: &Limit, max_evaluations: u64) -> Resul
     ) -> Result<(), PlacementError> {
         *count += 1;
         if *count > max {
-            return Err(PlacementError::Invalid(format!("exhaustive search over {n} options exceeds {max} selections")));
+            return Err(PlacementError::Invalid(format!(
+                "exhaustive search over {n} options exceeds {max} selections"
+            )));
         }
         let leaf_ok = inst.check(limit, stack).is_ok();
         if leaf_ok {
@@ -44,7 +46,8 @@ pub fn exhaustive(inst: &Instance, limit: &Limit, max_evaluations: u64) -> Resul
                 Limit::Budget { usd, max, .. } => {
                     let ty = inst.options[o].ty;
                     inst.cost(stack) <= usd + 1e-6
-                        && stack.iter().filter(|&&x| inst.options[x].ty == ty).count() as u32 <= max.get(ty).copied().unwrap_or(u32::MAX)
+                        && stack.iter().filter(|&&x| inst.options[x].ty == ty).count() as u32
+                            <= max.get(ty).copied().unwrap_or(u32::MAX)
                         && stack.iter().filter(|&&x| inst.options[x].mount == inst.options[o].mount).count() == 1
                 }
                 _ => inst.check(limit, stack).is_ok(),

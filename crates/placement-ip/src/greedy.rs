@@ -20,7 +20,12 @@ fn relaxed(inst: &Instance, sel: &[usize]) -> f64 {
     sel.iter()
         .map(|&o| {
             let a = if inst.modality(o) == Modality::Lidar { &a_l } else { &a_r };
-            inst.options[o].row.iter().filter(|(j, _)| a[*j as usize] >= tau).map(|&(j, v)| inst.weights[j as usize] * v as f64).sum::<f64>()
+            inst.options[o]
+                .row
+                .iter()
+                .filter(|(j, _)| a[*j as usize] >= tau)
+                .map(|&(j, v)| inst.weights[j as usize] * v as f64)
+                .sum::<f64>()
         })
         .sum()
 }
@@ -42,8 +47,10 @@ pub fn greedy(inst: &Instance, limit: &Limit) -> Outcome {
                 let ok = match limit {
                     Limit::Budget { usd, max, .. } => {
                         inst.cost(&s) <= usd + 1e-6
-                            && s.iter().filter(|&&x| inst.options[x].ty == inst.options[o].ty).count() as u32 <= max.get(inst.options[o].ty).copied().unwrap_or(u32::MAX)
-                            && s.iter().map(|&x| inst.options[x].mount).collect::<std::collections::HashSet<_>>().len() == s.len()
+                            && s.iter().filter(|&&x| inst.options[x].ty == inst.options[o].ty).count() as u32
+                                <= max.get(inst.options[o].ty).copied().unwrap_or(u32::MAX)
+                            && s.iter().map(|&x| inst.options[x].mount).collect::<std::collections::HashSet<_>>().len()
+                                == s.len()
                     }
                     _ => inst.check(limit, &s).is_ok(),
                 };

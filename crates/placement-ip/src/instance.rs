@@ -233,6 +233,14 @@ impl Outcome {
         let objective = evaluate(inst, &selection);
         let bound = if proven { objective } else { bound.max(objective) };
         let gap = (bound - objective) / objective.abs().max(1e-9);
-        Outcome { selection, objective, bound, gap, proven_optimal: proven, solve_seconds: seconds, method: method.to_owned() }
+        Outcome {
+            selection,
+            objective,
+            bound,
+            gap,
+            proven_optimal: proven,
+            solve_seconds: seconds,
+            method: method.to_owned(),
+        }
     }
 }

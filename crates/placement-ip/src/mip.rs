@@ -16,7 +16,10 @@ use crate::candidates::Modality;
 use crate::error::PlacementError;
 use crate::instance::{Instance, Limit, Outcome, coverage_coef};
 use good_lp::solvers::coin_cbc::{CoinCbcProblem, coin_cbc};
-use good_lp::{Expression, ProblemVariables, Solution, SolutionStatus, SolverModel, Variable, WithInitialSolution, WithTimeLimit, variable};
+use good_lp::{
+    Expression, ProblemVariables, Solution, SolutionStatus, SolverModel, Variable, WithInitialSolution, WithTimeLimit,
+    variable,
+};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
@@ -69,7 +72,9 @@ pub fn build(inst: &Instance, limit: &Limit, form: Formulation) -> Result<Model,
         }
     }
     let sees = |j: usize, m: Modality| by_target[j].iter().any(|&(o, _)| inst.modality(o) == m);
-    let kept: Vec<usize> = (0..n).filter(|&j| !strong || (sees(j, Modality::Lidar) && sees(j, Modality::Radar) && inst.weights[j] > 0.0)).collect();
+    let kept: Vec<usize> = (0..n)
+        .filter(|&j| !strong || (sees(j, Modality::Lidar) && sees(j, Modality::Radar) && inst.weights[j] > 0.0))
+        .collect();
     let t: Vec<(usize, Variable)> = kept.iter().map(|&j| (j, vars.add(variable().binary()))).collect();
     let z: Vec<Variable> = kept.iter().map(|_| vars.add(variable().min(0.0))).collect();
     let objective: Expression = z.iter().copied().sum();
@@ -162,7 +167,13 @@ pub fn build(inst: &Instance, limit: &Limit, form: Formulation) -> Result<Model,
 /// Solves with CBC within `time_limit_s` (CBC rounds to whole seconds), optionally warm-started
 /// from a selection. The objective reported is the exact objective of the selection CBC returns;
 /// the bound is CBC's best possible value.
-pub fn solve(inst: &Instance, limit: &Limit, form: Formulation, time_limit_s: f64, warm: Option<&[usize]>) -> Result<Outcome, PlacementError> {
+pub fn solve(
+    inst: &Instance,
+    limit: &Limit,
+    form: Formulation,
+    time_limit_s: f64,
+    warm: Option<&[usize]>,
+) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
     let m = build(inst, limit, form)?;
     let mut problem = m.problem.with_time_limit(time_limit_s.max(1.0));
@@ -175,11 +186,16 @@ pub fn solve(inst: &Instance, limit: &Limit, form: Formulation, time_limit_s: f6
         for &o in sel {
             for &(j, v) in &inst.options[o].row {
                 let a = coverage_coef(v as f64);
-                if inst.modality(o) == Modality::Lidar { a_l[j as usize] += a } else { a_r[j as usize] += a }
+                if inst.modality(o) == Modality::Lidar {
+                    a_l[j as usize] += a
+                } else {
+                    a_r[j as usize] += a
+                }
                 rho[j as usize] += inst.weights[j as usize] * v as f64;
             }
         }
-        let mut init: Vec<(Variable, f64)> = m.x.iter().enumerate().map(|(o, &v)| (v, if chosen.contains(&o) { 1.0 } else { 0.0 })).collect();
+        let mut init: Vec<(Variable, f64)> =
+            m.x.iter().enumerate().map(|(o, &v)| (v, if chosen.contains(&o) { 1.0 } else { 0.0 })).collect();
         for (k, &(j, tv)) in m.t.iter().enumerate() {
             let on = a_l[j] >= tau && a_r[j] >= tau;
             init.push((tv, if on { 1.0 } else { 0.0 }));
@@ -202,10 +218,16 @@ pub fn solve(inst: &Instance, limit: &Limit, form: Formulation, time_limit_s: f6
 
 /// Writes the model as gzip-compressed MPS (CBC's writer), to `<stem>.mps.gz`; returns that
 /// path. Gurobi, HiGHS, CBC and SCIP read it as it is.
-pub fn write_mps(inst: &Instance, limit: &Limit, form: Formulation, stem: &std::path::Path) -> Result<std::path::PathBuf, PlacementError> {
+pub fn write_mps(
+    inst: &Instance,
+    limit: &Limit,
+    form: Formulation,
+    stem: &std::path::Path,
+) -> Result<std::path::PathBuf, PlacementError> {
     let m = build(inst, limit, form)?;
     let raw = m.problem.as_inner().to_raw();
-    let name = std::ffi::CString::new(stem.to_string_lossy().as_bytes()).map_err(|e| PlacementError::Invalid(format!("path {}: {e}", stem.display())))?;
+    let name = std::ffi::CString::new(stem.to_string_lossy().as_bytes())
+        .map_err(|e| PlacementError::Invalid(format!("path {}: {e}", stem.display())))?;
     raw.write_mps(&name);
     let written = std::path::PathBuf::from(format!("{}.mps.gz", stem.display()));
     if !written.exists() {

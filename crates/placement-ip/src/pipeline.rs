@@ -52,7 +52,12 @@ pub struct Prepared {
 }
 
 /// Computes targets, candidates and the visibility of every named sensor type.
-pub fn prepare(scene: &Scene, catalog: &Catalog, types: &[String], cfg: &PlacementConfig) -> Result<Prepared, PlacementError> {
+pub fn prepare(
+    scene: &Scene,
+    catalog: &Catalog,
+    types: &[String],
+    cfg: &PlacementConfig,
+) -> Result<Prepared, PlacementError> {
     cfg.visibility.validate()?;
     let targets = roi_targets(scene, cfg.cell_m)?;
     let candidates = sample_candidates(scene, &cfg.candidates)?;
@@ -76,17 +81,34 @@ pub fn prepare(scene: &Scene, catalog: &Catalog, types: &[String], cfg: &Placeme
     let t = Instant::now();
     let mut visibility = BTreeMap::new();
     for (name, spec) in types.iter().zip(specs) {
-        visibility.insert(name.clone(), compute_visibility(spec, &candidates, &targets, &los, scene.ground.z_m, &cfg.visibility));
+        visibility.insert(
+            name.clone(),
+            compute_visibility(spec, &candidates, &targets, &los, scene.ground.z_m, &cfg.visibility),
+        );
     }
-    Ok(Prepared { targets, candidates, visibility, seconds_line_of_sight, seconds_visibility: t.elapsed().as_secs_f64() })
+    Ok(Prepared {
+        targets,
+        candidates,
+        visibility,
+        seconds_line_of_sight,
+        seconds_visibility: t.elapsed().as_secs_f64(),
+    })
 }
 
 /// The instance over the given sensor types (each with all candidates of its modality).
 pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64) -> Result<Instance, PlacementError> {
-    let mut inst = Instance { weights: prep.targets.iter().map(|t| t.weight as f64).collect(), types: Vec::new(), options: Vec::new(), p_min };
+    let mut inst = Instance {
+        weights: prep.targets.iter().map(|t| t.weight as f64).collect(),
+        types: Vec::new(),
+        options: Vec::new(),
+        p_min,
+    };
     for (ty, name) in types.iter().enumerate() {
         let spec = catalog.get(name)?;
-        let vis = prep.visibility.get(name).ok_or_else(|| PlacementError::Invalid(format!("no visibility computed for {name}")))?;
+        let vis = prep
+            .visibility
+            .get(name)
+            .ok_or_else(|| PlacementError::Invalid(format!("no visibility computed for {name}")))?;
         inst.types.push(SensorType { name: name.clone(), modality: vis.modality, price_usd: spec.price_usd() });
         for (row, &cand) in vis.rows.iter().zip(&vis.candidates) {
             let c = &prep.candidates[cand as usize];
@@ -115,9 +137,15 @@ pub fn solve(inst: &Instance, limit: &Limit, time_limit_s: f64) -> Result<Outcom
 /// the result's `solve_seconds`.
 pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome) -> Result<Outcome, PlacementError> {
     // The exact searches stop at the time limit too, with their best selection and bound.
-    let deadline = (time_limit_s.is_finite() && time_limit_s >= 0.0).then(|| std::time::Instant::now() + std::time::Duration::from_secs_f64(time_limit_s.min(1e7)));
+    let deadline = (time_limit_s.is_finite() && time_limit_s >= 0.0)
+        .then(|| std::time::Instant::now() + std::time::Duration::from_secs_f64(time_limit_s.min(1e7)));
     if let Limit::Counts(c) = limit {
-        let radars: u32 = c.iter().enumerate().filter(|(t, _)| inst.types.get(*t).is_some_and(|x| x.modality == Modality::Radar)).map(|(_, n)| *n).sum();
+        let radars: u32 = c
+            .iter()
+            .enumerate()
+            .filter(|(t, _)| inst.types.get(*t).is_some_and(|x| x.modality == Modality::Radar))
+            .map(|(_, n)| *n)
+            .sum();
         if radars == 1 {
             let (mut out, _) = exact_counts(inst, c, &g.selection, deadline)?;
             out.solve_seconds += g.solve_seconds;
@@ -141,5 +169,14 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
     }
     let out = solve_mip(inst, limit, Formulation::Strengthened, left, Some(&g.selection))?;
     // CBC may stop with something worse than its warm start: never return less than greedy.
-    Ok(if out.objective + 1e-9 < g.objective { Outcome { selection: g.selection.clone(), objective: g.objective, gap: (out.bound - g.objective) / g.objective.max(1e-9), ..out } } else { out })
+    Ok(if out.objective + 1e-9 < g.objective {
+        Outcome {
+            selection: g.selection.clone(),
+            objective: g.objective,
+            gap: (out.bound - g.objective) / g.objective.max(1e-9),
+            ..out
+        }
+    } else {
+        out
+    })
 }

@@ -22,7 +22,10 @@ pub fn roi_targets(scene: &Scene, cell_m: f32) -> Result<Vec<Target>, PlacementE
         return Err(PlacementError::Invalid(format!("target cell size {cell_m} m: must be at least 0.1 m")));
     }
     if scene.rois.is_empty() {
-        return Err(PlacementError::Invalid(format!("scene {} has no regions of interest ([[roi]])", scene.source_name())));
+        return Err(PlacementError::Invalid(format!(
+            "scene {} has no regions of interest ([[roi]])",
+            scene.source_name()
+        )));
     }
     let pts: Vec<Vec2> = scene.rois.iter().flat_map(|r| r.polygons.iter().flatten().copied()).collect();
     let lo = pts.iter().fold(Vec2::splat(f32::MAX), |a, b| a.min(*b));

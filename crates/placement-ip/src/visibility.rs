@@ -20,8 +20,8 @@ use crate::targets::Target;
 use glam::Vec3;
 use hilo_core::Class;
 use hilo_raycast::{Ray, World};
-use hilo_sensor_models::probability::{LidarPattern, Probe, radar_detection_probability};
 use hilo_sensor_models::SensorSpec;
+use hilo_sensor_models::probability::{LidarPattern, Probe, radar_detection_probability};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -49,7 +49,12 @@ impl Default for VisibilityConfig {
     fn default() -> Self {
         VisibilityConfig {
             probes: vec![
-                ProbeConfig { class: Class::Pedestrian, weight: 0.5, min_points: 3, los_heights_m: vec![0.3, 0.9, 1.5] },
+                ProbeConfig {
+                    class: Class::Pedestrian,
+                    weight: 0.5,
+                    min_points: 3,
+                    los_heights_m: vec![0.3, 0.9, 1.5],
+                },
                 ProbeConfig { class: Class::Car, weight: 0.5, min_points: 5, los_heights_m: vec![0.4, 0.9, 1.4] },
             ],
             min_v: 1e-3,
@@ -64,7 +69,9 @@ impl VisibilityConfig {
         }
         let total: f32 = self.probes.iter().map(|p| p.weight).sum();
         if self.probes.iter().any(|p| !(p.weight.is_finite() && p.weight >= 0.0)) || (total - 1.0).abs() > 1e-4 {
-            return Err(PlacementError::Invalid(format!("visibility.probes weights must be >= 0 and sum to 1 (sum {total})")));
+            return Err(PlacementError::Invalid(format!(
+                "visibility.probes weights must be >= 0 and sum to 1 (sum {total})"
+            )));
         }
         if self.probes.iter().any(|p| p.los_heights_m.is_empty() || p.min_points == 0) {
             return Err(PlacementError::Invalid("every probe needs los_heights_m and min_points >= 1".into()));
@@ -131,7 +138,14 @@ pub struct LineOfSight {
 
 impl LineOfSight {
     /// Casts the occlusion rays of every mount point to every target within `range_m`.
-    pub fn compute(world: &World, ground_z: f32, mounts: &[Vec3], targets: &[Target], cfg: &VisibilityConfig, range_m: f32) -> Result<Self, PlacementError> {
+    pub fn compute(
+        world: &World,
+        ground_z: f32,
+        mounts: &[Vec3],
+        targets: &[Target],
+        cfg: &VisibilityConfig,
+        range_m: f32,
+    ) -> Result<Self, PlacementError> {
         if cfg.probes.len() > 4 {
             return Err(PlacementError::Invalid("at most 4 probes".into()));
         }
@@ -153,7 +167,11 @@ impl LineOfSight {
                                     let q = t.center.extend(ground_z + **h);
                                     let d = q - m;
                                     let len = d.length();
-                                    len > 0.0 && !world.occluded(&Ray { origin: m, dir: d / len, t_min: 1e-3, t_max: len - 0.05 }, None)
+                                    len > 0.0
+                                        && !world.occluded(
+                                            &Ray { origin: m, dir: d / len, t_min: 1e-3, t_max: len - 0.05 },
+                                            None,
+                                        )
                                 })
                                 .count();
                             f[k] = visible as f32 / p.los_heights_m.len() as f32;
@@ -168,7 +186,14 @@ impl LineOfSight {
 }
 
 /// V for one sensor type over the candidates of its modality. `los` is indexed by mount.
-pub fn compute_visibility(spec: &SensorSpec, candidates: &[Candidate], targets: &[Target], los: &LineOfSight, ground_z: f32, cfg: &VisibilityConfig) -> Visibility {
+pub fn compute_visibility(
+    spec: &SensorSpec,
+    candidates: &[Candidate],
+    targets: &[Target],
+    los: &LineOfSight,
+    ground_z: f32,
+    cfg: &VisibilityConfig,
+) -> Visibility {
     let modality = match spec {
         SensorSpec::Lidar(_) => Modality::Lidar,
         SensorSpec::Radar(_) => Modality::Radar,
@@ -208,7 +233,9 @@ pub fn compute_visibility(spec: &SensorSpec, candidates: &[Candidate], targets: 
                             let n = pat.expected_returns_capped(&c.pose, probe, &b, cap) as f64 * f[k] as f64;
                             poisson_at_least(n, pc.min_points)
                         }
-                        (SensorSpec::Radar(r), _) => radar_detection_probability(r, &c.pose, probe, &b) as f64 * f[k] as f64,
+                        (SensorSpec::Radar(r), _) => {
+                            radar_detection_probability(r, &c.pose, probe, &b) as f64 * f[k] as f64
+                        }
                         _ => 0.0,
                     };
                     v += pc.weight as f64 * p;
@@ -220,5 +247,11 @@ pub fn compute_visibility(spec: &SensorSpec, candidates: &[Candidate], targets: 
             row
         })
         .collect();
-    Visibility { sensor: spec.name().to_owned(), modality, n_targets: targets.len(), candidates: own.iter().map(|c| c.id).collect(), rows }
+    Visibility {
+        sensor: spec.name().to_owned(),
+        modality,
+        n_targets: targets.len(),
+        candidates: own.iter().map(|c| c.id).collect(),
+        rows,
+    }
 }

@@ -19,7 +19,11 @@ fn at_one_pose_coverage_does_not_fall_with_beam_count() {
         let pose = SensorPose::new(pos, yaw, 10f32.to_radians(), 0.0);
         let cov: Vec<usize> = ["lidar-16", "lidar-32", "lidar-64"]
             .iter()
-            .map(|n| lidar_hit_targets(&scene, &world, &targets, 1.0, &[(catalog.lidar(n).unwrap().clone(), pose)]).unwrap().len())
+            .map(|n| {
+                lidar_hit_targets(&scene, &world, &targets, 1.0, &[(catalog.lidar(n).unwrap().clone(), pose)])
+                    .unwrap()
+                    .len()
+            })
             .collect();
         assert!(cov[0] <= cov[1] && cov[1] <= cov[2], "{pos}: {cov:?}");
         assert!(cov[0] > 100, "{cov:?}");

@@ -35,7 +35,12 @@ fn random_instance(seed: u64) -> Instance {
                     row.push((j, v));
                 }
             }
-            options.push(SensorOption { ty, candidate: options.len() as u32, mount: (k % 4) as u32 + 10 * (ty == 2) as u32 * (k % 2) as u32, row });
+            options.push(SensorOption {
+                ty,
+                candidate: options.len() as u32,
+                mount: (k % 4) as u32 + 10 * (ty == 2) as u32 * (k % 2) as u32,
+                row,
+            });
         }
     }
     Instance { weights, types: types(), options, p_min: 1.0 - (-1.0f64).exp() }
@@ -57,11 +62,21 @@ fn ip_and_exact_search_equal_exhaustive_and_beat_greedy_on_random_instances() {
         let plain = solve(&inst, limit, Formulation::Plain, 30.0, None).unwrap();
         for (name, o) in [("exact", &e), ("cbc strengthened", &cbc), ("cbc plain", &plain)] {
             assert!(o.proven_optimal, "seed {seed}: {name} not proven");
-            assert!((o.objective - oracle.objective).abs() < 1e-6 * oracle.objective.max(1.0), "seed {seed}: {name} {} vs exhaustive {}", o.objective, oracle.objective);
+            assert!(
+                (o.objective - oracle.objective).abs() < 1e-6 * oracle.objective.max(1.0),
+                "seed {seed}: {name} {} vs exhaustive {}",
+                o.objective,
+                oracle.objective
+            );
             assert!(inst.check(limit, &o.selection).is_ok());
         }
         // CBC's own objective value is the exact objective of its selection.
-        assert!((cbc.bound - oracle.objective).abs() < 1e-4 * oracle.objective.max(1.0), "seed {seed}: bound {} vs {}", cbc.bound, oracle.objective);
+        assert!(
+            (cbc.bound - oracle.objective).abs() < 1e-4 * oracle.objective.max(1.0),
+            "seed {seed}: bound {} vs {}",
+            cbc.bound,
+            oracle.objective
+        );
         assert!(g.objective <= oracle.objective + 1e-9);
         strictly_better += (g.objective < oracle.objective - 1e-9) as usize;
         checked += 1;
@@ -177,8 +192,12 @@ fn both_count_vector_bounds_are_upper_bounds_and_the_separable_one_is_tighter() 
         let tops = top_visibilities(&inst, 4);
         for counts in [vec![2, 0, 1], vec![1, 1, 1], vec![1, 0, 2], vec![2, 1, 2]] {
             let opt = exhaustive(&inst, &Limit::Counts(counts.clone()), 10_000_000).unwrap().objective;
-            let (per_target, separable) = (counts_upper_bound(&inst, &counts, &tops), separable_upper_bound(&inst, &counts, &tops));
-            assert!(opt <= separable + 1e-9 && opt <= per_target + 1e-9, "seed {seed} {counts:?}: {opt} > {separable} or {per_target}");
+            let (per_target, separable) =
+                (counts_upper_bound(&inst, &counts, &tops), separable_upper_bound(&inst, &counts, &tops));
+            assert!(
+                opt <= separable + 1e-9 && opt <= per_target + 1e-9,
+                "seed {seed} {counts:?}: {opt} > {separable} or {per_target}"
+            );
             assert!(separable <= per_target + 1e-9, "seed {seed} {counts:?}: {separable} > {per_target}");
         }
     }
@@ -195,7 +214,12 @@ fn lidar_first_search_equals_exhaustive_with_several_radars() {
             let g = greedy(&inst, &limit);
             let (o, proven) = exact_lidar_first(&inst, &counts, &g.selection, 10_000_000, None).unwrap();
             assert!(proven);
-            assert!((o.objective - oracle.objective).abs() < 1e-9 * oracle.objective.max(1.0), "seed {seed} {counts:?}: {} vs {}", o.objective, oracle.objective);
+            assert!(
+                (o.objective - oracle.objective).abs() < 1e-9 * oracle.objective.max(1.0),
+                "seed {seed} {counts:?}: {} vs {}",
+                o.objective,
+                oracle.objective
+            );
             assert!(inst.check(&limit, &o.selection).is_ok());
         }
     }
@@ -212,7 +236,11 @@ fn a_deadline_returns_a_valid_bound_and_a_feasible_selection() {
             let limit = Limit::Counts(counts.clone());
             let oracle = exhaustive(&inst, &limit, 10_000_000).unwrap().objective;
             let g = greedy(&inst, &limit);
-            let o = if search == 0 { exact_counts(&inst, &counts, &g.selection, now).unwrap().0 } else { exact_lidar_first(&inst, &counts, &g.selection, 10_000_000, now).unwrap().0 };
+            let o = if search == 0 {
+                exact_counts(&inst, &counts, &g.selection, now).unwrap().0
+            } else {
+                exact_lidar_first(&inst, &counts, &g.selection, 10_000_000, now).unwrap().0
+            };
             assert!(inst.check(&limit, &o.selection).is_ok());
             assert!(o.objective >= g.objective - 1e-9 && o.objective <= oracle + 1e-9);
             assert!(o.bound >= oracle - 1e-9, "seed {seed} {counts:?}: bound {} below the optimum {oracle}", o.bound);

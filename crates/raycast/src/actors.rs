@@ -107,7 +107,10 @@ impl ActorSet {
                 }
             };
             if !ok {
-                return Err(RaycastError::Geometry(format!("actor {i} (id {}) has an invalid shape: {:?}", a.id, a.shape)));
+                return Err(RaycastError::Geometry(format!(
+                    "actor {i} (id {}) has an invalid shape: {:?}",
+                    a.id, a.shape
+                )));
             }
             bounds.push(a.shape.aabb());
         }

@@ -13,10 +13,10 @@ use crate::error::RaycastError;
 use crate::ray::Ray;
 use crate::shapes::triangle::{ShearedRay, triangle_normal};
 use glam::{Vec3, Vec3A};
+use obvhs::BvhBuildParams;
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::{Bvh2, builder::build_bvh2, builder::build_bvh2_from_tris};
 use obvhs::triangle::Triangle;
-use obvhs::BvhBuildParams;
 use std::time::Duration;
 
 /// Traversal stack depth; builds deeper than this are rejected (PLOC trees over a few million
@@ -63,12 +63,7 @@ impl SlabRay {
 /// `first..first + count` (indices into the BVH's primitive order), may lower `t_max` to a new
 /// closest hit, and returns true to stop the traversal (any-hit queries).
 #[inline(always)]
-pub(crate) fn traverse(
-    bvh: &Bvh2,
-    ray: &SlabRay,
-    t_max: &mut f32,
-    mut leaf: impl FnMut(u32, u32, &mut f32) -> bool,
-) {
+pub(crate) fn traverse(bvh: &Bvh2, ray: &SlabRay, t_max: &mut f32, mut leaf: impl FnMut(u32, u32, &mut f32) -> bool) {
     let nodes = &bvh.nodes;
     let Some(root) = nodes.first() else { return };
     if ray.entry(root.aabb(), *t_max) == f32::INFINITY {
@@ -187,10 +182,8 @@ impl TriangleBvh {
         if let Some(i) = tris.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
             return Err(RaycastError::Geometry(format!("triangle {i} has a non-finite vertex")));
         }
-        let obvhs_tris: Vec<Triangle> = tris
-            .iter()
-            .map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() })
-            .collect();
+        let obvhs_tris: Vec<Triangle> =
+            tris.iter().map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() }).collect();
         let mut bvh = build_bvh2_from_tris(&obvhs_tris, BvhBuildParams::medium_build(), &mut Duration::default());
         check_depth(&bvh, "triangle")?;
         pad_boxes(&mut bvh);

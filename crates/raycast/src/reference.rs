@@ -47,7 +47,14 @@ pub fn ground_triangles(scene: &Scene, tile_m: f32) -> Vec<[Vec3; 3]> {
 /// A spinning-LiDAR sweep from `origin`: `beams` elevations spread uniformly over
 /// `elev_min_deg..=elev_max_deg`, `azimuth_steps` azimuths over 360°, unit directions,
 /// range `max_range_m`. Rays are ordered column by column, as the sensor fires them.
-pub fn lidar_sweep(origin: Vec3, beams: usize, elev_min_deg: f32, elev_max_deg: f32, azimuth_steps: usize, max_range_m: f32) -> Vec<Ray> {
+pub fn lidar_sweep(
+    origin: Vec3,
+    beams: usize,
+    elev_min_deg: f32,
+    elev_max_deg: f32,
+    azimuth_steps: usize,
+    max_range_m: f32,
+) -> Vec<Ray> {
     let mut rays = Vec::with_capacity(beams * azimuth_steps);
     for a in 0..azimuth_steps {
         let az = std::f32::consts::TAU * a as f32 / azimuth_steps as f32;
@@ -122,7 +129,13 @@ pub fn on_mesh_edge(p: Vec3, tris: &[[Vec3; 3]], eps: f32) -> bool {
 
 /// Casts `rays` through hilo's `world` and parry's `mesh` (built by [`parry_trimesh`] with
 /// the same `ground_tile_m`) and classifies every disagreement.
-pub fn compare_with_parry(scene: &Scene, world: &crate::World, mesh: &TriMesh, ground_tile_m: f32, rays: &[Ray]) -> Comparison {
+pub fn compare_with_parry(
+    scene: &Scene,
+    world: &crate::World,
+    mesh: &TriMesh,
+    ground_tile_m: f32,
+    rays: &[Ray],
+) -> Comparison {
     use parry3d::query::RayCast;
     use rayon::prelude::*;
     let mut all = ground_triangles(scene, ground_tile_m);

@@ -68,14 +68,24 @@ impl World {
         let tris: Vec<[Vec3; 3]> = keep.iter().map(|&k| scene.mesh.triangles[k as usize]).collect();
         let mut bvh = TriangleBvh::build(&tris)?;
         bvh.remap_ids(&keep);
-        Ok(World { ground: Some(scene.ground), bvh, triangle_object: scene.mesh.object.clone(), objects: scene.objects.clone() })
+        Ok(World {
+            ground: Some(scene.ground),
+            bvh,
+            triangle_object: scene.mesh.object.clone(),
+            objects: scene.objects.clone(),
+        })
     }
 
     /// An engine over bare triangles (every triangle is object 0, "mesh"), with an optional
     /// ground: for tests, tools and callers that build geometry themselves.
     pub fn from_triangles(triangles: &[[Vec3; 3]], ground: Option<GroundPlane>) -> Result<Self, RaycastError> {
         let object = SceneObject { name: "mesh".into(), kind: crate::ObjectKind::Mesh, material: Material::Building };
-        Ok(World { ground, bvh: TriangleBvh::build(triangles)?, triangle_object: vec![0; triangles.len()], objects: vec![object] })
+        Ok(World {
+            ground,
+            bvh: TriangleBvh::build(triangles)?,
+            triangle_object: vec![0; triangles.len()],
+            objects: vec![object],
+        })
     }
 
     /// Number of static triangles in the acceleration structure.

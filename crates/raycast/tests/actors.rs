@@ -20,7 +20,11 @@ fn actor_bvh_matches_brute_force_closest_and_any() {
                 _ => (4.5, 1.9, 1.6),
             };
             let c = Vec3::new(rng.random_range(-60.0..60.0), rng.random_range(-60.0..60.0), h / 2.0);
-            Actor::from_box(i as u32, class, Box3::new(c, l, w, h, rng.random_range(-std::f32::consts::PI..std::f32::consts::PI)))
+            Actor::from_box(
+                i as u32,
+                class,
+                Box3::new(c, l, w, h, rng.random_range(-std::f32::consts::PI..std::f32::consts::PI)),
+            )
         })
         .collect();
     let set = ActorSet::new(actors.clone()).unwrap();

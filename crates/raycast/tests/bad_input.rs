@@ -13,7 +13,10 @@ fn load_text(dir: &Path, text: &str) -> Result<Scene, RaycastError> {
 
 fn expect_err(dir: &Path, text: &str, needles: &[&str]) {
     let err = load_text(dir, text).expect_err("should fail").to_string();
-    assert!(err.contains("scene.toml") || needles.iter().any(|n| n.ends_with(".obj") || n.ends_with(".gltf")), "no file name in: {err}");
+    assert!(
+        err.contains("scene.toml") || needles.iter().any(|n| n.ends_with(".obj") || n.ends_with(".gltf")),
+        "no file name in: {err}"
+    );
     for n in needles {
         assert!(err.contains(n), "{err:?} does not mention {n:?}");
     }
@@ -31,13 +34,37 @@ fn malformed_and_unknown_fields() {
 #[test]
 fn nan_negative_and_degenerate_values_name_the_field() {
     let d = tempfile::tempdir().unwrap();
-    expect_err(d.path(), "name = \"x\"\n[[buildings]]\nfootprint = [[0.0,0.0],[1.0,0.0],[1.0,1.0]]\nheight_m = nan", &["buildings[0].height_m", "NaN"]);
-    expect_err(d.path(), "name = \"x\"\n[[buildings]]\nfootprint = [[0.0,0.0],[1.0,0.0],[1.0,1.0]]\nheight_m = -3.0", &["buildings[0].height_m", "-3"]);
-    expect_err(d.path(), "name = \"x\"\n[[buildings]]\nfootprint = [[0.0,0.0],[1.0,0.0],[2.0,0.0]]\nheight_m = 3.0", &["buildings[0].footprint", "zero area"]);
-    expect_err(d.path(), "name = \"x\"\n[[trees]]\nposition = [1.0, 2.0]\ncrown_radius_m = -1.0", &["trees[0].crown_radius_m"]);
-    expect_err(d.path(), "name = \"x\"\n[[arms]]\nname = \"a\"\nheading_deg = 0.0\nlane_width_m = 0.0", &["arms[0].lane_width_m"]);
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[buildings]]\nfootprint = [[0.0,0.0],[1.0,0.0],[1.0,1.0]]\nheight_m = nan",
+        &["buildings[0].height_m", "NaN"],
+    );
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[buildings]]\nfootprint = [[0.0,0.0],[1.0,0.0],[1.0,1.0]]\nheight_m = -3.0",
+        &["buildings[0].height_m", "-3"],
+    );
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[buildings]]\nfootprint = [[0.0,0.0],[1.0,0.0],[2.0,0.0]]\nheight_m = 3.0",
+        &["buildings[0].footprint", "zero area"],
+    );
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[trees]]\nposition = [1.0, 2.0]\ncrown_radius_m = -1.0",
+        &["trees[0].crown_radius_m"],
+    );
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[arms]]\nname = \"a\"\nheading_deg = 0.0\nlane_width_m = 0.0",
+        &["arms[0].lane_width_m"],
+    );
     expect_err(d.path(), "name = \"x\"\n[ground]\nhalf_size_m = inf", &["ground.half_size_m"]);
-    expect_err(d.path(), "name = \"x\"\n[[signal_poles]]\nname = \"p\"\nposition = [0.0, 0.0]\narm_heading_deg = 0.0\narm_length_m = 5.0\nhead_offsets_m = [6.0]", &["signal_poles[0].head_offsets_m[0]"]);
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[signal_poles]]\nname = \"p\"\nposition = [0.0, 0.0]\narm_heading_deg = 0.0\narm_length_m = 5.0\nhead_offsets_m = [6.0]",
+        &["signal_poles[0].head_offsets_m[0]"],
+    );
     expect_err(d.path(), "name = \"x\"\n[[roi]]\nname = \"r\"\nkind = \"polygon\"", &["roi[0].polygon"]);
     expect_err(d.path(), "name = \"x\"\n[[roi]]\nname = \"r\"\nkind = \"central\"", &["roi[0].kind"]);
     expect_err(d.path(), "name = \"x\"\n[[meshes]]\npath = \"m.obj\"\nscale = 0.0", &["meshes[0].scale"]);

@@ -3,7 +3,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use glam::Vec3;
-use hilo_raycast::reference::{compare_with_parry, on_mesh_edge, parry_trimesh, ground_triangles, DIST_TOL_M};
+use hilo_raycast::reference::{DIST_TOL_M, compare_with_parry, ground_triangles, on_mesh_edge, parry_trimesh};
 use hilo_raycast::{HitTarget, QueryRegion, Ray, Scene, World};
 use parry3d::query::RayCast;
 use rand::{Rng, SeedableRng};
@@ -28,7 +28,8 @@ fn random_rays_agree_with_parry_everywhere_except_documented_edge_cases() {
     let mut rays = Vec::with_capacity(120_000);
     // Anywhere in the scene, any direction (many start inside buildings or crowns on purpose).
     for _ in 0..80_000 {
-        let o = Vec3::new(rng.random_range(-140.0..140.0), rng.random_range(-140.0..140.0), rng.random_range(0.2..25.0));
+        let o =
+            Vec3::new(rng.random_range(-140.0..140.0), rng.random_range(-140.0..140.0), rng.random_range(0.2..25.0));
         rays.push(Ray::new(o, random_dir(&mut rng), 200.0));
     }
     // From the mounting poles, where sensors will sit.

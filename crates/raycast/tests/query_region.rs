@@ -15,7 +15,12 @@ fn geometry_outside_the_region_is_left_out_and_answers_inside_are_unchanged() {
     let sensor = ne.base.extend(7.8);
     let range = 40.0;
     let part = World::build(&scene, &QueryRegion::spheres([(sensor, range)])).unwrap();
-    assert!(part.triangle_count() < full.triangle_count() / 2, "{} of {}", part.triangle_count(), full.triangle_count());
+    assert!(
+        part.triangle_count() < full.triangle_count() / 2,
+        "{} of {}",
+        part.triangle_count(),
+        full.triangle_count()
+    );
     let present = part.objects_present();
     for (i, o) in scene.objects.iter().enumerate() {
         if matches!(o.name.as_str(), "church" | "office" | "strip mall") {

@@ -54,7 +54,11 @@ fn rays_at_every_vertex_and_along_every_shared_edge_hit() {
         for t in &tris {
             targets.extend_from_slice(t);
             for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
-                let key = if a.to_array() < b.to_array() { (a.to_array().map(f32::to_bits), b.to_array().map(f32::to_bits)) } else { (b.to_array().map(f32::to_bits), a.to_array().map(f32::to_bits)) };
+                let key = if a.to_array() < b.to_array() {
+                    (a.to_array().map(f32::to_bits), b.to_array().map(f32::to_bits))
+                } else {
+                    (b.to_array().map(f32::to_bits), a.to_array().map(f32::to_bits))
+                };
                 if edges.insert(key) {
                     for s in [0.125f32, 0.3, 0.5, 0.77] {
                         targets.push(a + (b - a) * s);
@@ -114,8 +118,15 @@ fn write_obj(path: &std::path::Path, offset: DVec3) {
     // A 4 m cube standing on the ground 20 m east of the local origin, plus a slanted roof.
     let mut s = String::new();
     let v = [
-        (18.0, -2.0, 0.0), (22.0, -2.0, 0.0), (22.0, 2.0, 0.0), (18.0, 2.0, 0.0),
-        (18.0, -2.0, 4.0), (22.0, -2.0, 4.0), (22.0, 2.0, 4.0), (18.0, 2.0, 4.0), (20.0, 0.0, 6.0),
+        (18.0, -2.0, 0.0),
+        (22.0, -2.0, 0.0),
+        (22.0, 2.0, 0.0),
+        (18.0, 2.0, 0.0),
+        (18.0, -2.0, 4.0),
+        (22.0, -2.0, 4.0),
+        (22.0, 2.0, 4.0),
+        (18.0, 2.0, 4.0),
+        (20.0, 0.0, 6.0),
     ];
     for (x, y, z) in v {
         let p = DVec3::new(x, y, z) + offset;

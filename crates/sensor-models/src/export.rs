@@ -36,7 +36,14 @@ impl PointRecord for LidarPoint {
         vec![self.x as f64, self.y as f64, self.z as f64, self.intensity as f64, self.ring as f64, self.time_s as f64]
     }
     fn from_values(v: &[f64]) -> Self {
-        LidarPoint { x: v[0] as f32, y: v[1] as f32, z: v[2] as f32, intensity: v[3] as f32, ring: v[4] as u16, time_s: v[5] as f32 }
+        LidarPoint {
+            x: v[0] as f32,
+            y: v[1] as f32,
+            z: v[2] as f32,
+            intensity: v[3] as f32,
+            ring: v[4] as u16,
+            time_s: v[5] as f32,
+        }
     }
 }
 
@@ -51,7 +58,15 @@ impl PointRecord for RadarPoint {
         ("time", Ty::F32),
     ];
     fn values(&self) -> Vec<f64> {
-        vec![self.x as f64, self.y as f64, self.z as f64, self.rcs_dbsm as f64, self.v_r_mps as f64, self.v_r_comp_mps as f64, self.time_s as f64]
+        vec![
+            self.x as f64,
+            self.y as f64,
+            self.z as f64,
+            self.rcs_dbsm as f64,
+            self.v_r_mps as f64,
+            self.v_r_comp_mps as f64,
+            self.time_s as f64,
+        ]
     }
     fn from_values(v: &[f64]) -> Self {
         RadarPoint {
@@ -82,7 +97,12 @@ fn read_body<T: PointRecord>(body: &[u8], n: usize, path: &Path) -> Result<Vec<T
     if body.len() < n * stride {
         return Err(SensorError::PointFile {
             path: path.to_path_buf(),
-            message: format!("truncated: {} points of {stride} bytes need {} bytes of data, found {}", n, n * stride, body.len()),
+            message: format!(
+                "truncated: {} points of {stride} bytes need {} bytes of data, found {}",
+                n,
+                n * stride,
+                body.len()
+            ),
         });
     }
     Ok(body[..n * stride]
@@ -129,9 +149,8 @@ fn split_header<'a>(bytes: &'a [u8], last: &str, path: &Path) -> Result<(Vec<Str
     let mut lines = Vec::new();
     let mut pos = 0;
     while pos < bytes.len() {
-        let end = bytes[pos..].iter().position(|&b| b == b'\n').map(|e| pos + e).ok_or_else(|| SensorError::PointFile {
-            path: path.to_path_buf(),
-            message: "header ends before its last line".into(),
+        let end = bytes[pos..].iter().position(|&b| b == b'\n').map(|e| pos + e).ok_or_else(|| {
+            SensorError::PointFile { path: path.to_path_buf(), message: "header ends before its last line".into() }
         })?;
         let line = String::from_utf8_lossy(&bytes[pos..end]).trim_end_matches('\r').to_owned();
         pos = end + 1;
@@ -167,7 +186,8 @@ pub fn from_pcd<T: PointRecord>(bytes: &[u8], path: &Path) -> Result<Vec<T>, Sen
 
 /// Binary little-endian PLY bytes (one `vertex` element).
 pub fn to_ply<T: PointRecord>(points: &[T]) -> Vec<u8> {
-    let mut header = format!("ply\nformat binary_little_endian 1.0\ncomment written by hilo\nelement vertex {}\n", points.len());
+    let mut header =
+        format!("ply\nformat binary_little_endian 1.0\ncomment written by hilo\nelement vertex {}\n", points.len());
     for (name, ty) in T::FIELDS {
         header.push_str(&format!("property {} {name}\n", if *ty == Ty::F32 { "float" } else { "ushort" }));
     }
@@ -191,7 +211,8 @@ pub fn from_ply<T: PointRecord>(bytes: &[u8], path: &Path) -> Result<Vec<T>, Sen
         .iter()
         .find_map(|l| l.strip_prefix("element vertex ").and_then(|v| v.trim().parse().ok()))
         .ok_or_else(|| bad("missing or bad `element vertex`".into()))?;
-    let props: Vec<&str> = lines.iter().filter_map(|l| l.strip_prefix("property ")).filter_map(|l| l.split_whitespace().last()).collect();
+    let props: Vec<&str> =
+        lines.iter().filter_map(|l| l.strip_prefix("property ")).filter_map(|l| l.split_whitespace().last()).collect();
     let expected: Vec<&str> = T::FIELDS.iter().map(|f| f.0).collect();
     if props != expected {
         return Err(bad(format!("properties {props:?}, expected {expected:?}")));

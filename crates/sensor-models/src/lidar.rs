@@ -111,7 +111,11 @@ pub fn check_mount(world: &World, actors: Option<&ActorSet>, pose: &SensorPose) 
     }
     let p = pose.position;
     if let Some(a) = actors.and_then(|s| s.actors().iter().find(|a| a.contains(p))) {
-        return Err(SensorError::InsideGeometry { position: p.to_array(), what: format!("actor {} ({})", a.id, a.class), within_m: 0.0 });
+        return Err(SensorError::InsideGeometry {
+            position: p.to_array(),
+            what: format!("actor {} ({})", a.id, a.class),
+            within_m: 0.0,
+        });
     }
     let mut object = None;
     for d in [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z] {
@@ -121,13 +125,21 @@ pub fn check_mount(world: &World, actors: Option<&ActorSet>, pose: &SensorPose) 
             _ => return Ok(()),
         }
     }
-    let name = object.and_then(|o| world.objects().get(o as usize)).map_or_else(|| "static geometry".to_owned(), |o| o.name.clone());
+    let name = object
+        .and_then(|o| world.objects().get(o as usize))
+        .map_or_else(|| "static geometry".to_owned(), |o| o.name.clone());
     Err(SensorError::InsideGeometry { position: p.to_array(), what: name, within_m: WITHIN })
 }
 
 /// Simulates one frame. `seed` should already identify the sensor and frame (see
 /// [`crate::noise::mix`]); the same inputs give identical scans.
-pub fn simulate_lidar(spec: &LidarSpec, pose: &SensorPose, world: &World, actors: Option<&ActorSet>, seed: u64) -> Result<LidarScan, SensorError> {
+pub fn simulate_lidar(
+    spec: &LidarSpec,
+    pose: &SensorPose,
+    world: &World,
+    actors: Option<&ActorSet>,
+    seed: u64,
+) -> Result<LidarScan, SensorError> {
     check_mount(world, actors, pose)?;
     let elevations = spec.elevations_rad();
     let cols = spec.columns() as usize;
@@ -149,7 +161,12 @@ pub fn simulate_lidar(spec: &LidarSpec, pose: &SensorPose, world: &World, actors
                 let time_s = period * k as f32 / cols as f32;
                 for (ring, &el) in elevations.iter().enumerate() {
                     let d_sensor = spherical_dir(az, el);
-                    let ray = Ray { origin: pose.position, dir: rot * d_sensor, t_min: spec.min_range_m, t_max: spec.max_range_m };
+                    let ray = Ray {
+                        origin: pose.position,
+                        dir: rot * d_sensor,
+                        t_min: spec.min_range_m,
+                        t_max: spec.max_range_m,
+                    };
                     let Some(hit) = world.closest_hit(&ray, actors) else { continue };
                     let mut rng = rng_for(seed, stream::LIDAR_RAY, (k * beams + ring) as u64);
                     let noise: f32 = rng.sample(StandardNormal);
@@ -158,7 +175,8 @@ pub fn simulate_lidar(spec: &LidarSpec, pose: &SensorPose, world: &World, actors
                         continue;
                     }
                     let cos_inc = hit.normal.dot(ray.dir);
-                    let i = intensity(hit.material.lidar_reflectivity(), cos_inc, range, spec.atmosphere_attenuation_per_m);
+                    let i =
+                        intensity(hit.material.lidar_reflectivity(), cos_inc, range, spec.atmosphere_attenuation_per_m);
                     if rng.random::<f32>() >= survival_probability(spec, i) {
                         continue;
                     }

@@ -26,7 +26,9 @@ impl SensorPose {
             .map(|s| s.trim().parse::<f32>().map_err(|_| SensorError::Pose(format!("{text:?}: {s:?} is not a number"))))
             .collect::<Result<_, _>>()?;
         if !(3..=6).contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
-            return Err(SensorError::Pose(format!("{text:?}: expected x,y,z[,yaw_deg[,pitch_deg[,roll_deg]]] with finite numbers")));
+            return Err(SensorError::Pose(format!(
+                "{text:?}: expected x,y,z[,yaw_deg[,pitch_deg[,roll_deg]]] with finite numbers"
+            )));
         }
         let a = |i: usize| v.get(i).copied().unwrap_or(0.0).to_radians();
         Ok(Self::new(Vec3::new(v[0], v[1], v[2]), a(3), a(4), a(5)))

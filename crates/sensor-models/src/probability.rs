@@ -58,7 +58,8 @@ fn window(pose: &SensorPose, inv: glam::Quat, b: &Box3) -> Window {
     for corner in b.corners() {
         let s = to_sensor(corner);
         let r = s.length();
-        let daz = (s.y.atan2(s.x) - center_az + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU) - std::f32::consts::PI;
+        let daz = (s.y.atan2(s.x) - center_az + std::f32::consts::PI).rem_euclid(std::f32::consts::TAU)
+            - std::f32::consts::PI;
         let el = (s.z / r.max(1e-6)).clamp(-1.0, 1.0).asin();
         w.az = (w.az.0.min(daz), w.az.1.max(daz));
         w.el = (w.el.0.min(el), w.el.1.max(el));
@@ -98,7 +99,14 @@ impl<'a> LidarPattern<'a> {
     }
 }
 
-fn expected_returns_impl(spec: &LidarSpec, elevations: &[f32], pose: &SensorPose, probe: &Probe, b: &Box3, cap: f32) -> f32 {
+fn expected_returns_impl(
+    spec: &LidarSpec,
+    elevations: &[f32],
+    pose: &SensorPose,
+    probe: &Probe,
+    b: &Box3,
+    cap: f32,
+) -> f32 {
     let rot = pose.rotation();
     let w = window(pose, rot.inverse(), b);
     if w.range.0 > spec.max_range_m {
@@ -140,7 +148,12 @@ fn expected_returns_impl(spec: &LidarSpec, elevations: &[f32], pose: &SensorPose
     for k in columns {
         let az = az_at(k);
         for &el in &elevations[e0..e1] {
-            let ray = Ray { origin: pose.position, dir: rot * spherical_dir(az, el), t_min: spec.min_range_m, t_max: spec.max_range_m };
+            let ray = Ray {
+                origin: pose.position,
+                dir: rot * spherical_dir(az, el),
+                t_min: spec.min_range_m,
+                t_max: spec.max_range_m,
+            };
             if let Some((t, n)) = intersect_box(b, &ray, ray.t_max) {
                 let i = intensity(refl, n.dot(ray.dir), t, spec.atmosphere_attenuation_per_m);
                 expected += survival_probability(spec, i);
@@ -180,7 +193,12 @@ pub fn radar_detection_probability(spec: &RadarSpec, pose: &SensorPose, probe: &
             if el < w.el.0 - s_el || el > w.el.1 + s_el {
                 continue;
             }
-            let ray = Ray { origin: pose.position, dir: rot * spherical_dir(az, el), t_min: spec.min_range_m, t_max: spec.max_range_m };
+            let ray = Ray {
+                origin: pose.position,
+                dir: rot * spherical_dir(az, el),
+                t_min: spec.min_range_m,
+                t_max: spec.max_range_m,
+            };
             if intersect_box(b, &ray, ray.t_max).is_some() {
                 reached = true;
                 break 'grid;

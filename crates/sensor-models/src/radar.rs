@@ -87,7 +87,13 @@ struct CellHits {
 }
 
 /// Simulates one frame. `seed` should already identify the sensor and frame.
-pub fn simulate_radar(spec: &RadarSpec, pose: &SensorPose, world: &World, actors: Option<&ActorSet>, seed: u64) -> Result<RadarScan, SensorError> {
+pub fn simulate_radar(
+    spec: &RadarSpec,
+    pose: &SensorPose,
+    world: &World,
+    actors: Option<&ActorSet>,
+    seed: u64,
+) -> Result<RadarScan, SensorError> {
     check_mount(world, actors, pose)?;
     let rot = pose.rotation();
     let (hfov, vfov) = (spec.hfov_deg.to_radians(), spec.vfov_deg.to_radians());
@@ -101,12 +107,18 @@ pub fn simulate_radar(spec: &RadarSpec, pose: &SensorPose, world: &World, actors
             let (ia, ie) = (i / n_el, i % n_el);
             let az = -0.5 * hfov + (ia as f32 + 0.5) * s_az;
             let el = -0.5 * vfov + (ie as f32 + 0.5) * s_el;
-            let ray = Ray { origin: pose.position, dir: rot * spherical_dir(az, el), t_min: spec.min_range_m, t_max: spec.max_range_m };
+            let ray = Ray {
+                origin: pose.position,
+                dir: rot * spherical_dir(az, el),
+                t_min: spec.min_range_m,
+                t_max: spec.max_range_m,
+            };
             world.closest_hit(&ray, actors).map(|h| (az, el, h))
         })
         .collect();
     // Merge hits into resolution cells per target, accumulating exact radial velocities.
-    let (rr, ar, er) = (spec.range_resolution_m, spec.azimuth_resolution_deg.to_radians(), spec.elevation_resolution_deg.to_radians());
+    let (rr, ar, er) =
+        (spec.range_resolution_m, spec.azimuth_resolution_deg.to_radians(), spec.elevation_resolution_deg.to_radians());
     let mut cells: BTreeMap<(Key, u32, u32, u32), CellHits> = BTreeMap::new();
     let actor_list = actors.map(|a| a.actors()).unwrap_or(&[]);
     for (az, el, h) in &hits {
@@ -116,13 +128,9 @@ pub fn simulate_radar(spec: &RadarSpec, pose: &SensorPose, world: &World, actors
             HitTarget::Ground => (Key::Ground, Vec3::ZERO),
         };
         let los = (h.point - pose.position).normalize_or_zero();
-        let cell = (
-            key,
-            (h.t / rr) as u32,
-            ((az + 0.5 * hfov) / ar) as u32,
-            ((el + 0.5 * vfov) / er) as u32,
-        );
-        let e = cells.entry(cell).or_insert(CellHits { sum_pos: Vec3::ZERO, sum_vr: 0.0, n: 0, min_range: f32::INFINITY });
+        let cell = (key, (h.t / rr) as u32, ((az + 0.5 * hfov) / ar) as u32, ((el + 0.5 * vfov) / er) as u32);
+        let e =
+            cells.entry(cell).or_insert(CellHits { sum_pos: Vec3::ZERO, sum_vr: 0.0, n: 0, min_range: f32::INFINITY });
         e.sum_pos += h.point;
         e.sum_vr += velocity.dot(los);
         e.n += 1;
@@ -148,10 +156,15 @@ pub fn simulate_radar(spec: &RadarSpec, pose: &SensorPose, world: &World, actors
                 let mut rng = rng_for(seed, stream::RADAR_TARGET, *id as u64);
                 let fluct: f32 = rng.sample(Exp1);
                 let rcs = mean + 10.0 * fluct.max(1e-12).log10();
-                let range = target.iter().map(|c| cells[&(*key, c.0, c.1, c.2)].min_range).fold(f32::INFINITY, f32::min);
+                let range =
+                    target.iter().map(|c| cells[&(*key, c.0, c.1, c.2)].min_range).fold(f32::INFINITY, f32::min);
                 (snr_db(spec, rcs, range), rcs, PointSource::Actor(*id))
             }
-            Key::Static(_) | Key::Ground => (f32::NAN, spec.static_rcs_dbsm, if *key == Key::Ground { PointSource::Ground } else { PointSource::Static }),
+            Key::Static(_) | Key::Ground => (
+                f32::NAN,
+                spec.static_rcs_dbsm,
+                if *key == Key::Ground { PointSource::Ground } else { PointSource::Static },
+            ),
         };
         if matches!(key, Key::Actor(_)) && snr_target < spec.detection_threshold_db {
             continue;
@@ -191,7 +204,11 @@ pub fn simulate_radar(spec: &RadarSpec, pose: &SensorPose, world: &World, actors
             let v_r = cell.sum_vr / cell.n as f32 + spec.velocity_noise_mps * g(&mut rng);
             let p = spherical_dir(az_n, el_n) * range_n;
             let rcs_n = rcs + spec.rcs_noise_db * g(&mut rng);
-            out.push((snr, RadarPoint { x: p.x, y: p.y, z: p.z, rcs_dbsm: rcs_n, v_r_mps: v_r, v_r_comp_mps: v_r, time_s: 0.0 }, source));
+            out.push((
+                snr,
+                RadarPoint { x: p.x, y: p.y, z: p.z, rcs_dbsm: rcs_n, v_r_mps: v_r, v_r_comp_mps: v_r, time_s: 0.0 },
+                source,
+            ));
         }
     }
     // Strongest first; ties broken by position so the order never depends on map iteration.

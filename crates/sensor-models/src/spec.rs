@@ -317,7 +317,8 @@ impl Catalog {
     }
 
     pub fn load(path: &Path) -> Result<Self, SensorError> {
-        let text = std::fs::read_to_string(path).map_err(|e| SensorError::Io { path: path.to_path_buf(), source: e })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|e| SensorError::Io { path: path.to_path_buf(), source: e })?;
         Self::from_toml_str(&text, path)
     }
 
@@ -366,8 +367,12 @@ mod tests {
     #[test]
     fn default_catalog_is_table_one_with_the_papers_cost_ratios() {
         let c = Catalog::default_catalog().unwrap();
-        let (l16, l32, l64, r) =
-            (c.lidar("lidar-16").unwrap(), c.lidar("lidar-32").unwrap(), c.lidar("lidar-64").unwrap(), c.radar("radar-4d").unwrap());
+        let (l16, l32, l64, r) = (
+            c.lidar("lidar-16").unwrap(),
+            c.lidar("lidar-32").unwrap(),
+            c.lidar("lidar-64").unwrap(),
+            c.radar("radar-4d").unwrap(),
+        );
         assert_eq!((l16.beams, l32.beams, l64.beams), (16, 32, 64));
         assert_eq!((l16.max_range_m, l64.max_range_m, r.max_range_m), (100.0, 90.0, 90.0));
         assert_eq!((r.hfov_deg, r.vfov_deg, r.rate_hz), (120.0, 28.0, 20.0));

@@ -10,7 +10,14 @@ fn lidar_points() -> Vec<LidarPoint> {
     (0..257)
         .map(|i| {
             let f = i as f32;
-            LidarPoint { x: f * 0.37 - 20.0, y: -f * 1.1e-3, z: (f * 0.1).sin(), intensity: (f / 300.0), ring: (i % 64) as u16, time_s: f * 1e-4 }
+            LidarPoint {
+                x: f * 0.37 - 20.0,
+                y: -f * 1.1e-3,
+                z: (f * 0.1).sin(),
+                intensity: (f / 300.0),
+                ring: (i % 64) as u16,
+                time_s: f * 1e-4,
+            }
         })
         .collect()
 }
@@ -19,7 +26,15 @@ fn radar_points() -> Vec<RadarPoint> {
     (0..33)
         .map(|i| {
             let f = i as f32;
-            RadarPoint { x: f, y: -f * 0.5, z: 0.25, rcs_dbsm: -8.0 + f * 0.3, v_r_mps: -3.5 + f * 0.1, v_r_comp_mps: -3.5 + f * 0.1, time_s: 0.0 }
+            RadarPoint {
+                x: f,
+                y: -f * 0.5,
+                z: 0.25,
+                rcs_dbsm: -8.0 + f * 0.3,
+                v_r_mps: -3.5 + f * 0.1,
+                v_r_comp_mps: -3.5 + f * 0.1,
+                time_s: 0.0,
+            }
         })
         .collect()
 }

@@ -63,7 +63,8 @@ fn same_seed_same_scan_and_another_seed_differs() {
 fn empty_scene_gives_an_empty_cloud() {
     let world = World::from_triangles(&[], None).unwrap();
     let spec = catalog().lidar("lidar-16").unwrap().clone();
-    let scan = simulate_lidar(&spec, &SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0), &world, None, 0).unwrap();
+    let scan =
+        simulate_lidar(&spec, &SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0), &world, None, 0).unwrap();
     assert!(scan.points.is_empty() && scan.sources.is_empty());
     assert!(scan.rays_cast > 0);
 }
@@ -78,15 +79,29 @@ fn a_mount_inside_a_building_or_an_actor_is_an_error() {
         Err(e) => e,
         Ok(_) => panic!("a mount inside geometry must be refused"),
     };
-    let err = expect_err(simulate_lidar(&spec, &SensorPose::new(Vec3::new(-35.0, -36.0, 3.0), 0.0, 0.0, 0.0), &world, None, 0));
+    let err = expect_err(simulate_lidar(
+        &spec,
+        &SensorPose::new(Vec3::new(-35.0, -36.0, 3.0), 0.0, 0.0, 0.0),
+        &world,
+        None,
+        0,
+    ));
     assert!(matches!(err, SensorError::InsideGeometry { .. }));
     assert!(err.to_string().contains("bank"), "{err}");
     let car = Actor::from_box(7, Class::Car, Box3::new(Vec3::new(0.0, 5.0, 0.8), 4.5, 1.9, 1.6, 0.0));
     let actors = ActorSet::new(vec![car]).unwrap();
-    let err = expect_err(simulate_lidar(&spec, &SensorPose::new(Vec3::new(0.5, 5.0, 1.0), 0.0, 0.0, 0.0), &world, Some(&actors), 0));
+    let err = expect_err(simulate_lidar(
+        &spec,
+        &SensorPose::new(Vec3::new(0.5, 5.0, 1.0), 0.0, 0.0, 0.0),
+        &world,
+        Some(&actors),
+        0,
+    ));
     assert!(err.to_string().contains("actor 7"), "{err}");
     // On top of a pole is fine.
-    assert!(simulate_lidar(&spec, &SensorPose::new(Vec3::new(13.0, 16.6, 7.8), 0.0, 0.0, 0.0), &world, None, 0).is_ok());
+    assert!(
+        simulate_lidar(&spec, &SensorPose::new(Vec3::new(13.0, 16.6, 7.8), 0.0, 0.0, 0.0), &world, None, 0).is_ok()
+    );
 }
 
 #[test]
@@ -107,8 +122,19 @@ fn points_on_actors_are_attributed_and_local_frame_is_consistent() {
             PointSource::Actor(id) => {
                 let a = actors.actors().iter().find(|a| a.id == *id).unwrap();
                 let grown = match a.shape {
-                    hilo_raycast::ActorShape::Box(b) => Box3 { length_m: b.length_m + 0.01, width_m: b.width_m + 0.01, height_m: b.height_m + 0.01, ..b },
-                    hilo_raycast::ActorShape::Capsule(c) => Box3::new(c.center.extend(0.5 * (c.z0 + c.z1)), 2.0 * c.radius + 0.01, 2.0 * c.radius + 0.01, c.z1 - c.z0 + 0.01, 0.0),
+                    hilo_raycast::ActorShape::Box(b) => Box3 {
+                        length_m: b.length_m + 0.01,
+                        width_m: b.width_m + 0.01,
+                        height_m: b.height_m + 0.01,
+                        ..b
+                    },
+                    hilo_raycast::ActorShape::Capsule(c) => Box3::new(
+                        c.center.extend(0.5 * (c.z0 + c.z1)),
+                        2.0 * c.radius + 0.01,
+                        2.0 * c.radius + 0.01,
+                        c.z1 - c.z0 + 0.01,
+                        0.0,
+                    ),
                 };
                 assert!(grown.contains(q), "point {q} not on actor {id}");
             }

@@ -16,7 +16,11 @@ fn expected_returns_equal_simulated_returns_without_noise() {
     for name in ["lidar-16", "lidar-64"] {
         let spec = ideal_lidar(name);
         let pose = SensorPose::new(Vec3::new(0.0, 0.0, 6.5), 0.7, 0.2, 0.0);
-        for (probe, xy, yaw) in [(Probe::CAR, Vec2::new(14.0, 9.0), 0.3), (Probe::PEDESTRIAN, Vec2::new(6.0, 11.0), 0.0), (Probe::CAR, Vec2::new(-20.0, 30.0), 1.2)] {
+        for (probe, xy, yaw) in [
+            (Probe::CAR, Vec2::new(14.0, 9.0), 0.3),
+            (Probe::PEDESTRIAN, Vec2::new(6.0, 11.0), 0.0),
+            (Probe::CAR, Vec2::new(-20.0, 30.0), 1.2),
+        ] {
             let b = probe.at(xy, 0.0, yaw);
             let expected = lidar_expected_returns(&spec, &pose, &probe, &b);
             let actors = ActorSet::new(vec![Actor::from_box(1, probe.class, b)]).unwrap();
@@ -43,7 +47,14 @@ fn expected_returns_match_the_mean_of_noisy_scans() {
     let actors = ActorSet::new(vec![Actor::from_box(1, Probe::CAR.class, b)]).unwrap();
     let n = 60;
     let mean: f32 = (0..n)
-        .map(|s| simulate_lidar(&spec, &pose, &world, Some(&actors), s).unwrap().points_per_actor().get(&1).copied().unwrap_or(0) as f32)
+        .map(|s| {
+            simulate_lidar(&spec, &pose, &world, Some(&actors), s)
+                .unwrap()
+                .points_per_actor()
+                .get(&1)
+                .copied()
+                .unwrap_or(0) as f32
+        })
         .sum::<f32>()
         / n as f32;
     assert!(expected > 10.0);
@@ -73,7 +84,12 @@ fn more_beams_see_more_over_an_area_and_returns_fall_with_range() {
         // 8 m is 39° down, outside it): there the count falls with range.
         let mut last = f32::INFINITY;
         for d in [25.0f32, 35.0, 50.0, 70.0] {
-            let e = lidar_expected_returns(c.lidar("lidar-64").unwrap(), &pose, &probe, &probe.at(Vec2::new(d, 0.0), 0.0, 0.0));
+            let e = lidar_expected_returns(
+                c.lidar("lidar-64").unwrap(),
+                &pose,
+                &probe,
+                &probe.at(Vec2::new(d, 0.0), 0.0, 0.0),
+            );
             assert!(e <= last, "{probe:?}: {e} at {d} after {last}");
             last = e;
         }

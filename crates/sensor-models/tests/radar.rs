@@ -31,7 +31,8 @@ fn doppler_is_the_velocity_projected_on_the_line_of_sight() {
     // Straight toward the sensor: v_r = −s (to the cosine of the box's half-angle).
     let toward = ActorSet::new(vec![narrow_target(at, Vec3::new(-s, 0.0, 0.0), Class::Car, 1)]).unwrap();
     let scan = simulate_radar(&spec, &radar_pose(), &world, Some(&toward), 3).unwrap();
-    let on_target: Vec<_> = scan.points.iter().zip(&scan.sources).filter(|(_, s)| **s == PointSource::Actor(1)).collect();
+    let on_target: Vec<_> =
+        scan.points.iter().zip(&scan.sources).filter(|(_, s)| **s == PointSource::Actor(1)).collect();
     assert!(!on_target.is_empty());
     for (p, _) in &on_target {
         assert!((p.v_r_mps + s).abs() < 1e-3 * s, "v_r {} expected {}", p.v_r_mps, -s);
@@ -108,7 +109,8 @@ fn the_point_cap_keeps_the_strongest_detections() {
         .map(|i| {
             let x = 10.0 + 2.0 * (i % 20) as f32;
             let y = if i < 20 { 2.0 } else { -5.0 };
-            Actor::from_box(i, Class::Car, Box3::new(Vec3::new(x, y, 0.8), 4.5, 1.9, 1.6, 0.0)).with_velocity(Vec3::new(8.0, 0.0, 0.0))
+            Actor::from_box(i, Class::Car, Box3::new(Vec3::new(x, y, 0.8), 4.5, 1.9, 1.6, 0.0))
+                .with_velocity(Vec3::new(8.0, 0.0, 0.0))
         })
         .collect();
     let actors = ActorSet::new(actors).unwrap();

@@ -2,8 +2,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use hilo_sensor_models::spec::DEFAULT_CATALOG_TOML;
 use hilo_sensor_models::Catalog;
+use hilo_sensor_models::spec::DEFAULT_CATALOG_TOML;
 use std::path::Path;
 
 fn with(replace: &str, by: &str) -> String {

@@ -91,15 +91,31 @@ pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<
 
 impl EarlyFusion {
     fn new(c: EarlyConfig, grid: &BevGrid, vb: VarBuilder) -> Result<Self> {
-        let bn = candle_nn::batch_norm(c.channels, candle_nn::BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 }, vb.pp("joint_bn"))?;
+        let bn = candle_nn::batch_norm(
+            c.channels,
+            candle_nn::BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 },
+            vb.pp("joint_bn"),
+        )?;
         let (lidar, fuse) = match &c.middle {
-            Some(m) => (Some(PillarNet::new(LIDAR_FEATURES + 5, m.lidar_channels, vb.pp("lidar"))?), Some(BevFuse::new(m.lidar_channels, c.channels, m.out_channels, m.op, vb.pp("fuse"))?)),
+            Some(m) => (
+                Some(PillarNet::new(LIDAR_FEATURES + 5, m.lidar_channels, vb.pp("lidar"))?),
+                Some(BevFuse::new(m.lidar_channels, c.channels, m.out_channels, m.op, vb.pp("fuse"))?),
+            ),
             None => (None, None),
         };
         if c.middle.is_none() && !c.early {
-            return Err(FusionError::Config("fusion plugin \"early\": early = false needs a middle stage (otherwise LiDAR is never used)".into()));
+            return Err(FusionError::Config(
+                "fusion plugin \"early\": early = false needs a middle stage (otherwise LiDAR is never used)".into(),
+            ));
         }
-        Ok(EarlyFusion { linear: candle_nn::linear_no_bias(JOINT, c.channels, vb.pp("joint"))?, bn, lidar, fuse, cells: grid.cells(), cfg: c })
+        Ok(EarlyFusion {
+            linear: candle_nn::linear_no_bias(JOINT, c.channels, vb.pp("joint"))?,
+            bn,
+            lidar,
+            fuse,
+            cells: grid.cells(),
+            cfg: c,
+        })
     }
 }
 
@@ -136,12 +152,15 @@ impl EarlyFusion {
         }
         let c = self.cfg.channels;
         let hw = input.batch * self.cells * self.cells;
-        let bev = |flat: Tensor| -> Result<Tensor> { Ok(flat.reshape((input.batch, self.cells, self.cells, c))?.permute((0, 3, 1, 2))?.contiguous()?) };
+        let bev = |flat: Tensor| -> Result<Tensor> {
+            Ok(flat.reshape((input.batch, self.cells, self.cells, c))?.permute((0, 3, 1, 2))?.contiguous()?)
+        };
         if parts.is_empty() {
             return bev(Tensor::zeros((hw, c), DType::F32, &dev)?);
         }
         // One BatchNorm over the points of both modalities.
-        let rows: Vec<Tensor> = parts.iter().map(|(x, _)| x.reshape(((), JOINT))).collect::<candle_core::Result<_>>()?;
+        let rows: Vec<Tensor> =
+            parts.iter().map(|(x, _)| x.reshape(((), JOINT))).collect::<candle_core::Result<_>>()?;
         let sizes: Vec<usize> = rows.iter().map(|r| r.dim(0)).collect::<candle_core::Result<_>>()?;
         let all = self.bn.forward_t(&self.linear.forward(&Tensor::cat(&rows, 0)?)?, train)?.relu()?;
         let mut offset = 0;
@@ -152,7 +171,10 @@ impl EarlyFusion {
             let x = all.narrow(0, offset, rows_k)?.reshape((n, npp, c))?.broadcast_mul(&p.mask)?;
             offset += rows_k;
             match self.cfg.aggregation {
-                Aggregation::Max => acc = acc.maximum(&Tensor::zeros((hw, c), DType::F32, &dev)?.index_add(&p.index, &x.max(1)?, 0)?)?,
+                Aggregation::Max => {
+                    acc =
+                        acc.maximum(&Tensor::zeros((hw, c), DType::F32, &dev)?.index_add(&p.index, &x.max(1)?, 0)?)?
+                }
                 Aggregation::Mean => {
                     acc = acc.index_add(&p.index, &x.sum(1)?, 0)?;
                     count = count.index_add(&p.index, &p.mask.sum(1)?, 0)?;
@@ -204,10 +226,17 @@ mod tests {
     fn encodings(f: &EarlyFusion, p: &PillarTensors, map: &[usize], flag: bool) -> Vec<Vec<Vec<f32>>> {
         let x = EarlyFusion::to_joint(p, map, flag).unwrap();
         let (n, npp, _) = x.dims3().unwrap();
-        let e = f.bn.forward_t(&f.linear.forward(&x.reshape((n * npp, JOINT)).unwrap()).unwrap(), false).unwrap().relu().unwrap();
+        let e =
+            f.bn.forward_t(&f.linear.forward(&x.reshape((n * npp, JOINT)).unwrap()).unwrap(), false)
+                .unwrap()
+                .relu()
+                .unwrap();
         let e = e.reshape((n, npp, f.cfg.channels)).unwrap().to_vec3::<f32>().unwrap();
         let mask = p.mask.squeeze(2).unwrap().to_vec2::<f32>().unwrap();
-        e.into_iter().zip(mask).map(|(rows, m)| rows.into_iter().zip(m).filter(|(_, m)| *m > 0.5).map(|(r, _)| r).collect()).collect()
+        e.into_iter()
+            .zip(mask)
+            .map(|(rows, m)| rows.into_iter().zip(m).filter(|(_, m)| *m > 0.5).map(|(r, _)| r).collect())
+            .collect()
     }
 
     /// The joint map of each aggregation against a per-cell loop over the points' encodings: a
@@ -215,10 +244,20 @@ mod tests {
     #[test]
     fn aggregations_match_a_per_cell_oracle() {
         let grid = small_grid();
-        let lidar: Vec<[f32; 4]> = (0..9).map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3]).chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8])).collect();
-        let radar: Vec<[f32; 7]> = vec![[1.2, 2.2, 0.9, 8.0, 7.0, 0.1, 0.99], [6.1, -3.3, 0.4, 3.0, -2.0, 0.8, 0.6], [6.2, -3.4, 0.6, 5.0, -2.5, 0.8, 0.6]];
+        let lidar: Vec<[f32; 4]> = (0..9)
+            .map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3])
+            .chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8]))
+            .collect();
+        let radar: Vec<[f32; 7]> = vec![
+            [1.2, 2.2, 0.9, 8.0, 7.0, 0.1, 0.99],
+            [6.1, -3.3, 0.4, 3.0, -2.0, 0.8, 0.6],
+            [6.2, -3.4, 0.6, 5.0, -2.5, 0.8, 0.6],
+        ];
         let dev = Device::Cpu;
-        let (lt, rt) = (PillarTensors::new(&pillarize(&grid, &[&lidar]), &dev).unwrap(), PillarTensors::new(&pillarize(&grid, &[&radar]), &dev).unwrap());
+        let (lt, rt) = (
+            PillarTensors::new(&pillarize(&grid, &[&lidar]), &dev).unwrap(),
+            PillarTensors::new(&pillarize(&grid, &[&radar]), &dev).unwrap(),
+        );
         for aggregation in [Aggregation::Max, Aggregation::Mean, Aggregation::ModalityMean] {
             let varmap = candle_nn::VarMap::new();
             let cfg = EarlyConfig { channels: 8, aggregation, early: true, middle: None };
@@ -227,7 +266,9 @@ mod tests {
             let map = map.squeeze(0).unwrap().to_vec3::<f32>().unwrap();
             // Points per cell, per modality.
             let mut cells: std::collections::BTreeMap<u32, [Vec<Vec<f32>>; 2]> = Default::default();
-            for (m, (p, layout, flag)) in [(&lt, &LIDAR_TO_JOINT[..], false), (&rt, &RADAR_TO_JOINT[..], true)].into_iter().enumerate() {
+            for (m, (p, layout, flag)) in
+                [(&lt, &LIDAR_TO_JOINT[..], false), (&rt, &RADAR_TO_JOINT[..], true)].into_iter().enumerate()
+            {
                 let index = p.index.to_vec1::<u32>().unwrap();
                 for (cell, points) in index.into_iter().zip(encodings(&f, p, layout, flag)) {
                     cells.entry(cell).or_default()[m].extend(points);
@@ -238,7 +279,9 @@ mod tests {
             for (cell, [l, r]) in &cells {
                 let (row, col) = (*cell as usize / n, *cell as usize % n);
                 for c in 0..8 {
-                    let mean = |v: &Vec<Vec<f32>>| if v.is_empty() { 0.0 } else { v.iter().map(|e| e[c]).sum::<f32>() / v.len() as f32 };
+                    let mean = |v: &Vec<Vec<f32>>| {
+                        if v.is_empty() { 0.0 } else { v.iter().map(|e| e[c]).sum::<f32>() / v.len() as f32 }
+                    };
                     let all: Vec<f32> = l.iter().chain(r).map(|e| e[c]).collect();
                     let want = match aggregation {
                         Aggregation::Max => all.iter().fold(0.0f32, |a, &b| a.max(b)),
@@ -246,13 +289,22 @@ mod tests {
                         Aggregation::ModalityMean => mean(l) + mean(r),
                     };
                     let got = map[c][row][col];
-                    assert!((got - want).abs() <= 1e-5 * (1.0 + want.abs()), "{aggregation:?}, cell {cell}, channel {c}: {got} against {want}");
+                    assert!(
+                        (got - want).abs() <= 1e-5 * (1.0 + want.abs()),
+                        "{aggregation:?}, cell {cell}, channel {c}: {got} against {want}"
+                    );
                 }
             }
             // Everywhere else the map is zero.
             let total: f32 = map.iter().flatten().flatten().map(|v| v.abs()).sum();
-            let occupied: f32 = cells.keys().map(|&cell| (0..8).map(|c| map[c][cell as usize / n][cell as usize % n].abs()).sum::<f32>()).sum();
-            assert!((total - occupied).abs() <= 1e-4 * (1.0 + total), "{aggregation:?}: values outside the occupied cells");
+            let occupied: f32 = cells
+                .keys()
+                .map(|&cell| (0..8).map(|c| map[c][cell as usize / n][cell as usize % n].abs()).sum::<f32>())
+                .sum();
+            assert!(
+                (total - occupied).abs() <= 1e-4 * (1.0 + total),
+                "{aggregation:?}: values outside the occupied cells"
+            );
         }
     }
 }

@@ -39,7 +39,8 @@ pub struct LateFusion {
 fn branch(features: usize, channels: usize, c: &LateConfig, vb: VarBuilder) -> Result<Branch> {
     let pfn = PillarNet::new(features, channels, vb.pp("pfn"))?;
     let backbone = Backbone::new(channels, &c.backbone, vb.pp("backbone"))?;
-    let head = Head::new(backbone.out_channels, c.head_channels.max(1), CLASSES.len(), c.head_channels > 0, vb.pp("head"))?;
+    let head =
+        Head::new(backbone.out_channels, c.head_channels.max(1), CLASSES.len(), c.head_channels > 0, vb.pp("head"))?;
     Ok(Branch { pfn, backbone, head })
 }
 

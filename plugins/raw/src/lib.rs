@@ -30,7 +30,11 @@ pub struct RawFusion {
 
 pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     let c: RawConfig = hilo_fusion::fusion::parse_config("raw", cfg)?;
-    Ok(Box::new(RawFusion { f_l: PillarNet::new(LIDAR_FEATURES + 5, c.channels, vb.pp("f_l"))?, f_r: PillarNet::new(RADAR_FEATURES + 5, c.channels, vb.pp("f_r"))?, cells: grid.cells() }))
+    Ok(Box::new(RawFusion {
+        f_l: PillarNet::new(LIDAR_FEATURES + 5, c.channels, vb.pp("f_l"))?,
+        f_r: PillarNet::new(RADAR_FEATURES + 5, c.channels, vb.pp("f_r"))?,
+        cells: grid.cells(),
+    }))
 }
 
 /// Registers `raw`.

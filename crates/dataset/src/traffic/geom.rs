@@ -62,12 +62,16 @@ mod tests {
             d.dot(q.dir).abs() < q.half_l && d.dot(q.dir.perp()).abs() < q.half_w
         };
         let a = r(0.0, 0.0, 0.3, 4.0, 2.0);
-        for (x, y, yaw) in [(3.0, 0.5, 1.2), (4.5, 0.0, 0.0), (0.0, 2.2, 0.3), (2.6, 2.0, -0.7), (0.5, 0.5, 2.0), (5.0, 3.0, 0.9)] {
+        for (x, y, yaw) in
+            [(3.0, 0.5, 1.2), (4.5, 0.0, 0.0), (0.0, 2.2, 0.3), (2.6, 2.0, -0.7), (0.5, 0.5, 2.0), (5.0, 3.0, 0.9)]
+        {
             let b = r(x, y, yaw, 3.0, 1.5);
             let mut any = false;
             for i in 0..=60 {
                 for j in 0..=60 {
-                    let p = b.center + b.dir * (b.half_l * (i as f32 / 30.0 - 1.0) * 0.999) + b.dir.perp() * (b.half_w * (j as f32 / 30.0 - 1.0) * 0.999);
+                    let p = b.center
+                        + b.dir * (b.half_l * (i as f32 / 30.0 - 1.0) * 0.999)
+                        + b.dir.perp() * (b.half_w * (j as f32 / 30.0 - 1.0) * 0.999);
                     any |= inside(&a, p);
                 }
             }

@@ -65,7 +65,10 @@ pub struct TrafficConfig {
 
 impl Default for TrafficConfig {
     fn default() -> Self {
-        let class_mix = [("car", 0.74), ("truck", 0.06), ("bus", 0.03), ("motorcycle", 0.05), ("golf_cart", 0.12)].into_iter().map(|(k, v)| (k.to_string(), v)).collect();
+        let class_mix = [("car", 0.74), ("truck", 0.06), ("bus", 0.03), ("motorcycle", 0.05), ("golf_cart", 0.12)]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect();
         TrafficConfig {
             vehicles_per_hour: 500.0,
             approach_vehicles_per_hour: BTreeMap::new(),
@@ -88,17 +91,25 @@ fn invalid(field: &str, value: impl std::fmt::Display, why: &str) -> DatasetErro
 impl TrafficConfig {
     /// Checks every field; errors name the field and value.
     pub fn validate(&self, layout: &Layout) -> Result<(), DatasetError> {
-        let nonneg = |f: &str, v: f64| if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(invalid(f, v, "must be a finite number ≥ 0")) };
+        let nonneg = |f: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(invalid(f, v, "must be a finite number ≥ 0")) }
+        };
         nonneg("vehicles_per_hour", self.vehicles_per_hour)?;
         nonneg("pedestrians_per_hour", self.pedestrians_per_hour)?;
         nonneg("warmup_s", self.warmup_s)?;
-        for (f, v) in [("left_share", self.left_share), ("right_share", self.right_share), ("jaywalk_share", self.jaywalk_share)] {
+        for (f, v) in
+            [("left_share", self.left_share), ("right_share", self.right_share), ("jaywalk_share", self.jaywalk_share)]
+        {
             if !(0.0..=1.0).contains(&v) {
                 return Err(invalid(f, v, "must be a share in [0, 1]"));
             }
         }
         if self.left_share + self.right_share > 1.0 {
-            return Err(invalid("left_share + right_share", self.left_share + self.right_share, "turning shares exceed 1"));
+            return Err(invalid(
+                "left_share + right_share",
+                self.left_share + self.right_share,
+                "turning shares exceed 1",
+            ));
         }
         if !(self.step_s > 0.0 && self.step_s <= 0.2) {
             return Err(invalid("step_s", self.step_s, "must be in (0, 0.2] s"));
@@ -106,15 +117,25 @@ impl TrafficConfig {
         for (arm, v) in &self.approach_vehicles_per_hour {
             if !layout.arms.iter().any(|a| &a.name == arm) {
                 let known: Vec<&str> = layout.arms.iter().map(|a| a.name.as_str()).collect();
-                return Err(invalid(&format!("approach_vehicles_per_hour.{arm}"), v, &format!("no arm is named {arm:?} (arms: {})", known.join(", "))));
+                return Err(invalid(
+                    &format!("approach_vehicles_per_hour.{arm}"),
+                    v,
+                    &format!("no arm is named {arm:?} (arms: {})", known.join(", ")),
+                ));
             }
             nonneg(&format!("approach_vehicles_per_hour.{arm}"), *v)?;
         }
         let mut total = 0.0;
         for (name, w) in &self.class_mix {
-            let c: Class = name.parse().map_err(|_| invalid(&format!("class_mix.{name}"), w, "unknown class (car, truck, bus, motorcycle, golf_cart)"))?;
+            let c: Class = name.parse().map_err(|_| {
+                invalid(&format!("class_mix.{name}"), w, "unknown class (car, truck, bus, motorcycle, golf_cart)")
+            })?;
             if c == Class::Pedestrian {
-                return Err(invalid(&format!("class_mix.{name}"), w, "pedestrians have their own rate, pedestrians_per_hour"));
+                return Err(invalid(
+                    &format!("class_mix.{name}"),
+                    w,
+                    "pedestrians have their own rate, pedestrians_per_hour",
+                ));
             }
             nonneg(&format!("class_mix.{name}"), *w)?;
             total += w;
@@ -123,7 +144,11 @@ impl TrafficConfig {
             return Err(invalid("class_mix", "{…}", "needs at least one class with a positive share"));
         }
         let s = &self.signal;
-        for (f, v) in [("signal.green_s", s.green_s), ("signal.protected_left_s", s.protected_left_s), ("signal.all_red_s", s.all_red_s)] {
+        for (f, v) in [
+            ("signal.green_s", s.green_s),
+            ("signal.protected_left_s", s.protected_left_s),
+            ("signal.all_red_s", s.all_red_s),
+        ] {
             nonneg(f, v)?;
         }
         if s.green_s < 5.0 {
@@ -158,12 +183,72 @@ pub struct ClassModel {
 
 pub fn class_model(c: Class) -> ClassModel {
     match c {
-        Class::Car => ClassModel { length: (4.6, 0.35, 3.8, 5.4), width: (1.85, 0.08, 1.65, 2.05), height: (1.55, 0.12, 1.35, 1.95), v_max: 30.0, a: 2.0, b: 3.0, headway_s: 1.4, s0: 2.0, b_max: 8.0 },
-        Class::Truck => ClassModel { length: (8.0, 1.4, 6.0, 11.0), width: (2.45, 0.08, 2.3, 2.6), height: (3.3, 0.3, 2.8, 4.0), v_max: 25.0, a: 1.2, b: 2.5, headway_s: 1.8, s0: 3.0, b_max: 6.0 },
-        Class::Bus => ClassModel { length: (12.0, 0.5, 10.5, 13.0), width: (2.55, 0.04, 2.45, 2.6), height: (3.2, 0.12, 2.95, 3.5), v_max: 22.0, a: 1.0, b: 2.5, headway_s: 1.8, s0: 3.0, b_max: 6.0 },
-        Class::Motorcycle => ClassModel { length: (2.1, 0.15, 1.8, 2.4), width: (0.8, 0.06, 0.65, 0.95), height: (1.45, 0.08, 1.25, 1.65), v_max: 30.0, a: 3.0, b: 3.5, headway_s: 1.1, s0: 2.0, b_max: 8.0 },
-        Class::GolfCart => ClassModel { length: (2.5, 0.2, 2.2, 3.0), width: (1.2, 0.05, 1.1, 1.35), height: (1.8, 0.08, 1.65, 2.0), v_max: 7.0, a: 1.2, b: 2.0, headway_s: 1.5, s0: 1.5, b_max: 5.0 },
-        Class::Pedestrian => ClassModel { length: (0.55, 0.08, 0.4, 0.75), width: (0.65, 0.07, 0.5, 0.8), height: (1.70, 0.09, 1.45, 1.95), v_max: 1.9, a: 1.0, b: 1.5, headway_s: 0.6, s0: 0.4, b_max: 3.0 },
+        Class::Car => ClassModel {
+            length: (4.6, 0.35, 3.8, 5.4),
+            width: (1.85, 0.08, 1.65, 2.05),
+            height: (1.55, 0.12, 1.35, 1.95),
+            v_max: 30.0,
+            a: 2.0,
+            b: 3.0,
+            headway_s: 1.4,
+            s0: 2.0,
+            b_max: 8.0,
+        },
+        Class::Truck => ClassModel {
+            length: (8.0, 1.4, 6.0, 11.0),
+            width: (2.45, 0.08, 2.3, 2.6),
+            height: (3.3, 0.3, 2.8, 4.0),
+            v_max: 25.0,
+            a: 1.2,
+            b: 2.5,
+            headway_s: 1.8,
+            s0: 3.0,
+            b_max: 6.0,
+        },
+        Class::Bus => ClassModel {
+            length: (12.0, 0.5, 10.5, 13.0),
+            width: (2.55, 0.04, 2.45, 2.6),
+            height: (3.2, 0.12, 2.95, 3.5),
+            v_max: 22.0,
+            a: 1.0,
+            b: 2.5,
+            headway_s: 1.8,
+            s0: 3.0,
+            b_max: 6.0,
+        },
+        Class::Motorcycle => ClassModel {
+            length: (2.1, 0.15, 1.8, 2.4),
+            width: (0.8, 0.06, 0.65, 0.95),
+            height: (1.45, 0.08, 1.25, 1.65),
+            v_max: 30.0,
+            a: 3.0,
+            b: 3.5,
+            headway_s: 1.1,
+            s0: 2.0,
+            b_max: 8.0,
+        },
+        Class::GolfCart => ClassModel {
+            length: (2.5, 0.2, 2.2, 3.0),
+            width: (1.2, 0.05, 1.1, 1.35),
+            height: (1.8, 0.08, 1.65, 2.0),
+            v_max: 7.0,
+            a: 1.2,
+            b: 2.0,
+            headway_s: 1.5,
+            s0: 1.5,
+            b_max: 5.0,
+        },
+        Class::Pedestrian => ClassModel {
+            length: (0.55, 0.08, 0.4, 0.75),
+            width: (0.65, 0.07, 0.5, 0.8),
+            height: (1.70, 0.09, 1.45, 1.95),
+            v_max: 1.9,
+            a: 1.0,
+            b: 1.5,
+            headway_s: 0.6,
+            s0: 0.4,
+            b_max: 3.0,
+        },
     }
 }
 
@@ -310,19 +395,30 @@ impl Traffic {
         let routes = build_routes(layout);
         let dirs: Vec<Vec2> = layout.arms.iter().map(|a| a.dir).collect();
         let speeds: Vec<f32> = layout.arms.iter().map(|a| a.speed_limit_mps).collect();
-        let bays: Vec<bool> = layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay)).collect();
+        let bays: Vec<bool> =
+            layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay)).collect();
         let plan = SignalPlan::new(&cfg.signal, &dirs, &speeds, &bays);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let approach_rate: Vec<f64> = layout
             .arms
             .iter()
             .enumerate()
-            .map(|(i, a)| if routes.iter().any(|r| r.approach == i) { cfg.approach_vehicles_per_hour.get(&a.name).copied().unwrap_or(cfg.vehicles_per_hour) } else { 0.0 })
+            .map(|(i, a)| {
+                if routes.iter().any(|r| r.approach == i) {
+                    cfg.approach_vehicles_per_hour.get(&a.name).copied().unwrap_or(cfg.vehicles_per_hour)
+                } else {
+                    0.0
+                }
+            })
             .collect();
         let next_arrival_v = approach_rate.iter().map(|&q| next_arrival(&mut rng, 0.0, q)).collect();
         let mut ped_sources = pedestrian_sources(layout);
         for src in &mut ped_sources {
-            let rate = if src.jaywalk { cfg.pedestrians_per_hour * cfg.jaywalk_share } else { cfg.pedestrians_per_hour * (1.0 - cfg.jaywalk_share) };
+            let rate = if src.jaywalk {
+                cfg.pedestrians_per_hour * cfg.jaywalk_share
+            } else {
+                cfg.pedestrians_per_hour * (1.0 - cfg.jaywalk_share)
+            };
             src.next_arrival_s = next_arrival(&mut rng, 0.0, rate);
         }
         let n_routes = routes.len();
@@ -400,7 +496,13 @@ impl Traffic {
             .iter()
             .map(|a| {
                 let r = self.rect(a);
-                let b = Box3::new(r.center.extend(self.ground_z + 0.5 * a.height), a.length, a.width, a.height, r.dir.y.atan2(r.dir.x));
+                let b = Box3::new(
+                    r.center.extend(self.ground_z + 0.5 * a.height),
+                    a.length,
+                    a.width,
+                    a.height,
+                    r.dir.y.atan2(r.dir.x),
+                );
                 let moving = a.v > 0.2;
                 let (attribute, jaywalking, route) = match &a.role {
                     Role::Vehicle { route, .. } => {
@@ -412,11 +514,31 @@ impl Traffic {
                         } else {
                             "vehicle.stopped"
                         };
-                        (attr, false, Some(RouteProgress { approach: rt.approach, movement: rt.movement, front_s: a.s + 0.5 * a.length, stop_s: rt.stop_s }))
+                        (
+                            attr,
+                            false,
+                            Some(RouteProgress {
+                                approach: rt.approach,
+                                movement: rt.movement,
+                                front_s: a.s + 0.5 * a.length,
+                                stop_s: rt.stop_s,
+                            }),
+                        )
                     }
-                    Role::Pedestrian { jaywalk, .. } => (if moving { "pedestrian.moving" } else { "pedestrian.standing" }, *jaywalk, None),
+                    Role::Pedestrian { jaywalk, .. } => {
+                        (if moving { "pedestrian.moving" } else { "pedestrian.standing" }, *jaywalk, None)
+                    }
                 };
-                ActorState { id: a.id, class: a.class, box3: b, velocity_mps: r.dir * a.v, accel_mps2: a.a, attribute, jaywalking, route }
+                ActorState {
+                    id: a.id,
+                    class: a.class,
+                    box3: b,
+                    velocity_mps: r.dir * a.v,
+                    accel_mps2: a.a,
+                    attribute,
+                    jaywalking,
+                    route,
+                }
             })
             .collect()
     }
@@ -469,7 +591,8 @@ impl Traffic {
             // Vehicles anticipate a crossing pedestrian: it occupies where it will walk in
             // the next few seconds, unless that area is already under the vehicle (then the
             // pedestrian waits for it; see `ped_on_road`).
-            if !is_ped && let Role::Pedestrian { started: true, far_s, .. } = &o.role
+            if !is_ped
+                && let Role::Pedestrian { started: true, far_s, .. } = &o.role
                 && o.s < *far_s
             {
                 let ext = 0.5 * o.v_desired * PED_ANTICIPATION_S;
@@ -504,7 +627,11 @@ impl Traffic {
             let (lo_k, hi_k) = (kb.saturating_sub(w).max(k0), (kb + w).min(k1));
             if let Some(gap) = Self::first_contact(path, &me, a.s, &r, lo_k, hi_k) {
                 // The real footprint bounds how far the road user may move this step.
-                let real = if anticipated { Self::first_contact(path, &me, a.s, &rects[j], k0, k1).unwrap_or(f32::INFINITY) } else { gap };
+                let real = if anticipated {
+                    Self::first_contact(path, &me, a.s, &rects[j], k0, k1).unwrap_or(f32::INFINITY)
+                } else {
+                    gap
+                };
                 let along = o.v * rects[j].dir.dot(path.at(a.s + gap).1);
                 hits.push(Hit { gap, v_along: along, other: j, real_gap: real });
             }
@@ -564,7 +691,9 @@ impl Traffic {
             let t_clear = (s_out - s_in + me.length + (s_in - front)) / me.v.max(2.0);
             let reach = 1.5 + 1.5 * t_clear;
             self.agents.iter().any(|o| match &o.role {
-                Role::Pedestrian { arm: pa, started: true, far_s, jaywalk: false, .. } if *pa == arm && o.s < *far_s => {
+                Role::Pedestrian { arm: pa, started: true, far_s, jaywalk: false, .. }
+                    if *pa == arm && o.s < *far_s =>
+                {
                     let c = self.rect(o).center;
                     let mut s = s_in;
                     while s <= s_out {
@@ -646,7 +775,8 @@ impl Traffic {
                 let (gi, j) = (hit.gap, hit.other);
                 if let Some(gj) = original[j].iter().find(|x| x.other == i).map(|x| x.gap) {
                     let (mi, mj) = (must_go(i, gi), must_go(j, gj));
-                    let i_first = if mi != mj { mi } else { gi < gj || (gi == gj && self.agents[i].id < self.agents[j].id) };
+                    let i_first =
+                        if mi != mj { mi } else { gi < gj || (gi == gj && self.agents[i].id < self.agents[j].id) };
                     if i_first {
                         hit.gap = f32::INFINITY;
                     }
@@ -660,7 +790,12 @@ impl Traffic {
         for i in 0..n {
             let a = &self.agents[i];
             let m = class_model(a.class);
-            let (mut gap, mut v_obst) = hits[i].iter().filter(|h| h.gap.is_finite()).map(|h| (h.gap, h.v_along)).min_by(|x, y| x.0.total_cmp(&y.0)).unwrap_or((f32::INFINITY, 0.0));
+            let (mut gap, mut v_obst) = hits[i]
+                .iter()
+                .filter(|h| h.gap.is_finite())
+                .map(|h| (h.gap, h.v_along))
+                .min_by(|x, y| x.0.total_cmp(&y.0))
+                .unwrap_or((f32::INFINITY, 0.0));
             let mut v0 = a.v_desired;
             let front = a.s + 0.5 * a.length;
             match &a.role {
@@ -708,7 +843,12 @@ impl Traffic {
                             hold = true;
                         }
                         // Do not enter the junction without room to leave it.
-                        if !hold && gap.is_finite() && a.s + gap < r.clear_s + 0.5 * a.length + 1.0 && a.s + gap > r.stop_s - 0.5 * a.length && v_obst < 2.0 {
+                        if !hold
+                            && gap.is_finite()
+                            && a.s + gap < r.clear_s + 0.5 * a.length + 1.0
+                            && a.s + gap > r.stop_s - 0.5 * a.length
+                            && v_obst < 2.0
+                        {
                             hold = true;
                         }
                         if hold {
@@ -726,7 +866,11 @@ impl Traffic {
                         let (p_b, _) = path.at(*far_s);
                         let cross_len = *far_s - *curb_s;
                         let cross_time = cross_len / a.v_desired.max(0.5);
-                        let may = if *jaywalk { true } else { self.plan.walk(*arm, st).is_some_and(|rem| rem as f32 >= cross_time + 2.0) };
+                        let may = if *jaywalk {
+                            true
+                        } else {
+                            self.plan.walk(*arm, st).is_some_and(|rem| rem as f32 >= cross_time + 2.0)
+                        };
                         let horizon = if *jaywalk { cross_time + 2.0 } else { 4.0 };
                         if may && !self.vehicles_threaten(p_a, p_b, horizon) {
                             start[i] = true;
@@ -758,7 +902,11 @@ impl Traffic {
             let acc = accel[i];
             let a = &mut self.agents[i];
             let v_new = (a.v + acc * dt).max(0.0);
-            let travel = if v_new == 0.0 && acc < 0.0 { (a.v * a.v / (2.0 * -acc)).min(a.v * dt) } else { 0.5 * (a.v + v_new) * dt };
+            let travel = if v_new == 0.0 && acc < 0.0 {
+                (a.v * a.v / (2.0 * -acc)).min(a.v * dt)
+            } else {
+                0.5 * (a.v + v_new) * dt
+            };
             let limit = hits[i].iter().map(|h| h.real_gap).fold(f32::INFINITY, f32::min);
             let (travel, v_new) = if travel > limit {
                 self.clamps += 1;
@@ -789,7 +937,11 @@ impl Traffic {
                 if !moved[i] || reverted[i] {
                     continue;
                 }
-                let hit = (0..n).any(|j| j != i && rects[i].center.distance(rects[j].center) < rects[i].radius() + rects[j].radius() && rects[i].overlaps(&rects[j]));
+                let hit = (0..n).any(|j| {
+                    j != i
+                        && rects[i].center.distance(rects[j].center) < rects[i].radius() + rects[j].radius()
+                        && rects[i].overlaps(&rects[j])
+                });
                 if hit {
                     let a = &mut self.agents[i];
                     a.s = old_s[i];
@@ -832,9 +984,21 @@ impl Traffic {
                 } else {
                     Movement::Through
                 };
-                let mut cands: Vec<usize> = self.routes.iter().enumerate().filter(|(_, r)| r.approach == ap && r.movement == want).map(|(k, _)| k).collect();
+                let mut cands: Vec<usize> = self
+                    .routes
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, r)| r.approach == ap && r.movement == want)
+                    .map(|(k, _)| k)
+                    .collect();
                 if cands.is_empty() {
-                    cands = self.routes.iter().enumerate().filter(|(_, r)| r.approach == ap && r.movement == Movement::Through).map(|(k, _)| k).collect();
+                    cands = self
+                        .routes
+                        .iter()
+                        .enumerate()
+                        .filter(|(_, r)| r.approach == ap && r.movement == Movement::Through)
+                        .map(|(k, _)| k)
+                        .collect();
                 }
                 if cands.is_empty() {
                     continue;
@@ -842,7 +1006,8 @@ impl Traffic {
                 let route = cands[self.rng.random_range(0..cands.len())];
                 let class = self.draw_class();
                 let m = class_model(class);
-                let size = (sample(&mut self.rng, m.length), sample(&mut self.rng, m.width), sample(&mut self.rng, m.height));
+                let size =
+                    (sample(&mut self.rng, m.length), sample(&mut self.rng, m.width), sample(&mut self.rng, m.height));
                 let speed_limit = self.speed_limits[ap];
                 let factor = Normal::new(1.0f32, 0.08).map(|d| d.sample(&mut self.rng)).unwrap_or(1.0).clamp(0.8, 1.15);
                 let v_desired = (speed_limit * factor).min(m.v_max);
@@ -884,7 +1049,11 @@ impl Traffic {
             // Enter at a speed the gap allows (IDM equilibrium-ish, never faster than the leader
             // can be followed safely).
             let safe = ((gap - m.s0) / m.headway_s).max(0.0);
-            let v = p.v_desired.min(self.routes[route].v_cap_at(s)).min(if gap.is_finite() { safe.min(v_lead.max(0.0) + safe * 0.5) } else { f32::INFINITY });
+            let v = p.v_desired.min(self.routes[route].v_cap_at(s)).min(if gap.is_finite() {
+                safe.min(v_lead.max(0.0) + safe * 0.5)
+            } else {
+                f32::INFINITY
+            });
             let id = self.next_id;
             self.next_id += 1;
             if let Some(a) = self.agents.last_mut() {
@@ -896,9 +1065,14 @@ impl Traffic {
         // Pedestrians.
         let ped = class_model(Class::Pedestrian);
         for k in 0..self.ped_sources.len() {
-            let rate = if self.ped_sources[k].jaywalk { self.cfg.pedestrians_per_hour * self.cfg.jaywalk_share } else { self.cfg.pedestrians_per_hour * (1.0 - self.cfg.jaywalk_share) };
+            let rate = if self.ped_sources[k].jaywalk {
+                self.cfg.pedestrians_per_hour * self.cfg.jaywalk_share
+            } else {
+                self.cfg.pedestrians_per_hour * (1.0 - self.cfg.jaywalk_share)
+            };
             while self.ped_sources[k].next_arrival_s <= now {
-                self.ped_sources[k].next_arrival_s = next_arrival(&mut self.rng, self.ped_sources[k].next_arrival_s, rate);
+                self.ped_sources[k].next_arrival_s =
+                    next_arrival(&mut self.rng, self.ped_sources[k].next_arrival_s, rate);
                 self.ped_sources[k].pending += 1;
             }
             if self.ped_sources[k].pending == 0 {
@@ -907,13 +1081,22 @@ impl Traffic {
             let slot = self.rng.random_range(0..self.ped_sources[k].paths.len());
             let (path, curb_s, far_s) = self.ped_sources[k].paths[slot].clone();
             let start = path.points[0];
-            let free = self.agents.iter().zip(&rects).all(|(o, r)| (r.center - start).length() > 1.2 + 0.5 * o.length.max(o.width));
+            let free = self
+                .agents
+                .iter()
+                .zip(&rects)
+                .all(|(o, r)| (r.center - start).length() > 1.2 + 0.5 * o.length.max(o.width));
             if !free {
                 continue;
             }
             self.ped_sources[k].pending -= 1;
-            let size = (sample(&mut self.rng, ped.length), sample(&mut self.rng, ped.width), sample(&mut self.rng, ped.height));
-            let v_desired = Normal::new(1.35f32, 0.2).map(|d| d.sample(&mut self.rng)).unwrap_or(1.35).clamp(0.8, ped.v_max);
+            let size = (
+                sample(&mut self.rng, ped.length),
+                sample(&mut self.rng, ped.width),
+                sample(&mut self.rng, ped.height),
+            );
+            let v_desired =
+                Normal::new(1.35f32, 0.2).map(|d| d.sample(&mut self.rng)).unwrap_or(1.35).clamp(0.8, ped.v_max);
             let id = self.next_id;
             self.next_id += 1;
             let (arm, jaywalk) = (self.ped_sources[k].arm, self.ped_sources[k].jaywalk);
@@ -975,10 +1158,20 @@ fn pedestrian_sources(layout: &Layout) -> Vec<PedSource> {
             let lane = 0.75 + 1.0 * k as f32;
             // Inbound side → outbound side on the junction half, straight over the sidewalks
             // (paths to the corners would cross the neighbouring arm's pedestrians).
-            let p = [at(c0 + u_in, ein + sw - 0.35), at(c0 + u_in, ein + 0.4), at(c0 + u_in, eout - 0.4), at(c0 + u_in, eout - sw + 0.35)];
+            let p = [
+                at(c0 + u_in, ein + sw - 0.35),
+                at(c0 + u_in, ein + 0.4),
+                at(c0 + u_in, eout - 0.4),
+                at(c0 + u_in, eout - sw + 0.35),
+            ];
             outward.push(with_curbs(&p, &[]));
             // Outbound side → inbound side on the outer half, along the sidewalks.
-            let q = [at(c0 + u_out + 12.0, eout - lane), at(c0 + u_out, eout - 0.4), at(c0 + u_out, ein + 0.4), at(c0 + u_out + 12.0, ein + lane)];
+            let q = [
+                at(c0 + u_out + 12.0, eout - lane),
+                at(c0 + u_out, eout - 0.4),
+                at(c0 + u_out, ein + 0.4),
+                at(c0 + u_out + 12.0, ein + lane),
+            ];
             let (turn_a, turn_b) = (at(c0 + u_out, eout - lane), at(c0 + u_out, ein + lane));
             inward.push(with_curbs(&q, &[turn_a, turn_b]));
         }

@@ -224,7 +224,13 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
                 let crosswalks = [i, j]
                     .iter()
                     .filter_map(|&arm| {
-                        let inside: Vec<f32> = path.points.iter().enumerate().filter(|(_, p)| point_in_polygon(**p, &layout.arms[arm].crosswalk)).map(|(k, _)| k as f32 * DS).collect();
+                        let inside: Vec<f32> = path
+                            .points
+                            .iter()
+                            .enumerate()
+                            .filter(|(_, p)| point_in_polygon(**p, &layout.arms[arm].crosswalk))
+                            .map(|(k, _)| k as f32 * DS)
+                            .collect();
                         Some((arm, *inside.first()?, *inside.last()?))
                     })
                     .collect();
@@ -265,7 +271,8 @@ fn speed_caps(path: &Path) -> Vec<f32> {
 /// Routes that start on the same lane are never in conflict here (they follow each other).
 pub fn junction_conflicts(routes: &[Route], clearance_m: f32) -> Vec<Vec<Option<f32>>> {
     let span = |r: &Route| {
-        let (k0, k1) = ((r.stop_s / DS).floor() as usize, ((r.clear_s / DS).ceil() as usize).min(r.path.points.len() - 1));
+        let (k0, k1) =
+            ((r.stop_s / DS).floor() as usize, ((r.clear_s / DS).ceil() as usize).min(r.path.points.len() - 1));
         (k0..=k1).map(|k| (k as f32 * DS, r.path.points[k])).collect::<Vec<_>>()
     };
     let spans: Vec<_> = routes.iter().map(span).collect();
@@ -281,7 +288,11 @@ pub fn junction_conflicts(routes: &[Route], clearance_m: f32) -> Vec<Vec<Option<
                     if ia == ib || a.path.points[0].distance(b.path.points[0]) < 0.1 {
                         return None;
                     }
-                    spans[ib].iter().filter(|(_, pb)| spans[ia].iter().any(|(_, pa)| pa.distance_squared(*pb) < c2)).map(|(s, _)| *s).fold(None, |m: Option<f32>, s| Some(m.map_or(s, |m| m.max(s))))
+                    spans[ib]
+                        .iter()
+                        .filter(|(_, pb)| spans[ia].iter().any(|(_, pa)| pa.distance_squared(*pb) < c2))
+                        .map(|(s, _)| *s)
+                        .fold(None, |m: Option<f32>, s| Some(m.map_or(s, |m| m.max(s))))
                 })
                 .collect()
         })

@@ -30,7 +30,9 @@ impl Default for SignalConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Light {
     /// Green; `protected` when conflicting traffic is held.
-    Green { protected: bool },
+    Green {
+        protected: bool,
+    },
     Yellow,
     Red,
 }
@@ -71,7 +73,9 @@ impl SignalPlan {
                 continue;
             }
             let mut arms = vec![i];
-            if let Some(j) = (i + 1..n).find(|&j| group_of_arm[j] == usize::MAX && dirs[i].dot(dirs[j]) < -(20f32.to_radians().cos())) {
+            if let Some(j) = (i + 1..n)
+                .find(|&j| group_of_arm[j] == usize::MAX && dirs[i].dot(dirs[j]) < -(20f32.to_radians().cos()))
+            {
                 arms.push(j);
             }
             let g = groups.len();
@@ -81,7 +85,14 @@ impl SignalPlan {
             let v = arms.iter().map(|&a| speed_mps[a]).fold(0.0f32, f32::max) as f64;
             let yellow_s = cfg.yellow_s.unwrap_or((1.0 + v / (2.0 * 3.05)).max(3.0));
             let left_s = if arms.iter().any(|&a| has_bay[a]) { cfg.protected_left_s } else { 0.0 };
-            groups.push(Group { arms, left_s, green_s: cfg.green_s, yellow_s, all_red_s: cfg.all_red_s, offset_s: 0.0 });
+            groups.push(Group {
+                arms,
+                left_s,
+                green_s: cfg.green_s,
+                yellow_s,
+                all_red_s: cfg.all_red_s,
+                offset_s: 0.0,
+            });
         }
         let mut t = 0.0;
         for g in &mut groups {

@@ -339,15 +339,16 @@ pub fn polygon_area(poly: &[[f32; 2]]) -> f32 {
 impl SceneConfig {
     /// Parses a scene from TOML text; `path` is only used in error messages.
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self, RaycastError> {
-        let cfg: SceneConfig =
-            toml::from_str(text).map_err(|e| RaycastError::Toml { path: path.to_path_buf(), message: e.to_string() })?;
+        let cfg: SceneConfig = toml::from_str(text)
+            .map_err(|e| RaycastError::Toml { path: path.to_path_buf(), message: e.to_string() })?;
         cfg.validate(path)?;
         Ok(cfg)
     }
 
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Self, RaycastError> {
-        let text = std::fs::read_to_string(path).map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
         Self::from_toml_str(&text, path)
     }
 
@@ -411,7 +412,11 @@ impl SceneConfig {
             for (k, h) in p.head_offsets_m.iter().enumerate() {
                 c.non_negative(&f(&format!("head_offsets_m[{k}]")), *h)?;
                 if *h > p.arm_length_m {
-                    return Err(c.err(&f(&format!("head_offsets_m[{k}]")), *h, "signal head beyond the end of the arm"));
+                    return Err(c.err(
+                        &f(&format!("head_offsets_m[{k}]")),
+                        *h,
+                        "signal head beyond the end of the arm",
+                    ));
                 }
             }
         }

@@ -52,7 +52,10 @@ pub fn read_obj(path: &Path) -> Result<RawMesh, RaycastError> {
         let local_n = (p.len() / 3) as u32;
         for (k, c) in m.mesh.indices.chunks_exact(3).enumerate() {
             if let Some(&i) = c.iter().find(|&&i| i >= local_n) {
-                return Err(mesh_err(path, format!("object {:?} face {k} refers to vertex {i}, but it has {local_n}", m.name)));
+                return Err(mesh_err(
+                    path,
+                    format!("object {:?} face {k} refers to vertex {i}, but it has {local_n}", m.name),
+                ));
             }
             mesh.triangles.push([base + c[0], base + c[1], base + c[2]]);
         }
@@ -70,10 +73,14 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
     let mut buffers: Vec<Vec<u8>> = Vec::new();
     for (i, b) in gltf.document.buffers().enumerate() {
         let data = match b.source() {
-            gltf::buffer::Source::Bin => gltf.blob.clone().ok_or_else(|| mesh_err(path, format!("buffer {i}: no binary chunk")))?,
+            gltf::buffer::Source::Bin => {
+                gltf.blob.clone().ok_or_else(|| mesh_err(path, format!("buffer {i}: no binary chunk")))?
+            }
             gltf::buffer::Source::Uri(uri) => {
                 if let Some(rest) = uri.strip_prefix("data:") {
-                    let (_, b64) = rest.split_once(";base64,").ok_or_else(|| mesh_err(path, format!("buffer {i}: unsupported data URI")))?;
+                    let (_, b64) = rest
+                        .split_once(";base64,")
+                        .ok_or_else(|| mesh_err(path, format!("buffer {i}: unsupported data URI")))?;
                     base64::engine::general_purpose::STANDARD
                         .decode(b64)
                         .map_err(|e| mesh_err(path, format!("buffer {i}: bad base64: {e}")))?
@@ -84,7 +91,10 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
             }
         };
         if data.len() < b.length() {
-            return Err(mesh_err(path, format!("buffer {i}: {} bytes, but the file declares {}", data.len(), b.length())));
+            return Err(mesh_err(
+                path,
+                format!("buffer {i}: {} bytes, but the file declares {}", data.len(), b.length()),
+            ));
         }
         buffers.push(data);
     }
@@ -115,7 +125,14 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
                 let base = mesh.vertices.len() as u32;
                 for (k, c) in idx.chunks_exact(3).enumerate() {
                     if let Some(&i) = c.iter().find(|&&i| i as usize >= positions.len()) {
-                        return Err(mesh_err(path, format!("mesh {} primitive {pi} face {k} refers to vertex {i}, but it has {}", gm.index(), positions.len())));
+                        return Err(mesh_err(
+                            path,
+                            format!(
+                                "mesh {} primitive {pi} face {k} refers to vertex {i}, but it has {}",
+                                gm.index(),
+                                positions.len()
+                            ),
+                        ));
                     }
                     mesh.triangles.push([base + c[0], base + c[1], base + c[2]]);
                 }
@@ -131,7 +148,13 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
 /// Loads the mesh a scene names and places it in the local frame: up-axis conversion, scale,
 /// yaw, translation, then (for world coordinates) subtraction of the origin, all in f64.
 /// `scene_file` and `index` name the scene entry in errors about the entry itself.
-pub fn load_mesh(cfg: &MeshConfig, scene_dir: &Path, origin: DVec3, scene_file: &Path, index: usize) -> Result<Vec<[glam::Vec3; 3]>, RaycastError> {
+pub fn load_mesh(
+    cfg: &MeshConfig,
+    scene_dir: &Path,
+    origin: DVec3,
+    scene_file: &Path,
+    index: usize,
+) -> Result<Vec<[glam::Vec3; 3]>, RaycastError> {
     let path = if cfg.path.is_absolute() { cfg.path.clone() } else { scene_dir.join(&cfg.path) };
     let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
     let (raw, y_up) = match ext.as_str() {
@@ -157,6 +180,8 @@ pub fn load_mesh(cfg: &MeshConfig, scene_dir: &Path, origin: DVec3, scene_file: 
     Ok(raw
         .triangles
         .iter()
-        .map(|t| [place(raw.vertices[t[0] as usize]), place(raw.vertices[t[1] as usize]), place(raw.vertices[t[2] as usize])])
+        .map(|t| {
+            [place(raw.vertices[t[0] as usize]), place(raw.vertices[t[1] as usize]), place(raw.vertices[t[2] as usize])]
+        })
         .collect())
 }

@@ -222,7 +222,12 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             layout.central.push(p);
             let sw = f.cfg.sidewalk_width_m.min(g.cfg.sidewalk_width_m);
             if sw > 0.0 {
-                layout.corner_sidewalks.push(vec![p, p - g.normal * sw, p - g.normal * sw + f.normal * sw, p + f.normal * sw]);
+                layout.corner_sidewalks.push(vec![
+                    p,
+                    p - g.normal * sw,
+                    p - g.normal * sw + f.normal * sw,
+                    p + f.normal * sw,
+                ]);
             }
         }
     }

@@ -98,7 +98,9 @@ impl Scene {
         let ground = GroundPlane { z_m: gz, min: Vec2::splat(-h), max: Vec2::splat(h) };
         let mut b = Builder::default();
         let named = |e: RaycastError, field: String| match e {
-            RaycastError::Geometry(msg) => RaycastError::Invalid { path: file.to_path_buf(), field, value: String::new(), reason: msg },
+            RaycastError::Geometry(msg) => {
+                RaycastError::Invalid { path: file.to_path_buf(), field, value: String::new(), reason: msg }
+            }
             other => other,
         };
         for (i, arm) in layout.arms.iter().enumerate() {
@@ -120,15 +122,28 @@ impl Scene {
             let name = if bc.name.is_empty() { format!("building{i}") } else { bc.name.clone() };
             let o = b.object(name, ObjectKind::Building, bc.material);
             let fp: Vec<Vec2> = bc.footprint.iter().map(|p| Vec2::from(*p)).collect();
-            b.mesh.push_prism(&fp, gz, gz + bc.height_m, o).map_err(|e| named(e, format!("buildings[{i}].footprint")))?;
+            b.mesh
+                .push_prism(&fp, gz, gz + bc.height_m, o)
+                .map_err(|e| named(e, format!("buildings[{i}].footprint")))?;
         }
         for (i, t) in cfg.trees.iter().enumerate() {
             let p = Vec2::from(t.position);
             let o = b.object(format!("tree{i}/trunk"), ObjectKind::TreeTrunk, Material::Vegetation);
-            b.mesh.push_cylinder(p.extend(gz), p.extend(gz + t.trunk_height_m + 0.5 * t.crown_height_m), t.trunk_radius_m, 8, o);
+            b.mesh.push_cylinder(
+                p.extend(gz),
+                p.extend(gz + t.trunk_height_m + 0.5 * t.crown_height_m),
+                t.trunk_radius_m,
+                8,
+                o,
+            );
             let o = b.object(format!("tree{i}/crown"), ObjectKind::TreeCrown, Material::Vegetation);
             let cz = gz + t.trunk_height_m + 0.5 * t.crown_height_m;
-            b.mesh.push_ellipsoid(p.extend(cz), Vec3::new(t.crown_radius_m, t.crown_radius_m, 0.5 * t.crown_height_m), 1, o);
+            b.mesh.push_ellipsoid(
+                p.extend(cz),
+                Vec3::new(t.crown_radius_m, t.crown_radius_m, 0.5 * t.crown_height_m),
+                1,
+                o,
+            );
         }
         let mut mounts = Vec::new();
         for p in &cfg.signal_poles {
@@ -166,7 +181,10 @@ impl Scene {
             if s.arm_length_m > 0.0 {
                 b.mesh.push_cylinder(base.extend(gz + s.height_m - 0.1), tip.extend(gz + s.height_m - 0.1), 0.06, 6, o);
             }
-            b.mesh.push_box(&Box3::new(tip.extend(gz + s.height_m - 0.25), 0.7, 0.35, 0.2, s.arm_heading_deg.to_radians()), o);
+            b.mesh.push_box(
+                &Box3::new(tip.extend(gz + s.height_m - 0.25), 0.7, 0.35, 0.2, s.arm_heading_deg.to_radians()),
+                o,
+            );
         }
         for (i, m) in cfg.meshes.iter().enumerate() {
             let name = if m.name.is_empty() { format!("mesh{i}") } else { m.name.clone() };

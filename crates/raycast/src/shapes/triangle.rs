@@ -136,7 +136,8 @@ mod tests {
     #[test]
     fn shared_edge_and_vertex_of_a_quad_hit_exactly_once_or_twice_never_zero() {
         // Two triangles of a unit square sharing the diagonal (0,0)-(1,1).
-        let q = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
+        let q =
+            [Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
         // Interior points of the shared diagonal (its ends are the quad's outer corners).
         for i in 1..100 {
             let s = i as f32 / 100.0;
