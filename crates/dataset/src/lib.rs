@@ -7,6 +7,7 @@
 //! - [`simulate`]: frames of a sensor rig over that traffic (scans, annotations, visibility);
 //! - [`traffic`]: the road users (lane graph, signal plan, IDM, gap acceptance, pedestrians).
 
+pub mod background;
 pub mod error;
 pub mod reader;
 pub mod simulate;
