@@ -15,6 +15,12 @@ mod tradeoff;
 mod train;
 
 use anyhow::{Context, Result};
+
+/// candle allocates a fresh buffer for every tensor operation; glibc's malloc hands large ones
+/// back to the kernel on free, so a training step spent about as long in page faults as in
+/// arithmetic. mimalloc keeps them.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use clap::{Parser, Subcommand};
 use hilo_raycast::Scene;
 use std::path::{Path, PathBuf};

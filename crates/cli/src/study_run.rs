@@ -89,7 +89,11 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
         "paper" => Profile {
             name: name.into(),
             dataset: SimulateConfig { scenes: 37, seconds: 20.0, rate_hz: 20.0, ..base },
-            presets: hilo_fusion::detector::PRESETS.iter().map(|s| s.to_string()).collect(),
+            presets: crate::train::registry()?
+                .preset_names()
+                .into_iter()
+                .filter(|n| !n.ends_with("-no-early"))
+                .collect(),
             configurations: None,
             with_radar_only: true,
             train_samples: 12_000,
@@ -109,6 +113,14 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
         other => bail!("--profile {other:?}: use quick, default or paper"),
     };
     Ok(p)
+}
+
+/// Frames of one input config: its background model, training and validation frames.
+type Loaded =
+    (Option<hilo_dataset::background::BackgroundModel>, Vec<hilo_fusion::data::Frame>, Vec<hilo_fusion::data::Frame>);
+
+fn uses_radar(registry: &hilo_fusion::Registry, preset: &str) -> bool {
+    registry.preset(preset).is_ok_and(|p| registry.uses_radar(&p.detector))
 }
 
 fn has_radar(c: &Configuration) -> bool {
@@ -195,7 +207,9 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         bail!("--seeds must be at least 1");
     }
     for p in &prof.presets {
-        hilo_fusion::preset(p).with_context(|| format!("--presets / profile {}: preset {p:?}", prof.name))?;
+        crate::train::registry()?
+            .preset(p)
+            .with_context(|| format!("--presets / profile {}: preset {p:?}", prof.name))?;
     }
     let out = &args.out;
     let fp = fingerprint(&study, &prof, args.seeds)?;
@@ -280,7 +294,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     // Whole-study progress: detectors to train, and an ETA from the ones done so far.
     let total_detectors: usize = configs
         .iter()
-        .map(|c| prof.presets.iter().filter(|p| !hilo_fusion::detector::uses_radar(p) || has_radar(c)).count())
+        .map(|c| prof.presets.iter().filter(|p| !uses_radar(&registry, p) || has_radar(c)).count())
         .sum::<usize>()
         * args.seeds as usize;
     let mut done_detectors = 0usize;
@@ -329,8 +343,9 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
             annotations: summary.annotations,
         });
         let ds = hilo_dataset::Dataset::open(&data, "v1.0-trainval")?;
-        let train_frames = hilo_fusion::data::load_split(&ds, "train")?;
-        let val_frames = hilo_fusion::data::load_split(&ds, "val")?;
+        // Frames as each preset's input reads them (background removed or not, radar sweeps),
+        // loaded once per distinct input.
+        let mut inputs: BTreeMap<String, Loaded> = BTreeMap::new();
         let mut gt = hilo_eval::ground_truth_from_dataset(&ds, "val")?;
         // Scene names (not tokens) so that configurations' scenes can be paired.
         let scene_name: BTreeMap<&str, &str> =
@@ -340,19 +355,31 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                 info.scene = (*n).to_owned();
             }
         }
-        if let Some(f) = val_frames.get(val_frames.len() / 2) {
-            pictures.insert(conf.name.clone(), (f.clone(), gt.boxes.get(&f.sample_token).cloned().unwrap_or_default()));
-        }
         gts.insert(conf.name.clone(), gt.clone());
         for preset in &prof.presets {
-            if hilo_fusion::detector::uses_radar(preset) && !has_radar(conf) {
+            if uses_radar(&registry, preset) && !has_radar(conf) {
                 stage(&format!("{} on {}: skipped (the configuration has no radar)", preset, conf.name));
                 continue;
             }
             for seed in 0..args.seeds {
                 // 3. Training (resumes; returns at once when finished).
                 let run = out.join("runs").join(&slug).join(format!("{preset}-seed{seed}"));
-                let det_cfg = hilo_fusion::preset(preset)?;
+                let det_cfg = registry.preset(preset)?.detector.clone();
+                let key = serde_json::to_string(&det_cfg.input)?;
+                if !inputs.contains_key(&key) {
+                    let bg = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
+                    let opts = hilo_fusion::data::LoadOptions::new(&det_cfg.input, bg.as_ref());
+                    let (tr, _) = hilo_fusion::data::load_split(&ds, "train", &opts)?;
+                    let (va, _) = hilo_fusion::data::load_split(&ds, "val", &opts)?;
+                    inputs.insert(key.clone(), (bg, tr, va));
+                }
+                let Some((background, train_frames, val_frames)) = inputs.get(&key) else { continue };
+                if let (false, Some(f)) = (pictures.contains_key(&conf.name), val_frames.get(val_frames.len() / 2)) {
+                    pictures.insert(
+                        conf.name.clone(),
+                        (f.clone(), gt.boxes.get(&f.sample_token).cloned().unwrap_or_default()),
+                    );
+                }
                 let tc = TrainConfig { samples: prof.train_samples, seed, ..TrainConfig::default() };
                 let bar = indicatif::ProgressBar::new(tc.steps() as u64);
                 bar.set_style(
@@ -360,19 +387,24 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
                 );
                 let label = format!("train {preset} on {}", conf.name);
-                let info = train(&run, &det_cfg, &tc, &train_frames, &registry, &Device::Cpu, &mut |r| {
-                    bar.set_position(r.step as u64);
-                    bar.set_message(format!("{label} loss {:.3}", r.loss));
-                    true
-                })
-                .with_context(|| format!("training {preset} on {}", conf.name))?;
+                let info =
+                    train(&run, &det_cfg, &tc, train_frames, background.as_ref(), &registry, &Device::Cpu, &mut |r| {
+                        bar.set_position(r.step as u64);
+                        bar.set_message(format!("{label} loss {:.3}", r.loss));
+                        true
+                    })
+                    .with_context(|| format!("training {preset} on {}", conf.name))?;
                 bar.finish_and_clear();
                 // 4. Detection (skipped when the results exist).
                 let res_path = out.join("results").join(&slug).join(format!("{preset}-seed{seed}.json"));
                 let meta_path = res_path.with_extension("meta.json");
                 if !(res_path.exists() && meta_path.exists()) {
-                    let (det, _) = load_run(&run, &registry, &Device::Cpu)?;
-                    let (json, per_frame) = hilo_fusion::infer::detect_frames(&det, &val_frames, 4, &mut |_| {})?;
+                    let (det, _, _) = load_run(&run, &registry, &Device::Cpu)?;
+                    let (dets, per_frame) = hilo_fusion::infer::detect_frames(&det, val_frames, 4, &mut |_| {})?;
+                    let json = hilo_eval::boxes::submission_json(
+                        &hilo_eval::boxes::from_detections(&dets),
+                        serde_json::json!({ "detector": det.cfg.name }),
+                    );
                     crate::write_atomic(&res_path, serde_json::to_string(&json)?.as_bytes())?;
                     crate::write_atomic(
                         &meta_path,

@@ -2,8 +2,9 @@
 
 use anyhow::{Context, Result, bail};
 use candle_core::Device;
+use hilo_fusion::Registry;
+use hilo_fusion::data::LoadOptions;
 use hilo_fusion::train::{StepReport, TrainConfig};
-use hilo_fusion::{Registry, preset};
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -54,10 +55,12 @@ pub fn registry() -> Result<Registry> {
     Ok(r)
 }
 
-/// A preset by name, optionally without its early stage (the paper's ablation).
-pub fn detector(name: &str, no_early: bool) -> Result<hilo_fusion::DetectorConfig> {
-    let cfg = preset(name)?;
-    Ok(if no_early { hilo_fusion::detector::without_early(&cfg)? } else { cfg })
+/// A preset by name, optionally without its early stage (the paper's ablation), and its
+/// default training schedule.
+pub fn detector(registry: &Registry, name: &str, no_early: bool) -> Result<(hilo_fusion::DetectorConfig, TrainConfig)> {
+    let p = registry.preset(name)?;
+    let det = if no_early { hilo_fusion::detector::without_early(&p.detector)? } else { p.detector.clone() };
+    Ok((det, p.train.clone()))
 }
 
 /// A JSON file into `T`; errors name the file and serde's field and position.
@@ -66,10 +69,10 @@ fn read_json<T: serde::de::DeserializeOwned>(path: &std::path::Path) -> Result<T
     serde_json::from_str(&text).with_context(|| format!("{}: not a valid configuration", path.display()))
 }
 
-/// A training schedule from a JSON object: its fields over the preset's default schedule.
-fn schedule(preset: &str, fields: &serde_json::Value) -> Result<TrainConfig> {
+/// A training schedule from a JSON object: its fields over `base` (the preset's schedule).
+fn schedule(base: &TrainConfig, fields: &serde_json::Value) -> Result<TrainConfig> {
     let Some(fields) = fields.as_object() else { bail!("a training schedule is a JSON object, not {fields}") };
-    let mut cfg = serde_json::to_value(TrainConfig::for_preset(preset))?;
+    let mut cfg = serde_json::to_value(base)?;
     if let Some(base) = cfg.as_object_mut() {
         base.extend(fields.iter().map(|(k, v)| (k.clone(), v.clone())));
     }
@@ -77,18 +80,17 @@ fn schedule(preset: &str, fields: &serde_json::Value) -> Result<TrainConfig> {
 }
 
 pub fn run_train(args: &TrainArgs) -> Result<()> {
+    let registry = registry()?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
-    let frames = hilo_fusion::data::load_split(&ds, &args.split)
-        .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
-    let det = match &args.detector_config {
-        Some(path) => read_json::<hilo_fusion::DetectorConfig>(path)?,
-        None => detector(&args.detector, args.no_early)?,
+    let (det, base) = match &args.detector_config {
+        Some(path) => (read_json::<hilo_fusion::DetectorConfig>(path)?, TrainConfig::default()),
+        None => detector(&registry, &args.detector, args.no_early)?,
     };
     let mut cfg = match &args.train_config {
-        Some(path) => schedule(&det.name, &read_json::<serde_json::Value>(path)?)
+        Some(path) => schedule(&base, &read_json::<serde_json::Value>(path)?)
             .with_context(|| format!("{}: not a valid training schedule", path.display()))?,
-        None => TrainConfig::for_preset(&det.name),
+        None => base,
     };
     if let Some(s) = args.samples {
         cfg.samples = s;
@@ -98,6 +100,24 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     }
     if let Some(s) = args.seed {
         cfg.seed = s;
+    }
+    if cfg.batch == 0 || cfg.samples == 0 {
+        bail!("--batch and --samples must be at least 1 (batch {}, samples {})", cfg.batch, cfg.samples);
+    }
+    det.validate()?;
+    let background = hilo_fusion::train::learn_background(&ds, &args.split, &det.input).with_context(|| {
+        format!("{}: learning the static background of split {:?}", args.data.display(), args.split)
+    })?;
+    let (frames, stats) =
+        hilo_fusion::data::load_split(&ds, &args.split, &LoadOptions::new(&det.input, background.as_ref()))
+            .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
+    if background.is_some() {
+        eprintln!(
+            "static background removed: {} of {} LiDAR points ({:.1}%)",
+            stats.background_points,
+            stats.background_points + stats.lidar_points,
+            100.0 * stats.background_points as f64 / (stats.background_points + stats.lidar_points).max(1) as f64
+        );
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let bar = indicatif::ProgressBar::new(cfg.steps() as u64);
@@ -112,29 +132,47 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         .append(true)
         .open(&log_path)
         .with_context(|| format!("opening {}", log_path.display()))?;
+    let mut warned = false;
     let mut on_step = |r: &StepReport| {
         bar.set_position(r.step as u64);
         bar.set_message(format!(
             "{} loss {:.3} (cls {:.3}, reg {:.3}) {:.1} samples/s",
             det.name, r.loss, r.cls, r.reg, r.samples_per_s
         ));
+        if r.dropped_pillars > 0 && !warned {
+            warned = true;
+            bar.println(format!(
+                "warning: step {}: {} pillars over the grid's max_pillars were left out (a uniform sample is kept)",
+                r.step, r.dropped_pillars
+            ));
+        }
         let _ = writeln!(
             log,
             "{}",
-            serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s })
+            serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s, "dropped_points": r.dropped_points, "dropped_pillars": r.dropped_pillars })
         );
         true
     };
-    let info = hilo_fusion::train::train(&args.out, &det, &cfg, &frames, &registry()?, &Device::Cpu, &mut on_step)
-        .with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
+    let info = hilo_fusion::train::train(
+        &args.out,
+        &det,
+        &cfg,
+        &frames,
+        background.as_ref(),
+        &registry,
+        &Device::Cpu,
+        &mut on_step,
+    )
+    .with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
     bar.finish_and_clear();
     eprintln!(
-        "trained {} on {} frames: {} steps, {} samples in {:.1} s; weights in {}",
+        "trained {} on {} frames: {} steps, {} samples in {:.1} s ({} points over the pillar cap left out); weights in {}",
         det.name,
         frames.len(),
         info.step,
         info.samples_seen,
         info.seconds,
+        info.dropped_points,
         hilo_fusion::train::weights_path(&args.out).display()
     );
     Ok(())
@@ -159,16 +197,22 @@ pub struct DetectArgs {
 }
 
 pub fn run_detect(args: &DetectArgs) -> Result<()> {
-    let (det, info) = hilo_fusion::train::load_run(&args.run, &registry()?, &Device::Cpu)
+    if args.batch == 0 {
+        bail!("--batch must be at least 1");
+    }
+    let (det, info, background) = hilo_fusion::train::load_run(&args.run, &registry()?, &Device::Cpu)
         .with_context(|| format!("loading run {}", args.run.display()))?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
-    let frames = hilo_fusion::data::load_split(&ds, &args.split)
-        .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
+    let (frames, _) =
+        hilo_fusion::data::load_split(&ds, &args.split, &LoadOptions::new(&det.cfg.input, background.as_ref()))
+            .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     let bar = indicatif::ProgressBar::new(frames.len() as u64);
-    let (json, per_frame) =
+    let (dets, per_frame) =
         hilo_fusion::infer::detect_frames(&det, &frames, args.batch, &mut |n| bar.set_position(n as u64))?;
     bar.finish_and_clear();
+    let meta = serde_json::json!({ "use_camera": false, "use_lidar": true, "use_radar": det.uses_radar(), "use_map": false, "use_external": false, "detector": det.cfg.name });
+    let json = hilo_eval::boxes::submission_json(&hilo_eval::boxes::from_detections(&dets), meta);
     crate::write_atomic(&args.out, serde_json::to_string(&json)?.as_bytes())?;
     eprintln!(
         "{} ({}) on {} frames: {:.1} ms per frame; wrote {}",
@@ -188,16 +232,15 @@ mod tests {
 
     #[test]
     fn a_schedule_file_overrides_only_its_fields_of_the_preset_schedule() {
+        let preset = TrainConfig { samples: 900, ..TrainConfig::default() };
         let c = schedule(
-            "late",
+            &preset,
             &serde_json::json!({ "lr_max": 0.001, "augmentation": { "rotate_deg": 0.0, "flip_p": 0.0, "scale": 0.0 } }),
         )
         .unwrap();
-        let preset = TrainConfig::for_preset("late");
         assert_eq!((c.samples, c.batch, c.lr_max, c.augmentation.flip_p), (preset.samples, preset.batch, 0.001, 0.0));
-        assert_ne!(preset.samples, TrainConfig::default().samples, "late's schedule differs from the default");
-        let bad = schedule("late", &serde_json::json!({ "sampels": 10 })).unwrap_err();
+        let bad = schedule(&preset, &serde_json::json!({ "sampels": 10 })).unwrap_err();
         assert!(format!("{bad:#}").contains("sampels"), "{bad:#}");
-        assert!(schedule("late", &serde_json::json!([1, 2])).is_err());
+        assert!(schedule(&preset, &serde_json::json!([1, 2])).is_err());
     }
 }

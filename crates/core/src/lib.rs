@@ -11,6 +11,7 @@
 mod boxes;
 mod class;
 mod frame;
+pub mod iou;
 mod points;
 
 pub use boxes::Box3;

@@ -10,6 +10,7 @@
 //!   dataset declares, so the devkit's range filter measures from it.
 
 use crate::error::EvalError;
+use hilo_core::{Class, Detection};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -71,6 +72,60 @@ impl EvalBox {
             num_pts: -1,
         }
     }
+}
+
+impl EvalBox {
+    /// A detector's box as a submission box of `sample`, with the nuScenes attribute its class
+    /// and predicted speed imply (moving above 0.5 m/s for vehicles, 0.3 m/s for pedestrians;
+    /// motorcycles always with a rider).
+    pub fn from_detection(sample: &str, d: &Detection) -> Self {
+        let b = &d.box3;
+        let speed = d.velocity_mps.length();
+        let attribute = match d.class {
+            Class::Pedestrian => {
+                if speed > 0.3 {
+                    "pedestrian.moving"
+                } else {
+                    "pedestrian.standing"
+                }
+            }
+            Class::Motorcycle => "cycle.with_rider",
+            _ => {
+                if speed > 0.5 {
+                    "vehicle.moving"
+                } else {
+                    "vehicle.stopped"
+                }
+            }
+        };
+        EvalBox {
+            attribute_name: attribute.to_owned(),
+            ..EvalBox::from_yaw(
+                sample,
+                d.class.name(),
+                [b.center.x as f64, b.center.y as f64, b.center.z as f64],
+                [b.width_m as f64, b.length_m as f64, b.height_m as f64],
+                b.yaw as f64,
+                [d.velocity_mps.x as f64, d.velocity_mps.y as f64],
+                d.score.clamp(0.0, 1.0) as f64,
+            )
+        }
+    }
+}
+
+/// Detections per sample as submission boxes, in sample order.
+pub fn from_detections(results: &[(String, Vec<Detection>)]) -> Vec<(String, Vec<EvalBox>)> {
+    results.iter().map(|(s, ds)| (s.clone(), ds.iter().map(|d| EvalBox::from_detection(s, d)).collect())).collect()
+}
+
+/// A nuScenes submission document: `{"meta": meta, "results": {sample: [box, ...]}}`, samples in
+/// the given order.
+pub fn submission_json(results: &[(String, Vec<EvalBox>)], meta: serde_json::Value) -> serde_json::Value {
+    let mut map = serde_json::Map::new();
+    for (s, boxes) in results {
+        map.insert(s.clone(), serde_json::to_value(boxes).unwrap_or_default());
+    }
+    serde_json::json!({ "meta": meta, "results": map })
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

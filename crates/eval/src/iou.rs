@@ -1,98 +1,36 @@
-//! IoU-based evaluation: rotated bird's-eye-view and 3-D IoU of yaw-only boxes, and KITTI-style
-//! average precision with 40 recall points (R40).
-//!
-//! Intersection areas come from clipping one box's footprint by the other's four edge lines
-//! (Sutherland–Hodgman). A crossing point is only computed between two vertices on opposite sides
-//! of a line, as `t = d_p / (d_p − d_q)` with `d_p`, `d_q` of opposite signs, so `t` is always in
-//! [0, 1] and near-parallel edges cannot blow it up. Identical boxes give exactly 1; boxes of zero
-//! area give 0 (never NaN); IoU is clamped to [0, 1].
+//! IoU-based evaluation: KITTI-style average precision with 40 recall points (R40) over the
+//! rotated bird's-eye-view or 3-D IoU of yaw-only boxes (the geometry is hilo-core's
+//! [`hilo_core::iou`], applied to the files' f64 boxes).
 //!
 //! Matching for the R40 AP, a documented simplification of KITTI's: predictions in descending
 //! score order, each to the still unmatched ground truth of the same sample and class with the
 //! highest IoU at or above the threshold; no difficulty levels or don't-care regions.
 
 use crate::boxes::EvalBox;
+use hilo_core::iou::YawBox;
 use std::collections::BTreeMap;
 
-type P = [f64; 2];
+pub use hilo_core::iou::convex_intersection_area;
 
-/// Footprint corners (counter-clockwise) of a box: nuScenes size is (width, length, height),
-/// length along the heading.
-pub fn footprint(b: &EvalBox) -> [P; 4] {
-    let (s, c) = b.yaw().sin_cos();
-    let (hl, hw) = (0.5 * b.size[1], 0.5 * b.size[0]);
-    let (cx, cy) = (b.translation[0], b.translation[1]);
-    let at = |l: f64, w: f64| [cx + l * c - w * s, cy + l * s + w * c];
-    [at(hl, hw), at(-hl, hw), at(-hl, -hw), at(hl, -hw)]
+/// The box's geometry in f64, exactly as the file gives it (nuScenes size is width, length,
+/// height; length along the heading).
+pub fn yaw_box(b: &EvalBox) -> YawBox {
+    YawBox { center: b.translation, length_m: b.size[1], width_m: b.size[0], height_m: b.size[2], yaw: b.yaw() }
 }
 
-fn area(poly: &[P]) -> f64 {
-    let n = poly.len();
-    if n < 3 {
-        return 0.0;
-    }
-    0.5 * (0..n).map(|i| poly[i][0] * poly[(i + 1) % n][1] - poly[(i + 1) % n][0] * poly[i][1]).sum::<f64>()
+/// Footprint corners (counter-clockwise) of a box.
+pub fn footprint(b: &EvalBox) -> [[f64; 2]; 4] {
+    yaw_box(b).footprint()
 }
 
-/// Area of the intersection of two convex counter-clockwise polygons.
-pub fn convex_intersection_area(subject: &[P], clip: &[P]) -> f64 {
-    let mut out: Vec<P> = subject.to_vec();
-    let m = clip.len();
-    for k in 0..m {
-        if out.is_empty() {
-            return 0.0;
-        }
-        let (a, b) = (clip[k], clip[(k + 1) % m]);
-        // Signed distance-like value: > 0 left of a→b (inside for a CCW polygon).
-        let side = |p: P| (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
-        let input = std::mem::take(&mut out);
-        let n = input.len();
-        for i in 0..n {
-            let (p, q) = (input[i], input[(i + 1) % n]);
-            let (dp, dq) = (side(p), side(q));
-            if dp >= 0.0 {
-                out.push(p);
-            }
-            if (dp > 0.0 && dq < 0.0) || (dp < 0.0 && dq > 0.0) {
-                let t = dp / (dp - dq);
-                out.push([p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])]);
-            }
-        }
-    }
-    area(&out).max(0.0)
-}
-
-fn same_box(a: &EvalBox, b: &EvalBox) -> bool {
-    a.translation == b.translation && a.size == b.size && a.rotation == b.rotation
-}
-
-/// Rotated bird's-eye-view IoU in [0, 1].
+/// Rotated bird's-eye-view IoU in [0, 1] (hilo-core's, on the file's f64 geometry).
 pub fn bev_iou(a: &EvalBox, b: &EvalBox) -> f64 {
-    let (aa, ab) = (a.size[0] * a.size[1], b.size[0] * b.size[1]);
-    if aa <= 0.0 || ab <= 0.0 {
-        return 0.0;
-    }
-    if same_box(a, b) {
-        return 1.0;
-    }
-    let inter = convex_intersection_area(&footprint(a), &footprint(b));
-    (inter / (aa + ab - inter)).clamp(0.0, 1.0)
+    hilo_core::iou::bev_iou(&yaw_box(a), &yaw_box(b))
 }
 
 /// 3-D IoU of yaw-only boxes in [0, 1].
 pub fn iou_3d(a: &EvalBox, b: &EvalBox) -> f64 {
-    let (va, vb) = (a.size.iter().product::<f64>(), b.size.iter().product::<f64>());
-    if va <= 0.0 || vb <= 0.0 {
-        return 0.0;
-    }
-    if same_box(a, b) {
-        return 1.0;
-    }
-    let (za0, za1) = (a.translation[2] - 0.5 * a.size[2], a.translation[2] + 0.5 * a.size[2]);
-    let (zb0, zb1) = (b.translation[2] - 0.5 * b.size[2], b.translation[2] + 0.5 * b.size[2]);
-    let dz = (za1.min(zb1) - za0.max(zb0)).max(0.0);
-    let inter = convex_intersection_area(&footprint(a), &footprint(b)) * dz;
-    (inter / (va + vb - inter)).clamp(0.0, 1.0)
+    hilo_core::iou::iou_3d(&yaw_box(a), &yaw_box(b))
 }
 
 /// Which IoU to match with.

@@ -1,8 +1,9 @@
 //! The conformance suite every fusion plugin runs by adding one line to its tests:
-//! `hilo_fusion::conformance::check(&registry, &config)`. It checks output shapes, that
-//! gradients reach every parameter, save/load identity, determinism with a seed, and finite
-//! losses on an empty radar frame, a radar-only frame and a frame with no points at all.
-//! It also provides the synthetic frames the suites use.
+//! `hilo_fusion::conformance::check(&registry, &config)`. On both layouts (dense maps and the
+//! sparse occupied cells) it checks output shapes, that gradients reach every parameter,
+//! save/load identity, determinism with a seed, and finite losses on an empty radar frame, a
+//! radar-only frame and a frame with no points at all. It also provides the synthetic frames
+//! the suites use.
 
 use crate::data::{Frame, GtBox};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
@@ -52,7 +53,7 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
                 let n = (dx * dx + dy * dy).sqrt().max(1e-3);
                 let (lx, ly) = (dx / n, dy / n);
                 let vr = b.velocity[0] * lx + b.velocity[1] * ly + rng.random_range(-0.05..0.05);
-                rp.push([p[0], p[1], p[2], rng.random_range(5.0..12.0), vr, lx, ly]);
+                rp.push([p[0], p[1], p[2], rng.random_range(5.0..12.0), vr, lx, ly, 0.0]);
             }
         }
     }
@@ -60,10 +61,16 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
         for _ in 0..10 {
             let (x, y) = (rng.random_range(-12.5f32..12.5), rng.random_range(-12.5f32..12.5));
             let n = ((x - radar_at[0]).powi(2) + (y - radar_at[1]).powi(2)).sqrt().max(1e-3);
-            rp.push([x, y, 0.2, rng.random_range(-5.0..5.0), 0.0, (x - radar_at[0]) / n, (y - radar_at[1]) / n]);
+            rp.push([x, y, 0.2, rng.random_range(-5.0..5.0), 0.0, (x - radar_at[0]) / n, (y - radar_at[1]) / n, 0.0]);
         }
     }
-    Frame { sample_token: format!("synthetic-{seed}"), lidar: lp, radar: rp, boxes: boxes.to_vec() }
+    Frame {
+        sample_token: format!("synthetic-{seed}"),
+        scene: "synthetic".into(),
+        lidar: lp,
+        radar: rp,
+        boxes: boxes.to_vec(),
+    }
 }
 
 pub fn car(x: f32, y: f32, yaw: f32, speed: f32) -> GtBox {
@@ -74,29 +81,36 @@ fn fail(name: &str, what: impl std::fmt::Display) -> String {
     format!("conformance of {name}: {what}")
 }
 
-/// Runs the suite on `cfg` (its grid is replaced by [`small_grid`]).
+/// Runs the suite on `cfg` (its grid replaced by [`small_grid`]), dense and sparse.
 pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     let mut cfg = cfg.clone();
     cfg.grid = small_grid();
-    let name = cfg.name.clone();
+    let sparse = cfg.sparse.clone().unwrap_or_default();
+    check_one(registry, &DetectorConfig { sparse: None, ..cfg.clone() })?;
+    check_one(registry, &DetectorConfig { sparse: Some(sparse), ..cfg })
+}
+
+fn check_one(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
+    let cfg = cfg.clone();
+    let name = format!("{} ({})", cfg.name, if cfg.sparse.is_some() { "sparse" } else { "dense" });
     let e = |what: &str, err: crate::error::FusionError| fail(&name, format!("{what}: {err}"));
     let dev = Device::Cpu;
     let det = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
     let boxes = [car(2.0, 3.0, 0.3, 6.0), car(-5.0, -4.0, 1.2, 0.0)];
     let frames = vec![synthetic_frame(1, &boxes, true, true), synthetic_frame(2, &boxes[..1], true, true)];
-    let b = HostBatch::new(&cfg, &frames, det.uses_radar());
+    let b = HostBatch::new(&cfg, &frames, det.uses_radar(), 0);
     // Shapes.
     let heads = det.forward_heads(&b, true).map_err(|x| e("forward", x))?;
     let n = cfg.grid.cells() / cfg.backbone.out_stride;
+    let (want_cls, want_reg) = match &b.sparse {
+        None => (vec![2, 6, n, n], vec![2, 10, n, n]),
+        Some(h) => (vec![h.head_sites.len(), 6], vec![h.head_sites.len(), 10]),
+    };
     for (cls, reg) in &heads {
-        if cls.dims() != [2, 6, n, n] || reg.dims() != [2, 10, n, n] {
+        if cls.dims() != want_cls || reg.dims() != want_reg {
             return Err(fail(
                 &name,
-                format!(
-                    "output shapes {:?} and {:?}, expected [2, 6, {n}, {n}] and [2, 10, {n}, {n}]",
-                    cls.dims(),
-                    reg.dims()
-                ),
+                format!("output shapes {:?} and {:?}, expected {want_cls:?} and {want_reg:?}", cls.dims(), reg.dims()),
             ));
         }
     }
@@ -144,7 +158,7 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
         ("a radar-only frame", synthetic_frame(4, &boxes, false, true)),
         ("a frame with no points", synthetic_frame(5, &boxes, false, false)),
     ] {
-        let hb = HostBatch::new(&cfg, std::slice::from_ref(&f), det.uses_radar());
+        let hb = HostBatch::new(&cfg, std::slice::from_ref(&f), det.uses_radar(), 0);
         let heads = det.forward_heads(&hb, true).map_err(|x| e(what, x))?;
         let l = det.loss_all(&heads, &hb.targets).map_err(|x| e(what, x))?;
         let v = l.total.to_scalar::<f32>().map_err(|x| e(what, x.into()))?;
@@ -161,4 +175,21 @@ fn tempfile_dir() -> Result<std::path::PathBuf, String> {
         std::env::temp_dir().join(format!("hilo-conformance-{}-{:?}", std::process::id(), std::thread::current().id()));
     std::fs::create_dir_all(&d).map_err(|x| format!("creating {}: {x}", d.display()))?;
     Ok(d)
+}
+
+/// Runs the suite on every preset registered for `plugin`; a plugin with no preset fails.
+pub fn check_plugin(registry: &Registry, plugin: &str) -> Result<(), String> {
+    let names: Vec<String> = registry
+        .preset_names()
+        .into_iter()
+        .filter(|n| registry.preset(n).is_ok_and(|p| p.detector.fusion == plugin))
+        .collect();
+    if names.is_empty() {
+        return Err(format!("conformance of plugin {plugin:?}: no preset uses it"));
+    }
+    for n in names {
+        let p = registry.preset(&n).map_err(|e| e.to_string())?;
+        check(registry, &p.detector)?;
+    }
+    Ok(())
 }

@@ -6,7 +6,8 @@
 //! faster on two cores (the oracle test below compares values and both gradients with candle's
 //! `conv2d`). On other devices [`Conv`] calls candle's `conv2d`, so CUDA needs no change.
 
-use crate::error::Result;
+use crate::error::{FusionError, Result};
+use crate::layout::At;
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
 use candle_nn::VarBuilder;
 use rayon::prelude::*;
@@ -196,10 +197,38 @@ impl Conv {
         Ok(Conv { weight, bias, stride, pad })
     }
 
-    pub fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        let y = conv2d(x, &self.weight, self.stride, self.pad)?;
+    /// Dense `(B, C, H, W)` maps, or sparse `(N, C)` rows on a plane: a 1×1 convolution is a
+    /// matrix product there, a 3×3 one (stride 1) gathers along the plane's rulebook.
+    pub fn forward(&self, x: &Tensor, at: At) -> Result<Tensor> {
+        match at {
+            At::Dense => {
+                let y = conv2d(x, &self.weight, self.stride, self.pad)?;
+                Ok(match &self.bias {
+                    Some(b) => y.broadcast_add(&b.reshape((1, b.dim(0)?, 1, 1))?)?,
+                    None => y,
+                })
+            }
+            At::Sparse(plane) => {
+                let (co, ci, k, _) = self.weight.dims4()?;
+                if k == 1 {
+                    self.add_bias(x.matmul(&self.weight.reshape((co, ci))?.t()?)?)
+                } else if self.stride == 1 {
+                    self.forward_rules(x, &plane.subm)
+                } else {
+                    Err(FusionError::Config("a strided sparse convolution needs its rulebook (forward_rules)".into()))
+                }
+            }
+        }
+    }
+
+    /// Sparse rows `(N_in, C)` along a rulebook (`N_out · k²`): `(N_out, C_out)`.
+    pub fn forward_rules(&self, x: &Tensor, rules: &Tensor) -> Result<Tensor> {
+        self.add_bias(crate::layout::gather_conv(x, &self.weight, rules)?)
+    }
+
+    fn add_bias(&self, y: Tensor) -> Result<Tensor> {
         Ok(match &self.bias {
-            Some(b) => y.broadcast_add(&b.reshape((1, b.dim(0)?, 1, 1))?)?,
+            Some(b) => y.broadcast_add(b)?,
             None => y,
         })
     }

@@ -1,12 +1,20 @@
 //! Frames from a dataset, augmentation, and pillars: everything the network reads, prepared on
 //! the host (and on another thread during training).
+//!
+//! What a frame holds is decided by the detector's [`InputConfig`]: LiDAR without its static
+//! background ([`hilo_dataset::background`], learned from the training split) or whole, and the
+//! radar's last `radar_sweeps` sweeps, each point carrying its sweep's time lag. The sensors are
+//! static, so older sweeps need no motion compensation: a road user's older detections trail
+//! behind it, which is the motion cue nuScenes detectors take from stacked sweeps.
 
-use crate::error::Result;
+use crate::error::{FusionError, Result};
 use crate::grid::BevGrid;
 use hilo_core::Class;
 use hilo_dataset::Dataset;
-use rand::Rng;
+use hilo_dataset::background::{BackgroundConfig, BackgroundModel};
+use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
 
 /// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).
 pub const CLASSES: [Class; 6] = Class::ALL;
@@ -25,13 +33,49 @@ pub struct GtBox {
 /// LiDAR point features: x, y, z, intensity (local frame).
 pub const LIDAR_FEATURES: usize = 4;
 /// Radar point features: x, y, z, RCS (dBsm), v_r (m/s), line of sight x, y (unit, from the
-/// sensor): the direction v_r is measured along.
-pub const RADAR_FEATURES: usize = 7;
+/// sensor: the direction v_r is measured along), and the time lag of the point's sweep behind
+/// the frame (s; 0 for the frame's own sweep).
+pub const RADAR_FEATURES: usize = 8;
+
+/// What a detector reads from a dataset.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InputConfig {
+    /// Remove LiDAR points on the static background (a model learned from the training split).
+    pub background: Option<BackgroundConfig>,
+    /// Radar sweeps per frame: the frame's own and the `radar_sweeps − 1` before it.
+    pub radar_sweeps: usize,
+    /// Older sweeps farther than this behind the frame are not used (a gap in the recording).
+    pub max_sweep_lag_s: f32,
+}
+
+impl Default for InputConfig {
+    fn default() -> Self {
+        InputConfig { background: None, radar_sweeps: 1, max_sweep_lag_s: 0.5 }
+    }
+}
+
+impl InputConfig {
+    pub fn validate(&self) -> Result<()> {
+        if self.radar_sweeps == 0 || self.radar_sweeps > 20 {
+            return Err(FusionError::Config(format!("input.radar_sweeps = {}: must be in 1..=20", self.radar_sweeps)));
+        }
+        if !(self.max_sweep_lag_s > 0.0) {
+            return Err(FusionError::Config(format!("input.max_sweep_lag_s = {}: must be > 0", self.max_sweep_lag_s)));
+        }
+        if let Some(b) = &self.background {
+            b.validate()?;
+        }
+        Ok(())
+    }
+}
 
 /// One sample.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Frame {
     pub sample_token: String,
+    /// Name of the scene the sample belongs to.
+    pub scene: String,
     pub lidar: Vec<[f32; LIDAR_FEATURES]>,
     pub radar: Vec<[f32; RADAR_FEATURES]>,
     pub boxes: Vec<GtBox>,
@@ -43,38 +87,69 @@ fn quat_rotate(q: [f64; 4], p: [f64; 3]) -> [f64; 3] {
     r.mul_vec3(glam::DVec3::from(p)).to_array()
 }
 
+/// How [`load_split`] reads frames.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LoadOptions<'a> {
+    /// LiDAR points this model calls background are left out.
+    pub background: Option<&'a BackgroundModel>,
+    /// Radar sweeps per frame (0 or 1: the frame's own) and the largest lag of an older one.
+    pub radar_sweeps: usize,
+    pub max_sweep_lag_s: f32,
+}
+
+impl<'a> LoadOptions<'a> {
+    /// The options of a detector's input, with its learned background model.
+    pub fn new(input: &InputConfig, background: Option<&'a BackgroundModel>) -> Self {
+        LoadOptions { background, radar_sweeps: input.radar_sweeps, max_sweep_lag_s: input.max_sweep_lag_s }
+    }
+}
+
+/// What loading dropped or kept, for logs and tests.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct LoadStats {
+    pub frames: usize,
+    pub lidar_points: usize,
+    /// LiDAR points removed as background.
+    pub background_points: usize,
+    pub radar_points: usize,
+    /// Radar points from older sweeps (included in `radar_points`).
+    pub older_sweep_points: usize,
+}
+
 /// Loads the samples of a split (scenes listed in the dataset's `splits.json`), in sample order.
 /// Boxes without any LiDAR or radar point are left out, as the nuScenes loader does.
-pub fn load_split(ds: &Dataset, split: &str) -> Result<Vec<Frame>> {
+pub fn load_split(ds: &Dataset, split: &str, opts: &LoadOptions) -> Result<(Vec<Frame>, LoadStats)> {
     let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
     let t = &ds.tables;
-    let scene_tokens: std::collections::HashSet<&str> =
-        t.scene.iter().filter(|s| scenes.contains(&s.name)).map(|s| s.token.as_str()).collect();
-    let calib: std::collections::HashMap<&str, &hilo_dataset::tables::CalibratedSensor> =
+    let scene_name: HashMap<&str, &str> =
+        t.scene.iter().filter(|s| scenes.contains(&s.name)).map(|s| (s.token.as_str(), s.name.as_str())).collect();
+    let calib: HashMap<&str, &hilo_dataset::tables::CalibratedSensor> =
         t.calibrated_sensor.iter().map(|c| (c.token.as_str(), c)).collect();
-    let sensors: std::collections::HashMap<&str, &hilo_dataset::tables::Sensor> =
+    let sensors: HashMap<&str, &hilo_dataset::tables::Sensor> =
         t.sensor.iter().map(|s| (s.token.as_str(), s)).collect();
-    let instance_class: std::collections::HashMap<&str, Option<Class>> = t
+    let sd_by_token: HashMap<&str, &hilo_dataset::tables::SampleData> =
+        t.sample_data.iter().map(|s| (s.token.as_str(), s)).collect();
+    let category: HashMap<&str, &str> = t.category.iter().map(|c| (c.token.as_str(), c.name.as_str())).collect();
+    let instance_class: HashMap<&str, Option<Class>> = t
         .instance
         .iter()
         .map(|i| {
-            let cat = t.category.iter().find(|c| c.token == i.category_token).map(|c| c.name.as_str()).unwrap_or("");
+            let cat = category.get(i.category_token.as_str()).copied().unwrap_or("");
             (i.token.as_str(), hilo_dataset::writer::class_of_category(cat))
         })
         .collect();
-    let mut by_sample: std::collections::HashMap<&str, Vec<&hilo_dataset::tables::SampleData>> =
-        std::collections::HashMap::new();
-    for sd in &t.sample_data {
+    let mut by_sample: HashMap<&str, Vec<&hilo_dataset::tables::SampleData>> = HashMap::new();
+    for sd in t.sample_data.iter().filter(|sd| sd.is_key_frame) {
         by_sample.entry(sd.sample_token.as_str()).or_default().push(sd);
     }
-    let mut anns: std::collections::HashMap<&str, Vec<&hilo_dataset::tables::SampleAnnotation>> =
-        std::collections::HashMap::new();
+    let mut anns: HashMap<&str, Vec<&hilo_dataset::tables::SampleAnnotation>> = HashMap::new();
     for a in &t.sample_annotation {
         anns.entry(a.sample_token.as_str()).or_default().push(a);
     }
     let mut samples: Vec<&hilo_dataset::tables::Sample> =
-        t.sample.iter().filter(|s| scene_tokens.contains(s.scene_token.as_str())).collect();
+        t.sample.iter().filter(|s| scene_name.contains_key(s.scene_token.as_str())).collect();
     samples.sort_by(|a, b| (a.scene_token.as_str(), a.timestamp).cmp(&(b.scene_token.as_str(), b.timestamp)));
+    let mut stats = LoadStats { frames: samples.len(), ..LoadStats::default() };
     let mut frames = Vec::with_capacity(samples.len());
     for s in samples {
         let mut lidar = Vec::new();
@@ -83,24 +158,46 @@ pub fn load_split(ds: &Dataset, split: &str) -> Result<Vec<Frame>> {
         sds.sort_by(|a, b| a.filename.cmp(&b.filename));
         for sd in sds {
             let Some(c) = calib.get(sd.calibrated_sensor_token.as_str()) else { continue };
-            let modality = sensors.get(c.sensor_token.as_str()).map(|x| x.modality.as_str()).unwrap_or("");
+            let sensor = sensors.get(c.sensor_token.as_str());
+            let modality = sensor.map(|x| x.modality.as_str()).unwrap_or("");
+            let channel = sensor.map(|x| x.channel.as_str()).unwrap_or("");
             let to_local = |p: [f64; 3]| {
                 let r = quat_rotate(c.rotation, p);
                 [(r[0] + c.translation[0]) as f32, (r[1] + c.translation[1]) as f32, (r[2] + c.translation[2]) as f32]
             };
             match modality {
                 "lidar" => {
-                    for p in ds.lidar_points(sd)? {
+                    let points = ds.lidar_points(sd)?;
+                    let n = points.len();
+                    let points = match opts.background {
+                        Some(m) => m.foreground(channel, points),
+                        None => points,
+                    };
+                    stats.lidar_points += points.len();
+                    stats.background_points += n - points.len();
+                    for p in points {
                         let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
                         lidar.push([q[0], q[1], q[2], p.intensity]);
                     }
                 }
                 "radar" => {
-                    for p in ds.radar_points(sd)? {
-                        let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
-                        let (dx, dy) = (q[0] - c.translation[0] as f32, q[1] - c.translation[1] as f32);
-                        let n = (dx * dx + dy * dy).sqrt().max(1e-6);
-                        radar.push([q[0], q[1], q[2], p.rcs_dbsm, p.v_r_mps, dx / n, dy / n]);
+                    // The frame's sweep, then older ones by the channel's `prev` links.
+                    let mut sweep = Some(sd);
+                    for k in 0..opts.radar_sweeps.max(1) {
+                        let Some(cur) = sweep else { break };
+                        let lag = 1e-6 * sd.timestamp.saturating_sub(cur.timestamp) as f32;
+                        if k > 0 && lag > opts.max_sweep_lag_s {
+                            break;
+                        }
+                        for p in ds.radar_points(cur)? {
+                            let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
+                            let (dx, dy) = (q[0] - c.translation[0] as f32, q[1] - c.translation[1] as f32);
+                            let n = (dx * dx + dy * dy).sqrt().max(1e-6);
+                            radar.push([q[0], q[1], q[2], p.rcs_dbsm, p.v_r_mps, dx / n, dy / n, lag]);
+                            stats.radar_points += 1;
+                            stats.older_sweep_points += usize::from(k > 0);
+                        }
+                        sweep = sd_by_token.get(cur.prev.as_str()).copied().filter(|_| !cur.prev.is_empty());
                     }
                 }
                 _ => {}
@@ -125,9 +222,10 @@ pub fn load_split(ds: &Dataset, split: &str) -> Result<Vec<Frame>> {
                 velocity,
             });
         }
-        frames.push(Frame { sample_token: s.token.clone(), lidar, radar, boxes });
+        let scene = scene_name.get(s.scene_token.as_str()).copied().unwrap_or_default().to_owned();
+        frames.push(Frame { sample_token: s.token.clone(), scene, lidar, radar, boxes });
     }
-    Ok(frames)
+    Ok((frames, stats))
 }
 
 /// Global augmentation (roadside: about the scene origin).
@@ -171,7 +269,7 @@ impl Augmentation {
         for p in &mut out.radar {
             let (x, y) = xy(p[0], p[1]);
             let (lx, ly) = xy(p[5], p[6]);
-            *p = [x * s, y * s, p[2] * s, p[3], p[4] * s, lx, ly];
+            *p = [x * s, y * s, p[2] * s, p[3], p[4] * s, lx, ly, p[7]];
         }
         for b in &mut out.boxes {
             let (x, y) = xy(b.center[0], b.center[1]);
@@ -199,6 +297,10 @@ pub struct Pillars {
     /// Decorated features per point.
     pub width: usize,
     pub points_per_pillar: usize,
+    /// Points left out because their pillar was full, and the pillars left out because the
+    /// frame had more than `max_pillars` (their points are not counted in `dropped_points`).
+    pub dropped_points: usize,
+    pub dropped_pillars: usize,
 }
 
 impl Pillars {
@@ -209,25 +311,52 @@ impl Pillars {
 
 /// Groups points into pillars and decorates each point with its offsets from the pillar's mean
 /// and from the pillar's centre (PointPillars). `raw` features come first.
-pub fn pillarize<const F: usize>(grid: &BevGrid, frames: &[&[[f32; F]]]) -> Pillars {
+///
+/// Above the caps, what is kept is a uniform sample drawn with `seed` (and the frame's position
+/// in the batch), not the first cells or points: a frame over `max_pillars` keeps pillars from
+/// all of its area, and a full pillar keeps points of every sensor that hit it in proportion.
+/// Points are sampled by reservoir in file order, pillars by a seeded shuffle; pillars are then
+/// written in cell order. The same seed gives the same pillars.
+pub fn pillarize<const F: usize>(grid: &BevGrid, frames: &[&[[f32; F]]], seed: u64) -> Pillars {
     let n = grid.cells();
     let npp = grid.max_points_per_pillar;
     let width = F + 5;
     let mut out = Pillars { width, points_per_pillar: npp, ..Pillars::default() };
     for (b, pts) in frames.iter().enumerate() {
-        let mut cells: std::collections::BTreeMap<usize, Vec<usize>> = std::collections::BTreeMap::new();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ (b as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        // Cell → (points seen, reservoir of at most npp point indices).
+        let mut cells: std::collections::BTreeMap<usize, (usize, Vec<usize>)> = std::collections::BTreeMap::new();
         for (k, p) in pts.iter().enumerate() {
             if !(p[2] >= grid.z_min_m && p[2] <= grid.z_max_m) {
                 continue;
             }
             if let Some((c, r)) = grid.cell_of(p[0], p[1]) {
-                let v = cells.entry(r * n + c).or_default();
+                let (seen, v) = cells.entry(r * n + c).or_default();
+                *seen += 1;
                 if v.len() < npp {
                     v.push(k);
+                } else {
+                    let j = rng.random_range(0..*seen);
+                    if j < npp {
+                        v[j] = k;
+                    }
                 }
             }
         }
-        for (cell, members) in cells.into_iter().take(grid.max_pillars) {
+        let mut chosen: Vec<(usize, (usize, Vec<usize>))> = cells.into_iter().collect();
+        if chosen.len() > grid.max_pillars {
+            out.dropped_pillars += chosen.len() - grid.max_pillars;
+            // Partial Fisher–Yates: a uniform subset, then back to cell order.
+            for i in 0..grid.max_pillars {
+                let j = rng.random_range(i..chosen.len());
+                chosen.swap(i, j);
+            }
+            chosen.truncate(grid.max_pillars);
+            chosen.sort_by_key(|c| c.0);
+        }
+        for (cell, (seen, mut members)) in chosen {
+            out.dropped_points += seen - members.len();
+            members.sort_unstable();
             let (cx, cy) = grid.center(cell % n, cell / n);
             let m = members.len() as f32;
             let mean = members
@@ -257,4 +386,77 @@ pub fn pillarize<const F: usize>(grid: &BevGrid, frames: &[&[[f32; F]]]) -> Pill
         }
     }
     out
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    fn grid() -> BevGrid {
+        BevGrid { half_extent_m: 12.8, cell_m: 0.8, max_pillars: 5, max_points_per_pillar: 10, ..BevGrid::default() }
+    }
+
+    /// Per-cell oracle: a point's cell by direct arithmetic, counted in a plain map.
+    fn oracle(g: &BevGrid, pts: &[[f32; 4]]) -> std::collections::BTreeMap<usize, usize> {
+        let n = g.cells();
+        let mut m = std::collections::BTreeMap::new();
+        for p in pts {
+            let (c, r) = (((p[0] + g.half_extent_m) / g.cell_m).floor(), ((p[1] + g.half_extent_m) / g.cell_m).floor());
+            if c >= 0.0 && r >= 0.0 && (c as usize) < n && (r as usize) < n && p[2] >= g.z_min_m && p[2] <= g.z_max_m {
+                *m.entry(r as usize * n + c as usize).or_insert(0) += 1;
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn pillars_below_the_caps_keep_every_point_and_above_them_count_what_they_drop() {
+        let g = grid();
+        // Four cells: 3, 10 (exactly the cap), 11 and 25 points.
+        let mut pts = Vec::new();
+        for (cell_x, count) in [(-10.0f32, 3), (-6.0, 10), (2.0, 11), (6.0, 25)] {
+            for k in 0..count {
+                pts.push([cell_x + 0.01 * k as f32, 1.0, 0.2, k as f32]);
+            }
+        }
+        let o = oracle(&g, &pts);
+        let p = pillarize(&g, &[&pts], 3);
+        assert_eq!(p.count(), o.len());
+        assert_eq!(p.dropped_pillars, 0);
+        assert_eq!(p.dropped_points, (11 - 10) + (25 - 10));
+        // Every cell at or below the cap keeps all its points; full ones keep exactly the cap.
+        for (i, (cell, want)) in o.iter().enumerate() {
+            assert_eq!(p.index[i] as usize, *cell);
+            let kept = p.mask[i * 10..(i + 1) * 10].iter().filter(|m| **m > 0.5).count();
+            assert_eq!(kept, (*want).min(10), "cell {cell}");
+        }
+        // Deterministic by seed; another seed samples the full cells differently.
+        assert_eq!(p, pillarize(&g, &[&pts], 3));
+        assert_ne!(p.features, pillarize(&g, &[&pts], 4).features);
+    }
+
+    #[test]
+    fn a_full_pillar_keeps_points_of_both_lidars_and_a_full_frame_keeps_pillars_everywhere() {
+        let g = grid();
+        // One cell hit by 40 points of LIDAR_0 (intensity 0) listed first, then 40 of LIDAR_1 (1).
+        let pts: Vec<[f32; 4]> =
+            (0..80).map(|k| [0.1 + 0.001 * k as f32, 0.1, 0.5, if k < 40 { 0.0 } else { 1.0 }]).collect();
+        for seed in 0..20 {
+            let p = pillarize(&g, &[&pts], seed);
+            let second: usize = (0..10).filter(|s| p.features[s * 9 + 3] > 0.5).count();
+            assert!(second > 0 && second < 10, "seed {seed}: {second} of 10 points from the second LiDAR");
+            assert_eq!(p.dropped_points, 70);
+        }
+        // 12 cells along x (cap 5): the kept pillars are not just the first ones in row order.
+        let row: Vec<[f32; 4]> = (0..12).map(|k| [-12.0 + 2.0 * k as f32, 0.5, 0.0, 0.0]).collect();
+        let mut reach = 0usize;
+        for seed in 0..10 {
+            let p = pillarize(&g, &[&row], seed);
+            assert_eq!((p.count(), p.dropped_pillars), (5, 7));
+            assert!(p.index.windows(2).all(|w| w[0] < w[1]), "pillars in cell order");
+            reach = reach.max(*p.index.last().unwrap() as usize % g.cells());
+        }
+        assert!(reach > g.cells() / 2, "pillars from the +x half are kept too");
+    }
 }

@@ -1,21 +1,23 @@
-//! A detector: a fusion stage (from the registry), the shared BEV backbone and a head; its
-//! presets; host-side batches; losses and decoding; checkpoints.
+//! A detector: a fusion stage (from the registry), the shared BEV backbone and a head; host-side
+//! batches; losses and decoding; checkpoints.
 
-use crate::data::{CLASSES, Frame, GtBox, LIDAR_FEATURES, Pillars, RADAR_FEATURES, pillarize};
-use crate::decode::{DecodeConfig, Det, decode_frame};
+use crate::data::{CLASSES, Frame, GtBox, InputConfig, LIDAR_FEATURES, Pillars, RADAR_FEATURES, pillarize};
+use crate::decode::{DecodeConfig, Peaks, decode};
 use crate::error::{FusionError, Result};
 use crate::fusion::{Fusion, FusionInput, FusionOutput, Registry};
 use crate::grid::BevGrid;
+use crate::layout::{At, Layout, SparseConfig, SparseHost};
 use crate::loss::{centernet_focal, masked_l1, sigmoid_focal};
-use crate::modules::{Backbone, BackboneConfig, BlockConfig, Head, PillarTensors, REG_CHANNELS};
+use crate::modules::{Backbone, BackboneConfig, Head, PillarTensors, REG_CHANNELS};
 use crate::targets::{Assignment, Targets};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
+use hilo_core::Detection;
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// Everything that defines a detector's architecture.
+/// Everything that defines a detector's architecture and what it reads.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DetectorConfig {
@@ -30,20 +32,56 @@ pub struct DetectorConfig {
     /// Hidden channels of the head's per-task 3×3 convolutions (0: 1×1 outputs only).
     pub head_channels: usize,
     pub decode: DecodeConfig,
+    /// What the network reads: background removal, radar sweeps.
+    #[serde(default)]
+    pub input: InputConfig,
+    /// Compute on the occupied cells only (`None`: dense maps over the whole grid).
+    #[serde(default)]
+    pub sparse: Option<SparseConfig>,
 }
 
-/// Every preset: the paper's detector rows. The LiDAR-only ones build with this crate's
-/// registry alone; the others need their plugin crate registered (`raw`, `early`, `middle`).
-pub const PRESETS: [&str; 7] =
-    ["centerpoint", "pointpillars", "pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"];
+impl DetectorConfig {
+    /// Levels of the sparse layout: the pillar grid and one per stride-2 block.
+    pub fn levels(&self) -> usize {
+        1 + self.backbone.blocks.iter().filter(|b| b.stride == 2).count()
+    }
 
-/// Whether a preset sees radar: every fusion plugin but the LiDAR-only one does.
-pub fn uses_radar(name: &str) -> bool {
-    preset(name).is_ok_and(|c| c.fusion != "lidar")
+    /// The head's level (log2 of its stride).
+    pub fn head_level(&self) -> usize {
+        self.backbone.out_stride.trailing_zeros() as usize
+    }
+
+    /// Checks what the detector can be built from.
+    pub fn validate(&self) -> Result<()> {
+        self.grid.validate().map_err(FusionError::Config)?;
+        self.input.validate()?;
+        let b = &self.backbone;
+        if b.blocks.is_empty() || !b.out_stride.is_power_of_two() {
+            return Err(FusionError::Config(format!(
+                "detector {}: the backbone needs blocks and a power-of-two out_stride",
+                self.name
+            )));
+        }
+        if let Some(k) = b.blocks.iter().position(|x| x.stride != 1 && x.stride != 2) {
+            return Err(FusionError::Config(format!(
+                "detector {}: block {k} has stride {}, not 1 or 2",
+                self.name, b.blocks[k].stride
+            )));
+        }
+        let total: usize = b.blocks.iter().map(|x| x.stride).product();
+        if self.grid.cells() % total != 0 || b.out_stride > total {
+            return Err(FusionError::Config(format!(
+                "detector {}: out_stride {} and the backbone's stride {total} must divide the grid's {} cells",
+                self.name,
+                b.out_stride,
+                self.grid.cells()
+            )));
+        }
+        Ok(())
+    }
 }
 
-/// The paper's ablation: the preset without its early stage (only `l4dr-like` and
-/// `lirafusion-like` have one).
+/// The paper's ablation: a config without its early stage (only the `early` plugin has one).
 pub fn without_early(cfg: &DetectorConfig) -> Result<DetectorConfig> {
     if cfg.fusion != "early" {
         return Err(FusionError::Config(format!("detector {} has no early fusion stage to remove", cfg.name)));
@@ -54,125 +92,49 @@ pub fn without_early(cfg: &DetectorConfig) -> Result<DetectorConfig> {
     Ok(c)
 }
 
-/// A preset by name.
-///
-/// - `centerpoint`: PointPillars' pillar encoder (32 channels), a backbone at strides 2/4/8
-///   (32/64/128 channels), a neck back to the pillar grid (stride 1, 0.8 m cells, 16 channels
-///   per block), CenterPoint's head (Gaussian heatmaps, a 3×3 convolution of 16 channels per
-///   task, peak extraction). The full-resolution head separates pedestrians walking side by side
-///   that a 1.6 m head merges: on the default dataset at 1,200 samples (batches of 4 at 3e-3),
-///   pedestrian AP 0.13 with a stride-2 neck of 32 channels, 0.16–0.27 with this one (single
-///   runs; about the same training time); 0.555 at 1,400 samples with the current schedule. Left
-///   out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second refinement stage,
-///   multi-group heads, circular NMS.
-/// - `pointpillars`: the same encoder at 48 channels, a backbone at strides 2/4/8 (48/96/128),
-///   neck to stride 2, and an anchor-free version of PointPillars' SSD head: 1×1 convolutions,
-///   every cell inside a box footprint is positive (instead of anchors matched by IoU), sigmoid
-///   focal loss, rotated-BEV NMS. Left out: anchors and their IoU matching, the direction
-///   classifier (yaw is regressed as sin/cos instead).
-pub fn preset(name: &str) -> Result<DetectorConfig> {
-    let grid = BevGrid::default();
-    let block = |stride, channels, layers| BlockConfig { stride, channels, layers };
-    match name {
-        "centerpoint" => Ok(DetectorConfig {
-            name: name.into(),
-            fusion: "lidar".into(),
-            fusion_config: serde_json::json!({ "channels": 32 }),
-            grid,
-            backbone: BackboneConfig {
-                blocks: vec![block(2, 32, 2), block(2, 64, 2), block(2, 128, 2)],
-                neck_channels: 16,
-                out_stride: 1,
-            },
-            assignment: Assignment::Center,
-            head_channels: 16,
-            decode: DecodeConfig::default(),
-        }),
-        "pointpillars" => Ok(DetectorConfig {
-            name: name.into(),
-            fusion: "lidar".into(),
-            fusion_config: serde_json::json!({ "channels": 48 }),
-            grid,
-            backbone: BackboneConfig {
-                blocks: vec![block(2, 48, 1), block(2, 96, 2), block(2, 128, 2)],
-                neck_channels: 48,
-                out_stride: 2,
-            },
-            assignment: Assignment::Inside,
-            head_channels: 0,
-            decode: DecodeConfig { score_threshold: 0.1, ..DecodeConfig::default() },
-        }),
-        // PointPillars plus a radar branch (raw fusion): the paper's PointPillars-LR.
-        "pointpillars-lr" => Ok(DetectorConfig {
-            name: name.into(),
-            fusion: "raw".into(),
-            fusion_config: serde_json::json!({ "channels": 48 }),
-            ..preset("pointpillars")?
-        }),
-        // L4DR: early LiDAR–4D-radar fusion and gated middle fusion. Taken: radar and LiDAR
-        // points in one early encoder (max), pixel-wise gating against a LiDAR branch. Left out:
-        // L4DR's LiDAR-guided radar denoising and its multi-scale gates inside the backbone.
-        "l4dr-like" => Ok(DetectorConfig {
-            name: name.into(),
-            fusion: "early".into(),
-            fusion_config: serde_json::json!({ "channels": 32, "aggregation": "max", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_pixel" } }),
-            ..preset("centerpoint")?
-        }),
-        // LiRaFusion: a joint voxel encoder over both modalities (early; per-cell means taken
-        // per modality, so a cell's few radar points are not averaged away by its LiDAR points)
-        // and adaptive gated fusion (per channel). Left out: the 3-D voxel encoder (pillars
-        // instead) and the exact gating network.
-        "lirafusion-like" => Ok(DetectorConfig {
-            name: name.into(),
-            fusion: "early".into(),
-            fusion_config: serde_json::json!({ "channels": 32, "aggregation": "modality_mean", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_channel" } }),
-            ..preset("centerpoint")?
-        }),
-        // Bi-LRFusion: LiDAR features enrich the radar BEV map, which then enhances the LiDAR
-        // map. Left out: its query-based height feature transfer (a 3×3 convolution here).
-        "bi-lrfusion-like" => Ok(DetectorConfig {
-            name: name.into(),
-            fusion: "middle".into(),
-            fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "bidirectional" }),
-            ..preset("centerpoint")?
-        }),
-        // Late fusion: a CenterPoint-style detector per modality (LiDAR 32 channels, radar 16),
-        // boxes merged by 3-D IoU matching (see `decode::merge_late`).
-        "late" => {
-            let base = preset("centerpoint")?;
-            Ok(DetectorConfig {
-                name: name.into(),
-                fusion: "late".into(),
-                fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "backbone": base.backbone, "head_channels": base.head_channels }),
-                ..base
-            })
-        }
-        other => Err(FusionError::Config(format!("unknown detector {other:?}; known: {}", PRESETS.join(", ")))),
-    }
-}
-
-/// A batch prepared on the host (pillars of both modalities and targets).
+/// A batch prepared on the host: pillars of both modalities, the sparse layout's sites and
+/// rulebooks, and targets laid out as the head's output is.
 #[derive(Clone, Debug, Default)]
 pub struct HostBatch {
     pub size: usize,
     pub tokens: Vec<String>,
     pub lidar: Pillars,
     pub radar: Pillars,
+    pub sparse: Option<SparseHost>,
     pub targets: Targets,
 }
 
 impl HostBatch {
-    pub fn new(cfg: &DetectorConfig, frames: &[Frame], with_radar: bool) -> HostBatch {
+    /// Pillars (sampled with `seed` above the caps), layout and targets of `frames`.
+    pub fn new(cfg: &DetectorConfig, frames: &[Frame], with_radar: bool, seed: u64) -> HostBatch {
         let lidar: Vec<&[[f32; LIDAR_FEATURES]]> = frames.iter().map(|f| f.lidar.as_slice()).collect();
         let radar: Vec<&[[f32; RADAR_FEATURES]]> =
             frames.iter().map(|f| if with_radar { f.radar.as_slice() } else { &[] }).collect();
         let boxes: Vec<&[GtBox]> = frames.iter().map(|f| f.boxes.as_slice()).collect();
+        let lidar = pillarize(&cfg.grid, &lidar, seed);
+        let radar = pillarize(&cfg.grid, &radar, seed ^ 0x5eed_0f_4ada7);
+        let mut targets =
+            crate::targets::build(&cfg.grid, cfg.backbone.out_stride, CLASSES.len(), &boxes, cfg.assignment);
+        let sparse = cfg.sparse.as_ref().map(|s| {
+            let occupied: Vec<u32> = lidar.index.iter().chain(&radar.index).copied().collect();
+            let h = SparseHost::build(
+                cfg.grid.cells(),
+                frames.len(),
+                &occupied,
+                cfg.levels(),
+                cfg.head_level(),
+                s.head_dilation,
+            );
+            targets = targets.at_sites(&h.head_sites, CLASSES.len());
+            h
+        });
         HostBatch {
             size: frames.len(),
             tokens: frames.iter().map(|f| f.sample_token.clone()).collect(),
-            lidar: pillarize(&cfg.grid, &lidar),
-            radar: pillarize(&cfg.grid, &radar),
-            targets: crate::targets::build(&cfg.grid, cfg.backbone.out_stride, CLASSES.len(), &boxes, cfg.assignment),
+            lidar,
+            radar,
+            sparse,
+            targets,
         }
     }
 }
@@ -185,11 +147,22 @@ pub struct Loss {
     pub reg: f32,
 }
 
+/// Wall time of the parts of one forward pass, seconds (filled when asked for).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ForwardTimes {
+    /// Pillar tensors and the layout's rulebooks moved to the device.
+    pub to_device_s: f64,
+    /// The fusion stage: pillar nets, scatter, fusion operators (late: whole detectors).
+    pub fusion_s: f64,
+    pub backbone_s: f64,
+    pub head_s: f64,
+}
+
 pub struct Detector {
     pub cfg: DetectorConfig,
     pub varmap: VarMap,
     fusion: Box<dyn Fusion>,
-    /// The shared backbone and head (none for late fusion, whose plugin owns its detectors).
+    /// The shared backbone and head (none when the plugin returns its own heads).
     backbone: Option<Backbone>,
     head: Option<Head>,
     device: Device,
@@ -202,8 +175,9 @@ impl std::fmt::Debug for Detector {
 }
 
 /// Deterministic initialisation from a seed, by variable name (sorted): Kaiming-uniform for
-/// weights of rank ≥ 2, 1 for BatchNorm scales, 0 for biases and running means, 1 for running
-/// variances, and −2.19 (a prior of 0.1) for the class logits' bias, as CenterNet does.
+/// weights of rank ≥ 2, 0 for biases and running means, 1 for running variances, −2.19 (a prior
+/// of 0.1) for the class logits' bias, as CenterNet does. Other rank-1 variables (BatchNorm
+/// scales, a fusion operator's α) keep the constant their module created them with.
 fn seeded_init(varmap: &VarMap, seed: u64) -> Result<()> {
     let data = varmap.data().lock().map_err(|_| FusionError::Config("variable map lock poisoned".into()))?;
     let mut names: Vec<&String> = data.keys().collect();
@@ -215,12 +189,12 @@ fn seeded_init(varmap: &VarMap, seed: u64) -> Result<()> {
         let n: usize = dims.iter().product();
         let values: Vec<f32> = if name.ends_with("running_var") {
             vec![1.0; n]
-        } else if name.ends_with("running_mean") || name.ends_with("bias") && !name.ends_with("cls.bias") {
-            vec![0.0; n]
         } else if name.ends_with("cls.bias") {
             vec![-2.19; n]
-        } else if dims.len() == 1 {
-            vec![1.0; n]
+        } else if name.ends_with("running_mean") || name.ends_with("bias") {
+            vec![0.0; n]
+        } else if dims.len() < 2 {
+            continue;
         } else {
             let fan_in: usize = dims[1..].iter().product();
             let bound = (6.0 / fan_in.max(1) as f32).sqrt();
@@ -231,22 +205,32 @@ fn seeded_init(varmap: &VarMap, seed: u64) -> Result<()> {
     Ok(())
 }
 
+/// A batch of one frame with one LiDAR and one radar point at the grid's centre: what the
+/// detector runs once when built, to learn the channels of its plugin's map.
+fn probe(cfg: &DetectorConfig) -> HostBatch {
+    let f = Frame {
+        sample_token: "probe".into(),
+        scene: String::new(),
+        lidar: vec![[0.1, 0.1, 0.5, 0.5]],
+        radar: vec![[0.1, 0.1, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0]],
+        boxes: Vec::new(),
+    };
+    HostBatch::new(cfg, &[f], true, 0)
+}
+
 impl Detector {
     pub fn new(cfg: &DetectorConfig, registry: &Registry, device: &Device, seed: u64) -> Result<Self> {
-        cfg.grid.validate().map_err(FusionError::Config)?;
-        if cfg.backbone.blocks.is_empty() || !cfg.backbone.out_stride.is_power_of_two() {
-            return Err(FusionError::Config(format!(
-                "detector {}: the backbone needs blocks and a power-of-two out_stride",
-                cfg.name
-            )));
-        }
+        cfg.validate()?;
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
         let fusion = registry.build(&cfg.fusion, &cfg.fusion_config, &cfg.grid, vb.pp("fusion"))?;
-        let (backbone, head) = if fusion.stage() == crate::fusion::Stage::Late {
-            (None, None)
-        } else {
-            let backbone = Backbone::new(fusion.out_channels(), &cfg.backbone, vb.pp("backbone"))?;
+        let mut det = Detector { cfg: cfg.clone(), varmap, fusion, backbone: None, head: None, device: device.clone() };
+        // The plugin's output, on a probe batch, decides the rest: a map of C channels gets the
+        // shared backbone and head; per-modality heads need nothing more.
+        let (lidar, radar, layout) = det.tensors(&probe(cfg))?;
+        let input = FusionInput { lidar: &lidar, radar: &radar, batch: 1, grid: cfg.grid, layout: &layout };
+        if let FusionOutput::Bev(map) = det.fusion.forward(&input, false)? {
+            let backbone = Backbone::new(map.dim(1)?, &cfg.backbone, vb.pp("backbone"))?;
             let head = Head::new(
                 backbone.out_channels,
                 cfg.head_channels.max(1),
@@ -254,10 +238,11 @@ impl Detector {
                 cfg.head_channels > 0,
                 vb.pp("head"),
             )?;
-            (Some(backbone), Some(head))
-        };
-        seeded_init(&varmap, seed)?;
-        Ok(Detector { cfg: cfg.clone(), varmap, fusion, backbone, head, device: device.clone() })
+            det.backbone = Some(backbone);
+            det.head = Some(head);
+        }
+        seeded_init(&det.varmap, seed)?;
+        Ok(det)
     }
 
     pub fn uses_radar(&self) -> bool {
@@ -286,20 +271,55 @@ impl Detector {
         v
     }
 
-    /// Class logits (B, K, H, W) and regression (B, 10, H, W) of every head: one for the raw,
-    /// early and middle stages, one per modality for late fusion.
+    fn tensors(&self, b: &HostBatch) -> Result<(PillarTensors, PillarTensors, Layout)> {
+        let rows = b.sparse.as_ref().map(SparseHost::level0_lookup);
+        let lidar = PillarTensors::new(&b.lidar, rows.as_deref(), &self.device)?;
+        let radar = PillarTensors::new(&b.radar, rows.as_deref(), &self.device)?;
+        let layout = Layout::new(b.size, self.cfg.grid.cells(), b.sparse.as_ref(), &self.device)?;
+        Ok((lidar, radar, layout))
+    }
+
+    /// Class logits and regression of every head: one for a plugin that returns a map, one
+    /// per modality for late fusion. Dense: `(B, K, H, W)` and `(B, 10, H, W)`; sparse:
+    /// `(N, K)` and `(N, 10)` at the head sites.
     pub fn forward_heads(&self, b: &HostBatch, train: bool) -> Result<Vec<(Tensor, Tensor)>> {
-        let lidar = PillarTensors::new(&b.lidar, &self.device)?;
-        let radar = PillarTensors::new(&b.radar, &self.device)?;
-        let input = FusionInput { lidar: &lidar, radar: &radar, batch: b.size, grid: self.cfg.grid };
-        match (self.fusion.forward(&input, train)?, &self.backbone, &self.head) {
-            (FusionOutput::Bev(bev), Some(backbone), Some(head)) => {
-                let x = backbone.forward(&bev, self.cfg.backbone.out_stride, train)?;
-                Ok(vec![head.forward(&x, train)?])
+        self.forward_timed(b, train, None)
+    }
+
+    /// [`Self::forward_heads`], filling `times` with the time of each part.
+    pub fn forward_timed(
+        &self,
+        b: &HostBatch,
+        train: bool,
+        mut times: Option<&mut ForwardTimes>,
+    ) -> Result<Vec<(Tensor, Tensor)>> {
+        let mut clock = std::time::Instant::now();
+        let mut lap = |slot: fn(&mut ForwardTimes) -> &mut f64, times: &mut Option<&mut ForwardTimes>| {
+            if let Some(t) = times.as_deref_mut() {
+                *slot(t) += clock.elapsed().as_secs_f64();
             }
-            (FusionOutput::Heads(h), _, _) if !h.is_empty() => Ok(h),
+            clock = std::time::Instant::now();
+        };
+        let (lidar, radar, layout) = self.tensors(b)?;
+        lap(|t| &mut t.to_device_s, &mut times);
+        let input = FusionInput { lidar: &lidar, radar: &radar, batch: b.size, grid: self.cfg.grid, layout: &layout };
+        let out = self.fusion.forward(&input, train)?;
+        lap(|t| &mut t.fusion_s, &mut times);
+        match (out, &self.backbone, &self.head) {
+            (FusionOutput::Bev(bev), Some(backbone), Some(head)) => {
+                let x = backbone.forward(&bev, &layout, self.cfg.backbone.out_stride, train)?;
+                lap(|t| &mut t.backbone_s, &mut times);
+                let at = match &layout {
+                    Layout::Dense { .. } => At::Dense,
+                    Layout::Sparse(s) => At::Sparse(&s.head),
+                };
+                let h = head.forward(&x, at, train)?;
+                lap(|t| &mut t.head_s, &mut times);
+                Ok(vec![h])
+            }
+            (FusionOutput::Heads(h), None, None) if !h.is_empty() => Ok(h),
             _ => Err(FusionError::Config(format!(
-                "detector {}: fusion plugin {:?} returned an output its stage does not allow",
+                "detector {}: fusion plugin {:?} returned another kind of output than when the detector was built",
                 self.cfg.name, self.cfg.fusion
             ))),
         }
@@ -323,16 +343,19 @@ impl Detector {
         total.ok_or_else(|| FusionError::Config("no head output".into()))
     }
 
+    /// Focal loss on the heatmap (or inside-box map) and weighted L1 on the regression at the
+    /// positive cells; targets are laid out as the head's output is.
     pub fn loss(&self, cls: &Tensor, reg: &Tensor, t: &Targets) -> Result<Loss> {
-        let (b, k, h, w) = cls.dims4()?;
-        let tc = Tensor::from_slice(&t.cls, (b, k, h, w), &self.device)?;
-        let tr = Tensor::from_slice(&t.reg, (b, REG_CHANNELS, h, w), &self.device)?;
-        let tm = Tensor::from_slice(&t.mask, (b, 1, h, w), &self.device)?;
-        let cw = Tensor::from_slice(
-            &[1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2],
-            (1, REG_CHANNELS, 1, 1),
-            &self.device,
-        )?;
+        let dev = &self.device;
+        let tc = Tensor::from_slice(&t.cls, cls.shape(), dev)?;
+        let tr = Tensor::from_slice(&t.reg, reg.shape(), dev)?;
+        let w = [1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2];
+        let (tm, cw) = if cls.rank() == 4 {
+            let (b, _, h, wd) = cls.dims4()?;
+            (Tensor::from_slice(&t.mask, (b, 1, h, wd), dev)?, Tensor::from_slice(&w, (1, REG_CHANNELS, 1, 1), dev)?)
+        } else {
+            (Tensor::from_slice(&t.mask, (cls.dim(0)?, 1), dev)?, Tensor::from_slice(&w, (1, REG_CHANNELS), dev)?)
+        };
         let lc = match self.cfg.assignment {
             Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
             Assignment::Inside => sigmoid_focal(cls, &tc, t.num_pos)?,
@@ -343,36 +366,53 @@ impl Detector {
     }
 
     /// Boxes per frame of a batch.
-    pub fn detect(&self, b: &HostBatch) -> Result<Vec<Vec<Det>>> {
-        let mut per_head = Vec::new();
-        for (cls, reg) in self.forward_heads(b, false)? {
-            let (bn, k, h, w) = cls.dims4()?;
-            let stride = self.cfg.grid.cells() / h.max(1);
+    pub fn detect(&self, b: &HostBatch) -> Result<Vec<Vec<Detection>>> {
+        let heads = self.forward_heads(b, false)?;
+        let n = self.cfg.grid.cells() >> self.cfg.head_level();
+        let stride = self.cfg.backbone.out_stride;
+        let k = CLASSES.len();
+        let mut per_frame: Vec<Vec<Vec<Detection>>> = vec![Vec::new(); b.size];
+        for (cls, reg) in heads {
             let cls = cls.flatten_all()?.to_vec1::<f32>()?;
             let reg = reg.flatten_all()?.to_vec1::<f32>()?;
-            let dets: Vec<Vec<Det>> = (0..bn)
-                .map(|i| {
-                    decode_frame(
-                        &self.cfg.grid,
-                        stride,
-                        k,
-                        &cls[i * k * h * w..(i + 1) * k * h * w],
-                        &reg[i * REG_CHANNELS * h * w..(i + 1) * REG_CHANNELS * h * w],
-                        self.cfg.assignment,
-                        &self.cfg.decode,
-                    )
-                })
-                .collect();
-            per_head.push(dets);
-        }
-        let mut it = per_head.into_iter();
-        let first = it.next().unwrap_or_default();
-        Ok(match it.next() {
-            None => first,
-            Some(radar) => {
-                first.into_iter().zip(radar).map(|(l, r)| crate::decode::merge_late(&l, &r, &self.cfg.decode)).collect()
+            match &b.sparse {
+                None => {
+                    for (i, dets) in per_frame.iter_mut().enumerate() {
+                        let (c, r) = (
+                            &cls[i * k * n * n..(i + 1) * k * n * n],
+                            &reg[i * REG_CHANNELS * n * n..(i + 1) * REG_CHANNELS * n * n],
+                        );
+                        dets.push(decode(
+                            &self.cfg.grid,
+                            stride,
+                            &Peaks::dense(n),
+                            k,
+                            |kk, j| c[kk * n * n + j],
+                            |ch, j| r[ch * n * n + j],
+                            self.cfg.assignment,
+                            &self.cfg.decode,
+                        ));
+                    }
+                }
+                Some(h) => {
+                    for (i, dets) in per_frame.iter_mut().enumerate() {
+                        let peaks = Peaks::sparse(h, i, n);
+                        let off = peaks.offset;
+                        dets.push(decode(
+                            &self.cfg.grid,
+                            stride,
+                            &peaks,
+                            k,
+                            |kk, j| cls[(off + j) * k + kk],
+                            |ch, j| reg[(off + j) * REG_CHANNELS + ch],
+                            self.cfg.assignment,
+                            &self.cfg.decode,
+                        ));
+                    }
+                }
             }
-        })
+        }
+        Ok(per_frame.into_iter().map(|heads| self.fusion.merge(heads, self.cfg.decode.max_per_frame)).collect())
     }
 
     /// Weights (and BatchNorm statistics) to safetensors.
@@ -421,5 +461,25 @@ impl Detector {
             });
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// The weighted fusion operator's α starts at its documented 0.5 (seeded initialisation once
+    /// set every rank-1 variable to 1).
+    #[test]
+    fn seeded_init_keeps_constant_rank1_variables() {
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        let _f = crate::fuse::BevFuse::new(8, 4, 8, crate::fuse::FuseOp::Weighted, vb.pp("fuse")).unwrap();
+        seeded_init(&varmap, 3).unwrap();
+        let data = varmap.data().lock().unwrap();
+        assert_eq!(data["fuse.alpha"].as_tensor().to_vec1::<f32>().unwrap(), vec![0.5]);
+        assert!(data["fuse.out.bn.weight"].as_tensor().to_vec1::<f32>().unwrap().iter().all(|v| *v == 1.0));
+        assert!(data["fuse.out.bn.bias"].as_tensor().to_vec1::<f32>().unwrap().iter().all(|v| *v == 0.0));
     }
 }

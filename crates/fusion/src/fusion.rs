@@ -1,22 +1,36 @@
-//! The `Fusion` trait and its registry.
+//! The `Fusion` trait, its registry, and the presets plugins register.
 //!
-//! A fusion plugin turns a batch's LiDAR and radar pillars into what the shared head reads: a
-//! BEV feature map `(B, C, H, W)` for the raw, early and middle stages, or boxes for the late
-//! stage. Plugins are built by name from a serde (JSON) config and a candle `VarBuilder`;
-//! registering a name twice is an error, and asking for an unknown name lists the known ones.
+//! A fusion plugin turns a batch's LiDAR and radar pillars into what the shared backbone and
+//! head read: a BEV feature map for the raw, early and middle stages, or complete per-modality
+//! head outputs for the late stage. Its contract has one required method, [`Fusion::forward`],
+//! as candle's `Module` has; everything else the framework needs is derived (the channels of its
+//! map, by one forward pass on a probe batch when the detector is built) or has a default.
+//!
+//! A plugin crate exports one registration function that adds its plugin (a name, its stage,
+//! and a builder from a JSON config, a grid and a `VarBuilder`) and the presets that use it
+//! (a preset names the plugin, its config and the rest of the detector, and its training
+//! schedule). Registering a name twice is an error; asking for an unknown name lists the known.
 
+use crate::decode::DecodeConfig;
+use crate::detector::DetectorConfig;
 use crate::error::{FusionError, Result};
 use crate::grid::BevGrid;
+use crate::layout::Layout;
 use crate::modules::{PillarNet, PillarTensors};
+use crate::train::TrainConfig;
 use candle_core::Tensor;
 use candle_nn::VarBuilder;
+use hilo_core::Detection;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-/// Where in the detector the modalities meet.
+/// Where in the detector the modalities meet (reported with results; the framework itself only
+/// distinguishes a map from per-modality heads by what `forward` returns).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Stage {
+    /// LiDAR only: no fusion.
+    None,
     /// Points of both modalities, encoded per modality, unioned before the shared pillars.
     Raw,
     /// A joint voxel/pillar encoding of mixed features.
@@ -34,26 +48,59 @@ pub struct FusionInput<'a> {
     pub radar: &'a PillarTensors,
     pub batch: usize,
     pub grid: BevGrid,
+    /// Where the BEV features live: scatter pillars with [`PillarNet::forward`] (or
+    /// [`Layout::zeros`] and [`Layout::from_rows`]); apply modules at [`Layout::level0`].
+    pub layout: &'a Layout,
 }
 
 /// What a fusion stage produces.
 #[derive(Debug)]
 pub enum FusionOutput {
-    /// (B, C, H, W) on the pillar grid, for the shared backbone and head.
+    /// The pillar-grid map (`(B, C, H, W)` dense, `(N_0, C)` sparse) for the shared backbone
+    /// and head.
     Bev(Tensor),
-    /// Late fusion: complete per-modality detectors' head outputs (class logits, regression),
-    /// each on the head's grid; the detector trains each against the same targets and merges
-    /// their boxes (see [`crate::decode::merge_late`]).
+    /// Late fusion: complete per-modality detectors' head outputs (class logits, regression) at
+    /// the head's resolution; each is trained against the same targets, and their boxes are
+    /// merged by [`Fusion::merge`].
     Heads(Vec<(Tensor, Tensor)>),
 }
 
+/// A fusion plugin.
+///
+/// # Examples
+///
+/// LiDAR and radar BEV maps, added (a middle-stage plugin in a dozen lines):
+///
+/// ```
+/// use hilo_fusion::{Fusion, FusionInput, FusionOutput, Result, modules::PillarNet};
+///
+/// #[derive(Debug)]
+/// struct Sum { l: PillarNet, r: PillarNet }
+///
+/// impl Fusion for Sum {
+///     fn forward(&self, x: &FusionInput, train: bool) -> Result<FusionOutput> {
+///         let l = self.l.forward(x.lidar, x.layout, train)?;
+///         let r = self.r.forward(x.radar, x.layout, train)?;
+///         Ok(FusionOutput::Bev((l + r)?))
+///     }
+/// }
+/// ```
 pub trait Fusion: Send + Sync + std::fmt::Debug {
-    fn stage(&self) -> Stage;
-    /// Channels of the BEV map.
-    fn out_channels(&self) -> usize;
-    /// Whether the plugin reads radar (LiDAR-only detectors never see it).
-    fn uses_radar(&self) -> bool;
+    /// Fuses a batch: the pillar-grid map, or per-modality head outputs (late fusion).
     fn forward(&self, input: &FusionInput, train: bool) -> Result<FusionOutput>;
+
+    /// Whether the plugin reads radar (a LiDAR-only detector never loads it). Default: true.
+    fn uses_radar(&self) -> bool {
+        true
+    }
+
+    /// Merges the boxes decoded from each of `forward`'s heads for one frame, keeping at most
+    /// `max` (late fusion's Ψ). Default: the first head's boxes.
+    fn merge(&self, heads: Vec<Vec<Detection>>, max: usize) -> Vec<Detection> {
+        let mut first = heads.into_iter().next().unwrap_or_default();
+        first.truncate(max);
+        first
+    }
 }
 
 /// A plugin's typed config from its JSON; the error names the plugin, the field and the JSON.
@@ -65,10 +112,26 @@ pub fn parse_config<T: serde::de::DeserializeOwned>(plugin: &str, cfg: &serde_js
 /// Builds a plugin from its JSON config on a grid.
 pub type Builder = fn(&serde_json::Value, &BevGrid, VarBuilder) -> Result<Box<dyn Fusion>>;
 
-/// Plugins by name.
+/// A registered plugin.
+#[derive(Clone, Debug)]
+pub struct Plugin {
+    pub stage: Stage,
+    pub build: Builder,
+}
+
+/// A named detector and its default training schedule.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Preset {
+    pub detector: DetectorConfig,
+    pub train: TrainConfig,
+}
+
+/// Plugins and presets by name.
 #[derive(Clone, Debug, Default)]
 pub struct Registry {
-    builders: BTreeMap<String, Builder>,
+    plugins: BTreeMap<String, Plugin>,
+    /// In registration order.
+    presets: Vec<Preset>,
 }
 
 impl Registry {
@@ -77,24 +140,68 @@ impl Registry {
         Registry::default()
     }
 
-    /// The plugins of this crate (`lidar`).
+    /// This crate's plugin (`lidar`) and presets (`centerpoint`, `pointpillars`).
     pub fn with_builtin() -> Self {
         let mut r = Registry::new();
-        // A fresh registry cannot hold the name yet.
-        let _ = r.register("lidar", build_lidar_only);
+        // A fresh registry holds none of these names yet.
+        let _ = r.register("lidar", Stage::None, build_lidar_only);
+        for p in crate::presets::lidar_only() {
+            let _ = r.add_preset(p);
+        }
         r
     }
 
-    pub fn register(&mut self, name: &str, builder: Builder) -> Result<()> {
-        if self.builders.contains_key(name) {
+    /// Adds a plugin.
+    pub fn register(&mut self, name: &str, stage: Stage, build: Builder) -> Result<()> {
+        if self.plugins.contains_key(name) {
             return Err(FusionError::Config(format!("fusion plugin {name:?} is registered twice")));
         }
-        self.builders.insert(name.to_owned(), builder);
+        self.plugins.insert(name.to_owned(), Plugin { stage, build });
         Ok(())
     }
 
+    /// Adds a preset; its plugin must be registered, and its config must build.
+    pub fn add_preset(&mut self, p: Preset) -> Result<()> {
+        let name = &p.detector.name;
+        if self.presets.iter().any(|q| q.detector.name == *name) {
+            return Err(FusionError::Config(format!("preset {name:?} is registered twice")));
+        }
+        if !self.plugins.contains_key(&p.detector.fusion) {
+            return Err(FusionError::Config(format!(
+                "preset {name:?} names fusion plugin {:?}, which is not registered; known: {}",
+                p.detector.fusion,
+                self.names().join(", ")
+            )));
+        }
+        self.presets.push(p);
+        Ok(())
+    }
+
+    /// Plugin names.
     pub fn names(&self) -> Vec<String> {
-        self.builders.keys().cloned().collect()
+        self.plugins.keys().cloned().collect()
+    }
+
+    /// Preset names, in registration order.
+    pub fn preset_names(&self) -> Vec<String> {
+        self.presets.iter().map(|p| p.detector.name.clone()).collect()
+    }
+
+    /// A preset by name.
+    pub fn preset(&self, name: &str) -> Result<&Preset> {
+        self.presets.iter().find(|p| p.detector.name == name).ok_or_else(|| {
+            FusionError::Config(format!("unknown detector {name:?}; known: {}", self.preset_names().join(", ")))
+        })
+    }
+
+    /// The stage of a registered plugin.
+    pub fn stage(&self, plugin: &str) -> Option<Stage> {
+        self.plugins.get(plugin).map(|p| p.stage)
+    }
+
+    /// Whether a detector reads radar: every plugin but the LiDAR-only one does.
+    pub fn uses_radar(&self, cfg: &DetectorConfig) -> bool {
+        self.stage(&cfg.fusion).is_some_and(|s| s != Stage::None)
     }
 
     pub fn build(
@@ -104,8 +211,8 @@ impl Registry {
         grid: &BevGrid,
         vb: VarBuilder,
     ) -> Result<Box<dyn Fusion>> {
-        match self.builders.get(name) {
-            Some(b) => b(cfg, grid, vb),
+        match self.plugins.get(name) {
+            Some(p) => (p.build)(cfg, grid, vb),
             None => {
                 Err(FusionError::Config(format!("unknown fusion plugin {name:?}; known: {}", self.names().join(", "))))
             }
@@ -115,34 +222,38 @@ impl Registry {
 
 /// The LiDAR-only "fusion": PointPillars' pillar feature net on LiDAR pillars.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct LidarOnlyConfig {
     pub channels: usize,
+}
+
+impl Default for LidarOnlyConfig {
+    fn default() -> Self {
+        LidarOnlyConfig { channels: 32 }
+    }
 }
 
 #[derive(Debug)]
 pub struct LidarOnly {
     net: PillarNet,
-    cells: usize,
 }
 
-fn build_lidar_only(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
+fn build_lidar_only(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     let c: LidarOnlyConfig = parse_config("lidar", cfg)?;
     let net = PillarNet::new(crate::data::LIDAR_FEATURES + 5, c.channels, vb.pp("lidar_pfn"))?;
-    Ok(Box::new(LidarOnly { net, cells: grid.cells() }))
+    Ok(Box::new(LidarOnly { net }))
 }
 
 impl Fusion for LidarOnly {
-    fn stage(&self) -> Stage {
-        Stage::Raw
-    }
-    fn out_channels(&self) -> usize {
-        self.net.channels
+    fn forward(&self, input: &FusionInput, train: bool) -> Result<FusionOutput> {
+        Ok(FusionOutput::Bev(self.net.forward(input.lidar, input.layout, train)?))
     }
     fn uses_radar(&self) -> bool {
         false
     }
-    fn forward(&self, input: &FusionInput, train: bool) -> Result<FusionOutput> {
-        Ok(FusionOutput::Bev(self.net.forward(input.lidar, input.batch, self.cells, train)?))
-    }
+}
+
+/// Decode settings shared by presets with an anchor-free dense head.
+pub fn dense_head_decode() -> DecodeConfig {
+    DecodeConfig { score_threshold: 0.1, ..DecodeConfig::default() }
 }

@@ -1,13 +1,16 @@
-//! hilo's detector framework on Candle: the [`fusion::Fusion`] trait and its registry, shared
-//! detector modules ([`modules`]: pillar feature net, BEV backbone and neck, heads), targets
-//! and losses, decoding, the LiDAR-only presets `centerpoint` and `pointpillars`
-//! ([`detector::preset`]), training on CPU ([`train`]) and inference to the nuScenes
-//! submission format ([`infer`]). Convolutions go through [`conv`]: on the CPU an im2col
-//! matrix product with its own custom ops (candle's CPU conv2d was most of a training step),
-//! candle's conv2d on other devices.
+//! hilo's detector framework on Candle: the [`fusion::Fusion`] trait, its registry of plugins
+//! and presets, shared detector modules ([`modules`]: pillar feature net, BEV backbone and neck,
+//! heads), targets and losses, decoding, the LiDAR-only presets `centerpoint` and
+//! `pointpillars` ([`presets`]), training on CPU ([`train`]) and inference ([`infer`]).
+//!
+//! Convolutions run on one of two layouts ([`layout`]): dense maps over the whole grid (on the
+//! CPU an im2col matrix product with hilo's own custom ops, [`conv`]; candle's conv2d on other
+//! devices), or only the occupied cells, as gather–GEMM convolutions along rulebooks built on
+//! the host. What the network reads is part of the detector ([`data::InputConfig`]): LiDAR
+//! without its static background, and the radar's last sweeps.
 //!
 //! Fusion plugins (raw, early, middle, late) live in their own crates under `plugins/` and only
-//! depend on this one; they register themselves in a [`fusion::Registry`].
+//! depend on this one; each registers itself and its presets in a [`fusion::Registry`].
 
 pub mod conformance;
 pub mod conv;
@@ -19,11 +22,13 @@ pub mod fuse;
 pub mod fusion;
 pub mod grid;
 pub mod infer;
+pub mod layout;
 pub mod loss;
 pub mod modules;
+pub mod presets;
 pub mod targets;
 pub mod train;
 
-pub use detector::{Detector, DetectorConfig, preset};
+pub use detector::{Detector, DetectorConfig};
 pub use error::{FusionError, Result};
-pub use fusion::{Fusion, FusionInput, FusionOutput, Registry, Stage};
+pub use fusion::{Fusion, FusionInput, FusionOutput, Preset, Registry, Stage};

@@ -1,10 +1,12 @@
 //! Shared detector modules: the pillar feature net, the BEV backbone with its neck, and the
-//! two heads. Every module is built from a `VarBuilder` and runs on any candle device.
+//! two heads. Every module is built from a `VarBuilder`, runs on any candle device, and on
+//! either [`Layout`]: dense maps, or the occupied sites only.
 
 use crate::conv::Conv;
 use crate::data::Pillars;
-use crate::error::Result;
-use candle_core::{DType, Device, Tensor};
+use crate::error::{FusionError, Result};
+use crate::layout::{At, Layout};
+use candle_core::{Device, Tensor};
 use candle_nn::{BatchNorm, BatchNormConfig, Linear, Module, ModuleT, VarBuilder};
 use serde::{Deserialize, Serialize};
 
@@ -21,19 +23,30 @@ pub struct PillarTensors {
     pub features: Tensor,
     /// (P, N, 1) 1 for real points, 0 for padding.
     pub mask: Tensor,
-    /// (P,) flat BEV cell index including the batch offset.
+    /// (P,) the row of the layout each pillar is scattered to: its flat BEV cell including the
+    /// batch offset (dense), or its level-0 site (sparse).
     pub index: Tensor,
     pub count: usize,
 }
 
 impl PillarTensors {
-    pub fn new(p: &Pillars, device: &Device) -> Result<Self> {
+    /// Pillars scattered to their flat cells (`p.index`), or, with `rows`, to `rows[p.index]`.
+    pub fn new(p: &Pillars, rows: Option<&[u32]>, device: &Device) -> Result<Self> {
         let n = p.count();
         let npp = p.points_per_pillar.max(1);
+        let index: Vec<u32> = match rows {
+            Some(r) => p
+                .index
+                .iter()
+                .map(|&i| r.get(i as usize).copied().filter(|s| *s != crate::layout::NONE))
+                .collect::<Option<_>>()
+                .ok_or_else(|| FusionError::Config("a pillar has no site in the sparse layout".into()))?,
+            None => p.index.clone(),
+        };
         Ok(PillarTensors {
             features: Tensor::from_slice(&p.features, (n, npp, p.width.max(1)), device)?,
             mask: Tensor::from_slice(&p.mask, (n, npp, 1), device)?,
-            index: Tensor::from_slice(&p.index, n, device)?,
+            index: Tensor::from_vec(index, n, device)?,
             count: n,
         })
     }
@@ -67,29 +80,28 @@ impl PillarNet {
         Ok(x.max(1)?)
     }
 
-    /// Dense BEV map (B, C, H, W) from pillar features (P, C).
+    /// Pillar features (P, C) scattered to the layout's level 0: `(B, C, H, W)` or `(N_0, C)`.
     pub fn scatter(
         feats: Option<(&Tensor, &Tensor)>,
-        batch: usize,
-        cells: usize,
+        layout: &Layout,
         channels: usize,
         device: &Device,
     ) -> Result<Tensor> {
-        let zeros = Tensor::zeros((batch * cells * cells, channels), DType::F32, device)?;
+        let zeros = layout.zeros(channels, device)?;
         let flat = match feats {
             Some((f, index)) => zeros.index_add(index, f, 0)?,
             None => zeros,
         };
-        Ok(flat.reshape((batch, cells, cells, channels))?.permute((0, 3, 1, 2))?.contiguous()?)
+        layout.from_rows(flat)
     }
 
     /// Encode and scatter; an empty modality gives zeros.
-    pub fn forward(&self, p: &PillarTensors, batch: usize, cells: usize, train: bool) -> Result<Tensor> {
+    pub fn forward(&self, p: &PillarTensors, layout: &Layout, train: bool) -> Result<Tensor> {
         if p.count == 0 {
-            return Self::scatter(None, batch, cells, self.channels, p.features.device());
+            return Self::scatter(None, layout, self.channels, p.features.device());
         }
         let f = self.encode(p, train)?;
-        Self::scatter(Some((&f, &p.index)), batch, cells, self.channels, p.features.device())
+        Self::scatter(Some((&f, &p.index)), layout, self.channels, p.features.device())
     }
 }
 
@@ -108,8 +120,14 @@ impl ConvBn {
         })
     }
 
-    pub fn forward(&self, x: &Tensor, train: bool) -> Result<Tensor> {
-        Ok(self.bn.forward_t(&self.conv.forward(x)?, train)?.relu()?)
+    /// At one place of a layout (a 3×3 stride-1 or 1×1 convolution when sparse).
+    pub fn forward(&self, x: &Tensor, at: At, train: bool) -> Result<Tensor> {
+        Ok(self.bn.forward_t(&self.conv.forward(x, at)?, train)?.relu()?)
+    }
+
+    /// Sparse rows along a rulebook (any stride).
+    pub fn forward_rules(&self, x: &Tensor, rules: &Tensor, train: bool) -> Result<Tensor> {
+        Ok(self.bn.forward_t(&self.conv.forward_rules(x, rules)?, train)?.relu()?)
     }
 }
 
@@ -139,6 +157,7 @@ pub struct BackboneConfig {
 #[derive(Debug)]
 pub struct Backbone {
     blocks: Vec<Vec<ConvBn>>,
+    strides: Vec<usize>,
     neck: Vec<(usize, ConvBn)>,
     pub out_channels: usize,
 }
@@ -146,6 +165,7 @@ pub struct Backbone {
 impl Backbone {
     pub fn new(cin: usize, cfg: &BackboneConfig, vb: VarBuilder) -> Result<Self> {
         let mut blocks = Vec::new();
+        let mut strides = Vec::new();
         let mut neck = Vec::new();
         let (mut c, mut stride) = (cin, 1usize);
         for (i, b) in cfg.blocks.iter().enumerate() {
@@ -155,6 +175,7 @@ impl Backbone {
                 layers.push(ConvBn::new(b.channels, b.channels, 3, 1, vbb.pp(format!("{}", l + 1)))?);
             }
             blocks.push(layers);
+            strides.push(b.stride);
             c = b.channels;
             stride *= b.stride;
             let vbn = vb.pp(format!("neck{i}"));
@@ -165,25 +186,59 @@ impl Backbone {
             };
             neck.push((stride, n));
         }
-        Ok(Backbone { blocks, neck, out_channels: cfg.neck_channels * cfg.blocks.len() })
+        Ok(Backbone { blocks, strides, neck, out_channels: cfg.neck_channels * cfg.blocks.len() })
     }
 
-    pub fn forward(&self, x: &Tensor, out_stride: usize, train: bool) -> Result<Tensor> {
+    /// The neck's output at the head: `(B, C, H / s, W / s)` dense, `(N_head, C)` sparse.
+    pub fn forward(&self, x: &Tensor, layout: &Layout, out_stride: usize, train: bool) -> Result<Tensor> {
+        let Layout::Sparse(sp) = layout else { return self.forward_dense(x, out_stride, train) };
+        let mut x = x.clone();
+        let mut level = 0usize;
+        let mut outs = Vec::new();
+        for ((layers, &stride), (total, n)) in self.blocks.iter().zip(&self.strides).zip(&self.neck) {
+            for (k, l) in layers.iter().enumerate() {
+                x = if k == 0 && stride == 2 {
+                    level += 1;
+                    let rules = sp.down.get(level).and_then(|d| d.as_ref()).ok_or_else(|| {
+                        FusionError::Config(format!("the sparse layout has no level {level} (stride {total})"))
+                    })?;
+                    l.forward_rules(&x, rules, train)?
+                } else {
+                    l.forward(&x, At::Sparse(&sp.levels[level]), train)?
+                };
+            }
+            let from = sp
+                .head_from
+                .get(level)
+                .ok_or_else(|| FusionError::Config(format!("no head link from level {level}")))?;
+            // As coarse as the head or coarser: 1×1 convolution, then each head site reads its
+            // parent; finer: a strided 3×3 convolution into the head sites.
+            let y = if *total >= out_stride {
+                n.forward(&x, At::Sparse(&sp.levels[level]), train)?.index_select(from, 0)?
+            } else {
+                n.forward_rules(&x, from, train)?
+            };
+            outs.push(y);
+        }
+        Ok(Tensor::cat(&outs, 1)?)
+    }
+
+    fn forward_dense(&self, x: &Tensor, out_stride: usize, train: bool) -> Result<Tensor> {
         let (_, _, h, w) = x.dims4()?;
         let (th, tw) = (h / out_stride, w / out_stride);
         let mut x = x.clone();
         let mut outs = Vec::new();
         for (layers, (stride, n)) in self.blocks.iter().zip(&self.neck) {
             for l in layers {
-                x = l.forward(&x, train)?;
+                x = l.forward(&x, At::Dense, train)?;
             }
             // A coarser map goes through its 1×1 neck convolution first and is upsampled after:
             // the same values as upsampling first (nearest upsampling repeats each pixel equally
             // often, so BatchNorm's statistics are unchanged), at a fraction of the cost.
             let y = if *stride > out_stride {
-                n.forward(&x, train)?.upsample_nearest2d(th, tw)?
+                n.forward(&x, At::Dense, train)?.upsample_nearest2d(th, tw)?
             } else {
-                n.forward(&x, train)?
+                n.forward(&x, At::Dense, train)?
             };
             outs.push(y);
         }
@@ -225,15 +280,17 @@ impl Head {
         })
     }
 
-    pub fn forward(&self, x: &Tensor, train: bool) -> Result<(Tensor, Tensor)> {
+    /// Class logits and regression: `(B, K, H, W)` and `(B, 10, H, W)` dense, `(N, K)` and
+    /// `(N, 10)` at the head sites when sparse.
+    pub fn forward(&self, x: &Tensor, at: At, train: bool) -> Result<(Tensor, Tensor)> {
         let c = match &self.cls_pre {
-            Some(m) => m.forward(x, train)?,
+            Some(m) => m.forward(x, at, train)?,
             None => x.clone(),
         };
         let r = match &self.reg_pre {
-            Some(m) => m.forward(x, train)?,
+            Some(m) => m.forward(x, at, train)?,
             None => x.clone(),
         };
-        Ok((self.cls.forward(&c)?, self.reg.forward(&r)?))
+        Ok((self.cls.forward(&c, at)?, self.reg.forward(&r, at)?))
     }
 }

@@ -26,6 +26,34 @@ pub struct Targets {
     pub size: usize,
 }
 
+impl Targets {
+    /// The targets at sparse head sites (flat cells `b · n² + row · n + col` of the head's
+    /// grid): class `(N, K)`, regression `(N, 10)`, mask `(N, 1)`, row-major, as a sparse head
+    /// outputs them. `num_pos` still counts every positive, so a centre off the sites counts as
+    /// a miss rather than vanishing from the normalisation.
+    pub fn at_sites(&self, sites: &[u32], classes: usize) -> Targets {
+        let hw = self.size * self.size;
+        let mut t = Targets {
+            cls: Vec::with_capacity(sites.len() * classes),
+            reg: Vec::with_capacity(sites.len() * REG_CHANNELS),
+            mask: Vec::with_capacity(sites.len()),
+            num_pos: self.num_pos,
+            size: self.size,
+        };
+        for &s in sites {
+            let (b, rc) = (s as usize / hw, s as usize % hw);
+            for k in 0..classes {
+                t.cls.push(self.cls[(b * classes + k) * hw + rc]);
+            }
+            for ch in 0..REG_CHANNELS {
+                t.reg.push(self.reg[(b * REG_CHANNELS + ch) * hw + rc]);
+            }
+            t.mask.push(self.mask[b * hw + rc]);
+        }
+        t
+    }
+}
+
 /// CenterNet's Gaussian radius for a box of `l × w` cells at overlap `min_overlap`.
 pub fn gaussian_radius(l: f32, w: f32, min_overlap: f32) -> f32 {
     let (a1, b1, c1) = (1.0, l + w, w * l * (1.0 - min_overlap) / (1.0 + min_overlap));

@@ -3,22 +3,15 @@
 //! `checkpoint_steps`, exact resume, and the same weights from the same seed.
 //!
 //! Budgets are counted in samples, not epochs (a time limit would make the weights depend on the
-//! machine's load): on two cores the default detector trains at about 6 samples/s, so the
-//! default schedule is 1,400 samples (234 s measured). Presets with a second branch at full
-//! resolution are slower per sample; [`TrainConfig::for_preset`] gives each preset the samples
-//! that fit the same 5 minutes.
-//!
-//! At such budgets the number of updates matters more than their precision: batches of 2 at a
-//! peak learning rate of 6e-3 train `centerpoint` on the default dataset to mAP 0.171 in 600
-//! samples (107 s), where batches of 4 at 3e-3 reach 0.040 in the same samples and time (6e-3
-//! alone: 0.086; batches of 2 alone: 0.115), and `lirafusion-like` to 0.200. A CPU step costs
-//! the same per sample at either batch size.
+//! machine's load); each preset's default schedule is registered with it (see the fusion crate's
+//! docs for how they were chosen).
 
 use crate::data::{Augmentation, Frame};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
 use crate::error::{FusionError, Result};
 use crate::fusion::Registry;
 use candle_core::{Device, Tensor, Var};
+use hilo_dataset::background::BackgroundModel;
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
@@ -40,6 +33,59 @@ pub struct TrainConfig {
     pub seed: u64,
     pub augmentation: Augmentation,
     pub checkpoint_steps: usize,
+    /// Which frames an epoch holds: each once, or class-balanced (CBGS).
+    #[serde(default)]
+    pub sampling: Sampling,
+}
+
+/// How training frames are drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Sampling {
+    /// Every frame once per epoch, shuffled.
+    #[default]
+    Uniform,
+    /// Class-balanced grouping and sampling (CBGS, Zhu et al. 2019, as CenterPoint trains on
+    /// nuScenes): the frames holding each class are resampled so that every class present
+    /// contributes the same number of frames to an epoch; frames with rare classes (bus,
+    /// motorcycle) repeat, frames with only cars and pedestrians are drawn less often.
+    ClassBalanced,
+}
+
+/// The frames of one epoch before shuffling: every frame once (uniform), or CBGS's
+/// class-balanced draw with replacement, deterministic in `seed`. Each class c present in
+/// `S_c` frames contributes `⌊Σ|S_c| / C⌋` draws from `S_c`.
+pub fn epoch_frames(frames: &[Frame], sampling: Sampling, seed: u64) -> Vec<usize> {
+    match sampling {
+        Sampling::Uniform => (0..frames.len()).collect(),
+        Sampling::ClassBalanced => {
+            let k = crate::data::CLASSES.len();
+            let mut holding: Vec<Vec<usize>> = vec![Vec::new(); k];
+            for (i, f) in frames.iter().enumerate() {
+                let mut seen = [false; 16];
+                for b in &f.boxes {
+                    if b.class < k && !seen[b.class] {
+                        seen[b.class] = true;
+                        holding[b.class].push(i);
+                    }
+                }
+            }
+            let present: Vec<&Vec<usize>> = holding.iter().filter(|v| !v.is_empty()).collect();
+            if present.is_empty() {
+                return (0..frames.len()).collect();
+            }
+            let total: usize = present.iter().map(|v| v.len()).sum();
+            let per_class = (total / present.len()).max(1);
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0xcb65_cb65);
+            let mut out = Vec::with_capacity(per_class * present.len());
+            for v in present {
+                for _ in 0..per_class {
+                    out.push(v[rand::Rng::random_range(&mut rng, 0..v.len())]);
+                }
+            }
+            out
+        }
+    }
 }
 
 impl Default for TrainConfig {
@@ -54,26 +100,12 @@ impl Default for TrainConfig {
             seed: 0,
             augmentation: Augmentation::default(),
             checkpoint_steps: 50,
+            sampling: Sampling::Uniform,
         }
     }
 }
 
 impl TrainConfig {
-    /// The default schedule of a preset: as many samples as it trains in under 5 minutes on a
-    /// 2-core CPU (measured on the default dataset, see the README's detector table: `l4dr-like`
-    /// 4.4 samples/s, `lirafusion-like` 5.0, `bi-lrfusion-like` 3.7, `late` 3.3, so 241–276 s;
-    /// the others, 6.0–8.7 samples/s, keep 1,400). Unknown names (a detector of one's own) get
-    /// the default.
-    pub fn for_preset(name: &str) -> TrainConfig {
-        let samples = match name {
-            "l4dr-like" | "l4dr-like-no-early" => 1100,
-            "lirafusion-like" | "lirafusion-like-no-early" => 1200,
-            "bi-lrfusion-like" | "late" => 900,
-            _ => TrainConfig::default().samples,
-        };
-        TrainConfig { samples, ..TrainConfig::default() }
-    }
-
     pub fn steps(&self) -> usize {
         self.samples.div_ceil(self.batch.max(1))
     }
@@ -181,6 +213,11 @@ pub struct RunInfo {
     pub samples_seen: usize,
     pub seconds: f64,
     pub finished: bool,
+    /// Points and pillars the caps left out, over every batch trained so far.
+    #[serde(default)]
+    pub dropped_points: usize,
+    #[serde(default)]
+    pub dropped_pillars: usize,
 }
 
 pub fn weights_path(run: &Path) -> PathBuf {
@@ -193,6 +230,11 @@ fn optimizer_path(run: &Path) -> PathBuf {
 
 fn info_path(run: &Path) -> PathBuf {
     run.join("run.json")
+}
+
+/// Where a run keeps the background model its LiDAR input was filtered with.
+pub fn background_path(run: &Path) -> PathBuf {
+    run.join("background.json")
 }
 
 pub fn read_info(run: &Path) -> Result<RunInfo> {
@@ -220,19 +262,23 @@ pub struct StepReport {
     pub reg: f32,
     pub lr: f64,
     pub samples_per_s: f64,
+    /// Points and pillars the caps left out in this step's batch.
+    pub dropped_points: usize,
+    pub dropped_pillars: usize,
 }
 
-/// The frames of step `step`: a deterministic shuffle per epoch, augmented with a per-sample
-/// seed, so that resuming at any step sees exactly what an uninterrupted run sees.
-fn step_frames(frames: &[Frame], cfg: &TrainConfig, step: usize) -> Vec<Frame> {
-    let n = frames.len();
+/// The frames of step `step`: a deterministic shuffle per epoch of `epoch` (frame indices, see
+/// [`epoch_frames`]), augmented with a per-sample seed, so that resuming at any step sees
+/// exactly what an uninterrupted run sees.
+fn step_frames(frames: &[Frame], epoch: &[usize], cfg: &TrainConfig, step: usize) -> Vec<Frame> {
+    let n = epoch.len().max(1);
     let mut out = Vec::with_capacity(cfg.batch);
     for i in 0..cfg.batch {
         let k = step * cfg.batch + i;
-        let (epoch, pos) = (k / n, k % n);
-        let mut order: Vec<usize> = (0..n).collect();
+        let (e, pos) = (k / n, k % n);
+        let mut order: Vec<usize> = epoch.to_vec();
         order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(
-            cfg.seed ^ (epoch as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+            cfg.seed ^ (e as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
         ));
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
             cfg.seed.wrapping_add(1 + k as u64).wrapping_mul(0xbf58_476d_1ce4_e5b9),
@@ -242,14 +288,22 @@ fn step_frames(frames: &[Frame], cfg: &TrainConfig, step: usize) -> Vec<Frame> {
     out
 }
 
-/// Trains (or resumes) a detector in `run`. Batches are prepared one step ahead on another
-/// thread. `on_step` returning false stops the run after a checkpoint (rerunning resumes it).
-/// Returns the run's info.
+/// The seed of step `step`'s pillar sampling.
+fn step_seed(cfg: &TrainConfig, step: usize) -> u64 {
+    cfg.seed.wrapping_mul(0x2545_f491_4f6c_dd1d) ^ step as u64
+}
+
+/// Trains (or resumes) a detector in `run` on frames loaded with its input config (and, when it
+/// removes background, the `background` model they were filtered with, kept in the run for
+/// inference). Batches are prepared one step ahead on another thread. `on_step` returning false
+/// stops the run after a checkpoint (rerunning resumes it). Returns the run's info.
+#[allow(clippy::too_many_arguments)]
 pub fn train(
     run: &Path,
     det_cfg: &DetectorConfig,
     cfg: &TrainConfig,
     frames: &[Frame],
+    background: Option<&BackgroundModel>,
     registry: &Registry,
     device: &Device,
     on_step: &mut dyn FnMut(&StepReport) -> bool,
@@ -263,8 +317,16 @@ pub fn train(
             cfg.batch, cfg.samples
         )));
     }
-    std::fs::create_dir_all(run).map_err(|e| FusionError::Io { path: run.to_path_buf(), message: e.to_string() })?;
+    if det_cfg.input.background.is_some() != background.is_some() {
+        return Err(FusionError::Config(format!(
+            "detector {}: input.background is {} but a background model was {}given",
+            det_cfg.name,
+            if det_cfg.input.background.is_some() { "set" } else { "not set" },
+            if background.is_some() { "" } else { "not " }
+        )));
+    }
     let mut det = Detector::new(det_cfg, registry, device, cfg.seed)?;
+    std::fs::create_dir_all(run).map_err(|e| FusionError::Io { path: run.to_path_buf(), message: e.to_string() })?;
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let mut info = RunInfo {
         detector: det_cfg.clone(),
@@ -273,6 +335,8 @@ pub fn train(
         samples_seen: 0,
         seconds: 0.0,
         finished: false,
+        dropped_points: 0,
+        dropped_pillars: 0,
     };
     if info_path(run).exists() {
         let old = read_info(run)?;
@@ -292,17 +356,23 @@ pub fn train(
             return Ok(info);
         }
     }
+    if let Some(bg) = background {
+        write_json(&background_path(run), bg)?;
+    }
     let steps = cfg.steps();
     let with_radar = det.uses_radar();
     let start = info.step;
-    let epoch_steps = frames.len().div_ceil(cfg.batch).max(1);
+    let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
+    let epoch_steps = epoch.len().div_ceil(cfg.batch).max(1);
     let t_run = std::time::Instant::now();
     let seconds_before = info.seconds;
     std::thread::scope(|scope| -> Result<()> {
         let (tx, rx) = std::sync::mpsc::sync_channel::<HostBatch>(2);
+        let epoch = &epoch;
         scope.spawn(move || {
             for step in start..steps {
-                let b = HostBatch::new(det_cfg, &step_frames(frames, cfg, step), with_radar);
+                let b =
+                    HostBatch::new(det_cfg, &step_frames(frames, epoch, cfg, step), with_radar, step_seed(cfg, step));
                 if tx.send(b).is_err() {
                     return;
                 }
@@ -324,6 +394,10 @@ pub fn train(
             window = std::time::Instant::now();
             info.step = step + 1;
             info.samples_seen = info.step * cfg.batch;
+            let dropped_points = batch.lidar.dropped_points + batch.radar.dropped_points;
+            let dropped_pillars = batch.lidar.dropped_pillars + batch.radar.dropped_pillars;
+            info.dropped_points += dropped_points;
+            info.dropped_pillars += dropped_pillars;
             let go_on = on_step(&StepReport {
                 step: step + 1,
                 steps,
@@ -332,6 +406,8 @@ pub fn train(
                 reg: loss.reg,
                 lr,
                 samples_per_s: cfg.batch as f64 / dt.max(1e-9),
+                dropped_points,
+                dropped_pillars,
             });
             let end_of_epoch = (step + 1) % epoch_steps == 0;
             if !go_on || end_of_epoch || (step + 1) % cfg.checkpoint_steps.max(1) == 0 || step + 1 == steps {
@@ -350,10 +426,127 @@ pub fn train(
     Ok(info)
 }
 
-/// A trained detector from a run folder.
-pub fn load_run(run: &Path, registry: &Registry, device: &Device) -> Result<(Detector, RunInfo)> {
+/// A trained detector from a run folder, with the background model its input was filtered
+/// with (when its input removes background).
+pub fn load_run(
+    run: &Path,
+    registry: &Registry,
+    device: &Device,
+) -> Result<(Detector, RunInfo, Option<BackgroundModel>)> {
     let info = read_info(run)?;
     let mut det = Detector::new(&info.detector, registry, device, 0)?;
     det.load(&weights_path(run))?;
-    Ok((det, info))
+    let background = match &info.detector.input.background {
+        None => None,
+        Some(_) => {
+            let p = background_path(run);
+            let bytes = std::fs::read(&p).map_err(|e| FusionError::Io { path: p.clone(), message: e.to_string() })?;
+            Some(
+                serde_json::from_slice(&bytes)
+                    .map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })?,
+            )
+        }
+    };
+    Ok((det, info, background))
+}
+
+/// Learns the background model a detector's input asks for from a dataset's training split
+/// (`None` when its input keeps the background).
+pub fn learn_background(
+    ds: &hilo_dataset::Dataset,
+    split: &str,
+    input: &crate::data::InputConfig,
+) -> Result<Option<BackgroundModel>> {
+    match &input.background {
+        None => Ok(None),
+        Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, cfg)?)),
+    }
+}
+
+/// Time of each part of a training step, seconds, summed over the steps timed.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StepTimes {
+    pub steps: usize,
+    /// Augmentation, pillarisation, layout and targets on the host (done on another thread
+    /// when training, so hidden unless it is the slowest part).
+    pub data_s: f64,
+    pub forward: crate::detector::ForwardTimes,
+    pub loss_s: f64,
+    pub backward_s: f64,
+    pub optimizer_s: f64,
+    /// The step on the training thread: forward, loss, backward and optimizer.
+    pub total_s: f64,
+}
+
+/// Runs `steps` training steps of a fresh detector on `frames` with every part timed (the batch
+/// built on the same thread, so each part is measured alone). For benchmarks.
+pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: usize) -> Result<StepTimes> {
+    let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
+    let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
+    let mut t = StepTimes { steps, ..StepTimes::default() };
+    let with_radar = det.uses_radar();
+    for step in 0..steps {
+        let t0 = std::time::Instant::now();
+        let batch = HostBatch::new(&det.cfg, &step_frames(frames, &epoch, cfg, step), with_radar, step_seed(cfg, step));
+        t.data_s += t0.elapsed().as_secs_f64();
+        let t1 = std::time::Instant::now();
+        let heads = det.forward_timed(&batch, true, Some(&mut t.forward))?;
+        let c = std::time::Instant::now();
+        let loss = det.loss_all(&heads, &batch.targets)?;
+        t.loss_s += c.elapsed().as_secs_f64();
+        let c = std::time::Instant::now();
+        let grads = loss.total.backward()?;
+        t.backward_s += c.elapsed().as_secs_f64();
+        let c = std::time::Instant::now();
+        opt.step(&grads, cfg.lr(step), cfg.clip_norm)?;
+        t.optimizer_s += c.elapsed().as_secs_f64();
+        t.total_s += t1.elapsed().as_secs_f64();
+    }
+    Ok(t)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::data::GtBox;
+
+    fn frame(classes: &[usize]) -> Frame {
+        let boxes = classes
+            .iter()
+            .map(|&c| GtBox { class: c, center: [0.0; 3], wlh: [1.0; 3], yaw: 0.0, velocity: [0.0; 2] })
+            .collect();
+        Frame { sample_token: String::new(), scene: String::new(), lidar: vec![], radar: vec![], boxes }
+    }
+
+    /// CBGS: every class present contributes the same number of frames; a rare class's frames
+    /// repeat, and its share of the epoch rises from its share of the frames to about 1 / C.
+    #[test]
+    fn class_balanced_epochs_give_every_class_the_same_share() {
+        // 100 frames: all hold cars (0) and pedestrians (4); 5 hold a bus (2), 20 a truck (1).
+        let frames: Vec<Frame> = (0..100)
+            .map(|i| {
+                let mut c = vec![0, 4];
+                if i % 20 == 0 {
+                    c.push(2);
+                }
+                if i % 5 == 1 {
+                    c.push(1);
+                }
+                frame(&c)
+            })
+            .collect();
+        assert_eq!(epoch_frames(&frames, Sampling::Uniform, 0), (0..100).collect::<Vec<_>>());
+        let e = epoch_frames(&frames, Sampling::ClassBalanced, 7);
+        // Σ|S_c| = 100 + 100 + 5 + 20 = 225 over 4 classes: 56 draws each.
+        assert_eq!(e.len(), 4 * 56);
+        let with = |c: usize| e.iter().filter(|&&i| frames[i].boxes.iter().any(|b| b.class == c)).count();
+        assert!(with(2) >= 56, "every bus draw holds a bus: {}", with(2));
+        let share = with(2) as f64 / e.len() as f64;
+        assert!(share > 0.24 && share < 0.30, "bus frames are {share:.3} of the epoch (5% of the frames)");
+        assert!(e.iter().all(|&i| i < 100));
+        // Deterministic in the seed.
+        assert_eq!(e, epoch_frames(&frames, Sampling::ClassBalanced, 7));
+        assert_ne!(e, epoch_frames(&frames, Sampling::ClassBalanced, 8));
+    }
 }

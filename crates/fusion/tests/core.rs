@@ -4,19 +4,26 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use candle_core::{Device, Tensor};
+use hilo_core::Class;
 use hilo_fusion::data::{Augmentation, Frame, GtBox};
 use hilo_fusion::detector::{Detector, DetectorConfig, HostBatch};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::loss::{centernet_focal, sigmoid_focal, softplus};
 use hilo_fusion::train::{TrainConfig, train};
-use hilo_fusion::{Registry, preset};
+use hilo_fusion::{Registry, Stage};
 use rand::{Rng, SeedableRng};
 
-/// A small grid (32 × 32 pillars of 0.8 m) so tests run in seconds.
+/// A preset on a small grid (32 × 32 pillars of 0.8 m) so tests run in seconds, reading frames
+/// as given (no background model: the synthetic frames have none to learn).
 fn small(name: &str) -> DetectorConfig {
-    let mut c = preset(name).unwrap();
+    let mut c = Registry::with_builtin().preset(name).unwrap().detector.clone();
     c.grid = BevGrid { half_extent_m: 12.8, cell_m: 0.8, max_pillars: 2000, ..BevGrid::default() };
+    c.input.background = None;
     c
+}
+
+fn dense(name: &str) -> DetectorConfig {
+    DetectorConfig { sparse: None, ..small(name) }
 }
 
 /// A frame with boxes sampled on their surfaces (LiDAR) and ground points around.
@@ -42,7 +49,7 @@ fn frame(seed: u64, boxes: &[GtBox]) -> Frame {
             ]);
         }
     }
-    Frame { sample_token: format!("s{seed}"), lidar, radar: Vec::new(), boxes: boxes.to_vec() }
+    Frame { sample_token: format!("s{seed}"), scene: "s".into(), lidar, radar: Vec::new(), boxes: boxes.to_vec() }
 }
 
 fn car(x: f32, y: f32, yaw: f32) -> GtBox {
@@ -56,20 +63,29 @@ fn ped(x: f32, y: f32) -> GtBox {
 #[test]
 fn module_shapes() {
     for name in ["centerpoint", "pointpillars"] {
-        let cfg = small(name);
-        let det = Detector::new(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
         let frames = vec![frame(1, &[car(2.0, 3.0, 0.3)]), frame(2, &[ped(-4.0, 1.0)])];
-        let b = HostBatch::new(&cfg, &frames, false);
+        // Dense: maps over the head's grid, the 32 × 32 pillar grid divided by the output stride.
+        let cfg = dense(name);
+        let det = Detector::new(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+        let b = HostBatch::new(&cfg, &frames, false, 0);
         assert_eq!(b.lidar.width, 9);
         assert_eq!(b.lidar.features.len(), b.lidar.count() * b.lidar.points_per_pillar * 9);
         let (cls, reg) = det.forward(&b, false).unwrap();
-        // The head's grid: the 32 × 32 pillar grid divided by the preset's output stride.
         let n = cfg.grid.cells() / cfg.backbone.out_stride;
         assert_eq!(n, if name == "centerpoint" { 32 } else { 16 });
         assert_eq!(cls.dims(), &[2, 6, n, n], "{name}");
         assert_eq!(reg.dims(), &[2, 10, n, n], "{name}");
         assert_eq!(b.targets.cls.len(), 2 * 6 * n * n);
         assert!(b.targets.num_pos >= 2.0);
+        // Sparse: one row per head site, targets gathered to them.
+        let cfg = small(name);
+        let det = Detector::new(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+        let b = HostBatch::new(&cfg, &frames, false, 0);
+        let sites = b.sparse.as_ref().unwrap().head_sites.len();
+        assert!(sites > 0 && sites <= 2 * n * n, "{name}: {sites} head sites");
+        let (cls, reg) = det.forward(&b, false).unwrap();
+        assert_eq!((cls.dims(), reg.dims()), (&[sites, 6][..], &[sites, 10][..]), "{name}");
+        assert_eq!(b.targets.cls.len(), sites * 6);
     }
 }
 
@@ -102,9 +118,10 @@ fn losses_are_finite_and_exact_for_extreme_logits() {
 fn empty_clouds_and_frames_without_boxes_give_finite_losses() {
     let cfg = small("centerpoint");
     let det = Detector::new(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
-    let empty = Frame { sample_token: "e".into(), lidar: Vec::new(), radar: Vec::new(), boxes: Vec::new() };
+    let empty =
+        Frame { sample_token: "e".into(), scene: "s".into(), lidar: Vec::new(), radar: Vec::new(), boxes: Vec::new() };
     for frames in [vec![empty.clone()], vec![frame(3, &[]), empty]] {
-        let b = HostBatch::new(&cfg, &frames, false);
+        let b = HostBatch::new(&cfg, &frames, false, 0);
         let (cls, reg) = det.forward(&b, true).unwrap();
         let l = det.loss(&cls, &reg, &b.targets).unwrap();
         assert!(l.total.to_scalar::<f32>().unwrap().is_finite());
@@ -132,7 +149,7 @@ fn one_batch_overfits() {
         let dir = tempfile::tempdir().unwrap();
         let mut losses = Vec::new();
         let one: Vec<Frame> = frames.clone();
-        train(dir.path(), &cfg, &tc, &one, &Registry::with_builtin(), &Device::Cpu, &mut |r| {
+        train(dir.path(), &cfg, &tc, &one, None, &Registry::with_builtin(), &Device::Cpu, &mut |r| {
             losses.push(r.loss);
             true
         })
@@ -141,12 +158,12 @@ fn one_batch_overfits() {
         let last = losses[losses.len() - 3..].iter().sum::<f32>() / 3.0;
         assert!(last * 10.0 <= first, "{name}: loss {first} → {last}");
         // And the overfit detector finds the boxes it saw.
-        let (det, _) = hilo_fusion::train::load_run(dir.path(), &Registry::with_builtin(), &Device::Cpu).unwrap();
-        let found = det.detect(&HostBatch::new(&cfg, &frames[..1], false)).unwrap();
+        let (det, _, _) = hilo_fusion::train::load_run(dir.path(), &Registry::with_builtin(), &Device::Cpu).unwrap();
+        let found = det.detect(&HostBatch::new(&cfg, &frames[..1], false, 0)).unwrap();
         let best = found[0]
             .iter()
-            .filter(|d| d.class == 0)
-            .map(|d| ((d.center[0] - 3.0).powi(2) + (d.center[1] - 2.0).powi(2)).sqrt())
+            .filter(|d| d.class == Class::Car)
+            .map(|d| ((d.box3.center.x - 3.0).powi(2) + (d.box3.center.y - 2.0).powi(2)).sqrt())
             .fold(f32::INFINITY, f32::min);
         // Within half a car length: the detector found the car it was shown (centerpoint lands
         // within ~0.3 m; the dense head's border cells regress less precisely after 120 steps).
@@ -162,20 +179,20 @@ fn checkpoints_reload_bit_identically_and_training_is_deterministic_and_resumes(
     let tc = TrainConfig { samples: 2 * 8, batch: 2, checkpoint_steps: 3, ..TrainConfig::default() };
     let reg = Registry::with_builtin();
     let (a, b, c) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-    train(a.path(), &cfg, &tc, &frames, &reg, &Device::Cpu, &mut |_| true).unwrap();
-    train(b.path(), &cfg, &tc, &frames, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    train(a.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    train(b.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
     let w = |d: &std::path::Path| std::fs::read(d.join("model.safetensors")).unwrap();
     assert_eq!(w(a.path()), w(b.path()), "same seed, same weights");
     // Interrupted after 5 steps, then resumed: the same weights as without interruption.
-    let info = train(c.path(), &cfg, &tc, &frames, &reg, &Device::Cpu, &mut |r| r.step < 5).unwrap();
+    let info = train(c.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |r| r.step < 5).unwrap();
     assert!(!info.finished && info.step == 5);
-    let info = train(c.path(), &cfg, &tc, &frames, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    let info = train(c.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
     assert!(info.finished && info.step == 8);
     assert_eq!(w(a.path()), w(c.path()), "resumed run differs");
     // Save → load: bit-identical outputs.
-    let (d1, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
-    let (d2, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
-    let hb = HostBatch::new(&cfg, &frames[..2], false);
+    let (d1, _, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
+    let (d2, _, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
+    let hb = HostBatch::new(&cfg, &frames[..2], false, 0);
     let (x1, y1) = d1.forward(&hb, false).unwrap();
     let (x2, y2) = d2.forward(&hb, false).unwrap();
     assert_eq!(
@@ -188,13 +205,14 @@ fn checkpoints_reload_bit_identically_and_training_is_deterministic_and_resumes(
     );
     // Another seed, other weights.
     let d = tempfile::tempdir().unwrap();
-    train(d.path(), &cfg, &TrainConfig { seed: 1, ..tc.clone() }, &frames, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    train(d.path(), &cfg, &TrainConfig { seed: 1, ..tc.clone() }, &frames, None, &reg, &Device::Cpu, &mut |_| true)
+        .unwrap();
     assert_ne!(w(a.path()), w(d.path()));
 }
 
 #[test]
 fn bad_input_is_a_clear_error() {
-    let e = preset("pointrcnn").unwrap_err().to_string();
+    let e = Registry::with_builtin().preset("pointrcnn").unwrap_err().to_string();
     assert!(e.contains("pointrcnn") && e.contains("centerpoint") && e.contains("pointpillars"), "{e}");
     let mut r = Registry::with_builtin();
     fn builder(
@@ -204,7 +222,7 @@ fn bad_input_is_a_clear_error() {
     ) -> hilo_fusion::Result<Box<dyn hilo_fusion::Fusion>> {
         Err(hilo_fusion::FusionError::Config("unused".into()))
     }
-    let e = r.register("lidar", builder).unwrap_err().to_string();
+    let e = r.register("lidar", Stage::Raw, builder).unwrap_err().to_string();
     assert!(e.contains("twice"), "{e}");
     let mut cfg = small("centerpoint");
     cfg.fusion = "radar-magic".into();
@@ -223,26 +241,4 @@ fn bad_input_is_a_clear_error() {
     cfg.fusion_config = serde_json::json!({ "chanels": 32 });
     let e = Detector::new(&cfg, &r, &Device::Cpu, 0).unwrap_err().to_string();
     assert!(e.contains("lidar") && e.contains("chanels"), "{e}");
-}
-
-#[test]
-fn late_merge_fuses_matches_and_keeps_the_rest_by_rule() {
-    use hilo_fusion::decode::{DecodeConfig, Det, merge_late};
-    let l =
-        Det { class: 0, score: 0.8, center: [10.0, 0.0, 0.8], wlh: [1.9, 4.6, 1.6], yaw: 0.0, velocity: [0.0, 0.0] };
-    let r =
-        Det { class: 0, score: 0.6, center: [10.6, 0.3, 0.8], wlh: [2.0, 4.4, 1.5], yaw: 0.1, velocity: [7.0, 0.5] };
-    let r_alone =
-        Det { class: 4, score: 0.4, center: [-5.0, 3.0, 0.9], wlh: [0.6, 0.6, 1.7], yaw: 0.0, velocity: [0.0, 1.0] };
-    let l_alone = Det { class: 0, score: 0.3, center: [30.0, 0.0, 0.8], ..l };
-    let m = merge_late(&[l, l_alone], &[r, r_alone], &DecodeConfig::default());
-    assert_eq!(m.len(), 3);
-    let fused = m.iter().find(|d| d.class == 0 && d.center[0] < 20.0).unwrap();
-    assert!((fused.score - (1.0 - 0.2 * 0.4)).abs() < 1e-6);
-    assert_eq!(fused.velocity, [7.0, 0.5], "velocity from radar");
-    let w = (2.0 * 0.8, 0.6);
-    assert!((fused.center[0] - (w.0 * 10.0 + w.1 * 10.6) / (w.0 + w.1)).abs() < 1e-5, "LiDAR-weighted position");
-    assert!(m.iter().any(|d| d.class == 4 && (d.score - 0.2).abs() < 1e-6), "unmatched radar box at half score");
-    assert!(m.iter().any(|d| d.center[0] == 30.0 && d.score == 0.3), "unmatched LiDAR box unchanged");
-    assert!(m.windows(2).all(|w| w[0].score >= w[1].score));
 }

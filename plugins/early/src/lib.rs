@@ -16,16 +16,21 @@
 //! gated middle fusion). `early = false` is the paper's ablation: the joint encoder then sees
 //! the radar points only, so LiDAR and radar meet only in the middle stage.
 
-use candle_core::{DType, Tensor};
+use candle_core::Tensor;
 use candle_nn::{BatchNorm, Linear, Module, ModuleT, VarBuilder};
 use hilo_fusion::data::LIDAR_FEATURES;
+use hilo_fusion::detector::without_early;
 use hilo_fusion::fuse::{BevFuse, FuseOp};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{PillarNet, PillarTensors};
-use hilo_fusion::{Fusion, FusionError, FusionInput, FusionOutput, Registry, Result, Stage};
+use hilo_fusion::presets::centerpoint;
+use hilo_fusion::train::TrainConfig;
+use hilo_fusion::{DetectorConfig, Fusion, FusionError, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 
-const JOINT: usize = 14;
+/// Joint point layout: x, y, z, five decorations, intensity, RCS, v_r, line of sight x, y,
+/// sweep lag, modality flag.
+const JOINT: usize = 15;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -47,19 +52,19 @@ pub struct MiddleStage {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct EarlyConfig {
     pub channels: usize,
     pub aggregation: Aggregation,
     /// Whether LiDAR points enter the joint encoder (false: the paper's ablation).
-    #[serde(default = "yes")]
     pub early: bool,
-    #[serde(default)]
     pub middle: Option<MiddleStage>,
 }
 
-fn yes() -> bool {
-    true
+impl Default for EarlyConfig {
+    fn default() -> Self {
+        EarlyConfig { channels: 32, aggregation: Aggregation::ModalityMean, early: true, middle: None }
+    }
 }
 
 #[derive(Debug)]
@@ -69,12 +74,11 @@ pub struct EarlyFusion {
     bn: BatchNorm,
     lidar: Option<PillarNet>,
     fuse: Option<BevFuse>,
-    cells: usize,
 }
 
 /// Column `k` of the joint layout each input feature goes to.
 const LIDAR_TO_JOINT: [usize; 9] = [0, 1, 2, 8, 3, 4, 5, 6, 7];
-const RADAR_TO_JOINT: [usize; 12] = [0, 1, 2, 9, 10, 11, 12, 3, 4, 5, 6, 7];
+const RADAR_TO_JOINT: [usize; 13] = [0, 1, 2, 9, 10, 11, 12, 13, 3, 4, 5, 6, 7];
 
 fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
     let mut m = vec![0f32; map.len() * JOINT];
@@ -84,13 +88,13 @@ fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
     Ok(Tensor::from_vec(m, (map.len(), JOINT), dev)?)
 }
 
-pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
+pub fn build(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     let c: EarlyConfig = hilo_fusion::fusion::parse_config("early", cfg)?;
-    Ok(Box::new(EarlyFusion::new(c, grid, vb)?))
+    Ok(Box::new(EarlyFusion::new(c, vb)?))
 }
 
 impl EarlyFusion {
-    fn new(c: EarlyConfig, grid: &BevGrid, vb: VarBuilder) -> Result<Self> {
+    fn new(c: EarlyConfig, vb: VarBuilder) -> Result<Self> {
         let bn = candle_nn::batch_norm(
             c.channels,
             candle_nn::BatchNormConfig { eps: 1e-3, remove_mean: true, affine: true, momentum: 0.1 },
@@ -113,19 +117,51 @@ impl EarlyFusion {
             bn,
             lidar,
             fuse,
-            cells: grid.cells(),
             cfg: c,
         })
     }
 }
 
-/// Registers `early`.
+/// `l4dr-like` (L4DR): early LiDAR–4D-radar fusion and gated middle fusion, on `centerpoint`'s
+/// backbone and head. Taken: radar and LiDAR points in one early encoder (max), pixel-wise gating
+/// against a LiDAR branch. Left out: L4DR's LiDAR-guided radar denoising and its multi-scale gates
+/// inside the backbone.
+pub fn l4dr_like() -> DetectorConfig {
+    DetectorConfig {
+        name: "l4dr-like".into(),
+        fusion: "early".into(),
+        fusion_config: serde_json::json!({ "channels": 32, "aggregation": "max", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_pixel" } }),
+        ..centerpoint()
+    }
+}
+
+/// `lirafusion-like` (LiRaFusion): a joint voxel encoder over both modalities (early; per-cell
+/// means taken per modality, so a cell's few radar points are not averaged away by its LiDAR
+/// points) and adaptive gated fusion with one weight per channel, on `centerpoint`'s backbone
+/// and head. Left out: the 3-D voxel encoder (pillars instead) and the exact gating network.
+pub fn lirafusion_like() -> DetectorConfig {
+    DetectorConfig {
+        name: "lirafusion-like".into(),
+        fusion: "early".into(),
+        fusion_config: serde_json::json!({ "channels": 32, "aggregation": "modality_mean", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_channel" } }),
+        ..centerpoint()
+    }
+}
+
+/// Registers `early` and its presets: `l4dr-like`, `lirafusion-like`, and each without its early
+/// stage (`*-no-early`, the paper's ablation: LiDAR and radar meet only in the middle stage).
 pub fn register(r: &mut Registry) -> Result<()> {
-    r.register("early", build)
+    r.register("early", Stage::Early, build)?;
+    for d in [l4dr_like(), lirafusion_like()] {
+        let ablation = without_early(&d)?;
+        r.add_preset(Preset { detector: d, train: TrainConfig::default() })?;
+        r.add_preset(Preset { detector: ablation, train: TrainConfig::default() })?;
+    }
+    Ok(())
 }
 
 impl EarlyFusion {
-    /// Joint-layout point features (P, N, 14) of one modality.
+    /// Joint-layout point features (P, N, 15) of one modality.
     fn to_joint(p: &PillarTensors, map: &[usize], flag: bool) -> Result<Tensor> {
         let (n, npp, f) = p.features.dims3()?;
         let sel = selection(map, p.features.device())?;
@@ -151,12 +187,9 @@ impl EarlyFusion {
             parts.push((Self::to_joint(input.radar, &RADAR_TO_JOINT, true)?, input.radar));
         }
         let c = self.cfg.channels;
-        let hw = input.batch * self.cells * self.cells;
-        let bev = |flat: Tensor| -> Result<Tensor> {
-            Ok(flat.reshape((input.batch, self.cells, self.cells, c))?.permute((0, 3, 1, 2))?.contiguous()?)
-        };
+        let layout = input.layout;
         if parts.is_empty() {
-            return bev(Tensor::zeros((hw, c), DType::F32, &dev)?);
+            return layout.from_rows(layout.zeros(c, &dev)?);
         }
         // One BatchNorm over the points of both modalities.
         let rows: Vec<Tensor> =
@@ -164,17 +197,14 @@ impl EarlyFusion {
         let sizes: Vec<usize> = rows.iter().map(|r| r.dim(0)).collect::<candle_core::Result<_>>()?;
         let all = self.bn.forward_t(&self.linear.forward(&Tensor::cat(&rows, 0)?)?, train)?.relu()?;
         let mut offset = 0;
-        let mut acc = Tensor::zeros((hw, c), DType::F32, &dev)?;
-        let mut count = Tensor::zeros((hw, 1), DType::F32, &dev)?;
+        let mut acc = layout.zeros(c, &dev)?;
+        let mut count = layout.zeros(1, &dev)?;
         for ((_, p), rows_k) in parts.iter().zip(sizes) {
             let (n, npp, _) = p.features.dims3()?;
             let x = all.narrow(0, offset, rows_k)?.reshape((n, npp, c))?.broadcast_mul(&p.mask)?;
             offset += rows_k;
             match self.cfg.aggregation {
-                Aggregation::Max => {
-                    acc =
-                        acc.maximum(&Tensor::zeros((hw, c), DType::F32, &dev)?.index_add(&p.index, &x.max(1)?, 0)?)?
-                }
+                Aggregation::Max => acc = acc.maximum(&layout.zeros(c, &dev)?.index_add(&p.index, &x.max(1)?, 0)?)?,
                 Aggregation::Mean => {
                     acc = acc.index_add(&p.index, &x.sum(1)?, 0)?;
                     count = count.index_add(&p.index, &p.mask.sum(1)?, 0)?;
@@ -188,26 +218,17 @@ impl EarlyFusion {
         if self.cfg.aggregation == Aggregation::Mean {
             acc = acc.broadcast_div(&count.clamp(1.0, f32::MAX)?)?;
         }
-        bev(acc)
+        layout.from_rows(acc)
     }
 }
 
 impl Fusion for EarlyFusion {
-    fn stage(&self) -> Stage {
-        Stage::Early
-    }
-    fn out_channels(&self) -> usize {
-        self.fuse.as_ref().map_or(self.cfg.channels, |f| f.out_channels)
-    }
-    fn uses_radar(&self) -> bool {
-        true
-    }
     fn forward(&self, input: &FusionInput, train: bool) -> Result<FusionOutput> {
         let joint = self.joint_map(input, train)?;
         match (&self.lidar, &self.fuse) {
             (Some(l), Some(f)) => {
-                let lm = l.forward(input.lidar, input.batch, self.cells, train)?;
-                Ok(FusionOutput::Bev(f.forward(&lm, &joint, train)?))
+                let lm = l.forward(input.lidar, input.layout, train)?;
+                Ok(FusionOutput::Bev(f.forward(&lm, &joint, input.layout.level0(), train)?))
             }
             _ => Ok(FusionOutput::Bev(joint)),
         }
@@ -218,9 +239,10 @@ impl Fusion for EarlyFusion {
 #[allow(clippy::unwrap_used, clippy::expect_used)]
 mod tests {
     use super::*;
-    use candle_core::Device;
+    use candle_core::{DType, Device};
     use hilo_fusion::conformance::small_grid;
     use hilo_fusion::data::pillarize;
+    use hilo_fusion::layout::Layout;
 
     /// Per pillar, the encodings of its real points (inference-mode BatchNorm, so per point).
     fn encodings(f: &EarlyFusion, p: &PillarTensors, map: &[usize], flag: bool) -> Vec<Vec<Vec<f32>>> {
@@ -248,21 +270,23 @@ mod tests {
             .map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3])
             .chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8]))
             .collect();
-        let radar: Vec<[f32; 7]> = vec![
-            [1.2, 2.2, 0.9, 8.0, 7.0, 0.1, 0.99],
-            [6.1, -3.3, 0.4, 3.0, -2.0, 0.8, 0.6],
-            [6.2, -3.4, 0.6, 5.0, -2.5, 0.8, 0.6],
+        let radar: Vec<[f32; 8]> = vec![
+            [1.2, 2.2, 0.9, 8.0, 7.0, 0.1, 0.99, 0.0],
+            [6.1, -3.3, 0.4, 3.0, -2.0, 0.8, 0.6, 0.1],
+            [6.2, -3.4, 0.6, 5.0, -2.5, 0.8, 0.6, 0.0],
         ];
         let dev = Device::Cpu;
         let (lt, rt) = (
-            PillarTensors::new(&pillarize(&grid, &[&lidar]), &dev).unwrap(),
-            PillarTensors::new(&pillarize(&grid, &[&radar]), &dev).unwrap(),
+            PillarTensors::new(&pillarize(&grid, &[&lidar], 0), None, &dev).unwrap(),
+            PillarTensors::new(&pillarize(&grid, &[&radar], 0), None, &dev).unwrap(),
         );
+        let layout = Layout::Dense { batch: 1, cells: grid.cells() };
         for aggregation in [Aggregation::Max, Aggregation::Mean, Aggregation::ModalityMean] {
             let varmap = candle_nn::VarMap::new();
             let cfg = EarlyConfig { channels: 8, aggregation, early: true, middle: None };
-            let f = EarlyFusion::new(cfg, &grid, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
-            let map = f.joint_map(&FusionInput { lidar: &lt, radar: &rt, batch: 1, grid }, false).unwrap();
+            let f = EarlyFusion::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
+            let map =
+                f.joint_map(&FusionInput { lidar: &lt, radar: &rt, batch: 1, grid, layout: &layout }, false).unwrap();
             let map = map.squeeze(0).unwrap().to_vec3::<f32>().unwrap();
             // Points per cell, per modality.
             let mut cells: std::collections::BTreeMap<u32, [Vec<Vec<f32>>; 2]> = Default::default();

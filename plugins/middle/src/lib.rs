@@ -10,16 +10,24 @@ use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::fuse::{BevFuse, FuseOp};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{ConvBn, PillarNet};
-use hilo_fusion::{Fusion, FusionInput, FusionOutput, Registry, Result, Stage};
+use hilo_fusion::presets::centerpoint;
+use hilo_fusion::train::TrainConfig;
+use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct MiddleConfig {
     pub lidar_channels: usize,
     pub radar_channels: usize,
     pub out_channels: usize,
     pub op: FuseOp,
+}
+
+impl Default for MiddleConfig {
+    fn default() -> Self {
+        MiddleConfig { lidar_channels: 32, radar_channels: 16, out_channels: 32, op: FuseOp::Concat }
+    }
 }
 
 #[derive(Debug)]
@@ -28,38 +36,41 @@ pub struct MiddleFusion {
     radar: PillarNet,
     widen: ConvBn,
     fuse: BevFuse,
-    cells: usize,
 }
 
-pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
+pub fn build(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     let c: MiddleConfig = hilo_fusion::fusion::parse_config("middle", cfg)?;
     Ok(Box::new(MiddleFusion {
         lidar: PillarNet::new(LIDAR_FEATURES + 5, c.lidar_channels, vb.pp("lidar"))?,
         radar: PillarNet::new(RADAR_FEATURES + 5, c.radar_channels, vb.pp("radar"))?,
         widen: ConvBn::new(c.radar_channels, c.radar_channels, 3, 1, vb.pp("widen"))?,
         fuse: BevFuse::new(c.lidar_channels, c.radar_channels, c.out_channels, c.op, vb.pp("fuse"))?,
-        cells: grid.cells(),
     }))
 }
 
-/// Registers `middle`.
+/// `bi-lrfusion-like` (Bi-LRFusion): LiDAR features enrich the radar BEV map, which then
+/// enhances the LiDAR map, on `centerpoint`'s backbone and head. Left out: its query-based
+/// height feature transfer (a 3×3 convolution here).
+pub fn bi_lrfusion_like() -> DetectorConfig {
+    DetectorConfig {
+        name: "bi-lrfusion-like".into(),
+        fusion: "middle".into(),
+        fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "bidirectional" }),
+        ..centerpoint()
+    }
+}
+
+/// Registers `middle` and its preset `bi-lrfusion-like`.
 pub fn register(r: &mut Registry) -> Result<()> {
-    r.register("middle", build)
+    r.register("middle", Stage::Middle, build)?;
+    r.add_preset(Preset { detector: bi_lrfusion_like(), train: TrainConfig::default() })
 }
 
 impl Fusion for MiddleFusion {
-    fn stage(&self) -> Stage {
-        Stage::Middle
-    }
-    fn out_channels(&self) -> usize {
-        self.fuse.out_channels
-    }
-    fn uses_radar(&self) -> bool {
-        true
-    }
     fn forward(&self, input: &FusionInput, train: bool) -> Result<FusionOutput> {
-        let l = self.lidar.forward(input.lidar, input.batch, self.cells, train)?;
-        let r = self.widen.forward(&self.radar.forward(input.radar, input.batch, self.cells, train)?, train)?;
-        Ok(FusionOutput::Bev(self.fuse.forward(&l, &r, train)?))
+        let at = input.layout.level0();
+        let l = self.lidar.forward(input.lidar, input.layout, train)?;
+        let r = self.widen.forward(&self.radar.forward(input.radar, input.layout, train)?, at, train)?;
+        Ok(FusionOutput::Bev(self.fuse.forward(&l, &r, at, train)?))
     }
 }

@@ -1,60 +1,69 @@
 //! Raw fusion (the paper's PointPillars-LR): LiDAR and radar points are mapped by
 //! modality-specific encoders f_L (LiDAR: x, y, z, intensity + PointPillars decorations) and
-//! f_R (radar: x, y, z, RCS, v_r, line of sight + decorations) into one d-dimensional feature
-//! space and unioned in the shared pillars: a pillar's feature is the sum of its LiDAR points'
-//! and its radar points' max-pooled features. The literal union, a maximum over all of a
-//! pillar's points, separates the motion fixture (`crates/cli/tests/fusion_motion.rs`) too:
-//! mAP 0.89 against the sum's 0.95 (LiDAR-only 0.42). The sum is kept because a cell's LiDAR
-//! maximum cannot hide its radar feature in a shared channel.
+//! f_R (radar: x, y, z, RCS, v_r, line of sight, sweep lag + decorations) into one
+//! d-dimensional feature space and unioned in the shared pillars: a pillar's feature is the sum
+//! of its LiDAR points' and its radar points' max-pooled features. The literal union, a maximum
+//! over all of a pillar's points, separates the motion fixture (`crates/cli/tests/fusion_motion.rs`)
+//! too: mAP 0.89 against the sum's 0.95 (LiDAR-only 0.42). The sum is kept because a cell's
+//! LiDAR maximum cannot hide its radar feature in a shared channel.
 
 use candle_nn::VarBuilder;
 use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::PillarNet;
-use hilo_fusion::{Fusion, FusionInput, FusionOutput, Registry, Result, Stage};
+use hilo_fusion::presets::pointpillars;
+use hilo_fusion::train::TrainConfig;
+use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct RawConfig {
     /// d: the shared feature width.
     pub channels: usize,
+}
+
+impl Default for RawConfig {
+    fn default() -> Self {
+        RawConfig { channels: 48 }
+    }
 }
 
 #[derive(Debug)]
 pub struct RawFusion {
     f_l: PillarNet,
     f_r: PillarNet,
-    cells: usize,
 }
 
-pub fn build(cfg: &serde_json::Value, grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
+pub fn build(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     let c: RawConfig = hilo_fusion::fusion::parse_config("raw", cfg)?;
     Ok(Box::new(RawFusion {
         f_l: PillarNet::new(LIDAR_FEATURES + 5, c.channels, vb.pp("f_l"))?,
         f_r: PillarNet::new(RADAR_FEATURES + 5, c.channels, vb.pp("f_r"))?,
-        cells: grid.cells(),
     }))
 }
 
-/// Registers `raw`.
+/// `pointpillars-lr`: PointPillars with a radar branch unioned in its pillars (the paper's
+/// PointPillars-LR), on `pointpillars`' backbone and head.
+pub fn pointpillars_lr() -> DetectorConfig {
+    DetectorConfig {
+        name: "pointpillars-lr".into(),
+        fusion: "raw".into(),
+        fusion_config: serde_json::json!({ "channels": 48 }),
+        ..pointpillars()
+    }
+}
+
+/// Registers `raw` and its preset `pointpillars-lr`.
 pub fn register(r: &mut Registry) -> Result<()> {
-    r.register("raw", build)
+    r.register("raw", Stage::Raw, build)?;
+    r.add_preset(Preset { detector: pointpillars_lr(), train: TrainConfig::default() })
 }
 
 impl Fusion for RawFusion {
-    fn stage(&self) -> Stage {
-        Stage::Raw
-    }
-    fn out_channels(&self) -> usize {
-        self.f_l.channels
-    }
-    fn uses_radar(&self) -> bool {
-        true
-    }
     fn forward(&self, input: &FusionInput, train: bool) -> Result<FusionOutput> {
-        let l = self.f_l.forward(input.lidar, input.batch, self.cells, train)?;
-        let r = self.f_r.forward(input.radar, input.batch, self.cells, train)?;
+        let l = self.f_l.forward(input.lidar, input.layout, train)?;
+        let r = self.f_r.forward(input.radar, input.layout, train)?;
         Ok(FusionOutput::Bev((l + r)?))
     }
 }

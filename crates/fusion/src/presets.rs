@@ -1,0 +1,78 @@
+//! The LiDAR-only presets, and the parts every preset shares: the grid, what the network reads,
+//! the sparse layout and the backbone shapes. Fusion presets are registered by their plugin
+//! crates, on top of these.
+
+use crate::data::InputConfig;
+use crate::decode::DecodeConfig;
+use crate::detector::DetectorConfig;
+use crate::fusion::Preset;
+use crate::grid::BevGrid;
+use crate::layout::SparseConfig;
+use crate::modules::{BackboneConfig, BlockConfig};
+use crate::targets::Assignment;
+use crate::train::TrainConfig;
+use hilo_dataset::background::BackgroundConfig;
+
+fn block(stride: usize, channels: usize, layers: usize) -> BlockConfig {
+    BlockConfig { stride, channels, layers }
+}
+
+/// What every preset reads: LiDAR without its static background, one radar sweep.
+pub fn default_input() -> InputConfig {
+    InputConfig { background: Some(BackgroundConfig::default()), ..InputConfig::default() }
+}
+
+/// `centerpoint`: PointPillars' pillar encoder (32 channels), a backbone at strides 2/4/8
+/// (32/64/128 channels), a neck back to the pillar grid (stride 1, 0.8 m cells, 16 channels per
+/// block), CenterPoint's head (Gaussian heatmaps, a 3×3 convolution of 16 channels per task,
+/// peak extraction), on the occupied cells only (sparse, head sites dilated by 2 cells). Left
+/// out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second refinement stage,
+/// multi-group heads, circular NMS.
+pub fn centerpoint() -> DetectorConfig {
+    DetectorConfig {
+        name: "centerpoint".into(),
+        fusion: "lidar".into(),
+        fusion_config: serde_json::json!({ "channels": 32 }),
+        grid: BevGrid::default(),
+        backbone: BackboneConfig {
+            blocks: vec![block(2, 32, 2), block(2, 64, 2), block(2, 128, 2)],
+            neck_channels: 16,
+            out_stride: 1,
+        },
+        assignment: Assignment::Center,
+        head_channels: 16,
+        decode: DecodeConfig::default(),
+        input: default_input(),
+        sparse: Some(SparseConfig::default()),
+    }
+}
+
+/// `pointpillars`: the same encoder at 48 channels, a backbone at strides 2/4/8 (48/96/128),
+/// neck to stride 2, and an anchor-free version of PointPillars' SSD head: 1×1 convolutions,
+/// every cell inside a box footprint is positive (instead of anchors matched by IoU), sigmoid
+/// focal loss, rotated-BEV NMS. Left out: anchors and their IoU matching, the direction
+/// classifier (yaw is regressed as sin/cos instead).
+pub fn pointpillars() -> DetectorConfig {
+    DetectorConfig {
+        name: "pointpillars".into(),
+        fusion: "lidar".into(),
+        fusion_config: serde_json::json!({ "channels": 48 }),
+        backbone: BackboneConfig {
+            blocks: vec![block(2, 48, 1), block(2, 96, 2), block(2, 128, 2)],
+            neck_channels: 48,
+            out_stride: 2,
+        },
+        assignment: Assignment::Inside,
+        head_channels: 0,
+        decode: crate::fusion::dense_head_decode(),
+        ..centerpoint()
+    }
+}
+
+/// The presets of the LiDAR-only plugin, with their training schedules.
+pub fn lidar_only() -> Vec<Preset> {
+    vec![
+        Preset { detector: centerpoint(), train: TrainConfig::default() },
+        Preset { detector: pointpillars(), train: TrainConfig::default() },
+    ]
+}
