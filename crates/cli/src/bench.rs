@@ -218,13 +218,13 @@ pub fn sensors(n_actors: usize, frames: usize) -> Result<SensorsReport> {
     let ne = SensorPose::new(Vec3::new(13.0, 16.6, 7.8), deg(-127.0), deg(10.0), 0.0);
     let sw = SensorPose::new(Vec3::new(-13.0, -16.6, 7.8), deg(53.0), deg(10.0), 0.0);
     let rp = SensorPose::new(Vec3::new(16.6, -7.0, 6.4), deg(165.0), deg(8.0), 0.0);
-    let base = crate::demo::demo_actors(&scene, n_actors, true, 1);
+    let base = hilo_study::demo::demo_actors(&scene, n_actors, true, 1);
     let dt = 1.0 / 20.0;
     let mut cheap = Vec::new();
     let mut high = Vec::new();
     let (mut cheap_pts, mut high_pts) = (0usize, 0usize);
     for f in 0..frames + 1 {
-        let actors = crate::demo::advance(&base, f as f32 * dt);
+        let actors = hilo_study::demo::advance(&base, f as f32 * dt);
         let t = Instant::now();
         // The sensors of a frame are independent: simulate them concurrently.
         let set = ActorSet::new(actors.clone())?;

@@ -49,7 +49,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let gt = match (&args.data, &args.gt) {
         (Some(root), _) => {
             let ds = hilo_dataset::Dataset::open(root, &args.version)?;
-            hilo_eval::ground_truth_from_dataset(&ds, &args.split)?
+            hilo_study::gt::ground_truth(
+                &ds,
+                &args.split,
+                hilo_study::gt::GtKind::VisibleOnly,
+                hilo_study::gt::SampleKey::Token,
+            )?
+            .0
         }
         (None, Some(p)) => read_ground_truth(p)?,
         (None, None) => bail!("give --data or --gt"),

@@ -2,16 +2,11 @@
 
 mod bench;
 mod dataset;
-mod demo;
 mod eval;
-mod place;
-mod render;
-mod report;
+mod progress;
 mod scan;
 mod simulate;
-mod study;
-mod study_run;
-mod tradeoff;
+mod stages;
 mod train;
 
 use anyhow::{Context, Result};
@@ -42,11 +37,11 @@ enum Command {
     /// Simulate one frame of one sensor on a scene with a few road users; write PCD or PLY.
     Scan(scan::ScanArgs),
     /// The end-to-end study: placement, datasets, training, evaluation, report.
-    Study(study_run::StudyArgs),
+    Study(stages::StudyArgs),
     /// Place each configuration of a study optimally (integer programming over visibility).
-    Place(place::PlaceArgs),
+    Place(stages::PlaceArgs),
     /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
-    Simulate(simulate::SimulateArgs),
+    Simulate(stages::SimulateArgs),
     /// Train a detector (a preset or a detector config of one's own) on a dataset's train split, on the CPU.
     Train(train::TrainArgs),
     /// Run a trained detector on a split and write a nuScenes submission.
@@ -170,25 +165,25 @@ fn main() -> Result<()> {
             if !(px_per_m.is_finite() && px_per_m > 0.0 && px_per_m <= 50.0) {
                 anyhow::bail!("--px-per-m must be in (0, 50], got {px_per_m}");
             }
-            let png = render::scene_png(&scene, px_per_m)?;
+            let png = hilo_study::render::scene_png(&scene, px_per_m)?;
             write_atomic(&out, &png)?;
             eprintln!("wrote {} ({})", out.display(), scene.source_name());
         }
         Command::Scene { command: SceneCommand::Info { scene } } => {
             let scene = load_scene(scene.as_deref())?;
-            println!("{}", serde_json::to_string_pretty(&render::scene_summary(&scene))?);
+            println!("{}", serde_json::to_string_pretty(&hilo_study::render::scene_summary(&scene))?);
         }
         Command::Scan(args) => scan::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
-        Command::Simulate(args) => simulate::run(&args)?,
+        Command::Simulate(args) => stages::simulate(&args)?,
         Command::Train(args) => train::run_train(&args)?,
         Command::Study(args) => {
-            study_run::run(&args)?;
+            stages::study(&args)?;
         }
         Command::Detect(args) => train::run_detect(&args)?,
         Command::Dataset { command: DatasetCommand::Stats(args) } => dataset::stats(&args)?,
         Command::Place(args) => {
-            place::run(&args)?;
+            stages::place(&args)?;
         }
         Command::Bench { command: BenchCommand::Eval { frames, max_pred, repeats, json } } => {
             let report = bench::eval(frames.max(1), max_pred, repeats.max(1))?;
@@ -227,14 +222,7 @@ fn main() -> Result<()> {
     Ok(())
 }
 
-/// Writes a file atomically: a temporary file in the same folder, then a rename, so a reader
-/// never sees half a file and an interrupted run leaves the old one intact.
+/// Writes a file atomically (temporary file, then rename; nothing left behind on failure).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let name = path.file_name().with_context(|| format!("{} is not a file path", path.display()))?;
-    let tmp = dir.join(format!(".{}.tmp{}", name.to_string_lossy(), std::process::id()));
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
-    Ok(())
+    Ok(hilo_study::files::write_atomic(path, bytes)?)
 }

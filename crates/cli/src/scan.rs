@@ -1,13 +1,13 @@
 //! `hilo scan`: one frame of one sensor, written as PCD or PLY, with an optional picture.
 
-use crate::demo::{actor_box, demo_actors};
-use crate::render::scene_canvas;
 use crate::{load_scene, write_atomic};
 use anyhow::{Context, Result, bail};
 use glam::Vec2;
 use hilo_raycast::{ActorSet, QueryRegion, World};
 use hilo_sensor_models::export::{to_pcd, to_ply};
 use hilo_sensor_models::{Catalog, SensorPose, SensorSpec, simulate_lidar, simulate_radar};
+use hilo_study::demo::{actor_box, demo_actors};
+use hilo_study::render::scene_canvas;
 use std::path::PathBuf;
 
 /// A dot to draw: local-frame position and RGB colour.

@@ -45,14 +45,9 @@ pub struct TrainArgs {
     pub seed: Option<u64>,
 }
 
-/// Every fusion plugin hilo ships: adding one is one crate and one line here.
+/// Every fusion plugin hilo ships (the umbrella crate's list).
 pub fn registry() -> Result<Registry> {
-    let mut r = Registry::with_builtin();
-    hilo_fusion_raw::register(&mut r)?;
-    hilo_fusion_early::register(&mut r)?;
-    hilo_fusion_middle::register(&mut r)?;
-    hilo_fusion_late::register(&mut r)?;
-    Ok(r)
+    Ok(hilo::registry()?)
 }
 
 /// A preset by name, optionally without its early stage (the paper's ablation), and its
@@ -120,12 +115,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         );
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let bar = indicatif::ProgressBar::new(cfg.steps() as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps, ETA {eta}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    let mut bar = crate::progress::Reporter::new();
+    let label = format!("train {}", det.name);
+    let steps = cfg.steps();
     let log_path = args.out.join("loss.jsonl");
     let mut log = std::fs::OpenOptions::new()
         .create(true)
@@ -134,14 +126,14 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         .with_context(|| format!("opening {}", log_path.display()))?;
     let mut warned = false;
     let mut on_step = |r: &StepReport| {
-        bar.set_position(r.step as u64);
-        bar.set_message(format!(
+        bar.task(&label, r.step, steps, "steps");
+        bar.message(format!(
             "{} loss {:.3} (cls {:.3}, reg {:.3}) {:.1} samples/s",
             det.name, r.loss, r.cls, r.reg, r.samples_per_s
         ));
         if r.dropped_pillars > 0 && !warned {
             warned = true;
-            bar.println(format!(
+            bar.line(&format!(
                 "warning: step {}: {} pillars over the grid's max_pillars were left out (a uniform sample is kept)",
                 r.step, r.dropped_pillars
             ));
@@ -164,7 +156,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         &mut on_step,
     )
     .with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
-    bar.finish_and_clear();
+    bar.finish();
     eprintln!(
         "trained {} on {} frames: {} steps, {} samples in {:.1} s ({} points over the pillar cap left out); weights in {}",
         det.name,
@@ -207,10 +199,11 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     let (frames, _) =
         hilo_fusion::data::load_split(&ds, &args.split, &LoadOptions::new(&det.cfg.input, background.as_ref()))
             .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
-    let bar = indicatif::ProgressBar::new(frames.len() as u64);
+    let mut bar = crate::progress::Reporter::new();
+    let total = frames.len();
     let (dets, per_frame) =
-        hilo_fusion::infer::detect_frames(&det, &frames, args.batch, &mut |n| bar.set_position(n as u64))?;
-    bar.finish_and_clear();
+        hilo_fusion::infer::detect_frames(&det, &frames, args.batch, &mut |n| bar.task("detect", n, total, "frames"))?;
+    bar.finish();
     let meta = serde_json::json!({ "use_camera": false, "use_lidar": true, "use_radar": det.uses_radar(), "use_map": false, "use_external": false, "detector": det.cfg.name });
     let json = hilo_eval::boxes::submission_json(&hilo_eval::boxes::from_detections(&dets), meta);
     crate::write_atomic(&args.out, serde_json::to_string(&json)?.as_bytes())?;

@@ -312,7 +312,8 @@ fn small_dataset(root: &std::path::Path) -> Vec<String> {
                 }],
             })
             .collect();
-        w.add_scene(&SceneData { name: (*name).into(), description: String::new(), frames }, "x").unwrap();
+        w.add_scene(&SceneData { name: (*name).into(), description: String::new(), frames, sweeps: Vec::new() }, "x")
+            .unwrap();
     }
     w.write_splits(&[("val".to_owned(), vec!["scene-b".to_owned()])].into_iter().collect()).unwrap();
     let t = w.finish().unwrap();

@@ -112,11 +112,7 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
 
 #[test]
 fn every_fusion_preset_separates_classes_that_differ_only_by_motion() {
-    let mut r = Registry::with_builtin();
-    hilo_fusion_raw::register(&mut r).unwrap();
-    hilo_fusion_early::register(&mut r).unwrap();
-    hilo_fusion_middle::register(&mut r).unwrap();
-    hilo_fusion_late::register(&mut r).unwrap();
+    let r = hilo::registry().unwrap();
     // 200 training frames: with 24, a detector could tell the classes apart by memorising where
     // each object stood (the point features hold absolute x, y), and every preset, LiDAR-only
     // or not, ended between 0.3 and 0.7 with gaps within run-to-run noise. With 200 no position

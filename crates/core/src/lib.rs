@@ -11,6 +11,7 @@
 mod boxes;
 mod class;
 mod frame;
+pub mod fs;
 pub mod iou;
 mod points;
 

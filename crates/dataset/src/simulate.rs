@@ -10,7 +10,7 @@
 
 use crate::error::DatasetError;
 use crate::traffic::{ActorState, Traffic, TrafficConfig};
-use crate::writer::{Annotation, FrameData, SceneData};
+use crate::writer::{Annotation, FrameData, RadarSweep, SceneData};
 use glam::Vec3;
 use hilo_raycast::{Actor, ActorSet, HitTarget, Ray, Scene, World};
 use hilo_sensor_models::{SensorPose, SensorSpec, simulate_lidar, simulate_radar};
@@ -18,17 +18,29 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// Dataset settings (`[dataset]` in a study file).
+///
+/// Training and validation are scenes of their own traffic seeds, recorded at their own rates:
+/// adjacent frames a tenth of a second apart are near duplicates, so validation spends its
+/// frames on many scenes at a low rate (the scene is the unit a confidence interval resamples),
+/// while training may record fewer scenes densely. Between key frames the radars also record
+/// sweeps at `sweep_rate_hz` (nuScenes' non-key-frame sample_data), so a detector can stack a
+/// radar's last sweeps however far apart the key frames are.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimulateConfig {
+    /// Training scenes, their length (s) and key frames per second.
     pub scenes: usize,
     pub seconds: f64,
-    /// Frames per second (keyframes; every frame is annotated).
     pub rate_hz: f64,
+    /// Validation scenes (other traffic seeds), their length and key frames per second.
+    pub val_scenes: usize,
+    pub val_seconds: f64,
+    pub val_rate_hz: f64,
+    /// Radar sweeps per second, key frames included (a multiple of both key-frame rates);
+    /// the radar's sweeps between key frames are written as non-key-frame sample_data.
+    pub sweep_rate_hz: f64,
     /// Seed of the traffic and of the sensor noise.
     pub seed: u64,
-    /// Share of scenes in the validation split (the paper: 20%).
-    pub val_fraction: f64,
     /// Road users farther than this from the scene origin are not annotated.
     pub annotate_radius_m: f32,
     pub traffic: TrafficConfig,
@@ -40,10 +52,54 @@ impl Default for SimulateConfig {
             scenes: 10,
             seconds: 20.0,
             rate_hz: 10.0,
+            val_scenes: 20,
+            val_seconds: 20.0,
+            val_rate_hz: 2.0,
+            sweep_rate_hz: 10.0,
             seed: 0,
-            val_fraction: 0.2,
             annotate_radius_m: 70.0,
             traffic: TrafficConfig::default(),
+        }
+    }
+}
+
+/// The two splits of a dataset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Split {
+    Train,
+    Val,
+}
+
+impl Split {
+    pub fn name(self) -> &'static str {
+        match self {
+            Split::Train => "train",
+            Split::Val => "val",
+        }
+    }
+}
+
+/// Scene `index` of a split: its name, traffic seed stream and start time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SceneId {
+    pub split: Split,
+    pub index: usize,
+}
+
+impl SceneId {
+    /// `scene-0007` (training) or `val-0007`.
+    pub fn name(&self) -> String {
+        match self.split {
+            Split::Train => scene_name(self.index),
+            Split::Val => format!("val-{:04}", self.index),
+        }
+    }
+
+    /// The stream its seeds derive from: validation scenes never share a training scene's.
+    fn stream(&self) -> u64 {
+        match self.split {
+            Split::Train => self.index as u64,
+            Split::Val => 1_000_000 + self.index as u64,
         }
     }
 }
@@ -52,22 +108,31 @@ impl SimulateConfig {
     pub fn validate(&self) -> Result<(), DatasetError> {
         let bad = |f: &str, v: String, why: &str| Err(DatasetError::Invalid(format!("dataset.{f} = {v}: {why}")));
         if self.scenes == 0 {
-            return bad("scenes", "0".into(), "at least one scene is needed");
+            return bad("scenes", "0".into(), "at least one training scene is needed");
         }
-        if !(self.seconds > 0.0 && self.seconds <= 3600.0) {
-            return bad("seconds", self.seconds.to_string(), "must be in (0, 3600]");
+        for (f, v) in [("seconds", self.seconds), ("val_seconds", self.val_seconds)] {
+            if !(v > 0.0 && v <= 3600.0) {
+                return bad(f, v.to_string(), "must be in (0, 3600]");
+            }
         }
         let step = self.traffic.step_s;
-        let per = 1.0 / (self.rate_hz * step);
-        if self.rate_hz.is_nan() || self.rate_hz <= 0.0 || (per - per.round()).abs() > 1e-6 || per.round() < 1.0 {
+        let per = 1.0 / (self.sweep_rate_hz * step);
+        if self.sweep_rate_hz.is_nan()
+            || self.sweep_rate_hz <= 0.0
+            || (per - per.round()).abs() > 1e-6
+            || per.round() < 1.0
+        {
             return bad(
-                "rate_hz",
-                self.rate_hz.to_string(),
+                "sweep_rate_hz",
+                self.sweep_rate_hz.to_string(),
                 &format!("must divide the traffic rate {} Hz (1 / traffic.step_s)", 1.0 / step),
             );
         }
-        if !(0.0..1.0).contains(&self.val_fraction) {
-            return bad("val_fraction", self.val_fraction.to_string(), "must be in [0, 1)");
+        for (f, r) in [("rate_hz", self.rate_hz), ("val_rate_hz", self.val_rate_hz)] {
+            let k = self.sweep_rate_hz / r;
+            if r.is_nan() || r <= 0.0 || (k - k.round()).abs() > 1e-6 || k.round() < 1.0 {
+                return bad(f, r.to_string(), &format!("must divide sweep_rate_hz = {} Hz", self.sweep_rate_hz));
+            }
         }
         if self.annotate_radius_m.is_nan() || self.annotate_radius_m <= 0.0 {
             return bad("annotate_radius_m", self.annotate_radius_m.to_string(), "must be > 0");
@@ -75,19 +140,44 @@ impl SimulateConfig {
         Ok(())
     }
 
+    /// Key frames of a training scene.
     pub fn frames_per_scene(&self) -> usize {
         (self.seconds * self.rate_hz).round() as usize
     }
 
-    /// Scene names in order, and which are in the validation split (the last ones, so that
-    /// adding scenes never moves an existing scene between splits… unless the count changes
-    /// the rounding; the split is recorded in the dataset).
+    /// Key frames of a validation scene.
+    pub fn val_frames_per_scene(&self) -> usize {
+        (self.val_seconds * self.val_rate_hz).round() as usize
+    }
+
+    /// Key frames of the whole dataset.
+    pub fn total_frames(&self) -> usize {
+        self.scenes * self.frames_per_scene() + self.val_scenes * self.val_frames_per_scene()
+    }
+
+    /// Every scene, training first.
+    pub fn scene_ids(&self) -> Vec<SceneId> {
+        (0..self.scenes)
+            .map(|index| SceneId { split: Split::Train, index })
+            .chain((0..self.val_scenes).map(|index| SceneId { split: Split::Val, index }))
+            .collect()
+    }
+
+    /// Key frames of one scene.
+    pub fn frames_of(&self, id: &SceneId) -> usize {
+        match id.split {
+            Split::Train => self.frames_per_scene(),
+            Split::Val => self.val_frames_per_scene(),
+        }
+    }
+
+    /// Scene names of each split.
     pub fn splits(&self) -> BTreeMap<String, Vec<String>> {
-        let n_val = ((self.scenes as f64) * self.val_fraction).round() as usize;
-        let n_val = if self.val_fraction > 0.0 { n_val.clamp(1, self.scenes.saturating_sub(1).max(1)) } else { 0 };
-        let names: Vec<String> = (0..self.scenes).map(scene_name).collect();
-        let cut = self.scenes - n_val.min(self.scenes);
-        BTreeMap::from([("train".to_string(), names[..cut].to_vec()), ("val".to_string(), names[cut..].to_vec())])
+        let mut m: BTreeMap<String, Vec<String>> = BTreeMap::from([("train".into(), vec![]), ("val".into(), vec![])]);
+        for id in self.scene_ids() {
+            m.entry(id.split.name().to_owned()).or_default().push(id.name());
+        }
+        m
     }
 }
 
@@ -115,10 +205,10 @@ pub struct RigSensor {
     pub pose: SensorPose,
 }
 
-/// The start of scene `index` in µs: scenes are an hour apart (the devkit orders scenes by start
-/// time and needs them distinct).
-pub fn scene_start_us(index: usize) -> u64 {
-    1_767_225_600_000_000 + index as u64 * 3_600_000_000
+/// The start of a scene in µs: scenes are an hour apart (the devkit orders scenes by start
+/// time and needs them distinct), validation scenes after every training scene.
+pub fn scene_start_us(id: &SceneId) -> u64 {
+    1_767_225_600_000_000 + id.stream() * 3_600_000_000
 }
 
 fn actor_of(a: &ActorState) -> Actor {
@@ -159,89 +249,120 @@ fn visibility(world: &World, actors: &ActorSet, a: &ActorState, eyes: &[Vec3]) -
     }
 }
 
-/// Simulates scene `index` for the rig: traffic, scans, annotations.
+/// Simulates one scene for the rig: traffic, scans, annotations, radar sweeps between key frames.
 pub fn simulate_scene(
     scene: &Scene,
     world: &World,
     rig: &[RigSensor],
     cfg: &SimulateConfig,
-    index: usize,
+    id: &SceneId,
 ) -> Result<SceneData, DatasetError> {
-    simulate_scene_with(scene, world, rig, cfg, index, &|_| {})
+    simulate_scene_with(scene, world, rig, cfg, id, &|_| {})
 }
 
-/// [`simulate_scene`], calling `on_frame` with the number of frames done after each frame.
+/// [`simulate_scene`], calling `on_frame` with the number of key frames done after each one.
 pub fn simulate_scene_with(
     scene: &Scene,
     world: &World,
     rig: &[RigSensor],
     cfg: &SimulateConfig,
-    index: usize,
+    id: &SceneId,
     on_frame: &(dyn Fn(usize) + Sync),
 ) -> Result<SceneData, DatasetError> {
     cfg.validate()?;
-    let mut traffic =
-        Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, index as u64]))?;
-    let steps_per_frame = (1.0 / (cfg.rate_hz * cfg.traffic.step_s)).round() as usize;
-    let start = scene_start_us(index);
-    let frame_us = (1e6 / cfg.rate_hz).round() as u64;
+    let stream = id.stream();
+    let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, stream]))?;
+    let rate = match id.split {
+        Split::Train => cfg.rate_hz,
+        Split::Val => cfg.val_rate_hz,
+    };
+    let per_key = (cfg.sweep_rate_hz / rate).round() as usize;
+    let steps_per_sweep = (1.0 / (cfg.sweep_rate_hz * cfg.traffic.step_s)).round() as usize;
+    let start = scene_start_us(id);
+    let sweep_us = (1e6 / cfg.sweep_rate_hz).round() as u64;
+    let n_frames = cfg.frames_of(id);
     let eyes: Vec<Vec3> =
         rig.iter().filter(|s| matches!(s.spec, SensorSpec::Lidar(_))).map(|s| s.pose.position).collect();
-    let mut frames = Vec::with_capacity(cfg.frames_per_scene());
-    for f in 0..cfg.frames_per_scene() {
-        let states = traffic.snapshot();
-        let set = ActorSet::new(states.iter().map(actor_of).collect())
-            .map_err(|e| DatasetError::Invalid(format!("scene {index} frame {f}: {e}")))?;
-        let mut lidar = Vec::new();
-        let mut radar = Vec::new();
-        let mut lidar_pts: BTreeMap<u32, u32> = BTreeMap::new();
-        let mut radar_pts: BTreeMap<u32, u32> = BTreeMap::new();
-        for (k, s) in rig.iter().enumerate() {
-            let noise = derive_seed(cfg.seed, &[2, index as u64, f as u64, k as u64]);
-            let err = |e: hilo_sensor_models::SensorError| DatasetError::Invalid(format!("sensor {}: {e}", s.channel));
-            match &s.spec {
-                SensorSpec::Lidar(l) => {
-                    let scan = simulate_lidar(l, &s.pose, world, Some(&set), noise).map_err(err)?;
-                    for (id, n) in scan.points_per_actor() {
-                        *lidar_pts.entry(id).or_default() += n as u32;
-                    }
-                    lidar.push(scan.points);
-                }
-                SensorSpec::Radar(r) => {
-                    let scan = simulate_radar(r, &s.pose, world, Some(&set), noise).map_err(err)?;
-                    for src in &scan.sources {
-                        if let Some(id) = src.actor() {
-                            *radar_pts.entry(id).or_default() += 1;
+    let has_radar = rig.iter().any(|s| matches!(s.spec, SensorSpec::Radar(_)));
+    let mut frames = Vec::with_capacity(n_frames);
+    let mut sweeps = Vec::new();
+    for m in 0..=(n_frames.saturating_sub(1) * per_key) {
+        let key = m % per_key == 0;
+        let f = m / per_key;
+        if key || has_radar {
+            let states = traffic.snapshot();
+            let set = ActorSet::new(states.iter().map(actor_of).collect())
+                .map_err(|e| DatasetError::Invalid(format!("scene {} sweep {m}: {e}", id.name())))?;
+            let mut lidar = Vec::new();
+            let mut radar = Vec::new();
+            let mut lidar_pts: BTreeMap<u32, u32> = BTreeMap::new();
+            let mut radar_pts: BTreeMap<u32, u32> = BTreeMap::new();
+            for (k, s) in rig.iter().enumerate() {
+                let noise = if key {
+                    derive_seed(cfg.seed, &[2, stream, f as u64, k as u64])
+                } else {
+                    derive_seed(cfg.seed, &[4, stream, m as u64, k as u64])
+                };
+                let err =
+                    |e: hilo_sensor_models::SensorError| DatasetError::Invalid(format!("sensor {}: {e}", s.channel));
+                match &s.spec {
+                    SensorSpec::Lidar(l) if key => {
+                        let scan = simulate_lidar(l, &s.pose, world, Some(&set), noise).map_err(err)?;
+                        for (a, n) in scan.points_per_actor() {
+                            *lidar_pts.entry(a).or_default() += n as u32;
                         }
+                        lidar.push(scan.points);
                     }
-                    radar.push(scan.points);
+                    SensorSpec::Lidar(_) => {}
+                    SensorSpec::Radar(r) => {
+                        let scan = simulate_radar(r, &s.pose, world, Some(&set), noise).map_err(err)?;
+                        for src in &scan.sources {
+                            if let Some(a) = src.actor() {
+                                *radar_pts.entry(a).or_default() += 1;
+                            }
+                        }
+                        radar.push(scan.points);
+                    }
                 }
             }
+            let timestamp_us = start + m as u64 * sweep_us;
+            if key {
+                let annotations = states
+                    .iter()
+                    .filter(|a| a.box3.center.truncate().length() <= cfg.annotate_radius_m)
+                    .map(|a| Annotation {
+                        instance: a.id,
+                        class: a.class,
+                        box3: a.box3,
+                        velocity_mps: a.velocity_mps,
+                        attribute: a.attribute.to_string(),
+                        num_lidar_pts: lidar_pts.get(&a.id).copied().unwrap_or(0),
+                        num_radar_pts: radar_pts.get(&a.id).copied().unwrap_or(0),
+                        visibility: visibility(world, &set, a, &eyes),
+                    })
+                    .collect();
+                frames.push(FrameData { timestamp_us, lidar, radar, annotations });
+                on_frame(f + 1);
+            } else {
+                sweeps.push(RadarSweep { timestamp_us, radar });
+            }
         }
-        let annotations = states
-            .iter()
-            .filter(|a| a.box3.center.truncate().length() <= cfg.annotate_radius_m)
-            .map(|a| Annotation {
-                instance: a.id,
-                class: a.class,
-                box3: a.box3,
-                velocity_mps: a.velocity_mps,
-                attribute: a.attribute.to_string(),
-                num_lidar_pts: lidar_pts.get(&a.id).copied().unwrap_or(0),
-                num_radar_pts: radar_pts.get(&a.id).copied().unwrap_or(0),
-                visibility: visibility(world, &set, a, &eyes),
-            })
-            .collect();
-        frames.push(FrameData { timestamp_us: start + f as u64 * frame_us, lidar, radar, annotations });
-        on_frame(f + 1);
-        for _ in 0..steps_per_frame {
+        for _ in 0..steps_per_sweep {
             traffic.step();
         }
     }
     Ok(SceneData {
-        name: scene_name(index),
-        description: format!("hilo traffic, seed {}, {} s at {} Hz", cfg.seed, cfg.seconds, cfg.rate_hz),
+        name: id.name(),
+        description: format!(
+            "hilo traffic, seed {}, {} scene, {} key frames at {} Hz, radar sweeps at {} Hz",
+            cfg.seed,
+            id.split.name(),
+            n_frames,
+            rate,
+            cfg.sweep_rate_hz
+        ),
         frames,
+        sweeps,
     })
 }
 
@@ -249,8 +370,9 @@ pub fn simulate_scene_with(
 #[derive(Clone, Debug, Serialize)]
 pub struct WriteSummary {
     pub scenes: usize,
-    /// Scenes found complete from an earlier run and kept.
+    /// Scenes found complete from an earlier run and kept, and their key frames.
     pub resumed_scenes: usize,
+    pub resumed_frames: usize,
     pub frames: usize,
     pub annotations: usize,
     pub bytes_written: u64,
@@ -324,17 +446,17 @@ pub fn write_dataset(
         .collect();
     let mut writer = DatasetWriter::new(root, version, namespace, setups)?;
     let location = scene.config.name.clone();
-    let per_scene = cfg.frames_per_scene();
     let mut summary = WriteSummary {
-        scenes: cfg.scenes,
+        scenes: cfg.scenes + cfg.val_scenes,
         resumed_scenes: 0,
+        resumed_frames: 0,
         frames: 0,
         annotations: 0,
         bytes_written: 0,
         seconds: 0.0,
     };
-    for index in 0..cfg.scenes {
-        let part = parts_dir(root).join(format!("{}.json", scene_name(index)));
+    for id in cfg.scene_ids() {
+        let part = parts_dir(root).join(format!("{}.json", id.name()));
         let rows: Option<crate::tables::Tables> = match std::fs::read(&part) {
             Ok(bytes) => Some(
                 serde_json::from_slice(&bytes)
@@ -347,10 +469,11 @@ pub fn write_dataset(
                 summary.annotations += rows.sample_annotation.len();
                 writer.add_rows(rows)?;
                 summary.resumed_scenes += 1;
+                summary.resumed_frames += cfg.frames_of(&id);
             }
             None => {
                 let done = summary.frames;
-                let data = simulate_scene_with(scene, world, rig, cfg, index, &|f| progress(done + f))?;
+                let data = simulate_scene_with(scene, world, rig, cfg, &id, &|f| progress(done + f))?;
                 summary.bytes_written += data
                     .frames
                     .iter()
@@ -358,7 +481,8 @@ pub fn write_dataset(
                         f.lidar.iter().map(|c| c.len() as u64 * 20).sum::<u64>()
                             + f.radar.iter().map(|c| c.len() as u64 * 28).sum::<u64>()
                     })
-                    .sum::<u64>();
+                    .sum::<u64>()
+                    + data.sweeps.iter().flat_map(|s| &s.radar).map(|c| c.len() as u64 * 28).sum::<u64>();
                 let rows = writer.add_scene_rows(&data, &location)?;
                 summary.annotations += rows.sample_annotation.len();
                 let bytes = serde_json::to_vec(&rows)
@@ -366,7 +490,7 @@ pub fn write_dataset(
                 write_atomic(&part, &bytes)?;
             }
         }
-        summary.frames += per_scene;
+        summary.frames += cfg.frames_of(&id);
         progress(summary.frames);
     }
     writer.write_splits(&cfg.splits())?;

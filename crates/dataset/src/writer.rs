@@ -65,7 +65,19 @@ pub struct FrameData {
 pub struct SceneData {
     pub name: String,
     pub description: String,
+    /// Key frames: every sensor, annotated.
     pub frames: Vec<FrameData>,
+    /// Radar sweeps between key frames (nuScenes' non-key-frame sample_data), in time order:
+    /// what a detector stacks to see motion when key frames are far apart.
+    pub sweeps: Vec<RadarSweep>,
+}
+
+/// One radar sweep at a time without a key frame: each radar's points, in the order of the
+/// dataset's radar sensors.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RadarSweep {
+    pub timestamp_us: u64,
+    pub radar: Vec<Vec<RadarPoint>>,
 }
 
 /// nuScenes category name of a class.
@@ -107,15 +119,9 @@ pub fn token(parts: &[&str]) -> String {
     format!("{a:016x}{b:016x}")
 }
 
-/// Writes `bytes` to `path` through a temporary file and a rename.
+/// Writes `bytes` to `path` atomically ([`hilo_core::fs::write_atomic`]), naming the file in errors.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
-    let io = |e| DatasetError::Io { path: path.to_path_buf(), source: e };
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(io)?;
-    }
-    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
-    std::fs::write(&tmp, bytes).map_err(|e| DatasetError::Io { path: tmp.clone(), source: e })?;
-    std::fs::rename(&tmp, path).map_err(io)
+    hilo_core::fs::write_atomic(path, bytes).map_err(|e| DatasetError::Io { path: path.to_path_buf(), source: e })
 }
 
 /// LiDAR points as nuScenes `.pcd.bin` bytes.
@@ -294,7 +300,7 @@ impl DatasetWriter {
                 });
             }
         }
-        // Samples and sample data.
+        // Samples.
         for (fi, f) in scene.frames.iter().enumerate() {
             t.sample.push(Sample {
                 token: sample_tokens[fi].clone(),
@@ -303,37 +309,72 @@ impl DatasetWriter {
                 next: sample_tokens.get(fi + 1).cloned().unwrap_or_default(),
                 scene_token: scene_token.clone(),
             });
-            let clouds: Vec<(&SensorSetup, Vec<u8>, &str)> = lidar
-                .iter()
-                .zip(&f.lidar)
-                .map(|(s, p)| (*s, lidar_bin(p), "pcd.bin"))
-                .chain(radar.iter().zip(&f.radar).map(|(s, p)| (*s, to_pcd(p), "pcd")))
-                .collect();
-            for (s, bytes, ext) in clouds {
-                let sd_token = token(&[&ns, "sample_data", &s.channel, &sample_tokens[fi]]);
-                let filename = format!("samples/{}/{}__{}__{}.{ext}", s.channel, scene.name, s.channel, f.timestamp_us);
+        }
+        if let Some(sw) = scene.sweeps.iter().find(|sw| sw.radar.len() != radar.len()) {
+            return Err(DatasetError::Invalid(format!(
+                "scene {:?}: the sweep at {} µs has {} radar clouds for {} radars",
+                scene.name,
+                sw.timestamp_us,
+                sw.radar.len(),
+                radar.len()
+            )));
+        }
+        // Sample data: per channel, its chain in time order (radars: key frames and sweeps);
+        // a sweep belongs to the first key frame at or after it (the one that stacks it).
+        let channels = lidar.iter().map(|s| (*s, true)).chain(radar.iter().map(|s| (*s, false)));
+        for (ci, (s, is_lidar)) in channels.enumerate() {
+            let k = if is_lidar { ci } else { ci - lidar.len() };
+            // (timestamp, key frame index or None for a sweep, sweep index)
+            let mut chain: Vec<(u64, Option<usize>, usize)> =
+                scene.frames.iter().enumerate().map(|(fi, f)| (f.timestamp_us, Some(fi), 0)).collect();
+            if !is_lidar {
+                chain.extend(scene.sweeps.iter().enumerate().map(|(si, sw)| (sw.timestamp_us, None, si)));
+                chain.sort_by_key(|c| c.0);
+                if chain.windows(2).any(|w| w[0].0 == w[1].0) {
+                    return Err(DatasetError::Invalid(format!(
+                        "scene {:?}: a radar sweep shares a key frame's time",
+                        scene.name
+                    )));
+                }
+            }
+            let sd_token = |c: &(u64, Option<usize>, usize)| match c.1 {
+                Some(fi) => token(&[&ns, "sample_data", &s.channel, &sample_tokens[fi]]),
+                None => token(&[&ns, "sample_data", &s.channel, "sweep", &c.0.to_string()]),
+            };
+            for (i, c) in chain.iter().enumerate() {
+                let (bytes, ext) = match c.1 {
+                    Some(fi) if is_lidar => (lidar_bin(&scene.frames[fi].lidar[k]), "pcd.bin"),
+                    Some(fi) => (to_pcd(&scene.frames[fi].radar[k]), "pcd"),
+                    None => (to_pcd(&scene.sweeps[c.2].radar[k]), "pcd"),
+                };
+                let folder = if c.1.is_some() { "samples" } else { "sweeps" };
+                let filename = format!("{folder}/{}/{}__{}__{}.{ext}", s.channel, scene.name, s.channel, c.0);
                 write_atomic(&self.root.join(&filename), &bytes)?;
-                let ego = token(&[&ns, "ego_pose", &s.channel, &sample_tokens[fi]]);
+                let owner = match c.1 {
+                    Some(fi) => fi,
+                    None => scene.frames.iter().position(|f| f.timestamp_us >= c.0).unwrap_or(scene.frames.len() - 1),
+                };
+                let token_here = sd_token(c);
+                let ego = token(&[&ns, "ego_pose", &token_here]);
                 t.ego_pose.push(EgoPose {
                     token: ego.clone(),
-                    timestamp: f.timestamp_us,
+                    timestamp: c.0,
                     rotation: [1.0, 0.0, 0.0, 0.0],
                     translation: [0.0; 3],
                 });
-                let link = |k: usize| token(&[&ns, "sample_data", &s.channel, &sample_tokens[k]]);
                 t.sample_data.push(SampleData {
-                    token: sd_token,
-                    sample_token: sample_tokens[fi].clone(),
+                    token: token_here,
+                    sample_token: sample_tokens[owner].clone(),
                     ego_pose_token: ego,
                     calibrated_sensor_token: token(&[&ns, "calibrated_sensor", &s.channel]),
-                    timestamp: f.timestamp_us,
+                    timestamp: c.0,
                     fileformat: "pcd".into(),
-                    is_key_frame: true,
+                    is_key_frame: c.1.is_some(),
                     height: 0,
                     width: 0,
                     filename,
-                    prev: if fi > 0 { link(fi - 1) } else { String::new() },
-                    next: if fi + 1 < scene.frames.len() { link(fi + 1) } else { String::new() },
+                    prev: if i > 0 { sd_token(&chain[i - 1]) } else { String::new() },
+                    next: chain.get(i + 1).map(sd_token).unwrap_or_default(),
                 });
             }
         }

@@ -91,7 +91,7 @@ fn scene(name: &str, frames: usize) -> SceneData {
             FrameData { timestamp_us: base + 50_000 * f as u64, lidar, radar, annotations }
         })
         .collect();
-    SceneData { name: name.into(), description: "test".into(), frames }
+    SceneData { name: name.into(), description: "test".into(), frames, sweeps: Vec::new() }
 }
 
 fn write(root: &Path) -> hilo_dataset::tables::Tables {

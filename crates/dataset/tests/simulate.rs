@@ -7,7 +7,7 @@ mod common;
 
 use glam::{Vec2, Vec3};
 use hilo_dataset::Dataset;
-use hilo_dataset::simulate::{RigSensor, SimulateConfig, simulate_scene, write_dataset};
+use hilo_dataset::simulate::{RigSensor, SceneId, SimulateConfig, Split, simulate_scene, write_dataset};
 use hilo_raycast::{QueryRegion, Scene, World};
 use hilo_sensor_models::{Catalog, SensorPose};
 use std::path::Path;
@@ -33,7 +33,21 @@ fn rig(scene: &Scene) -> Vec<RigSensor> {
 }
 
 fn cfg() -> SimulateConfig {
-    SimulateConfig { scenes: 3, seconds: 2.0, rate_hz: 10.0, seed: 5, ..SimulateConfig::default() }
+    SimulateConfig {
+        scenes: 3,
+        seconds: 2.0,
+        rate_hz: 10.0,
+        val_scenes: 2,
+        val_seconds: 2.0,
+        val_rate_hz: 2.0,
+        sweep_rate_hz: 10.0,
+        seed: 5,
+        ..SimulateConfig::default()
+    }
+}
+
+fn train(index: usize) -> SceneId {
+    SceneId { split: Split::Train, index }
 }
 
 fn world(scene: &Scene) -> World {
@@ -63,12 +77,37 @@ fn simulated_datasets_round_trip_are_deterministic_and_resume() {
     let (w, r, c) = (world(&scene), rig(&scene), cfg());
     let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     let sa = write_dataset(&scene, &w, &r, &c, a.path(), "v1.0-trainval", "test", &|_| {}).unwrap();
-    assert_eq!((sa.frames, sa.resumed_scenes), (60, 0));
+    // 3 training scenes of 20 key frames (10 Hz), 2 validation scenes of 4 (2 Hz).
+    assert_eq!((sa.frames, sa.resumed_scenes), (68, 0));
     // Round trip: the reader gives back what the simulation produced.
     let ds = Dataset::open(a.path(), "v1.0-trainval").unwrap();
-    assert_eq!(ds.tables.sample.len(), 60);
-    assert_eq!(ds.split("train").unwrap().len() + ds.split("val").unwrap().len(), 3);
-    let direct = simulate_scene(&scene, &w, &r, &c, 1).unwrap();
+    assert_eq!(ds.tables.sample.len(), 68);
+    assert_eq!(ds.split("train").unwrap(), ["scene-0000", "scene-0001", "scene-0002"]);
+    assert_eq!(ds.split("val").unwrap(), ["val-0000", "val-0001"]);
+    // Validation scenes record the radar's sweeps between key frames (10 Hz): 4 between each
+    // pair of key frames, linked in time order, none for LiDAR.
+    let sweeps: Vec<_> = ds.tables.sample_data.iter().filter(|s| !s.is_key_frame).collect();
+    assert_eq!(sweeps.len(), 2 * 3 * 4);
+    assert!(sweeps.iter().all(|s| s.filename.starts_with("sweeps/RADAR_0/val-")));
+    let by_token: std::collections::HashMap<&str, _> =
+        ds.tables.sample_data.iter().map(|s| (s.token.as_str(), s)).collect();
+    let key = ds
+        .tables
+        .sample_data
+        .iter()
+        .filter(|s| s.is_key_frame && s.filename.contains("RADAR_0/val-0001"))
+        .max_by_key(|s| s.timestamp)
+        .unwrap();
+    let mut cur = key;
+    for _ in 0..4 {
+        let prev = by_token[cur.prev.as_str()];
+        assert!(
+            !prev.is_key_frame && cur.timestamp - prev.timestamp == 100_000 && prev.sample_token == key.sample_token
+        );
+        cur = prev;
+    }
+    assert!(by_token[cur.prev.as_str()].is_key_frame);
+    let direct = simulate_scene(&scene, &w, &r, &c, &train(1)).unwrap();
     let scene_row = ds.tables.scene.iter().find(|s| s.name == "scene-0001").unwrap();
     let first = ds.tables.sample.iter().find(|s| s.token == scene_row.first_sample_token).unwrap();
     assert_eq!(first.timestamp, direct.frames[0].timestamp_us);
@@ -97,7 +136,7 @@ fn simulated_datasets_round_trip_are_deterministic_and_resume() {
     std::fs::remove_file(b.path().join(".hilo/parts/scene-0002.json")).unwrap();
     std::fs::remove_file(b.path().join("v1.0-trainval/sample.json")).unwrap();
     let sb = write_dataset(&scene, &w, &r, &c, b.path(), "v1.0-trainval", "test", &|_| {}).unwrap();
-    assert_eq!(sb.resumed_scenes, 2);
+    assert_eq!(sb.resumed_scenes, 4);
     assert_eq!(ha, hashes(b.path()));
     // Another seed is another dataset, and the folder refuses it.
     let other = SimulateConfig { seed: 6, ..c.clone() };
@@ -111,7 +150,7 @@ fn radar_doppler_is_the_annotated_velocity_on_the_line_of_sight() {
     let scene = Scene::default_fixture().unwrap();
     let (w, r) = (world(&scene), rig(&scene));
     let c = SimulateConfig { scenes: 1, seconds: 3.0, ..cfg() };
-    let data = simulate_scene(&scene, &w, &r, &c, 0).unwrap();
+    let data = simulate_scene(&scene, &w, &r, &c, &train(0)).unwrap();
     let pose = r[1].pose;
     let rot = pose.rotation();
     let sigma = match &r[1].spec {

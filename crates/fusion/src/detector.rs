@@ -417,9 +417,12 @@ impl Detector {
 
     /// Weights (and BatchNorm statistics) to safetensors.
     pub fn save(&self, path: &Path) -> Result<()> {
-        let tmp = path.with_extension("safetensors.tmp");
-        self.varmap.save(&tmp).map_err(|e| FusionError::Io { path: tmp.clone(), message: e.to_string() })?;
-        std::fs::rename(&tmp, path).map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })
+        let io = |e: std::io::Error| FusionError::Io { path: path.to_path_buf(), message: e.to_string() };
+        hilo_core::fs::write_atomic_with(
+            path,
+            |tmp| self.varmap.save(tmp).map_err(|e| io(std::io::Error::other(e.to_string()))),
+            io,
+        )
     }
 
     /// Loads weights saved by [`Self::save`] for the same architecture.

@@ -181,9 +181,11 @@ impl AdamW {
             "step".into(),
             Tensor::new(&[self.step as u32], self.m.first().map_or(&Device::Cpu, |t| t.device()))?,
         );
-        let tmp = path.with_extension("safetensors.tmp");
-        candle_core::safetensors::save(&map, &tmp)?;
-        std::fs::rename(&tmp, path).map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })
+        hilo_core::fs::write_atomic_with(
+            path,
+            |tmp| candle_core::safetensors::save(&map, tmp).map_err(FusionError::from),
+            |e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() },
+        )
     }
 
     pub fn load(&mut self, path: &Path, device: &Device) -> Result<()> {
@@ -218,6 +220,20 @@ pub struct RunInfo {
     pub dropped_points: usize,
     #[serde(default)]
     pub dropped_pillars: usize,
+    /// Fingerprint of the training frames (their samples and point counts): a run folder is
+    /// never resumed on other data.
+    #[serde(default)]
+    pub data: String,
+}
+
+/// A fingerprint of training frames: their sample tokens and point and box counts.
+pub fn frames_fingerprint(frames: &[Frame]) -> String {
+    let parts: Vec<String> = frames
+        .iter()
+        .map(|f| format!("{}:{}:{}:{}", f.sample_token, f.lidar.len(), f.radar.len(), f.boxes.len()))
+        .collect();
+    let refs: Vec<&str> = parts.iter().map(String::as_str).collect();
+    hilo_dataset::writer::token(&refs)
 }
 
 pub fn weights_path(run: &Path) -> PathBuf {
@@ -247,9 +263,8 @@ pub fn read_info(run: &Path) -> Result<RunInfo> {
 fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
     let bytes = serde_json::to_vec_pretty(value)
         .map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })?;
-    let tmp = path.with_extension("json.tmp");
-    std::fs::write(&tmp, bytes).map_err(|e| FusionError::Io { path: tmp.clone(), message: e.to_string() })?;
-    std::fs::rename(&tmp, path).map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })
+    hilo_core::fs::write_atomic(path, &bytes)
+        .map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })
 }
 
 /// Progress of a training run, reported after every step.
@@ -337,6 +352,7 @@ pub fn train(
         finished: false,
         dropped_points: 0,
         dropped_pillars: 0,
+        data: frames_fingerprint(frames),
     };
     if info_path(run).exists() {
         let old = read_info(run)?;
@@ -345,6 +361,14 @@ pub fn train(
                 "{} holds a run with other settings (detector {}); use another --out or delete it",
                 run.display(),
                 old.detector.name
+            )));
+        }
+        if old.data != info.data {
+            return Err(FusionError::Config(format!(
+                "{} holds a run trained on other frames (data fingerprint {} there, {} now); use another --out or delete it",
+                run.display(),
+                old.data,
+                info.data
             )));
         }
         if old.step > 0 {

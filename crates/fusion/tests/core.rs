@@ -189,6 +189,9 @@ fn checkpoints_reload_bit_identically_and_training_is_deterministic_and_resumes(
     let info = train(c.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
     assert!(info.finished && info.step == 8);
     assert_eq!(w(a.path()), w(c.path()), "resumed run differs");
+    // A run folder is never reused for other frames.
+    let e = train(c.path(), &cfg, &tc, &frames[..5], None, &reg, &Device::Cpu, &mut |_| true).unwrap_err().to_string();
+    assert!(e.contains("other frames"), "{e}");
     // Save → load: bit-identical outputs.
     let (d1, _, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
     let (d2, _, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();

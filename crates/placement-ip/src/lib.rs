@@ -17,11 +17,13 @@ pub mod greedy;
 pub mod instance;
 pub mod mip;
 pub mod pipeline;
+pub mod placement;
 pub mod targets;
 pub mod visibility;
 
 pub use candidates::{Candidate, CandidateConfig, Modality, sample_candidates};
 pub use error::PlacementError;
 pub use instance::{Instance, Limit, Outcome, SensorOption, SensorType, evaluate};
+pub use placement::{PlacedSensor, Placement};
 pub use targets::{Target, roi_targets};
 pub use visibility::{LineOfSight, Visibility, VisibilityConfig, compute_visibility};

@@ -1,12 +1,14 @@
-//! Ground truth read from a nuScenes-layout dataset, as the devkit's `load_gt` builds it.
+//! Ground truth read from a nuScenes-layout dataset, as the devkit's `load_gt` builds it, and the
+//! common ground truth that keeps boxes no sensor hit.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use glam::{Vec2, Vec3};
 use hilo_core::{Box3, Class};
 use hilo_dataset::{Annotation, Dataset, DatasetWriter, FrameData, SceneData, SensorModality, SensorSetup};
-use hilo_eval::{DetectionConfig, EvalBox, evaluate_files, ground_truth_from_dataset};
+use hilo_eval::{DetectionConfig, EvalBox, evaluate_files};
 use hilo_sensor_models::SensorPose;
+use hilo_study::gt::{GtKind, SampleKey, ground_truth};
 
 fn dataset(root: &std::path::Path, with_splits: bool) {
     let sensors = vec![SensorSetup {
@@ -50,7 +52,11 @@ fn dataset(root: &std::path::Path, with_splits: bool) {
                 }
             })
             .collect();
-        w.add_scene(&SceneData { name: (*name).into(), description: String::new(), frames }, "test").unwrap();
+        w.add_scene(
+            &SceneData { name: (*name).into(), description: String::new(), frames, sweeps: Vec::new() },
+            "test",
+        )
+        .unwrap();
     }
     if with_splits {
         w.write_splits(
@@ -68,7 +74,8 @@ fn ground_truth_of_a_split_with_devkit_velocities() {
     let d = tempfile::tempdir().unwrap();
     dataset(d.path(), true);
     let ds = Dataset::open(d.path(), "v1.0-trainval").unwrap();
-    let gt = ground_truth_from_dataset(&ds, "val").unwrap();
+    let (gt, keys) = ground_truth(&ds, "val", GtKind::VisibleOnly, SampleKey::Token).unwrap();
+    assert!(keys.iter().all(|(t, k)| t == k));
     assert_eq!(gt.samples.len(), 5, "only scene-b's frames");
     assert!(gt.samples.values().all(|s| s.scene == "scene-b"));
     let boxes: Vec<&EvalBox> = gt.boxes.values().flatten().collect();
@@ -104,10 +111,10 @@ fn a_dataset_without_the_split_is_an_error() {
     let d = tempfile::tempdir().unwrap();
     dataset(d.path(), false);
     let ds = Dataset::open(d.path(), "v1.0-trainval").unwrap();
-    let e = ground_truth_from_dataset(&ds, "val").unwrap_err().to_string();
+    let e = ground_truth(&ds, "val", GtKind::VisibleOnly, SampleKey::Token).unwrap_err().to_string();
     assert!(e.contains("splits.json"), "{e}");
     dataset(d.path(), true);
     let ds = Dataset::open(d.path(), "v1.0-trainval").unwrap();
-    let e = ground_truth_from_dataset(&ds, "test").unwrap_err().to_string();
+    let e = ground_truth(&ds, "test", GtKind::VisibleOnly, SampleKey::Token).unwrap_err().to_string();
     assert!(e.contains("no split \"test\"") && e.contains("train") && e.contains("val"), "{e}");
 }

@@ -2,13 +2,12 @@
 //! a visibility cell needs (time against the change in V and in the placement it leads to), and
 //! what a solver time limit costs in optimality gap on the budgeted problem.
 
+use crate::error::{Result, StudyError};
 use crate::study::{Configuration, Study};
-use anyhow::{Context, Result};
 use hilo_placement_ip::Limit;
 use hilo_placement_ip::greedy::greedy;
 use hilo_placement_ip::instance::{Instance, Outcome, evaluate};
 use hilo_placement_ip::pipeline::{PlacementConfig, Prepared, instance, prepare, solve_from};
-use hilo_raycast::Scene;
 use hilo_sensor_models::Catalog;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -100,12 +99,15 @@ fn row_diff(a: &[(u32, f32)], b: &[(u32, f32)]) -> (f64, f64, usize) {
 fn cost(catalog: &Catalog, c: &Configuration) -> Result<f64> {
     match c.budget_usd {
         Some(usd) => Ok(usd),
-        None => c.sensors.iter().map(|(t, n)| Ok(catalog.get(t)?.price_usd() * *n as f64)).sum(),
+        None => c.sensors.iter().map(|(t, n)| Ok(catalog.get(t)?.price_usd() * *n as f64)).sum::<Result<f64>>(),
     }
 }
 
-/// Both sweeps. `cell_m` overrides the study's target cell size (a coarse grid for quick tests).
-pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f32>) -> Result<Tradeoffs> {
+/// Both sweeps. `prepared` is the study's visibility of every sensor type when it was just
+/// computed (the budgeted sweep reuses it); `cell_m` overrides the study's target cell size (a
+/// coarse grid for quick tests, which then recomputes).
+pub fn compute(study: &Study, prepared: Option<&Prepared>, cell_m: Option<f32>) -> Result<Tradeoffs> {
+    let (scene, catalog) = (&study.scene, &study.catalog);
     let mut cfg: PlacementConfig = study.file.placement.clone();
     if let Some(c) = cell_m {
         cfg.cell_m = c;
@@ -116,7 +118,7 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
         .file
         .configurations
         .iter()
-        .find(|c| c.budget_usd.is_none() && crate::place::modalities(c, catalog).len() == 2);
+        .find(|c| c.budget_usd.is_none() && c.has_lidar(catalog) && c.has_radar(catalog));
     let los = match conf {
         Some(conf) => los_rows(scene, catalog, &cfg, conf)?,
         None => Vec::new(),
@@ -131,8 +133,15 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
         .collect::<Result<Vec<f64>>>()?
         .into_iter()
         .fold(0.0, f64::max);
-    let prep = prepare(scene, catalog, &all, &cfg)?;
-    let inst = instance(&prep, catalog, &all, cfg.p_min)?;
+    let computed;
+    let prep = match prepared {
+        Some(p) if cell_m.is_none() => p,
+        _ => {
+            computed = prepare(scene, catalog, &all, &cfg)?;
+            &computed
+        }
+    };
+    let inst = instance(prep, catalog, &all, cfg.p_min)?;
     let blimit = Limit::Budget { usd: budget_usd, min: vec![], max: vec![] };
     let g = greedy(&inst, &blimit);
     let mut limits = Vec::new();
@@ -162,7 +171,12 @@ pub fn compute(study: &Study, scene: &Scene, catalog: &Catalog, cell_m: Option<f
     })
 }
 
-fn los_rows(scene: &Scene, catalog: &Catalog, cfg: &PlacementConfig, conf: &Configuration) -> Result<Vec<LosRow>> {
+fn los_rows(
+    scene: &hilo_raycast::Scene,
+    catalog: &Catalog,
+    cfg: &PlacementConfig,
+    conf: &Configuration,
+) -> Result<Vec<LosRow>> {
     let types = conf.type_names();
     let limit = crate::place::limit_for(conf, &types);
     // Each sample count's visibility, instance and placement, built and solved once.
@@ -179,7 +193,8 @@ fn los_rows(scene: &Scene, catalog: &Catalog, cfg: &PlacementConfig, conf: &Conf
         let o = solve_from(&inst, &limit, cfg.time_limit_s, &greedy(&inst, &limit))?;
         runs.push((k, seconds, prep, inst, o));
     }
-    let (_, _, reference, ref_inst, ref_out) = runs.last().context("no line-of-sight run")?;
+    let (_, _, reference, ref_inst, ref_out) =
+        runs.last().ok_or_else(|| StudyError::Invalid("no line-of-sight run".into()))?;
     let ref_opt = ref_out.objective;
     let mut los = Vec::new();
     for (k, seconds, prep, _, o) in &runs {

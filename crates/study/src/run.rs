@@ -1,52 +1,41 @@
-//! `hilo study`: placement → a dataset per configuration (same traffic) → training of each
+//! A whole study: placement → a dataset per configuration (same traffic) → training of each
 //! preset per configuration → detection and evaluation → report (Markdown, JSON, figures).
 //!
-//! Every stage keeps its output under `--out` and is skipped when it is already complete:
-//! placements, datasets (resumable per scene), training runs (resumable per step), results.
-//! The folder remembers the study's fingerprint (study file, profile, seeds); a folder that
-//! holds another study is refused and nothing in it is overwritten.
+//! Every stage keeps its output under the study folder and is skipped when it is already
+//! complete: placements, datasets (resumable per scene), training runs (resumable per step),
+//! results. The folder remembers the study's fingerprint (study file, profile, seeds); a folder
+//! that holds another study is refused and nothing in it is overwritten. Progress goes to a
+//! callback ([`Progress`]); nothing here prints.
 
-use crate::simulate::{PlacementFile, write_with_progress};
+use crate::error::{Result, StudyError};
+use crate::files::{read_json, write_json};
+use crate::place::{Placed, place_all, prepare_study, write_placements};
 use crate::study::{Configuration, Study};
-use anyhow::{Context, Result, bail};
 use candle_core::Device;
 use hilo_dataset::simulate::SimulateConfig;
 use hilo_eval::bootstrap::{BootstrapSummary, PairedSummary, bootstrap, paired_between};
 use hilo_eval::{DetectionConfig, DetectionMetrics, EvalBox, GroundTruth};
+use hilo_fusion::Registry;
+use hilo_fusion::data::{Frame, LoadOptions, load_split};
 use hilo_fusion::train::{TrainConfig, load_run, train};
-use serde::Serialize;
+use hilo_placement_ip::Placement;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-#[derive(clap::Args, Debug)]
-pub struct StudyArgs {
-    /// Study TOML; the embedded default (the paper's configurations on the default
-    /// intersection) when omitted.
-    pub study: Option<PathBuf>,
-    #[arg(long, default_value = "study")]
-    pub out: PathBuf,
-    /// quick (≤ 5 min: 2 configurations, 2 presets, few frames), default (≤ 30 min), or paper
-    /// (37 scenes × 20 s × 20 Hz, six presets; hours here).
-    #[arg(long, default_value = "default")]
-    pub profile: String,
-    /// Train every detector with this many seeds (means and ranges in the report).
-    #[arg(long, default_value_t = 1)]
-    pub seeds: u64,
-    /// Presets to train (comma-separated), overriding the profile's.
-    #[arg(long, value_delimiter = ',')]
-    pub presets: Option<Vec<String>>,
+/// What a running study tells its caller.
+#[derive(Debug, Clone, Copy)]
+pub enum Progress<'a> {
+    /// A stage starts or ends (one line for a person).
+    Stage(&'a str),
+    /// A long task moves: `done` of `total` units (frames, steps).
+    Task { label: &'a str, done: usize, total: usize, unit: &'a str },
+    /// The current task is over.
+    TaskDone,
 }
 
-/// Predictions of one detector: (sample token, boxes) in sample order.
-pub type Predictions = Vec<(String, Vec<EvalBox>)>;
-/// Predictions by (configuration, preset, seed).
-pub type ResultsBy = BTreeMap<(String, String, u64), Predictions>;
-
-/// Per configuration, the validation frame the report draws (the middle one) and its ground truth.
-pub type Pictures = BTreeMap<String, (hilo_fusion::data::Frame, Vec<EvalBox>)>;
-
 /// The scale of a study.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Profile {
     pub name: String,
     pub dataset: SimulateConfig,
@@ -54,21 +43,23 @@ pub struct Profile {
     /// How many of the study's configurations (in order); all when None.
     pub configurations: Option<usize>,
     /// Only configurations with a radar (the paper's three).
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub with_radar_only: bool,
     pub train_samples: usize,
     pub bootstrap: usize,
     /// Target cell size of the placement speed-against-error sweeps (the study's when None).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tradeoff_cell_m: Option<f32>,
 }
 
-pub fn profile(name: &str, study: &Study) -> Result<Profile> {
+/// The profiles: `quick` (≤ 5 min), `default` (≤ 30 min), `paper` (the paper's scale), and
+/// `tiny` (seconds; for tests).
+pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile> {
     let base = study.file.dataset.clone();
     let p = match name {
         "quick" => Profile {
             name: name.into(),
-            dataset: SimulateConfig { scenes: 4, seconds: 8.0, rate_hz: 10.0, ..base },
+            dataset: SimulateConfig { scenes: 4, seconds: 8.0, rate_hz: 10.0, val_scenes: 5, val_seconds: 8.0, ..base },
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             configurations: Some(2),
             with_radar_only: false,
@@ -88,12 +79,8 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
         },
         "paper" => Profile {
             name: name.into(),
-            dataset: SimulateConfig { scenes: 37, seconds: 20.0, rate_hz: 20.0, ..base },
-            presets: crate::train::registry()?
-                .preset_names()
-                .into_iter()
-                .filter(|n| !n.ends_with("-no-early"))
-                .collect(),
+            dataset: SimulateConfig { scenes: 37, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, ..base },
+            presets: registry.preset_names().into_iter().filter(|n| !n.ends_with("-no-early")).collect(),
             configurations: None,
             with_radar_only: true,
             train_samples: 12_000,
@@ -102,7 +89,7 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
         },
         "tiny" => Profile {
             name: name.into(),
-            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, ..base },
+            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 2, val_seconds: 1.5, ..base },
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             configurations: Some(2),
             with_radar_only: false,
@@ -110,25 +97,13 @@ pub fn profile(name: &str, study: &Study) -> Result<Profile> {
             bootstrap: 20,
             tradeoff_cell_m: Some(5.0),
         },
-        other => bail!("--profile {other:?}: use quick, default or paper"),
+        other => return Err(StudyError::Invalid(format!("--profile {other:?}: use quick, default or paper"))),
     };
     Ok(p)
 }
 
-/// Frames of one input config: its background model, training and validation frames.
-type Loaded =
-    (Option<hilo_dataset::background::BackgroundModel>, Vec<hilo_fusion::data::Frame>, Vec<hilo_fusion::data::Frame>);
-
-fn uses_radar(registry: &hilo_fusion::Registry, preset: &str) -> bool {
-    registry.preset(preset).is_ok_and(|p| registry.uses_radar(&p.detector))
-}
-
-fn has_radar(c: &Configuration) -> bool {
-    c.type_names().iter().any(|t| t.starts_with("radar"))
-}
-
 /// One trained detector's evaluation.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Entry {
     pub configuration: String,
     pub preset: String,
@@ -144,7 +119,7 @@ pub struct Entry {
     pub parameters: usize,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ConfigSummary {
     pub name: String,
     pub cost_usd: f64,
@@ -163,7 +138,7 @@ pub struct ConfigSummary {
     pub annotations: usize,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Comparison {
     pub preset: String,
     pub a: String,
@@ -173,7 +148,7 @@ pub struct Comparison {
     pub pedestrian_ap_b: f64,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Report {
     pub study: String,
     pub profile: Profile,
@@ -187,104 +162,128 @@ pub struct Report {
     pub seconds: f64,
 }
 
+/// Predictions of one detector: (sample token, boxes) in sample order.
+pub type Predictions = Vec<(String, Vec<EvalBox>)>;
+/// Predictions by (configuration, preset, seed).
+pub type ResultsBy = BTreeMap<(String, String, u64), Predictions>;
+/// Per configuration, the validation frame the report draws (the middle one) and its ground truth.
+pub type Pictures = BTreeMap<String, (Frame, Vec<EvalBox>)>;
+
+/// How a study is run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    pub profile: Profile,
+    pub seeds: u64,
+    pub out: PathBuf,
+}
+
 fn fingerprint(study: &Study, p: &Profile, seeds: u64) -> Result<String> {
-    let text = format!("{:?}|{}|{}", study.file, serde_json::to_string(p)?, seeds);
-    Ok(hilo_dataset::writer::token(&[&text]))
+    let profile = serde_json::to_string(p).map_err(|e| StudyError::Invalid(e.to_string()))?;
+    let text = format!("{:?}|{}|{}", study.file, profile, seeds);
+    Ok(crate::files::hash(&[&text]))
 }
 
-fn stage(msg: &str) {
-    eprintln!("[study] {msg}");
+/// Frames of one input config: its background model, training and validation frames.
+type Loaded = (Option<hilo_dataset::background::BackgroundModel>, Vec<Frame>, Vec<Frame>);
+
+fn uses_radar(registry: &Registry, preset: &str) -> bool {
+    registry.preset(preset).is_ok_and(|p| registry.uses_radar(&p.detector))
 }
 
-pub fn run(args: &StudyArgs) -> Result<Report> {
+/// What the detection stage keeps beside a result file, so a resumed study needs no detector.
+#[derive(Serialize, Deserialize)]
+struct ResultMeta {
+    ms_per_frame: f64,
+    parameters: usize,
+}
+
+/// Runs (or resumes) a study in `opts.out` and writes its report.
+pub fn run(
+    study: &Study,
+    registry: &Registry,
+    opts: &RunOptions,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<Report> {
     let t0 = std::time::Instant::now();
-    let study = Study::load(args.study.as_deref())?;
-    let mut prof = profile(&args.profile, &study)?;
-    if let Some(p) = &args.presets {
-        prof.presets = p.clone();
-    }
-    if args.seeds == 0 {
-        bail!("--seeds must be at least 1");
+    let prof = &opts.profile;
+    if opts.seeds == 0 {
+        return Err(StudyError::Invalid("--seeds must be at least 1".into()));
     }
     for p in &prof.presets {
-        crate::train::registry()?
+        registry
             .preset(p)
-            .with_context(|| format!("--presets / profile {}: preset {p:?}", prof.name))?;
+            .map_err(|e| StudyError::Invalid(format!("--presets / profile {}: preset {p:?}: {e}", prof.name)))?;
     }
-    let out = &args.out;
-    let fp = fingerprint(&study, &prof, args.seeds)?;
+    let out = &opts.out;
+    let fp = fingerprint(study, prof, opts.seeds)?;
     let marker = out.join("study.json");
     if marker.exists() {
-        let old: serde_json::Value = serde_json::from_slice(&std::fs::read(&marker)?)
-            .with_context(|| format!("reading {}", marker.display()))?;
+        let old: serde_json::Value = read_json(&marker)?;
         if old.get("fingerprint").and_then(|v| v.as_str()) != Some(fp.as_str()) {
-            bail!(
+            return Err(StudyError::Invalid(format!(
                 "{} holds another study (study file, profile or seeds differ: fingerprint {} there, {fp} now); choose another --out",
                 out.display(),
                 old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?")
-            );
+            )));
         }
     } else if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(false) {
-        bail!("{} exists and is not a study folder; choose another --out", out.display());
+        return Err(StudyError::Invalid(format!(
+            "{} exists and is not a study folder; choose another --out",
+            out.display()
+        )));
     }
-    std::fs::create_dir_all(out)?;
-    crate::write_atomic(
+    std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
+    write_json(
         &marker,
-        serde_json::to_string_pretty(
-            &serde_json::json!({ "fingerprint": fp, "study": study.source, "profile": prof.name, "seeds": args.seeds }),
-        )?
-        .as_bytes(),
+        &serde_json::json!({ "fingerprint": fp, "study": study.source, "profile": prof.name, "seeds": opts.seeds }),
     )?;
+    let catalog = &study.catalog;
     let configs: Vec<Configuration> = study
         .file
         .configurations
         .iter()
-        .filter(|c| !prof.with_radar_only || has_radar(c))
+        .filter(|c| !prof.with_radar_only || c.has_radar(catalog))
         .take(prof.configurations.unwrap_or(usize::MAX))
         .cloned()
         .collect();
     if prof.name == "paper" {
-        let frames = prof.dataset.scenes * prof.dataset.frames_per_scene();
-        let hours = (configs.len() * prof.presets.len() * args.seeds as usize) as f64 * prof.train_samples as f64
+        let frames = prof.dataset.total_frames();
+        let hours = (configs.len() * prof.presets.len() * opts.seeds as usize) as f64 * prof.train_samples as f64
             / 4.0
             / 3600.0
             + (configs.len() * frames) as f64 / 130.0 / 3600.0;
-        stage(&format!(
+        progress(Progress::Stage(&format!(
             "paper profile: {} configurations × {} presets × {} seeds, {frames} frames each; about {hours:.1} h on this machine (4 samples/s training, 130 frames/s simulation)",
             configs.len(),
             prof.presets.len(),
-            args.seeds
-        ));
+            opts.seeds
+        )));
     }
-    // 1. Placement.
-    let placements = out.join("placements");
-    let all_placed = configs.iter().all(|c| placements.join(format!("{}.json", c.slug())).exists());
+    // 1. Placement: visibility once for every sensor type, every configuration solved.
+    let placements_dir = out.join("placements");
+    let all_placed = configs.iter().all(|c| placements_dir.join(format!("{}.json", c.slug())).exists());
+    let mut placed: Option<Placed> = None;
     if !all_placed {
-        stage("placement");
-        let study_path = args.study.clone();
-        crate::place::run(&crate::place::PlaceArgs {
-            study: study_path,
-            out: placements.clone(),
-            json: false,
-            export: None,
-        })?;
+        progress(Progress::Stage("placement"));
+        let prep = prepare_study(study)?;
+        let p = place_all(study, prep, &mut |line| progress(Progress::Stage(line)))?;
+        write_placements(study, &p, &placements_dir)?;
+        placed = Some(p);
     }
-    let scene = crate::load_scene(study.file.scene.as_ref().map(|p| study.resolve(p)).as_deref())?;
-    let catalog = match &study.file.catalog {
-        Some(p) => hilo_sensor_models::Catalog::load(&study.resolve(p))?,
-        None => hilo_sensor_models::Catalog::default_catalog()?,
-    };
-    let tradeoff_path = placements.join("tradeoffs.json");
-    let tradeoffs: crate::tradeoff::Tradeoffs = match std::fs::read(&tradeoff_path) {
-        Ok(bytes) => serde_json::from_slice(&bytes).with_context(|| format!("reading {}", tradeoff_path.display()))?,
+    let tradeoff_path = placements_dir.join("tradeoffs.json");
+    let tradeoffs: crate::tradeoff::Tradeoffs = match read_json(&tradeoff_path) {
+        Ok(t) => t,
         Err(_) => {
-            stage("placement speed against error (line-of-sight samples, solver time limits)");
-            let t = crate::tradeoff::compute(&study, &scene, &catalog, prof.tradeoff_cell_m)?;
-            crate::write_atomic(&tradeoff_path, serde_json::to_string_pretty(&t)?.as_bytes())?;
+            progress(Progress::Stage("placement speed against error (line-of-sight samples, solver time limits)"));
+            let prep = match &placed {
+                Some(p) if prof.tradeoff_cell_m.is_none() => Some(&p.prepared),
+                _ => None,
+            };
+            let t = crate::tradeoff::compute(study, prep, prof.tradeoff_cell_m)?;
+            write_json(&tradeoff_path, &t)?;
             t
         }
     };
-    let registry = crate::train::registry()?;
     let eval_cfg = DetectionConfig::default();
     let mut summaries = Vec::new();
     let mut entries = Vec::new();
@@ -294,36 +293,37 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     // Whole-study progress: detectors to train, and an ETA from the ones done so far.
     let total_detectors: usize = configs
         .iter()
-        .map(|c| prof.presets.iter().filter(|p| !uses_radar(&registry, p) || has_radar(c)).count())
+        .map(|c| prof.presets.iter().filter(|p| !uses_radar(registry, p) || c.has_radar(catalog)).count())
         .sum::<usize>()
-        * args.seeds as usize;
+        * opts.seeds as usize;
     let mut done_detectors = 0usize;
     let t_detectors = std::time::Instant::now();
     for conf in &configs {
         let slug = conf.slug();
-        let ppath = placements.join(format!("{slug}.json"));
-        let placement = PlacementFile::load(&ppath)?;
-        let pjson: serde_json::Value = serde_json::from_slice(&std::fs::read(&ppath)?)?;
-        let rig = placement.rig(&catalog, &scene, &ppath)?;
+        let ppath = placements_dir.join(format!("{slug}.json"));
+        let placement = Placement::load(&ppath)?;
         // 2. Dataset (same traffic seeds for every configuration).
         let data = out.join("data").join(&slug);
-        let summary = write_with_progress(
-            &scene,
-            &rig,
-            &prof.dataset,
-            &data,
-            "v1.0-trainval",
-            &placement.name,
-            &format!("dataset {}", conf.name),
-        )?;
-        stage(&format!(
+        let total = prof.dataset.total_frames();
+        let label = format!("dataset {}", conf.name);
+        let summary = {
+            let report = |done: usize| progress(Progress::Task { label: &label, done, total, unit: "frames" });
+            let cell = std::sync::Mutex::new(report);
+            crate::rig::simulate(study, &placement, &ppath, &prof.dataset, &data, "v1.0-trainval", &|done| {
+                if let Ok(mut f) = cell.lock() {
+                    f(done)
+                }
+            })?
+        };
+        progress(Progress::TaskDone);
+        progress(Progress::Stage(&format!(
             "dataset {}: {} frames, {} annotations ({} scenes resumed)",
             conf.name, summary.frames, summary.annotations, summary.resumed_scenes
-        ));
+        )));
         summaries.push(ConfigSummary {
             name: conf.name.clone(),
-            cost_usd: pjson["cost_usd"].as_f64().unwrap_or(f64::NAN),
-            central_coverage: pjson["central_coverage"].as_f64().unwrap_or(f64::NAN),
+            cost_usd: placement.cost_usd,
+            central_coverage: placement.central_coverage,
             sensors: placement
                 .sensors
                 .iter()
@@ -334,11 +334,11 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                     )
                 })
                 .collect(),
-            placement_proven_optimal: pjson["proven_optimal"].as_bool().unwrap_or(false),
-            placement_seconds: pjson["solve_seconds"].as_f64().unwrap_or(f64::NAN),
-            placement_solved: !crate::place::single_modality(conf, &catalog),
-            placement_gap: pjson["gap"].as_f64().unwrap_or(f64::NAN),
-            placement_method: pjson["method"].as_str().unwrap_or_default().to_owned(),
+            placement_proven_optimal: placement.proven_optimal,
+            placement_seconds: placement.solve_seconds,
+            placement_solved: placement.solved,
+            placement_gap: placement.gap,
+            placement_method: placement.method.clone(),
             frames: summary.frames,
             annotations: summary.annotations,
         });
@@ -346,31 +346,26 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         // Frames as each preset's input reads them (background removed or not, radar sweeps),
         // loaded once per distinct input.
         let mut inputs: BTreeMap<String, Loaded> = BTreeMap::new();
-        let mut gt = hilo_eval::ground_truth_from_dataset(&ds, "val")?;
-        // Scene names (not tokens) so that configurations' scenes can be paired.
-        let scene_name: BTreeMap<&str, &str> =
-            ds.tables.scene.iter().map(|s| (s.token.as_str(), s.name.as_str())).collect();
-        for info in gt.samples.values_mut() {
-            if let Some(n) = scene_name.get(info.scene.as_str()) {
-                info.scene = (*n).to_owned();
-            }
-        }
+        let (gt, _) = crate::gt::ground_truth(&ds, "val", crate::gt::GtKind::VisibleOnly, crate::gt::SampleKey::Token)?;
         gts.insert(conf.name.clone(), gt.clone());
         for preset in &prof.presets {
-            if uses_radar(&registry, preset) && !has_radar(conf) {
-                stage(&format!("{} on {}: skipped (the configuration has no radar)", preset, conf.name));
+            if uses_radar(registry, preset) && !conf.has_radar(catalog) {
+                progress(Progress::Stage(&format!(
+                    "{} on {}: skipped (the configuration has no radar)",
+                    preset, conf.name
+                )));
                 continue;
             }
-            for seed in 0..args.seeds {
+            for seed in 0..opts.seeds {
                 // 3. Training (resumes; returns at once when finished).
                 let run = out.join("runs").join(&slug).join(format!("{preset}-seed{seed}"));
                 let det_cfg = registry.preset(preset)?.detector.clone();
-                let key = serde_json::to_string(&det_cfg.input)?;
+                let key = serde_json::to_string(&det_cfg.input).map_err(|e| StudyError::Invalid(e.to_string()))?;
                 if !inputs.contains_key(&key) {
                     let bg = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
-                    let opts = hilo_fusion::data::LoadOptions::new(&det_cfg.input, bg.as_ref());
-                    let (tr, _) = hilo_fusion::data::load_split(&ds, "train", &opts)?;
-                    let (va, _) = hilo_fusion::data::load_split(&ds, "val", &opts)?;
+                    let opts = LoadOptions::new(&det_cfg.input, bg.as_ref());
+                    let (tr, _) = load_split(&ds, "train", &opts)?;
+                    let (va, _) = load_split(&ds, "val", &opts)?;
                     inputs.insert(key.clone(), (bg, tr, va));
                 }
                 let Some((background, train_frames, val_frames)) = inputs.get(&key) else { continue };
@@ -381,38 +376,32 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                     );
                 }
                 let tc = TrainConfig { samples: prof.train_samples, seed, ..TrainConfig::default() };
-                let bar = indicatif::ProgressBar::new(tc.steps() as u64);
-                bar.set_style(
-                    indicatif::ProgressStyle::with_template("{msg} [{bar:25}] {pos}/{len} steps, ETA {eta}")
-                        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-                );
                 let label = format!("train {preset} on {}", conf.name);
+                let steps = tc.steps();
                 let info =
-                    train(&run, &det_cfg, &tc, train_frames, background.as_ref(), &registry, &Device::Cpu, &mut |r| {
-                        bar.set_position(r.step as u64);
-                        bar.set_message(format!("{label} loss {:.3}", r.loss));
+                    train(&run, &det_cfg, &tc, train_frames, background.as_ref(), registry, &Device::Cpu, &mut |r| {
+                        progress(Progress::Task { label: &label, done: r.step, total: steps, unit: "steps" });
                         true
                     })
-                    .with_context(|| format!("training {preset} on {}", conf.name))?;
-                bar.finish_and_clear();
+                    .map_err(|e| StudyError::Invalid(format!("training {preset} on {}: {e}", conf.name)))?;
+                progress(Progress::TaskDone);
                 // 4. Detection (skipped when the results exist).
                 let res_path = out.join("results").join(&slug).join(format!("{preset}-seed{seed}.json"));
                 let meta_path = res_path.with_extension("meta.json");
-                if !(res_path.exists() && meta_path.exists()) {
-                    let (det, _, _) = load_run(&run, &registry, &Device::Cpu)?;
-                    let (dets, per_frame) = hilo_fusion::infer::detect_frames(&det, val_frames, 4, &mut |_| {})?;
-                    let json = hilo_eval::boxes::submission_json(
-                        &hilo_eval::boxes::from_detections(&dets),
-                        serde_json::json!({ "detector": det.cfg.name }),
-                    );
-                    crate::write_atomic(&res_path, serde_json::to_string(&json)?.as_bytes())?;
-                    crate::write_atomic(
-                        &meta_path,
-                        serde_json::to_string(&serde_json::json!({ "ms_per_frame": per_frame * 1e3 }))?.as_bytes(),
-                    )?;
-                }
-                let meta: serde_json::Value = serde_json::from_slice(&std::fs::read(&meta_path)?)?;
-                let pred = hilo_eval::read_submission(&res_path, 500)?;
+                let (pred, meta) = match (read_json::<ResultMeta>(&meta_path), res_path.exists()) {
+                    (Ok(meta), true) => (hilo_eval::read_submission(&res_path, 500)?, meta),
+                    _ => {
+                        let (det, _, _) = load_run(&run, registry, &Device::Cpu)?;
+                        let (dets, per_frame) = hilo_fusion::infer::detect_frames(&det, val_frames, 4, &mut |_| {})?;
+                        let pred = hilo_eval::boxes::from_detections(&dets);
+                        let json =
+                            hilo_eval::boxes::submission_json(&pred, serde_json::json!({ "detector": det.cfg.name }));
+                        write_json(&res_path, &json)?;
+                        let meta = ResultMeta { ms_per_frame: per_frame * 1e3, parameters: det.parameters() };
+                        write_json(&meta_path, &meta)?;
+                        (pred, meta)
+                    }
+                };
                 // 5. Evaluation.
                 let m: DetectionMetrics = hilo_eval::evaluate_files(&gt, &pred, &eval_cfg);
                 let bs = bootstrap(&gt, &pred, &eval_cfg, prof.bootstrap, 0.95, 0);
@@ -423,14 +412,14 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                     .collect();
                 done_detectors += 1;
                 let per = t_detectors.elapsed().as_secs_f64() / done_detectors as f64;
-                stage(&format!(
+                progress(Progress::Stage(&format!(
                     "{preset} on {} (seed {seed}): mAP {:.3}, NDS {:.3}, {:.0} s training; {done_detectors}/{total_detectors} detectors, study ETA {:.0} min",
                     conf.name,
                     m.mean_ap,
                     m.nd_score,
                     info.seconds,
                     per * (total_detectors - done_detectors) as f64 / 60.0
-                ));
+                )));
                 entries.push(Entry {
                     configuration: conf.name.clone(),
                     preset: preset.clone(),
@@ -440,9 +429,9 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
                     class_ap,
                     bootstrap: bs,
                     train_seconds: info.seconds,
-                    ms_per_frame: meta["ms_per_frame"].as_f64().unwrap_or(f64::NAN),
+                    ms_per_frame: meta.ms_per_frame,
                     samples: info.samples_seen,
-                    parameters: hilo_fusion::Detector::new(&det_cfg, &registry, &Device::Cpu, 0)?.parameters(),
+                    parameters: meta.parameters,
                 });
                 results_by.insert((conf.name.clone(), preset.clone(), seed), pred);
             }
@@ -490,7 +479,7 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
     let report = Report {
         study: study.source.clone(),
         profile: prof.clone(),
-        seeds: args.seeds,
+        seeds: opts.seeds,
         configurations: summaries,
         entries,
         comparisons,
@@ -498,7 +487,12 @@ pub fn run(args: &StudyArgs) -> Result<Report> {
         tradeoffs,
         seconds: t0.elapsed().as_secs_f64(),
     };
-    crate::report::write(out, &report, &results_by, &pictures, &placements, &configs)?;
-    stage(&format!("report: {} ({:.0} s)", out.join("report.md").display(), report.seconds));
+    crate::report::write(out, &report, &results_by, &pictures, &placements_dir, &configs)?;
+    progress(Progress::Stage(&format!("report: {} ({:.0} s)", out.join("report.md").display(), report.seconds)));
     Ok(report)
+}
+
+/// Where a study keeps a configuration's dataset.
+pub fn data_dir(out: &Path, conf: &Configuration) -> PathBuf {
+    out.join("data").join(conf.slug())
 }

@@ -1,6 +1,7 @@
-//! Top-down pictures of a scene (tiny-skia raster, PNG).
+//! Top-down pictures of a scene (tiny-skia raster, PNG): the scene itself, and the canvas the
+//! coverage maps, scans, dataset frames and detection pictures are drawn on.
 
-use anyhow::{Context, Result};
+use crate::error::{Result, StudyError};
 use glam::Vec2;
 use hilo_raycast::scene::layout::point_in_polygon;
 use hilo_raycast::{ObjectKind, Scene};
@@ -52,6 +53,12 @@ pub struct Canvas {
     view: View,
 }
 
+impl std::fmt::Debug for Canvas {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Canvas({}x{} px, {} px/m)", self.pm.width(), self.pm.height(), self.view.scale)
+    }
+}
+
 impl Canvas {
     fn fill(&mut self, poly: &[Vec2], p: &Paint) {
         if let Some(path) = self.view.path(poly, true) {
@@ -91,7 +98,7 @@ pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
 impl Canvas {
     /// PNG bytes of the picture.
     pub fn png(&self) -> Result<Vec<u8>> {
-        self.pm.encode_png().context("encoding PNG")
+        self.pm.encode_png().map_err(|e| StudyError::Picture { what: "a PNG".into(), message: e.to_string() })
     }
 
     /// Outlines of boxes (e.g. actors), in an RGB colour.
@@ -122,8 +129,12 @@ impl Canvas {
 /// An empty dark canvas over `min..max` (local metres), for pictures without a scene.
 pub fn blank_canvas(min: Vec2, max: Vec2, px_per_m: f32) -> Result<Canvas> {
     let size = (max - min) * px_per_m;
-    let mut pm = Pixmap::new(size.x.ceil().max(1.0) as u32, size.y.ceil().max(1.0) as u32)
-        .with_context(|| format!("picture of {:.0}x{:.0} px is empty or too large", size.x, size.y))?;
+    let mut pm = Pixmap::new(size.x.ceil().max(1.0) as u32, size.y.ceil().max(1.0) as u32).ok_or_else(|| {
+        StudyError::Picture {
+            what: "a canvas".into(),
+            message: format!("{:.0}x{:.0} px is empty or too large", size.x, size.y),
+        }
+    })?;
     pm.fill(Color::from_rgba8(20, 22, 28, 255));
     Ok(Canvas { pm, view: View { min, max, scale: px_per_m } })
 }
@@ -133,8 +144,10 @@ pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
     let g = scene.ground;
     let view = View { min: g.min, max: g.max, scale: px_per_m };
     let size = (g.max - g.min) * px_per_m;
-    let pm = Pixmap::new(size.x.ceil() as u32, size.y.ceil() as u32)
-        .with_context(|| format!("picture of {:.0}x{:.0} px is empty or too large", size.x, size.y))?;
+    let pm = Pixmap::new(size.x.ceil() as u32, size.y.ceil() as u32).ok_or_else(|| StudyError::Picture {
+        what: "the scene".into(),
+        message: format!("{:.0}x{:.0} px is empty or too large", size.x, size.y),
+    })?;
     let mut c = Canvas { pm, view };
     c.pm.fill(Color::from_rgba8(200, 211, 178, 255));
 

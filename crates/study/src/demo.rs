@@ -1,5 +1,5 @@
-//! A deterministic set of road users for commands that need a populated scene before the
-//! traffic simulation exists to provide one (`hilo scan`, `hilo bench sensors`): vehicles on
+//! A deterministic set of road users for commands that need a populated scene without running
+//! the traffic simulation (`hilo scan`, `hilo bench sensors`): vehicles on
 //! the lanes (queued at stop lines or driving) and pedestrians on the crosswalks.
 
 use hilo_core::{Box3, Class};

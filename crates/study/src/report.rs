@@ -1,9 +1,10 @@
 //! The study report: `report.md`, `report.json` and figures (SVG with labels; PNG with the same
 //! geometry — the PNG renderer has no fonts, so its labels are in the SVG and the report).
 
+use crate::error::{Result, StudyError};
+use crate::files::write_atomic;
+use crate::run::{Pictures, Report, ResultsBy};
 use crate::study::Configuration;
-use crate::study_run::{Pictures, Report, ResultsBy};
-use anyhow::{Context, Result};
 use glam::{Vec2, Vec3};
 use hilo_core::Box3;
 use hilo_eval::EvalBox;
@@ -153,9 +154,12 @@ impl Chart {
     }
 
     fn save(self, dir: &Path, stem: &str) -> Result<()> {
-        crate::write_atomic(&dir.join(format!("{stem}.svg")), format!("{}</svg>\n", self.svg).as_bytes())?;
+        write_atomic(&dir.join(format!("{stem}.svg")), format!("{}</svg>\n", self.svg).as_bytes())?;
         if let Some(p) = self.pix {
-            crate::write_atomic(&dir.join(format!("{stem}.png")), &p.encode_png().context("encoding a chart")?)?;
+            let png = p
+                .encode_png()
+                .map_err(|e| StudyError::Picture { what: format!("chart {stem}"), message: e.to_string() })?;
+            write_atomic(&dir.join(format!("{stem}.png")), &png)?;
         }
         Ok(())
     }
@@ -163,7 +167,7 @@ impl Chart {
 
 /// How a configuration was placed, and whether it was solved (a single-modality configuration
 /// takes its poses from a sibling: its own multimodal objective is zero, so there is no gap).
-fn placement_status(c: &crate::study_run::ConfigSummary) -> (String, bool) {
+fn placement_status(c: &crate::run::ConfigSummary) -> (String, bool) {
     if !c.placement_solved {
         (c.placement_method.clone(), false)
     } else if c.placement_proven_optimal {
@@ -181,7 +185,7 @@ fn mean_over_seeds(
     r: &Report,
     conf: &str,
     preset: &str,
-    f: impl Fn(&crate::study_run::Entry) -> f64,
+    f: impl Fn(&crate::run::Entry) -> f64,
 ) -> Option<(f64, f64, f64)> {
     let v: Vec<f64> = r.entries.iter().filter(|e| e.configuration == conf && e.preset == preset).map(f).collect();
     if v.is_empty() {
@@ -230,7 +234,7 @@ fn detection_png(frame: &Frame, gboxes: &[EvalBox], preds: &[(String, Vec<EvalBo
         let col = if gboxes.iter().any(|g| near(p, g)) { (40, 120, 255) } else { (255, 40, 40) };
         canvas.boxes(&[to_box(p)], col);
     }
-    crate::write_atomic(path, &canvas.png()?)
+    write_atomic(path, &canvas.png()?)
 }
 
 pub fn write(
@@ -242,8 +246,8 @@ pub fn write(
     configs: &[Configuration],
 ) -> Result<()> {
     let fig = out.join("figures");
-    std::fs::create_dir_all(fig.join("detections"))?;
-    crate::write_atomic(&out.join("report.json"), serde_json::to_string_pretty(r)?.as_bytes())?;
+    std::fs::create_dir_all(fig.join("detections")).map_err(|e| StudyError::io(&fig, e))?;
+    crate::files::write_json(&out.join("report.json"), r)?;
     let presets: Vec<String> = r.profile.presets.clone();
     // mAP against cost.
     let max_cost = r.configurations.iter().map(|c| c.cost_usd).fold(0.0, f64::max) as f32;
@@ -303,8 +307,7 @@ pub fn write(
     for c in configs {
         let src = placements.join(format!("{}.png", c.slug()));
         if src.exists() {
-            std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug())))
-                .with_context(|| format!("copying {}", src.display()))?;
+            std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug()))).map_err(|e| StudyError::io(&src, e))?;
         }
         for p in &presets {
             if let (Some(pred), Some((frame, gboxes))) =
@@ -329,12 +332,8 @@ pub fn write(
     let d = &r.profile.dataset;
     let _ = writeln!(
         md,
-        "Dataset per configuration: {} scenes × {} s at {} Hz (same traffic seeds for every configuration), {}% of the scenes for validation. Each detector trained on {} samples.\n",
-        d.scenes,
-        d.seconds,
-        d.rate_hz,
-        (d.val_fraction * 100.0).round(),
-        r.profile.train_samples
+        "Dataset per configuration (same traffic seeds for every configuration): training {} scenes × {} s at {} Hz; validation {} other scenes × {} s at {} Hz. Each detector trained on {} samples.\n",
+        d.scenes, d.seconds, d.rate_hz, d.val_scenes, d.val_seconds, d.val_rate_hz, r.profile.train_samples
     );
     let _ = writeln!(
         md,
@@ -515,5 +514,5 @@ pub fn write(
             e.mean_ap
         );
     }
-    crate::write_atomic(&out.join("report.md"), md.as_bytes())
+    write_atomic(&out.join("report.md"), md.as_bytes())
 }

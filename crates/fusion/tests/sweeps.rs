@@ -1,0 +1,93 @@
+//! Radar sweep stacking in the loader: the key frame's sweep and the ones before it, each point
+//! with its sweep's time lag, newest first; empty sweeps; a gap longer than the lag limit ends
+//! the stack; LiDAR only from key frames.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use glam::{Vec2, Vec3};
+use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
+use hilo_dataset::Dataset;
+use hilo_dataset::writer::{Annotation, DatasetWriter, FrameData, RadarSweep, SceneData, SensorModality, SensorSetup};
+use hilo_fusion::data::{LoadOptions, load_split};
+use hilo_sensor_models::SensorPose;
+
+/// A radar point whose RCS encodes the sweep it came from.
+fn rp(tag: f32) -> RadarPoint {
+    RadarPoint { x: 10.0, y: 1.0, z: 0.0, rcs_dbsm: tag, v_r_mps: 1.0, v_r_comp_mps: 1.0, time_s: 0.0 }
+}
+
+fn frame(t_us: u64, radar_tag: f32) -> FrameData {
+    let lidar = vec![LidarPoint { x: 5.0, y: 0.0, z: 0.0, intensity: 0.5, ring: 0, time_s: 0.0 }];
+    let ann = Annotation {
+        instance: 1,
+        class: Class::Car,
+        box3: Box3::new(Vec3::new(5.0, 0.0, 0.8), 4.6, 1.9, 1.6, 0.0),
+        velocity_mps: Vec2::new(1.0, 0.0),
+        attribute: "vehicle.moving".into(),
+        num_lidar_pts: 1,
+        num_radar_pts: 1,
+        visibility: 4,
+    };
+    FrameData { timestamp_us: t_us, lidar: vec![lidar], radar: vec![vec![rp(radar_tag)]], annotations: vec![ann] }
+}
+
+#[test]
+fn radar_sweeps_stack_with_their_time_lags() {
+    let dir = tempfile::tempdir().unwrap();
+    let sensors = vec![
+        SensorSetup {
+            channel: "LIDAR_0".into(),
+            modality: SensorModality::Lidar,
+            pose: SensorPose::new(Vec3::new(0.0, 0.0, 6.0), 0.0, 0.0, 0.0),
+        },
+        SensorSetup {
+            channel: "RADAR_0".into(),
+            modality: SensorModality::Radar,
+            pose: SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0),
+        },
+    ];
+    let mut w = DatasetWriter::new(dir.path(), "v1.0-trainval", "t", sensors).unwrap();
+    let t0 = 1_000_000_000u64;
+    // Key frames at 0 and 0.5 s; sweeps at 0.1 (empty), 0.2, 0.3 and 0.4 s; then a key frame at
+    // 1.5 s after a one-second gap with no sweep.
+    let sweep = |dt: u64, pts: Vec<RadarPoint>| RadarSweep { timestamp_us: t0 + dt, radar: vec![pts] };
+    let scene = SceneData {
+        name: "val-0000".into(),
+        description: String::new(),
+        frames: vec![frame(t0, 0.0), frame(t0 + 500_000, 5.0), frame(t0 + 1_500_000, 15.0)],
+        sweeps: vec![
+            sweep(100_000, vec![]),
+            sweep(200_000, vec![rp(2.0), rp(2.0)]),
+            sweep(300_000, vec![rp(3.0)]),
+            sweep(400_000, vec![rp(4.0)]),
+        ],
+    };
+    w.add_scene(&scene, "x").unwrap();
+    w.write_splits(&std::collections::BTreeMap::from([("val".to_string(), vec!["val-0000".to_string()])])).unwrap();
+    w.finish().unwrap();
+    let ds = Dataset::open(dir.path(), "v1.0-trainval").unwrap();
+    let load = |k: usize| {
+        let (frames, stats) =
+            load_split(&ds, "val", &LoadOptions { background: None, radar_sweeps: k, max_sweep_lag_s: 0.5 }).unwrap();
+        (frames, stats)
+    };
+    // One sweep: the key frame's own, lag 0; key frames only, with their LiDAR.
+    let (f1, s1) = load(1);
+    assert_eq!(f1.len(), 3);
+    assert!(f1.iter().all(|f| f.lidar.len() == 1 && f.radar.len() == 1 && f.radar[0][7] == 0.0));
+    assert_eq!((s1.radar_points, s1.older_sweep_points), (3, 0));
+    // Four sweeps at 0.5 s: its own (tag 5), then 0.4 s (4), 0.3 s (3), 0.2 s (2, two points).
+    let (f4, s4) = load(4);
+    let tags: Vec<(f32, f32)> = f4[1].radar.iter().map(|p| (p[3], (p[7] * 10.0).round() / 10.0)).collect();
+    assert_eq!(tags, vec![(5.0, 0.0), (4.0, 0.1), (3.0, 0.2), (2.0, 0.3), (2.0, 0.3)]);
+    // Six sweeps reach the empty one (0.1 s: no points) and the key frame at 0 s (lag 0.5 s).
+    let (f6, _) = load(6);
+    let tags: Vec<f32> = f6[1].radar.iter().map(|p| p[3]).collect();
+    assert_eq!(tags, vec![5.0, 4.0, 3.0, 2.0, 2.0, 0.0]);
+    assert!((f6[1].radar[5][7] - 0.5).abs() < 1e-6);
+    // The first key frame has nothing before it; the last one's previous sweep is 1 s back,
+    // beyond the lag limit, so it keeps its own sweep only.
+    assert_eq!(f6[0].radar.len(), 1);
+    assert_eq!(f6[2].radar.iter().map(|p| p[3]).collect::<Vec<_>>(), vec![15.0]);
+    assert_eq!(s4.older_sweep_points, 4);
+}

@@ -1,0 +1,168 @@
+//! A solved placement as every stage reads and writes it (`placements/<name>.json`): the chosen
+//! sensors with their poses, how the solution was found and how good it is, its coverage and
+//! cost, and the content hashes of the scene and catalog it was made for.
+
+use crate::candidates::Modality;
+use crate::error::PlacementError;
+use hilo_sensor_models::SensorPose;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// One chosen sensor.
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PlacedSensor {
+    /// Catalog name.
+    #[serde(rename = "type")]
+    pub ty: String,
+    pub modality: Modality,
+    pub candidate_id: u32,
+    /// The mounting structure (pole or mast arm) it hangs on.
+    pub structure: String,
+    pub pose: SensorPose,
+    /// The pose for people: position, heading and down-tilt.
+    pub position_m: [f32; 3],
+    pub yaw_deg: f32,
+    pub pitch_deg: f32,
+}
+
+impl PlacedSensor {
+    pub fn new(ty: &str, modality: Modality, candidate_id: u32, structure: &str, pose: SensorPose) -> Self {
+        PlacedSensor {
+            ty: ty.to_owned(),
+            modality,
+            candidate_id,
+            structure: structure.to_owned(),
+            pose,
+            position_m: pose.position.to_array(),
+            yaw_deg: pose.yaw.to_degrees(),
+            pitch_deg: pose.pitch.to_degrees(),
+        }
+    }
+}
+
+/// A configuration's placement.
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Placement {
+    /// The configuration's name.
+    pub name: String,
+    pub sensors: Vec<PlacedSensor>,
+    pub objective: f64,
+    pub bound: f64,
+    pub gap: f64,
+    pub proven_optimal: bool,
+    pub solve_seconds: f64,
+    pub method: String,
+    /// Whether it was optimised: a single-modality configuration takes the poses of a sibling
+    /// with both modalities instead (its own multimodal objective is zero whatever it does).
+    pub solved: bool,
+    pub greedy_objective: f64,
+    /// Share of central-ROI cells hit by at least one LiDAR ray (the paper's central coverage).
+    pub central_coverage: f64,
+    /// Share of all ROI cells hit by a LiDAR ray and covered by a radar.
+    pub lidar_radar_overlap: f64,
+    pub cost_usd: f64,
+    pub targets: usize,
+    pub candidates: usize,
+    /// Content hashes of the scene and the catalog the placement was made for.
+    pub scene_hash: String,
+    pub catalog_hash: String,
+}
+
+impl Placement {
+    /// Reads a placement written by [`Placement::save`]; the error names the file and field.
+    pub fn load(path: &Path) -> Result<Placement, PlacementError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PlacementError::Invalid(format!("reading placement {}: {e}", path.display())))?;
+        let p: Placement = serde_json::from_str(&text).map_err(|e| {
+            PlacementError::Invalid(format!("{}: not a placement written by `hilo place`: {e}", path.display()))
+        })?;
+        if p.sensors.is_empty() {
+            return Err(PlacementError::Invalid(format!("{}: the placement has no sensors", path.display())));
+        }
+        for (i, s) in p.sensors.iter().enumerate() {
+            if !s.pose.is_valid() {
+                return Err(PlacementError::Invalid(format!(
+                    "{}: sensors[{i}].pose is not finite: {:?}",
+                    path.display(),
+                    s.pose
+                )));
+            }
+        }
+        Ok(p)
+    }
+
+    /// The placement as pretty JSON (what [`Placement::load`] reads).
+    pub fn to_json(&self) -> Result<String, PlacementError> {
+        serde_json::to_string_pretty(self).map_err(|e| PlacementError::Invalid(format!("placement {}: {e}", self.name)))
+    }
+
+    /// Refuses a placement made for another scene or catalog than the one given.
+    pub fn check_made_for(&self, scene_hash: &str, catalog_hash: &str, source: &Path) -> Result<(), PlacementError> {
+        if self.scene_hash != scene_hash {
+            return Err(PlacementError::Invalid(format!(
+                "{}: placement {:?} was made for another scene (scene hash {} there, {scene_hash} here); place it again on this scene",
+                source.display(),
+                self.name,
+                self.scene_hash
+            )));
+        }
+        if self.catalog_hash != catalog_hash {
+            return Err(PlacementError::Invalid(format!(
+                "{}: placement {:?} was made with another sensor catalog (catalog hash {} there, {catalog_hash} here)",
+                source.display(),
+                self.name,
+                self.catalog_hash
+            )));
+        }
+        Ok(())
+    }
+
+    /// Whether any sensor is a radar.
+    pub fn has_radar(&self) -> bool {
+        self.sensors.iter().any(|s| s.modality == Modality::Radar)
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn a_placement_round_trips_through_its_file() {
+        let pose = SensorPose::new(Vec3::new(13.0, 16.5, 7.8), -2.2, 0.17, 0.0);
+        let p = Placement {
+            name: "2x lidar-16 + radar".into(),
+            sensors: vec![PlacedSensor::new("lidar-16", Modality::Lidar, 7, "NE pole", pose)],
+            objective: 12107.3,
+            bound: 12107.3,
+            gap: 0.0,
+            proven_optimal: true,
+            solve_seconds: 0.1,
+            method: "exact".into(),
+            solved: true,
+            greedy_objective: 12081.8,
+            central_coverage: 0.545,
+            lidar_radar_overlap: 0.3,
+            cost_usd: 10000.0,
+            targets: 4846,
+            candidates: 616,
+            scene_hash: "s".into(),
+            catalog_hash: "c".into(),
+        };
+        let dir = std::env::temp_dir().join(format!("hilo-placement-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("p.json");
+        std::fs::write(&path, p.to_json().unwrap()).unwrap();
+        assert_eq!(Placement::load(&path).unwrap(), p);
+        assert!(p.check_made_for("s", "c", &path).is_ok());
+        let e = p.check_made_for("t", "c", &path).unwrap_err().to_string();
+        assert!(e.contains("another scene"), "{e}");
+        std::fs::write(&path, "{\"name\": 1}").unwrap();
+        assert!(Placement::load(&path).unwrap_err().to_string().contains("p.json"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

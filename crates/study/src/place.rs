@@ -1,0 +1,323 @@
+//! Placement of every configuration of a study: visibility computed once for every sensor type,
+//! each configuration solved (exact search or CBC), single-modality configurations given a
+//! sibling's poses, coverage measured by casting the chosen LiDARs' rays.
+
+use crate::error::{Result, StudyError};
+use crate::render::scene_canvas;
+use crate::study::{Configuration, Study};
+use glam::{Vec2, Vec3};
+use hilo_placement_ip::greedy::greedy;
+use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve_from};
+use hilo_placement_ip::{Instance, Limit, Modality, PlacedSensor, Placement};
+use hilo_raycast::scene::config::RoiKind;
+use hilo_raycast::{QueryRegion, World};
+use std::collections::HashSet;
+
+/// What placing a study computed: the targets, candidates and visibility of every sensor type
+/// (reused by the trade-off sweeps), and each configuration's placement with its coverage.
+#[derive(Debug)]
+pub struct Placed {
+    pub prepared: Prepared,
+    pub placements: Vec<Placement>,
+    /// Per placement (same order): the targets its LiDARs hit and its radars cover.
+    pub lidar_hits: Vec<HashSet<usize>>,
+    pub radar_covered: Vec<HashSet<usize>>,
+}
+
+/// The limit a configuration puts on an instance over `types`.
+pub fn limit_for(cfg: &Configuration, types: &[String]) -> Limit {
+    match cfg.budget_usd {
+        Some(usd) => Limit::Budget {
+            usd,
+            min: types.iter().map(|t| cfg.min.get(t).copied().unwrap_or(0)).collect(),
+            max: types.iter().map(|t| cfg.max.get(t).copied().unwrap_or(u32::MAX)).collect(),
+        },
+        None => Limit::Counts(types.iter().map(|t| cfg.sensors.get(t).copied().unwrap_or(0)).collect()),
+    }
+}
+
+fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
+    sel.iter()
+        .map(|&o| {
+            let opt = &inst.options[o];
+            let c = &prep.candidates[opt.candidate as usize];
+            PlacedSensor::new(&inst.types[opt.ty].name, c.modality, c.id, &c.structure, c.pose)
+        })
+        .collect()
+}
+
+/// Visibility of every sensor type of the study.
+pub fn prepare_study(study: &Study) -> Result<Prepared> {
+    Ok(prepare(&study.scene, &study.catalog, &study.type_names(), &study.file.placement)?)
+}
+
+/// Places every configuration; `progress` hears one line per configuration.
+pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) -> Result<Placed> {
+    let scene = &study.scene;
+    let catalog = &study.catalog;
+    let cfg = &study.file.placement;
+    let world = World::build(scene, &QueryRegion::everything())?;
+    let central_roi: Vec<usize> =
+        scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
+    let central: Vec<usize> =
+        (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect();
+    let hits_of = |sensors: &[PlacedSensor]| -> Result<HashSet<usize>> {
+        let lidars = sensors
+            .iter()
+            .filter(|s| s.modality == Modality::Lidar)
+            .map(|s| Ok((catalog.lidar(&s.ty)?.clone(), s.pose)))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(hilo_placement_ip::coverage::lidar_hit_targets(scene, &world, &prep.targets, cfg.cell_m, &lidars)?)
+    };
+    struct Out {
+        placements: Vec<Placement>,
+        lidar_hits: Vec<HashSet<usize>>,
+        radar_covered: Vec<HashSet<usize>>,
+    }
+    let mut out = Out { placements: Vec::new(), lidar_hits: Vec::new(), radar_covered: Vec::new() };
+    let mut deferred = Vec::new();
+    for conf in &study.file.configurations {
+        // One modality: the paper's objective (targets covered by both) is zero whatever the
+        // placement; placed after the others, from a configuration that adds the other modality.
+        if conf.single_modality(catalog) {
+            deferred.push(conf);
+            continue;
+        }
+        let types = conf.type_names();
+        let inst = instance(&prep, catalog, &types, cfg.p_min)?;
+        let limit = limit_for(conf, &types);
+        check_limit(study, conf, &inst, &limit, &prep)?;
+        let g = greedy(&inst, &limit);
+        let o = solve_from(&inst, &limit, cfg.time_limit_s, &g)?;
+        let sensors = placed(&inst, &prep, &o.selection);
+        let hits = hits_of(&sensors)?;
+        let radar: HashSet<usize> =
+            hilo_placement_ip::instance::covered_targets(&inst, &o.selection, Modality::Radar).into_iter().collect();
+        let overlap = (0..prep.targets.len()).filter(|j| hits.contains(j) && radar.contains(j)).count() as f64
+            / prep.targets.len().max(1) as f64;
+        let p = Placement {
+            name: conf.name.clone(),
+            sensors,
+            objective: o.objective,
+            bound: o.bound,
+            gap: o.gap,
+            proven_optimal: o.proven_optimal,
+            solve_seconds: o.solve_seconds,
+            method: o.method.clone(),
+            solved: true,
+            greedy_objective: g.objective,
+            central_coverage: hilo_placement_ip::coverage::share(&central, &hits),
+            lidar_radar_overlap: overlap,
+            cost_usd: inst.cost(&o.selection),
+            targets: prep.targets.len(),
+            candidates: prep.candidates.len(),
+            scene_hash: study.scene_hash.clone(),
+            catalog_hash: study.catalog_hash.clone(),
+        };
+        progress(&format!(
+            "{:<24} objective {:>9.1} (greedy {:>9.1}) {} in {:.3} s, central coverage {:.1}%, cost {} USD",
+            p.name,
+            p.objective,
+            p.greedy_objective,
+            if p.proven_optimal { "proven optimal".to_owned() } else { format!("gap {:.1}%", 100.0 * p.gap) },
+            p.solve_seconds,
+            100.0 * p.central_coverage,
+            p.cost_usd
+        ));
+        out.placements.push(p);
+        out.lidar_hits.push(hits);
+        out.radar_covered.push(radar);
+    }
+    for conf in deferred {
+        let want = &conf.sensors;
+        let sibling = out.placements.iter().find(|p| {
+            let mut counts: std::collections::BTreeMap<String, u32> = std::collections::BTreeMap::new();
+            for s in p.sensors.iter().filter(|s| want.contains_key(&s.ty)) {
+                *counts.entry(s.ty.clone()).or_default() += 1;
+            }
+            conf.budget_usd.is_none() && &counts == want && p.sensors.len() > want.values().sum::<u32>() as usize
+        });
+        let Some(sib) = sibling else {
+            return Err(StudyError::Invalid(format!(
+                "{}: configuration {:?} has a single modality, for which the paper's objective (targets seen by both LiDAR and radar) is zero whatever the placement; add a configuration with the same sensors plus the other modality (hilo then uses its poses), e.g. {:?} + a radar",
+                study.source, conf.name, conf.name
+            )));
+        };
+        let sensors: Vec<PlacedSensor> = sib.sensors.iter().filter(|s| want.contains_key(&s.ty)).cloned().collect();
+        let hits = hits_of(&sensors)?;
+        let cost_usd =
+            sensors.iter().map(|s| catalog.get(&s.ty).map(|c| c.price_usd())).sum::<std::result::Result<f64, _>>()?;
+        let p = Placement {
+            name: conf.name.clone(),
+            sensors,
+            objective: 0.0,
+            bound: 0.0,
+            gap: 0.0,
+            proven_optimal: false,
+            solve_seconds: 0.0,
+            method: format!(
+                "the {} poses of {:?} (one modality: the multimodal objective is zero)",
+                conf.type_names().join(", "),
+                sib.name
+            ),
+            solved: false,
+            greedy_objective: 0.0,
+            central_coverage: hilo_placement_ip::coverage::share(&central, &hits),
+            lidar_radar_overlap: 0.0,
+            cost_usd,
+            targets: prep.targets.len(),
+            candidates: prep.candidates.len(),
+            scene_hash: study.scene_hash.clone(),
+            catalog_hash: study.catalog_hash.clone(),
+        };
+        progress(&format!(
+            "{:<24} {}, central coverage {:.1}%, cost {} USD",
+            p.name,
+            p.method,
+            100.0 * p.central_coverage,
+            p.cost_usd
+        ));
+        out.placements.push(p);
+        out.lidar_hits.push(hits);
+        out.radar_covered.push(HashSet::new());
+    }
+    // In the study's order.
+    let order: Vec<usize> =
+        study.file.configurations.iter().filter_map(|c| out.placements.iter().position(|p| p.name == c.name)).collect();
+    let placements = order.iter().map(|&i| out.placements[i].clone()).collect();
+    let lidar_hits = order.iter().map(|&i| out.lidar_hits[i].clone()).collect();
+    let radar_covered = order.iter().map(|&i| out.radar_covered[i].clone()).collect();
+    Ok(Placed { prepared: prep, placements, lidar_hits, radar_covered })
+}
+
+/// Refuses what no solver can satisfy: a budget that buys no sensor, more sensors of a type than
+/// it has candidates.
+fn check_limit(study: &Study, conf: &Configuration, inst: &Instance, limit: &Limit, prep: &Prepared) -> Result<()> {
+    match limit {
+        Limit::Budget { usd, .. } => {
+            let cheapest = inst.types.iter().map(|t| t.price_usd).fold(f64::INFINITY, f64::min);
+            if cheapest > *usd {
+                return Err(StudyError::Invalid(format!(
+                    "{}: configuration {:?}: the budget of {usd} USD buys no sensor (cheapest {cheapest} USD)",
+                    study.source, conf.name
+                )));
+            }
+        }
+        Limit::Total(_) => {}
+        Limit::Counts(counts) => {
+            for (t, &n) in inst.types.iter().zip(counts) {
+                let mounts: HashSet<u32> =
+                    prep.candidates.iter().filter(|c| c.modality == t.modality).map(|c| c.mount).collect();
+                let available = inst
+                    .options
+                    .iter()
+                    .filter(|o| inst.types[o.ty].name == t.name)
+                    .map(|o| o.mount)
+                    .collect::<HashSet<_>>()
+                    .len();
+                if n as usize > available {
+                    return Err(StudyError::Invalid(format!(
+                        "{}: configuration {:?} asks for {n} x {} but the scene offers {available} mount points for it ({} candidate mounts of its modality; one sensor per mount point)",
+                        study.source,
+                        conf.name,
+                        t.name,
+                        mounts.len()
+                    )));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The coverage map of a placement: green LiDAR-hit cells, red radar-covered, yellow both; grey
+/// candidates; the chosen sensors with their headings.
+pub fn coverage_png(
+    study: &Study,
+    prep: &Prepared,
+    p: &Placement,
+    hits: &HashSet<usize>,
+    radar: &HashSet<usize>,
+) -> Result<Vec<u8>> {
+    let mut c = scene_canvas(&study.scene, 4.0)?;
+    let cells: Vec<(Vec2, (u8, u8, u8))> = prep
+        .targets
+        .iter()
+        .enumerate()
+        .filter_map(|(j, t)| match (hits.contains(&j), radar.contains(&j)) {
+            (true, true) => Some((t.center, (250, 220, 30))),
+            (true, false) => Some((t.center, (40, 200, 80))),
+            (false, true) => Some((t.center, (230, 60, 60))),
+            (false, false) => None,
+        })
+        .collect();
+    c.dots(&cells, 1.6);
+    let cands: Vec<(Vec2, (u8, u8, u8))> =
+        prep.candidates.iter().map(|k| (k.pose.position.truncate(), (120, 120, 120))).collect();
+    c.dots(&cands, 1.2);
+    for s in &p.sensors {
+        let pos = Vec3::from(s.position_m).truncate();
+        let col = if s.modality == Modality::Lidar { (0, 160, 60) } else { (220, 0, 0) };
+        let tip = pos + Vec2::from_angle(s.pose.yaw) * 12.0;
+        c.line(&[pos, tip], col, 0.5);
+        c.dots(&[(pos, (0, 0, 0))], 7.0);
+        c.dots(&[(pos, col)], 5.5);
+    }
+    c.png()
+}
+
+/// Writes `<dir>/<slug>.json` and `<slug>.png` for every placement.
+pub fn write_placements(study: &Study, placed: &Placed, dir: &std::path::Path) -> Result<()> {
+    for (i, p) in placed.placements.iter().enumerate() {
+        let slug = crate::study::slug(&p.name);
+        crate::files::write_atomic(&dir.join(format!("{slug}.json")), p.to_json()?.as_bytes())?;
+        let png = coverage_png(study, &placed.prepared, p, &placed.lidar_hits[i], &placed.radar_covered[i])?;
+        crate::files::write_atomic(&dir.join(format!("{slug}.png")), &png)?;
+    }
+    Ok(())
+}
+
+/// Writes what other solvers need to reproduce a study's placement: `targets.json`,
+/// `candidates.json`, `visibility_<type>.json` (COO sparse: parallel arrays candidate, target,
+/// v) and each configuration's strengthened model as gzip MPS (`<slug>.mps.gz`).
+pub fn export(study: &Study, prep: &Prepared, dir: &std::path::Path) -> Result<()> {
+    use serde_json::json;
+    let targets: Vec<_> = prep
+        .targets
+        .iter()
+        .map(|t| json!({"x": t.center.x, "y": t.center.y, "weight": t.weight, "roi": t.roi}))
+        .collect();
+    let candidates: Vec<_> = prep
+        .candidates
+        .iter()
+        .map(|c| json!({"id": c.id, "modality": c.modality, "mount": c.mount, "structure": c.structure, "position_m": c.pose.position.to_array(), "yaw_deg": c.pose.yaw.to_degrees(), "pitch_deg": c.pose.pitch.to_degrees()}))
+        .collect();
+    crate::files::write_json(&dir.join("targets.json"), &targets)?;
+    crate::files::write_json(&dir.join("candidates.json"), &candidates)?;
+    for t in study.type_names() {
+        let Some(v) = prep.visibility.get(&t) else { continue };
+        let (mut ci, mut tj, mut vv) = (Vec::new(), Vec::new(), Vec::new());
+        for (row, &cand) in v.rows.iter().zip(&v.candidates) {
+            for &(j, x) in row {
+                ci.push(cand);
+                tj.push(j);
+                vv.push(x);
+            }
+        }
+        let doc =
+            json!({"sensor": t, "format": "coo", "n_targets": v.n_targets, "candidate": ci, "target": tj, "v": vv});
+        crate::files::write_json(&dir.join(format!("visibility_{t}.json")), &doc)?;
+    }
+    for conf in study.file.configurations.iter().filter(|c| !c.single_modality(&study.catalog)) {
+        let types = conf.type_names();
+        let inst = instance(prep, &study.catalog, &types, study.file.placement.p_min)?;
+        let limit = limit_for(conf, &types);
+        hilo_placement_ip::mip::write_mps(
+            &inst,
+            &limit,
+            hilo_placement_ip::mip::Formulation::Strengthened,
+            &dir.join(conf.slug()),
+        )?;
+    }
+    Ok(())
+}

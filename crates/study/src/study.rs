@@ -1,0 +1,209 @@
+//! The study file (`fixtures/study.toml` is the default): the scene and sensor catalog, the
+//! placement settings, the dataset settings, and the sensor configurations to compare.
+
+use crate::error::{Result, StudyError};
+use crate::files::hash;
+use hilo_dataset::simulate::SimulateConfig;
+use hilo_placement_ip::pipeline::PlacementConfig;
+use hilo_raycast::Scene;
+use hilo_sensor_models::{Catalog, SensorSpec};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StudyFile {
+    /// Scene TOML (relative to the study file); the embedded default intersection when absent.
+    #[serde(default)]
+    pub scene: Option<PathBuf>,
+    /// Sensor catalog TOML; the embedded default (the paper's Table I) when absent.
+    #[serde(default)]
+    pub catalog: Option<PathBuf>,
+    #[serde(default)]
+    pub placement: PlacementConfig,
+    /// Traffic and recording settings of the datasets.
+    #[serde(default)]
+    pub dataset: SimulateConfig,
+    pub configurations: Vec<Configuration>,
+}
+
+/// One sensor configuration to place.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Configuration {
+    pub name: String,
+    /// Fixed counts per sensor type.
+    #[serde(default)]
+    pub sensors: BTreeMap<String, u32>,
+    /// A budget over `types` instead of fixed counts.
+    #[serde(default)]
+    pub budget_usd: Option<f64>,
+    #[serde(default)]
+    pub types: Vec<String>,
+    #[serde(default)]
+    pub min: BTreeMap<String, u32>,
+    #[serde(default)]
+    pub max: BTreeMap<String, u32>,
+}
+
+impl Configuration {
+    /// The sensor types this configuration may use.
+    pub fn type_names(&self) -> Vec<String> {
+        if self.budget_usd.is_some() { self.types.clone() } else { self.sensors.keys().cloned().collect() }
+    }
+
+    /// A file-name-safe form of the name.
+    pub fn slug(&self) -> String {
+        slug(&self.name)
+    }
+
+    /// Whether it may use a radar: any of its types is a radar in the catalog.
+    pub fn has_radar(&self, catalog: &Catalog) -> bool {
+        self.type_names().iter().any(|t| matches!(catalog.get(t), Ok(SensorSpec::Radar(_))))
+    }
+
+    /// Whether it may use a LiDAR.
+    pub fn has_lidar(&self, catalog: &Catalog) -> bool {
+        self.type_names().iter().any(|t| matches!(catalog.get(t), Ok(SensorSpec::Lidar(_))))
+    }
+
+    /// Whether it has sensors of one modality only: the paper's objective (targets covered by
+    /// both) is then zero whatever the placement, so it takes the poses of a sibling.
+    pub fn single_modality(&self, catalog: &Catalog) -> bool {
+        self.has_radar(catalog) != self.has_lidar(catalog)
+    }
+}
+
+/// A file-name-safe form of a name: lowercase ASCII letters and digits, runs of anything else
+/// as one `_`.
+pub fn slug(name: &str) -> String {
+    let s: String =
+        name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect();
+    s.split('_').filter(|p| !p.is_empty()).collect::<Vec<_>>().join("_")
+}
+
+/// A loaded study: the file, where its relative paths resolve, its scene and catalog.
+#[derive(Clone, Debug)]
+pub struct Study {
+    pub file: StudyFile,
+    pub dir: PathBuf,
+    /// Where it came from, for messages.
+    pub source: String,
+    pub scene: Scene,
+    pub catalog: Catalog,
+    /// Content hashes of the scene and the catalog.
+    pub scene_hash: String,
+    pub catalog_hash: String,
+}
+
+impl Study {
+    /// Reads a study file.
+    pub fn load(path: &Path) -> Result<Study> {
+        let text = std::fs::read_to_string(path).map_err(|e| StudyError::io(path, e))?;
+        Study::parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
+    }
+
+    /// A study from TOML text whose relative paths resolve against `dir` (the embedded default
+    /// study passes its text and `.`).
+    pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Study> {
+        let file: StudyFile = toml::from_str(text)
+            .map_err(|e| StudyError::File { path: PathBuf::from(source), message: format!("invalid study: {e}") })?;
+        Study::from_file(file, dir, source)
+    }
+
+    /// A study from its parsed file: validates it and loads its scene and catalog.
+    pub fn from_file(file: StudyFile, dir: &Path, source: &str) -> Result<Study> {
+        let bad = |m: String| StudyError::File { path: PathBuf::from(source), message: m };
+        if file.configurations.is_empty() {
+            return Err(bad("no [[configurations]]".into()));
+        }
+        let mut names = std::collections::HashSet::new();
+        for (i, c) in file.configurations.iter().enumerate() {
+            if !names.insert(c.slug()) {
+                return Err(bad(format!(
+                    "configurations[{i}].name = {:?} repeats another configuration's name",
+                    c.name
+                )));
+            }
+            match (c.budget_usd, c.sensors.is_empty()) {
+                (Some(b), true) if b.is_finite() && b > 0.0 && !c.types.is_empty() => {}
+                (Some(b), true) => {
+                    return Err(bad(format!(
+                        "configurations[{i}] ({}): budget_usd = {b} needs a positive budget and a `types` list",
+                        c.name
+                    )));
+                }
+                (None, false) => {}
+                _ => {
+                    return Err(bad(format!(
+                        "configurations[{i}] ({}): give either `sensors` or `budget_usd` with `types`",
+                        c.name
+                    )));
+                }
+            }
+            if c.budget_usd.is_none() && c.sensors.values().all(|n| *n == 0) {
+                return Err(bad(format!(
+                    "configurations[{i}] ({}): every sensor count is 0; a configuration needs a sensor",
+                    c.name
+                )));
+            }
+        }
+        file.dataset.validate()?;
+        let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
+        let scene = match &file.scene {
+            Some(p) => Scene::load(&resolve(p))?,
+            None => Scene::default_fixture()?,
+        };
+        let catalog = match &file.catalog {
+            Some(p) => Catalog::load(&resolve(p))?,
+            None => Catalog::default_catalog()?,
+        };
+        for (i, c) in file.configurations.iter().enumerate() {
+            for t in c.type_names() {
+                catalog
+                    .get(&t)
+                    .map_err(|e| bad(format!("configurations[{i}] ({}) names sensor {t:?}: {e}", c.name)))?;
+            }
+        }
+        let scene_hash = scene_hash(&scene);
+        let catalog_hash = hash(&[&format!("{:?}", catalog.sensors())]);
+        Ok(Study { file, dir: dir.to_path_buf(), source: source.to_owned(), scene, catalog, scene_hash, catalog_hash })
+    }
+
+    /// Every sensor type any configuration names, sorted, once each.
+    pub fn type_names(&self) -> Vec<String> {
+        let mut all: Vec<String> = self.file.configurations.iter().flat_map(|c| c.type_names()).collect();
+        all.sort();
+        all.dedup();
+        all
+    }
+
+    /// A configuration by name.
+    pub fn configuration(&self, name: &str) -> Result<&Configuration> {
+        self.file.configurations.iter().find(|c| c.name == name || c.slug() == name).ok_or_else(|| {
+            StudyError::Invalid(format!(
+                "{}: no configuration {name:?}; configurations: {}",
+                self.source,
+                self.file.configurations.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
+            ))
+        })
+    }
+}
+
+/// A content hash of a scene: its configuration and every static triangle (imported meshes
+/// included), so a placement made for a scene is never used with another.
+pub fn scene_hash(scene: &Scene) -> String {
+    let config = serde_json::to_string(&scene.config).unwrap_or_default();
+    let mut bits = String::with_capacity(scene.mesh.triangles.len() * 8);
+    let mut acc: u64 = 0xcbf2_9ce4_8422_2325;
+    for t in &scene.mesh.triangles {
+        for v in t {
+            for c in v.to_array() {
+                acc = (acc ^ c.to_bits() as u64).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        }
+    }
+    bits.push_str(&format!("{acc:016x}:{}", scene.mesh.triangles.len()));
+    hash(&[&config, &bits])
+}
