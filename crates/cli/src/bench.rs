@@ -9,6 +9,7 @@ use obvhs::triangle::Triangle;
 use parry3d::query::RayCast;
 use rayon::prelude::*;
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 #[derive(Serialize, Debug)]
@@ -485,4 +486,167 @@ pub fn eval(frames: usize, max_pred: usize, repeats: usize) -> Result<EvalReport
         nd_score: m.nd_score,
         threads: rayon::current_num_threads(),
     })
+}
+
+/// `hilo bench train`: where a training step's time goes, per part, for each preset, and the
+/// step's arithmetic rate against the machine's matrix-product peak measured in the same run.
+#[derive(Serialize, Debug)]
+pub struct TrainReport {
+    pub data: String,
+    pub threads: usize,
+    /// candle's f32 matrix product on 2048 × 2048 matrices, GFLOP/s (median of 5).
+    pub matmul_peak_gflops: f64,
+    pub presets: Vec<TrainRow>,
+}
+
+#[derive(Serialize, Debug)]
+pub struct TrainRow {
+    pub preset: String,
+    pub layout: &'static str,
+    pub background_removed: bool,
+    pub batch: usize,
+    pub steps: usize,
+    pub samples_per_s: f64,
+    /// Milliseconds per step of each part (data: on the batch thread when training).
+    pub ms: BTreeMap<&'static str, f64>,
+    /// Forward FLOPs of convolutions and pillar layers per step; a training step is counted as
+    /// three times that (forward, and the two products of the backward pass).
+    pub forward_gflop_per_step: f64,
+    pub achieved_gflops: f64,
+    pub ratio_to_peak: f64,
+    /// Mean pillars per frame (LiDAR + radar) and sites of the sparse layout per batch.
+    pub pillars_per_frame: f64,
+    pub level0_sites_per_batch: f64,
+    pub head_sites_per_batch: f64,
+}
+
+fn matmul_peak() -> Result<f64> {
+    let dev = candle_core::Device::Cpu;
+    let n = 2048;
+    let a = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
+    let b = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
+    let _ = a.matmul(&b)?;
+    let mut t = Vec::new();
+    for _ in 0..5 {
+        let s = Instant::now();
+        let c = a.matmul(&b)?;
+        let _ = c.sum_all()?.to_scalar::<f32>()?;
+        t.push(s.elapsed().as_secs_f64());
+    }
+    Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9)
+}
+
+pub fn train(
+    data: &std::path::Path,
+    presets: &[String],
+    steps: usize,
+    overrides: &[(String, serde_json::Value)],
+) -> Result<TrainReport> {
+    use hilo_fusion::data::{LoadOptions, load_split};
+    use hilo_fusion::detector::Detector;
+    use std::sync::atomic::Ordering;
+    let registry = hilo::registry()?;
+    let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")
+        .with_context(|| format!("opening dataset {}", data.display()))?;
+    let peak = matmul_peak()?;
+    let mut rows = Vec::new();
+    for name in presets {
+        let preset = registry.preset(name)?;
+        let mut det_cfg = preset.detector.clone();
+        // Variants for the levers' rows: `dense`, `no-background`.
+        for (k, v) in overrides {
+            match k.as_str() {
+                "layout" if v == "dense" => det_cfg.sparse = None,
+                "background" if v == false => det_cfg.input.background = None,
+                "radar_sweeps" => det_cfg.input.radar_sweeps = v.as_u64().unwrap_or(1) as usize,
+                _ => anyhow::bail!("unknown variant {k} = {v}"),
+            }
+        }
+        let background = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
+        let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
+        let det = Detector::new(&det_cfg, &registry, &candle_core::Device::Cpu, 0)?;
+        let cfg = preset.train.clone();
+        // Warm-up steps (allocator, caches), then the timed ones.
+        hilo_fusion::train::time_steps(&det, &frames, &cfg, 3)?;
+        hilo_fusion::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
+        let t = hilo_fusion::train::time_steps(&det, &frames, &cfg, steps)?;
+        let flops = hilo_fusion::conv::FORWARD_FLOPS.load(Ordering::Relaxed) as f64 / steps as f64;
+        let per = |s: f64| 1e3 * s / steps as f64;
+        let ms = BTreeMap::from([
+            ("data (host: augmentation, pillars, layout, targets)", per(t.data_s)),
+            ("to device", per(t.forward.to_device_s)),
+            ("pillar net + fusion", per(t.forward.fusion_s)),
+            ("backbone + neck", per(t.forward.backbone_s)),
+            ("head", per(t.forward.head_s)),
+            ("loss", per(t.loss_s)),
+            ("backward", per(t.backward_s)),
+            ("optimizer", per(t.optimizer_s)),
+        ]);
+        // Training overlaps data preparation with the step; the step itself is the rest.
+        let step_s = t.total_s.max(t.data_s) / steps as f64;
+        let achieved = 3.0 * flops / step_s / 1e9;
+        let occupancy = {
+            let mut pillars = 0usize;
+            let (mut l0, mut head) = (0usize, 0usize);
+            let n = 8.min(frames.len() / cfg.batch.max(1)).max(1);
+            for k in 0..n {
+                let chunk = &frames[k * cfg.batch..((k + 1) * cfg.batch).min(frames.len())];
+                let b = hilo_fusion::detector::HostBatch::new(&det_cfg, chunk, det.uses_radar(), 0);
+                pillars += b.lidar.count() + b.radar.count();
+                if let Some(h) = &b.sparse {
+                    l0 += h.sites[0].len();
+                    head += h.head_sites.len();
+                }
+            }
+            (pillars as f64 / (n * cfg.batch) as f64, l0 as f64 / n as f64, head as f64 / n as f64)
+        };
+        rows.push(TrainRow {
+            preset: name.clone(),
+            layout: if det_cfg.sparse.is_some() { "sparse" } else { "dense" },
+            background_removed: det_cfg.input.background.is_some(),
+            batch: cfg.batch,
+            steps,
+            samples_per_s: cfg.batch as f64 / step_s,
+            ms,
+            forward_gflop_per_step: flops / 1e9,
+            achieved_gflops: achieved,
+            ratio_to_peak: achieved / peak,
+            pillars_per_frame: occupancy.0,
+            level0_sites_per_batch: occupancy.1,
+            head_sites_per_batch: occupancy.2,
+        });
+    }
+    Ok(TrainReport {
+        data: data.display().to_string(),
+        threads: rayon::current_num_threads(),
+        matmul_peak_gflops: peak,
+        presets: rows,
+    })
+}
+
+impl TrainReport {
+    pub fn print_table(&self) {
+        println!(
+            "matrix-product peak: {:.1} GFLOP/s ({} threads); data {}",
+            self.matmul_peak_gflops, self.threads, self.data
+        );
+        for r in &self.presets {
+            println!(
+                "{} ({}, background {}): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
+                r.preset,
+                r.layout,
+                if r.background_removed { "removed" } else { "kept" },
+                r.samples_per_s,
+                r.forward_gflop_per_step,
+                r.achieved_gflops,
+                100.0 * r.ratio_to_peak,
+                r.pillars_per_frame,
+                r.level0_sites_per_batch,
+                r.head_sites_per_batch
+            );
+            for (k, v) in &r.ms {
+                println!("    {k:<52} {v:>8.2} ms/step");
+            }
+        }
+    }
 }

@@ -135,6 +135,26 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Where a training step's time goes (pillarisation, pillar net, backbone, head, loss,
+    /// backward, optimizer, data) for each preset, and its GFLOP/s against the machine's
+    /// matrix-product peak measured in the same run.
+    Train {
+        /// A dataset written by `hilo simulate` (its training split is used).
+        #[arg(long)]
+        data: PathBuf,
+        /// Presets (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "centerpoint,lirafusion-like")]
+        presets: Vec<String>,
+        /// Timed steps per preset (after 3 warm-up steps).
+        #[arg(long, default_value_t = 40)]
+        steps: usize,
+        /// A lever turned off, for a before/after row: `layout=dense`, `background=false`,
+        /// `radar_sweeps=K` (repeatable).
+        #[arg(long = "variant", value_parser = parse_variant)]
+        variants: Vec<(String, serde_json::Value)>,
+        #[arg(long)]
+        json: bool,
+    },
     /// One frame of the paper's cheapest suite (2 x 16-beam LiDAR + radar) with moving actors,
     /// and of a 64-beam LiDAR + radar, on the default scene.
     Sensors {
@@ -147,6 +167,13 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// `key=value` with a JSON (or bare word) value.
+fn parse_variant(s: &str) -> std::result::Result<(String, serde_json::Value), String> {
+    let (k, v) = s.split_once('=').ok_or_else(|| format!("{s:?}: expected key=value"))?;
+    let v = serde_json::from_str(v).unwrap_or_else(|_| serde_json::Value::String(v.to_owned()));
+    Ok((k.to_owned(), v))
 }
 
 /// Loads the named scene or the embedded default.
@@ -199,6 +226,14 @@ fn main() -> Result<()> {
                 println!("{}", serde_json::to_string(&report)?);
             } else {
                 println!("{}", serde_json::to_string_pretty(&report)?);
+            }
+        }
+        Command::Bench { command: BenchCommand::Train { data, presets, steps, variants, json } } => {
+            let report = bench::train(&data, &presets, steps.max(1), &variants)?;
+            if json {
+                println!("{}", serde_json::to_string(&report)?);
+            } else {
+                report.print_table();
             }
         }
         Command::Bench { command: BenchCommand::Sensors { actors, frames, json } } => {

@@ -9,6 +9,16 @@
 use crate::error::{FusionError, Result};
 use crate::layout::At;
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Multiply-add FLOPs (2 per multiply-add) of every convolution and pillar linear layer run in
+/// this process's forward passes. Benchmarks read it to express a step's speed as GFLOP/s.
+pub static FORWARD_FLOPS: AtomicU64 = AtomicU64::new(0);
+
+/// Counts the forward FLOPs of an `(m × k) · (k × n)` matrix product.
+pub fn count_matmul(m: usize, k: usize, n: usize) {
+    FORWARD_FLOPS.fetch_add(2 * (m * k * n) as u64, Ordering::Relaxed);
+}
 use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
@@ -158,6 +168,7 @@ pub fn conv2d(x: &Tensor, w: &Tensor, stride: usize, pad: usize) -> Result<Tenso
     let (co, _, k, _) = w.dims4()?;
     let g = Geometry { channels: c, h, w: wd, k, stride, pad };
     let (ho, wo) = g.out();
+    count_matmul(b * ho * wo, c * k * k, co);
     let cols = if k == 1 && stride == 1 && pad == 0 {
         x.reshape((b, c, h * wd))?
     } else {
@@ -211,6 +222,7 @@ impl Conv {
             At::Sparse(plane) => {
                 let (co, ci, k, _) = self.weight.dims4()?;
                 if k == 1 {
+                    count_matmul(x.dim(0)?, ci, co);
                     self.add_bias(x.matmul(&self.weight.reshape((co, ci))?.t()?)?)
                 } else if self.stride == 1 {
                     self.forward_rules(x, &plane.subm)

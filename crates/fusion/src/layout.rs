@@ -339,6 +339,7 @@ pub fn gather_conv(x: &Tensor, w: &Tensor, rules: &Tensor) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     let taps = kh * kw;
     let n_out = rules.dim(0)? / taps;
+    crate::conv::count_matmul(n_out, taps * ci, co);
     let cols = x.contiguous()?.index_select(rules, 0)?.reshape((n_out, taps * ci))?;
     // (C_out, C_in, 3, 3) → (9 · C_in, C_out), taps major as the gather lays them out.
     let wm = w.reshape((co, ci, taps))?.permute((2, 1, 0))?.reshape((taps * ci, co))?;

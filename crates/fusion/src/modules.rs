@@ -74,6 +74,7 @@ impl PillarNet {
     /// (P, C) pillar features.
     pub fn encode(&self, p: &PillarTensors, train: bool) -> Result<Tensor> {
         let (n, npp, f) = p.features.dims3()?;
+        crate::conv::count_matmul(n * npp, f, self.channels);
         let x = self.linear.forward(&p.features.reshape((n * npp, f))?)?;
         let x = self.bn.forward_t(&x, train)?.relu()?;
         let x = x.reshape((n, npp, self.channels))?.broadcast_mul(&p.mask)?;

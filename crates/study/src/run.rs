@@ -393,7 +393,10 @@ pub fn run(
                     _ => {
                         let (det, _, _) = load_run(&run, registry, &Device::Cpu)?;
                         let (dets, per_frame) = hilo_fusion::infer::detect_frames(&det, val_frames, 4, &mut |_| {})?;
-                        let pred = hilo_eval::boxes::from_detections(&dets);
+                        // In the order the submission file keeps (sample tokens sorted), so that a
+                        // resumed study, which reads the file back, scores exactly the same.
+                        let mut pred = hilo_eval::boxes::from_detections(&dets);
+                        pred.sort_by(|a, b| a.0.cmp(&b.0));
                         let json =
                             hilo_eval::boxes::submission_json(&pred, serde_json::json!({ "detector": det.cfg.name }));
                         write_json(&res_path, &json)?;
