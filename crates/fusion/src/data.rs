@@ -60,7 +60,7 @@ impl InputConfig {
         if self.radar_sweeps == 0 || self.radar_sweeps > 20 {
             return Err(FusionError::Config(format!("input.radar_sweeps = {}: must be in 1..=20", self.radar_sweeps)));
         }
-        if !(self.max_sweep_lag_s > 0.0) {
+        if self.max_sweep_lag_s.is_nan() || self.max_sweep_lag_s <= 0.0 {
             return Err(FusionError::Config(format!("input.max_sweep_lag_s = {}: must be > 0", self.max_sweep_lag_s)));
         }
         if let Some(b) = &self.background {

@@ -69,7 +69,7 @@ impl DetectorConfig {
             )));
         }
         let total: usize = b.blocks.iter().map(|x| x.stride).product();
-        if self.grid.cells() % total != 0 || b.out_stride > total {
+        if !self.grid.cells().is_multiple_of(total) || b.out_stride > total {
             return Err(FusionError::Config(format!(
                 "detector {}: out_stride {} and the backbone's stride {total} must divide the grid's {} cells",
                 self.name,
@@ -112,7 +112,7 @@ impl HostBatch {
             frames.iter().map(|f| if with_radar { f.radar.as_slice() } else { &[] }).collect();
         let boxes: Vec<&[GtBox]> = frames.iter().map(|f| f.boxes.as_slice()).collect();
         let lidar = pillarize(&cfg.grid, &lidar, seed);
-        let radar = pillarize(&cfg.grid, &radar, seed ^ 0x5eed_0f_4ada7);
+        let radar = pillarize(&cfg.grid, &radar, seed ^ 0x5eed_f4ad);
         let mut targets =
             crate::targets::build(&cfg.grid, cfg.backbone.out_stride, CLASSES.len(), &boxes, cfg.assignment);
         let sparse = cfg.sparse.as_ref().map(|s| {

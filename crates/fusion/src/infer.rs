@@ -5,13 +5,16 @@ use crate::detector::{Detector, HostBatch};
 use crate::error::Result;
 use hilo_core::Detection;
 
+/// Boxes per sample, in frame order.
+pub type Detections = Vec<(String, Vec<Detection>)>;
+
 /// Boxes of every frame (detected in batches of `batch`), and the wall time per frame, seconds.
 pub fn detect_frames(
     det: &Detector,
     frames: &[Frame],
     batch: usize,
     on_batch: &mut dyn FnMut(usize),
-) -> Result<(Vec<(String, Vec<Detection>)>, f64)> {
+) -> Result<(Detections, f64)> {
     let t0 = std::time::Instant::now();
     let with_radar = det.uses_radar();
     let mut out = Vec::with_capacity(frames.len());

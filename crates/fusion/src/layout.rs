@@ -131,7 +131,7 @@ impl SparseHost {
                 let (r, c) = (rc / n_in, rc % n_in);
                 let span = |x: usize| -> Vec<usize> {
                     let mut v = vec![x / 2];
-                    if x % 2 == 1 && (x + 1) / 2 < n {
+                    if x % 2 == 1 && x.div_ceil(2) < n {
                         v.push(x.div_ceil(2));
                     }
                     v

@@ -39,8 +39,8 @@ pub enum SampleKey {
 }
 
 /// The ground truth of `split`, as the devkit's `load_gt` builds it (classes from categories,
-/// sizes and rotations as annotated, velocity by the devkit's finite difference, points = LiDAR
-/// + radar points, the attribute if there is one), with scenes named by name. Also returns each
+/// sizes and rotations as annotated, velocity by the devkit's finite difference, points as
+/// LiDAR plus radar points, the attribute if there is one), with scenes named by name. Also returns each
 /// sample token's key.
 pub fn ground_truth(
     ds: &Dataset,
