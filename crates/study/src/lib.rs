@@ -21,6 +21,7 @@ pub mod render;
 pub mod report;
 pub mod rig;
 pub mod run;
+pub mod stats;
 pub mod study;
 pub mod tradeoff;
 
