@@ -5,6 +5,8 @@
 //! end, and `benches/`, criterion, are ordinary Cargo targets) and holds the one list of fusion
 //! plugins hilo ships, [`registry`], which the command line, the tests and the benchmarks share.
 
+pub mod bench;
+
 pub use hilo_core as core;
 pub use hilo_dataset as dataset;
 pub use hilo_eval as eval;

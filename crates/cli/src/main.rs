@@ -1,12 +1,11 @@
 //! `hilo`: which roadside sensors to mount where, and how well they will detect road users.
 
-mod bench;
 mod dataset;
 mod eval;
 mod progress;
 mod scan;
-mod simulate;
 mod stages;
+mod study;
 mod train;
 
 use anyhow::{Context, Result};
@@ -37,7 +36,7 @@ enum Command {
     /// Simulate one frame of one sensor on a scene with a few road users; write PCD or PLY.
     Scan(scan::ScanArgs),
     /// The end-to-end study: placement, datasets, training, evaluation, report.
-    Study(stages::StudyArgs),
+    Study(study::StudyArgs),
     /// Place each configuration of a study optimally (integer programming over visibility).
     Place(stages::PlaceArgs),
     /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
@@ -148,8 +147,8 @@ enum BenchCommand {
         /// Timed steps per preset (after 3 warm-up steps).
         #[arg(long, default_value_t = 40)]
         steps: usize,
-        /// A lever turned off, for a before/after row: `layout=dense`, `background=false`,
-        /// `radar_sweeps=K` (repeatable).
+        /// A lever turned off or changed, for a before/after row: `layout=dense`,
+        /// `background=false`, `radar_sweeps=K`, `batch=N` (repeatable).
         #[arg(long = "variant", value_parser = parse_variant)]
         variants: Vec<(String, serde_json::Value)>,
         #[arg(long)]
@@ -205,7 +204,7 @@ fn main() -> Result<()> {
         Command::Simulate(args) => stages::simulate(&args)?,
         Command::Train(args) => train::run_train(&args)?,
         Command::Study(args) => {
-            stages::study(&args)?;
+            study::study(&args)?;
         }
         Command::Detect(args) => train::run_detect(&args)?,
         Command::Dataset { command: DatasetCommand::Stats(args) } => dataset::stats(&args)?,
@@ -213,15 +212,29 @@ fn main() -> Result<()> {
             stages::place(&args)?;
         }
         Command::Bench { command: BenchCommand::Eval { frames, max_pred, repeats, json } } => {
-            let report = bench::eval(frames.max(1), max_pred, repeats.max(1))?;
+            let report = hilo::bench::eval(frames.max(1), max_pred, repeats.max(1))?;
             println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
         }
         Command::Bench { command: BenchCommand::Simulate { scenes, seconds, rate_hz, keep, json } } => {
-            let report = simulate::bench(scenes, seconds, rate_hz, keep.as_deref())?;
+            let study = stages::load_study(None)?;
+            let cfg = hilo_dataset::simulate::SimulateConfig {
+                scenes,
+                seconds,
+                rate_hz,
+                val_scenes: 0,
+                ..study.file.dataset.clone()
+            };
+            let total = cfg.total_frames();
+            let reporter = std::sync::Mutex::new(progress::Reporter::new());
+            let report = hilo::bench::simulate::bench(&study, scenes, seconds, rate_hz, keep.as_deref(), &|done| {
+                if let Ok(mut r) = reporter.lock() {
+                    r.task("bench simulate", done, total, "frames");
+                }
+            })?;
             println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
         }
         Command::Bench { command: BenchCommand::Placement { cbc_seconds, json } } => {
-            let report = bench::placement(cbc_seconds)?;
+            let report = hilo::bench::placement(cbc_seconds)?;
             if json {
                 println!("{}", serde_json::to_string(&report)?);
             } else {
@@ -229,7 +242,7 @@ fn main() -> Result<()> {
             }
         }
         Command::Bench { command: BenchCommand::Train { data, presets, steps, variants, json } } => {
-            let report = bench::train(&data, &presets, steps.max(1), &variants)?;
+            let report = hilo::bench::train(&data, &presets, steps.max(1), &variants)?;
             if json {
                 println!("{}", serde_json::to_string(&report)?);
             } else {
@@ -237,7 +250,7 @@ fn main() -> Result<()> {
             }
         }
         Command::Bench { command: BenchCommand::Sensors { actors, frames, json } } => {
-            let report = bench::sensors(actors, frames.max(1))?;
+            let report = hilo::bench::sensors(actors, frames.max(1))?;
             if json {
                 println!("{}", serde_json::to_string(&report)?);
             } else {
@@ -246,7 +259,7 @@ fn main() -> Result<()> {
         }
         Command::Bench { command: BenchCommand::Raycast { scene, azimuth_steps, repeats, json } } => {
             let scene = load_scene(scene.as_deref())?;
-            let report = bench::raycast(&scene, azimuth_steps, repeats.max(1))?;
+            let report = hilo::bench::raycast(&scene, azimuth_steps, repeats.max(1))?;
             if json {
                 println!("{}", serde_json::to_string(&report)?);
             } else {

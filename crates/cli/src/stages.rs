@@ -1,12 +1,11 @@
-//! `hilo place`, `hilo simulate` and `hilo study`: argument parsing and progress around the
-//! study library.
+//! `hilo place` and `hilo simulate`: argument parsing and progress around the study library.
 
 use crate::progress::Reporter;
 use anyhow::{Context, Result};
 use hilo_dataset::simulate::SimulateConfig;
 use hilo_placement_ip::Placement;
+use hilo_study::Study;
 use hilo_study::place::{place_all, prepare_study, write_placements};
-use hilo_study::{RunOptions, Study};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
@@ -16,7 +15,11 @@ pub const DEFAULT_STUDY_TOML: &str = include_str!("../../../fixtures/study.toml"
 /// The named study, or the embedded default.
 pub fn load_study(path: Option<&Path>) -> Result<Study> {
     match path {
-        Some(p) => Study::load(p).with_context(|| format!("loading study {}", p.display())),
+        Some(p) => {
+            // Absolute, so that a stage run from the study folder by a workflow engine finds it.
+            let abs = std::fs::canonicalize(p).with_context(|| format!("study file {}", p.display()))?;
+            Study::load(&abs).with_context(|| format!("loading study {}", p.display()))
+        }
         None => Study::parse(DEFAULT_STUDY_TOML, Path::new("."), "<embedded>/fixtures/study.toml")
             .context("loading the embedded default study"),
     }
@@ -174,35 +177,4 @@ pub fn write_dataset(
         r.finish();
     }
     Ok(summary)
-}
-
-#[derive(clap::Args, Debug)]
-pub struct StudyArgs {
-    /// Study TOML; the embedded default (the paper's configurations on the default
-    /// intersection) when omitted.
-    pub study: Option<PathBuf>,
-    #[arg(long, default_value = "study")]
-    pub out: PathBuf,
-    /// quick (≤ 5 min: 2 configurations, 2 presets, few frames), default (≤ 30 min), or paper
-    /// (37 scenes × 20 s × 20 Hz, six presets; hours here).
-    #[arg(long, default_value = "default")]
-    pub profile: String,
-    /// Train every detector with this many seeds.
-    #[arg(long, default_value_t = 1)]
-    pub seeds: u64,
-    /// Presets to train (comma-separated), overriding the profile's.
-    #[arg(long, value_delimiter = ',')]
-    pub presets: Option<Vec<String>>,
-}
-
-pub fn study(args: &StudyArgs) -> Result<hilo_study::Report> {
-    let study = load_study(args.study.as_deref())?;
-    let registry = crate::train::registry()?;
-    let mut profile = hilo_study::profile(&args.profile, &study, &registry)?;
-    if let Some(p) = &args.presets {
-        profile.presets = p.clone();
-    }
-    let opts = RunOptions { profile, seeds: args.seeds, out: args.out.clone() };
-    let mut reporter = Reporter::new();
-    Ok(hilo_study::run(&study, &registry, &opts, &mut |p| reporter.study(p))?)
 }

@@ -1,7 +1,6 @@
 //! `hilo train` and `hilo detect`.
 
 use anyhow::{Context, Result, bail};
-use candle_core::Device;
 use hilo_fusion::Registry;
 use hilo_fusion::data::LoadOptions;
 use hilo_fusion::train::{StepReport, TrainConfig};
@@ -152,7 +151,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         &frames,
         background.as_ref(),
         &registry,
-        &Device::Cpu,
+        &hilo_fusion::default_device(),
         &mut on_step,
     )
     .with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
@@ -192,7 +191,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
-    let (det, info, background) = hilo_fusion::train::load_run(&args.run, &registry()?, &Device::Cpu)
+    let (det, info, background) = hilo_fusion::train::load_run(&args.run, &registry()?, &hilo_fusion::default_device())
         .with_context(|| format!("loading run {}", args.run.display()))?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;

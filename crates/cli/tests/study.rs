@@ -18,9 +18,12 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     for section in [
+        "## The paper's claims",
         "## Configurations",
         "## Accuracy",
         "## Is the difference real?",
+        "## Calibration of the test",
+        "## Learning curves",
         "## Figures",
         "## Speed against error",
         "2x lidar-16 + radar",
@@ -30,7 +33,20 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
         assert!(md.contains(section), "report.md lacks {section:?}");
     }
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(json["entries"].as_array().unwrap().len(), 4);
+    // 2 × 16 + radar: 2 presets × 2 seeds; 64 alone: centerpoint × 2 seeds (no radar for the
+    // fusion preset); scored on the common ground truth, six classes each.
+    let entries = json["entries"].as_array().unwrap();
+    assert_eq!(entries.len(), 6);
+    assert!(
+        entries
+            .iter()
+            .all(|e| e["class_ap"].as_object().unwrap().len() == 6 && e["visible_only"]["mean_ap"].is_number())
+    );
+    assert_eq!(json["ground_truth"], "common");
+    assert_eq!(json["claims"].as_array().unwrap().len(), 5);
+    assert!(json["calibration"]["pairs"].as_u64().unwrap() >= 4);
+    assert!(json["learning_curves"].as_array().unwrap().iter().all(|c| c["points"].as_array().unwrap().len() == 2));
+    assert!(json["provenance"]["hilo_version"].is_string() && json["provenance"]["cpu_features"].is_array());
     assert!(json["cost_reduction"].as_object().unwrap().values().all(|v| v.as_f64().unwrap() > 0.0));
     // Placement's speed against error: line-of-sight samples (the most samples is the reference)
     // and solver time limits (every bound valid, the last one proven).
@@ -48,9 +64,12 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
         "map_vs_cost.png",
         "pedestrian_ap.svg",
         "pedestrian_ap.png",
+        "learning_curves.png",
+        "class_ap_centerpoint.png",
         "coverage_2x_lidar_16_radar.png",
         "detections/2x_lidar_16_radar__centerpoint.png",
-        "detections/1x_lidar_32_radar__pointpillars-lr.png",
+        "detections/2x_lidar_16_radar__pointpillars-lr.png",
+        "detections/1x_lidar_64__centerpoint.png",
     ] {
         let p = out.join("figures").join(f);
         assert!(std::fs::metadata(&p).map(|m| m.len() > 100).unwrap_or(false), "{} missing or empty", p.display());
@@ -62,7 +81,7 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     // A rerun finds every stage done.
     let o = run();
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success() && err.contains("scenes resumed") && !err.contains("[study] placement"), "{err}");
+    assert!(o.status.success() && !err.contains("key frames") && !err.contains("[study] placement"), "{err}");
     // Another study in the same folder is refused, and nothing is overwritten.
     let before = std::fs::read(out.join("report.json")).unwrap();
     let o = hilo().args(["study", "--profile", "quick", "--out"]).arg(&out).output().unwrap();
@@ -106,4 +125,40 @@ fn bad_studies_are_refused_clearly() {
     let o = hilo().args(["study", "--profile", "tiny", "--out"]).arg(&d).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("not a study folder"));
     assert_eq!(std::fs::read_to_string(d.join("keep.txt")).unwrap(), "mine");
+}
+
+#[test]
+fn a_study_written_as_a_workflow_names_its_stages() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("wf");
+    let o = hilo().args(["study", "--profile", "tiny", "--workflow", "snakemake", "--out"]).arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let snake = std::fs::read_to_string(out.join("Snakefile")).unwrap();
+    let config = std::fs::read_to_string(out.join("config.yaml")).unwrap();
+    assert!(config.contains(env!("CARGO_BIN_EXE_hilo")), "{config}");
+    for rule in [
+        "rule all:",
+        "rule report:",
+        "rule place:",
+        "rule simulate_1x_lidar_64:",
+        "rule train_2x_lidar_16_radar_pointpillars_lr_seed1:",
+    ] {
+        assert!(snake.contains(rule), "Snakefile lacks {rule:?}");
+    }
+    // The folder lists its stages, none done; a stage that is not in the plan is refused.
+    let o = hilo().args(["study", "plan", "--out"]).arg(&out).output().unwrap();
+    let listing = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success() && listing.lines().count() == 1 + 2 + 6 + 1 && !listing.contains(" done "), "{listing}");
+    let o = hilo()
+        .args(["study", "train", "--job", "1x_lidar_64/pointpillars-lr-seed0", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("no train stage"), "{err}");
+    let o = hilo().args(["study", "report", "--out"]).arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("run the place stage first"), "{err}");
+    let o = hilo().args(["study", "report", "--out"]).arg(dir.path()).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("not a study folder"));
 }

@@ -53,7 +53,7 @@ pub struct PairedSummary {
 }
 
 /// One replicate: (mAP, NDS, per-class mean AP), or their differences.
-type Replicate = (f64, f64, BTreeMap<String, f64>);
+pub type Replicate = (f64, f64, BTreeMap<String, f64>);
 
 /// Matched tables of one submission.
 struct Tables {
@@ -276,5 +276,71 @@ pub fn paired_between(
             .collect(),
         p_mean_ap_not_better: share(&|r| r.0 <= 0.0),
         p_nd_score_not_better: share(&|r| r.1 <= 0.0),
+    }
+}
+
+/// A submission matched once against its ground truth and scored again under any weighting of
+/// its scenes: the building block of comparisons that must draw the same scenes for many
+/// submissions (every rig, preset and seed of a study).
+#[derive(Debug)]
+pub struct Reweighable {
+    tables: Tables,
+    /// Scene index (into the caller's scene list) of each ground-truth sample, in sample order.
+    sample_scene: Vec<usize>,
+}
+
+impl std::fmt::Debug for Tables {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Tables({} classes, {} class-threshold tables)", self.classes.len(), self.by_key.len())
+    }
+}
+
+impl Reweighable {
+    /// Matches `pred` against `gt` (after the devkit's filter). `scenes` names the scenes whose
+    /// counts [`Reweighable::under`] receives, in that order; every ground-truth sample's scene
+    /// must be among them.
+    pub fn new(
+        gt: &GroundTruth,
+        pred: &[(String, Vec<EvalBox>)],
+        cfg: &DetectionConfig,
+        scenes: &[String],
+    ) -> Result<Self, String> {
+        let index: BTreeMap<&str, usize> = scenes.iter().enumerate().map(|(i, s)| (s.as_str(), i)).collect();
+        let sample_scene = gt
+            .samples
+            .iter()
+            .map(|(k, info)| {
+                index
+                    .get(info.scene.as_str())
+                    .copied()
+                    .ok_or_else(|| format!("sample {k}: scene {:?} is not in the scene list", info.scene))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let (gt_f, pred_f) = crate::filtered(gt, pred, cfg);
+        Ok(Reweighable { tables: tables(&gt_f, &pred_f, cfg), sample_scene })
+    }
+
+    /// (mAP, NDS, per-class AP) on every scene once.
+    pub fn full(&self, cfg: &DetectionConfig) -> Replicate {
+        score(&self.tables, cfg, None)
+    }
+
+    /// (mAP, NDS, per-class AP) under each scene-count vector of `draws` (counts per scene, in
+    /// the order given to [`Reweighable::new`]), eight at a time in parallel.
+    pub fn under(&self, cfg: &DetectionConfig, draws: &[Vec<u32>]) -> Vec<Replicate> {
+        let chunks: Vec<Vec<Replicate>> = draws
+            .par_chunks(LANES)
+            .map(|chunk| {
+                let w: Vec<[u32; LANES]> = self
+                    .sample_scene
+                    .iter()
+                    .map(|&s| std::array::from_fn(|r| chunk.get(r).map_or(0, |c| c.get(s).copied().unwrap_or(0))))
+                    .collect();
+                let mut out = score_lanes(&self.tables, cfg, &w);
+                out.truncate(chunk.len());
+                out
+            })
+            .collect();
+        chunks.into_iter().flatten().collect()
     }
 }

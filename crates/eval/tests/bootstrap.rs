@@ -165,3 +165,62 @@ fn paired_between_pairs_scenes_across_token_spaces() {
     assert!((p.mean_ap_diff.estimate + 1.0).abs() < 1e-9 && p.mean_ap_diff.hi < 0.0, "{:?}", p.mean_ap_diff);
     assert_eq!(p.p_mean_ap_not_better, 1.0);
 }
+
+/// A matched submission scored under scene weights: every scene once (or every scene twice) is
+/// the plain metric; dropping a scene is the metric without it.
+#[test]
+fn reweighted_scores_equal_direct_evaluation() {
+    use hilo_eval::bootstrap::Reweighable;
+    use hilo_eval::boxes::{GroundTruth, SampleInfo};
+    use hilo_eval::{DetectionConfig, EvalBox, evaluate_files};
+    let mut gt = GroundTruth::default();
+    let mut pred = Vec::new();
+    for f in 0..12 {
+        let s = format!("s{f:02}");
+        gt.samples.insert(s.clone(), SampleInfo { scene: format!("scene{}", f % 4), ego_translation: [0.0; 3] });
+        let g: Vec<EvalBox> = (0..5)
+            .map(|k| EvalBox {
+                num_pts: 3,
+                ..EvalBox::from_yaw(
+                    &s,
+                    if k % 2 == 0 { "car" } else { "pedestrian" },
+                    [5.0 * k as f64, f as f64, 0.8],
+                    [1.9, 4.5, 1.6],
+                    0.0,
+                    [0.0; 2],
+                    1.0,
+                )
+            })
+            .collect();
+        let p: Vec<EvalBox> = g
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| (k + f) % 3 != 0)
+            .map(|(k, b)| EvalBox {
+                translation: [b.translation[0] + 0.3 * (k as f64 - 2.0), b.translation[1], 0.8],
+                detection_score: 0.1 + 0.07 * ((k * 7 + f) % 12) as f64,
+                num_pts: -1,
+                ..b.clone()
+            })
+            .collect();
+        gt.boxes.insert(s.clone(), g);
+        pred.push((s, p));
+    }
+    let cfg = DetectionConfig::default();
+    let scenes: Vec<String> = (0..4).map(|i| format!("scene{i}")).collect();
+    let r = Reweighable::new(&gt, &pred, &cfg, &scenes).unwrap();
+    let direct = evaluate_files(&gt, &pred, &cfg);
+    assert!((r.full(&cfg).0 - direct.mean_ap).abs() < 1e-12);
+    let under = r.under(&cfg, &[vec![1; 4], vec![2; 4], vec![1, 1, 0, 1]]);
+    assert_eq!(under.len(), 3);
+    assert!((under[0].0 - direct.mean_ap).abs() < 1e-12 && (under[1].0 - direct.mean_ap).abs() < 1e-12);
+    // Without scene2: the metric of the submission restricted to the other scenes.
+    let keep = |s: &str| gt.samples[s].scene != "scene2";
+    let gt3 = GroundTruth {
+        samples: gt.samples.iter().filter(|(k, _)| keep(k)).map(|(k, v)| (k.clone(), v.clone())).collect(),
+        boxes: gt.boxes.iter().filter(|(k, _)| keep(k)).map(|(k, v)| (k.clone(), v.clone())).collect(),
+    };
+    let pred3: Vec<_> = pred.iter().filter(|(k, _)| keep(k)).cloned().collect();
+    assert!((under[2].0 - evaluate_files(&gt3, &pred3, &cfg).mean_ap).abs() < 1e-9);
+    assert!(Reweighable::new(&gt, &pred, &cfg, &scenes[..2]).is_err(), "a scene missing from the list");
+}

@@ -119,6 +119,15 @@ pub struct LoadStats {
 /// Loads the samples of a split (scenes listed in the dataset's `splits.json`), in sample order.
 /// Boxes without any LiDAR or radar point are left out, as the nuScenes loader does.
 pub fn load_split(ds: &Dataset, split: &str, opts: &LoadOptions) -> Result<(Vec<Frame>, LoadStats)> {
+    load_samples(ds, split, opts, None)
+}
+
+/// The `index`-th frame of a split (in [`load_split`]'s order) alone, or `None` past its end.
+pub fn load_split_frame(ds: &Dataset, split: &str, opts: &LoadOptions, index: usize) -> Result<Option<Frame>> {
+    Ok(load_samples(ds, split, opts, Some(index))?.0.pop())
+}
+
+fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usize>) -> Result<(Vec<Frame>, LoadStats)> {
     let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
     let t = &ds.tables;
     let scene_name: HashMap<&str, &str> =
@@ -149,6 +158,9 @@ pub fn load_split(ds: &Dataset, split: &str, opts: &LoadOptions) -> Result<(Vec<
     let mut samples: Vec<&hilo_dataset::tables::Sample> =
         t.sample.iter().filter(|s| scene_name.contains_key(s.scene_token.as_str())).collect();
     samples.sort_by(|a, b| (a.scene_token.as_str(), a.timestamp).cmp(&(b.scene_token.as_str(), b.timestamp)));
+    if let Some(i) = only {
+        samples = samples.get(i).copied().into_iter().collect();
+    }
     let mut stats = LoadStats { frames: samples.len(), ..LoadStats::default() };
     let mut frames = Vec::with_capacity(samples.len());
     for s in samples {

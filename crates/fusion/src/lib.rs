@@ -32,3 +32,13 @@ pub mod train;
 pub use detector::{Detector, DetectorConfig};
 pub use error::{FusionError, Result};
 pub use fusion::{Fusion, FusionInput, FusionOutput, Preset, Registry, Stage};
+
+/// Where training and detection run: the first CUDA GPU when hilo is built with the `cuda`
+/// feature and one is present, the CPU otherwise. The code is the same on both.
+pub fn default_device() -> candle_core::Device {
+    #[cfg(feature = "cuda")]
+    if let Ok(d) = candle_core::Device::new_cuda(0) {
+        return d;
+    }
+    candle_core::Device::Cpu
+}

@@ -36,6 +36,10 @@ pub struct TrainConfig {
     /// Which frames an epoch holds: each once, or class-balanced (CBGS).
     #[serde(default)]
     pub sampling: Sampling,
+    /// Samples seen at which a copy of the weights is kept (`model-<samples>.safetensors`), for
+    /// learning curves; each a multiple of `batch`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub keep: Vec<usize>,
 }
 
 /// How training frames are drawn.
@@ -91,7 +95,7 @@ pub fn epoch_frames(frames: &[Frame], sampling: Sampling, seed: u64) -> Vec<usiz
 impl Default for TrainConfig {
     fn default() -> Self {
         TrainConfig {
-            samples: 1400,
+            samples: 12_000,
             batch: 2,
             lr_max: 6e-3,
             weight_decay: 0.01,
@@ -101,6 +105,7 @@ impl Default for TrainConfig {
             augmentation: Augmentation::default(),
             checkpoint_steps: 50,
             sampling: Sampling::Uniform,
+            keep: Vec::new(),
         }
     }
 }
@@ -240,6 +245,11 @@ pub fn weights_path(run: &Path) -> PathBuf {
     run.join("model.safetensors")
 }
 
+/// The copy of the weights kept after `samples` samples (see [`TrainConfig::keep`]).
+pub fn kept_weights_path(run: &Path, samples: usize) -> PathBuf {
+    run.join(format!("model-{samples}.safetensors"))
+}
+
 fn optimizer_path(run: &Path) -> PathBuf {
     run.join("optimizer.safetensors")
 }
@@ -329,6 +339,12 @@ pub fn train(
     if cfg.batch == 0 || cfg.samples == 0 {
         return Err(FusionError::Config(format!(
             "train: batch = {} and samples = {} must be positive",
+            cfg.batch, cfg.samples
+        )));
+    }
+    if let Some(k) = cfg.keep.iter().find(|k| **k % cfg.batch != 0 || **k == 0 || **k > cfg.steps() * cfg.batch) {
+        return Err(FusionError::Config(format!(
+            "train: keep = {k} must be a positive multiple of batch {} and at most the {} samples",
             cfg.batch, cfg.samples
         )));
     }
@@ -433,6 +449,9 @@ pub fn train(
                 dropped_points,
                 dropped_pillars,
             });
+            if cfg.keep.contains(&info.samples_seen) {
+                det.save(&kept_weights_path(run, info.samples_seen))?;
+            }
             let end_of_epoch = (step + 1) % epoch_steps == 0;
             if !go_on || end_of_epoch || (step + 1) % cfg.checkpoint_steps.max(1) == 0 || step + 1 == steps {
                 info.seconds = seconds_before + t_run.elapsed().as_secs_f64();
@@ -457,9 +476,19 @@ pub fn load_run(
     registry: &Registry,
     device: &Device,
 ) -> Result<(Detector, RunInfo, Option<BackgroundModel>)> {
+    load_run_at(run, registry, device, None)
+}
+
+/// [`load_run`] with the weights kept after `samples` samples (the final ones for None).
+pub fn load_run_at(
+    run: &Path,
+    registry: &Registry,
+    device: &Device,
+    samples: Option<usize>,
+) -> Result<(Detector, RunInfo, Option<BackgroundModel>)> {
     let info = read_info(run)?;
     let mut det = Detector::new(&info.detector, registry, device, 0)?;
-    det.load(&weights_path(run))?;
+    det.load(&samples.map_or_else(|| weights_path(run), |s| kept_weights_path(run, s)))?;
     let background = match &info.detector.input.background {
         None => None,
         Some(_) => {

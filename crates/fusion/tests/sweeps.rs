@@ -8,7 +8,7 @@ use glam::{Vec2, Vec3};
 use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
 use hilo_dataset::Dataset;
 use hilo_dataset::writer::{Annotation, DatasetWriter, FrameData, RadarSweep, SceneData, SensorModality, SensorSetup};
-use hilo_fusion::data::{LoadOptions, load_split};
+use hilo_fusion::data::{LoadOptions, load_split, load_split_frame};
 use hilo_sensor_models::SensorPose;
 
 /// A radar point whose RCS encodes the sweep it came from.
@@ -90,4 +90,11 @@ fn radar_sweeps_stack_with_their_time_lags() {
     assert_eq!(f6[0].radar.len(), 1);
     assert_eq!(f6[2].radar.iter().map(|p| p[3]).collect::<Vec<_>>(), vec![15.0]);
     assert_eq!(s4.older_sweep_points, 4);
+    // One frame alone is the split's frame at that index, sweeps and all; past the end, none.
+    let opts = LoadOptions { background: None, radar_sweeps: 4, max_sweep_lag_s: 0.5 };
+    for (i, f) in f4.iter().enumerate() {
+        let one = load_split_frame(&ds, "val", &opts, i).unwrap().unwrap();
+        assert_eq!((&one.sample_token, &one.lidar, &one.radar), (&f.sample_token, &f.lidar, &f.radar));
+    }
+    assert!(load_split_frame(&ds, "val", &opts, 3).unwrap().is_none());
 }

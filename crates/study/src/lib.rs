@@ -5,26 +5,41 @@
 //! - [`place`]: placement of every configuration over visibility computed once;
 //! - [`rig`]: a placement's sensor rig and its dataset;
 //! - [`gt`]: ground truth (nuScenes' visible-only, or the common one every rig is scored on);
-//! - [`run`]: the whole study with resumable stages and a progress callback;
+//! - [`profile`], [`plan`]: a study's scale, and its stages with their content hashes;
+//! - [`stages`]: each stage on its own (place, simulate, train, report), as a workflow engine
+//!   runs them; [`run`]: all of them in one process, with a progress callback;
+//! - [`assemble`], [`stats`], [`verdict`]: the verdict from the stage outputs (common ground
+//!   truth, scene bootstrap with pooled seed variance, Holm, calibration, the paper's claims);
 //! - [`tradeoff`]: placement's speed-against-error sweeps;
 //! - [`report`] and [`render`]: `report.md`, `report.json`, charts and pictures.
 //!
 //! Nothing here parses command lines or draws progress bars: functions return values and
 //! [`StudyError`]s, and long stages report through a callback.
 
+pub mod assemble;
+pub mod charts;
 pub mod demo;
 pub mod error;
 pub mod files;
 pub mod gt;
 pub mod place;
+pub mod plan;
+pub mod profile;
 pub mod render;
 pub mod report;
 pub mod rig;
 pub mod run;
+pub mod stages;
 pub mod stats;
 pub mod study;
 pub mod tradeoff;
+pub mod verdict;
+pub mod workflow;
 
+pub use assemble::Report;
 pub use error::{Result, StudyError};
-pub use run::{Profile, Progress, Report, RunOptions, profile, run};
+pub use plan::Plan;
+pub use profile::{Profile, profile};
+pub use run::{RunOptions, run};
+pub use stages::Progress;
 pub use study::{Configuration, Study};

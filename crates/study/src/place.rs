@@ -263,6 +263,14 @@ pub fn coverage_png(
         c.dots(&[(pos, (0, 0, 0))], 7.0);
         c.dots(&[(pos, col)], 5.5);
     }
+    c.legend(&[
+        ((40, 200, 80), "cell hit by a LiDAR ray"),
+        ((230, 60, 60), "cell covered by a radar"),
+        ((250, 220, 30), "both"),
+        ((120, 120, 120), "candidate mount"),
+        ((0, 160, 60), "chosen LiDAR, heading"),
+        ((220, 0, 0), "chosen radar, heading"),
+    ]);
     c.png()
 }
 

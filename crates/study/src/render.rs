@@ -92,7 +92,18 @@ impl Canvas {
 
 /// Renders the scene top-down at `px_per_m` and returns PNG bytes.
 pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
-    scene_canvas(scene, px_per_m)?.png()
+    let mut c = scene_canvas(scene, px_per_m)?;
+    c.legend(&[
+        ((70, 70, 74), "roadway"),
+        ((214, 209, 199), "sidewalk"),
+        ((176, 168, 150), "median"),
+        ((141, 110, 99), "building"),
+        ((46, 125, 50), "tree crown"),
+        ((10, 10, 10), "signal pole and mast arm (mounts)"),
+        ((240, 200, 40), "signal head"),
+        ((230, 50, 40), "ROI (redder: heavier weight)"),
+    ]);
+    c.png()
 }
 
 impl Canvas {
@@ -101,12 +112,128 @@ impl Canvas {
         self.pm.encode_png().map_err(|e| StudyError::Picture { what: "a PNG".into(), message: e.to_string() })
     }
 
-    /// Outlines of boxes (e.g. actors), in an RGB colour.
+    /// Outlines of boxes (e.g. actors), in an RGB colour, each with a heading tick from its
+    /// centre to the middle of its front edge.
     pub fn boxes(&mut self, boxes: &[hilo_core::Box3], rgb: (u8, u8, u8)) {
         let p = paint(rgb.0, rgb.1, rgb.2, 255);
         for b in boxes {
             self.outline(&b.bev_corners(), &p, 2.0);
+            let c = b.center.truncate();
+            let front = c + b.heading() * (0.5 * b.length_m).max(0.4);
+            if let Some(path) = self.view.path(&[c, front], false) {
+                self.pm.stroke_path(
+                    &path,
+                    &p,
+                    &Stroke { width: 1.5, ..Stroke::default() },
+                    Transform::identity(),
+                    None,
+                );
+            }
         }
+    }
+
+    /// Text at a pixel position (its top-left corner), `size` pixels high, in an RGB colour.
+    pub fn text(&mut self, at: (f32, f32), text: &str, size: f32, rgb: (u8, u8, u8)) {
+        use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
+        let Ok(font) = FontRef::try_from_slice(dejavu::sans::regular()) else { return };
+        let scaled = font.as_scaled(PxScale::from(size));
+        let (w, h) = (self.pm.width() as i64, self.pm.height() as i64);
+        let mut x = at.0;
+        let y = at.1 + scaled.ascent();
+        let mut prev = None;
+        for ch in text.chars() {
+            let id = font.glyph_id(ch);
+            if let Some(p) = prev {
+                x += scaled.kern(p, id);
+            }
+            let glyph = id.with_scale_and_position(PxScale::from(size), ab_glyph::point(x, y));
+            x += scaled.h_advance(id);
+            prev = Some(id);
+            let Some(outlined) = font.outline_glyph(glyph) else { continue };
+            let bounds = outlined.px_bounds();
+            let data = self.pm.data_mut();
+            outlined.draw(|gx, gy, cov| {
+                let (px, py) = (bounds.min.x as i64 + gx as i64, bounds.min.y as i64 + gy as i64);
+                if px < 0 || py < 0 || px >= w || py >= h || cov <= 0.0 {
+                    return;
+                }
+                let i = 4 * (py * w + px) as usize;
+                let a = cov.min(1.0);
+                for (k, c) in [rgb.0, rgb.1, rgb.2].into_iter().enumerate() {
+                    data[i + k] = (data[i + k] as f32 * (1.0 - a) + c as f32 * a).round() as u8;
+                }
+                data[i + 3] = 255;
+            });
+        }
+    }
+
+    /// Width in pixels of `text` at `size`.
+    pub fn text_width(&self, text: &str, size: f32) -> f32 {
+        use ab_glyph::{Font, FontRef, PxScale, ScaleFont};
+        let Ok(font) = FontRef::try_from_slice(dejavu::sans::regular()) else { return 0.0 };
+        let scaled = font.as_scaled(PxScale::from(size));
+        text.chars().map(|c| scaled.h_advance(font.glyph_id(c))).sum()
+    }
+
+    /// A colour key in the top-left corner: a swatch and a label per entry, on a light panel.
+    pub fn legend(&mut self, items: &[((u8, u8, u8), &str)]) {
+        let size = 16.0;
+        let line = 22.0;
+        let wmax = items.iter().map(|(_, t)| self.text_width(t, size)).fold(0.0, f32::max);
+        if let Some(r) = tiny_skia::Rect::from_xywh(8.0, 8.0, wmax + 44.0, line * items.len() as f32 + 12.0) {
+            self.pm.fill_rect(r, &paint(255, 255, 255, 215), Transform::identity(), None);
+        }
+        for (k, (c, t)) in items.iter().enumerate() {
+            let y = 14.0 + line * k as f32;
+            if let Some(r) = tiny_skia::Rect::from_xywh(16.0, y + 2.0, 14.0, 14.0) {
+                self.pm.fill_rect(r, &paint(c.0, c.1, c.2, 255), Transform::identity(), None);
+            }
+            self.text((38.0, y), t, size, (20, 20, 20));
+        }
+    }
+
+    /// A scale bar of `len_m` metres in the bottom-left corner, ticked every quarter, labelled.
+    pub fn scale_bar(&mut self, len_m: f32) {
+        let (h, s) = (self.pm.height() as f32, self.view.scale);
+        let (x0, y0) = (20.0, h - 24.0);
+        if let Some(r) = tiny_skia::Rect::from_xywh(x0 - 8.0, y0 - 30.0, len_m * s + 60.0, 42.0) {
+            self.pm.fill_rect(r, &paint(255, 255, 255, 215), Transform::identity(), None);
+        }
+        let black = paint(0, 0, 0, 255);
+        let mut pb = PathBuilder::new();
+        pb.move_to(x0, y0);
+        pb.line_to(x0 + len_m * s, y0);
+        for k in 0..=4 {
+            let x = x0 + len_m * s * k as f32 / 4.0;
+            pb.move_to(x, y0);
+            pb.line_to(x, y0 - if k % 2 == 0 { 10.0 } else { 6.0 });
+        }
+        if let Some(path) = pb.finish() {
+            self.pm.stroke_path(
+                &path,
+                &black,
+                &Stroke { width: 2.0, ..Stroke::default() },
+                Transform::identity(),
+                None,
+            );
+        }
+        self.text((x0 + len_m * s + 8.0, y0 - 14.0), &format!("{len_m:.0} m"), 16.0, (0, 0, 0));
+    }
+
+    /// A north arrow (+y is north) with its "N", in the top-right corner.
+    pub fn north_arrow(&mut self) {
+        let w = self.pm.width() as f32;
+        let (x, y) = (w - 36.0, 44.0);
+        let mut pb = PathBuilder::new();
+        pb.move_to(x, y - 22.0);
+        pb.line_to(x - 10.0, y + 8.0);
+        pb.line_to(x, y + 2.0);
+        pb.line_to(x + 10.0, y + 8.0);
+        pb.close();
+        if let Some(path) = pb.finish() {
+            self.pm.fill_path(&path, &paint(0, 0, 0, 255), FillRule::Winding, Transform::identity(), None);
+        }
+        self.text((x - 6.0, y + 10.0), "N", 18.0, (0, 0, 0));
     }
 
     /// A polyline in an RGB colour, `width_m` wide.
@@ -248,15 +375,8 @@ pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
         }
     }
     // Scale bar (20 m, 5 m ticks) bottom-left and a north arrow top-right.
-    let bl = Vec2::new(g.min.x + 6.0, g.min.y + 6.0);
-    let black = paint(0, 0, 0, 255);
-    c.stroke(&[bl, bl + Vec2::X * 20.0], &black, 0.5, None);
-    for k in 0..=4 {
-        let x = bl + Vec2::X * (5.0 * k as f32);
-        c.stroke(&[x, x + Vec2::Y * if k % 2 == 0 { 2.0 } else { 1.0 }], &black, 0.3, None);
-    }
-    let tr = Vec2::new(g.max.x - 8.0, g.max.y - 12.0);
-    c.fill(&[tr + Vec2::new(0.0, 7.0), tr + Vec2::new(-2.5, 0.0), tr + Vec2::new(2.5, 0.0)], &black);
+    c.scale_bar(20.0);
+    c.north_arrow();
     Ok(c)
 }
 

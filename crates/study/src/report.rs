@@ -1,173 +1,26 @@
-//! The study report: `report.md`, `report.json` and figures (SVG with labels; PNG with the same
-//! geometry — the PNG renderer has no fonts, so its labels are in the SVG and the report).
+//! The study report: `report.md`, `report.json` and figures (every chart as SVG and PNG with the
+//! same text; pictures as PNG).
 
+use crate::assemble::{Entry, Pictures, Report, ResultsBy};
+use crate::charts::{Bars, Series, XY, dollars, save};
 use crate::error::{Result, StudyError};
-use crate::files::write_atomic;
-use crate::run::{Pictures, Report, ResultsBy};
+use crate::files::{write_atomic, write_json};
 use crate::study::Configuration;
+use crate::verdict::Verdict;
 use glam::{Vec2, Vec3};
 use hilo_core::Box3;
 use hilo_eval::EvalBox;
-use hilo_fusion::data::Frame;
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-const COLORS: [(u8, u8, u8); 6] =
-    [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75)];
-
-/// A chart in data coordinates, rendered to SVG and PNG.
-struct Chart {
-    w: f32,
-    h: f32,
-    x: (f32, f32),
-    y: (f32, f32),
-    svg: String,
-    pix: Option<tiny_skia::Pixmap>,
-}
-
-impl Chart {
-    const M: f32 = 60.0;
-
-    fn new(title: &str, xl: &str, yl: &str, x: (f32, f32), y: (f32, f32)) -> Chart {
-        let (w, h) = (720.0, 440.0);
-        let mut c = Chart { w, h, x, y, svg: String::new(), pix: tiny_skia::Pixmap::new(w as u32, h as u32) };
-        if let Some(p) = &mut c.pix {
-            p.fill(tiny_skia::Color::WHITE);
-        }
-        let _ = write!(
-            c.svg,
-            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="100%" height="100%" fill="white"/><text x="{}" y="20" text-anchor="middle" font-size="15">{}</text><text x="{}" y="{}" text-anchor="middle">{}</text><text x="14" y="{}" transform="rotate(-90 14 {})" text-anchor="middle">{}</text>"#,
-            w / 2.0,
-            esc(title),
-            w / 2.0,
-            h - 10.0,
-            esc(xl),
-            h / 2.0,
-            h / 2.0,
-            esc(yl)
-        );
-        // Axes and ticks.
-        let (x0, y0, x1, y1) = (Self::M, h - Self::M, w - 20.0, 35.0);
-        c.raw_line((x0, y0), (x1, y0), (0, 0, 0), 1.0);
-        c.raw_line((x0, y0), (x0, y1), (0, 0, 0), 1.0);
-        for k in 0..=4 {
-            let fy = y.0 + (y.1 - y.0) * k as f32 / 4.0;
-            let py = c.py(fy);
-            c.raw_line((x0 - 4.0, py), (x1, py), (220, 220, 220), 0.5);
-            let _ = write!(c.svg, r#"<text x="{}" y="{}" text-anchor="end">{:.2}</text>"#, x0 - 6.0, py + 4.0, fy);
-        }
-        c
-    }
-
-    fn px(&self, v: f32) -> f32 {
-        Self::M + (v - self.x.0) / (self.x.1 - self.x.0).max(1e-9) * (self.w - Self::M - 20.0)
-    }
-
-    fn py(&self, v: f32) -> f32 {
-        (self.h - Self::M) - (v - self.y.0) / (self.y.1 - self.y.0).max(1e-9) * (self.h - Self::M - 35.0)
-    }
-
-    fn raw_line(&mut self, a: (f32, f32), b: (f32, f32), c: (u8, u8, u8), width: f32) {
-        let _ = write!(
-            self.svg,
-            r#"<line x1="{}" y1="{}" x2="{}" y2="{}" stroke="rgb({},{},{})" stroke-width="{width}"/>"#,
-            a.0, a.1, b.0, b.1, c.0, c.1, c.2
-        );
-        if let Some(p) = &mut self.pix {
-            let mut pb = tiny_skia::PathBuilder::new();
-            pb.move_to(a.0, a.1);
-            pb.line_to(b.0, b.1);
-            if let Some(path) = pb.finish() {
-                let mut paint = tiny_skia::Paint::default();
-                paint.set_color_rgba8(c.0, c.1, c.2, 255);
-                paint.anti_alias = true;
-                p.stroke_path(
-                    &path,
-                    &paint,
-                    &tiny_skia::Stroke { width, ..Default::default() },
-                    tiny_skia::Transform::identity(),
-                    None,
-                );
-            }
-        }
-    }
-
-    fn rect(&mut self, x0: f32, x1: f32, y: f32, c: (u8, u8, u8)) {
-        let (a, b) = (self.px(x0), self.px(x1));
-        let (top, bottom) = (self.py(y.max(self.y.0)), self.py(self.y.0));
-        let _ = write!(
-            self.svg,
-            r#"<rect x="{a}" y="{top}" width="{}" height="{}" fill="rgb({},{},{})"/>"#,
-            b - a,
-            bottom - top,
-            c.0,
-            c.1,
-            c.2
-        );
-        if let (Some(p), Some(r)) = (&mut self.pix, tiny_skia::Rect::from_ltrb(a, top, b, bottom)) {
-            let mut paint = tiny_skia::Paint::default();
-            paint.set_color_rgba8(c.0, c.1, c.2, 255);
-            p.fill_rect(r, &paint, tiny_skia::Transform::identity(), None);
-        }
-    }
-
-    fn point(&mut self, x: f32, y: f32, c: (u8, u8, u8)) {
-        let (a, b) = (self.px(x), self.py(y));
-        let _ = write!(self.svg, r#"<circle cx="{a}" cy="{b}" r="5" fill="rgb({},{},{})"/>"#, c.0, c.1, c.2);
-        if let (Some(p), Some(path)) = (&mut self.pix, tiny_skia::PathBuilder::from_circle(a, b, 5.0)) {
-            let mut paint = tiny_skia::Paint::default();
-            paint.set_color_rgba8(c.0, c.1, c.2, 255);
-            p.fill_path(&path, &paint, tiny_skia::FillRule::Winding, tiny_skia::Transform::identity(), None);
-        }
-    }
-
-    fn line(&mut self, a: (f32, f32), b: (f32, f32), c: (u8, u8, u8)) {
-        let (pa, pb) = ((self.px(a.0), self.py(a.1)), (self.px(b.0), self.py(b.1)));
-        self.raw_line(pa, pb, c, 2.0);
-    }
-
-    fn text(&mut self, x: f32, y: f32, s: &str, anchor: &str) {
-        let _ = write!(
-            self.svg,
-            r#"<text x="{}" y="{}" text-anchor="{anchor}">{}</text>"#,
-            self.px(x),
-            self.py(y) + 14.0,
-            esc(s)
-        );
-    }
-
-    fn legend(&mut self, items: &[(String, (u8, u8, u8))]) {
-        for (k, (name, c)) in items.iter().enumerate() {
-            let (x, y) = (self.w - 200.0, 45.0 + 16.0 * k as f32);
-            let _ = write!(
-                self.svg,
-                r#"<rect x="{x}" y="{}" width="10" height="10" fill="rgb({},{},{})"/><text x="{}" y="{}">{}</text>"#,
-                y - 9.0,
-                c.0,
-                c.1,
-                c.2,
-                x + 14.0,
-                y,
-                esc(name)
-            );
-        }
-    }
-
-    fn save(self, dir: &Path, stem: &str) -> Result<()> {
-        write_atomic(&dir.join(format!("{stem}.svg")), format!("{}</svg>\n", self.svg).as_bytes())?;
-        if let Some(p) = self.pix {
-            let png = p
-                .encode_png()
-                .map_err(|e| StudyError::Picture { what: format!("chart {stem}"), message: e.to_string() })?;
-            write_atomic(&dir.join(format!("{stem}.png")), &png)?;
-        }
-        Ok(())
-    }
+fn esc(s: &str) -> String {
+    s.replace('|', "\\|").replace('<', "&lt;").replace('>', "&gt;")
 }
 
 /// How a configuration was placed, and whether it was solved (a single-modality configuration
 /// takes its poses from a sibling: its own multimodal objective is zero, so there is no gap).
-fn placement_status(c: &crate::run::ConfigSummary) -> (String, bool) {
+fn placement_status(c: &crate::assemble::ConfigSummary) -> (String, bool) {
     if !c.placement_solved {
         (c.placement_method.clone(), false)
     } else if c.placement_proven_optimal {
@@ -177,22 +30,24 @@ fn placement_status(c: &crate::run::ConfigSummary) -> (String, bool) {
     }
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
-}
-
-fn mean_over_seeds(
-    r: &Report,
-    conf: &str,
-    preset: &str,
-    f: impl Fn(&crate::run::Entry) -> f64,
-) -> Option<(f64, f64, f64)> {
-    let v: Vec<f64> = r.entries.iter().filter(|e| e.configuration == conf && e.preset == preset).map(f).collect();
+/// Mean, min and max over a group's seeds.
+fn over_seeds(r: &Report, conf: &str, preset: &str, f: impl Fn(&Entry) -> Option<f64>) -> Option<(f64, f64, f64)> {
+    let v: Vec<f64> = r
+        .entries
+        .iter()
+        .filter(|e| e.configuration == conf && e.preset == preset)
+        .filter_map(f)
+        .filter(|x| x.is_finite())
+        .collect();
     if v.is_empty() {
         return None;
     }
     let m = v.iter().sum::<f64>() / v.len() as f64;
     Some((m, v.iter().copied().fold(f64::INFINITY, f64::min), v.iter().copied().fold(f64::NEG_INFINITY, f64::max)))
+}
+
+fn fmt3(v: Option<(f64, f64, f64)>) -> String {
+    v.map_or("–".into(), |(m, lo, hi)| format!("{m:.3} [{lo:.3}, {hi:.3}]"))
 }
 
 fn to_box(b: &EvalBox) -> Box3 {
@@ -208,10 +63,16 @@ fn to_box(b: &EvalBox) -> Box3 {
 /// A bird's-eye picture of one validation frame: points, ground truth (green; yellow when
 /// missed), detections with score ≥ 0.3 (blue when within 2 m of a same-class box, red when
 /// false).
-fn detection_png(frame: &Frame, gboxes: &[EvalBox], preds: &[(String, Vec<EvalBox>)], path: &Path) -> Result<()> {
+fn detection_png(
+    frame: &hilo_fusion::data::Frame,
+    key: &str,
+    gboxes: &[EvalBox],
+    preds: &[(String, Vec<EvalBox>)],
+    path: &Path,
+) -> Result<()> {
     let pboxes: Vec<EvalBox> = preds
         .iter()
-        .find(|p| p.0 == frame.sample_token)
+        .find(|p| p.0 == key)
         .map(|p| p.1.iter().filter(|b| b.detection_score >= 0.3).cloned().collect())
         .unwrap_or_default();
     let mut canvas = crate::render::blank_canvas(Vec2::splat(-55.0), Vec2::splat(55.0), 7.0)?;
@@ -234,9 +95,41 @@ fn detection_png(frame: &Frame, gboxes: &[EvalBox], preds: &[(String, Vec<EvalBo
         let col = if gboxes.iter().any(|g| near(p, g)) { (40, 120, 255) } else { (255, 40, 40) };
         canvas.boxes(&[to_box(p)], col);
     }
+    canvas.legend(&[
+        ((150, 150, 150), "LiDAR point"),
+        ((230, 0, 230), "radar point"),
+        ((0, 200, 0), "road user found"),
+        ((255, 220, 0), "road user missed"),
+        ((40, 120, 255), "detection (score >= 0.3)"),
+        ((255, 40, 40), "false detection"),
+    ]);
+    canvas.scale_bar(20.0);
     write_atomic(path, &canvas.png()?)
 }
 
+fn verdict_word(v: Verdict) -> &'static str {
+    match v {
+        Verdict::Supported => "supported",
+        Verdict::Contradicted => "contradicted",
+        Verdict::Undecided => "undecided",
+    }
+}
+
+fn test_cells(t: &crate::stats::Test) -> (String, String) {
+    if t.estimable {
+        (format!("{:+.3} [{:+.3}, {:+.3}]", t.estimate, t.lo, t.hi), format!("{:.3}", t.p_adjusted))
+    } else {
+        (
+            format!(
+                "{:+.3} (interval not estimable: {} scenes, {} + {} seeds)",
+                t.estimate, t.scenes, t.seeds_a, t.seeds_b
+            ),
+            "–".into(),
+        )
+    }
+}
+
+/// Writes `report.json`, `report.md` and `figures/`.
 pub fn write(
     out: &Path,
     r: &Report,
@@ -247,107 +140,265 @@ pub fn write(
 ) -> Result<()> {
     let fig = out.join("figures");
     std::fs::create_dir_all(fig.join("detections")).map_err(|e| StudyError::io(&fig, e))?;
-    crate::files::write_json(&out.join("report.json"), r)?;
-    let presets: Vec<String> = r.profile.presets.clone();
-    // mAP against cost.
-    let max_cost = r.configurations.iter().map(|c| c.cost_usd).fold(0.0, f64::max) as f32;
-    let max_map = r.entries.iter().map(|e| e.bootstrap.mean_ap.hi.max(e.mean_ap)).fold(0.05, f64::max) as f32;
-    let mut ch = Chart::new(
-        "mAP against hardware cost",
-        "cost (USD)",
-        "mAP (val)",
-        (0.0, max_cost * 1.1),
-        (0.0, max_map * 1.15),
-    );
-    let mut legend = Vec::new();
-    for (k, p) in presets.iter().enumerate() {
-        let col = COLORS[k % COLORS.len()];
-        let mut pts: Vec<(f32, f32)> = r
-            .configurations
-            .iter()
-            .filter_map(|c| mean_over_seeds(r, &c.name, p, |e| e.mean_ap).map(|m| (c.cost_usd as f32, m.0 as f32)))
-            .collect();
-        pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-        for w in pts.windows(2) {
-            ch.line(w[0], w[1], col);
-        }
-        for &(x, y) in &pts {
-            ch.point(x, y, col);
-        }
-        legend.push((p.clone(), col));
-    }
-    for c in &r.configurations {
-        ch.text(c.cost_usd as f32, 0.0, &c.name, "middle");
-    }
-    ch.legend(&legend);
-    ch.save(&fig, "map_vs_cost")?;
-    // Pedestrian AP per configuration and preset.
-    let max_ped = r.entries.iter().filter_map(|e| e.class_ap.get("pedestrian").copied()).fold(0.05, f64::max) as f32;
-    let n = r.configurations.len() as f32;
-    let mut ch = Chart::new(
-        "Pedestrian AP per configuration",
-        "configuration",
-        "pedestrian AP (val)",
-        (0.0, n),
-        (0.0, max_ped * 1.15),
-    );
-    for (i, c) in r.configurations.iter().enumerate() {
-        let w = 0.8 / presets.len().max(1) as f32;
-        for (k, p) in presets.iter().enumerate() {
-            if let Some(m) = mean_over_seeds(r, &c.name, p, |e| e.class_ap.get("pedestrian").copied().unwrap_or(0.0)) {
-                let x0 = i as f32 + 0.1 + w * k as f32;
-                ch.rect(x0, x0 + w * 0.9, m.0 as f32, COLORS[k % COLORS.len()]);
-            }
-        }
-        ch.text(i as f32 + 0.5, 0.0, &c.name, "middle");
-    }
-    ch.legend(&legend);
-    ch.save(&fig, "pedestrian_ap")?;
-    // Coverage maps and detection pictures.
+    write_json(&out.join("report.json"), r)?;
+    let mut presets: Vec<String> = r.profile.presets.clone();
+    presets.extend(r.profile.ablations.iter().cloned());
+    figures(&fig, r, &presets)?;
+    // Coverage maps and detection pictures (seed 0).
     for c in configs {
         let src = placements.join(format!("{}.png", c.slug()));
         if src.exists() {
             std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug()))).map_err(|e| StudyError::io(&src, e))?;
         }
         for p in &presets {
-            if let (Some(pred), Some((frame, gboxes))) =
+            if let (Some(pred), Some((frame, key, gboxes))) =
                 (results.get(&(c.name.clone(), p.clone(), 0)), pictures.get(&c.name))
             {
-                detection_png(frame, gboxes, pred, &fig.join("detections").join(format!("{}__{}.png", c.slug(), p)))?;
+                detection_png(
+                    frame,
+                    key,
+                    gboxes,
+                    pred,
+                    &fig.join("detections").join(format!("{}__{}.png", c.slug(), p)),
+                )?;
             }
         }
     }
-    // Markdown.
+    write_atomic(&out.join("report.md"), markdown(r, results, configs, &presets).as_bytes())
+}
+
+fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
+    // mAP against cost, per preset: seed mean with the seeds' range.
+    let max_cost = r.configurations.iter().map(|c| c.cost_usd).fold(0.0, f64::max);
+    let series: Vec<Series> = presets
+        .iter()
+        .filter_map(|p| {
+            let mut pts: Vec<(f64, f64, f64, f64)> = r
+                .configurations
+                .iter()
+                .filter_map(|c| over_seeds(r, &c.name, p, |e| Some(e.mean_ap)).map(|m| (c.cost_usd, m.0, m.1, m.2)))
+                .collect();
+            pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+            (!pts.is_empty()).then(|| Series { label: p.clone(), points: pts, line: true })
+        })
+        .collect();
+    let y_max = series.iter().flat_map(|s| s.points.iter().map(|p| p.3)).fold(0.1, f64::max) * 1.15;
+    let notes: Vec<(f64, f64, String)> =
+        r.configurations.iter().map(|c| (c.cost_usd, 0.02 * y_max, c.name.clone())).collect();
+    save(
+        fig,
+        "map_vs_cost",
+        &XY {
+            title: "mAP against hardware cost (common ground truth; seed mean and range)",
+            x_label: "hardware cost (USD)",
+            y_label: "mAP (validation)",
+            x: (0.0, max_cost * 1.15),
+            y: (0.0, y_max),
+            series: &series,
+            x_fmt: &dollars,
+            notes: &notes,
+        },
+    )?;
+    // Pedestrian AP per configuration and preset.
+    let cats: Vec<String> = r.configurations.iter().map(|c| c.name.clone()).collect();
+    let bars: Vec<crate::charts::BarSeries> = presets
+        .iter()
+        .map(|p| {
+            (
+                p.clone(),
+                r.configurations
+                    .iter()
+                    .map(|c| over_seeds(r, &c.name, p, |e| e.class_ap.get("pedestrian").copied().flatten()))
+                    .collect(),
+            )
+        })
+        .collect();
+    let y_max = bars.iter().flat_map(|b| b.1.iter().flatten().map(|v| v.2)).fold(0.1, f64::max) * 1.2;
+    save(
+        fig,
+        "pedestrian_ap",
+        &Bars {
+            title: "Pedestrian AP per configuration (seed mean and range)",
+            x_label: "configuration",
+            y_label: "pedestrian AP (validation)",
+            categories: &cats,
+            series: &bars,
+            y_max,
+        },
+    )?;
+    // Per-class AP (the paper's Fig. 6): one chart per preset, classes along x, a bar per rig.
+    let classes: Vec<String> =
+        r.classes.iter().map(|c| if c.few_boxes { format!("{}*", c.name) } else { c.name.clone() }).collect();
+    for p in presets {
+        let bars: Vec<crate::charts::BarSeries> = r
+            .configurations
+            .iter()
+            .map(|c| {
+                (
+                    c.name.clone(),
+                    r.classes
+                        .iter()
+                        .map(|k| over_seeds(r, &c.name, p, |e| e.class_ap.get(&k.name).copied().flatten()))
+                        .collect(),
+                )
+            })
+            .filter(|(_, v): &crate::charts::BarSeries| v.iter().any(Option::is_some))
+            .collect();
+        if bars.is_empty() {
+            continue;
+        }
+        let title = format!("AP per class, {p} (* fewer than 50 validation boxes)");
+        save(
+            fig,
+            &format!("class_ap_{p}"),
+            &Bars {
+                title: &title,
+                x_label: "class",
+                y_label: "AP (validation)",
+                categories: &classes,
+                series: &bars,
+                y_max: 1.05,
+            },
+        )?;
+    }
+    // Learning curves.
+    let series: Vec<Series> = r
+        .learning_curves
+        .iter()
+        .map(|c| Series {
+            label: format!("{} on {}", c.preset, c.configuration),
+            points: c.points.iter().map(|p| (p.0 as f64, p.1, p.1, p.1)).collect(),
+            line: true,
+        })
+        .collect();
+    let x_max = series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).fold(1.0, f64::max) * 1.05;
+    let y_max = series.iter().flat_map(|s| s.points.iter().map(|p| p.1)).fold(0.1, f64::max) * 1.15;
+    save(
+        fig,
+        "learning_curves",
+        &XY {
+            title: "mAP against training samples (seed 0)",
+            x_label: "training samples seen",
+            y_label: "mAP (validation, common ground truth)",
+            x: (0.0, x_max),
+            y: (0.0, y_max),
+            series: &series,
+            x_fmt: &|v| format!("{v:.0}"),
+            notes: &[],
+        },
+    )
+}
+
+fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets: &[String]) -> String {
     let mut md = String::new();
+    let p = &r.profile;
+    let pv = &r.provenance;
     let _ = writeln!(
         md,
-        "# hilo study report\n\nStudy `{}`, profile `{}`, {} seed(s); generated by `hilo study{} --out <dir>{}`; this invocation took {:.0} s on this machine (stages already complete in the folder are reused).\n",
+        "# hilo study report\n\nStudy `{}`, profile `{}`: {} seeds per detector, {} validation scenes, {} scene-bootstrap replicates. Generated by `hilo study{} --out <dir>{}` with hilo {} ({}; {}; {} threads, {} trainings at once) in {:.0} s on this machine (stages already complete in the folder are reused).\n",
         r.study,
-        r.profile.name,
+        p.name,
         r.seeds,
+        r.validation_scenes,
+        p.resamples,
         if r.study.starts_with("<embedded>") { String::new() } else { format!(" {}", r.study) },
-        if r.profile.name == "default" { String::new() } else { format!(" --profile {}", r.profile.name) },
+        if p.name == "default" { String::new() } else { format!(" --profile {}", p.name) },
+        pv.hilo_version,
+        if pv.git_commit.is_empty() {
+            "not built from a checkout".to_owned()
+        } else {
+            format!("commit {}", pv.git_commit)
+        },
+        if pv.cpu_features.is_empty() {
+            pv.arch.clone()
+        } else {
+            format!("{} with {}", pv.arch, pv.cpu_features.join(", "))
+        },
+        pv.threads,
+        pv.trainings_at_once,
         r.seconds
     );
-    let d = &r.profile.dataset;
+    let d = &p.dataset;
     let _ = writeln!(
         md,
-        "Dataset per configuration (same traffic seeds for every configuration): training {} scenes × {} s at {} Hz; validation {} other scenes × {} s at {} Hz. Each detector trained on {} samples.\n",
-        d.scenes, d.seconds, d.rate_hz, d.val_scenes, d.val_seconds, d.val_rate_hz, r.profile.train_samples
+        "Datasets (the same traffic for every configuration): training {} scenes × {} s at {} Hz; validation {} scenes of their own traffic seeds × {} s at {} Hz (radar sweeps at {} Hz between key frames). Each detector trained on {} samples.\n",
+        d.scenes,
+        d.seconds,
+        d.rate_hz,
+        d.val_scenes,
+        d.val_seconds,
+        d.val_rate_hz,
+        d.sweep_rate_hz,
+        p.train_samples.map_or("its preset's default".to_owned(), |n| n.to_string())
     );
     let _ = writeln!(
         md,
-        "## Configurations\n\n| configuration | cost (USD) | central coverage | placement | sensors |\n|---|---:|---:|---|---|"
+        "**Ground truth: common.** Every rig is scored on every road user of the six classes within the evaluation ranges of the intersection's centre at each validation frame, whatever its sensors saw (a miss caused by coverage or occlusion counts against the rig); the nuScenes convention (boxes with at least one point of the rig) is given beside it as *visible-only*. mAP is over the classes present in the validation split: {}.\n",
+        r.classes
+            .iter()
+            .map(|c| format!(
+                "{} ({} boxes{}{})",
+                c.name,
+                c.validation_boxes,
+                if c.in_map { "" } else { ", not in mAP" },
+                if c.few_boxes && c.in_map { ", few: noisy" } else { "" }
+            ))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    // The verdict.
+    let _ = writeln!(
+        md,
+        "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds, `p` Holm-adjusted over every test of this report. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *undecided*.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | verdict |\n|---|---|---|---:|---|---:|---|"
+    );
+    for c in &r.claims {
+        if c.rows.is_empty() {
+            let _ = writeln!(
+                md,
+                "| {} | – | – | – | not tested: {} | – | {} |",
+                esc(&c.statement),
+                esc(c.not_tested.as_deref().unwrap_or("")),
+                verdict_word(c.verdict)
+            );
+        }
+        for row in &c.rows {
+            let (est, pv) = test_cells(&row.test);
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} | {} | {} |",
+                esc(&c.statement),
+                row.metric,
+                esc(&row.comparison),
+                row.paper.map_or("–".into(), |v| format!("{v:+.3}")),
+                est,
+                pv,
+                verdict_word(row.verdict)
+            );
+        }
+        if !c.per_preset.is_empty() {
+            let _ = writeln!(
+                md,
+                "| ↳ per preset | mAP | | | {} | | |",
+                c.per_preset.iter().map(|(p, d)| format!("{p} {d:+.3}")).collect::<Vec<_>>().join(", ")
+            );
+        }
+    }
+    let _ = writeln!(md, "\nWhat this profile leaves out: {}.\n", p.leaves_out);
+    // Configurations.
+    let _ = writeln!(
+        md,
+        "## Configurations\n\n| configuration | cost | central coverage | road users never hit (validation) | placement | sensors |\n|---|---:|---:|---:|---|---|"
     );
     for c in &r.configurations {
         let (status, solved) = placement_status(c);
-        let how = if solved { format!("{status} in {:.2} s", c.placement_seconds) } else { status };
+        let how = if solved { format!("{status} in {:.2} s", c.placement_s) } else { status };
         let _ = writeln!(
             md,
-            "| {} | {:.0} | {:.1}% | {} | {} |",
+            "| {} | {} | {:.1}% | {:.1}% | {} | {} |",
             c.name,
-            c.cost_usd,
+            dollars(&c.cost_usd),
             c.central_coverage * 100.0,
+            c.unseen_share * 100.0,
             esc(&how),
             c.sensors.join(", ")
         );
@@ -363,73 +414,133 @@ pub fn write(
                 .join(", ")
         );
     }
+    // Accuracy.
     let _ = writeln!(
         md,
-        "\n## Accuracy (validation split, nuScenes metric; 95% scene-bootstrap intervals)\n\n| configuration | preset | mAP | NDS | car AP | pedestrian AP | training | inference |\n|---|---|---|---|---|---|---:|---:|"
+        "\n## Accuracy\n\nSeed mean [min, max] over {} seeds; common ground truth unless marked.\n\n| configuration | preset | mAP | pedestrian AP | mAP, visible-only | training | inference |\n|---|---|---|---|---|---:|---:|",
+        r.seeds
     );
-    for e in &r.entries {
-        let ci = |k: &str| {
-            e.bootstrap
-                .class_ap
-                .get(k)
-                .map_or("–".to_owned(), |i| format!("{:.3} [{:.3}, {:.3}]", i.estimate, i.lo, i.hi))
-        };
-        let _ = writeln!(
-            md,
-            "| {} | {}{} | {:.3} [{:.3}, {:.3}] | {:.3} [{:.3}, {:.3}] | {} | {} | {:.0} s ({} samples) | {:.0} ms/frame |",
-            e.configuration,
-            e.preset,
-            if r.seeds > 1 { format!(" (seed {})", e.seed) } else { String::new() },
-            e.mean_ap,
-            e.bootstrap.mean_ap.lo,
-            e.bootstrap.mean_ap.hi,
-            e.nd_score,
-            e.bootstrap.nd_score.lo,
-            e.bootstrap.nd_score.hi,
-            ci("car"),
-            ci("pedestrian"),
-            e.train_seconds,
-            e.samples,
-            e.ms_per_frame
-        );
-    }
-    let _ = writeln!(
-        md,
-        "\nPer-class AP of every detector is in `report.json` (`entries[].class_ap`, with intervals in `entries[].bootstrap.class_ap`)."
-    );
-    if !r.comparisons.is_empty() {
-        let n_val = r.entries.first().map_or(0, |e| e.bootstrap.scenes);
-        let _ = writeln!(
-            md,
-            "\n## Is the difference real? (paired scene bootstrap, same traffic)\n\nEach configuration is scored on its own ground truth (the boxes its sensors saw); every replicate draws the same validation scenes for both. With {n_val} validation scene(s) the intervals understate the uncertainty of a different day's traffic: more scenes (`[dataset] scenes`) or `--seeds` narrow the question.\n\n| preset | cheaper (B) | against (A) | mAP B − A [95%] | P[B not better] | pedestrian AP A → B |\n|---|---|---|---|---:|---|"
-        );
-        for c in &r.comparisons {
-            let i = c.paired.mean_ap_diff;
-            let verdict = if i.lo > 0.0 {
-                "B better"
-            } else if i.hi < 0.0 {
-                "A better"
-            } else {
-                "not significant"
-            };
+    for c in &r.configurations {
+        for pr in presets {
+            let Some(m) = over_seeds(r, &c.name, pr, |e| Some(e.mean_ap)) else { continue };
+            let ped = over_seeds(r, &c.name, pr, |e| e.class_ap.get("pedestrian").copied().flatten());
+            let vis = over_seeds(r, &c.name, pr, |e| Some(e.visible_only.mean_ap));
+            let t = over_seeds(r, &c.name, pr, |e| Some(e.train_s)).map_or(0.0, |x| x.0);
+            let ms = over_seeds(r, &c.name, pr, |e| Some(e.ms_per_frame)).map_or(0.0, |x| x.0);
+            let samples =
+                r.entries.iter().find(|e| e.configuration == c.name && &e.preset == pr).map_or(0, |e| e.samples);
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {:+.3} [{:+.3}, {:+.3}] ({verdict}) | {:.3} | {:.3} → {:.3} |",
-                c.preset,
-                c.b,
-                c.a,
-                i.estimate,
-                i.lo,
-                i.hi,
-                c.paired.p_mean_ap_not_better,
-                c.pedestrian_ap_a,
-                c.pedestrian_ap_b
+                "| {} | {} | {} | {} | {} | {:.0} s ({} samples) | {:.1} ms/frame |",
+                c.name,
+                pr,
+                fmt3(Some(m)),
+                fmt3(ped),
+                fmt3(vis),
+                t,
+                samples,
+                ms
             );
         }
     }
     let _ = writeln!(
         md,
-        "\n## Figures\n\n![mAP against cost](figures/map_vs_cost.svg)\n\n![pedestrian AP](figures/pedestrian_ap.svg)\n\nCoverage maps (green: LiDAR-hit cells, red: radar-covered, yellow: both): {}\n",
+        "\nAP per class (seed mean; – where the class has no validation box):\n\n| configuration | preset | {} |\n|---|---|{}",
+        r.classes.iter().map(|c| c.name.clone()).collect::<Vec<_>>().join(" | "),
+        r.classes.iter().map(|_| "---:|").collect::<String>()
+    );
+    for c in &r.configurations {
+        for pr in presets {
+            if over_seeds(r, &c.name, pr, |e| Some(e.mean_ap)).is_none() {
+                continue;
+            }
+            let cells: Vec<String> = r
+                .classes
+                .iter()
+                .map(|k| {
+                    over_seeds(r, &c.name, pr, |e| e.class_ap.get(&k.name).copied().flatten())
+                        .map_or("–".into(), |v| format!("{:.3}", v.0))
+                })
+                .collect();
+            let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));
+        }
+    }
+    // Comparisons.
+    if !r.comparisons.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n## Is the difference real?\n\nThe cheapest configuration against each other one, per preset: B − A with its 95% interval, whose standard error combines the scene bootstrap (paired: the same traffic) and the pooled seed variance; p Holm-adjusted over every test of this report.\n\n| metric | B | A | B − A [95%] | SE (scenes, seeds) | p | adjusted p |\n|---|---|---|---|---|---:|---:|"
+        );
+        for c in &r.comparisons {
+            let (est, _) = test_cells(&c.test);
+            let t = &c.test;
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {:.4} ({:.4}, {:.4}) | {} | {} |",
+                c.metric,
+                esc(&c.b),
+                esc(&c.a),
+                est,
+                t.se,
+                t.se_scenes,
+                t.se_seeds,
+                if t.p.is_finite() { format!("{:.3}", t.p) } else { "–".into() },
+                if t.p_adjusted.is_finite() { format!("{:.3}", t.p_adjusted) } else { "–".into() }
+            );
+        }
+    }
+    let cal = &r.calibration;
+    let sv = cal.seed_variance.get("mAP");
+    let _ = writeln!(
+        md,
+        "\n## Calibration of the test\n\nOn {} A/A pairs (two seeds of one configuration and preset, and the LiDAR-only preset on the two rigs that see the same LiDAR data), the test called {} significant at α = {}: a false-positive rate of {:.3}. A planted degradation ({:.0}% of every detector's boxes dropped, a mean mAP change of {:+.3}) was found in {:.0}% of {} groups. Seed standard deviation of mAP (pooled over every group): {:.4} ({} degrees of freedom).\n",
+        cal.pairs,
+        cal.false_positives,
+        cal.alpha,
+        cal.false_positive_rate,
+        100.0 * cal.planted_drop_share,
+        cal.planted_mean_effect,
+        100.0 * cal.power,
+        cal.planted_pairs,
+        sv.map_or(f64::NAN, |s| s.variance.sqrt()),
+        sv.map_or(0, |s| s.df)
+    );
+    // Learning curves.
+    let _ = writeln!(
+        md,
+        "## Learning curves\n\nmAP (common ground truth) of seed 0 at points of its training, and what the last doubling of training added. {}\n\n| configuration | preset | mAP at samples | gain over the last doubling |\n|---|---|---|---:|",
+        if r.ranking_stable {
+            "Every preset ranks the configurations the same at half its training as at the end.".to_owned()
+        } else {
+            format!(
+                "The ranking of the configurations changed between half the training and the end for: {}; the study is comparing training budgets there.",
+                r.ranking_changed.join(", ")
+            )
+        }
+    );
+    for c in &r.learning_curves {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:+.3} |",
+            c.configuration,
+            c.preset,
+            c.points.iter().map(|(s, m)| format!("{m:.3} @ {s}")).collect::<Vec<_>>().join(", "),
+            c.gain_last_doubling
+        );
+    }
+    // Figures.
+    let _ = writeln!(
+        md,
+        "\n## Figures\n\n![mAP against cost](figures/map_vs_cost.svg)\n\n![pedestrian AP](figures/pedestrian_ap.svg)\n\n![learning curves](figures/learning_curves.svg)\n"
+    );
+    for pr in presets {
+        if r.entries.iter().any(|e| &e.preset == pr) {
+            let _ = writeln!(md, "![AP per class, {pr}](figures/class_ap_{pr}.svg)\n");
+        }
+    }
+    let _ = writeln!(
+        md,
+        "Coverage maps (green: LiDAR-hit cells, red: radar-covered, yellow: both): {}\n",
         configs
             .iter()
             .map(|c| format!("[{}](figures/coverage_{}.png)", c.name, c.slug()))
@@ -438,11 +549,7 @@ pub fn write(
     );
     let _ = writeln!(
         md,
-        "Detections on one validation frame (grey LiDAR, magenta radar; ground truth green, missed yellow; detections blue, false red):\n"
-    );
-    let _ = writeln!(
-        md,
-        "| configuration | {} |\n|---|{}",
+        "Detections on one validation frame (seed 0):\n\n| configuration | {} |\n|---|{}",
         presets.join(" | "),
         presets.iter().map(|_| "---|").collect::<String>()
     );
@@ -453,12 +560,13 @@ pub fn write(
                 if results.contains_key(&(c.name.clone(), p.clone(), 0)) {
                     format!("![{} {}](figures/detections/{}__{}.png)", c.name, p, c.slug(), p)
                 } else {
-                    "n/a (no radar)".into()
+                    "–".into()
                 }
             })
             .collect();
         let _ = writeln!(md, "| {} | {} |", c.name, cells.join(" | "));
     }
+    // Speed against error.
     let _ = writeln!(md, "\n## Speed against error\n\n| stage | speed | error paid |\n|---|---|---|");
     for c in &r.configurations {
         let (status, solved) = placement_status(c);
@@ -469,7 +577,7 @@ pub fn write(
         } else {
             status
         };
-        let _ = writeln!(md, "| placement, {} | {:.2} s | {} |", c.name, c.placement_seconds, esc(&paid));
+        let _ = writeln!(md, "| placement, {} | {:.2} s | {} |", c.name, c.placement_s, esc(&paid));
     }
     let t = &r.tradeoffs;
     for l in &t.los {
@@ -489,8 +597,8 @@ pub fn write(
     for l in &t.limits {
         let _ = writeln!(
             md,
-            "| placement under a budget of {:.0} USD (any of {}), time limit {} s | {:.2} s | {}: objective {:.1}, bound {:.1}, gap {:.2}% ({}; greedy {:.1}) |",
-            t.budget_usd,
+            "| placement under a budget of {} (any of {}), time limit {} s | {:.2} s | {}: objective {:.1}, bound {:.1}, gap {:.2}% ({}; greedy {:.1}) |",
+            dollars(&t.budget_usd),
             t.types.join(", "),
             l.time_limit_s,
             l.seconds,
@@ -502,17 +610,21 @@ pub fn write(
             t.greedy_objective
         );
     }
+    let mut seen = BTreeMap::new();
     for e in r.entries.iter().filter(|e| e.seed == 0) {
+        seen.entry((e.configuration.clone(), e.preset.clone())).or_insert(e);
+    }
+    for e in seen.values() {
         let _ = writeln!(
             md,
-            "| detector {} on {} ({:.2} M parameters) | {:.0} ms/frame, trained in {:.0} s | mAP {:.3} |",
+            "| detector {} on {} ({:.2} M parameters) | {:.1} ms/frame, trained in {:.0} s | mAP {:.3} |",
             e.preset,
             e.configuration,
             e.parameters as f64 / 1e6,
             e.ms_per_frame,
-            e.train_seconds,
+            e.train_s,
             e.mean_ap
         );
     }
-    write_atomic(&out.join("report.md"), md.as_bytes())
+    md
 }

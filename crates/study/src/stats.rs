@@ -209,7 +209,7 @@ mod tests {
         ) -> (Vec<Scores>, Vec<Scores>, Vec<Vec<f64>>) {
             let n = Normal::new(0.0, 1.0).unwrap();
             let scene: Vec<f64> = (0..self.scenes).map(|_| self.sd_scene * n.sample(rng)).collect();
-            let mut arm = |shift: f64, rng: &mut rand_chacha::ChaCha8Rng| -> Vec<Scores> {
+            let arm = |shift: f64, rng: &mut rand_chacha::ChaCha8Rng| -> Vec<Scores> {
                 (0..self.seeds)
                     .map(|_| {
                         let s_eff = self.sd_seed * n.sample(rng);

@@ -55,8 +55,9 @@ fn tiny(study: &Study, registry: &Registry, presets: &[&str], out: &Path) -> hil
     let mut profile = hilo_study::profile("tiny", study, registry).unwrap();
     profile.presets = presets.iter().map(|p| p.to_string()).collect();
     // Two training steps (batches of 2).
-    profile.train_samples = 4;
-    let opts = RunOptions { profile, seeds: 1, out: out.to_path_buf() };
+    profile.train_samples = Some(4);
+    profile.seeds = 1;
+    let opts = RunOptions { profile, out: out.to_path_buf() };
     let mut lines = Vec::new();
     let report = hilo_study::run(study, registry, &opts, &mut |p| {
         if let Progress::Stage(s) = p {
@@ -96,6 +97,40 @@ fn a_plugin_written_here_joins_the_conformance_suite_and_a_study_by_one_line() {
     assert!(report.entries.iter().all(|e| e.preset == "sum-net" && e.samples == 4 && e.mean_ap.is_finite()));
     let md = std::fs::read_to_string(dir.path().join("study/report.md")).unwrap();
     assert!(md.contains("sum-net"));
+    common_ground_truth_is_the_same_for_every_rig(&dir.path().join("study"));
+}
+
+/// The two rigs' datasets (same traffic): the common ground truth is the same boxes, the
+/// visible-only one is not (each rig sees other road users).
+fn common_ground_truth_is_the_same_for_every_rig(study: &Path) {
+    use hilo_study::gt::{GtKind, SampleKey, ground_truth};
+    let dirs: Vec<_> = std::fs::read_dir(study.join("data")).unwrap().map(|e| e.unwrap().path()).collect();
+    assert_eq!(dirs.len(), 2);
+    let load = |d: &Path, kind| {
+        let ds = hilo_dataset::Dataset::open(d, "v1.0-trainval").unwrap();
+        ground_truth(&ds, "val", kind, SampleKey::SceneTime).unwrap().0
+    };
+    let boxes = |g: &hilo_eval::GroundTruth| -> Vec<(String, String, [i64; 3])> {
+        let mut v: Vec<_> = g
+            .boxes
+            .iter()
+            .flat_map(|(k, bs)| {
+                bs.iter().map(move |b| {
+                    (k.clone(), b.detection_name.clone(), b.translation.map(|x| (x * 1000.0).round() as i64))
+                })
+            })
+            .collect();
+        v.sort();
+        v
+    };
+    let (a, b) = (load(&dirs[0], GtKind::Common), load(&dirs[1], GtKind::Common));
+    assert_eq!(a.samples, b.samples, "the same samples (scene and time) in both rigs");
+    assert!(!boxes(&a).is_empty());
+    assert_eq!(boxes(&a), boxes(&b), "the same boxes in both rigs");
+    let (va, vb) = (load(&dirs[0], GtKind::VisibleOnly), load(&dirs[1], GtKind::VisibleOnly));
+    let visible = |g: &hilo_eval::GroundTruth| g.boxes.values().flatten().filter(|b| b.num_pts > 0).count();
+    assert_ne!(visible(&va), visible(&vb), "each rig sees its own share of the road users");
+    assert!(visible(&va) < boxes(&a).len() && visible(&vb) < boxes(&a).len());
 }
 
 #[test]
@@ -120,4 +155,73 @@ fn a_radar_named_by_its_own_catalog_trains_the_fusion_presets() {
     let report = tiny(&study, &registry, &["centerpoint", "pointpillars-lr"], &dir.path().join("study"));
     let presets: Vec<&str> = report.entries.iter().map(|e| e.preset.as_str()).collect();
     assert_eq!(presets, ["centerpoint", "pointpillars-lr"], "the fusion preset trains on the ars548 rig");
+}
+
+/// Removes what measures time (it differs between any two runs) from a report.
+fn without_timings(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Object(m) => {
+            m.retain(|k, _| !(k == "seconds" || k.ends_with("_s") || k == "ms_per_frame" || k.ends_with("_seconds")));
+            m.values_mut().for_each(without_timings);
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(without_timings),
+        _ => {}
+    }
+}
+
+#[test]
+fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
+    use hilo_study::{Plan, stages};
+    let dir = tempfile::tempdir().unwrap();
+    let study = Study::parse(TWO_CONFIGS, dir.path(), "two-configs.toml").unwrap();
+    let mut registry = Registry::with_builtin();
+    hilo_fusion_raw::register(&mut registry).unwrap();
+    let mut profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+    profile.presets = vec!["centerpoint".into()];
+    profile.train_samples = Some(4);
+    let whole = dir.path().join("whole");
+    hilo_study::run(&study, &registry, &RunOptions { profile: profile.clone(), out: whole.clone() }, &mut |_| {})
+        .unwrap();
+    // The same plan, stage by stage, as a workflow engine runs it (the trainings in reverse).
+    let by_stage = dir.path().join("stages");
+    let plan = Plan::new(&study, &registry, &profile, &by_stage).unwrap();
+    assert_eq!(plan.jobs.len(), 4, "centerpoint × 2 configurations × 2 seeds");
+    plan.claim_folder(&study.source).unwrap();
+    assert!(stages::place(&study, &plan, &mut |_| {}).unwrap().is_some());
+    for ci in 0..plan.configurations.len() {
+        stages::simulate(&study, &plan, ci, &mut |_| {}).unwrap();
+    }
+    for job in plan.jobs.iter().rev() {
+        stages::train_one(&plan, job, &registry, &|_| {}).unwrap();
+    }
+    hilo_study::run::report(&study, &plan, &registry, &mut |_| {}).unwrap();
+    let read = |d: &Path| {
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("report.json")).unwrap()).unwrap();
+        without_timings(&mut v);
+        v
+    };
+    assert_eq!(read(&whole), read(&by_stage));
+    // Everything is done: a stage run again writes nothing.
+    let stamp = |p: &Path| std::fs::metadata(p).unwrap().modified().unwrap();
+    let before: Vec<_> = plan.jobs.iter().map(|j| stamp(&j.meta())).collect();
+    assert!(stages::place(&study, &plan, &mut |_| {}).unwrap().is_none());
+    for job in &plan.jobs {
+        stages::train_one(&plan, job, &registry, &|_| {}).unwrap();
+    }
+    assert_eq!(before, plan.jobs.iter().map(|j| stamp(&j.meta())).collect::<Vec<_>>());
+    // The folder refuses another study.
+    let mut other = profile.clone();
+    other.seeds = 3;
+    let err = Plan::new(&study, &registry, &other, &by_stage).unwrap().claim_folder(&study.source).unwrap_err();
+    assert!(err.to_string().contains("holds another study"), "{err}");
+    // The Snakefile names every stage's files, relative to the folder.
+    let wf = hilo_study::workflow::Workflow { hilo: "/opt/hilo".into(), gpu: false };
+    let snake = hilo_study::workflow::snakefile(&plan, &wf).unwrap();
+    assert_eq!(snake.matches("\nrule ").count(), 1 + 1 + 2 + 4 + 1, "all, report, place, 2 simulate, 4 train");
+    for job in &plan.jobs {
+        let rel = job.results.strip_prefix(&by_stage).unwrap().to_string_lossy().into_owned();
+        assert!(snake.contains(&format!("\"{rel}\"")), "{rel} in the Snakefile");
+        assert!(snake.contains(&format!("study train --job {} --out .", job.id)));
+    }
 }

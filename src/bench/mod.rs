@@ -1,4 +1,9 @@
-//! `hilo bench raycast`: hilo's engine against parry3d's TriMesh and raw obvhs on the same rays.
+//! What `hilo bench` measures: every stage's speed together with the error it pays, against an
+//! independent implementation in the same run where one exists (the ray engine against
+//! parry3d's TriMesh and raw obvhs; the placement's exact search against plain CBC; the
+//! training step against the machine's measured matrix-product peak).
+
+pub mod simulate;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
@@ -545,7 +550,7 @@ pub fn train(
     use hilo_fusion::data::{LoadOptions, load_split};
     use hilo_fusion::detector::Detector;
     use std::sync::atomic::Ordering;
-    let registry = hilo::registry()?;
+    let registry = crate::registry()?;
     let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")
         .with_context(|| format!("opening dataset {}", data.display()))?;
     let peak = matmul_peak()?;
@@ -553,19 +558,28 @@ pub fn train(
     for name in presets {
         let preset = registry.preset(name)?;
         let mut det_cfg = preset.detector.clone();
-        // Variants for the levers' rows: `dense`, `no-background`.
+        let mut cfg = preset.train.clone();
+        // Variants for the levers' rows.
         for (k, v) in overrides {
-            match k.as_str() {
-                "layout" if v == "dense" => det_cfg.sparse = None,
-                "background" if v == false => det_cfg.input.background = None,
-                "radar_sweeps" => det_cfg.input.radar_sweeps = v.as_u64().unwrap_or(1) as usize,
-                _ => anyhow::bail!("unknown variant {k} = {v}"),
+            match (k.as_str(), v.as_u64()) {
+                ("layout", _) if v == "dense" => det_cfg.sparse = None,
+                ("background", _) if v == false => det_cfg.input.background = None,
+                ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
+                ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
+                ("head_dilation", Some(n)) => {
+                    if let Some(sp) = det_cfg.sparse.as_mut() {
+                        sp.head_dilation = n as usize;
+                    }
+                }
+                ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
+                _ => anyhow::bail!(
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_sweeps=K, batch=N, head_dilation=N, layers=N)"
+                ),
             }
         }
         let background = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
         let det = Detector::new(&det_cfg, &registry, &candle_core::Device::Cpu, 0)?;
-        let cfg = preset.train.clone();
         // Warm-up steps (allocator, caches), then the timed ones.
         hilo_fusion::train::time_steps(&det, &frames, &cfg, 3)?;
         hilo_fusion::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);

@@ -1,4 +1,4 @@
-//! `hilo bench simulate`: the paper's dataset scale for the default study's first configuration.
+//! `hilo bench simulate`: the dataset of a study's first configuration at a given scale.
 
 use anyhow::{Context, Result};
 use hilo_dataset::simulate::SimulateConfig;
@@ -41,18 +41,23 @@ fn dir_bytes(root: &Path) -> u64 {
     total
 }
 
-pub fn bench(scenes: usize, seconds: f64, rate_hz: f64, keep: Option<&Path>) -> Result<SimulateBench> {
+/// Places `study`'s configurations, then writes its first one's dataset at the given scale
+/// (into `keep`, or a temporary folder); `progress` hears the key frames written.
+pub fn bench(
+    study: &hilo_study::Study,
+    scenes: usize,
+    seconds: f64,
+    rate_hz: f64,
+    keep: Option<&Path>,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<SimulateBench> {
     let tmp = tempfile::tempdir().context("creating a temporary folder")?;
     let t0 = std::time::Instant::now();
-    let placements = crate::stages::place(&crate::stages::PlaceArgs {
-        study: None,
-        out: tmp.path().join("placements"),
-        json: false,
-        export: None,
-    })?;
+    let prep = hilo_study::place::prepare_study(study)?;
+    let placed = hilo_study::place::place_all(study, prep, &mut |_| {})?;
+    hilo_study::place::write_placements(study, &placed, &tmp.path().join("placements"))?;
     let placement_seconds = t0.elapsed().as_secs_f64();
-    let first = placements.first().context("the default study has no configuration")?;
-    let study = crate::stages::load_study(None)?;
+    let first = placed.placements.first().context("the study has no configuration")?;
     let path = tmp.path().join("placements").join(format!("{}.json", hilo_study::study::slug(&first.name)));
     let cfg = SimulateConfig {
         scenes,
@@ -63,7 +68,7 @@ pub fn bench(scenes: usize, seconds: f64, rate_hz: f64, keep: Option<&Path>) -> 
         ..study.file.dataset.clone()
     };
     let out = keep.map(Path::to_path_buf).unwrap_or_else(|| tmp.path().join("data"));
-    let summary = crate::stages::write_dataset(&study, first, &path, &cfg, &out, "v1.0-trainval", "bench simulate")?;
+    let summary = hilo_study::rig::simulate(study, first, &path, &cfg, &out, "v1.0-trainval", progress)?;
     let rig = hilo_study::rig::rig(first, &study.catalog, &study.scene, &path)?;
     Ok(SimulateBench {
         configuration: first.name.clone(),

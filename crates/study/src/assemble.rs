@@ -1,0 +1,473 @@
+//! The verdict assembled from a study's stage outputs: every detector scored on the common
+//! ground truth under shared scene draws, the comparisons and the paper's claims with Holm's
+//! adjustment, the test's calibration, learning curves and the configurations' summaries.
+//! Reads the result files a study folder holds, or takes them from memory when the stages just
+//! ran in this process (the two give the same report: results are kept in sample order and JSON
+//! numbers round-trip exactly).
+
+use crate::error::{Result, StudyError};
+use crate::files::read_json;
+use crate::gt::{GtKind, SampleKey, ground_truth, rekey};
+use crate::plan::{Job, Plan, Provenance};
+use crate::profile::Profile;
+use crate::stages::{DataRecord, JobOutput, Predictions, Progress, ResultMeta};
+use crate::stats::{Scores, scene_draws};
+use crate::study::Study;
+use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, adjust};
+use hilo_eval::bootstrap::Reweighable;
+use hilo_eval::{DetectionConfig, EvalBox, GroundTruth};
+use hilo_fusion::Registry;
+use hilo_fusion::data::{Frame, LoadOptions, load_split_frame};
+use hilo_placement_ip::Placement;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// One trained detector's evaluation.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Entry {
+    pub configuration: String,
+    pub preset: String,
+    pub seed: u64,
+    /// On the common ground truth (every road user, seen or not), over the classes present.
+    pub mean_ap: f64,
+    pub nd_score: f64,
+    /// Every one of the six classes (null where the validation split has none).
+    pub class_ap: BTreeMap<String, Option<f64>>,
+    /// The nuScenes convention: boxes with at least one point of this rig only.
+    pub visible_only: VisibleOnly,
+    pub train_s: f64,
+    pub ms_per_frame: f64,
+    pub samples: usize,
+    /// Trainable parameters of the detector.
+    pub parameters: usize,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct VisibleOnly {
+    pub mean_ap: f64,
+    pub nd_score: f64,
+    pub class_ap: BTreeMap<String, Option<f64>>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ConfigSummary {
+    pub name: String,
+    pub cost_usd: f64,
+    pub has_radar: bool,
+    pub central_coverage: f64,
+    pub sensors: Vec<String>,
+    pub placement_proven_optimal: bool,
+    pub placement_s: f64,
+    /// Whether the placement was optimised (a single-modality configuration takes a sibling's
+    /// poses instead).
+    pub placement_solved: bool,
+    /// Relative gap of an unproven placement.
+    pub placement_gap: f64,
+    /// How the placement was found (for a single-modality configuration: whose poses it took).
+    pub placement_method: String,
+    pub frames: usize,
+    pub annotations: usize,
+    /// Share of the common ground truth's boxes (within the evaluation ranges, validation
+    /// split) that no sensor of this rig hit; and per class.
+    pub unseen_share: f64,
+    pub unseen_by_class: BTreeMap<String, f64>,
+}
+
+/// A class of the verdict's ground truth.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ClassInfo {
+    pub name: String,
+    /// Boxes within the evaluation range in the validation split.
+    pub validation_boxes: usize,
+    /// Whether it enters mAP (a class with no box would count as 0 for every rig).
+    pub in_map: bool,
+    /// Fewer than 50 boxes: its AP is noisy.
+    pub few_boxes: bool,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Report {
+    pub study: String,
+    pub profile: Profile,
+    pub provenance: Provenance,
+    /// `common`: every rig scored on every road user.
+    pub ground_truth: String,
+    pub validation_scenes: usize,
+    pub seeds: usize,
+    pub classes: Vec<ClassInfo>,
+    pub configurations: Vec<ConfigSummary>,
+    pub entries: Vec<Entry>,
+    pub comparisons: Vec<Comparison>,
+    pub claims: Vec<Claim>,
+    pub calibration: Calibration,
+    pub learning_curves: Vec<Curve>,
+    /// Whether every preset ranks the configurations the same at half its training and at the
+    /// end (seed 0), and the presets where it does not.
+    pub ranking_stable: bool,
+    pub ranking_changed: Vec<String>,
+    pub cost_reduction: BTreeMap<String, f64>,
+    /// Placement's speed against error: line-of-sight samples and solver time limits.
+    pub tradeoffs: crate::tradeoff::Tradeoffs,
+    /// Wall time of the process that wrote the report: the whole study when `hilo study` ran
+    /// it, the report stage alone when a workflow engine did.
+    pub seconds: f64,
+}
+
+/// Predictions by (configuration, preset, seed).
+pub type ResultsBy = BTreeMap<(String, String, u64), Predictions>;
+/// Per configuration, the validation frame the report draws (the middle one), its sample key
+/// and its common ground truth.
+pub type Pictures = BTreeMap<String, (Frame, String, Vec<EvalBox>)>;
+
+/// Everything the report draws besides [`Report`]: the predictions by (configuration, preset,
+/// seed) and one validation frame per configuration.
+#[derive(Debug)]
+pub struct Assembled {
+    pub report: Report,
+    pub results: ResultsBy,
+    pub pictures: Pictures,
+}
+
+/// Assembles the verdict from the stage outputs in the plan's folder; `outputs` holds train
+/// stages' outputs already in memory (by job id), anything else is read from its files.
+pub fn assemble(
+    study: &Study,
+    plan: &Plan,
+    registry: &Registry,
+    mut outputs: BTreeMap<String, JobOutput>,
+    seconds: &dyn Fn() -> f64,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Assembled> {
+    let prof = &plan.profile;
+    let configs = &plan.configurations;
+    for p in plan.placement_outputs() {
+        if !p.exists() {
+            return Err(StudyError::Invalid(format!("{}: missing; run the place stage first", p.display())));
+        }
+    }
+    let tradeoffs: crate::tradeoff::Tradeoffs = read_json(&plan.tradeoffs)?;
+    let mut summaries = Vec::new();
+    for (ci, conf) in configs.iter().enumerate() {
+        let placement = Placement::load(&plan.placement(ci))?;
+        let data: DataRecord = read_json(&plan.data[ci].done()).map_err(|_| {
+            StudyError::Invalid(format!(
+                "{}: the dataset of {:?} is not complete; run its simulate stage first",
+                plan.data[ci].dir.display(),
+                conf.name
+            ))
+        })?;
+        summaries.push(ConfigSummary {
+            name: conf.name.clone(),
+            cost_usd: placement.cost_usd,
+            has_radar: plan.radar[ci],
+            central_coverage: placement.central_coverage,
+            sensors: placement
+                .sensors
+                .iter()
+                .map(|s| {
+                    format!(
+                        "{} at ({:.1}, {:.1}, {:.1}) m",
+                        s.ty, s.pose.position.x, s.pose.position.y, s.pose.position.z
+                    )
+                })
+                .collect(),
+            placement_proven_optimal: placement.proven_optimal,
+            placement_s: placement.solve_seconds,
+            placement_solved: placement.solved,
+            placement_gap: placement.gap,
+            placement_method: placement.method.clone(),
+            frames: data.frames,
+            annotations: data.annotations,
+            unseen_share: f64::NAN,
+            unseen_by_class: BTreeMap::new(),
+        });
+    }
+    // The ground truth every rig is scored on, and what it evaluates.
+    let first = hilo_dataset::Dataset::open(&plan.data[0].dir, "v1.0-trainval")?;
+    let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
+    let base_cfg = DetectionConfig::default();
+    let mut class_boxes: BTreeMap<String, usize> = base_cfg.class_range.keys().map(|k| (k.clone(), 0)).collect();
+    for (s, boxes) in &common.boxes {
+        let ego = common.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
+        for b in hilo_eval::filter_boxes(boxes, ego, &base_cfg.class_range) {
+            *class_boxes.entry(b.detection_name.clone()).or_default() += 1;
+        }
+    }
+    let classes: Vec<ClassInfo> = class_boxes
+        .iter()
+        .map(|(k, &n)| ClassInfo { name: k.clone(), validation_boxes: n, in_map: n > 0, few_boxes: n < 50 })
+        .collect();
+    let mut eval_cfg = base_cfg.clone();
+    eval_cfg.class_range.retain(|k, _| class_boxes.get(k).is_some_and(|n| *n > 0));
+    let mut scenes: Vec<String> = common.samples.values().map(|i| i.scene.clone()).collect();
+    scenes.sort();
+    scenes.dedup();
+    let draws = scene_draws(scenes.len(), prof.resamples, 0);
+    // Each detector's predictions, keyed as the common ground truth is.
+    let mut results_by: ResultsBy = BTreeMap::new();
+    let mut metas: BTreeMap<(String, String, u64), ResultMeta> = BTreeMap::new();
+    let mut curve_preds: BTreeMap<(String, String, usize), Predictions> = BTreeMap::new();
+    let mut visible: BTreeMap<String, GroundTruth> = BTreeMap::new();
+    let mut pictures: Pictures = BTreeMap::new();
+    for (ci, conf) in configs.iter().enumerate() {
+        let ds = hilo_dataset::Dataset::open(&plan.data[ci].dir, "v1.0-trainval")?;
+        let (share, by_class) = crate::gt::unseen_share(&ds, "val", &base_cfg)?;
+        summaries[ci].unseen_share = share;
+        summaries[ci].unseen_by_class = by_class;
+        let (vis, keys) = ground_truth(&ds, "val", GtKind::VisibleOnly, SampleKey::SceneTime)?;
+        let jobs: Vec<&Job> = plan.jobs.iter().filter(|j| j.configuration == ci).collect();
+        for job in &jobs {
+            let out = match outputs.remove(&job.id) {
+                Some(o) => o,
+                None => read_outputs(job)?,
+            };
+            let key = (conf.name.clone(), job.preset.clone(), job.seed);
+            for (samples, p) in out.curve {
+                curve_preds.insert((conf.name.clone(), job.preset.clone(), samples), sorted(rekey(p, &keys)));
+            }
+            results_by.insert(key.clone(), sorted(rekey(out.predictions, &keys)));
+            metas.insert(key, out.meta);
+        }
+        // The picture: the middle validation frame as the first detector's input reads it.
+        if let Some(job) = jobs.first() {
+            let background = match &job.detector.input.background {
+                Some(_) => Some(read_json(&hilo_fusion::train::background_path(&job.run))?),
+                None => None,
+            };
+            let lo = LoadOptions::new(&job.detector.input, background.as_ref());
+            let n = keys.len();
+            if let Some(f) = load_split_frame(&ds, "val", &lo, n / 2)? {
+                let k = keys.get(&f.sample_token).cloned().unwrap_or_default();
+                let boxes = common.boxes.get(&k).cloned().unwrap_or_default();
+                pictures.insert(conf.name.clone(), (f, k, boxes));
+            }
+        }
+        visible.insert(conf.name.clone(), vis);
+    }
+    // Scores: every detector on the common ground truth, under the shared scene draws.
+    progress(Progress::Stage(&format!(
+        "scoring {} detectors on {} validation scenes ({} scene-bootstrap replicates)",
+        results_by.len(),
+        scenes.len(),
+        prof.resamples
+    )));
+    let score = |pred: &Predictions| -> Result<(hilo_eval::bootstrap::Replicate, BTreeMap<String, Scores>)> {
+        let r = Reweighable::new(&common, pred, &eval_cfg, &scenes).map_err(StudyError::Invalid)?;
+        let full = r.full(&eval_cfg);
+        let under = r.under(&eval_cfg, &draws);
+        let ped = |x: &hilo_eval::bootstrap::Replicate| x.2.get("pedestrian").copied().unwrap_or(f64::NAN);
+        let scores = BTreeMap::from([
+            ("mAP".to_string(), Scores { full: full.0, replicates: under.iter().map(|x| x.0).collect() }),
+            ("pedestrian AP".to_string(), Scores { full: ped(&full), replicates: under.iter().map(ped).collect() }),
+        ]);
+        Ok((full, scores))
+    };
+    let mut entries = Vec::new();
+    let mut det_scores = Vec::new();
+    let mut planted = Vec::new();
+    const DROP: f64 = 0.05;
+    for ((conf, preset, seed), pred) in &results_by {
+        let (full, scores) = score(pred)?;
+        let meta = &metas[&(conf.clone(), preset.clone(), *seed)];
+        let vm = hilo_eval::evaluate_files(&visible[conf], pred, &eval_cfg);
+        let six = |aps: &BTreeMap<String, f64>| -> BTreeMap<String, Option<f64>> {
+            class_boxes.keys().map(|k| (k.clone(), aps.get(k).copied().filter(|_| class_boxes[k] > 0))).collect()
+        };
+        entries.push(Entry {
+            configuration: conf.clone(),
+            preset: preset.clone(),
+            seed: *seed,
+            mean_ap: full.0,
+            nd_score: full.1,
+            class_ap: six(&full.2),
+            visible_only: VisibleOnly { mean_ap: vm.mean_ap, nd_score: vm.nd_score, class_ap: six(&vm.mean_dist_aps) },
+            train_s: meta.train_s,
+            ms_per_frame: meta.ms_per_frame,
+            samples: meta.samples,
+            parameters: meta.parameters,
+        });
+        det_scores.push(DetectorScores { configuration: conf.clone(), preset: preset.clone(), seed: *seed, scores });
+        // The planted difference: the same detector with a share of its boxes dropped.
+        let degraded = drop_share(pred, DROP, *seed);
+        let (_, s) = score(&degraded)?;
+        planted.push(DetectorScores { configuration: conf.clone(), preset: preset.clone(), seed: *seed, scores: s });
+    }
+    entries.sort_by(|a, b| {
+        let pos = |c: &str| configs.iter().position(|x| x.name == c).unwrap_or(usize::MAX);
+        (pos(&a.configuration), a.preset.as_str(), a.seed).cmp(&(pos(&b.configuration), b.preset.as_str(), b.seed))
+    });
+    // The verdict.
+    let conf_roles: Vec<(String, f64, bool)> =
+        summaries.iter().map(|s| (s.name.clone(), s.cost_usd, s.has_radar)).collect();
+    let uses: BTreeMap<String, bool> = prof
+        .presets
+        .iter()
+        .chain(&prof.ablations)
+        .filter_map(|p| registry.preset(p).ok().map(|x| (p.clone(), registry.uses_radar(&x.detector))))
+        .collect();
+    let design = Design {
+        scores: &det_scores,
+        configurations: &conf_roles,
+        presets: &prof.presets,
+        ablations: &prof.ablations,
+        uses_radar: &uses,
+        scenes: scenes.len(),
+        level: 0.95,
+    };
+    let mut comparisons = design.comparisons();
+    let mut claims = design.claims();
+    adjust(&mut claims, &mut comparisons, 0.05);
+    let calibration = calibrate(&design, &planted, DROP);
+    // Learning curves (seed 0 of every group).
+    let mut learning_curves = Vec::new();
+    for ((conf, preset, seed), _) in results_by.iter().filter(|(k, _)| k.2 == 0) {
+        let mut points: Vec<(usize, f64)> = Vec::new();
+        for ((c, p, samples), pred) in &curve_preds {
+            if c == conf && p == preset {
+                points.push((*samples, score_full(&common, pred, &eval_cfg, &scenes)?));
+            }
+        }
+        let end = metas[&(conf.clone(), preset.clone(), *seed)].samples;
+        points.push((
+            end,
+            entries
+                .iter()
+                .find(|e| &e.configuration == conf && &e.preset == preset && e.seed == 0)
+                .map_or(f64::NAN, |e| e.mean_ap),
+        ));
+        points.sort_by_key(|p| p.0);
+        let half = points.iter().min_by_key(|p| (2 * p.0).abs_diff(end)).map_or(f64::NAN, |p| p.1);
+        let last = points.last().map_or(f64::NAN, |p| p.1);
+        learning_curves.push(Curve {
+            configuration: conf.clone(),
+            preset: preset.clone(),
+            points,
+            gain_last_doubling: last - half,
+        });
+    }
+    let ranking_changed = ranking_changes(&learning_curves, &prof.presets);
+    let mut cost_reduction = BTreeMap::new();
+    if let Some(cheap) = summaries.iter().min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd)) {
+        for s in summaries.iter().filter(|s| s.name != cheap.name) {
+            cost_reduction.insert(s.name.clone(), 1.0 - cheap.cost_usd / s.cost_usd);
+        }
+    }
+    let report = Report {
+        study: study.source.clone(),
+        profile: prof.clone(),
+        provenance: Provenance::here(prof.trainings_at_once),
+        ground_truth: "common".into(),
+        validation_scenes: scenes.len(),
+        seeds: prof.seeds,
+        classes,
+        configurations: summaries,
+        entries,
+        comparisons,
+        claims,
+        calibration,
+        learning_curves,
+        ranking_stable: ranking_changed.is_empty(),
+        ranking_changed,
+        cost_reduction,
+        tradeoffs,
+        seconds: seconds(),
+    };
+    Ok(Assembled { report, results: results_by, pictures })
+}
+
+fn sorted(mut p: Predictions) -> Predictions {
+    p.sort_by(|a, b| a.0.cmp(&b.0));
+    p
+}
+
+/// A train stage's outputs read back from its files.
+fn read_outputs(job: &Job) -> Result<JobOutput> {
+    if !job.done() {
+        return Err(StudyError::Invalid(format!(
+            "{}: missing; run the train stage {} first",
+            job.meta().display(),
+            job.id
+        )));
+    }
+    let read = |p: &std::path::Path| -> Result<Predictions> { Ok(hilo_eval::read_submission(p, 500)?) };
+    let curve = job.curve.iter().map(|&s| Ok((s, read(&job.curve_results(s))?))).collect::<Result<Vec<_>>>()?;
+    Ok(JobOutput { predictions: read(&job.results)?, meta: read_json(&job.meta())?, curve })
+}
+
+fn score_full(gt: &GroundTruth, pred: &Predictions, cfg: &DetectionConfig, scenes: &[String]) -> Result<f64> {
+    Ok(Reweighable::new(gt, pred, cfg, scenes).map_err(StudyError::Invalid)?.full(cfg).0)
+}
+
+/// The predictions with a share of every sample's boxes dropped (seeded): a known degradation.
+fn drop_share(pred: &Predictions, share: f64, seed: u64) -> Predictions {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0xd20b ^ seed);
+    pred.iter()
+        .map(|(k, boxes)| (k.clone(), boxes.iter().filter(|_| !rng.random_bool(share)).cloned().collect()))
+        .collect()
+}
+
+/// The test's false-positive rate on A/A pairs and its power on a planted degradation.
+fn calibrate(design: &Design, planted: &[DetectorScores], share: f64) -> Calibration {
+    let alpha = 0.05;
+    let aa = design.aa_pairs();
+    let fp = aa.iter().filter(|t| t.estimable && t.p < alpha).count();
+    let sv = design.seed_variance("mAP");
+    // Per (configuration, preset): the detectors' scores, and the same with boxes dropped.
+    type Arms<'a> = (Vec<&'a Scores>, Vec<&'a Scores>);
+    let mut groups: BTreeMap<(&str, &str), Arms> = BTreeMap::new();
+    for d in design.scores {
+        if let Some(s) = d.scores.get("mAP") {
+            groups.entry((&d.configuration, &d.preset)).or_default().0.push(s);
+        }
+    }
+    for d in planted {
+        if let (Some(s), Some(g)) =
+            (d.scores.get("mAP"), groups.get_mut(&(d.configuration.as_str(), d.preset.as_str())))
+        {
+            g.1.push(s);
+        }
+    }
+    let tests: Vec<_> = groups
+        .values()
+        .filter(|(a, b)| !a.is_empty() && a.len() == b.len())
+        .map(|(a, b)| crate::stats::compare(a, b, sv, design.scenes, design.level))
+        .collect();
+    let found = tests.iter().filter(|t| t.estimable && t.p < alpha && t.estimate < 0.0).count();
+    Calibration {
+        alpha,
+        pairs: aa.len(),
+        false_positives: fp,
+        false_positive_rate: fp as f64 / aa.len().max(1) as f64,
+        planted_drop_share: share,
+        planted_pairs: tests.len(),
+        planted_mean_effect: tests.iter().map(|t| t.estimate).sum::<f64>() / tests.len().max(1) as f64,
+        power: found as f64 / tests.len().max(1) as f64,
+        seed_variance: crate::verdict::METRICS.iter().map(|m| (m.to_string(), design.seed_variance(m))).collect(),
+    }
+}
+
+/// Presets whose ranking of the configurations differs between half their training and the end.
+fn ranking_changes(curves: &[Curve], presets: &[String]) -> Vec<String> {
+    let mut out = Vec::new();
+    for p in presets {
+        let mine: Vec<&Curve> = curves.iter().filter(|c| &c.preset == p).collect();
+        let rank = |at_half: bool| {
+            let mut v: Vec<(&str, f64)> = mine
+                .iter()
+                .map(|c| {
+                    let end = c.points.last().map_or(0, |x| x.0);
+                    let x =
+                        if at_half { c.points.iter().min_by_key(|q| (2 * q.0).abs_diff(end)) } else { c.points.last() };
+                    (c.configuration.as_str(), x.map_or(f64::NAN, |q| q.1))
+                })
+                .collect();
+            v.sort_by(|a, b| b.1.total_cmp(&a.1));
+            v.into_iter().map(|x| x.0).collect::<Vec<_>>()
+        };
+        if mine.len() >= 2 && rank(true) != rank(false) {
+            out.push(p.clone());
+        }
+    }
+    out
+}

@@ -1,0 +1,371 @@
+//! The plan of a study: its stages, each named by a content hash of everything that decides its
+//! output (inputs, settings, and the code that computes it), so that any stage can be run alone,
+//! twice, or on another machine, and a stage made by other code or other inputs is recomputed,
+//! never silently reused.
+//!
+//! ```text
+//! placements/<h>/            every configuration placed        h = code, scene, catalog, study
+//! data/<slug>-<h>/           one configuration's dataset        h = placements, configuration, dataset settings
+//! runs/<slug>/<preset>-seed<k>-<h>/   one trained detector      h = dataset, detector, schedule
+//! results/<slug>/<preset>-seed<k>-<h>.json   its detections on the validation split (the run's h)
+//! ```
+
+use crate::error::{Result, StudyError};
+use crate::files::{hash, read_json, write_json};
+use crate::profile::Profile;
+use crate::study::{Configuration, Study};
+use hilo_fusion::train::TrainConfig;
+use hilo_fusion::{DetectorConfig, Registry};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The code that ran: hilo's version and, when built from a checkout, its git commit (with a
+/// hash of uncommitted changes).
+pub fn code_version() -> String {
+    let commit = env!("HILO_GIT_COMMIT");
+    if commit.is_empty() {
+        env!("CARGO_PKG_VERSION").to_owned()
+    } else {
+        format!("{}+{commit}", env!("CARGO_PKG_VERSION"))
+    }
+}
+
+/// What decides floating-point results besides the code: the CPU features that select matrix
+/// and math kernels, and the threads.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Provenance {
+    pub hilo_version: String,
+    /// The git commit hilo was built from ("" outside a checkout), "-dirty-<hash>" with
+    /// uncommitted changes.
+    pub git_commit: String,
+    pub arch: String,
+    /// SIMD features present (the matrix-product and libm kernels are chosen by them at run
+    /// time, so results may differ in the last bits between CPUs, and training then diverges).
+    pub cpu_features: Vec<String>,
+    pub threads: usize,
+    /// Detectors trained at once (each on its own thread pool).
+    pub trainings_at_once: usize,
+}
+
+impl Provenance {
+    pub fn here(trainings_at_once: usize) -> Self {
+        #[allow(unused_mut)]
+        let mut features = Vec::new();
+        #[cfg(target_arch = "x86_64")]
+        for (name, on) in [
+            ("sse4.2", std::arch::is_x86_feature_detected!("sse4.2")),
+            ("avx", std::arch::is_x86_feature_detected!("avx")),
+            ("avx2", std::arch::is_x86_feature_detected!("avx2")),
+            ("fma", std::arch::is_x86_feature_detected!("fma")),
+            ("avx512f", std::arch::is_x86_feature_detected!("avx512f")),
+        ] {
+            if on {
+                features.push(name.to_owned());
+            }
+        }
+        Provenance {
+            hilo_version: env!("CARGO_PKG_VERSION").to_owned(),
+            git_commit: env!("HILO_GIT_COMMIT").to_owned(),
+            arch: std::env::consts::ARCH.to_owned(),
+            cpu_features: features,
+            threads: rayon::current_num_threads(),
+            trainings_at_once,
+        }
+    }
+}
+
+/// The short form of a hash used in folder names.
+pub fn short(h: &str) -> &str {
+    &h[..h.len().min(12)]
+}
+
+/// A stage's hash from its parts: the code version first, always.
+pub fn stage_hash(kind: &str, parts: &[&str]) -> String {
+    let code = code_version();
+    let mut all: Vec<&str> = vec![kind, &code];
+    all.extend_from_slice(parts);
+    hash(&all)
+}
+
+/// One configuration's dataset stage: `data/<slug>-<h>/`, complete when its `stage.json` exists.
+#[derive(Clone, Debug)]
+pub struct DataStage {
+    pub dir: PathBuf,
+    pub hash: String,
+}
+
+impl DataStage {
+    /// Written last, when the dataset is complete (a workflow engine's output for the stage).
+    pub fn done(&self) -> PathBuf {
+        self.dir.join("stage.json")
+    }
+}
+
+/// One detector: trained, then run on the validation split (a train stage). Its outputs are the
+/// result file, the metadata beside it and, for the learning curve, one result file per kept
+/// point; its run folder holds checkpoints, so an interrupted training resumes.
+#[derive(Clone, Debug)]
+pub struct Job {
+    /// `<configuration slug>/<preset>-seed<k>`: how a person or a workflow names it.
+    pub id: String,
+    /// Index into [`Plan::configurations`].
+    pub configuration: usize,
+    pub preset: String,
+    pub seed: u64,
+    pub run: PathBuf,
+    pub results: PathBuf,
+    pub detector: DetectorConfig,
+    pub train: TrainConfig,
+    /// Samples at which weights are kept and evaluated for the learning curve (the end
+    /// excluded; seed 0 only).
+    pub curve: Vec<usize>,
+}
+
+impl Job {
+    /// What detection keeps beside the result file (timing, parameters), so that a report needs
+    /// no detector.
+    pub fn meta(&self) -> PathBuf {
+        self.results.with_extension("meta.json")
+    }
+
+    /// The result file of the weights kept at `samples`.
+    pub fn curve_results(&self, samples: usize) -> PathBuf {
+        let stem = self.results.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        self.results.with_file_name(format!("{stem}-at{samples}.json"))
+    }
+
+    /// Every file the stage writes, the metadata last.
+    pub fn outputs(&self) -> Vec<PathBuf> {
+        let mut v = vec![self.results.clone()];
+        v.extend(self.curve.iter().map(|&s| self.curve_results(s)));
+        v.push(self.meta());
+        v
+    }
+
+    /// Whether its outputs all exist.
+    pub fn done(&self) -> bool {
+        self.outputs().iter().all(|p| p.exists())
+    }
+}
+
+/// A study's stages, every path and hash known before anything runs:
+///
+/// 1. `place`: every configuration's placement, and placement's speed-against-error sweeps;
+/// 2. `simulate` (per configuration): its dataset, the same traffic for every configuration;
+/// 3. `train` (per configuration × preset × seed): training, then detection on the validation
+///    split;
+/// 4. `report`: the verdict, assembled from the stage outputs.
+///
+/// A stage's hash covers the code and everything upstream of it (a dataset's hash is the
+/// placement stage's hash, the configuration and the dataset settings, since a placement is a
+/// deterministic function of those), so a workflow engine can name every file up front.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    pub profile: Profile,
+    pub out: PathBuf,
+    /// Hash of the study file, scene, catalog and profile: the folder holds this study only.
+    pub fingerprint: String,
+    pub configurations: Vec<Configuration>,
+    /// Whether each configuration has a radar (the catalog's sensor kind decides).
+    pub radar: Vec<bool>,
+    pub placements: PathBuf,
+    pub tradeoffs: PathBuf,
+    pub data: Vec<DataStage>,
+    pub jobs: Vec<Job>,
+    /// Preset × configuration pairs left out, and why (a fusion preset on a rig without radar).
+    pub skipped: Vec<String>,
+}
+
+impl Plan {
+    pub fn new(study: &Study, registry: &Registry, profile: &Profile, out: &Path) -> Result<Plan> {
+        if profile.seeds == 0 {
+            return Err(StudyError::Invalid("--seeds must be at least 1".into()));
+        }
+        for p in profile.presets.iter().chain(&profile.ablations) {
+            registry
+                .preset(p)
+                .map_err(|e| StudyError::Invalid(format!("--presets / profile {}: preset {p:?}: {e}", profile.name)))?;
+        }
+        let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
+        let fingerprint = hash(&[&format!("{:?}", study.file), &pjson, &study.scene_hash, &study.catalog_hash]);
+        let configurations: Vec<Configuration> =
+            study.file.configurations.iter().take(profile.configurations.unwrap_or(usize::MAX)).cloned().collect();
+        let radar: Vec<bool> = configurations.iter().map(|c| c.has_radar(&study.catalog)).collect();
+        let place_hash = stage_hash(
+            "placements",
+            &[
+                &study.scene_hash,
+                &study.catalog_hash,
+                &format!("{:?}", study.file.placement),
+                &format!("{:?}", study.file.configurations),
+            ],
+        );
+        let placements = out.join("placements").join(short(&place_hash));
+        let tradeoffs = placements
+            .join(format!("tradeoffs-{}.json", profile.tradeoff_cell_m.map_or("study".into(), |c| c.to_string())));
+        let data: Vec<DataStage> = configurations
+            .iter()
+            .map(|c| {
+                let h = stage_hash("data", &[&place_hash, &c.name, &format!("{:?}", profile.dataset)]);
+                DataStage { dir: out.join("data").join(format!("{}-{}", c.slug(), short(&h))), hash: h }
+            })
+            .collect();
+        let ablation_rig = radar.iter().position(|&r| r);
+        let mut jobs = Vec::new();
+        let mut skipped = Vec::new();
+        for (ci, conf) in configurations.iter().enumerate() {
+            let ablations = profile.ablations.iter().filter(|_| ablation_rig == Some(ci));
+            for preset in profile.presets.iter().chain(ablations) {
+                let p = registry.preset(preset)?;
+                if registry.uses_radar(&p.detector) && !radar[ci] {
+                    skipped.push(format!("{preset} on {}: skipped (the configuration has no radar)", conf.name));
+                    continue;
+                }
+                for seed in 0..profile.seeds as u64 {
+                    let mut tc = TrainConfig { seed, ..p.train.clone() };
+                    if let Some(n) = profile.train_samples {
+                        tc.samples = n;
+                    }
+                    if let Some(s) = profile.sampling {
+                        tc.sampling = s;
+                    }
+                    let steps = tc.steps();
+                    let mut curve: Vec<usize> = if seed == 0 {
+                        profile
+                            .curve
+                            .iter()
+                            .map(|f| ((f * steps as f64).round() as usize).clamp(1, steps) * tc.batch)
+                            .filter(|&s| s < steps * tc.batch)
+                            .collect()
+                    } else {
+                        Vec::new()
+                    };
+                    curve.sort_unstable();
+                    curve.dedup();
+                    tc.keep = curve.clone();
+                    let detector =
+                        serde_json::to_string(&p.detector).map_err(|e| StudyError::Invalid(e.to_string()))?;
+                    let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
+                    let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule]);
+                    let name = format!("{preset}-seed{seed}-{}", short(&h));
+                    jobs.push(Job {
+                        id: format!("{}/{preset}-seed{seed}", conf.slug()),
+                        configuration: ci,
+                        preset: preset.clone(),
+                        seed,
+                        run: out.join("runs").join(conf.slug()).join(&name),
+                        results: out.join("results").join(conf.slug()).join(format!("{name}.json")),
+                        detector: p.detector.clone(),
+                        train: tc,
+                        curve,
+                    });
+                }
+            }
+        }
+        Ok(Plan {
+            profile: profile.clone(),
+            out: out.to_path_buf(),
+            fingerprint,
+            configurations,
+            radar,
+            placements,
+            tradeoffs,
+            data,
+            jobs,
+            skipped,
+        })
+    }
+
+    /// Where configuration `ci`'s placement is written.
+    pub fn placement(&self, ci: usize) -> PathBuf {
+        self.placements.join(format!("{}.json", self.configurations[ci].slug()))
+    }
+
+    /// The place stage's outputs.
+    pub fn placement_outputs(&self) -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = (0..self.configurations.len()).map(|ci| self.placement(ci)).collect();
+        v.push(self.tradeoffs.clone());
+        v
+    }
+
+    /// A configuration by name or slug.
+    pub fn configuration(&self, name: &str) -> Result<usize> {
+        self.configurations.iter().position(|c| c.name == name || c.slug() == name).ok_or_else(|| {
+            let names: Vec<&str> = self.configurations.iter().map(|c| c.name.as_str()).collect();
+            StudyError::Invalid(format!("configuration {name:?} is not in this study's plan (it has {names:?})"))
+        })
+    }
+
+    /// A train stage by its id (`<configuration slug>/<preset>-seed<k>`).
+    pub fn job(&self, id: &str) -> Result<&Job> {
+        self.jobs.iter().find(|j| j.id == id).ok_or_else(|| {
+            StudyError::Invalid(format!(
+                "no train stage {id:?} in this study's plan (ids look like {:?})",
+                self.jobs.first().map_or("<slug>/<preset>-seed0", |j| j.id.as_str())
+            ))
+        })
+    }
+
+    /// The file that records which study the folder holds.
+    pub fn record_path(&self) -> PathBuf {
+        self.out.join("study.json")
+    }
+
+    /// Claims the folder for this study: creates it and records the study (where it came from)
+    /// and the profile; refuses a folder that holds another study or anything else.
+    pub fn claim_folder(&self, study_source: &str) -> Result<()> {
+        let marker = self.record_path();
+        if marker.exists() {
+            let old: FolderRecord = read_json(&marker)?;
+            if old.fingerprint != self.fingerprint {
+                return Err(StudyError::Invalid(format!(
+                    "{} holds another study (study file, profile or seeds differ: fingerprint {} there, {} now); choose another --out",
+                    self.out.display(),
+                    old.fingerprint,
+                    self.fingerprint
+                )));
+            }
+            return Ok(());
+        }
+        if self.out.exists() && std::fs::read_dir(&self.out).map(|mut d| d.next().is_some()).unwrap_or(false) {
+            return Err(StudyError::Invalid(format!(
+                "{} exists and is not a study folder; choose another --out",
+                self.out.display()
+            )));
+        }
+        std::fs::create_dir_all(&self.out).map_err(|e| StudyError::io(&self.out, e))?;
+        write_json(
+            &marker,
+            &FolderRecord {
+                fingerprint: self.fingerprint.clone(),
+                study: study_source.to_owned(),
+                profile: self.profile.clone(),
+            },
+        )
+    }
+}
+
+/// What a study folder records about its study (`study.json`): enough for a single stage, run
+/// by a workflow engine in another process, to rebuild the same plan.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FolderRecord {
+    pub fingerprint: String,
+    /// The study file's path (absolute), or `<embedded>/…` for a built-in study.
+    pub study: String,
+    pub profile: Profile,
+}
+
+impl FolderRecord {
+    /// Reads `<out>/study.json`.
+    pub fn read(out: &Path) -> Result<FolderRecord> {
+        let p = out.join("study.json");
+        if !p.exists() {
+            return Err(StudyError::Invalid(format!(
+                "{} is not a study folder (no study.json): run `hilo study --out {}` or `--workflow snakemake` first",
+                out.display(),
+                out.display()
+            )));
+        }
+        read_json(&p)
+    }
+}

@@ -1,0 +1,115 @@
+//! The scale of a study: how many scenes, configurations, presets, seeds and training samples.
+//! A profile is data (serialized into the study folder), so a stage run on its own, by a
+//! workflow engine, sees exactly what the whole study sees.
+
+use crate::error::{Result, StudyError};
+use crate::study::Study;
+use hilo_dataset::simulate::SimulateConfig;
+use hilo_fusion::Registry;
+use hilo_fusion::train::Sampling;
+use serde::{Deserialize, Serialize};
+
+/// The scale of a study.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Profile {
+    pub name: String,
+    pub dataset: SimulateConfig,
+    /// Presets trained on every configuration they can run on (fusion presets need a radar).
+    pub presets: Vec<String>,
+    /// Ablation presets, trained on the study's first configuration with a radar only (the rig
+    /// under study).
+    pub ablations: Vec<String>,
+    /// The study's first configurations only (all when None): a study lists its rigs in order
+    /// of interest, and a profile that cannot afford them all runs the first ones.
+    pub configurations: Option<usize>,
+    /// Seeds per (configuration, preset).
+    pub seeds: usize,
+    /// Training samples per detector (None: each preset's default schedule).
+    pub train_samples: Option<usize>,
+    /// How training frames are drawn (None: each preset's default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sampling: Option<Sampling>,
+    /// Points of the learning curve, as shares of the schedule (seed 0 of every group).
+    pub curve: Vec<f64>,
+    /// Scene-bootstrap replicates.
+    pub resamples: usize,
+    /// Trainings run at once (each on a one-thread pool).
+    pub trainings_at_once: usize,
+    /// Target cell size of the placement speed-against-error sweeps (the study's when None).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tradeoff_cell_m: Option<f32>,
+    /// What this profile leaves out of the paper's design, and which profile adds it.
+    pub leaves_out: String,
+}
+
+/// The profiles: `quick` (≤ 5 min), `default` (≤ 30 min), `paper` (the paper's scale), and
+/// `tiny` (seconds; for tests).
+pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile> {
+    let base = study.file.dataset.clone();
+    let fusion_presets: Vec<String> =
+        registry.preset_names().into_iter().filter(|n| !n.ends_with("-no-early")).collect();
+    let p = match name {
+        "quick" => Profile {
+            name: name.into(),
+            dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..base },
+            presets: vec!["centerpoint".into()],
+            ablations: vec![],
+            configurations: Some(2),
+            seeds: 2,
+            train_samples: Some(1_600),
+            sampling: None,
+            curve: vec![0.5, 1.0],
+            resamples: 200,
+            trainings_at_once: 2,
+            tradeoff_cell_m: Some(2.0),
+            leaves_out: "the study's configurations after its first two, the fusion detectors, a third seed and training to the plateau: the default profile adds them".into(),
+        },
+        "default" => Profile {
+            name: name.into(),
+            dataset: base,
+            presets: vec!["centerpoint".into(), "lirafusion-like".into()],
+            ablations: vec!["lirafusion-like-no-early".into()],
+            configurations: Some(3),
+            seeds: 3,
+            train_samples: Some(6_000),
+            sampling: Some(Sampling::ClassBalanced),
+            curve: vec![0.25, 0.5, 1.0],
+            resamples: 400,
+            trainings_at_once: 2,
+            tradeoff_cell_m: None,
+            leaves_out: "the study's configurations after its first three, the other detector presets (pointpillars, pointpillars-lr, l4dr-like, bi-lrfusion-like, late) and the l4dr-like ablation, and training to each preset's plateau (6,000 samples here against each preset's default schedule): `--profile paper` adds them".into(),
+        },
+        "paper" => Profile {
+            name: name.into(),
+            dataset: SimulateConfig { scenes: 30, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, val_scenes: 20, ..base },
+            presets: fusion_presets,
+            ablations: vec!["l4dr-like-no-early".into(), "lirafusion-like-no-early".into()],
+            configurations: None,
+            seeds: 3,
+            train_samples: None,
+            sampling: None,
+            curve: vec![0.25, 0.5, 1.0],
+            resamples: 1000,
+            trainings_at_once: 2,
+            tradeoff_cell_m: None,
+            leaves_out: "nothing of the paper's design; its 37 scenes at 20 Hz are 30 training scenes at 20 Hz and 20 validation scenes at 2 Hz here".into(),
+        },
+        "tiny" => Profile {
+            name: name.into(),
+            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..base },
+            presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
+            ablations: vec![],
+            configurations: Some(2),
+            seeds: 2,
+            train_samples: Some(8),
+            sampling: None,
+            curve: vec![0.5, 1.0],
+            resamples: 40,
+            trainings_at_once: 2,
+            tradeoff_cell_m: Some(5.0),
+            leaves_out: "everything that takes time: a test profile".into(),
+        },
+        other => return Err(StudyError::Invalid(format!("--profile {other:?}: use quick, default or paper"))),
+    };
+    Ok(p)
+}

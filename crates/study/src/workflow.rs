@@ -1,0 +1,189 @@
+//! A study's [`Plan`] as a Snakemake workflow: one rule per stage, its inputs and outputs the
+//! stage files (relative to the study folder, where the workflow runs), its command the
+//! single-stage `hilo study` command, with thread, memory and run-time hints. Snakemake then
+//! schedules it locally, on Slurm or on Kubernetes without change; hilo runs no scheduler of
+//! its own, and the stages are the same code and hashes as `hilo study` in one process.
+
+use crate::error::{Result, StudyError};
+use crate::plan::Plan;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// What each kind of stage needs, measured on the default profile on a 2-core machine (see the
+/// README's table); a workflow engine reads them as scheduling hints, not limits.
+#[derive(Clone, Copy, Debug)]
+pub struct Resources {
+    pub threads: usize,
+    pub mem_mb: usize,
+    /// Expected minutes at the default profile (Slurm's `runtime`), with headroom.
+    pub runtime_min: usize,
+}
+
+pub const PLACE: Resources = Resources { threads: 2, mem_mb: 2_000, runtime_min: 10 };
+pub const SIMULATE: Resources = Resources { threads: 2, mem_mb: 2_000, runtime_min: 30 };
+pub const TRAIN: Resources = Resources { threads: 1, mem_mb: 3_000, runtime_min: 30 };
+pub const REPORT: Resources = Resources { threads: 2, mem_mb: 2_000, runtime_min: 10 };
+
+/// How the workflow calls hilo.
+#[derive(Clone, Debug)]
+pub struct Workflow {
+    /// The `hilo` executable the rules run.
+    pub hilo: PathBuf,
+    /// Whether hilo was built with CUDA: training rules then ask for a GPU.
+    pub gpu: bool,
+}
+
+fn rel(plan: &Plan, p: &Path) -> Result<String> {
+    let r = p.strip_prefix(&plan.out).map_err(|_| {
+        StudyError::Invalid(format!("{} is outside the study folder {}", p.display(), plan.out.display()))
+    })?;
+    let s = r.to_string_lossy().into_owned();
+    if s.contains('"') || s.contains('\\') || s.contains('{') || s.contains('}') {
+        return Err(StudyError::Invalid(format!("{s:?}: a stage path Snakemake cannot quote")));
+    }
+    Ok(s)
+}
+
+fn list(items: &[String]) -> String {
+    items.iter().map(|s| format!("\n        \"{s}\",")).collect::<String>()
+}
+
+/// A rule name: letters, digits and `_`.
+fn rule_name(parts: &[&str]) -> String {
+    let s: String = parts.join("_").chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '_' }).collect();
+    s.split('_').filter(|p| !p.is_empty()).collect::<Vec<_>>().join("_")
+}
+
+/// One rule of the Snakefile.
+struct Rule {
+    name: String,
+    inputs: Vec<String>,
+    outputs: Vec<String>,
+    resources: Resources,
+    gpu: bool,
+    log: String,
+    /// The `hilo study` stage command, without `--out`.
+    cmd: String,
+}
+
+impl Rule {
+    fn write(&self, out: &mut String) {
+        let _ = write!(out, "\nrule {}:\n", self.name);
+        if !self.inputs.is_empty() {
+            let _ = writeln!(out, "    input:{}", list(&self.inputs));
+        }
+        let _ = writeln!(out, "    output:{}", list(&self.outputs));
+        let _ = writeln!(out, "    log: \"logs/{}.log\"", self.log);
+        let _ = writeln!(out, "    threads: {}", self.resources.threads);
+        let gpu = if self.gpu { ", gpu=1" } else { "" };
+        let _ = writeln!(
+            out,
+            "    resources: mem_mb={}, runtime={}{gpu}",
+            self.resources.mem_mb, self.resources.runtime_min
+        );
+        let _ = writeln!(
+            out,
+            "    shell: \"RAYON_NUM_THREADS={{threads}} {{config[hilo]}} study {} --out . > {{log}} 2>&1\"",
+            self.cmd
+        );
+    }
+}
+
+/// The Snakefile of a plan.
+pub fn snakefile(plan: &Plan, wf: &Workflow) -> Result<String> {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# The study in {} as a Snakemake workflow, written by `hilo study --workflow snakemake`.\n\
+         # Run it from this folder: `snakemake --cores 2` (locally), `snakemake --executor slurm --jobs 20`,\n\
+         # or `snakemake --executor kubernetes --jobs 20 --default-storage-provider s3 ...`.\n\
+         # Each rule is one stage (`hilo study <stage> --out .`); outputs are written atomically and\n\
+         # named by content hash, so a rerun redoes only unfinished stages (use --rerun-incomplete\n\
+         # after a killed run). Profile {}: {} configurations, {} trainings.",
+        plan.out.display(),
+        plan.profile.name,
+        plan.configurations.len(),
+        plan.jobs.len()
+    );
+    s.push_str("\nconfigfile: \"config.yaml\"\n");
+    let placements: Vec<String> = plan.placement_outputs().iter().map(|p| rel(plan, p)).collect::<Result<_>>()?;
+    let data: Vec<String> = plan.data.iter().map(|d| rel(plan, &d.done())).collect::<Result<_>>()?;
+    let mut all_results = Vec::new();
+    for j in &plan.jobs {
+        for p in j.outputs() {
+            all_results.push(rel(plan, &p)?);
+        }
+    }
+    let mut report_inputs = placements.clone();
+    report_inputs.extend(data.iter().cloned());
+    report_inputs.extend(all_results.iter().cloned());
+    s.push_str("\nrule all:\n    input: \"report.json\"\n    default_target: True\n");
+    let mut rules = vec![
+        Rule {
+            name: "report".into(),
+            inputs: report_inputs,
+            outputs: vec!["report.json".into(), "report.md".into()],
+            resources: REPORT,
+            gpu: false,
+            log: "report".into(),
+            cmd: "report".into(),
+        },
+        Rule {
+            name: "place".into(),
+            inputs: Vec::new(),
+            outputs: placements,
+            resources: PLACE,
+            gpu: false,
+            log: "place".into(),
+            cmd: "place".into(),
+        },
+    ];
+    for (ci, conf) in plan.configurations.iter().enumerate() {
+        let slug = conf.slug();
+        rules.push(Rule {
+            name: rule_name(&["simulate", &slug]),
+            inputs: vec![rel(plan, &plan.placement(ci))?],
+            outputs: vec![data[ci].clone()],
+            resources: SIMULATE,
+            gpu: false,
+            log: format!("simulate-{slug}"),
+            cmd: format!("simulate --configuration {slug}"),
+        });
+    }
+    for j in &plan.jobs {
+        let slug = plan.configurations[j.configuration].slug();
+        rules.push(Rule {
+            name: rule_name(&["train", &slug, &j.preset, &format!("seed{}", j.seed)]),
+            inputs: vec![data[j.configuration].clone()],
+            outputs: j.outputs().iter().map(|p| rel(plan, p)).collect::<Result<_>>()?,
+            resources: TRAIN,
+            gpu: wf.gpu,
+            log: format!("train-{}", j.id.replace('/', "-")),
+            cmd: format!("train --job {}", j.id),
+        });
+    }
+    for r in &rules {
+        r.write(&mut s);
+    }
+    Ok(s)
+}
+
+/// `config.yaml`: the hilo executable the rules call.
+pub fn config_yaml(wf: &Workflow) -> Result<String> {
+    let exe = wf.hilo.to_string_lossy();
+    if exe.contains('\'') {
+        return Err(StudyError::Invalid(format!("{exe:?}: an executable path YAML cannot quote simply")));
+    }
+    Ok(format!(
+        "# The hilo executable every rule runs (the same build for every stage: hashes cover the code).\nhilo: '{exe}'\n"
+    ))
+}
+
+/// Writes `Snakefile` and `config.yaml` into the plan's folder (already claimed for the study).
+pub fn write(plan: &Plan, wf: &Workflow) -> Result<Vec<PathBuf>> {
+    let snake = plan.out.join("Snakefile");
+    let cfg = plan.out.join("config.yaml");
+    crate::files::write_atomic(&snake, snakefile(plan, wf)?.as_bytes())?;
+    crate::files::write_atomic(&cfg, config_yaml(wf)?.as_bytes())?;
+    Ok(vec![snake, cfg])
+}
