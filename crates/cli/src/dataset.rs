@@ -24,8 +24,12 @@ pub struct StatsArgs {
     pub frame: usize,
 }
 
+/// Box colours, one per class in [`hilo_core::Class::ALL`] order.
 const PALETTE: [(u8, u8, u8); 6] =
     [(80, 170, 255), (255, 170, 60), (120, 230, 120), (255, 90, 200), (250, 250, 120), (160, 120, 255)];
+/// Point colours, one per sensor of the frame (greys and pastels, apart from the box colours).
+const SENSOR_COLOURS: [(u8, u8, u8); 6] =
+    [(210, 210, 210), (130, 220, 230), (240, 180, 180), (150, 150, 150), (200, 230, 160), (230, 200, 240)];
 
 pub fn stats(args: &StatsArgs) -> Result<()> {
     let ds = Dataset::open(&args.root, &args.version)?;
@@ -66,6 +70,7 @@ pub fn stats(args: &StatsArgs) -> Result<()> {
             .get(args.frame)
             .with_context(|| format!("--frame {}: the dataset has {} frames", args.frame, t.sample.len()))?;
         let mut dots = Vec::new();
+        let mut keys: Vec<((u8, u8, u8), String)> = Vec::new();
         for (k, sd) in t.sample_data.iter().filter(|s| s.sample_token == sample.token).enumerate() {
             let cs = t
                 .calibrated_sensor
@@ -79,7 +84,9 @@ pub fn stats(args: &StatsArgs) -> Result<()> {
                 cs.rotation[0] as f32,
             );
             let position = Vec3::new(cs.translation[0] as f32, cs.translation[1] as f32, cs.translation[2] as f32);
-            let col = PALETTE[k % PALETTE.len()];
+            let col = SENSOR_COLOURS[k % SENSOR_COLOURS.len()];
+            let channel = t.sensor.iter().find(|x| x.token == cs.sensor_token).map_or("sensor", |x| x.channel.as_str());
+            keys.push((col, format!("{channel} point")));
             let pts: Vec<Vec3> = if sd.filename.ends_with(".pcd.bin") {
                 ds.lidar_points(sd)?.iter().map(|p| Vec3::new(p.x, p.y, p.z)).collect()
             } else {
@@ -116,6 +123,13 @@ pub fn stats(args: &StatsArgs) -> Result<()> {
         for (b, col) in &boxes {
             canvas.boxes(std::slice::from_ref(b), *col);
         }
+        keys.extend(
+            hilo_core::Class::ALL.iter().map(|c| (PALETTE[c.index()], format!("{} box (tick: heading)", c.name()))),
+        );
+        let key_refs: Vec<((u8, u8, u8), &str)> = keys.iter().map(|(c, t)| (*c, t.as_str())).collect();
+        canvas.legend(&key_refs);
+        canvas.scale_bar(20.0);
+        canvas.north_arrow();
         write_atomic(png, &canvas.png()?)?;
         println!("wrote {} (frame {}: {} points, {} boxes)", png.display(), args.frame, dots.len(), boxes.len());
     }

@@ -27,9 +27,10 @@ pub struct EvalArgs {
     /// Evaluation settings (JSON with the devkit's config keys); hilo's default otherwise.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Scene-bootstrap resamples for 95% intervals (0 = none); written to bootstrap.json.
-    #[arg(long, default_value_t = 1000)]
-    bootstrap: usize,
+    /// Scene-bootstrap resamples for 95% intervals (0 = none, at most 100,000); written to
+    /// bootstrap.json.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(0..=100_000))]
+    bootstrap: u32,
     /// A second submission on the same ground truth: the paired bootstrap of (it − --results),
     /// written to paired.json.
     #[arg(long)]
@@ -109,28 +110,48 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         println!("range {label:<10} mAP {:.4}", bm.mean_ap);
     }
     if args.bootstrap > 0 {
-        let b = hilo_eval::bootstrap::bootstrap(&gt, &pred, &cfg, args.bootstrap, 0.95, args.seed);
+        let b = hilo_eval::bootstrap::bootstrap(&gt, &pred, &cfg, args.bootstrap as usize, 0.95, args.seed);
         write_atomic(&args.out.join("bootstrap.json"), serde_json::to_string_pretty(&b)?.as_bytes())?;
-        println!(
-            "95% intervals over {} scenes ({} resamples): mAP [{:.4}, {:.4}], NDS [{:.4}, {:.4}]",
-            b.scenes, b.resamples, b.mean_ap.lo, b.mean_ap.hi, b.nd_score.lo, b.nd_score.hi
-        );
+        if b.estimable {
+            println!(
+                "95% intervals over {} scenes ({} resamples): mAP [{:.4}, {:.4}], NDS [{:.4}, {:.4}]",
+                b.scenes, b.resamples, b.mean_ap.lo, b.mean_ap.hi, b.nd_score.lo, b.nd_score.hi
+            );
+        } else {
+            println!(
+                "intervals not estimable: {} scene(s); a scene bootstrap needs at least {}",
+                b.scenes,
+                hilo_eval::bootstrap::MIN_SCENES
+            );
+        }
         if let Some(other) = &args.compare {
             let pred_b = read_submission(other, cfg.max_boxes_per_sample)?;
-            let p = hilo_eval::bootstrap::paired(&gt, &pred, &pred_b, &cfg, args.bootstrap, 0.95, args.seed);
+            let p = hilo_eval::bootstrap::paired(&gt, &pred, &pred_b, &cfg, args.bootstrap as usize, 0.95, args.seed);
             write_atomic(&args.out.join("paired.json"), serde_json::to_string_pretty(&p)?.as_bytes())?;
-            println!(
-                "{} − {}: mAP {:+.4} [{:+.4}, {:+.4}] (P[not better] = {:.3}), NDS {:+.4} [{:+.4}, {:+.4}]",
-                other.display(),
-                args.results.display(),
-                p.mean_ap_diff.estimate,
-                p.mean_ap_diff.lo,
-                p.mean_ap_diff.hi,
-                p.p_mean_ap_not_better,
-                p.nd_score_diff.estimate,
-                p.nd_score_diff.lo,
-                p.nd_score_diff.hi
-            );
+            if p.estimable {
+                println!(
+                    "{} − {}: mAP {:+.4} [{:+.4}, {:+.4}] (P[not better] = {:.3}), NDS {:+.4} [{:+.4}, {:+.4}]",
+                    other.display(),
+                    args.results.display(),
+                    p.mean_ap_diff.estimate,
+                    p.mean_ap_diff.lo,
+                    p.mean_ap_diff.hi,
+                    p.p_mean_ap_not_better,
+                    p.nd_score_diff.estimate,
+                    p.nd_score_diff.lo,
+                    p.nd_score_diff.hi
+                );
+            } else {
+                println!(
+                    "{} − {}: mAP {:+.4}, NDS {:+.4}; interval and P not estimable ({} scene(s); at least {} needed)",
+                    other.display(),
+                    args.results.display(),
+                    p.mean_ap_diff.estimate,
+                    p.nd_score_diff.estimate,
+                    p.scenes,
+                    hilo_eval::bootstrap::MIN_SCENES
+                );
+            }
         }
     }
     Ok(())

@@ -56,7 +56,18 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     if ext != "pcd" && ext != "ply" {
         bail!("--out {}: the extension must be .pcd or .ply", args.out.display());
     }
+    if let Some(why) = scene.mount_problem(pose.position) {
+        bail!("--pose {}: cannot mount a sensor there: {why}", args.pose);
+    }
     let actors = demo_actors(&scene, args.actors, args.moving, args.seed);
+    if actors.len() < args.actors {
+        eprintln!(
+            "warning: --actors {} asked, {} placed: the scene's lanes and crosswalks hold no more \
+             without overlapping road users",
+            args.actors,
+            actors.len()
+        );
+    }
     let boxes: Vec<_> = actors.iter().map(actor_box).collect();
     let set = ActorSet::new(actors)?;
     let range = match spec {
@@ -109,6 +120,17 @@ pub fn run(args: &ScanArgs) -> Result<()> {
         let radius = if matches!(spec, SensorSpec::Radar(_)) { 2.5 } else { 1.0 };
         canvas.dots(&local, radius);
         canvas.dots(&[(pose.position.truncate(), (255, 0, 255))], 5.0);
+        let points: &[((u8, u8, u8), &str)] = match spec {
+            SensorSpec::Lidar(_) => &[((40, 200, 255), "LiDAR point at the ground"), ((255, 80, 55), "4 m above it")],
+            SensorSpec::Radar(_) => &[
+                ((255, 0, 0), "radar point approaching (10 m/s)"),
+                ((255, 255, 255), "radar point static"),
+                ((0, 0, 255), "radar point receding (10 m/s)"),
+            ],
+        };
+        let mut keys = vec![((255, 0, 255), "sensor"), ((255, 230, 0), "road user (tick: heading)")];
+        keys.extend_from_slice(points);
+        canvas.legend(&keys);
         write_atomic(png, &canvas.png().context("drawing the scan")?)?;
         eprintln!("wrote {}", png.display());
     }

@@ -4,6 +4,9 @@
 
 use std::process::Command;
 
+mod pictures;
+use pictures::{Kind, assert_labelled};
+
 fn hilo() -> Command {
     Command::new(env!("CARGO_BIN_EXE_hilo"))
 }
@@ -21,6 +24,7 @@ fn scene_show_writes_a_png_of_the_default_scene() {
     let px = png.pixels();
     let dark = px.iter().filter(|p| p.red() < 90 && p.green() < 90).count();
     assert!(dark > px.len() / 20, "too little road drawn: {dark}");
+    assert_labelled(&out, Kind::Map);
     // No temporary file left behind.
     assert_eq!(std::fs::read_dir(dir.path().join("pics")).unwrap().count(), 1);
 }
@@ -81,7 +85,7 @@ fn scan_writes_a_readable_cloud_and_a_picture() {
     let pts: Vec<LidarPoint> = from_pcd(&std::fs::read(&pcd).unwrap(), &pcd).unwrap();
     assert!(pts.len() > 1000 && pts.len() <= 16 * 900);
     assert!(pts.iter().all(|p| p.ring < 16));
-    assert!(tiny_skia::Pixmap::load_png(&png).is_ok());
+    assert_labelled(&png, Kind::Map);
     // Same seed, same bytes.
     let again = dir.path().join("again.pcd");
     let st = hilo()
@@ -104,6 +108,11 @@ fn scan_writes_a_readable_cloud_and_a_picture() {
 }
 
 #[test]
+fn the_text_check_fails_on_a_picture_without_text() {
+    pictures::check_can_fail();
+}
+
+#[test]
 fn scan_with_bad_input_explains_itself() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("x.pcd");
@@ -116,7 +125,19 @@ fn scan_with_bad_input_explains_itself() {
     // Inside the bank building.
     let o = hilo().args(["scan", "--sensor", "lidar-16", "--pose", "-35,-36,3", "--out"]).arg(&out).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("bank"));
+    // Underground: refused, not 4,000 points "from below the road".
+    let o = hilo().args(["scan", "--sensor", "lidar-16", "--pose", "0,0,-5", "--out"]).arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("below the ground") && err.contains("-5"), "{err}");
     assert!(!out.exists());
+    // More road users than the lanes hold: written, with a warning naming both counts.
+    let o = hilo()
+        .args(["scan", "--sensor", "lidar-16", "--pose", "13,16.6,7.8,-127,10", "--actors", "100000", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("--actors 100000 asked") && out.exists(), "{err}");
 }
 
 #[test]
@@ -164,7 +185,7 @@ fn place_writes_proven_placements_coverage_maps_and_exports() {
     assert!(p["objective"].as_f64().unwrap() >= p["greedy_objective"].as_f64().unwrap());
     let cov = p["central_coverage"].as_f64().unwrap();
     assert!(cov > 0.0 && cov <= 1.0);
-    assert!(tiny_skia::Pixmap::load_png(out.join("2x_lidar_16_radar.png")).is_ok());
+    assert_labelled(&out.join("2x_lidar_16_radar.png"), Kind::Map);
     for f in [
         "targets.json",
         "candidates.json",
@@ -334,7 +355,14 @@ fn dataset_stats_and_eval_against_a_dataset() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("2 scenes, 6 frames") && text.contains("car") && text.contains("25.0"), "{text}");
-    assert!(tiny_skia::Pixmap::load_png(&png).is_ok());
+    assert_labelled(&png, Kind::Map);
+    // A folder where the picture should go: refused, and no temporary file left beside it.
+    let folder = dir.path().join("pics");
+    std::fs::create_dir(&folder).unwrap();
+    let o = hilo().args(["dataset", "stats"]).arg(&root).arg("--png").arg(&folder).output().unwrap();
+    assert!(!o.status.success());
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert!(left.iter().all(|n| !n.to_string_lossy().contains("tmp")), "{left:?}");
     // A perfect submission for the val split.
     let results: serde_json::Map<String, serde_json::Value> = samples
         .iter()

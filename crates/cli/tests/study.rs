@@ -5,6 +5,8 @@
 
 use std::process::Command;
 
+mod pictures;
+
 fn hilo() -> Command {
     Command::new(env!("CARGO_BIN_EXE_hilo"))
 }
@@ -73,6 +75,10 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     ] {
         let p = out.join("figures").join(f);
         assert!(std::fs::metadata(&p).map(|m| m.len() > 100).unwrap_or(false), "{} missing or empty", p.display());
+        if f.ends_with(".png") {
+            let map = f.starts_with("coverage_") || f.starts_with("detections/");
+            pictures::assert_labelled(&p, if map { pictures::Kind::Map } else { pictures::Kind::Chart });
+        }
     }
     // Every figure the report links exists.
     for link in md.split("](").skip(1).filter_map(|s| s.split(')').next()) {

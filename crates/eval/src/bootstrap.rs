@@ -29,11 +29,17 @@ pub struct Interval {
     pub std: f64,
 }
 
+/// Fewer scenes than this and a scene bootstrap has too few distinct resamples to say anything
+/// (2 scenes: 3 distinct resamples): its intervals are reported as not estimable.
+pub const MIN_SCENES: usize = 5;
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BootstrapSummary {
     pub resamples: usize,
     pub level: f64,
     pub scenes: usize,
+    /// Whether there are at least [`MIN_SCENES`] scenes; without them the intervals mean nothing.
+    pub estimable: bool,
     pub mean_ap: Interval,
     pub nd_score: Interval,
     pub class_ap: BTreeMap<String, Interval>,
@@ -43,6 +49,10 @@ pub struct BootstrapSummary {
 pub struct PairedSummary {
     pub resamples: usize,
     pub level: f64,
+    pub scenes: usize,
+    /// Whether there are at least [`MIN_SCENES`] scenes; without them the intervals and the
+    /// p-value mean nothing.
+    pub estimable: bool,
     /// B − A.
     pub mean_ap_diff: Interval,
     pub nd_score_diff: Interval,
@@ -194,6 +204,7 @@ pub fn bootstrap(
         resamples,
         level,
         scenes: n_scenes,
+        estimable: n_scenes >= MIN_SCENES,
         mean_ap: interval(map0, reps.iter().map(|r| r.0).collect(), level),
         nd_score: interval(nds0, reps.iter().map(|r| r.1).collect(), level),
         class_ap,
@@ -259,6 +270,8 @@ pub fn paired_between(
     PairedSummary {
         resamples,
         level,
+        scenes: n_scenes,
+        estimable: n_scenes >= MIN_SCENES,
         mean_ap_diff: interval(mb - ma, reps.iter().map(|r| r.0).collect(), level),
         nd_score_diff: interval(nb - na, reps.iter().map(|r| r.1).collect(), level),
         class_ap_diff: cb

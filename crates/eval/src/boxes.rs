@@ -163,6 +163,17 @@ fn check_box(b: &EvalBox, file: &Path, sample: &str, k: usize, pred: bool) -> Re
     if b.sample_token != sample {
         return bad("sample_token", format!("{:?} (listed under {sample:?})", b.sample_token));
     }
+    // As the devkit does: a box of a class the metric does not know is an error, not a box
+    // silently left out (which would make every box of a misspelt class a miss).
+    if b.detection_name.parse::<hilo_core::Class>().is_err() {
+        return bad(
+            "detection_name",
+            format!(
+                "{:?} (not an evaluated class: car, truck, bus, motorcycle, pedestrian, golf_cart)",
+                b.detection_name
+            ),
+        );
+    }
     if b.translation.iter().any(|v| !v.is_finite()) {
         return bad("translation", format!("{:?}", b.translation));
     }

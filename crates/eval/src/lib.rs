@@ -40,8 +40,10 @@ pub fn evaluate_files(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &D
     evaluate(&gt_f, &pred_f, cfg)
 }
 
-/// The metric per range bin from the sample's origin (e.g. 0–30, 30–50, 50+ m): ground truth
-/// and predictions outside a bin are left out of it.
+/// The metric per range bin from the sample's origin (e.g. 0–30, 30–50 m): ground truth and
+/// predictions outside a bin are left out of it. A last, open bin beyond the final edge is
+/// added only while it reaches inside the farthest class range (every class is evaluated within
+/// its range, at most 50 m by default, so a "50+ m" bin would always be empty).
 pub fn evaluate_distance_bins(
     gt: &GroundTruth,
     pred: &[(String, Vec<EvalBox>)],
@@ -54,8 +56,9 @@ pub fn evaluate_distance_bins(
         let e = ego(&b.sample_token);
         ((b.translation[0] - e[0]).powi(2) + (b.translation[1] - e[1]).powi(2)).sqrt()
     };
+    let reach = cfg.class_range.values().copied().fold(0.0, f64::max);
     let mut bins: Vec<(f64, f64)> = edges.windows(2).map(|w| (w[0], w[1])).collect();
-    if let Some(&last) = edges.last() {
+    if let Some(&last) = edges.last().filter(|&&e| e < reach) {
         bins.push((last, f64::INFINITY));
     }
     bins.into_iter()

@@ -196,4 +196,18 @@ fn bad_results_files_name_the_sample_and_field() {
     assert!(e.contains("abc") && e.contains("size"), "{e}");
     std::fs::write(&p, format!(r#"{{"meta": {{}}, "results": {{"abc": [{}, {}]}}}}"#, boxj(""), boxj(""))).unwrap();
     assert!(read_submission(&p, 1).unwrap_err().to_string().contains("limit"));
+    // A class the metric does not evaluate is refused, naming the box, not silently dropped.
+    for name in ["bicycle", "vehicle.car", "Car"] {
+        std::fs::write(
+            &p,
+            format!(
+                r#"{{"meta": {{}}, "results": {{"abc": [{}, {}]}}}}"#,
+                boxj(""),
+                boxj("").replace("\"car\"", &format!("{name:?}"))
+            ),
+        )
+        .unwrap();
+        let e = read_submission(&p, 500).unwrap_err().to_string();
+        assert!(e.contains("abc") && e.contains("detection_name") && e.contains(name) && e.contains("1"), "{e}");
+    }
 }

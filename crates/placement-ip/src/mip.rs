@@ -40,21 +40,29 @@ pub struct Model {
     pub nonzeros: usize,
 }
 
-/// Most sensors any selection within `limit` can hold.
+/// Most sensors any selection within `limit` can hold. Under a budget: the cheapest types
+/// first, each up to its cap and its number of options (buying the cheapest first maximises
+/// the count; a free type is bounded by its options).
 fn max_sensors(inst: &Instance, limit: &Limit) -> usize {
     match limit {
         Limit::Counts(c) => c.iter().map(|&x| x as usize).sum(),
         Limit::Total(n) => *n as usize,
-        Limit::Budget { usd, max, .. } => inst
-            .types
-            .iter()
-            .enumerate()
-            .map(|(t, ty)| {
-                let by_money = if ty.price_usd > 0.0 { (usd / ty.price_usd).floor() as usize } else { usize::MAX };
-                by_money.min(max.get(t).copied().unwrap_or(u32::MAX) as usize)
-            })
-            .max()
-            .unwrap_or(0),
+        Limit::Budget { usd, max, .. } => {
+            let mut order: Vec<usize> = (0..inst.types.len()).collect();
+            order.sort_by(|&a, &b| inst.types[a].price_usd.total_cmp(&inst.types[b].price_usd));
+            let mut left = *usd;
+            let mut n = 0usize;
+            for t in order {
+                let options = inst.options.iter().filter(|o| o.ty == t).count();
+                let avail = options.min(max.get(t).copied().unwrap_or(u32::MAX) as usize);
+                let price = inst.types[t].price_usd;
+                let take =
+                    if price > 0.0 { (((left + 1e-9) / price).floor().max(0.0) as usize).min(avail) } else { avail };
+                n += take;
+                left -= take as f64 * price;
+            }
+            n
+        }
     }
 }
 
@@ -203,7 +211,18 @@ pub fn solve(
         }
         problem = problem.with_initial_solution(init);
     }
-    let sol = problem.solve().map_err(|e| PlacementError::Solver(format!("CBC: {e}")))?;
+    let sol = problem.solve().map_err(|e| {
+        let ran = start.elapsed().as_secs_f64();
+        // At its time limit without an incumbent CBC reports "infeasible"; say what happened.
+        // CBC does not check the limit inside its root LP, so it may run past it.
+        if matches!(e, good_lp::ResolutionError::Infeasible) && ran >= 0.95 * time_limit_s.max(1.0) {
+            PlacementError::Solver(format!(
+                "CBC: time limit ({time_limit_s:.0} s) reached with no solution found (ran {ran:.0} s: CBC does not check its limit inside the root LP)"
+            ))
+        } else {
+            PlacementError::Solver(format!("CBC: {e}"))
+        }
+    })?;
     let status = sol.status();
     let bound = sol.model().best_possible_value();
     let selection: Vec<usize> = m.x.iter().enumerate().filter(|(_, v)| sol.value(**v) > 0.5).map(|(o, _)| o).collect();

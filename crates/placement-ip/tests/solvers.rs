@@ -258,3 +258,48 @@ fn a_deadline_returns_a_valid_bound_and_a_feasible_selection() {
     // Where greedy is not optimal, a search with no time left cannot have proven anything.
     assert!(cut_short > 0);
 }
+
+/// A budget where the most sensors is a sum over types, not the most of one type: radars at
+/// $50 (at most 2), LiDARs at $100, $300 buys 2 radars + 2 LiDARs. Every sensor sees the one
+/// target, so the optimum takes all four; a per-target bound from the largest single-type count
+/// (3 sensors) would cut it off in the strengthened model.
+#[test]
+fn the_budget_bound_on_sensors_is_a_sum_over_types() {
+    let opt = |ty, mount: u32| SensorOption { ty, candidate: mount, mount, row: vec![(0, 0.9)] };
+    let inst = Instance {
+        weights: vec![1.0],
+        types: vec![
+            SensorType { name: "lidar".into(), modality: Modality::Lidar, price_usd: 100.0 },
+            SensorType { name: "radar".into(), modality: Modality::Radar, price_usd: 50.0 },
+        ],
+        options: vec![opt(0, 0), opt(0, 1), opt(0, 2), opt(1, 3), opt(1, 4), opt(1, 5)],
+        p_min: 1.0 - (-1.0f64).exp(),
+    };
+    let limit = Limit::Budget { usd: 300.0, min: vec![], max: vec![u32::MAX, 2] };
+    let oracle = exhaustive(&inst, &limit, 1000).unwrap();
+    assert!((oracle.objective - 3.6).abs() < 1e-5, "{}", oracle.objective);
+    for form in [Formulation::Strengthened, Formulation::Plain] {
+        let cbc = solve(&inst, &limit, form, 30.0, None).unwrap();
+        assert!(cbc.proven_optimal);
+        assert!((cbc.objective - oracle.objective).abs() < 1e-5, "{form:?}: {} vs {}", cbc.objective, oracle.objective);
+    }
+    // A free sensor type is legal: bounded by its options, not by the money.
+    let mut free = inst.clone();
+    free.types[1].price_usd = 0.0;
+    let limit = Limit::Budget { usd: 100.0, min: vec![], max: vec![] };
+    let oracle = exhaustive(&free, &limit, 1000).unwrap();
+    let cbc = solve(&free, &limit, Formulation::Strengthened, 30.0, None).unwrap();
+    assert!((oracle.objective - 3.6).abs() < 1e-5 && (cbc.objective - oracle.objective).abs() < 1e-5);
+}
+
+/// The exact search's count vectors under a budget with a free type: as many free sensors as
+/// the type has options, and the optimum equals the exhaustive one.
+#[test]
+fn a_free_sensor_type_is_bounded_by_its_options_in_the_exact_search() {
+    use hilo_placement_ip::exact::maximal_count_vectors;
+    let mut inst = random_instance(3);
+    inst.types[2].price_usd = 0.0;
+    let radars = inst.options.iter().filter(|o| o.ty == 2).count() as u32;
+    let vectors = maximal_count_vectors(&inst, 8000.0, &[], &[]);
+    assert!(!vectors.is_empty() && vectors.iter().all(|v| v[2] == radars), "{vectors:?}");
+}

@@ -87,3 +87,42 @@ fn empty_and_broken_meshes() {
     std::fs::write(d.path().join("model.stl"), "solid x").unwrap();
     expect_err(d.path(), "name = \"x\"\n[[meshes]]\npath = \"model.stl\"", &["unsupported mesh format"]);
 }
+
+/// Well-formed but impossible scenes: a footprint that crosses itself (symmetric or not), arms
+/// whose roadways overlap, absurd lane counts, an ROI or a building off the ground.
+#[test]
+fn impossible_geometry_is_refused_naming_the_field() {
+    let d = tempfile::tempdir().unwrap();
+    for bowtie in ["[[0.0,0.0],[10.0,10.0],[10.0,0.0],[0.0,10.0]]", "[[0.0,0.0],[12.0,9.0],[10.0,0.0],[1.0,11.0]]"] {
+        expect_err(
+            d.path(),
+            &format!("name = \"x\"\n[[buildings]]\nfootprint = {bowtie}\nheight_m = 5.0"),
+            &["buildings[0].footprint", "crosses itself"],
+        );
+    }
+    let arm = |name: &str, heading: f32, extra: &str| {
+        format!("[[arms]]\nname = \"{name}\"\nheading_deg = {heading}\nlength_m = 80.0\n{extra}\n")
+    };
+    expect_err(
+        d.path(),
+        &format!("name = \"x\"\n{}{}", arm("a", 0.0, ""), arm("b", 5.0, "")),
+        &["arms[1].heading_deg", "overlap"],
+    );
+    expect_err(d.path(), &format!("name = \"x\"\n{}", arm("a", 0.0, "lanes_in = 1000")), &["arms[0].lanes_in", "1000"]);
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[roi]]\nname = \"far\"\nkind = \"polygon\"\nweight = 1.0\npolygon = [[900.0,900.0],[950.0,900.0],[950.0,950.0]]",
+        &["roi[0].polygon", "off the ground"],
+    );
+    // A real four-arm junction, and a skewed three-arm one, pass.
+    let ok = format!(
+        "name = \"x\"\n{}{}{}{}",
+        arm("n", 90.0, ""),
+        arm("e", 0.0, ""),
+        arm("s", 270.0, ""),
+        arm("w", 180.0, "")
+    );
+    load_text(d.path(), &ok).unwrap();
+    let skew = format!("name = \"x\"\n{}{}{}", arm("a", 0.0, ""), arm("b", 60.0, ""), arm("c", 180.0, ""));
+    load_text(d.path(), &skew).unwrap();
+}

@@ -224,6 +224,10 @@ impl Canvas {
     pub fn north_arrow(&mut self) {
         let w = self.pm.width() as f32;
         let (x, y) = (w - 36.0, 44.0);
+        // On a light panel, so it reads on dark canvases too.
+        if let Some(r) = tiny_skia::Rect::from_xywh(x - 18.0, y - 30.0, 36.0, 64.0) {
+            self.pm.fill_rect(r, &paint(255, 255, 255, 215), Transform::identity(), None);
+        }
         let mut pb = PathBuilder::new();
         pb.move_to(x, y - 22.0);
         pb.line_to(x - 10.0, y + 8.0);

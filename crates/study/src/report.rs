@@ -104,6 +104,7 @@ fn detection_png(
         ((255, 40, 40), "false detection"),
     ]);
     canvas.scale_bar(20.0);
+    canvas.north_arrow();
     write_atomic(path, &canvas.png()?)
 }
 

@@ -13,7 +13,9 @@ use std::time::Instant;
 /// among these).
 pub fn maximal_count_vectors(inst: &Instance, usd: f64, min: &[u32], max: &[u32]) -> Vec<Vec<u32>> {
     let nt = inst.types.len();
-    let cap = |t: usize| max.get(t).copied().unwrap_or(u32::MAX);
+    // No more of a type than it has options (this bounds a free type, which money does not).
+    let options: Vec<u32> = (0..nt).map(|t| inst.options.iter().filter(|o| o.ty == t).count() as u32).collect();
+    let cap = |t: usize| max.get(t).copied().unwrap_or(u32::MAX).min(options[t]);
     let mut out = Vec::new();
     let mut cur = vec![0u32; nt];
     fn rec(
@@ -34,8 +36,8 @@ pub fn maximal_count_vectors(inst: &Instance, usd: f64, min: &[u32], max: &[u32]
             return;
         }
         let price = inst.types[t].price_usd;
-        let most = if price > 0.0 { ((left + 1e-9) / price).floor() as u32 } else { 64 };
-        for n in 0..=most.min(cap(t)).min(64) {
+        let most = if price > 0.0 { ((left + 1e-9) / price).floor() as u32 } else { cap(t) };
+        for n in 0..=most.min(cap(t)) {
             cur[t] = n;
             rec(inst, t + 1, left - n as f64 * price, cur, min, cap, out);
         }

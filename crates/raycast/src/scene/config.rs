@@ -317,11 +317,62 @@ impl Check<'_> {
         if poly.iter().flatten().any(|v| !v.is_finite()) {
             return Err(self.err(field, poly, "coordinates must be finite"));
         }
+        if let Some((i, j)) = self_intersection(poly) {
+            return Err(self.err(
+                field,
+                poly,
+                &format!("the polygon crosses itself (edge {i} meets edge {j}); list its corners in order around it"),
+            ));
+        }
         if polygon_area(poly).abs() < 1e-6 {
             return Err(self.err(field, poly, "polygon has zero area"));
         }
         Ok(())
     }
+
+    /// Every point of a polygon lies on the ground plane's square.
+    fn on_ground(&self, field: &str, poly: &[[f32; 2]], half: f32) -> Result<(), RaycastError> {
+        if let Some(p) = poly.iter().find(|p| p[0].abs() > half || p[1].abs() > half) {
+            return Err(self.err(field, p, &format!("lies off the ground (ground.half_size_m = {half})")));
+        }
+        Ok(())
+    }
+}
+
+/// The first pair of non-adjacent edges of a closed polygon that touch or cross, if any.
+pub fn self_intersection(poly: &[[f32; 2]]) -> Option<(usize, usize)> {
+    let n = poly.len();
+    let cross = |o: [f32; 2], a: [f32; 2], b: [f32; 2]| {
+        (a[0] as f64 - o[0] as f64) * (b[1] as f64 - o[1] as f64)
+            - (a[1] as f64 - o[1] as f64) * (b[0] as f64 - o[0] as f64)
+    };
+    let on = |p: [f32; 2], a: [f32; 2], b: [f32; 2]| {
+        cross(a, b, p).abs() < 1e-9
+            && p[0] >= a[0].min(b[0])
+            && p[0] <= a[0].max(b[0])
+            && p[1] >= a[1].min(b[1])
+            && p[1] <= a[1].max(b[1])
+    };
+    let meet = |a: [f32; 2], b: [f32; 2], c: [f32; 2], d: [f32; 2]| {
+        let (d1, d2) = (cross(c, d, a), cross(c, d, b));
+        let (d3, d4) = (cross(a, b, c), cross(a, b, d));
+        ((d1 > 0.0) != (d2 > 0.0) && d1 != 0.0 && d2 != 0.0 && (d3 > 0.0) != (d4 > 0.0) && d3 != 0.0 && d4 != 0.0)
+            || on(a, c, d)
+            || on(b, c, d)
+            || on(c, a, b)
+            || on(d, a, b)
+    };
+    for i in 0..n {
+        for j in i + 2..n {
+            if i == 0 && j == n - 1 {
+                continue; // the closing edge is adjacent to the first
+            }
+            if meet(poly[i], poly[(i + 1) % n], poly[j], poly[(j + 1) % n]) {
+                return Some((i, j));
+            }
+        }
+    }
+    None
 }
 
 /// Signed area (positive counter-clockwise).
@@ -379,9 +430,37 @@ impl SceneConfig {
             if a.lanes_in + a.lanes_out == 0 {
                 return Err(c.err(&f("lanes_in"), a.lanes_in, "an arm needs at least one lane"));
             }
+            for (name, n, most) in
+                [("lanes_in", a.lanes_in, 8), ("lanes_out", a.lanes_out, 8), ("left_turn_lanes", a.left_turn_lanes, 3)]
+            {
+                if n > most {
+                    return Err(c.err(&f(name), n, &format!("more than {most} lanes in one direction: not a road")));
+                }
+            }
+            if !(2.0..=6.0).contains(&a.lane_width_m) {
+                return Err(c.err(&f("lane_width_m"), a.lane_width_m, "a lane is 2 to 6 m wide"));
+            }
+            if a.length_m > self.ground.half_size_m {
+                return Err(c.err(
+                    &f("length_m"),
+                    a.length_m,
+                    &format!("the arm runs off the ground (ground.half_size_m = {})", self.ground.half_size_m),
+                ));
+            }
+        }
+        if let Some((i, j, along)) = overlapping_arms(&self.arms) {
+            return Err(c.err(
+                &format!("arms[{j}].heading_deg"),
+                self.arms[j].heading_deg,
+                &format!(
+                    "the roadways of arms {:?} and {:?} overlap for {along:.0} m from the centre: arms need more angle between them",
+                    self.arms[i].name, self.arms[j].name
+                ),
+            ));
         }
         for (i, b) in self.buildings.iter().enumerate() {
             c.polygon(&format!("buildings[{i}].footprint"), &b.footprint)?;
+            c.on_ground(&format!("buildings[{i}].footprint"), &b.footprint, self.ground.half_size_m)?;
             c.positive(&format!("buildings[{i}].height_m"), b.height_m)?;
         }
         for (i, t) in self.trees.iter().enumerate() {
@@ -433,7 +512,10 @@ impl SceneConfig {
             c.positive(&f("weight"), r.weight)?;
             match r.kind {
                 RoiKind::Polygon => match &r.polygon {
-                    Some(p) => c.polygon(&f("polygon"), p)?,
+                    Some(p) => {
+                        c.polygon(&f("polygon"), p)?;
+                        c.on_ground(&f("polygon"), p, self.ground.half_size_m)?;
+                    }
                     None => return Err(c.err(&f("polygon"), "missing", "kind = \"polygon\" needs a polygon")),
                 },
                 RoiKind::Approaches => match r.length_m {
@@ -460,4 +542,38 @@ impl SceneConfig {
         }
         Ok(())
     }
+}
+
+/// Two arms whose roadways (lanes, median, sidewalks) still overlap beyond half the shorter
+/// arm's length: neighbours in heading whose facing roadway edges meet farther out than that (or
+/// never, when nearly parallel). Returns (i, j, metres from the centre where they part).
+fn overlapping_arms(arms: &[ArmConfig]) -> Option<(usize, usize, f32)> {
+    if arms.len() < 2 {
+        return None;
+    }
+    let mut order: Vec<usize> = (0..arms.len()).collect();
+    let key = |i: usize| arms[i].heading_deg.rem_euclid(360.0);
+    order.sort_by(|&a, &b| key(a).total_cmp(&key(b)));
+    for k in 0..order.len() {
+        let (i, j) = (order[k], order[(k + 1) % order.len()]);
+        let gap = (key(j) - key(i)).rem_euclid(360.0);
+        if gap >= 179.0 || (arms.len() == 2 && k == 1) {
+            continue; // a straight road, or the far side of a two-arm junction
+        }
+        let (a, b) = (&arms[i], &arms[j]);
+        // Arm i's left (inbound) edge and arm j's right (outbound) edge, as offsets from their
+        // centre lines, sidewalks included.
+        let left_a =
+            0.5 * a.median_width_m + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m + a.sidewalk_width_m;
+        let right_b = 0.5 * b.median_width_m + b.lanes_out as f32 * b.lane_width_m + b.sidewalk_width_m;
+        let theta = gap.to_radians();
+        // Distance along the arms where the two edges meet: the corner of the junction.
+        let along = (left_a + right_b * theta.cos()) / theta.sin().max(1e-6);
+        let along = along.max((right_b + left_a * theta.cos()) / theta.sin().max(1e-6));
+        let limit = 0.5 * a.length_m.min(b.length_m);
+        if along > limit {
+            return Some((i, j, along));
+        }
+    }
+    None
 }
