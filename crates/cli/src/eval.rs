@@ -29,7 +29,7 @@ pub struct EvalArgs {
     config: Option<PathBuf>,
     /// Scene-bootstrap resamples for 95% intervals (0 = none, at most 100,000); written to
     /// bootstrap.json.
-    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(0..=100_000))]
+    #[arg(long, default_value_t = 1000, value_parser = resamples)]
     bootstrap: u32,
     /// A second submission on the same ground truth: the paired bootstrap of (it − --results),
     /// written to paired.json.
@@ -155,4 +155,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// `--bootstrap`: a resample count from 0 to 100,000 (more only costs time; an absurd one would
+/// exhaust memory).
+fn resamples(s: &str) -> Result<u32, String> {
+    match s.parse::<u64>() {
+        Ok(n) if n <= 100_000 => Ok(n as u32),
+        _ => Err(format!("{s} is not a resample count from 0 to 100000")),
+    }
 }

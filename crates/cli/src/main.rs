@@ -183,8 +183,41 @@ pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
     }
 }
 
+/// Set by [`one_thread_per_training`] in the process it starts: the size of rayon's global pool.
+const GLOBAL_THREADS: &str = "HILO_GLOBAL_THREADS";
+
+/// `hilo study` trains several detectors at once, each on a one-thread pool. candle's matrix
+/// product sizes its parallelism from `RAYON_NUM_THREADS`, not from the pool it runs in, so
+/// without the variable every training split each product over all cores and two trainings ran
+/// about 3× slower per step than with it (29 against 89 steps/s on two cores, default profile).
+/// A running process cannot set its own environment without `unsafe`, so a study run without
+/// the variable starts itself once more with `RAYON_NUM_THREADS=1` (for candle) and
+/// [`GLOBAL_THREADS`] = every core (for rayon's global pool: placement and simulation), and
+/// exits with its status. Returns `None` where nothing was started.
+fn one_thread_per_training(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
+    let Command::Study(args) = &cli.command else { return Ok(None) };
+    if args.stage.is_some() || args.workflow.is_some() || std::env::var_os("RAYON_NUM_THREADS").is_some() {
+        return Ok(None);
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let exe = std::env::current_exe().context("finding the hilo binary to run the study")?;
+    let status = std::process::Command::new(exe)
+        .args(std::env::args_os().skip(1))
+        .env("RAYON_NUM_THREADS", "1")
+        .env(GLOBAL_THREADS, cores.to_string())
+        .status()
+        .context("starting the study")?;
+    Ok(Some(status))
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
+    if let Some(n) = std::env::var(GLOBAL_THREADS).ok().and_then(|v| v.parse::<usize>().ok()) {
+        // Explicit, so it wins over RAYON_NUM_THREADS (which is for candle here).
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("starting the thread pool")?;
+    } else if let Some(status) = one_thread_per_training(&cli)? {
+        std::process::exit(status.code().unwrap_or(1));
+    }
     match cli.command {
         Command::Scene { command: SceneCommand::Show { scene, out, px_per_m } } => {
             let scene = load_scene(scene.as_deref())?;

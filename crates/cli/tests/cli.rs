@@ -251,6 +251,18 @@ fn place_with_bad_configurations_explains_itself() {
     );
     let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("either"));
+    // More sensors than mount points, and no sensor at all: refused before any solving.
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"many\"\nsensors = { \"lidar-16\" = 1000, \"radar-4d\" = 1 }\n",
+    );
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("1000 x lidar-16") && err.contains("mount points"), "{err}");
+    let study = coarse_study(dir.path(), "[[configurations]]\nname = \"none\"\nsensors = { \"lidar-16\" = 0 }\n");
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("p")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("needs a sensor"), "{err}");
 }
 
 #[test]
@@ -356,6 +368,17 @@ fn dataset_stats_and_eval_against_a_dataset() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("2 scenes, 6 frames") && text.contains("car") && text.contains("25.0"), "{text}");
     assert_labelled(&png, Kind::Map);
+    // Batches of 0 are refused, and no run folder is left behind.
+    let run = dir.path().join("run0");
+    let o = hilo()
+        .args(["train", "--detector", "centerpoint", "--batch", "0", "--data"])
+        .arg(&root)
+        .arg("--out")
+        .arg(&run)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--batch") && !run.exists(), "{err}");
     // A folder where the picture should go: refused, and no temporary file left beside it.
     let folder = dir.path().join("pics");
     std::fs::create_dir(&folder).unwrap();
@@ -390,6 +413,24 @@ fn dataset_stats_and_eval_against_a_dataset() {
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
     assert!((m["mean_dist_aps"]["car"].as_f64().unwrap() - 1.0).abs() < 1e-9);
+    // Two validation scenes: intervals are not estimable, and said so.
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("not estimable"), "{text}");
+    // An absurd resample count is refused, not a capacity-overflow panic.
+    let o = hilo()
+        .arg("eval")
+        .arg("--data")
+        .arg(&root)
+        .arg("--results")
+        .arg(&res)
+        .arg("--out")
+        .arg(&out)
+        .args(["--bootstrap", "18446744073709551615"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("--bootstrap") && err.contains("100000"), "{err}");
     // Without the split: a clear error.
     let o = hilo()
         .arg("eval")

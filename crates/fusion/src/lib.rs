@@ -11,6 +11,38 @@
 //!
 //! Fusion plugins (raw, early, middle, late) live in their own crates under `plugins/` and only
 //! depend on this one; each registers itself and its presets in a [`fusion::Registry`].
+//!
+//! # What changed to converge on two CPU cores, and why
+//!
+//! Measured first (`hilo bench train`): at 4.2 samples/s a 1,400-sample schedule was a third of
+//! an epoch, and the backward pass of the dense backbone over a 128 × 128 grid, most of it empty,
+//! was most of every step. So the detector now models only what the scene needs:
+//!
+//! - **static background removed** ([`train::learn_background`]): the sensors never move, so each
+//!   LiDAR's per-beam × azimuth-bin range of the static scene is learned from training frames and
+//!   points at or beyond it are dropped (90% of the points). Tested against the background hilo
+//!   ray-casts from the static scene: 100.000% of static points removed, 98.7% of road-user
+//!   points kept;
+//! - **sparse layout** ([`layout`]): convolutions over occupied cells only (gather–GEMM–scatter
+//!   along rulebooks), with a dilated head so box centres between occupied cells are reached;
+//!   with the background gone a frame holds a few hundred cells. 4.2 → 70–87 samples/s for
+//!   `centerpoint`, ~42 for `lirafusion-like`;
+//! - **pillar and point caps sampled by seed** ([`data`]): a frame over the cap keeps a seeded
+//!   sample of its cells and points (both LiDARs represented) and counts what it drops, instead of
+//!   the first cells in row-major order and the first points in file order;
+//! - **radar sweeps**: fusion presets can read the last K radar sweeps with a time-lag feature;
+//!   measured at 6,000 class-balanced samples K = 1 (mAP 0.656) was not beaten by K = 3 (0.628) or
+//!   K = 5 (0.631) and costs least, so K = 1 is the default;
+//! - **class-balanced sampling** ([`train::Sampling::ClassBalanced`], CBGS-like frame resampling)
+//!   is an option: it helps short schedules (6,000 samples: 0.683 against 0.644 uniform) and
+//!   not long ones (12,000: 0.725 against 0.744), so the presets' default schedule is uniform;
+//! - **default schedule** ([`train::TrainConfig::default`]): 12,000 samples in batches of 2,
+//!   one-cycle to 6e-3. The learning curve of `centerpoint` on the default dataset (1.5k 0.407,
+//!   3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattens at 12,000: four times longer
+//!   gains 0.016. That is about 2.5 min for `centerpoint` and 4.5 min for `lirafusion-like` here.
+//!   Larger batches at higher rates (4 at 1e-2: 0.710, 8 at 2e-2: 0.718) did not beat batches of 2;
+//! - **operators fixed**: `GatedChannel` gates each channel (it computed one scalar per
+//!   modality), and seeded initialisation no longer overrides the weighted operator's α = 0.5.
 
 pub mod conformance;
 pub mod conv;

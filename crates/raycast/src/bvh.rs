@@ -7,7 +7,7 @@
 //! JCGT 2013) so that rays grazing a box face are never culled by rounding.
 //!
 //! BVH2 was chosen over obvhs's CWBVH by measurement: with hilo's own closest-hit loop BVH2
-//! was faster on the default scene, and it builds 2–4× faster (PROBES.md has raw figures).
+//! was faster on the default scene, and it builds 2–4× faster.
 
 use crate::error::RaycastError;
 use crate::ray::Ray;

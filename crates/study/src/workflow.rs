@@ -9,8 +9,9 @@ use crate::plan::Plan;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// What each kind of stage needs, measured on the default profile on a 2-core machine (see the
-/// README's table); a workflow engine reads them as scheduling hints, not limits.
+/// What each kind of stage needs: the default profile's stage times on a 2-core machine and the
+/// whole run's peak memory (1.8 GB), rounded up with headroom (see the README's "Running a study
+/// on a cluster"); a workflow engine reads them as scheduling hints, not limits.
 #[derive(Clone, Copy, Debug)]
 pub struct Resources {
     pub threads: usize,
