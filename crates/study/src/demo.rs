@@ -30,7 +30,8 @@ pub fn demo_actors(scene: &Scene, n: usize, moving: bool, seed: u64) -> Vec<Acto
     let lanes: Vec<_> =
         scene.layout.arms.iter().flat_map(|a| a.lanes.iter()).filter(|l| l.kind != LaneKind::LeftTurnBay).collect();
     let crosswalks: Vec<_> = scene.layout.arms.iter().map(|a| a.crosswalk.clone()).collect();
-    let n_ped = if crosswalks.is_empty() { 0 } else { n / 6 };
+    // About one in six road users walks; at most six side by side on a crosswalk.
+    let n_ped = (n / 6).min(6 * crosswalks.len());
     for k in 0..n_ped {
         let cw = &crosswalks[k % crosswalks.len()];
         let (along, across) = (cw[1] - cw[0], cw[3] - cw[0]);
