@@ -18,11 +18,8 @@ if [ "$(id -u)" -ne 0 ]; then SUDO=sudo; fi
 echo "+ apt-get install slurm-wlm munge"
 $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -q slurm-wlm munge > /dev/null
 
-if [ ! -x "$VENV/bin/snakemake" ]; then
-  python3 -m venv "$VENV"
-fi
-"$VENV/bin/pip" install -q "snakemake==9.27.1" "snakemake-executor-plugin-slurm==2.8.0"
-SMK=$(realpath "$VENV/bin/snakemake")
+source scripts/study-check-lib.sh
+snakemake_venv "$VENV" "snakemake==9.27.1" "snakemake-executor-plugin-slurm==2.8.0"
 
 WORK=$(mktemp -d)
 chmod 755 "$WORK"
@@ -98,10 +95,7 @@ for _ in $(seq 1 60); do
 done
 sinfo
 
-echo "+ hilo study --profile $PROFILE (one process)"
-start=$(date +%s)
-"$HILO" study --profile "$PROFILE" --out "$WORK/one" 2> "$WORK/one.log" || { tail -20 "$WORK/one.log"; exit 1; }
-echo "  $(( $(date +%s) - start )) s"
+one_process_report "$HILO" "$PROFILE" "$WORK/one"
 
 echo "+ hilo study --profile $PROFILE --workflow snakemake; snakemake --executor slurm"
 "$HILO" study --profile "$PROFILE" --workflow snakemake --out "$WORK/wf"

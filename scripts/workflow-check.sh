@@ -11,18 +11,12 @@ cd "$(dirname "$0")/.."
 HILO=$(realpath "${1:-target/release/hilo}")
 PROFILE=${2:-quick}
 VENV=${SNAKEMAKE_VENV:-.venv-snakemake}
-if [ ! -x "$VENV/bin/snakemake" ]; then
-  python3 -m venv "$VENV"
-  "$VENV/bin/pip" install -q "snakemake==9.27.1"
-fi
-SMK=$(realpath "$VENV/bin/snakemake")
+source scripts/study-check-lib.sh
+snakemake_venv "$VENV" "snakemake==9.27.1"
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
 
-echo "+ hilo study --profile $PROFILE (one process)"
-start=$(date +%s)
-"$HILO" study --profile "$PROFILE" --out "$WORK/one" 2> "$WORK/one.log" || { tail -20 "$WORK/one.log"; exit 1; }
-echo "  $(( $(date +%s) - start )) s"
+one_process_report "$HILO" "$PROFILE" "$WORK/one"
 
 echo "+ hilo study --profile $PROFILE --workflow snakemake; snakemake --cores 2, killed after the first training"
 "$HILO" study --profile "$PROFILE" --workflow snakemake --out "$WORK/wf"

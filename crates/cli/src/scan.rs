@@ -56,9 +56,6 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     if ext != "pcd" && ext != "ply" {
         bail!("--out {}: the extension must be .pcd or .ply", args.out.display());
     }
-    if let Some(why) = scene.mount_problem(pose.position) {
-        bail!("--pose {}: cannot mount a sensor there: {why}", args.pose);
-    }
     let actors = demo_actors(&scene, args.actors, args.moving, args.seed);
     if actors.len() < args.actors {
         eprintln!(

@@ -398,17 +398,21 @@ fn dataset_stats_and_eval_against_a_dataset() {
     let res = dir.path().join("results.json");
     std::fs::write(&res, serde_json::json!({"meta": {}, "results": results}).to_string()).unwrap();
     let out = dir.path().join("metrics");
-    let o = hilo()
-        .arg("eval")
-        .arg("--data")
-        .arg(&root)
-        .arg("--results")
-        .arg(&res)
-        .arg("--out")
-        .arg(&out)
-        .args(["--bootstrap", "50"])
-        .output()
-        .unwrap();
+    // `hilo eval` of that submission against the dataset, with extra arguments.
+    let eval = |extra: &[&str]| {
+        hilo()
+            .arg("eval")
+            .arg("--data")
+            .arg(&root)
+            .arg("--results")
+            .arg(&res)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = eval(&["--bootstrap", "50"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
@@ -417,30 +421,11 @@ fn dataset_stats_and_eval_against_a_dataset() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(text.contains("not estimable"), "{text}");
     // An absurd resample count is refused, not a capacity-overflow panic.
-    let o = hilo()
-        .arg("eval")
-        .arg("--data")
-        .arg(&root)
-        .arg("--results")
-        .arg(&res)
-        .arg("--out")
-        .arg(&out)
-        .args(["--bootstrap", "18446744073709551615"])
-        .output()
-        .unwrap();
+    let o = eval(&["--bootstrap", "18446744073709551615"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("--bootstrap") && err.contains("100000"), "{err}");
     // Without the split: a clear error.
-    let o = hilo()
-        .arg("eval")
-        .arg("--data")
-        .arg(&root)
-        .args(["--split", "train", "--results"])
-        .arg(&res)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
+    let o = eval(&["--split", "train"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("no split \"train\""));
 }

@@ -59,6 +59,18 @@ pub fn coverage_coef(v: f64) -> f64 {
 }
 
 impl Instance {
+    /// How many options (candidate × orientation) each sensor type has, in type order: no
+    /// selection holds more of a type than this, whatever its price.
+    pub fn options_per_type(&self) -> Vec<usize> {
+        let mut n = vec![0; self.types.len()];
+        for o in &self.options {
+            if let Some(c) = n.get_mut(o.ty) {
+                *c += 1;
+            }
+        }
+        n
+    }
+
     pub fn tau(&self) -> f64 {
         coverage_coef(self.p_min)
     }

@@ -50,11 +50,11 @@ fn max_sensors(inst: &Instance, limit: &Limit) -> usize {
         Limit::Budget { usd, max, .. } => {
             let mut order: Vec<usize> = (0..inst.types.len()).collect();
             order.sort_by(|&a, &b| inst.types[a].price_usd.total_cmp(&inst.types[b].price_usd));
+            let options = inst.options_per_type();
             let mut left = *usd;
             let mut n = 0usize;
             for t in order {
-                let options = inst.options.iter().filter(|o| o.ty == t).count();
-                let avail = options.min(max.get(t).copied().unwrap_or(u32::MAX) as usize);
+                let avail = options[t].min(max.get(t).copied().unwrap_or(u32::MAX) as usize);
                 let price = inst.types[t].price_usd;
                 let take =
                     if price > 0.0 { (((left + 1e-9) / price).floor().max(0.0) as usize).min(avail) } else { avail };

@@ -100,16 +100,26 @@ pub fn survival_probability(spec: &LidarSpec, intensity: f32) -> f32 {
     (1.0 - spec.dropoff_general_rate) * (1.0 - p_int)
 }
 
-/// Refuses a mount inside geometry: if the four horizontal directions and straight up all hit
-/// the same static object within 60 m (straight down is left out: a floor coincides with the
-/// ground plane), or if the position is inside an actor. A heuristic: a sensor inside an open
-/// mesh (no roof) is not caught, and one enclosed by a single large object (a tunnel) is refused.
+/// Refuses a mount at or below the ground plane (where it spans), or inside geometry: if the
+/// four horizontal directions and straight up all hit the same static object within 60 m
+/// (straight down is left out: a floor coincides with the ground plane), or if the position is
+/// inside an actor. A heuristic: a sensor inside an open mesh (no roof) is not caught, and one
+/// enclosed by a single large object (a tunnel) is refused.
 pub fn check_mount(world: &World, actors: Option<&ActorSet>, pose: &SensorPose) -> Result<(), SensorError> {
     const WITHIN: f32 = 60.0;
     if !pose.is_valid() {
         return Err(SensorError::Pose(format!("{pose:?} has a non-finite value")));
     }
     let p = pose.position;
+    if let Some(g) = world.ground() {
+        let xy = p.truncate();
+        if p.z <= g.z_m && xy.cmpge(g.min).all() && xy.cmple(g.max).all() {
+            return Err(SensorError::Pose(format!(
+                "z = {} m is at or below the ground (z = {} m): a sensor there sees nothing but the road's underside",
+                p.z, g.z_m
+            )));
+        }
+    }
     if let Some(a) = actors.and_then(|s| s.actors().iter().find(|a| a.contains(p))) {
         return Err(SensorError::InsideGeometry {
             position: p.to_array(),

@@ -98,6 +98,10 @@ fn a_mount_inside_a_building_or_an_actor_is_an_error() {
         0,
     ));
     assert!(err.to_string().contains("actor 7"), "{err}");
+    // Underground.
+    let err =
+        expect_err(simulate_lidar(&spec, &SensorPose::new(Vec3::new(0.0, 0.0, -5.0), 0.0, 0.0, 0.0), &world, None, 0));
+    assert!(err.to_string().contains("below the ground"), "{err}");
     // On top of a pole is fine.
     assert!(
         simulate_lidar(&spec, &SensorPose::new(Vec3::new(13.0, 16.6, 7.8), 0.0, 0.0, 0.0), &world, None, 0).is_ok()

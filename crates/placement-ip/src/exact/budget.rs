@@ -14,8 +14,8 @@ use std::time::Instant;
 pub fn maximal_count_vectors(inst: &Instance, usd: f64, min: &[u32], max: &[u32]) -> Vec<Vec<u32>> {
     let nt = inst.types.len();
     // No more of a type than it has options (this bounds a free type, which money does not).
-    let options: Vec<u32> = (0..nt).map(|t| inst.options.iter().filter(|o| o.ty == t).count() as u32).collect();
-    let cap = |t: usize| max.get(t).copied().unwrap_or(u32::MAX).min(options[t]);
+    let options = inst.options_per_type();
+    let cap = |t: usize| max.get(t).copied().unwrap_or(u32::MAX).min(options[t] as u32);
     let mut out = Vec::new();
     let mut cur = vec![0u32; nt];
     fn rec(

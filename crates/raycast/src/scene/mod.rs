@@ -71,37 +71,6 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Why a sensor cannot be mounted at `p` (local frame), or `None` where it can: below the
-    /// ground plane, outside it, or inside a building's footprint below its roof. Meshes and trees
-    /// are not checked (a mount on a mesh roof is legal and a crown is porous to no one's concern).
-    pub fn mount_problem(&self, p: Vec3) -> Option<String> {
-        let gz = self.ground.z_m;
-        if p.z <= gz {
-            return Some(format!("z = {} m is at or below the ground (z = {gz} m)", p.z));
-        }
-        let xy = p.truncate();
-        if xy.cmplt(self.ground.min).any() || xy.cmpgt(self.ground.max).any() {
-            return Some(format!(
-                "({}, {}) is outside the ground plane (|x|, |y| <= {} m)",
-                p.x, p.y, self.config.ground.half_size_m
-            ));
-        }
-        for (i, b) in self.config.buildings.iter().enumerate() {
-            let fp: Vec<Vec2> = b.footprint.iter().map(|q| Vec2::from(*q)).collect();
-            if p.z < gz + b.height_m && layout::point_in_polygon(xy, &fp) {
-                let name = if b.name.is_empty() { format!("buildings[{i}]") } else { b.name.clone() };
-                return Some(format!(
-                    "({}, {}, {}) is inside building '{name}' (roof at z = {} m)",
-                    p.x,
-                    p.y,
-                    p.z,
-                    gz + b.height_m
-                ));
-            }
-        }
-        None
-    }
-
     /// Loads and builds a scene file (meshes are resolved against its folder).
     pub fn load(path: &Path) -> Result<Self, RaycastError> {
         let cfg = SceneConfig::load(path)?;
