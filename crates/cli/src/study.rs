@@ -1,10 +1,13 @@
 //! `hilo study`: the whole study in one process, one of its stages alone (`place`, `simulate`,
-//! `train`, `report`), or the study written as a Snakemake workflow (`--workflow snakemake`).
+//! `train`, `report`; `compare` for a sweep), or the study written as a Snakemake workflow
+//! (`--workflow snakemake`). A sweep (a study file listing several scenes or catalogs, or a
+//! directory of study files) runs each of its studies in a folder of its own under --out.
 
 use crate::progress::Reporter;
 use crate::stages::load_study;
 use anyhow::{Context, Result, bail};
 use hilo_study::plan::FolderRecord;
+use hilo_study::sweep::{Loaded, Sweep, SweepRecord};
 use hilo_study::{Plan, RunOptions, Study};
 use std::path::{Path, PathBuf};
 
@@ -14,7 +17,9 @@ pub struct StudyArgs {
     #[command(subcommand)]
     pub stage: Option<StageCommand>,
     /// Study TOML; the embedded default (the paper's configurations on the default
-    /// intersection) when omitted.
+    /// intersection) when omitted. A study file with `scenes = [...]` or `catalogs = [...]`, or
+    /// a directory of study files, is a sweep: one study per scene × catalog (or file), each in
+    /// its folder under --out, and comparison.md across them.
     pub study: Option<PathBuf>,
     #[arg(long, default_value = "study")]
     pub out: PathBuf,
@@ -57,6 +62,8 @@ pub enum StageCommand {
     },
     /// Assemble report.md, report.json and the figures from the stage outputs in --out.
     Report(StageArgs),
+    /// Compare a sweep's studies (comparison.md, comparison.json) from their reports in --out.
+    Compare(StageArgs),
     /// List the stages, their outputs and whether they are done.
     Plan(StageArgs),
 }
@@ -84,10 +91,42 @@ fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_fusion::Registry)
     Ok(profile)
 }
 
+/// What `hilo study [PATH]` names: the embedded default study, a study file, or a sweep.
+fn load(path: Option<&Path>) -> Result<Loaded> {
+    let Some(p) = path else { return Ok(Loaded::Study(load_study(None)?)) };
+    // Absolute, so that a stage run from the study folder by a workflow engine finds it.
+    let abs = std::fs::canonicalize(p).with_context(|| format!("study file {}", p.display()))?;
+    hilo_study::sweep::load(&abs).with_context(|| format!("loading study {}", p.display()))
+}
+
 /// The study and plan a folder records, checked against the study file as it is now.
 fn open_folder(out: &Path, registry: &hilo_fusion::Registry) -> Result<(Study, Plan)> {
     let record = FolderRecord::read(out)?;
-    let study = if embedded(&record.study) { load_study(None)? } else { load_study(Some(Path::new(&record.study)))? };
+    let study = if embedded(&record.study) {
+        load_study(None)?
+    } else {
+        match (load(Some(Path::new(&record.study)))?, &record.shard) {
+            (Loaded::Study(s), None) => s,
+            (Loaded::Sweep(sweep), Some(name)) => match sweep.shards.into_iter().find(|s| &s.name == name) {
+                Some(s) => s.study,
+                None => bail!(
+                    "{}: study {name:?} of {} is no longer in that file (its scenes or catalogs changed); run it into a new folder",
+                    out.join("study.json").display(),
+                    record.study
+                ),
+            },
+            (Loaded::Study(_), Some(name)) => bail!(
+                "{}: records study {name:?} of a sweep, but {} no longer lists several scenes or catalogs; run it into a new folder",
+                out.join("study.json").display(),
+                record.study
+            ),
+            (Loaded::Sweep(_), None) => bail!(
+                "{}: records a single study, but {} now lists several scenes or catalogs; run it into a new folder",
+                out.join("study.json").display(),
+                record.study
+            ),
+        }
+    };
     let plan = Plan::new(&study, registry, &record.profile, out)?;
     if plan.fingerprint != record.fingerprint {
         bail!(
@@ -100,30 +139,66 @@ fn open_folder(out: &Path, registry: &hilo_fusion::Registry) -> Result<(Study, P
     Ok((study, plan))
 }
 
+fn workflow() -> Result<hilo_study::workflow::Workflow> {
+    let hilo = std::env::current_exe().context("locating the hilo executable")?;
+    Ok(hilo_study::workflow::Workflow { hilo, gpu: cfg!(feature = "cuda") })
+}
+
+/// A study of one scene and catalog: run in-process, or written as a workflow.
+fn one_study(args: &StudyArgs, study: &Study, registry: &hilo_fusion::Registry, reporter: &mut Reporter) -> Result<()> {
+    let profile = profile_of(args, study, registry)?;
+    match args.workflow.as_deref() {
+        None => {
+            let opts = RunOptions { profile, out: args.out.clone() };
+            hilo_study::run(study, registry, &opts, &mut |p| reporter.study(p))?;
+            Ok(())
+        }
+        Some("snakemake") => {
+            let plan = Plan::new(study, registry, &profile, &args.out)?;
+            plan.claim_folder(study)?;
+            for p in hilo_study::workflow::write(&plan, &workflow()?)? {
+                eprintln!("wrote {}", p.display());
+            }
+            eprintln!(
+                "{} stages ({} trainings); run them with: cd {} && snakemake --cores 2",
+                plan.jobs.len() + plan.configurations.len() + 2,
+                plan.jobs.len(),
+                args.out.display()
+            );
+            Ok(())
+        }
+        Some(other) => bail!("--workflow {other:?}: the supported engine is snakemake"),
+    }
+}
+
 pub fn study(args: &StudyArgs) -> Result<()> {
     let registry = crate::train::registry()?;
     let mut reporter = Reporter::new();
     let Some(stage) = &args.stage else {
-        let study = load_study(args.study.as_deref())?;
-        let profile = profile_of(args, &study, &registry)?;
+        let sweep = match load(args.study.as_deref())? {
+            Loaded::Study(study) => return one_study(args, &study, &registry, &mut reporter),
+            Loaded::Sweep(sweep) => sweep,
+        };
+        let profile =
+            |s: &Study| profile_of(args, s, &registry).map_err(|e| hilo_study::StudyError::Invalid(format!("{e:#}")));
         return match args.workflow.as_deref() {
             None => {
-                let opts = RunOptions { profile, out: args.out.clone() };
-                hilo_study::run(&study, &registry, &opts, &mut |p| reporter.study(p))?;
+                let c = hilo_study::run_sweep(&sweep, &registry, &profile, &args.out, &mut |p| reporter.study(p))?;
+                eprintln!("{} studies compared: {}", c.shards.len(), args.out.join("comparison.md").display());
                 Ok(())
             }
             Some("snakemake") => {
-                let plan = Plan::new(&study, &registry, &profile, &args.out)?;
-                plan.claim_folder(&study.source)?;
-                let hilo = std::env::current_exe().context("locating the hilo executable")?;
-                let wf = hilo_study::workflow::Workflow { hilo, gpu: cfg!(feature = "cuda") };
-                for p in hilo_study::workflow::write(&plan, &wf)? {
+                let plans = hilo_study::run::sweep_plans(&sweep, &registry, &profile, &args.out)?;
+                sweep.claim_folder(&args.out, &plans)?;
+                for p in hilo_study::workflow::write_sweep(&sweep, &plans, &args.out, &workflow()?)? {
                     eprintln!("wrote {}", p.display());
                 }
+                let stages: usize = plans.iter().map(|p| p.jobs.len() + p.configurations.len() + 2).sum();
+                let jobs: usize = plans.iter().map(|p| p.jobs.len()).sum();
                 eprintln!(
-                    "{} stages ({} trainings); run them with: cd {} && snakemake --cores 2",
-                    plan.jobs.len() + plan.configurations.len() + 2,
-                    plan.jobs.len(),
+                    "{} studies, {} stages ({jobs} trainings) and the comparison; run them with: cd {} && snakemake --cores 2",
+                    sweep.shards.len(),
+                    stages,
                     args.out.display()
                 );
                 Ok(())
@@ -164,28 +239,44 @@ pub fn study(args: &StudyArgs) -> Result<()> {
             let (study, plan) = open_folder(&a.out, &registry)?;
             hilo_study::run::report(&study, &plan, &registry, &mut |p| reporter.study(p))?;
         }
-        StageCommand::Plan(a) => {
-            let (_, plan) = open_folder(&a.out, &registry)?;
-            let mark = |done: bool| if done { "done" } else { "to do" };
-            let placed = plan.placement_outputs().iter().all(|p| p.exists());
-            println!("place                     {}  {}", mark(placed), plan.placements.display());
-            for (ci, c) in plan.configurations.iter().enumerate() {
-                println!(
-                    "simulate {:<16} {}  {}",
-                    c.slug(),
-                    mark(plan.data[ci].done().exists()),
-                    plan.data[ci].dir.display()
-                );
+        StageCommand::Compare(a) => {
+            let c = hilo_study::compare::compare(&a.out)?;
+            for p in hilo_study::compare::write(&a.out, &c)? {
+                eprintln!("wrote {}", p.display());
             }
-            for j in &plan.jobs {
-                println!("train {:<40} {}  {}", j.id, mark(j.done()), j.results.display());
+        }
+        StageCommand::Plan(a) if SweepRecord::path(&a.out).exists() => {
+            let record = SweepRecord::read(&a.out)?;
+            for s in &record.shards {
+                println!("== study {}", s.name);
+                print_plan(&open_folder(&Sweep::shard_out(&a.out, &s.name), &registry)?.1);
             }
+            let done = a.out.join("comparison.json").exists();
             println!(
-                "report                    {}  {}",
-                mark(plan.out.join("report.json").exists()),
-                plan.out.join("report.json").display()
+                "compare                   {}  {}",
+                if done { "done" } else { "to do" },
+                a.out.join("comparison.json").display()
             );
         }
+        StageCommand::Plan(a) => print_plan(&open_folder(&a.out, &registry)?.1),
     }
     Ok(())
+}
+
+/// `hilo study plan`: each stage, whether it is done, and its output.
+fn print_plan(plan: &Plan) {
+    let mark = |done: bool| if done { "done" } else { "to do" };
+    let placed = plan.placement_outputs().iter().all(|p| p.exists());
+    println!("place                     {}  {}", mark(placed), plan.placements.display());
+    for (ci, c) in plan.configurations.iter().enumerate() {
+        println!("simulate {:<16} {}  {}", c.slug(), mark(plan.data[ci].done().exists()), plan.data[ci].dir.display());
+    }
+    for j in &plan.jobs {
+        println!("train {:<40} {}  {}", j.id, mark(j.done()), j.results.display());
+    }
+    println!(
+        "report                    {}  {}",
+        mark(plan.out.join("report.json").exists()),
+        plan.out.join("report.json").display()
+    );
 }

@@ -11,13 +11,16 @@
 //! - [`assemble`], [`stats`], [`verdict`]: the verdict from the stage outputs (common ground
 //!   truth, scene bootstrap with pooled seed variance, Holm, calibration, the paper's claims);
 //! - [`tradeoff`]: placement's speed-against-error sweeps;
-//! - [`report`] and [`render`]: `report.md`, `report.json`, charts and pictures.
+//! - [`report`] and [`render`]: `report.md`, `report.json`, charts and pictures;
+//! - [`sweep`] and [`compare`]: one study over several scenes or catalogs (or a directory of
+//!   studies), each a study of its own, and one comparison across them.
 //!
 //! Nothing here parses command lines or draws progress bars: functions return values and
 //! [`StudyError`]s, and long stages report through a callback.
 
 pub mod assemble;
 pub mod charts;
+pub mod compare;
 pub mod demo;
 pub mod error;
 pub mod files;
@@ -32,6 +35,7 @@ pub mod run;
 pub mod stages;
 pub mod stats;
 pub mod study;
+pub mod sweep;
 pub mod tradeoff;
 pub mod verdict;
 pub mod workflow;
@@ -40,6 +44,6 @@ pub use assemble::Report;
 pub use error::{Result, StudyError};
 pub use plan::Plan;
 pub use profile::{Profile, profile};
-pub use run::{RunOptions, run};
+pub use run::{RunOptions, run, run_sweep};
 pub use stages::Progress;
 pub use study::{Configuration, Study};

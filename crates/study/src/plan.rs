@@ -313,7 +313,7 @@ impl Plan {
 
     /// Claims the folder for this study: creates it and records the study (where it came from)
     /// and the profile; refuses a folder that holds another study or anything else.
-    pub fn claim_folder(&self, study_source: &str) -> Result<()> {
+    pub fn claim_folder(&self, study: &Study) -> Result<()> {
         let marker = self.record_path();
         if marker.exists() {
             let old: FolderRecord = read_json(&marker)?;
@@ -338,7 +338,8 @@ impl Plan {
             &marker,
             &FolderRecord {
                 fingerprint: self.fingerprint.clone(),
-                study: study_source.to_owned(),
+                study: study.source.clone(),
+                shard: study.shard.clone(),
                 profile: self.profile.clone(),
             },
         )
@@ -352,6 +353,9 @@ pub struct FolderRecord {
     pub fingerprint: String,
     /// The study file's path (absolute), or `<embedded>/…` for a built-in study.
     pub study: String,
+    /// The study's name within a study file that lists several scenes or catalogs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shard: Option<String>,
     pub profile: Profile,
 }
 

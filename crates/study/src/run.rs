@@ -10,14 +10,16 @@
 //! overwritten.
 
 use crate::assemble::{Assembled, Report, assemble};
+use crate::compare::{self, Comparison};
 use crate::error::Result;
 use crate::plan::Plan;
 use crate::profile::Profile;
 use crate::stages::{self, JobOutput, Progress};
 use crate::study::Study;
+use crate::sweep::Sweep;
 use hilo_fusion::Registry;
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 /// How a study is run.
@@ -34,15 +36,61 @@ pub fn run(
     opts: &RunOptions,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<Report> {
-    let t0 = std::time::Instant::now();
     let plan = Plan::new(study, registry, &opts.profile, &opts.out)?;
-    plan.claim_folder(&study.source)?;
+    plan.claim_folder(study)?;
+    run_plan(study, &plan, registry, progress)
+}
+
+/// Runs (or resumes) every study of a sweep, each in its folder under `out` with its own plan
+/// (`profile` gives each study's profile), then writes the comparison across them.
+pub fn run_sweep(
+    sweep: &Sweep,
+    registry: &Registry,
+    profile: &dyn Fn(&Study) -> Result<Profile>,
+    out: &Path,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<Comparison> {
+    let plans = sweep_plans(sweep, registry, profile, out)?;
+    sweep.claim_folder(out, &plans)?;
+    for (shard, plan) in sweep.shards.iter().zip(&plans) {
+        progress(Progress::Stage(&format!("study {} of the sweep: {}", shard.name, plan.out.display())));
+        run_plan(&shard.study, plan, registry, progress)?;
+    }
+    let c = compare::compare(out)?;
+    for p in compare::write(out, &c)? {
+        progress(Progress::Stage(&format!("comparison: {}", p.display())));
+    }
+    Ok(c)
+}
+
+/// The plan of each study of a sweep, in its folder under `out`.
+pub fn sweep_plans(
+    sweep: &Sweep,
+    registry: &Registry,
+    profile: &dyn Fn(&Study) -> Result<Profile>,
+    out: &Path,
+) -> Result<Vec<Plan>> {
+    sweep
+        .shards
+        .iter()
+        .map(|s| Plan::new(&s.study, registry, &profile(&s.study)?, &Sweep::shard_out(out, &s.name)))
+        .collect()
+}
+
+/// Runs the stages of a plan whose folder is claimed.
+fn run_plan(
+    study: &Study,
+    plan: &Plan,
+    registry: &Registry,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<Report> {
+    let t0 = std::time::Instant::now();
     for s in &plan.skipped {
         progress(Progress::Stage(s));
     }
-    drop(stages::place(study, &plan, progress)?);
+    drop(stages::place(study, plan, progress)?);
     for ci in 0..plan.configurations.len() {
-        stages::simulate(study, &plan, ci, progress)?;
+        stages::simulate(study, plan, ci, progress)?;
     }
     let total_steps: usize = plan.jobs.iter().map(|j| j.train.steps()).sum();
     let label = format!("training {} detectors, {} at a time", plan.jobs.len(), plan.profile.trainings_at_once);
@@ -59,7 +107,7 @@ pub fn run(
                 p(Progress::Task { label: &label, done, total: total_steps, unit: "steps" });
             }
         };
-        let outs = stages::train_all(&plan, ci, registry, plan.profile.trainings_at_once, &tick)?;
+        let outs = stages::train_all(plan, ci, registry, plan.profile.trainings_at_once, &tick)?;
         let jobs: Vec<&crate::plan::Job> = plan.jobs.iter().filter(|j| j.configuration == ci).collect();
         for (job, out) in jobs.into_iter().zip(outs) {
             progress(Progress::Stage(&format!(
@@ -74,7 +122,7 @@ pub fn run(
     }
     progress(Progress::TaskDone);
     let elapsed = || t0.elapsed().as_secs_f64();
-    write_report(study, &plan, registry, outputs, &elapsed, progress)
+    write_report(study, plan, registry, outputs, &elapsed, progress)
 }
 
 /// The report stage on its own: assembles `report.md`, `report.json` and the figures from the

@@ -95,6 +95,9 @@ pub struct Study {
     /// Content hashes of the scene and the catalog.
     pub scene_hash: String,
     pub catalog_hash: String,
+    /// Its name within a study file that lists several scenes or catalogs (a sweep,
+    /// [`crate::sweep`]); None for a study file of one scene and catalog.
+    pub shard: Option<String>,
 }
 
 impl Study {
@@ -107,6 +110,16 @@ impl Study {
     /// A study from TOML text whose relative paths resolve against `dir` (the embedded default
     /// study passes its text and `.`).
     pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Study> {
+        if let Ok(table) = toml::from_str::<toml::Table>(text)
+            && let Some(key) = crate::sweep::LIST_KEYS.iter().find(|k| table.contains_key(**k))
+        {
+            return Err(StudyError::File {
+                path: PathBuf::from(source),
+                message: format!(
+                    "`{key}` lists several; this file is a sweep of studies: load it with `hilo study` (hilo_study::sweep::load)"
+                ),
+            });
+        }
         let file: StudyFile = toml::from_str(text)
             .map_err(|e| StudyError::File { path: PathBuf::from(source), message: format!("invalid study: {e}") })?;
         Study::from_file(file, dir, source)
@@ -168,7 +181,16 @@ impl Study {
         }
         let scene_hash = scene_hash(&scene);
         let catalog_hash = hash(&[&format!("{:?}", catalog.sensors())]);
-        Ok(Study { file, dir: dir.to_path_buf(), source: source.to_owned(), scene, catalog, scene_hash, catalog_hash })
+        Ok(Study {
+            file,
+            dir: dir.to_path_buf(),
+            source: source.to_owned(),
+            scene,
+            catalog,
+            scene_hash,
+            catalog_hash,
+            shard: None,
+        })
     }
 
     /// Every sensor type any configuration names, sorted, once each.

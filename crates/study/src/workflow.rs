@@ -6,6 +6,7 @@
 
 use crate::error::{Result, StudyError};
 use crate::plan::Plan;
+use crate::sweep::Sweep;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -65,6 +66,8 @@ struct Rule {
     log: String,
     /// The `hilo study` stage command, without `--out`.
     cmd: String,
+    /// The study folder the stage works on, relative to the Snakefile's folder.
+    out: String,
 }
 
 impl Rule {
@@ -75,6 +78,8 @@ impl Rule {
         }
         let _ = writeln!(out, "    output:{}", list(&self.outputs));
         let _ = writeln!(out, "    log: \"logs/{}.log\"", self.log);
+        // Snakemake measures each job (seconds, peak memory, I/O, CPU time) into this file.
+        let _ = writeln!(out, "    benchmark: \"benchmarks/{}.tsv\"", self.log);
         let _ = writeln!(out, "    threads: {}", self.resources.threads);
         let gpu = if self.gpu { ", gpu=1" } else { "" };
         let _ = writeln!(
@@ -84,10 +89,90 @@ impl Rule {
         );
         let _ = writeln!(
             out,
-            "    shell: \"RAYON_NUM_THREADS={{threads}} {{config[hilo]}} study {} --out . > {{log}} 2>&1\"",
-            self.cmd
+            "    shell: \"RAYON_NUM_THREADS={{threads}} {{config[hilo]}} study {} --out {} > {{log}} 2>&1\"",
+            self.cmd, self.out
         );
     }
+}
+
+const HOW_TO_RUN: &str = "# Run it from this folder: `snakemake --cores 2` (locally), `snakemake --executor slurm --jobs 20`,\n\
+     # or `snakemake --executor kubernetes --jobs 20 --default-storage-provider s3 ...`.\n\
+     # Each rule is one stage (`hilo study <stage> --out <study folder>`); outputs are written\n\
+     # atomically and named by content hash, so a rerun redoes only unfinished stages (use\n\
+     # --rerun-incomplete after a killed run). benchmarks/ receives each job's seconds and peak\n\
+     # memory (max_rss, MB), as Snakemake measures them.";
+
+/// The rules of one study's stages. In a sweep (`shard` given), paths, logs and rule names
+/// carry the study's name, whose folder sits beside the Snakefile.
+fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
+    let prefix = |p: String| shard.map_or(p.clone(), |s| format!("{s}/{p}"));
+    let path = |p: &Path| rel(plan, p).map(prefix);
+    let name = |stage: &str, rest: &[&str]| {
+        let mut parts = vec![stage];
+        parts.extend(shard);
+        parts.extend(rest);
+        rule_name(&parts)
+    };
+    let log = |l: String| shard.map_or(l.clone(), |s| format!("{s}/{l}"));
+    let out = shard.unwrap_or(".").to_owned();
+    let placements: Vec<String> = plan.placement_outputs().iter().map(|p| path(p)).collect::<Result<_>>()?;
+    let data: Vec<String> = plan.data.iter().map(|d| path(&d.done())).collect::<Result<_>>()?;
+    let mut report_inputs = placements.clone();
+    report_inputs.extend(data.iter().cloned());
+    for j in &plan.jobs {
+        for p in j.outputs() {
+            report_inputs.push(path(&p)?);
+        }
+    }
+    let mut rules = vec![
+        Rule {
+            name: name("report", &[]),
+            inputs: report_inputs,
+            outputs: vec![prefix("report.json".into()), prefix("report.md".into())],
+            resources: REPORT,
+            gpu: false,
+            log: log("report".into()),
+            cmd: "report".into(),
+            out: out.clone(),
+        },
+        Rule {
+            name: name("place", &[]),
+            inputs: Vec::new(),
+            outputs: placements,
+            resources: PLACE,
+            gpu: false,
+            log: log("place".into()),
+            cmd: "place".into(),
+            out: out.clone(),
+        },
+    ];
+    for (ci, conf) in plan.configurations.iter().enumerate() {
+        let slug = conf.slug();
+        rules.push(Rule {
+            name: name("simulate", &[&slug]),
+            inputs: vec![path(&plan.placement(ci))?],
+            outputs: vec![data[ci].clone()],
+            resources: SIMULATE,
+            gpu: false,
+            log: log(format!("simulate-{slug}")),
+            cmd: format!("simulate --configuration {slug}"),
+            out: out.clone(),
+        });
+    }
+    for j in &plan.jobs {
+        let slug = plan.configurations[j.configuration].slug();
+        rules.push(Rule {
+            name: name("train", &[&slug, &j.preset, &format!("seed{}", j.seed)]),
+            inputs: vec![data[j.configuration].clone()],
+            outputs: j.outputs().iter().map(|p| path(p)).collect::<Result<_>>()?,
+            resources: TRAIN,
+            gpu: wf.gpu,
+            log: log(format!("train-{}", j.id.replace('/', "-"))),
+            cmd: format!("train --job {}", j.id),
+            out: out.clone(),
+        });
+    }
+    Ok(rules)
 }
 
 /// The Snakefile of a plan.
@@ -95,75 +180,55 @@ pub fn snakefile(plan: &Plan, wf: &Workflow) -> Result<String> {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# The study in {} as a Snakemake workflow, written by `hilo study --workflow snakemake`.\n\
-         # Run it from this folder: `snakemake --cores 2` (locally), `snakemake --executor slurm --jobs 20`,\n\
-         # or `snakemake --executor kubernetes --jobs 20 --default-storage-provider s3 ...`.\n\
-         # Each rule is one stage (`hilo study <stage> --out .`); outputs are written atomically and\n\
-         # named by content hash, so a rerun redoes only unfinished stages (use --rerun-incomplete\n\
-         # after a killed run). Profile {}: {} configurations, {} trainings.",
+        "# The study in {} as a Snakemake workflow, written by `hilo study --workflow snakemake`.\n{HOW_TO_RUN}\n\
+         # Profile {}: {} configurations, {} trainings.",
         plan.out.display(),
         plan.profile.name,
         plan.configurations.len(),
         plan.jobs.len()
     );
     s.push_str("\nconfigfile: \"config.yaml\"\n");
-    let placements: Vec<String> = plan.placement_outputs().iter().map(|p| rel(plan, p)).collect::<Result<_>>()?;
-    let data: Vec<String> = plan.data.iter().map(|d| rel(plan, &d.done())).collect::<Result<_>>()?;
-    let mut all_results = Vec::new();
-    for j in &plan.jobs {
-        for p in j.outputs() {
-            all_results.push(rel(plan, &p)?);
-        }
-    }
-    let mut report_inputs = placements.clone();
-    report_inputs.extend(data.iter().cloned());
-    report_inputs.extend(all_results.iter().cloned());
     s.push_str("\nrule all:\n    input: \"report.json\"\n    default_target: True\n");
-    let mut rules = vec![
-        Rule {
-            name: "report".into(),
-            inputs: report_inputs,
-            outputs: vec!["report.json".into(), "report.md".into()],
-            resources: REPORT,
-            gpu: false,
-            log: "report".into(),
-            cmd: "report".into(),
-        },
-        Rule {
-            name: "place".into(),
-            inputs: Vec::new(),
-            outputs: placements,
-            resources: PLACE,
-            gpu: false,
-            log: "place".into(),
-            cmd: "place".into(),
-        },
-    ];
-    for (ci, conf) in plan.configurations.iter().enumerate() {
-        let slug = conf.slug();
-        rules.push(Rule {
-            name: rule_name(&["simulate", &slug]),
-            inputs: vec![rel(plan, &plan.placement(ci))?],
-            outputs: vec![data[ci].clone()],
-            resources: SIMULATE,
-            gpu: false,
-            log: format!("simulate-{slug}"),
-            cmd: format!("simulate --configuration {slug}"),
-        });
+    for r in rules(plan, wf, None)? {
+        r.write(&mut s);
     }
-    for j in &plan.jobs {
-        let slug = plan.configurations[j.configuration].slug();
-        rules.push(Rule {
-            name: rule_name(&["train", &slug, &j.preset, &format!("seed{}", j.seed)]),
-            inputs: vec![data[j.configuration].clone()],
-            outputs: j.outputs().iter().map(|p| rel(plan, p)).collect::<Result<_>>()?,
-            resources: TRAIN,
-            gpu: wf.gpu,
-            log: format!("train-{}", j.id.replace('/', "-")),
-            cmd: format!("train --job {}", j.id),
-        });
+    Ok(s)
+}
+
+/// The Snakefile of a sweep in `out`: every study's stages (each in its folder `<name>/`) and
+/// the comparison across them, one workflow.
+pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<String> {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# The sweep {} ({} studies) as a Snakemake workflow, written by `hilo study --workflow snakemake`.\n{HOW_TO_RUN}\n\
+         # The last rule compares the studies: comparison.md and comparison.json.",
+        sweep.source,
+        sweep.shards.len()
+    );
+    s.push_str("\nconfigfile: \"config.yaml\"\n");
+    s.push_str("\nrule all:\n    input: \"comparison.json\"\n    default_target: True\n");
+    let mut all = vec![Rule {
+        name: "compare".into(),
+        inputs: sweep.shards.iter().map(|sh| format!("{}/report.json", sh.name)).collect(),
+        outputs: vec!["comparison.json".into(), "comparison.md".into()],
+        resources: REPORT,
+        gpu: false,
+        log: "compare".into(),
+        cmd: "compare".into(),
+        out: ".".into(),
+    }];
+    for (sh, plan) in sweep.shards.iter().zip(plans) {
+        all.extend(rules(plan, wf, Some(&sh.name))?);
     }
-    for r in &rules {
+    let mut names = std::collections::BTreeSet::new();
+    for r in &all {
+        if !names.insert(r.name.as_str()) {
+            return Err(StudyError::Invalid(format!(
+                "two stages of the sweep {} would share the Snakemake rule name {}: rename a study file or configuration",
+                sweep.source, r.name
+            )));
+        }
         r.write(&mut s);
     }
     Ok(s)
@@ -182,9 +247,18 @@ pub fn config_yaml(wf: &Workflow) -> Result<String> {
 
 /// Writes `Snakefile` and `config.yaml` into the plan's folder (already claimed for the study).
 pub fn write(plan: &Plan, wf: &Workflow) -> Result<Vec<PathBuf>> {
-    let snake = plan.out.join("Snakefile");
-    let cfg = plan.out.join("config.yaml");
-    crate::files::write_atomic(&snake, snakefile(plan, wf)?.as_bytes())?;
+    write_files(&plan.out, &snakefile(plan, wf)?, wf)
+}
+
+/// Writes a sweep's `Snakefile` and `config.yaml` into `out` (already claimed for the sweep).
+pub fn write_sweep(sweep: &Sweep, plans: &[Plan], out: &Path, wf: &Workflow) -> Result<Vec<PathBuf>> {
+    write_files(out, &sweep_snakefile(sweep, plans, wf)?, wf)
+}
+
+fn write_files(out: &Path, snakefile: &str, wf: &Workflow) -> Result<Vec<PathBuf>> {
+    let snake = out.join("Snakefile");
+    let cfg = out.join("config.yaml");
+    crate::files::write_atomic(&snake, snakefile.as_bytes())?;
     crate::files::write_atomic(&cfg, config_yaml(wf)?.as_bytes())?;
     Ok(vec![snake, cfg])
 }

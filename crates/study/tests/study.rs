@@ -157,11 +157,19 @@ fn a_radar_named_by_its_own_catalog_trains_the_fusion_presets() {
     assert_eq!(presets, ["centerpoint", "pointpillars-lr"], "the fusion preset trains on the ars548 rig");
 }
 
-/// Removes what measures time (it differs between any two runs) from a report.
+/// Removes what measures time (it differs between any two runs) from a report, and the
+/// placement trade-off's time-limit rows (a solver stopped by the wall clock: under another load
+/// the same limit can stop at another incumbent).
 fn without_timings(v: &mut serde_json::Value) {
     match v {
         serde_json::Value::Object(m) => {
-            m.retain(|k, _| !(k == "seconds" || k.ends_with("_s") || k == "ms_per_frame" || k.ends_with("_seconds")));
+            m.retain(|k, _| {
+                !(k == "seconds"
+                    || k.ends_with("_s")
+                    || k == "ms_per_frame"
+                    || k.ends_with("_seconds")
+                    || k == "limits")
+            });
             m.values_mut().for_each(without_timings);
         }
         serde_json::Value::Array(a) => a.iter_mut().for_each(without_timings),
@@ -186,7 +194,7 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
     let by_stage = dir.path().join("stages");
     let plan = Plan::new(&study, &registry, &profile, &by_stage).unwrap();
     assert_eq!(plan.jobs.len(), 4, "centerpoint × 2 configurations × 2 seeds");
-    plan.claim_folder(&study.source).unwrap();
+    plan.claim_folder(&study).unwrap();
     assert!(stages::place(&study, &plan, &mut |_| {}).unwrap().is_some());
     for ci in 0..plan.configurations.len() {
         stages::simulate(&study, &plan, ci, &mut |_| {}).unwrap();
@@ -213,7 +221,7 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
     // The folder refuses another study.
     let mut other = profile.clone();
     other.seeds = 3;
-    let err = Plan::new(&study, &registry, &other, &by_stage).unwrap().claim_folder(&study.source).unwrap_err();
+    let err = Plan::new(&study, &registry, &other, &by_stage).unwrap().claim_folder(&study).unwrap_err();
     assert!(err.to_string().contains("holds another study"), "{err}");
     // The Snakefile names every stage's files, relative to the folder.
     let wf = hilo_study::workflow::Workflow { hilo: "/opt/hilo".into(), gpu: false };
@@ -224,4 +232,64 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
         assert!(snake.contains(&format!("\"{rel}\"")), "{rel} in the Snakefile");
         assert!(snake.contains(&format!("study train --job {} --out .", job.id)));
     }
+}
+
+#[test]
+fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
+    use hilo_study::compare::Across;
+    use hilo_study::sweep::{Loaded, Sweep};
+    let dir = tempfile::tempdir().unwrap();
+    let catalog =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/sensors.toml")).unwrap();
+    assert_eq!(catalog.matches("price_usd = 4000.0").count(), 1, "the 16-beam LiDAR's price");
+    std::fs::write(dir.path().join("list.toml"), &catalog).unwrap();
+    std::fs::write(dir.path().join("dear.toml"), catalog.replace("price_usd = 4000.0", "price_usd = 6000.0")).unwrap();
+    let text = format!("catalogs = [\"list.toml\", \"dear.toml\"]\n{TWO_CONFIGS}");
+    let Loaded::Sweep(sweep) = hilo_study::sweep::parse(&text, dir.path(), "sweep.toml").unwrap() else {
+        panic!("two catalogs make a sweep")
+    };
+    let mut registry = Registry::with_builtin();
+    hilo_fusion_raw::register(&mut registry).unwrap();
+    let profile = |s: &Study| {
+        let mut p = hilo_study::profile("tiny", s, &registry)?;
+        p.presets = vec!["centerpoint".into()];
+        p.train_samples = Some(4);
+        Ok(p)
+    };
+    let out = dir.path().join("sweep");
+    let c = hilo_study::run_sweep(&sweep, &registry, &profile, &out, &mut |_| {}).unwrap();
+    assert_eq!(c.shards.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["list", "dear"]);
+    // The catalogs differ by $2,000 per 16-beam LiDAR: the two-LiDAR rig costs $4,000 more.
+    let cheap = &c.configurations[0];
+    assert_eq!(cheap.name, "2x lidar-16 + radar");
+    assert_eq!(cheap.at["dear"].cost_usd - cheap.at["list"].cost_usd, 4_000.0);
+    assert_eq!(c.configurations[1].at["dear"].cost_usd, c.configurations[1].at["list"].cost_usd);
+    for conf in &c.configurations {
+        for at in conf.at.values() {
+            assert_eq!(at.map["centerpoint"].seeds, 2);
+        }
+    }
+    assert!(c.claims.iter().all(|cl| cl.at.len() == 2));
+    assert!(c.claims.iter().any(|cl| cl.across == Across::NotTested), "the tiny profile trains no fusion preset");
+    // A study of the sweep is the study run alone: the same report, apart from timings.
+    let alone = dir.path().join("alone");
+    let dear = &sweep.shards[1].study;
+    hilo_study::run(dear, &registry, &RunOptions { profile: profile(dear).unwrap(), out: alone.clone() }, &mut |_| {})
+        .unwrap();
+    let read = |d: &Path| {
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("report.json")).unwrap()).unwrap();
+        without_timings(&mut v);
+        v
+    };
+    assert_eq!(read(&alone), read(&Sweep::shard_out(&out, "dear")));
+    // Rerun: everything is done, the comparison is the same; the folder refuses another sweep.
+    let again = hilo_study::run_sweep(&sweep, &registry, &profile, &out, &mut |_| {}).unwrap();
+    assert_eq!(serde_json::to_value(&again).unwrap(), serde_json::to_value(&c).unwrap());
+    let mut one = sweep.clone();
+    one.shards.truncate(1);
+    let err = hilo_study::run_sweep(&one, &registry, &profile, &out, &mut |_| {}).unwrap_err();
+    assert!(err.to_string().contains("holds another sweep"), "{err}");
+    let md = std::fs::read_to_string(out.join("comparison.md")).unwrap();
+    assert!(md.contains("| [dear](dear/report.md) |") && md.contains("$14,000"), "{md}");
 }

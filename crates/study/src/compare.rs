@@ -1,0 +1,498 @@
+//! One comparison across a sweep's studies ([`crate::sweep`]): `comparison.md` and
+//! `comparison.json` beside the studies' folders, made from their `report.json` files only.
+//!
+//! Each study keeps its own verdict (its own traffic, validation scenes, seeds, calibration).
+//! Across them, a claim is *supported at every site* only when every study supports it: an
+//! intersection–union test, valid at the studies' own level with no further correction, and the
+//! question a buyer with several intersections asks. A claim supported at one site and
+//! contradicted at another *depends on the site*. Nothing is pooled across sites: scenes and
+//! catalogs differ on purpose, so an average over them answers no one's question.
+
+use crate::assemble::Report;
+use crate::charts::dollars;
+use crate::error::{Result, StudyError};
+use crate::files::{read_json, write_atomic, write_json};
+use crate::plan::FolderRecord;
+use crate::report::{esc, verdict_word};
+use crate::sweep::{ShardRecord, Sweep, SweepRecord};
+use crate::verdict::Verdict;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Comparison {
+    /// The sweep's study file or directory.
+    pub sweep: String,
+    pub profile: String,
+    pub shards: Vec<ShardSummary>,
+    /// Every configuration any study holds, in order of first appearance.
+    pub configurations: Vec<ConfigAcross>,
+    /// Per preset, the configuration with the highest mean mAP in each study.
+    pub leaders: Vec<Leader>,
+    pub claims: Vec<ClaimAcross>,
+}
+
+/// One study of the sweep: its design and its test's measured calibration.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ShardSummary {
+    pub name: String,
+    pub scene: Option<PathBuf>,
+    pub catalog: Option<PathBuf>,
+    pub ground_truth: String,
+    pub validation_scenes: usize,
+    pub seeds: usize,
+    pub calibration_pairs: usize,
+    pub false_positive_rate: f64,
+    pub power: f64,
+}
+
+/// Mean, min and max of a metric over a group's seeds.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OverSeeds {
+    pub mean: f64,
+    pub min: f64,
+    pub max: f64,
+    pub seeds: usize,
+}
+
+impl OverSeeds {
+    fn of(v: &[f64]) -> Option<OverSeeds> {
+        let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return None;
+        }
+        Some(OverSeeds {
+            mean: v.iter().sum::<f64>() / v.len() as f64,
+            min: v.iter().copied().fold(f64::INFINITY, f64::min),
+            max: v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            seeds: v.len(),
+        })
+    }
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ConfigAcross {
+    pub name: String,
+    /// By study name; absent where the study does not hold the configuration.
+    pub at: BTreeMap<String, ConfigAt>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ConfigAt {
+    pub cost_usd: f64,
+    pub central_coverage: f64,
+    /// Share of the common ground truth no sensor of the rig hit.
+    pub unseen_share: f64,
+    /// By preset: mAP and pedestrian AP over seeds, on the common ground truth.
+    pub map: BTreeMap<String, OverSeeds>,
+    pub pedestrian_ap: BTreeMap<String, OverSeeds>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Leader {
+    pub preset: String,
+    pub at: BTreeMap<String, Lead>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Lead {
+    pub configuration: String,
+    pub mean_ap: f64,
+    pub runner_up: Option<String>,
+    /// Mean mAP over the runner-up's.
+    pub margin: f64,
+    /// Whether the study's own test (Holm-adjusted) separates the two; None when its report
+    /// does not compare them.
+    pub significant: Option<bool>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ClaimAcross {
+    pub id: String,
+    pub statement: String,
+    /// By study name.
+    pub at: BTreeMap<String, ClaimAt>,
+    pub across: Across,
+    /// Which studies gave which verdict.
+    pub why: String,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ClaimAt {
+    /// None: the study could not test it (a configuration or preset missing).
+    pub verdict: Option<Verdict>,
+    pub rows: Vec<RowAt>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RowAt {
+    pub metric: String,
+    pub estimate: f64,
+    pub lo: f64,
+    pub hi: f64,
+    pub p_adjusted: f64,
+    pub estimable: bool,
+}
+
+/// A claim's verdict across a sweep.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Across {
+    /// Every study supports it.
+    SupportedEverywhere,
+    /// Every study contradicts it.
+    ContradictedEverywhere,
+    /// Supported in some studies and contradicted in others.
+    DependsOnSite,
+    /// Anything else: some study is undecided or could not test it, and none contradicts a
+    /// support elsewhere.
+    Undecided,
+    /// No study could test it.
+    NotTested,
+}
+
+impl Across {
+    /// The verdict across studies from each one's (None: not tested).
+    pub fn of(verdicts: &[Option<Verdict>]) -> Across {
+        let all = |v: Verdict| verdicts.iter().all(|x| *x == Some(v));
+        let any = |v: Verdict| verdicts.contains(&Some(v));
+        if verdicts.iter().all(Option::is_none) {
+            Across::NotTested
+        } else if all(Verdict::Supported) {
+            Across::SupportedEverywhere
+        } else if all(Verdict::Contradicted) {
+            Across::ContradictedEverywhere
+        } else if any(Verdict::Supported) && any(Verdict::Contradicted) {
+            Across::DependsOnSite
+        } else {
+            Across::Undecided
+        }
+    }
+
+    pub fn words(self) -> &'static str {
+        match self {
+            Across::SupportedEverywhere => "supported at every site",
+            Across::ContradictedEverywhere => "contradicted at every site",
+            Across::DependsOnSite => "depends on the site",
+            Across::Undecided => "undecided",
+            Across::NotTested => "not tested",
+        }
+    }
+}
+
+/// Reads the sweep in `out` (its `sweep.json` and every study's `report.json`, each checked to
+/// hold the study the sweep recorded) and compares the studies.
+pub fn compare(out: &Path) -> Result<Comparison> {
+    let record = SweepRecord::read(out)?;
+    let mut reports = Vec::new();
+    for s in &record.shards {
+        let dir = Sweep::shard_out(out, &s.name);
+        let folder = FolderRecord::read(&dir)?;
+        if folder.fingerprint != s.fingerprint {
+            return Err(StudyError::Invalid(format!(
+                "{}: holds study fingerprint {}, the sweep recorded {}; rerun the sweep into a new folder",
+                dir.join("study.json").display(),
+                folder.fingerprint,
+                s.fingerprint
+            )));
+        }
+        let path = dir.join("report.json");
+        if !path.exists() {
+            return Err(StudyError::Invalid(format!(
+                "{}: missing; run the study's report stage first (`hilo study report --out {}`)",
+                path.display(),
+                dir.display()
+            )));
+        }
+        reports.push((s.clone(), read_json::<Report>(&path)?));
+    }
+    Ok(build(&record, &reports))
+}
+
+/// The comparison of already-read reports, in the sweep's order.
+pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Comparison {
+    let shards = reports
+        .iter()
+        .map(|(s, r)| ShardSummary {
+            name: s.name.clone(),
+            scene: s.scene.clone(),
+            catalog: s.catalog.clone(),
+            ground_truth: r.ground_truth.clone(),
+            validation_scenes: r.validation_scenes,
+            seeds: r.seeds,
+            calibration_pairs: r.calibration.pairs,
+            false_positive_rate: r.calibration.false_positive_rate,
+            power: r.calibration.power,
+        })
+        .collect();
+    let mut configurations: Vec<ConfigAcross> = Vec::new();
+    let mut presets: Vec<String> = Vec::new();
+    for (s, r) in reports {
+        for c in &r.configurations {
+            let mut at = ConfigAt {
+                cost_usd: c.cost_usd,
+                central_coverage: c.central_coverage,
+                unseen_share: c.unseen_share,
+                map: BTreeMap::new(),
+                pedestrian_ap: BTreeMap::new(),
+            };
+            let mut groups: BTreeMap<&str, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
+            for e in r.entries.iter().filter(|e| e.configuration == c.name) {
+                let g = groups.entry(e.preset.as_str()).or_default();
+                g.0.push(e.mean_ap);
+                if let Some(Some(p)) = e.class_ap.get("pedestrian") {
+                    g.1.push(*p);
+                }
+                if !presets.contains(&e.preset) {
+                    presets.push(e.preset.clone());
+                }
+            }
+            for (p, (m, ped)) in groups {
+                if let Some(o) = OverSeeds::of(&m) {
+                    at.map.insert(p.to_owned(), o);
+                }
+                if let Some(o) = OverSeeds::of(&ped) {
+                    at.pedestrian_ap.insert(p.to_owned(), o);
+                }
+            }
+            match configurations.iter_mut().find(|x| x.name == c.name) {
+                Some(x) => {
+                    x.at.insert(s.name.clone(), at);
+                }
+                None => configurations.push(ConfigAcross { name: c.name.clone(), at: [(s.name.clone(), at)].into() }),
+            }
+        }
+    }
+    let leaders = presets
+        .iter()
+        .map(|p| Leader {
+            preset: p.clone(),
+            at: reports
+                .iter()
+                .filter_map(|(s, r)| lead(r, &configurations, &s.name, p).map(|l| (s.name.clone(), l)))
+                .collect(),
+        })
+        .collect();
+    let mut claims: Vec<ClaimAcross> = Vec::new();
+    for (_, r) in reports {
+        for c in &r.claims {
+            if !claims.iter().any(|x| x.id == c.id) {
+                claims.push(ClaimAcross {
+                    id: c.id.clone(),
+                    statement: c.statement.clone(),
+                    at: BTreeMap::new(),
+                    across: Across::Undecided,
+                    why: String::new(),
+                });
+            }
+        }
+    }
+    for claim in &mut claims {
+        let mut verdicts = Vec::new();
+        let mut by: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+        for (s, r) in reports {
+            let at = match r.claims.iter().find(|c| c.id == claim.id) {
+                Some(c) if c.not_tested.is_none() => ClaimAt {
+                    verdict: Some(c.verdict),
+                    rows: c
+                        .rows
+                        .iter()
+                        .map(|row| RowAt {
+                            metric: row.metric.clone(),
+                            estimate: row.test.estimate,
+                            lo: row.test.lo,
+                            hi: row.test.hi,
+                            p_adjusted: row.test.p_adjusted,
+                            estimable: row.test.estimable,
+                        })
+                        .collect(),
+                },
+                _ => ClaimAt { verdict: None, rows: Vec::new() },
+            };
+            verdicts.push(at.verdict);
+            by.entry(at.verdict.map_or("not tested", verdict_word)).or_default().push(&s.name);
+            claim.at.insert(s.name.clone(), at);
+        }
+        claim.across = Across::of(&verdicts);
+        claim.why = by.iter().map(|(v, names)| format!("{v} at {}", names.join(", "))).collect::<Vec<_>>().join("; ");
+    }
+    Comparison {
+        sweep: record.source.clone(),
+        profile: record.profile.clone(),
+        shards,
+        configurations,
+        leaders,
+        claims,
+    }
+}
+
+/// The configuration with the highest mean mAP for `preset` in one study, against the next.
+fn lead(r: &Report, configurations: &[ConfigAcross], shard: &str, preset: &str) -> Option<Lead> {
+    let mut ranked: Vec<(&str, f64)> = configurations
+        .iter()
+        .filter_map(|c| c.at.get(shard).and_then(|a| a.map.get(preset)).map(|o| (c.name.as_str(), o.mean)))
+        .collect();
+    ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(b.0)));
+    let (best, m) = *ranked.first()?;
+    let second = ranked.get(1);
+    let significant = second.and_then(|(other, _)| {
+        let (a, b) = (format!("{preset} on {other}"), format!("{preset} on {best}"));
+        r.comparisons.iter().find(|c| c.metric == "mAP" && ((c.a == a && c.b == b) || (c.a == b && c.b == a))).map(
+            |c| c.test.estimable && c.test.p_adjusted < r.calibration.alpha && (c.test.estimate > 0.0) == (c.b == b),
+        )
+    });
+    Some(Lead {
+        configuration: best.to_owned(),
+        mean_ap: m,
+        runner_up: second.map(|s| s.0.to_owned()),
+        margin: second.map_or(0.0, |s| m - s.1),
+        significant,
+    })
+}
+
+/// `comparison.md`.
+pub fn markdown(c: &Comparison) -> String {
+    let mut s = String::new();
+    let names: Vec<&str> = c.shards.iter().map(|s| s.name.as_str()).collect();
+    let file = |p: &Option<PathBuf>| p.as_ref().map_or("default".to_owned(), |p| esc(&p.display().to_string()));
+    let _ = writeln!(s, "# Sweep: {}\n", esc(&c.sweep));
+    let _ = writeln!(
+        s,
+        "{} studies, profile `{}`. Each study has its own folder and report; this page puts them side by side. \
+         Each study's numbers are its own (its scene's traffic, validation scenes and seeds); nothing is pooled \
+         across sites.\n",
+        c.shards.len(),
+        c.profile
+    );
+    s.push_str("## Studies\n\n| study | scene | catalog | ground truth | validation scenes | seeds | A/A false positives | planted-drop power |\n|---|---|---|---|---|---|---|---|\n");
+    for sh in &c.shards {
+        let _ = writeln!(
+            s,
+            "| [{0}]({0}/report.md) | {1} | {2} | {3} | {4} | {5} | {6:.3} of {7} | {8:.2} |",
+            sh.name,
+            file(&sh.scene),
+            file(&sh.catalog),
+            sh.ground_truth,
+            sh.validation_scenes,
+            sh.seeds,
+            sh.false_positive_rate,
+            sh.calibration_pairs,
+            sh.power
+        );
+    }
+    s.push_str(
+        "\n## The paper's claims across the sweep\n\n\
+         A claim is supported at every site only when each study supports it on its own (an \
+         intersection–union test: no correction beyond each study's Holm adjustment). Cells: the study's \
+         verdict, and its first metric's difference with its 95% interval.\n\n",
+    );
+    let _ = writeln!(s, "| claim | {} | across the sweep |", names.join(" | "));
+    let _ = writeln!(s, "|---|{}---|", "---|".repeat(names.len()));
+    for cl in &c.claims {
+        let cells: Vec<String> = names
+            .iter()
+            .map(|n| match cl.at.get(*n) {
+                Some(ClaimAt { verdict: Some(v), rows }) => match rows.first() {
+                    Some(r) if r.estimable => {
+                        format!("{} {:+.3} [{:+.3}, {:+.3}]", verdict_word(*v), r.estimate, r.lo, r.hi)
+                    }
+                    _ => verdict_word(*v).to_owned(),
+                },
+                _ => "not tested".to_owned(),
+            })
+            .collect();
+        let _ = writeln!(s, "| {} | {} | **{}** |", esc(&cl.statement), cells.join(" | "), cl.across.words());
+    }
+    s.push_str("\n## Configurations\n\nCost, share of road users no sensor hit, and mAP on the common ground truth (mean [min, max] over seeds) per study.\n\n");
+    let _ = writeln!(s, "| configuration | {} |", names.join(" | "));
+    let _ = writeln!(s, "|---|{}", "---|".repeat(names.len()));
+    for conf in &c.configurations {
+        let cells: Vec<String> = names
+            .iter()
+            .map(|n| {
+                conf.at.get(*n).map_or("–".into(), |a| {
+                    let maps: Vec<String> =
+                        a.map.iter().map(|(p, o)| format!("{p} {:.3} [{:.3}, {:.3}]", o.mean, o.min, o.max)).collect();
+                    format!("{}, {:.1}% never hit; {}", dollars(&a.cost_usd), 100.0 * a.unseen_share, maps.join("; "))
+                })
+            })
+            .collect();
+        let _ = writeln!(s, "| {} | {} |", esc(&conf.name), cells.join(" | "));
+    }
+    s.push_str("\n## Best configuration per detector\n\nThe highest mean mAP in each study, its margin over the next, and whether that study's own test separates the two.\n\n");
+    let _ = writeln!(s, "| detector | {} |", names.join(" | "));
+    let _ = writeln!(s, "|---|{}", "---|".repeat(names.len()));
+    for l in &c.leaders {
+        let cells: Vec<String> = names
+            .iter()
+            .map(|n| {
+                l.at.get(*n).map_or("–".into(), |x| {
+                    let sig = match x.significant {
+                        Some(true) => "significant",
+                        Some(false) => "not significant",
+                        None => "not compared in its report",
+                    };
+                    match &x.runner_up {
+                        Some(r) => format!(
+                            "{} ({:.3}; +{:.3} over {}, {sig})",
+                            esc(&x.configuration),
+                            x.mean_ap,
+                            x.margin,
+                            esc(r)
+                        ),
+                        None => format!("{} ({:.3})", esc(&x.configuration), x.mean_ap),
+                    }
+                })
+            })
+            .collect();
+        let _ = writeln!(s, "| {} | {} |", l.preset, cells.join(" | "));
+    }
+    s.push_str(
+        "\n## What this comparison leaves out\n\n\
+         Differences between studies mix the scene's or catalog's effect with each study's sampling noise \
+         (its report gives the seed variance and the test's power); no test here compares one study's number \
+         with another's. A claim undecided at a site may hide an effect smaller than that study resolves.\n",
+    );
+    s
+}
+
+/// Writes `comparison.json` and `comparison.md` into the sweep's folder.
+pub fn write(out: &Path, c: &Comparison) -> Result<Vec<PathBuf>> {
+    let (json, md) = (out.join("comparison.json"), out.join("comparison.md"));
+    write_json(&json, c)?;
+    write_atomic(&md, markdown(c).as_bytes())?;
+    Ok(vec![json, md])
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use Verdict::*;
+
+    #[test]
+    fn a_claim_holds_across_the_sweep_only_where_every_study_holds_it() {
+        let s = Some(Supported);
+        let c = Some(Contradicted);
+        let u = Some(Undecided);
+        assert_eq!(Across::of(&[s, s, s]), Across::SupportedEverywhere);
+        assert_eq!(Across::of(&[c, c]), Across::ContradictedEverywhere);
+        assert_eq!(Across::of(&[s, s, u]), Across::Undecided);
+        assert_eq!(Across::of(&[s, None]), Across::Undecided, "a study that could not test it decides nothing");
+        assert_eq!(Across::of(&[s, c, u]), Across::DependsOnSite);
+        assert_eq!(Across::of(&[u, u]), Across::Undecided);
+        assert_eq!(Across::of(&[None, None]), Across::NotTested);
+        assert_eq!(Across::of(&[]), Across::NotTested);
+        assert_eq!(Across::of(&[s]), Across::SupportedEverywhere);
+    }
+
+    #[test]
+    fn seed_summaries_skip_missing_values() {
+        assert_eq!(OverSeeds::of(&[]), None);
+        assert_eq!(OverSeeds::of(&[f64::NAN]), None);
+        let o = OverSeeds::of(&[0.2, f64::NAN, 0.4]).unwrap();
+        assert!((o.mean - 0.3).abs() < 1e-12 && o.min == 0.2 && o.max == 0.4 && o.seeds == 2);
+    }
+}

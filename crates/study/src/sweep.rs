@@ -1,0 +1,349 @@
+//! A sweep: one study over several scenes and/or sensor catalogs, or a directory of studies,
+//! run as one set of stages with one comparison across them ([`crate::compare`]).
+//!
+//! Two ways to write one:
+//! - a study file with `scenes = [...]` and/or `catalogs = [...]` instead of `scene` /
+//!   `catalog`: every (scene, catalog) pair is a study, named after the files' stems
+//!   (`<scene>` or `<catalog>`, `<scene>-<catalog>` when both lists are given);
+//! - a directory: every `*.toml` directly in it is a study, named after its stem.
+//!
+//! Each study of a sweep (a *shard*) has its own folder `<out>/<name>/`, its own plan, hashes
+//! and report, exactly as if it were run alone; `<out>/sweep.json` records the shards and
+//! `<out>/comparison.md` / `comparison.json` put them side by side.
+
+use crate::error::{Result, StudyError};
+use crate::files::{read_json, write_json};
+use crate::plan::Plan;
+use crate::study::{Study, StudyFile, slug};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The study-file keys that make it a sweep.
+pub const LIST_KEYS: [&str; 2] = ["scenes", "catalogs"];
+
+/// One study of a sweep.
+#[derive(Clone, Debug)]
+pub struct Shard {
+    /// File-name-safe, unique in the sweep: the shard's folder under the sweep's.
+    pub name: String,
+    pub study: Study,
+}
+
+/// Several studies compared in one report.
+#[derive(Clone, Debug)]
+pub struct Sweep {
+    /// The study file or directory it came from.
+    pub source: String,
+    pub shards: Vec<Shard>,
+}
+
+/// What a path names: one study, or a sweep of them.
+#[derive(Clone, Debug)]
+#[allow(clippy::large_enum_variant)]
+pub enum Loaded {
+    Study(Study),
+    Sweep(Sweep),
+}
+
+/// Loads a study file, a study file listing several scenes or catalogs, or a directory of study
+/// files.
+pub fn load(path: &Path) -> Result<Loaded> {
+    if path.is_dir() {
+        return directory(path).map(Loaded::Sweep);
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| StudyError::io(path, e))?;
+    parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
+}
+
+/// [`load`] of a study file's text whose relative paths resolve against `dir`.
+pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
+    let bad = |m: String| StudyError::File { path: PathBuf::from(source), message: m };
+    let mut table: toml::Table = toml::from_str(text).map_err(|e| bad(format!("invalid study: {e}")))?;
+    let mut lists = Vec::new();
+    for key in LIST_KEYS {
+        let single = key.trim_end_matches('s');
+        let Some(v) = table.remove(key) else {
+            lists.push(None);
+            continue;
+        };
+        if table.contains_key(single) {
+            return Err(bad(format!("give `{single}` or `{key}`, not both")));
+        }
+        let paths: Vec<PathBuf> =
+            v.try_into().map_err(|e| bad(format!("`{key}` must be a list of file paths: {e}")))?;
+        if paths.is_empty() {
+            return Err(bad(format!("`{key}` = []: list at least one file, or leave it out")));
+        }
+        lists.push(Some(paths));
+    }
+    if lists.iter().all(Option::is_none) {
+        return Study::parse(text, dir, source).map(Loaded::Study);
+    }
+    let base: StudyFile = toml::Value::Table(table).try_into().map_err(|e| bad(format!("invalid study: {e}")))?;
+    let axis =
+        |list: &Option<Vec<PathBuf>>, default: &Option<PathBuf>| -> Result<Vec<(Option<String>, Option<PathBuf>)>> {
+            match list {
+                None => Ok(vec![(None, default.clone())]),
+                Some(paths) => paths.iter().map(|p| Ok((Some(stem(p, source)?), Some(p.clone())))).collect(),
+            }
+        };
+    let scenes = axis(&lists[0], &base.scene)?;
+    let catalogs = axis(&lists[1], &base.catalog)?;
+    let mut shards: Vec<Shard> = Vec::new();
+    for (scene_name, scene) in &scenes {
+        for (catalog_name, catalog) in &catalogs {
+            let name = [scene_name, catalog_name].into_iter().flatten().cloned().collect::<Vec<_>>().join("-");
+            let file = StudyFile { scene: scene.clone(), catalog: catalog.clone(), ..base.clone() };
+            let mut study = Study::from_file(file, dir, source).map_err(|e| bad(format!("study {name:?}: {e}")))?;
+            study.shard = Some(name.clone());
+            push_unique(&mut shards, Shard { name, study }, source)?;
+        }
+    }
+    Ok(Loaded::Sweep(Sweep { source: source.to_owned(), shards }))
+}
+
+/// Every `*.toml` directly in `dir` (sorted by name) as a study of one scene and catalog.
+fn directory(dir: &Path) -> Result<Sweep> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| StudyError::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(StudyError::Invalid(format!("{}: a directory of studies holds no *.toml file", dir.display())));
+    }
+    let mut shards = Vec::new();
+    for f in files {
+        let abs = std::fs::canonicalize(&f).map_err(|e| StudyError::io(&f, e))?;
+        let source = abs.display().to_string();
+        let study = match load(&abs)? {
+            Loaded::Study(s) => s,
+            Loaded::Sweep(_) => {
+                return Err(StudyError::File {
+                    path: abs,
+                    message: "lists several scenes or catalogs; a directory of studies holds studies of one scene and catalog each".into(),
+                });
+            }
+        };
+        push_unique(&mut shards, Shard { name: stem(&f, &source)?, study }, &dir.display().to_string())?;
+    }
+    Ok(Sweep { source: dir.display().to_string(), shards })
+}
+
+/// A file's stem as a shard name.
+fn stem(p: &Path, source: &str) -> Result<String> {
+    let s = slug(&p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
+    if s.is_empty() {
+        return Err(StudyError::File {
+            path: PathBuf::from(source),
+            message: format!("{}: no letters or digits in the file name to name its study by", p.display()),
+        });
+    }
+    Ok(s)
+}
+
+fn push_unique(shards: &mut Vec<Shard>, shard: Shard, source: &str) -> Result<()> {
+    if let Some(other) = shards.iter().find(|s| s.name == shard.name) {
+        return Err(StudyError::File {
+            path: PathBuf::from(source),
+            message: format!(
+                "two studies would share the name {:?} ({} and {}): give the files different names",
+                shard.name,
+                describe(&other.study),
+                describe(&shard.study)
+            ),
+        });
+    }
+    shards.push(shard);
+    Ok(())
+}
+
+/// The scene and catalog files of a study, for messages.
+fn describe(s: &Study) -> String {
+    let f = |p: &Option<PathBuf>| p.as_ref().map_or("the default".to_owned(), |p| p.display().to_string());
+    format!("scene {}, catalog {} in {}", f(&s.file.scene), f(&s.file.catalog), s.source)
+}
+
+/// What a sweep's folder records (`sweep.json`): its shards, where each one's folder is and
+/// which study it holds.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SweepRecord {
+    pub source: String,
+    pub profile: String,
+    pub shards: Vec<ShardRecord>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ShardRecord {
+    pub name: String,
+    /// The shard's scene and catalog files (None: the embedded defaults).
+    pub scene: Option<PathBuf>,
+    pub catalog: Option<PathBuf>,
+    /// The shard's plan fingerprint (as its folder's `study.json` records it).
+    pub fingerprint: String,
+}
+
+impl SweepRecord {
+    pub fn path(out: &Path) -> PathBuf {
+        out.join("sweep.json")
+    }
+
+    /// Reads `<out>/sweep.json`.
+    pub fn read(out: &Path) -> Result<SweepRecord> {
+        let p = SweepRecord::path(out);
+        if !p.exists() {
+            return Err(StudyError::Invalid(format!(
+                "{} is not a sweep folder (no sweep.json): run `hilo study <sweep> --out {}` first",
+                out.display(),
+                out.display()
+            )));
+        }
+        read_json(&p)
+    }
+}
+
+impl Sweep {
+    /// Where shard `name`'s folder is.
+    pub fn shard_out(out: &Path, name: &str) -> PathBuf {
+        out.join(name)
+    }
+
+    /// Claims `out` for this sweep (the plans are its shards', in order, each with its folder
+    /// under `out`) and every shard's folder for its study; refuses a folder holding anything
+    /// else, or another sweep.
+    pub fn claim_folder(&self, out: &Path, plans: &[Plan]) -> Result<()> {
+        let record = SweepRecord {
+            source: self.source.clone(),
+            profile: plans.first().map(|p| p.profile.name.clone()).unwrap_or_default(),
+            shards: self
+                .shards
+                .iter()
+                .zip(plans)
+                .map(|(s, p)| ShardRecord {
+                    name: s.name.clone(),
+                    scene: s.study.file.scene.clone(),
+                    catalog: s.study.file.catalog.clone(),
+                    fingerprint: p.fingerprint.clone(),
+                })
+                .collect(),
+        };
+        let marker = SweepRecord::path(out);
+        if marker.exists() {
+            let old: SweepRecord = read_json(&marker)?;
+            if old != record {
+                return Err(StudyError::Invalid(format!(
+                    "{} holds another sweep (its studies, their files or the profile differ from {}); choose another --out",
+                    out.display(),
+                    self.source
+                )));
+            }
+        } else {
+            if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(false) {
+                return Err(StudyError::Invalid(format!(
+                    "{} exists and is not a sweep folder; choose another --out",
+                    out.display()
+                )));
+            }
+            std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
+            write_json(&marker, &record)?;
+        }
+        for (s, p) in self.shards.iter().zip(plans) {
+            p.claim_folder(&s.study)?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+    use super::*;
+
+    const CONFIG: &str =
+        "[[configurations]]\nname = \"2x lidar-16 + radar\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\n";
+
+    fn fixture(name: &str) -> String {
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures").join(name)).unwrap()
+    }
+
+    /// A folder with two scenes (`arterial`, `collector`) and two catalogs (`list`, `sale`).
+    fn folder() -> tempfile::TempDir {
+        let d = tempfile::tempdir().unwrap();
+        let scene = fixture("intersection.toml");
+        std::fs::write(d.path().join("arterial.toml"), &scene).unwrap();
+        std::fs::write(d.path().join("collector.toml"), scene.replace("lanes_in = 3", "lanes_in = 2")).unwrap();
+        std::fs::write(d.path().join("list.toml"), fixture("sensors.toml")).unwrap();
+        std::fs::write(d.path().join("sale.toml"), fixture("sensors.toml")).unwrap();
+        d
+    }
+
+    fn err(text: &str, dir: &Path) -> String {
+        match parse(text, dir, "sweep.toml") {
+            Ok(_) => panic!("accepted:\n{text}"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn scenes_times_catalogs_are_studies_named_by_their_files() {
+        let d = folder();
+        let text = format!(
+            "scenes = [\"arterial.toml\", \"collector.toml\"]\ncatalogs = [\"list.toml\", \"sale.toml\"]\n{CONFIG}"
+        );
+        let Loaded::Sweep(s) = parse(&text, d.path(), "sweep.toml").unwrap() else { panic!("not a sweep") };
+        let names: Vec<&str> = s.shards.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["arterial-list", "arterial-sale", "collector-list", "collector-sale"]);
+        let c = &s.shards[2].study;
+        assert_eq!(c.file.scene.as_deref(), Some(Path::new("collector.toml")));
+        assert_eq!(c.file.catalog.as_deref(), Some(Path::new("list.toml")));
+        assert_eq!(c.shard.as_deref(), Some("collector-list"));
+        assert_ne!(s.shards[0].study.scene_hash, c.scene_hash, "the collector scene was loaded, not the default");
+        assert_eq!(s.shards[0].study.scene_hash, s.shards[1].study.scene_hash);
+        // One list only: named by that list's files; the other file is every study's.
+        let text = format!("catalog = \"sale.toml\"\nscenes = [\"arterial.toml\", \"collector.toml\"]\n{CONFIG}");
+        let Loaded::Sweep(s) = parse(&text, d.path(), "sweep.toml").unwrap() else { panic!("not a sweep") };
+        assert_eq!(s.shards.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["arterial", "collector"]);
+        assert!(s.shards.iter().all(|s| s.study.file.catalog.as_deref() == Some(Path::new("sale.toml"))));
+        // Without lists: one study, as before.
+        assert!(matches!(parse(CONFIG, d.path(), "study.toml").unwrap(), Loaded::Study(_)));
+    }
+
+    #[test]
+    fn a_sweep_file_that_cannot_name_its_studies_apart_is_refused() {
+        let d = folder();
+        let e = err(&format!("scene = \"arterial.toml\"\nscenes = [\"collector.toml\"]\n{CONFIG}"), d.path());
+        assert!(e.contains("give `scene` or `scenes`, not both"), "{e}");
+        let e = err(&format!("catalogs = []\n{CONFIG}"), d.path());
+        assert!(e.contains("`catalogs` = []"), "{e}");
+        let e = err(&format!("scenes = \"arterial.toml\"\n{CONFIG}"), d.path());
+        assert!(e.contains("`scenes` must be a list of file paths"), "{e}");
+        std::fs::create_dir(d.path().join("other")).unwrap();
+        std::fs::write(d.path().join("other/arterial.toml"), fixture("intersection.toml")).unwrap();
+        let e = err(&format!("scenes = [\"arterial.toml\", \"other/arterial.toml\"]\n{CONFIG}"), d.path());
+        assert!(e.contains("share the name \"arterial\"") && e.contains("other/arterial.toml"), "{e}");
+        let e = err(&format!("scenes = [\"missing.toml\"]\n{CONFIG}"), d.path());
+        assert!(e.contains("study \"missing\"") && e.contains("missing.toml"), "{e}");
+        // The single-study loader points at the sweep loader.
+        let e = Study::parse(&format!("scenes = [\"arterial.toml\"]\n{CONFIG}"), d.path(), "s.toml").unwrap_err();
+        assert!(e.to_string().contains("a sweep of studies"), "{e}");
+    }
+
+    #[test]
+    fn a_directory_of_studies_is_a_sweep_in_file_name_order() {
+        let d = tempfile::tempdir().unwrap();
+        let e = load(d.path()).unwrap_err().to_string();
+        assert!(e.contains("holds no *.toml file"), "{e}");
+        std::fs::write(d.path().join("b-site.toml"), CONFIG).unwrap();
+        std::fs::write(d.path().join("a site.toml"), CONFIG).unwrap();
+        std::fs::write(d.path().join("notes.txt"), "not a study").unwrap();
+        let Loaded::Sweep(s) = load(d.path()).unwrap() else { panic!("not a sweep") };
+        assert_eq!(s.shards.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["a_site", "b_site"]);
+        assert!(s.shards.iter().all(|s| s.study.shard.is_none() && Path::new(&s.study.source).is_absolute()));
+        std::fs::create_dir(d.path().join("scenes")).unwrap();
+        std::fs::write(d.path().join("scenes/x.toml"), fixture("intersection.toml")).unwrap();
+        std::fs::write(d.path().join("c.toml"), format!("scenes = [\"scenes/x.toml\"]\n{CONFIG}")).unwrap();
+        let e = load(d.path()).unwrap_err().to_string();
+        assert!(e.contains("c.toml") && e.contains("studies of one scene and catalog each"), "{e}");
+    }
+}
