@@ -260,7 +260,20 @@ pub fn study(args: &StudyArgs) -> Result<()> {
         }
         StageCommand::Plan(a) => print_plan(&open_folder(&a.out, &registry)?.1),
     }
+    if let Some(mb) = peak_memory_mb() {
+        // For the stage's log: what a workflow engine should reserve for it.
+        eprintln!("peak memory: {mb:.0} MB");
+    }
     Ok(())
+}
+
+/// This process's peak resident memory (Linux: `VmHWM` in /proc/self/status), in MB; None
+/// where the system does not say.
+fn peak_memory_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
 }
 
 /// `hilo study plan`: each stage, whether it is done, and its output.
