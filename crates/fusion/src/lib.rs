@@ -40,7 +40,12 @@
 //!   one-cycle to 6e-3. The learning curve of `centerpoint` on the default dataset (1.5k 0.407,
 //!   3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattens at 12,000: four times longer
 //!   gains 0.016. That is about 2.5 min for `centerpoint` and 4.5 min for `lirafusion-like` here.
-//!   Larger batches at higher rates (4 at 1e-2: 0.710, 8 at 2e-2: 0.718) did not beat batches of 2;
+//!   Larger batches at higher rates (4 at 1e-2: 0.710, 8 at 2e-2: 0.718) did not beat batches of 2.
+//!   The two-branch `lirafusion-like` is *not* at its plateau there: 12,000 samples give 0.729,
+//!   48,000 give 0.785 (+0.056), and a higher peak rate at 12,000 does not close the gap (1.2e-2:
+//!   0.719, 2e-2: 0.721). At its 47.6 samples/s the five-minute budget holds about 14,000
+//!   samples, so on two cores the fusion presets stop short of their plateau; the study's
+//!   learning curves say how far;
 //! - **operators fixed**: `GatedChannel` gates each channel (it computed one scalar per
 //!   modality), and seeded initialisation no longer overrides the weighted operator's α = 0.5.
 

@@ -10,21 +10,64 @@ use crate::sweep::Sweep;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-/// What each kind of stage needs: the default profile's stage times on a 2-core machine and the
-/// whole run's peak memory (1.8 GB), rounded up with headroom (see the README's "Running a study
-/// on a cluster"); a workflow engine reads them as scheduling hints, not limits.
-#[derive(Clone, Copy, Debug)]
+/// What a stage asks the scheduler for. Slurm and Kubernetes enforce `mem_mb` and `runtime`
+/// (a job over them is killed), so the hints come from measurements with headroom.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Resources {
     pub threads: usize,
     pub mem_mb: usize,
-    /// Expected minutes at the default profile (Slurm's `runtime`), with headroom.
     pub runtime_min: usize,
 }
 
-pub const PLACE: Resources = Resources { threads: 2, mem_mb: 2_000, runtime_min: 10 };
-pub const SIMULATE: Resources = Resources { threads: 2, mem_mb: 2_000, runtime_min: 30 };
-pub const TRAIN: Resources = Resources { threads: 1, mem_mb: 3_000, runtime_min: 30 };
-pub const REPORT: Resources = Resources { threads: 2, mem_mb: 2_000, runtime_min: 10 };
+/// Peak memory with 50% headroom, rounded up to 100 MB, at least 500 MB.
+fn mem(mb: f64) -> usize {
+    ((mb * 1.5 / 100.0).ceil() as usize * 100).max(500)
+}
+
+/// Minutes with the given factor of headroom, plus 5.
+fn minutes(seconds: f64, headroom: f64) -> usize {
+    (seconds * headroom / 60.0).ceil() as usize + 5
+}
+
+// The stage models: lines through two measured runs of the workflow on a 2-core machine
+// (release build, idle; `scripts/stage-resources.py` on the quick profile, 520 frames per
+// configuration and 4 trainings, and the default one, 2,800 frames and 18 trainings): each
+// stage's peak memory (its log's `peak memory`) and seconds, against what the stage handles.
+// Beyond the default profile they are extrapolations, hence the headroom.
+
+/// Placement: 20–22 s and 150–200 MB at both scales (it depends on the scene, not the profile).
+pub const PLACE: Resources = Resources { threads: 2, mem_mb: 1_000, runtime_min: 10 };
+
+/// Simulating one configuration of `frames` frames (training and validation): 151 → 247 MB and
+/// 8 → 41 s from 520 to 2,800 frames (the 64-beam rig is the slowest).
+pub fn simulate(frames: usize) -> Resources {
+    let f = frames as f64;
+    Resources { threads: 2, mem_mb: mem(129.0 + 0.042 * f), runtime_min: minutes(0.015 * f, 2.0) }
+}
+
+/// Training one detector on `frames` frames (all held in memory) for `samples` samples, one
+/// thread: 218 → 885 MB from 520 to 2,800 frames; 6,000 samples in 65–137 s (`centerpoint`
+/// to the two-branch `lirafusion-like`, two jobs side by side). Runtime allows for presets three
+/// times slower than the slowest measured.
+pub fn train(frames: usize, samples: usize) -> Resources {
+    let (f, n) = (frames as f64, samples as f64);
+    Resources { threads: 1, mem_mb: mem(66.0 + 0.293 * f), runtime_min: minutes(0.023 * n + 0.005 * f, 3.0) }
+}
+
+/// The report over `results` result sets (every training's detections, learning-curve points
+/// included) of `val_frames` validation frames each: 183 MB and 1 s for 6 × 120, 1,212 MB and
+/// 20 s for 30 × 800.
+pub fn report(results: usize, val_frames: usize) -> Resources {
+    let units = (results * val_frames) as f64;
+    Resources { threads: 2, mem_mb: mem(151.0 + 0.0442 * units), runtime_min: minutes(0.001 * units, 3.0) }
+}
+
+/// Frames of one configuration's dataset: (training + validation, validation).
+pub fn frames(plan: &Plan) -> (usize, usize) {
+    let d = &plan.profile.dataset;
+    let val = d.val_scenes * (d.val_seconds * d.val_rate_hz).round() as usize;
+    (d.scenes * (d.seconds * d.rate_hz).round() as usize + val, val)
+}
 
 /// How the workflow calls hilo.
 #[derive(Clone, Debug)]
@@ -115,6 +158,8 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
     };
     let log = |l: String| shard.map_or(l.clone(), |s| format!("{s}/{l}"));
     let out = shard.unwrap_or(".").to_owned();
+    let (all_frames, val_frames) = frames(plan);
+    let results: usize = plan.jobs.iter().map(|j| 1 + j.curve.len()).sum();
     let placements: Vec<String> = plan.placement_outputs().iter().map(|p| path(p)).collect::<Result<_>>()?;
     let data: Vec<String> = plan.data.iter().map(|d| path(&d.done())).collect::<Result<_>>()?;
     let mut report_inputs = placements.clone();
@@ -129,7 +174,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             name: name("report", &[]),
             inputs: report_inputs,
             outputs: vec![prefix("report.json".into()), prefix("report.md".into())],
-            resources: REPORT,
+            resources: report(results, val_frames),
             gpu: false,
             log: log("report".into()),
             cmd: "report".into(),
@@ -152,7 +197,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             name: name("simulate", &[&slug]),
             inputs: vec![path(&plan.placement(ci))?],
             outputs: vec![data[ci].clone()],
-            resources: SIMULATE,
+            resources: simulate(all_frames),
             gpu: false,
             log: log(format!("simulate-{slug}")),
             cmd: format!("simulate --configuration {slug}"),
@@ -165,7 +210,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             name: name("train", &[&slug, &j.preset, &format!("seed{}", j.seed)]),
             inputs: vec![data[j.configuration].clone()],
             outputs: j.outputs().iter().map(|p| path(p)).collect::<Result<_>>()?,
-            resources: TRAIN,
+            resources: train(all_frames, j.train.samples),
             gpu: wf.gpu,
             log: log(format!("train-{}", j.id.replace('/', "-"))),
             cmd: format!("train --job {}", j.id),
@@ -198,6 +243,7 @@ pub fn snakefile(plan: &Plan, wf: &Workflow) -> Result<String> {
 /// The Snakefile of a sweep in `out`: every study's stages (each in its folder `<name>/`) and
 /// the comparison across them, one workflow.
 pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<String> {
+    const COMPARE: Resources = Resources { threads: 1, mem_mb: 500, runtime_min: 5 };
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -212,7 +258,7 @@ pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<S
         name: "compare".into(),
         inputs: sweep.shards.iter().map(|sh| format!("{}/report.json", sh.name)).collect(),
         outputs: vec!["comparison.json".into(), "comparison.md".into()],
-        resources: REPORT,
+        resources: COMPARE,
         gpu: false,
         log: "compare".into(),
         cmd: "compare".into(),
@@ -261,4 +307,29 @@ fn write_files(out: &Path, snakefile: &str, wf: &Workflow) -> Result<Vec<PathBuf
     crate::files::write_atomic(&snake, snakefile.as_bytes())?;
     crate::files::write_atomic(&cfg, config_yaml(wf)?.as_bytes())?;
     Ok(vec![snake, cfg])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hints_cover_what_the_measured_runs_needed_with_headroom() {
+        // (frames, peak MB) of the simulate and train stages, (results × frames, peak MB) of the
+        // report, measured on the quick and default profiles.
+        for (f, mb) in [(520, 151.0), (2_800, 247.0)] {
+            assert!(simulate(f).mem_mb as f64 >= 1.4 * mb, "simulate {f}");
+        }
+        for (f, mb) in [(520, 218.0), (2_800, 885.0)] {
+            assert!(train(f, 6_000).mem_mb as f64 >= 1.4 * mb, "train {f}");
+        }
+        assert!(report(6, 120).mem_mb as f64 >= 1.4 * 183.0);
+        assert!(report(30, 800).mem_mb as f64 >= 1.4 * 1_212.0);
+        assert!(train(2_800, 6_000).runtime_min as f64 * 60.0 >= 2.0 * 137.0, "the slowest measured training");
+        // More data asks for more, never less.
+        assert!(train(12_800, 12_000).mem_mb > train(2_800, 6_000).mem_mb);
+        assert!(report(125, 800).mem_mb > report(30, 800).mem_mb);
+        assert_eq!(mem(10.0), 500);
+        assert_eq!(mem(1_000.0), 1_500);
+    }
 }
