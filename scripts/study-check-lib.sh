@@ -19,3 +19,15 @@ one_process_report() {
   "$hilo" study --profile "$profile" --out "$dir" 2> "$dir.log" || { tail -20 "$dir.log"; return 1; }
   echo "  $(( $(date +%s) - start )) s"
 }
+
+# check_setup DEFAULT_PROFILE [HILO] [PROFILE]: the common start of a check: sets HILO (absolute;
+# default target/release/hilo), PROFILE, SMK (Snakemake from $SNAKEMAKE_VENV or .venv-snakemake)
+# and WORK (a temporary folder removed on exit).
+check_setup() {
+  local default_profile=$1
+  HILO=$(realpath "${2:-target/release/hilo}")
+  PROFILE=${3:-$default_profile}
+  snakemake_venv "${SNAKEMAKE_VENV:-.venv-snakemake}" "snakemake==9.27.1"
+  WORK=$(mktemp -d)
+  trap 'rm -rf "$WORK"' EXIT
+}

@@ -8,13 +8,8 @@
 # Needs python3 with venv; installs Snakemake into .venv-snakemake (or $SNAKEMAKE_VENV).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-HILO=$(realpath "${1:-target/release/hilo}")
-PROFILE=${2:-tiny}
-VENV=${SNAKEMAKE_VENV:-.venv-snakemake}
 source scripts/study-check-lib.sh
-snakemake_venv "$VENV" "snakemake==9.27.1"
-WORK=$(mktemp -d)
-trap 'rm -rf "$WORK"' EXIT
+check_setup tiny "$@"
 cp fixtures/sensors.toml "$WORK/list.toml"
 sed 's/^price_usd = 4000.0$/price_usd = 6000.0/' fixtures/sensors.toml > "$WORK/dear.toml"
 if cmp -s "$WORK/list.toml" "$WORK/dear.toml"; then

@@ -8,13 +8,8 @@
 # Needs python3 with venv; installs Snakemake into .venv-snakemake (or $SNAKEMAKE_VENV).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-HILO=$(realpath "${1:-target/release/hilo}")
-PROFILE=${2:-quick}
-VENV=${SNAKEMAKE_VENV:-.venv-snakemake}
 source scripts/study-check-lib.sh
-snakemake_venv "$VENV" "snakemake==9.27.1"
-WORK=$(mktemp -d)
-trap 'rm -rf "$WORK"' EXIT
+check_setup quick "$@"
 
 one_process_report "$HILO" "$PROFILE" "$WORK/one"
 
