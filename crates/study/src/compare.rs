@@ -58,7 +58,8 @@ pub struct OverSeeds {
 }
 
 impl OverSeeds {
-    fn of(v: &[f64]) -> Option<OverSeeds> {
+    /// Over the finite values (a detector with no score for a class is left out); None if none.
+    pub fn of(v: &[f64]) -> Option<OverSeeds> {
         let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
         if v.is_empty() {
             return None;

@@ -32,18 +32,9 @@ fn placement_status(c: &crate::assemble::ConfigSummary) -> (String, bool) {
 
 /// Mean, min and max over a group's seeds.
 fn over_seeds(r: &Report, conf: &str, preset: &str, f: impl Fn(&Entry) -> Option<f64>) -> Option<(f64, f64, f64)> {
-    let v: Vec<f64> = r
-        .entries
-        .iter()
-        .filter(|e| e.configuration == conf && e.preset == preset)
-        .filter_map(f)
-        .filter(|x| x.is_finite())
-        .collect();
-    if v.is_empty() {
-        return None;
-    }
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    Some((m, v.iter().copied().fold(f64::INFINITY, f64::min), v.iter().copied().fold(f64::NEG_INFINITY, f64::max)))
+    let v: Vec<f64> =
+        r.entries.iter().filter(|e| e.configuration == conf && e.preset == preset).filter_map(f).collect();
+    crate::compare::OverSeeds::of(&v).map(|o| (o.mean, o.min, o.max))
 }
 
 fn fmt3(v: Option<(f64, f64, f64)>) -> String {

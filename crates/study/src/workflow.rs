@@ -65,8 +65,7 @@ pub fn report(results: usize, val_frames: usize) -> Resources {
 /// Frames of one configuration's dataset: (training + validation, validation).
 pub fn frames(plan: &Plan) -> (usize, usize) {
     let d = &plan.profile.dataset;
-    let val = d.val_scenes * (d.val_seconds * d.val_rate_hz).round() as usize;
-    (d.scenes * (d.seconds * d.rate_hz).round() as usize + val, val)
+    (d.total_frames(), d.val_scenes * d.val_frames_per_scene())
 }
 
 /// How the workflow calls hilo.
@@ -232,12 +231,26 @@ pub fn snakefile(plan: &Plan, wf: &Workflow) -> Result<String> {
         plan.configurations.len(),
         plan.jobs.len()
     );
-    s.push_str("\nconfigfile: \"config.yaml\"\n");
-    s.push_str("\nrule all:\n    input: \"report.json\"\n    default_target: True\n");
-    for r in rules(plan, wf, None)? {
-        r.write(&mut s);
-    }
+    emit(&mut s, "report.json", &rules(plan, wf, None)?, &format!("the study in {}", plan.out.display()))?;
     Ok(s)
+}
+
+/// The config file, the default target and the rules; two rules may not share a name (names
+/// are built from slugs, whose `_` can make two different stages read alike).
+fn emit(s: &mut String, target: &str, rules: &[Rule], what: &str) -> Result<()> {
+    let _ =
+        write!(s, "\nconfigfile: \"config.yaml\"\n\nrule all:\n    input: \"{target}\"\n    default_target: True\n");
+    let mut names = std::collections::BTreeSet::new();
+    for r in rules {
+        if !names.insert(r.name.as_str()) {
+            return Err(StudyError::Invalid(format!(
+                "two stages of {what} would share the Snakemake rule name {}: rename a study file or configuration",
+                r.name
+            )));
+        }
+        r.write(s);
+    }
+    Ok(())
 }
 
 /// The Snakefile of a sweep in `out`: every study's stages (each in its folder `<name>/`) and
@@ -252,8 +265,6 @@ pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<S
         sweep.source,
         sweep.shards.len()
     );
-    s.push_str("\nconfigfile: \"config.yaml\"\n");
-    s.push_str("\nrule all:\n    input: \"comparison.json\"\n    default_target: True\n");
     let mut all = vec![Rule {
         name: "compare".into(),
         inputs: sweep.shards.iter().map(|sh| format!("{}/report.json", sh.name)).collect(),
@@ -267,16 +278,7 @@ pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<S
     for (sh, plan) in sweep.shards.iter().zip(plans) {
         all.extend(rules(plan, wf, Some(&sh.name))?);
     }
-    let mut names = std::collections::BTreeSet::new();
-    for r in &all {
-        if !names.insert(r.name.as_str()) {
-            return Err(StudyError::Invalid(format!(
-                "two stages of the sweep {} would share the Snakemake rule name {}: rename a study file or configuration",
-                sweep.source, r.name
-            )));
-        }
-        r.write(&mut s);
-    }
+    emit(&mut s, "comparison.json", &all, &format!("the sweep {}", sweep.source))?;
     Ok(s)
 }
 
