@@ -144,16 +144,25 @@ fn workflow() -> Result<hilo_study::workflow::Workflow> {
     Ok(hilo_study::workflow::Workflow { hilo, gpu: cfg!(feature = "cuda") })
 }
 
+/// Whether `--workflow` asks for a Snakefile (the one engine supported).
+fn snakemake(args: &StudyArgs) -> Result<bool> {
+    match args.workflow.as_deref() {
+        None => Ok(false),
+        Some("snakemake") => Ok(true),
+        Some(other) => bail!("--workflow {other:?}: the supported engine is snakemake"),
+    }
+}
+
 /// A study of one scene and catalog: run in-process, or written as a workflow.
 fn one_study(args: &StudyArgs, study: &Study, registry: &hilo_fusion::Registry, reporter: &mut Reporter) -> Result<()> {
     let profile = profile_of(args, study, registry)?;
-    match args.workflow.as_deref() {
-        None => {
+    match snakemake(args)? {
+        false => {
             let opts = RunOptions { profile, out: args.out.clone() };
             hilo_study::run(study, registry, &opts, &mut |p| reporter.study(p))?;
             Ok(())
         }
-        Some("snakemake") => {
+        true => {
             let plan = Plan::new(study, registry, &profile, &args.out)?;
             plan.claim_folder(study)?;
             for p in hilo_study::workflow::write(&plan, &workflow()?)? {
@@ -167,7 +176,6 @@ fn one_study(args: &StudyArgs, study: &Study, registry: &hilo_fusion::Registry, 
             );
             Ok(())
         }
-        Some(other) => bail!("--workflow {other:?}: the supported engine is snakemake"),
     }
 }
 
@@ -181,13 +189,13 @@ pub fn study(args: &StudyArgs) -> Result<()> {
         };
         let profile =
             |s: &Study| profile_of(args, s, &registry).map_err(|e| hilo_study::StudyError::Invalid(format!("{e:#}")));
-        return match args.workflow.as_deref() {
-            None => {
+        return match snakemake(args)? {
+            false => {
                 let c = hilo_study::run_sweep(&sweep, &registry, &profile, &args.out, &mut |p| reporter.study(p))?;
                 eprintln!("{} studies compared: {}", c.shards.len(), args.out.join("comparison.md").display());
                 Ok(())
             }
-            Some("snakemake") => {
+            true => {
                 let plans = hilo_study::run::sweep_plans(&sweep, &registry, &profile, &args.out)?;
                 sweep.claim_folder(&args.out, &plans)?;
                 for p in hilo_study::workflow::write_sweep(&sweep, &plans, &args.out, &workflow()?)? {
@@ -203,7 +211,6 @@ pub fn study(args: &StudyArgs) -> Result<()> {
                 );
                 Ok(())
             }
-            Some(other) => bail!("--workflow {other:?}: the supported engine is snakemake"),
         };
     };
     match stage {
