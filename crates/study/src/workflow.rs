@@ -35,31 +35,31 @@ fn minutes(seconds: f64, headroom: f64) -> usize {
 // stage's peak memory (its log's `peak memory`) and seconds, against what the stage handles.
 // Beyond the default profile they are extrapolations, hence the headroom.
 
-/// Placement: 20–22 s and 150–200 MB at both scales (it depends on the scene, not the profile).
+/// Placement: 11–20 s and 144–203 MB at both scales (it depends on the scene, not the profile).
 pub const PLACE: Resources = Resources { threads: 2, mem_mb: 1_000, runtime_min: 10 };
 
-/// Simulating one configuration of `frames` frames (training and validation): 151 → 247 MB and
-/// 8 → 41 s from 520 to 2,800 frames (the 64-beam rig is the slowest).
+/// Simulating one configuration of `frames` frames (training and validation): 132 → 247 MB and
+/// 5 → 41 s from 520 to 2,800 frames (the 64-beam rig is the slowest).
 pub fn simulate(frames: usize) -> Resources {
     let f = frames as f64;
-    Resources { threads: 2, mem_mb: mem(129.0 + 0.042 * f), runtime_min: minutes(0.015 * f, 2.0) }
+    Resources { threads: 2, mem_mb: mem(106.0 + 0.0505 * f), runtime_min: minutes(0.015 * f, 2.0) }
 }
 
 /// Training one detector on `frames` frames (all held in memory) for `samples` samples, one
-/// thread: 218 → 885 MB from 520 to 2,800 frames; 6,000 samples in 65–137 s (`centerpoint`
+/// thread: 222 → 885 MB from 520 to 2,800 frames; 6,000 samples in 65–137 s (`centerpoint`
 /// to the two-branch `lirafusion-like`, two jobs side by side). Runtime allows for presets three
 /// times slower than the slowest measured.
 pub fn train(frames: usize, samples: usize) -> Resources {
     let (f, n) = (frames as f64, samples as f64);
-    Resources { threads: 1, mem_mb: mem(66.0 + 0.293 * f), runtime_min: minutes(0.023 * n + 0.005 * f, 3.0) }
+    Resources { threads: 1, mem_mb: mem(71.0 + 0.291 * f), runtime_min: minutes(0.023 * n + 0.005 * f, 3.0) }
 }
 
 /// The report over `results` result sets (every training's detections, learning-curve points
-/// included) of `val_frames` validation frames each: 183 MB and 1 s for 6 × 120, 1,212 MB and
+/// included) of `val_frames` validation frames each: 194 MB and 1 s for 6 × 120, 1,212 MB and
 /// 20 s for 30 × 800.
 pub fn report(results: usize, val_frames: usize) -> Resources {
     let units = (results * val_frames) as f64;
-    Resources { threads: 2, mem_mb: mem(151.0 + 0.0442 * units), runtime_min: minutes(0.001 * units, 3.0) }
+    Resources { threads: 2, mem_mb: mem(163.0 + 0.0437 * units), runtime_min: minutes(0.001 * units, 3.0) }
 }
 
 /// Frames of one configuration's dataset: (training + validation, validation).
@@ -319,13 +319,13 @@ mod tests {
     fn hints_cover_what_the_measured_runs_needed_with_headroom() {
         // (frames, peak MB) of the simulate and train stages, (results × frames, peak MB) of the
         // report, measured on the quick and default profiles.
-        for (f, mb) in [(520, 151.0), (2_800, 247.0)] {
+        for (f, mb) in [(520, 132.0), (2_800, 247.0)] {
             assert!(simulate(f).mem_mb as f64 >= 1.4 * mb, "simulate {f}");
         }
-        for (f, mb) in [(520, 218.0), (2_800, 885.0)] {
+        for (f, mb) in [(520, 222.0), (2_800, 885.0)] {
             assert!(train(f, 6_000).mem_mb as f64 >= 1.4 * mb, "train {f}");
         }
-        assert!(report(6, 120).mem_mb as f64 >= 1.4 * 183.0);
+        assert!(report(6, 120).mem_mb as f64 >= 1.4 * 194.0);
         assert!(report(30, 800).mem_mb as f64 >= 1.4 * 1_212.0);
         assert!(train(2_800, 6_000).runtime_min as f64 * 60.0 >= 2.0 * 137.0, "the slowest measured training");
         // More data asks for more, never less.
