@@ -509,6 +509,8 @@ pub struct TrainRow {
     pub preset: String,
     pub layout: &'static str,
     pub background_removed: bool,
+    /// Radar static clutter dropped (fusion presets only).
+    pub radar_clutter_removed: bool,
     pub batch: usize,
     pub steps: usize,
     pub samples_per_s: f64,
@@ -563,7 +565,12 @@ pub fn train(
         for (k, v) in overrides {
             match (k.as_str(), v.as_u64()) {
                 ("layout", _) if v == "dense" => det_cfg.sparse = None,
-                ("background", _) if v == false => det_cfg.input.background = None,
+                ("background", _) if v == false => {
+                    // The clutter rule reads the LiDAR foreground, so it goes with the background.
+                    det_cfg.input.background = None;
+                    det_cfg.input.radar_clutter = None;
+                }
+                ("radar_clutter", _) if v == false => det_cfg.input.radar_clutter = None,
                 ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
                 ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
                 ("head_dilation", Some(n)) => {
@@ -573,7 +580,7 @@ pub fn train(
                 }
                 ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
                 _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_sweeps=K, batch=N, head_dilation=N, layers=N)"
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, radar_sweeps=K, batch=N, head_dilation=N, layers=N)"
                 ),
             }
         }
@@ -618,6 +625,7 @@ pub fn train(
             preset: name.clone(),
             layout: if det_cfg.sparse.is_some() { "sparse" } else { "dense" },
             background_removed: det_cfg.input.background.is_some(),
+            radar_clutter_removed: det_cfg.input.radar_clutter.is_some() && det.uses_radar(),
             batch: cfg.batch,
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
@@ -646,10 +654,11 @@ impl TrainReport {
         );
         for r in &self.presets {
             println!(
-                "{} ({}, background {}): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
+                "{} ({}, background {}{}): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
                 r.preset,
                 r.layout,
                 if r.background_removed { "removed" } else { "kept" },
+                if r.radar_clutter_removed { ", radar clutter removed" } else { "" },
                 r.samples_per_s,
                 r.forward_gflop_per_step,
                 r.achieved_gflops,

@@ -113,6 +113,14 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
             100.0 * stats.background_points as f64 / (stats.background_points + stats.lidar_points).max(1) as f64
         );
     }
+    if det.input.radar_clutter.is_some() && stats.radar_points + stats.radar_clutter_points > 0 {
+        eprintln!(
+            "radar static clutter removed: {} of {} radar points ({:.1}%)",
+            stats.radar_clutter_points,
+            stats.radar_clutter_points + stats.radar_points,
+            100.0 * stats.radar_clutter_points as f64 / (stats.radar_clutter_points + stats.radar_points) as f64
+        );
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut bar = crate::progress::Reporter::new();
     let label = format!("train {}", det.name);

@@ -6,6 +6,15 @@
 //! radar's last `radar_sweeps` sweeps, each point carrying its sweep's time lag. The sensors are
 //! static, so older sweeps need no motion compensation: a road user's older detections trail
 //! behind it, which is the motion cue nuScenes detectors take from stacked sweeps.
+//!
+//! Radar static clutter ([`RadarClutterConfig`]) is dropped by a cross-sensor rule: a radar
+//! detection that does not move (|v_r| at most `max_speed_mps`) and has no LiDAR foreground
+//! point within `lidar_radius_m` in the bird's-eye view is taken as clutter. The LiDAR foreground
+//! is what the background model leaves, so the rule needs it: road users seen by the LiDAR keep
+//! every radar detection, moving or not, and moving ones keep theirs wherever they are. What it
+//! loses: a stationary road user (or one crossing the radar's line of sight, whose v_r is near 0)
+//! that no LiDAR point reaches, and a real system's clutter that moves (swaying trees, multipath
+//! ghosts of moving targets), which hilo's radar does not simulate.
 
 use crate::error::{FusionError, Result};
 use crate::grid::BevGrid;
@@ -47,12 +56,80 @@ pub struct InputConfig {
     pub radar_sweeps: usize,
     /// Older sweeps farther than this behind the frame are not used (a gap in the recording).
     pub max_sweep_lag_s: f32,
+    /// Drop radar static clutter (needs `background`: the LiDAR foreground tells road users
+    /// from clutter).
+    pub radar_clutter: Option<RadarClutterConfig>,
 }
 
 impl Default for InputConfig {
     fn default() -> Self {
-        InputConfig { background: None, radar_sweeps: 1, max_sweep_lag_s: 0.5 }
+        InputConfig { background: None, radar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None }
     }
+}
+
+/// Which radar detections are static clutter: those moving at most `max_speed_mps` along the
+/// line of sight with no LiDAR foreground point within `lidar_radius_m` (bird's-eye view).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RadarClutterConfig {
+    /// Largest |v_r| of a static detection, m/s (three times the catalog radar's velocity noise).
+    pub max_speed_mps: f32,
+    /// A detection with a LiDAR foreground point this close (x, y) is kept, m.
+    pub lidar_radius_m: f32,
+}
+
+impl Default for RadarClutterConfig {
+    fn default() -> Self {
+        RadarClutterConfig { max_speed_mps: 0.15, lidar_radius_m: 1.0 }
+    }
+}
+
+impl RadarClutterConfig {
+    pub fn validate(&self) -> Result<()> {
+        if !(self.max_speed_mps >= 0.0 && self.max_speed_mps.is_finite()) {
+            return Err(FusionError::Config(format!(
+                "input.radar_clutter.max_speed_mps = {}: must be a finite speed >= 0",
+                self.max_speed_mps
+            )));
+        }
+        if !(self.lidar_radius_m > 0.0 && self.lidar_radius_m <= 20.0) {
+            return Err(FusionError::Config(format!(
+                "input.radar_clutter.lidar_radius_m = {}: must be in (0, 20]",
+                self.lidar_radius_m
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Drops the radar detections of `radar` that [`RadarClutterConfig`] calls clutter, given the
+/// frame's LiDAR foreground (both in the scene's local frame); returns how many it dropped.
+/// LiDAR points are hashed into square buckets of the radius, so each detection looks at nine
+/// buckets.
+pub fn drop_radar_clutter(
+    lidar: &[[f32; LIDAR_FEATURES]],
+    radar: &mut Vec<[f32; RADAR_FEATURES]>,
+    cfg: &RadarClutterConfig,
+) -> usize {
+    let r = cfg.lidar_radius_m;
+    let bucket = |x: f32, y: f32| ((x / r).floor() as i64, (y / r).floor() as i64);
+    let mut buckets: HashMap<(i64, i64), Vec<[f32; 2]>> = HashMap::new();
+    for p in lidar {
+        buckets.entry(bucket(p[0], p[1])).or_default().push([p[0], p[1]]);
+    }
+    let near_lidar = |x: f32, y: f32| {
+        let (bx, by) = bucket(x, y);
+        (-1..=1).any(|dx| {
+            (-1..=1).any(|dy| {
+                buckets
+                    .get(&(bx + dx, by + dy))
+                    .is_some_and(|v| v.iter().any(|q| (q[0] - x) * (q[0] - x) + (q[1] - y) * (q[1] - y) <= r * r))
+            })
+        })
+    };
+    let before = radar.len();
+    radar.retain(|p| p[4].abs() > cfg.max_speed_mps || near_lidar(p[0], p[1]));
+    before - radar.len()
 }
 
 impl InputConfig {
@@ -65,6 +142,16 @@ impl InputConfig {
         }
         if let Some(b) = &self.background {
             b.validate()?;
+        }
+        if let Some(c) = &self.radar_clutter {
+            c.validate()?;
+            if self.background.is_none() {
+                return Err(FusionError::Config(
+                    "input.radar_clutter needs input.background: without the LiDAR background removed every radar \
+                     detection near a static surface would count as a road user's"
+                        .into(),
+                ));
+            }
         }
         Ok(())
     }
@@ -95,12 +182,19 @@ pub struct LoadOptions<'a> {
     /// Radar sweeps per frame (0 or 1: the frame's own) and the largest lag of an older one.
     pub radar_sweeps: usize,
     pub max_sweep_lag_s: f32,
+    /// Radar static clutter is dropped by this rule (against the frame's LiDAR foreground).
+    pub radar_clutter: Option<RadarClutterConfig>,
 }
 
 impl<'a> LoadOptions<'a> {
     /// The options of a detector's input, with its learned background model.
     pub fn new(input: &InputConfig, background: Option<&'a BackgroundModel>) -> Self {
-        LoadOptions { background, radar_sweeps: input.radar_sweeps, max_sweep_lag_s: input.max_sweep_lag_s }
+        LoadOptions {
+            background,
+            radar_sweeps: input.radar_sweeps,
+            max_sweep_lag_s: input.max_sweep_lag_s,
+            radar_clutter: input.radar_clutter,
+        }
     }
 }
 
@@ -114,6 +208,8 @@ pub struct LoadStats {
     pub radar_points: usize,
     /// Radar points from older sweeps (included in `radar_points`).
     pub older_sweep_points: usize,
+    /// Radar points dropped as static clutter (not in `radar_points`).
+    pub radar_clutter_points: usize,
 }
 
 /// Loads the samples of a split (scenes listed in the dataset's `splits.json`), in sample order.
@@ -207,7 +303,6 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
                             let n = (dx * dx + dy * dy).sqrt().max(1e-6);
                             radar.push([q[0], q[1], q[2], p.rcs_dbsm, p.v_r_mps, dx / n, dy / n, lag]);
                             stats.radar_points += 1;
-                            stats.older_sweep_points += usize::from(k > 0);
                         }
                         sweep = sd_by_token.get(cur.prev.as_str()).copied().filter(|_| !cur.prev.is_empty());
                     }
@@ -215,6 +310,13 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
                 _ => {}
             }
         }
+        if let Some(c) = &opts.radar_clutter {
+            let dropped = drop_radar_clutter(&lidar, &mut radar, c);
+            stats.radar_points -= dropped;
+            stats.radar_clutter_points += dropped;
+        }
+        // Older sweeps' points carry a positive lag (their timestamps are earlier).
+        stats.older_sweep_points += radar.iter().filter(|p| p[7] > 0.0).count();
         let mut boxes = Vec::new();
         for a in anns.get(s.token.as_str()).cloned().unwrap_or_default() {
             let Some(Some(class)) = instance_class.get(a.instance_token.as_str()) else { continue };
@@ -470,5 +572,68 @@ mod tests {
             reach = reach.max(*p.index.last().unwrap() as usize % g.cells());
         }
         assert!(reach > g.cells() / 2, "pillars from the +x half are kept too");
+    }
+
+    /// The clutter rule against a brute-force oracle (every radar point against every LiDAR
+    /// point), on seeded random points spread over negative and positive coordinates, with hard
+    /// cases on purpose: a LiDAR point at exactly the radius, one just beyond it, a moving
+    /// detection far from any LiDAR point, a detection at exactly the speed limit.
+    #[test]
+    fn radar_clutter_rule_matches_a_brute_force_oracle() {
+        let cfg = RadarClutterConfig { max_speed_mps: 0.15, lidar_radius_m: 1.0 };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut lidar: Vec<[f32; 4]> =
+            (0..400).map(|_| [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0), 0.5, 0.2]).collect();
+        let mut radar: Vec<[f32; 8]> = (0..600)
+            .map(|_| {
+                let v = if rng.random::<f32>() < 0.5 { 0.0 } else { rng.random_range(-5.0..5.0) };
+                [rng.random_range(-32.0..32.0), rng.random_range(-32.0..32.0), 1.0, 5.0, v, 1.0, 0.0, 0.0]
+            })
+            .collect();
+        // Hard cases: LiDAR at (40, -40.5); radar exactly 1 m away (kept), 1.001 m away (dropped),
+        // a fast one 10 m from everything (kept), one at exactly the speed limit (static: dropped).
+        lidar.push([40.0, -40.5, 0.0, 0.0]);
+        radar.push([40.0, -39.5, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
+        radar.push([41.001, -40.5, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
+        radar.push([60.0, 60.0, 0.0, 0.0, 3.0, 1.0, 0.0, 0.0]);
+        radar.push([-60.0, 60.0, 0.0, 0.0, -0.15, 1.0, 0.0, 0.0]);
+        let oracle: Vec<[f32; 8]> = radar
+            .iter()
+            .filter(|p| {
+                p[4].abs() > cfg.max_speed_mps
+                    || lidar.iter().any(|q| (q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) <= cfg.lidar_radius_m.powi(2))
+            })
+            .copied()
+            .collect();
+        let n = radar.len();
+        let mut kept = radar.clone();
+        let dropped = drop_radar_clutter(&lidar, &mut kept, &cfg);
+        assert_eq!(kept, oracle, "the kept detections, in their order");
+        assert_eq!(dropped, n - oracle.len());
+        assert!(dropped > 50 && oracle.len() > 300, "both outcomes exercised ({dropped} dropped)");
+        let tail: Vec<[f32; 8]> = kept.iter().rev().take(2).rev().copied().collect();
+        assert_eq!(tail[1], radar[n - 2], "the fast detection far from the LiDAR is kept");
+        assert_eq!(tail[0], radar[n - 4], "the detection exactly at the radius is kept");
+        // No LiDAR at all: every static detection goes, every moving one stays.
+        let mut alone = radar.clone();
+        drop_radar_clutter(&[], &mut alone, &cfg);
+        assert!(alone.iter().all(|p| p[4].abs() > cfg.max_speed_mps));
+        assert_eq!(alone.len(), radar.iter().filter(|p| p[4].abs() > cfg.max_speed_mps).count());
+    }
+
+    #[test]
+    fn radar_clutter_needs_the_lidar_background_and_sane_values() {
+        let mut input = crate::presets::default_input();
+        assert!(input.validate().is_ok());
+        input.background = None;
+        let e = input.validate().unwrap_err().to_string();
+        assert!(e.contains("input.radar_clutter needs input.background"), "{e}");
+        let mut input = crate::presets::default_input();
+        input.radar_clutter = Some(RadarClutterConfig { lidar_radius_m: 0.0, ..RadarClutterConfig::default() });
+        let e = input.validate().unwrap_err().to_string();
+        assert!(e.contains("input.radar_clutter.lidar_radius_m = 0"), "{e}");
+        input.radar_clutter = Some(RadarClutterConfig { max_speed_mps: f32::NAN, ..RadarClutterConfig::default() });
+        let e = input.validate().unwrap_err().to_string();
+        assert!(e.contains("input.radar_clutter.max_speed_mps = NaN"), "{e}");
     }
 }

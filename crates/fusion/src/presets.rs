@@ -17,9 +17,14 @@ fn block(stride: usize, channels: usize, layers: usize) -> BlockConfig {
     BlockConfig { stride, channels, layers }
 }
 
-/// What every preset reads: LiDAR without its static background, one radar sweep.
+/// What every preset reads: LiDAR without its static background, one radar sweep without its
+/// static clutter.
 pub fn default_input() -> InputConfig {
-    InputConfig { background: Some(BackgroundConfig::default()), ..InputConfig::default() }
+    InputConfig {
+        background: Some(BackgroundConfig::default()),
+        radar_clutter: Some(crate::data::RadarClutterConfig::default()),
+        ..InputConfig::default()
+    }
 }
 
 /// `centerpoint`: PointPillars' pillar encoder (32 channels), a backbone at strides 2/4/8

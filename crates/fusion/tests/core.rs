@@ -19,6 +19,7 @@ fn small(name: &str) -> DetectorConfig {
     let mut c = Registry::with_builtin().preset(name).unwrap().detector.clone();
     c.grid = BevGrid { half_extent_m: 12.8, cell_m: 0.8, max_pillars: 2000, ..BevGrid::default() };
     c.input.background = None;
+    c.input.radar_clutter = None;
     c
 }
 

@@ -67,8 +67,12 @@ fn radar_sweeps_stack_with_their_time_lags() {
     w.finish().unwrap();
     let ds = Dataset::open(dir.path(), "v1.0-trainval").unwrap();
     let load = |k: usize| {
-        let (frames, stats) =
-            load_split(&ds, "val", &LoadOptions { background: None, radar_sweeps: k, max_sweep_lag_s: 0.5 }).unwrap();
+        let (frames, stats) = load_split(
+            &ds,
+            "val",
+            &LoadOptions { background: None, radar_sweeps: k, max_sweep_lag_s: 0.5, radar_clutter: None },
+        )
+        .unwrap();
         (frames, stats)
     };
     // One sweep: the key frame's own, lag 0; key frames only, with their LiDAR.
@@ -91,7 +95,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
     assert_eq!(f6[2].radar.iter().map(|p| p[3]).collect::<Vec<_>>(), vec![15.0]);
     assert_eq!(s4.older_sweep_points, 4);
     // One frame alone is the split's frame at that index, sweeps and all; past the end, none.
-    let opts = LoadOptions { background: None, radar_sweeps: 4, max_sweep_lag_s: 0.5 };
+    let opts = LoadOptions { background: None, radar_sweeps: 4, max_sweep_lag_s: 0.5, radar_clutter: None };
     for (i, f) in f4.iter().enumerate() {
         let one = load_split_frame(&ds, "val", &opts, i).unwrap().unwrap();
         assert_eq!((&one.sample_token, &one.lidar, &one.radar), (&f.sample_token, &f.lidar, &f.radar));
