@@ -52,10 +52,10 @@
 //!   plateau at 12,000 (four times longer gained +0.043 over two seeds), and a higher peak rate
 //!   does not close the gap (1.2e-2: 0.719, 2e-2: 0.721), nor does dropping rotation and flip
 //!   augmentation (rare classes collapse). With radar clutter removed it trains at about 70
-//!   samples/s, so its default is the same shape over 18,000 samples (4.3 min): 0.763 and
-//!   0.731 on two seeds, and four times longer still gains +0.035 on average, so on two cores
-//!   the fusion preset stops a little short of its plateau; the study's learning curves say how
-//!   far;
+//!   samples/s, so its default is the same shape over 18,000 samples (4.3 min): 0.740 mAP on
+//!   average over four seeds, and four times longer still gains +0.036 (+0.029 to +0.044, mostly
+//!   bus, truck and golf cart), so on two cores the fusion preset stops a little short of its
+//!   plateau; the study's learning curves say how far;
 //! - **operators fixed**: `GatedChannel` gates each channel (it computed one scalar per
 //!   modality), and seeded initialisation no longer overrides the weighted operator's α = 0.5.
 
