@@ -12,7 +12,7 @@ use crate::error::DatasetError;
 use crate::traffic::{ActorState, Traffic, TrafficConfig};
 use crate::writer::{Annotation, FrameData, RadarSweep, SceneData};
 use glam::Vec3;
-use hilo_raycast::{Actor, ActorSet, HitTarget, Ray, Scene, World};
+use hilo_raycast::{ActorSet, HitTarget, Ray, Scene, World};
 use hilo_sensor_models::{SensorPose, SensorSpec, simulate_lidar, simulate_radar};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -211,10 +211,6 @@ pub fn scene_start_us(id: &SceneId) -> u64 {
     1_767_225_600_000_000 + id.stream() * 3_600_000_000
 }
 
-fn actor_of(a: &ActorState) -> Actor {
-    Actor::from_box(a.id, a.class, a.box3).with_velocity(a.velocity_mps.extend(0.0))
-}
-
 /// nuScenes visibility level (1..=4) of a box seen from the LiDAR positions.
 fn visibility(world: &World, actors: &ActorSet, a: &ActorState, eyes: &[Vec3]) -> u8 {
     if eyes.is_empty() {
@@ -291,7 +287,7 @@ pub fn simulate_scene_with(
         let f = m / per_key;
         if key || has_radar {
             let states = traffic.snapshot();
-            let set = ActorSet::new(states.iter().map(actor_of).collect())
+            let set = ActorSet::new(states.iter().map(ActorState::actor).collect())
                 .map_err(|e| DatasetError::Invalid(format!("scene {} sweep {m}: {e}", id.name())))?;
             let mut lidar = Vec::new();
             let mut radar = Vec::new();

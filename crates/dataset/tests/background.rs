@@ -6,8 +6,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use hilo_dataset::background::{BackgroundConfig, BackgroundModel};
-use hilo_dataset::traffic::{Traffic, TrafficConfig};
-use hilo_raycast::{Actor, ActorSet, QueryRegion, Ray, Scene, World};
+use hilo_dataset::traffic::{ActorState, Traffic, TrafficConfig};
+use hilo_raycast::{ActorSet, QueryRegion, Ray, Scene, World};
 use hilo_sensor_models::lidar::PointSource;
 use hilo_sensor_models::pose::spherical_dir;
 use hilo_sensor_models::{Catalog, LidarSpec, SensorPose, simulate_lidar};
@@ -33,12 +33,7 @@ fn frames(
     let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &TrafficConfig::default(), seed).unwrap();
     (0..n)
         .map(|k| {
-            let actors: Vec<Actor> = traffic
-                .snapshot()
-                .iter()
-                .map(|a| Actor::from_box(a.id, a.class, a.box3).with_velocity(a.velocity_mps.extend(0.0)))
-                .collect();
-            let set = ActorSet::new(actors).unwrap();
+            let set = ActorSet::new(traffic.snapshot().iter().map(ActorState::actor).collect()).unwrap();
             let scan = simulate_lidar(spec, pose, world, Some(&set), seed * 1000 + k as u64).unwrap();
             for _ in 0..every {
                 traffic.step();

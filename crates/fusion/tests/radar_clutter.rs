@@ -7,9 +7,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use hilo_dataset::background::{BackgroundConfig, BackgroundModel};
-use hilo_dataset::traffic::{Traffic, TrafficConfig};
+use hilo_dataset::traffic::{ActorState, Traffic, TrafficConfig};
 use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, drop_radar_clutter};
-use hilo_raycast::{Actor, ActorSet, QueryRegion, Scene, World};
+use hilo_raycast::{ActorSet, QueryRegion, Scene, World};
 use hilo_sensor_models::lidar::PointSource;
 use hilo_sensor_models::{Catalog, SensorPose, simulate_lidar, simulate_radar};
 use std::collections::BTreeMap;
@@ -35,12 +35,7 @@ fn frames(scene: &Scene, world: &World, seed: u64, n: usize, every: usize) -> Ve
     let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &TrafficConfig::default(), seed).unwrap();
     (0..n)
         .map(|k| {
-            let actors: Vec<Actor> = traffic
-                .snapshot()
-                .iter()
-                .map(|a| Actor::from_box(a.id, a.class, a.box3).with_velocity(a.velocity_mps.extend(0.0)))
-                .collect();
-            let set = ActorSet::new(actors).unwrap();
+            let set = ActorSet::new(traffic.snapshot().iter().map(ActorState::actor).collect()).unwrap();
             let frame_seed = seed * 1000 + k as u64;
             let l = simulate_lidar(lidar, &lp, world, Some(&set), frame_seed).unwrap();
             let r = simulate_radar(radar, &rp, world, Some(&set), frame_seed).unwrap();

@@ -313,6 +313,14 @@ pub struct ActorState {
     pub route: Option<RouteProgress>,
 }
 
+impl ActorState {
+    /// The road user as the ray engine sees it: its box, moving at its velocity (on the ground
+    /// plane), for simulating sensors.
+    pub fn actor(&self) -> hilo_raycast::Actor {
+        hilo_raycast::Actor::from_box(self.id, self.class, self.box3).with_velocity(self.velocity_mps.extend(0.0))
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RouteProgress {
     pub approach: usize,
