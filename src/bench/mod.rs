@@ -511,6 +511,8 @@ pub struct TrainRow {
     pub background_removed: bool,
     /// Radar static clutter dropped (fusion presets only).
     pub radar_clutter_removed: bool,
+    /// Rare road users pasted into training frames ([`hilo_fusion::paste`]).
+    pub ground_truth_paste: bool,
     pub batch: usize,
     pub steps: usize,
     pub samples_per_s: f64,
@@ -571,6 +573,8 @@ pub fn train(
                     det_cfg.input.radar_clutter = None;
                 }
                 ("radar_clutter", _) if v == false => det_cfg.input.radar_clutter = None,
+                ("paste", _) if v == false => cfg.paste = None,
+                ("paste", _) if v == true => cfg.paste = Some(Default::default()),
                 ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
                 ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
                 ("head_dilation", Some(n)) => {
@@ -580,7 +584,7 @@ pub fn train(
                 }
                 ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
                 _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, radar_sweeps=K, batch=N, head_dilation=N, layers=N)"
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, head_dilation=N, layers=N)"
                 ),
             }
         }
@@ -610,9 +614,14 @@ pub fn train(
             let mut pillars = 0usize;
             let (mut l0, mut head) = (0usize, 0usize);
             let n = 8.min(frames.len() / cfg.batch.max(1)).max(1);
+            let paste = hilo_fusion::train::paste_db(&frames, &cfg)?;
             for k in 0..n {
-                let chunk = &frames[k * cfg.batch..((k + 1) * cfg.batch).min(frames.len())];
-                let b = hilo_fusion::detector::HostBatch::new(&det_cfg, chunk, det.uses_radar(), 0);
+                let mut chunk = frames[k * cfg.batch..((k + 1) * cfg.batch).min(frames.len())].to_vec();
+                if let Some(db) = &paste {
+                    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(k as u64);
+                    chunk = chunk.iter().map(|f| db.paste(f, &mut rng)).collect();
+                }
+                let b = hilo_fusion::detector::HostBatch::new(&det_cfg, &chunk, det.uses_radar(), 0);
                 pillars += b.lidar.count() + b.radar.count();
                 if let Some(h) = &b.sparse {
                     l0 += h.sites[0].len();
@@ -626,6 +635,7 @@ pub fn train(
             layout: if det_cfg.sparse.is_some() { "sparse" } else { "dense" },
             background_removed: det_cfg.input.background.is_some(),
             radar_clutter_removed: det_cfg.input.radar_clutter.is_some() && det.uses_radar(),
+            ground_truth_paste: cfg.paste.is_some(),
             batch: cfg.batch,
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
@@ -654,11 +664,12 @@ impl TrainReport {
         );
         for r in &self.presets {
             println!(
-                "{} ({}, background {}{}): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
+                "{} ({}, background {}{}{}): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
                 r.preset,
                 r.layout,
                 if r.background_removed { "removed" } else { "kept" },
                 if r.radar_clutter_removed { ", radar clutter removed" } else { "" },
+                if r.ground_truth_paste { ", ground-truth paste" } else { "" },
                 r.samples_per_s,
                 r.forward_gflop_per_step,
                 r.achieved_gflops,

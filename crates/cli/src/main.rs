@@ -148,7 +148,8 @@ enum BenchCommand {
         #[arg(long, default_value_t = 40)]
         steps: usize,
         /// A lever turned off or changed, for a before/after row: `layout=dense`,
-        /// `background=false`, `radar_sweeps=K`, `batch=N` (repeatable).
+        /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`,
+        /// `batch=N` (repeatable).
         #[arg(long = "variant", value_parser = parse_variant)]
         variants: Vec<(String, serde_json::Value)>,
         #[arg(long)]

@@ -121,6 +121,11 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
             100.0 * stats.radar_clutter_points as f64 / (stats.radar_clutter_points + stats.radar_points) as f64
         );
     }
+    if let Some(db) = hilo_fusion::train::paste_db(&frames, &cfg).context("train.paste")? {
+        let held: Vec<String> =
+            db.counts().iter().map(|(c, n)| format!("{} {n}", hilo_fusion::data::CLASSES[*c].name())).collect();
+        eprintln!("ground-truth paste: instances to paste from the training frames: {}", held.join(", "));
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut bar = crate::progress::Reporter::new();
     let label = format!("train {}", det.name);

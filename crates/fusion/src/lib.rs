@@ -72,6 +72,7 @@ pub mod infer;
 pub mod layout;
 pub mod loss;
 pub mod modules;
+pub mod paste;
 pub mod presets;
 pub mod targets;
 pub mod train;

@@ -10,6 +10,7 @@ use crate::data::{Augmentation, Frame};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
 use crate::error::{FusionError, Result};
 use crate::fusion::Registry;
+use crate::paste::{PasteConfig, PasteDb};
 use candle_core::{Device, Tensor, Var};
 use hilo_dataset::background::BackgroundModel;
 use rand::SeedableRng;
@@ -40,6 +41,10 @@ pub struct TrainConfig {
     /// learning curves; each a multiple of `batch`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub keep: Vec<usize>,
+    /// Ground-truth paste of rare classes ([`crate::paste`]; on by default); none (`null`):
+    /// frames as loaded, as runs saved before the field existed read it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paste: Option<PasteConfig>,
 }
 
 /// How training frames are drawn.
@@ -106,6 +111,7 @@ impl Default for TrainConfig {
             checkpoint_steps: 50,
             sampling: Sampling::Uniform,
             keep: Vec::new(),
+            paste: Some(PasteConfig::default()),
         }
     }
 }
@@ -295,7 +301,13 @@ pub struct StepReport {
 /// The frames of step `step`: a deterministic shuffle per epoch of `epoch` (frame indices, see
 /// [`epoch_frames`]), augmented with a per-sample seed, so that resuming at any step sees
 /// exactly what an uninterrupted run sees.
-fn step_frames(frames: &[Frame], epoch: &[usize], cfg: &TrainConfig, step: usize) -> Vec<Frame> {
+fn step_frames(
+    frames: &[Frame],
+    epoch: &[usize],
+    cfg: &TrainConfig,
+    step: usize,
+    paste: Option<&PasteDb>,
+) -> Vec<Frame> {
     let n = epoch.len().max(1);
     let mut out = Vec::with_capacity(cfg.batch);
     for i in 0..cfg.batch {
@@ -308,9 +320,24 @@ fn step_frames(frames: &[Frame], epoch: &[usize], cfg: &TrainConfig, step: usize
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
             cfg.seed.wrapping_add(1 + k as u64).wrapping_mul(0xbf58_476d_1ce4_e5b9),
         );
-        out.push(cfg.augmentation.apply(&frames[order[pos]], &mut rng));
+        let frame = &frames[order[pos]];
+        match paste {
+            // A stream of its own, so that the augmentation draws stay those of a run without.
+            Some(db) => {
+                let mut prng = rand_chacha::ChaCha8Rng::seed_from_u64(
+                    cfg.seed.wrapping_add(1 + k as u64).wrapping_mul(0x94d0_49bb_1331_11eb),
+                );
+                out.push(cfg.augmentation.apply(&db.paste(frame, &mut prng), &mut rng));
+            }
+            None => out.push(cfg.augmentation.apply(frame, &mut rng)),
+        }
     }
     out
+}
+
+/// The paste database of a schedule that pastes, cut from its training frames.
+pub fn paste_db(frames: &[Frame], cfg: &TrainConfig) -> Result<Option<PasteDb>> {
+    cfg.paste.as_ref().map(|p| PasteDb::build(frames, p)).transpose()
 }
 
 /// The seed of step `step`'s pillar sampling.
@@ -356,6 +383,7 @@ pub fn train(
             if background.is_some() { "" } else { "not " }
         )));
     }
+    let paste = paste_db(frames, cfg)?;
     let mut det = Detector::new(det_cfg, registry, device, cfg.seed)?;
     std::fs::create_dir_all(run).map_err(|e| FusionError::Io { path: run.to_path_buf(), message: e.to_string() })?;
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
@@ -408,11 +436,15 @@ pub fn train(
     let seconds_before = info.seconds;
     std::thread::scope(|scope| -> Result<()> {
         let (tx, rx) = std::sync::mpsc::sync_channel::<HostBatch>(2);
-        let epoch = &epoch;
+        let (epoch, paste) = (&epoch, paste.as_ref());
         scope.spawn(move || {
             for step in start..steps {
-                let b =
-                    HostBatch::new(det_cfg, &step_frames(frames, epoch, cfg, step), with_radar, step_seed(cfg, step));
+                let b = HostBatch::new(
+                    det_cfg,
+                    &step_frames(frames, epoch, cfg, step, paste),
+                    with_radar,
+                    step_seed(cfg, step),
+                );
                 if tx.send(b).is_err() {
                     return;
                 }
@@ -536,11 +568,17 @@ pub struct StepTimes {
 pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: usize) -> Result<StepTimes> {
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
+    let paste = paste_db(frames, cfg)?;
     let mut t = StepTimes { steps, ..StepTimes::default() };
     let with_radar = det.uses_radar();
     for step in 0..steps {
         let t0 = std::time::Instant::now();
-        let batch = HostBatch::new(&det.cfg, &step_frames(frames, &epoch, cfg, step), with_radar, step_seed(cfg, step));
+        let batch = HostBatch::new(
+            &det.cfg,
+            &step_frames(frames, &epoch, cfg, step, paste.as_ref()),
+            with_radar,
+            step_seed(cfg, step),
+        );
         t.data_s += t0.elapsed().as_secs_f64();
         let t1 = std::time::Instant::now();
         let heads = det.forward_timed(&batch, true, Some(&mut t.forward))?;
