@@ -244,6 +244,14 @@ mod tests {
         )
         .unwrap();
         assert_eq!((c.samples, c.batch, c.lr_max, c.augmentation.flip_p), (preset.samples, preset.batch, 0.001, 0.0));
+        assert_eq!(c.paste, preset.paste, "the preset's paste is kept");
+        assert!(preset.paste.is_some());
+        // `null` turns ground-truth paste off; a field of its own changes only that field.
+        assert_eq!(schedule(&preset, &serde_json::json!({ "paste": null })).unwrap().paste, None);
+        let fill = schedule(&preset, &serde_json::json!({ "paste": { "fill": { "bus": 4 } } })).unwrap().paste.unwrap();
+        assert_eq!((fill.fill.len(), fill.min_lidar_points), (1, 5));
+        let bad = schedule(&preset, &serde_json::json!({ "paste": { "margin": 1 } })).unwrap_err();
+        assert!(format!("{bad:#}").contains("margin"), "{bad:#}");
         let bad = schedule(&preset, &serde_json::json!({ "sampels": 10 })).unwrap_err();
         assert!(format!("{bad:#}").contains("sampels"), "{bad:#}");
         assert!(schedule(&preset, &serde_json::json!([1, 2])).is_err());

@@ -41,6 +41,13 @@
 //! - **radar sweeps**: fusion presets can read the last K radar sweeps with a time-lag feature;
 //!   measured at 6,000 class-balanced samples K = 1 (mAP 0.656) was not beaten by K = 3 (0.628) or
 //!   K = 5 (0.631) and costs least, so K = 1 is the default;
+//! - **ground-truth paste** ([`paste`], on in the default schedule): buses, trucks, golf carts
+//!   and motorcycles of the training frames are cut out with their LiDAR and radar points and
+//!   pasted, where they stood, into other training frames (filled up to 2, 2, 3 and 2 per frame,
+//!   never overlapping a box). The rig never moves, so a pasted instance's points are what the rig
+//!   measured at that place. This is what brought the fused preset to its plateau: the large
+//!   vehicles it learned last are now in every step (`lirafusion-like`, 18,000 samples: 0.763 →
+//!   0.822 on seed 0, 0.731 → 0.817 on seed 1; `centerpoint`, 12,000: 0.744 → 0.760);
 //! - **class-balanced sampling** ([`train::Sampling::ClassBalanced`], CBGS-like frame resampling)
 //!   is an option: it helps short schedules (6,000 samples: 0.683 against 0.644 uniform) and
 //!   not long ones (12,000: 0.725 against 0.744), so the presets' default schedule is uniform;
