@@ -46,23 +46,25 @@
 //!   pasted, where they stood, into other training frames (filled up to 2, 2, 3 and 2 per frame,
 //!   never overlapping a box). The rig never moves, so a pasted instance's points are what the rig
 //!   measured at that place. This is what brought the fused preset to its plateau: the large
-//!   vehicles it learned last are now in every step (`lirafusion-like`, 18,000 samples: 0.763 →
-//!   0.822 on seed 0, 0.731 → 0.817 on seed 1; `centerpoint`, 12,000: 0.744 → 0.760);
+//!   vehicles it learned last are now in every step (`lirafusion-like`, 18,000 samples: 0.740 →
+//!   0.810 mAP on average over four seeds, bus +0.11 and truck +0.08 on seed 0; `centerpoint`,
+//!   12,000: 0.744 → 0.760), for 9–21% fewer samples per second;
 //! - **class-balanced sampling** ([`train::Sampling::ClassBalanced`], CBGS-like frame resampling)
 //!   is an option: it helps short schedules (6,000 samples: 0.683 against 0.644 uniform) and
 //!   not long ones (12,000: 0.725 against 0.744), so the presets' default schedule is uniform;
 //! - **default schedule** ([`train::TrainConfig::default`]): 12,000 samples in batches of 2,
-//!   one-cycle to 6e-3. The learning curve of `centerpoint` on the default dataset (1.5k 0.407,
-//!   3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattens at 12,000: four times longer
-//!   gains 0.016, in about 2.5 min here. Larger batches at higher rates (4 at 1e-2: 0.710, 8 at
-//!   2e-2: 0.718) did not beat batches of 2. The two-branch `lirafusion-like` was *not* at its
-//!   plateau at 12,000 (four times longer gained +0.043 over two seeds), and a higher peak rate
-//!   does not close the gap (1.2e-2: 0.719, 2e-2: 0.721), nor does dropping rotation and flip
-//!   augmentation (rare classes collapse). With radar clutter removed it trains at about 70
-//!   samples/s, so its default is the same shape over 18,000 samples (4.3 min): 0.740 mAP on
-//!   average over four seeds, and four times longer still gains +0.036 (+0.029 to +0.044, mostly
-//!   bus, truck and golf cart), so on two cores the fusion preset stops a little short of its
-//!   plateau; the study's learning curves say how far;
+//!   one-cycle to 6e-3, ground-truth paste; `centerpoint` and `lirafusion-like` the same over
+//!   18,000 samples ([`presets::plateau_schedule`]). Before paste, `centerpoint`'s curve (1.5k
+//!   0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
+//!   `lirafusion-like` stopped short of its plateau at 18,000 (four times longer gained +0.036 on
+//!   average over four seeds, mostly the large vehicles); larger batches at higher rates (4 at
+//!   1e-2: 0.710, 8 at 2e-2: 0.718), a higher peak rate (1.2e-2: 0.719, 2e-2: 0.721) and dropping
+//!   rotation and flip augmentation (rare classes collapse) did not help. With paste
+//!   `lirafusion-like` reaches 0.810 at 18,000 samples (four seeds) and four times longer gains
+//!   +0.026, +0.002, +0.013 (three seeds): within 0.03 of its plateau. `centerpoint` gains more
+//!   from paste at long schedules than at short ones (0.778 at 18,000, 0.825 at 48,000): four
+//!   times longer still gains +0.040, so on two cores the LiDAR-only preset now stops short of
+//!   its (higher) plateau; the study's learning curves say how far;
 //! - **operators fixed**: `GatedChannel` gates each channel (it computed one scalar per
 //!   modality), and seeded initialisation no longer overrides the weighted operator's α = 0.5.
 
