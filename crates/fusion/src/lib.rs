@@ -63,8 +63,8 @@
 //!   `lirafusion-like` reaches 0.810 at 18,000 samples (four seeds) and four times longer gains
 //!   +0.026, +0.002, +0.013 (three seeds): within 0.03 of its plateau. `centerpoint` gains more
 //!   from paste at long schedules than at short ones (0.778 at 18,000, 0.825 at 48,000): four
-//!   times longer still gains +0.040, so on two cores the LiDAR-only preset now stops short of
-//!   its (higher) plateau; the study's learning curves say how far;
+//!   times longer gains +0.040 and +0.028 on two seeds, so on two cores the LiDAR-only preset
+//!   stops at the edge of its (higher) plateau; the study's learning curves say how far;
 //! - **operators fixed**: `GatedChannel` gates each channel (it computed one scalar per
 //!   modality), and seeded initialisation no longer overrides the weighted operator's α = 0.5.
 
