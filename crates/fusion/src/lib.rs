@@ -61,7 +61,8 @@
 //!   1e-2: 0.710, 8 at 2e-2: 0.718), a higher peak rate (1.2e-2: 0.719, 2e-2: 0.721) and dropping
 //!   rotation and flip augmentation (rare classes collapse) did not help. With paste
 //!   `lirafusion-like` reaches 0.810 at 18,000 samples (four seeds) and four times longer gains
-//!   +0.026, +0.002, +0.013 (three seeds): within 0.03 of its plateau. `centerpoint` gains more
+//!   +0.026, +0.002, +0.048, +0.013 (+0.022 on average): within 0.03 of its plateau on three
+//!   seeds of four. `centerpoint` gains more
 //!   from paste at long schedules than at short ones (0.778 at 18,000, 0.825 at 48,000): four
 //!   times longer gains +0.040 and +0.028 on two seeds, so on two cores the LiDAR-only preset
 //!   stops at the edge of its (higher) plateau; the study's learning curves say how far;
