@@ -6,20 +6,15 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod common;
+use common::pose;
 use hilo_dataset::background::{BackgroundConfig, BackgroundModel};
 use hilo_dataset::traffic::{ActorState, Traffic, TrafficConfig};
 use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, drop_radar_clutter};
 use hilo_raycast::{ActorSet, QueryRegion, Scene, World};
 use hilo_sensor_models::lidar::PointSource;
-use hilo_sensor_models::{Catalog, SensorPose, simulate_lidar, simulate_radar};
+use hilo_sensor_models::{Catalog, simulate_lidar, simulate_radar};
 use std::collections::BTreeMap;
-
-fn pose(scene: &Scene, mount: usize, above_arm_m: f32) -> SensorPose {
-    let m = &scene.mounts[mount];
-    let p = m.base + m.arm_dir * (0.5 * m.arm_length_m);
-    let yaw = (-p.y).atan2(-p.x);
-    SensorPose::new(p.extend(scene.ground.z_m + m.arm_height_m + above_arm_m), yaw, 10f32.to_radians(), 0.0)
-}
 
 struct Frame {
     lidar: Vec<hilo_core::LidarPoint>,
