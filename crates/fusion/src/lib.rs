@@ -69,6 +69,7 @@
 //! - **operators fixed**: `GatedChannel` gates each channel (it computed one scalar per
 //!   modality), and seeded initialisation no longer overrides the weighted operator's α = 0.5.
 
+pub mod bnrelu;
 pub mod conformance;
 pub mod conv;
 pub mod data;

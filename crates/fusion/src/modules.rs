@@ -7,7 +7,7 @@ use crate::data::Pillars;
 use crate::error::{FusionError, Result};
 use crate::layout::{At, Layout};
 use candle_core::{Device, Tensor};
-use candle_nn::{BatchNorm, BatchNormConfig, Linear, Module, ModuleT, VarBuilder};
+use candle_nn::{BatchNorm, BatchNormConfig, Linear, Module, VarBuilder};
 use serde::{Deserialize, Serialize};
 
 /// BatchNorm with momentum 0.1: training runs are short (hundreds of steps), and with 0.01 the
@@ -76,7 +76,7 @@ impl PillarNet {
         let (n, npp, f) = p.features.dims3()?;
         crate::conv::count_matmul(n * npp, f, self.channels);
         let x = self.linear.forward(&p.features.reshape((n * npp, f))?)?;
-        let x = self.bn.forward_t(&x, train)?.relu()?;
+        let x = crate::bnrelu::bn_relu(&self.bn, &x, train)?;
         let x = x.reshape((n, npp, self.channels))?.broadcast_mul(&p.mask)?;
         Ok(x.max(1)?)
     }
@@ -123,12 +123,12 @@ impl ConvBn {
 
     /// At one place of a layout (a 3×3 stride-1 or 1×1 convolution when sparse).
     pub fn forward(&self, x: &Tensor, at: At, train: bool) -> Result<Tensor> {
-        Ok(self.bn.forward_t(&self.conv.forward(x, at)?, train)?.relu()?)
+        crate::bnrelu::bn_relu(&self.bn, &self.conv.forward(x, at)?, train)
     }
 
     /// Sparse rows along a rulebook (any stride).
     pub fn forward_rules(&self, x: &Tensor, rules: &Tensor, train: bool) -> Result<Tensor> {
-        Ok(self.bn.forward_t(&self.conv.forward_rules(x, rules)?, train)?.relu()?)
+        crate::bnrelu::bn_relu(&self.bn, &self.conv.forward_rules(x, rules)?, train)
     }
 }
 

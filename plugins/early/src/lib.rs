@@ -17,7 +17,7 @@
 //! the radar points only, so LiDAR and radar meet only in the middle stage.
 
 use candle_core::Tensor;
-use candle_nn::{BatchNorm, Linear, Module, ModuleT, VarBuilder};
+use candle_nn::{BatchNorm, Linear, Module, VarBuilder};
 use hilo_fusion::data::LIDAR_FEATURES;
 use hilo_fusion::detector::without_early;
 use hilo_fusion::fuse::{BevFuse, FuseOp};
@@ -205,7 +205,7 @@ impl EarlyFusion {
         let rows: Vec<Tensor> =
             parts.iter().map(|(x, _)| x.reshape(((), JOINT))).collect::<candle_core::Result<_>>()?;
         let sizes: Vec<usize> = rows.iter().map(|r| r.dim(0)).collect::<candle_core::Result<_>>()?;
-        let all = self.bn.forward_t(&self.linear.forward(&Tensor::cat(&rows, 0)?)?, train)?.relu()?;
+        let all = hilo_fusion::bnrelu::bn_relu(&self.bn, &self.linear.forward(&Tensor::cat(&rows, 0)?)?, train)?;
         let mut offset = 0;
         let mut acc = layout.zeros(c, &dev)?;
         let mut count = layout.zeros(1, &dev)?;
@@ -250,6 +250,7 @@ impl Fusion for EarlyFusion {
 mod tests {
     use super::*;
     use candle_core::{DType, Device};
+    use candle_nn::ModuleT;
     use hilo_fusion::conformance::small_grid;
     use hilo_fusion::data::pillarize;
     use hilo_fusion::layout::Layout;
