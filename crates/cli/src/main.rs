@@ -184,30 +184,44 @@ pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
     }
 }
 
-/// Set by [`one_thread_per_training`] in the process it starts: the size of rayon's global pool.
+/// Set by [`pin_candle_threads`] in the process it starts: the size of rayon's global pool.
 const GLOBAL_THREADS: &str = "HILO_GLOBAL_THREADS";
 
-/// `hilo study` trains several detectors at once, each on a one-thread pool. candle's matrix
-/// product sizes its parallelism from `RAYON_NUM_THREADS`, not from the pool it runs in, so
-/// without the variable every training split each product over all cores and two trainings ran
-/// about 3× slower per step than with it (29 against 89 steps/s on two cores, default profile).
-/// A running process cannot set its own environment without `unsafe`, so a study run without
-/// the variable starts itself once more with `RAYON_NUM_THREADS=1` (for candle) and
-/// [`GLOBAL_THREADS`] = every core (for rayon's global pool: placement and simulation), and
-/// exits with its status. Returns `None` where nothing was started.
-fn one_thread_per_training(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
-    let Command::Study(args) = &cli.command else { return Ok(None) };
-    if args.stage.is_some() || args.workflow.is_some() || std::env::var_os("RAYON_NUM_THREADS").is_some() {
+/// candle sizes its parallelism from `RAYON_NUM_THREADS`, and without the variable it works the
+/// number out again from `/proc/cpuinfo` and `/sys` on every matrix product: about 50 files
+/// opened per training step, 8% of a `centerpoint` step on two cores (2,000 samples: 33–35 s
+/// with the variable, 37 s without, idle). A running process cannot set its own environment
+/// without `unsafe`, so a command that runs candle without the variable starts itself once more
+/// with it and exits with its status:
+/// - `hilo train`, `hilo detect`, `hilo bench train`: `RAYON_NUM_THREADS` = every core.
+/// - `hilo study` trains several detectors at once, each on a one-thread pool, and candle's
+///   matrix product sizes its parallelism from the variable, not from the pool it runs in (two
+///   trainings ran about 3× slower per step without it: 29 against 89 steps/s on two cores,
+///   default profile): `RAYON_NUM_THREADS=1` (for candle) and [`GLOBAL_THREADS`] = every core
+///   (for rayon's global pool: placement and simulation). Not for a single stage or a workflow
+///   file, whose engine sets its own.
+///
+/// Returns `None` where nothing was started.
+fn pin_candle_threads(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
+    if std::env::var_os("RAYON_NUM_THREADS").is_some() {
         return Ok(None);
     }
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let exe = std::env::current_exe().context("finding the hilo binary to run the study")?;
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()).to_string();
+    let env: Vec<(&str, &str)> = match &cli.command {
+        Command::Study(args) if args.stage.is_none() && args.workflow.is_none() => {
+            vec![("RAYON_NUM_THREADS", "1"), (GLOBAL_THREADS, &cores)]
+        }
+        Command::Train(_) | Command::Detect(_) | Command::Bench { command: BenchCommand::Train { .. } } => {
+            vec![("RAYON_NUM_THREADS", &cores)]
+        }
+        _ => return Ok(None),
+    };
+    let exe = std::env::current_exe().context("finding the hilo binary to run the command")?;
     let status = std::process::Command::new(exe)
         .args(std::env::args_os().skip(1))
-        .env("RAYON_NUM_THREADS", "1")
-        .env(GLOBAL_THREADS, cores.to_string())
+        .envs(env)
         .status()
-        .context("starting the study")?;
+        .context("starting hilo with RAYON_NUM_THREADS set")?;
     Ok(Some(status))
 }
 
@@ -216,7 +230,7 @@ fn main() -> Result<()> {
     if let Some(n) = std::env::var(GLOBAL_THREADS).ok().and_then(|v| v.parse::<usize>().ok()) {
         // Explicit, so it wins over RAYON_NUM_THREADS (which is for candle here).
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("starting the thread pool")?;
-    } else if let Some(status) = one_thread_per_training(&cli)? {
+    } else if let Some(status) = pin_candle_threads(&cli)? {
         std::process::exit(status.code().unwrap_or(1));
     }
     match cli.command {
