@@ -168,6 +168,7 @@ mod tests {
     use super::*;
     use candle_core::Device;
     use candle_nn::{VarBuilder, VarMap};
+    use rand::SeedableRng;
 
     fn bn(varmap: &VarMap, c: usize) -> BatchNorm {
         let vb = VarBuilder::from_varmap(varmap, DType::F32, &Device::Cpu);
@@ -191,13 +192,18 @@ mod tests {
     fn fused_equals_candle_batch_norm_and_relu() {
         let dev = Device::Cpu;
         let (n, c) = (1037usize, 7usize);
-        let base = Tensor::randn(0f32, 1.0, (n, c), &dev).unwrap();
+        // Seeded: candle's CPU `randn` cannot be.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut normal = |len: usize| -> Vec<f32> {
+            (0..len).map(|_| rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng)).collect()
+        };
+        let base = Tensor::from_vec(normal(n * c), (n, c), &dev).unwrap();
         let offset = Tensor::from_slice(&[0f32, 100.0, -3.0, 0.0, 1e3, 0.5, 0.0], (1, c), &dev).unwrap();
         let mut x = base.broadcast_add(&offset).unwrap();
         // Channel 3 constant.
         let col = Tensor::full(2.5f32, (n, 1), &dev).unwrap();
         x = Tensor::cat(&[&x.narrow(1, 0, 3).unwrap(), &col, &x.narrow(1, 4, 3).unwrap()], 1).unwrap();
-        let up = Tensor::randn(0f32, 1.0, (n, c), &dev).unwrap();
+        let up = Tensor::from_vec(normal(n * c), (n, c), &dev).unwrap();
         let (vm_a, vm_b) = (VarMap::new(), VarMap::new());
         let (bn_a, bn_b) = (bn(&vm_a, c), bn(&vm_b, c));
         // Non-trivial γ, β (some γ negative), identical in both.
@@ -214,7 +220,9 @@ mod tests {
         let xb = Var::from_tensor(&x).unwrap();
         let ya = bn_relu(&bn_a, xa.as_tensor(), true).unwrap();
         let yb = bn_b.forward_t(xb.as_tensor(), true).unwrap().relu().unwrap();
-        close(&ya, &yb, 1e-4, "output");
+        // candle-nn's statistics are f32: at a common offset of 1e3 its normalised values carry
+        // about 5e-4 relative error (ours are f64), so the outputs agree to 2e-3, as the gradients.
+        close(&ya, &yb, 2e-3, "output");
         close(bn_a.running_mean(), bn_b.running_mean(), 1e-5, "running mean");
         close(bn_a.running_var(), bn_b.running_var(), 1e-4, "running var");
         let ga = (&ya * &up).unwrap().sum_all().unwrap().backward().unwrap();
