@@ -614,8 +614,9 @@ mod tests {
             assert!(rules.contains(&NONE) && rules.iter().any(|&r| r != NONE));
             let r = u32s(rules, &dev).unwrap();
             let n_out = rules.len() / 9;
-            let up = Tensor::randn(0f32, 1.0, (n_out, co), &dev).unwrap();
-            let w0 = Tensor::randn(0f32, 1.0, (co, ci, 3, 3), &dev).unwrap();
+            let mut uniform = |len: usize| -> Vec<f32> { (0..len).map(|_| rng.random_range(-1.0..1.0)).collect() };
+            let up = Tensor::from_vec(uniform(n_out * co), (n_out, co), &dev).unwrap();
+            let w0 = Tensor::from_vec(uniform(co * ci * 9), (co, ci, 3, 3), &dev).unwrap();
             let run = |fused: bool| {
                 let xv = candle_core::Var::from_vec(x.clone(), (n0, ci), &dev).unwrap();
                 let wv = candle_core::Var::from_tensor(&w0.copy().unwrap()).unwrap();
