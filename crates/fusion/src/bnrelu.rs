@@ -12,6 +12,7 @@
 //! batch of one row it is candle-nn's `BatchNorm` followed by `relu`, which the tests compare
 //! it with (values, running statistics and all three gradients).
 
+use crate::conv::{f32_slice, with_cpu};
 use crate::error::Result;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor, Var};
 use candle_nn::{BatchNorm, ModuleT};
@@ -30,7 +31,7 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
     };
     let x = x.contiguous()?;
     let (n, c) = x.dims2()?;
-    let (mean, var) = moments(&host(&x)?, c);
+    let (mean, var) = with_cpu::<f32, _>(&x, OP, |v| Ok(moments(v, c)))?;
     // Running statistics as candle-nn updates them: biased mean, unbiased variance.
     let m = bn.momentum();
     let dev = x.device();
@@ -72,13 +73,7 @@ struct BnRelu {
 }
 
 const ROWS: usize = 512;
-
-fn slice<'a>(s: &'a CpuStorage, l: &Layout) -> candle_core::Result<&'a [f32]> {
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
-        None => candle_core::bail!("hilo-bn-relu: contiguous inputs only"),
-    }
-}
+const OP: &str = "hilo-bn-relu";
 
 fn host(t: &Tensor) -> candle_core::Result<Vec<f32>> {
     t.flatten_all()?.to_vec1::<f32>()
@@ -86,7 +81,7 @@ fn host(t: &Tensor) -> candle_core::Result<Vec<f32>> {
 
 impl CustomOp3 for BnRelu {
     fn name(&self) -> &'static str {
-        "hilo-bn-relu"
+        OP
     }
 
     fn cpu_fwd(
@@ -98,7 +93,7 @@ impl CustomOp3 for BnRelu {
         bs: &CpuStorage,
         bl: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, gamma, beta) = (slice(xs, xl)?, slice(gs, gl)?, slice(bs, bl)?);
+        let (x, gamma, beta) = (f32_slice(xs, xl, OP)?, f32_slice(gs, gl, OP)?, f32_slice(bs, bl, OP)?);
         let c = self.mean.len();
         // y = max(0, x · a + b) per channel, a = γ · inv, b = β − μ · a.
         let a: Vec<f32> = gamma.iter().zip(&self.inv).map(|(g, i)| g * i).collect();

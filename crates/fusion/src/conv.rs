@@ -80,11 +80,25 @@ pub struct Im2Col(pub Geometry);
 #[derive(Debug, Clone, Copy)]
 pub struct Col2Im(pub Geometry);
 
-fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
+/// The f32 values of a contiguous CPU storage, as a custom op's `cpu_fwd` receives it.
+pub(crate) fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
     let CpuStorage::F32(data) = s else { candle_core::bail!("{op}: f32 tensors only") };
     match l.contiguous_offsets() {
         Some((a, b)) => Ok(&data[a..b]),
         None => candle_core::bail!("{op}: contiguous input only"),
+    }
+}
+
+/// `f` on the values of a contiguous CPU tensor, borrowed rather than copied.
+pub(crate) fn with_cpu<T: candle_core::WithDType, R>(
+    t: &Tensor,
+    op: &str,
+    f: impl FnOnce(&[T]) -> candle_core::Result<R>,
+) -> candle_core::Result<R> {
+    let (storage, layout) = t.storage_and_layout();
+    match (&*storage, layout.contiguous_offsets()) {
+        (candle_core::Storage::Cpu(s), Some((a, b))) => f(&s.as_slice::<T>()?[a..b]),
+        _ => candle_core::bail!("{op}: a contiguous CPU tensor expected"),
     }
 }
 

@@ -15,13 +15,14 @@
 //! tensor of the graph, whose zeroed gradient candle's backward pass would otherwise allocate,
 //! add into and scatter); on other devices it is candle's own `index_select`, `matmul` and
 //! `index_add` ([`gather_conv_composite`], the reference the fused node is tested against), so
-//! the sparse path runs unchanged on any device. Submanifold convolutions (stride 1) keep their sites; BatchNorm normalises over
-//! the sites only, so empty cells stay exactly empty, unlike a dense network where BatchNorm and
-//! its bias make every empty cell a value.
+//! the sparse path runs unchanged on any device. Submanifold convolutions (stride 1) keep their
+//! sites; BatchNorm normalises over the sites only, so empty cells stay exactly empty, unlike a
+//! dense network where BatchNorm and its bias make every empty cell a value.
 //!
 //! Rulebooks are built on the host, on the batch thread, from the occupied cells ([`SparseHost`]),
 //! and moved to the device once per batch ([`Layout::new`]).
 
+use crate::conv::{f32_slice, with_cpu};
 use crate::error::Result;
 use candle_core::{CpuStorage, CustomOp2, DType, Device, Tensor};
 use rayon::prelude::*;
@@ -388,20 +389,11 @@ pub struct GatherConv {
     kernel: std::sync::OnceLock<Tensor>,
 }
 
-fn with_cpu<T: candle_core::WithDType, R>(
-    t: &Tensor,
-    f: impl FnOnce(&[T]) -> candle_core::Result<R>,
-) -> candle_core::Result<R> {
-    let (storage, layout) = t.storage_and_layout();
-    match (&*storage, layout.contiguous_offsets()) {
-        (candle_core::Storage::Cpu(s), Some((a, b))) => f(&s.as_slice::<T>()?[a..b]),
-        _ => candle_core::bail!("hilo-gather-conv: a contiguous CPU tensor expected"),
-    }
-}
-
 /// A kernel `(C_out, C_in, taps)` on the host as the `(taps · C_in, C_out)` matrix the gather
 /// multiplies ([`kernel_matrix`]), written in order. A plain loop: candle's strided copy of the
 /// permuted kernel cost 4% of a training step.
+const OP: &str = "hilo-gather-conv";
+
 fn kernel_rows(w: &[f32], co: usize, ci: usize, taps: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(w.len());
     for t in 0..taps {
@@ -471,7 +463,7 @@ fn scatter_rows(g: &[f32], ci: usize, rules: &[u32], n_in: usize) -> Vec<f32> {
 
 impl CustomOp2 for GatherConv {
     fn name(&self) -> &'static str {
-        "hilo-gather-conv"
+        OP
     }
 
     fn cpu_fwd(
@@ -481,20 +473,17 @@ impl CustomOp2 for GatherConv {
         ws: &CpuStorage,
         wl: &candle_core::Layout,
     ) -> candle_core::Result<(CpuStorage, candle_core::Shape)> {
-        let (Some((xa, xb)), Some((wa, wb))) = (xl.contiguous_offsets(), wl.contiguous_offsets()) else {
-            candle_core::bail!("hilo-gather-conv: contiguous inputs only")
-        };
+        let (x, w) = (f32_slice(xs, xl, OP)?, f32_slice(ws, wl, OP)?);
         let (_, ci) = xl.shape().dims2()?;
         let (co, wci, kh, kw) = wl.shape().dims4()?;
         if wci != ci {
             candle_core::bail!("hilo-gather-conv: input has {ci} channels, kernel {wci}")
         }
         let taps = kh * kw;
-        let x = &xs.as_slice::<f32>()?[xa..xb];
-        let cols = with_cpu::<u32, _>(&self.rules, |rules| Ok(gather_rows(x, ci, rules)))?;
+        let cols = with_cpu::<u32, _>(&self.rules, OP, |rules| Ok(gather_rows(x, ci, rules)))?;
         let n_out = cols.len() / (taps * ci).max(1);
         let dev = candle_core::Device::Cpu;
-        let wm = Tensor::from_vec(kernel_rows(&ws.as_slice::<f32>()?[wa..wb], co, ci, taps), (taps * ci, co), &dev)?;
+        let wm = Tensor::from_vec(kernel_rows(w, co, ci, taps), (taps * ci, co), &dev)?;
         let y = Tensor::from_vec(cols, (n_out, taps * ci), &dev)?.matmul(&wm)?;
         // A node's forward pass runs once; should it run again, the kernel is the same.
         let _ = self.kernel.set(wm);
@@ -516,21 +505,22 @@ impl CustomOp2 for GatherConv {
         let wm = match self.kernel.get() {
             Some(wm) => wm.clone(),
             None => Tensor::from_vec(
-                with_cpu::<f32, _>(&w, |wv| Ok(kernel_rows(wv, co, ci, taps)))?,
+                with_cpu::<f32, _>(&w, OP, |wv| Ok(kernel_rows(wv, co, ci, taps)))?,
                 (taps * ci, co),
                 x.device(),
             )?,
         };
         let gcols = grad.matmul(&wm.t()?)?;
-        let gx = with_cpu::<u32, _>(&self.rules, |rules| {
-            with_cpu::<f32, _>(&gcols, |g| Ok(scatter_rows(g, ci, rules, n_in)))
+        let gx = with_cpu::<u32, _>(&self.rules, OP, |rules| {
+            with_cpu::<f32, _>(&gcols, OP, |g| Ok(scatter_rows(g, ci, rules, n_in)))
         })?;
         // d kernel = colsᵀ · grad, the gather recomputed rather than kept from the forward pass.
-        let cols =
-            with_cpu::<u32, _>(&self.rules, |rules| with_cpu::<f32, _>(&x, |xv| Ok(gather_rows(xv, ci, rules))))?;
+        let cols = with_cpu::<u32, _>(&self.rules, OP, |rules| {
+            with_cpu::<f32, _>(&x, OP, |xv| Ok(gather_rows(xv, ci, rules)))
+        })?;
         let n_out = cols.len() / (taps * ci).max(1);
         let gwm = Tensor::from_vec(cols, (n_out, taps * ci), x.device())?.t()?.matmul(&grad)?;
-        let gw = with_cpu::<f32, _>(&gwm, |m| Ok(kernel_from_rows(m, co, ci, taps)))?;
+        let gw = with_cpu::<f32, _>(&gwm, OP, |m| Ok(kernel_from_rows(m, co, ci, taps)))?;
         let gw = Tensor::from_vec(gw, (co, ci, kh, kw), x.device())?;
         Ok((Some(Tensor::from_vec(gx, (n_in, ci), x.device())?), Some(gw)))
     }
@@ -542,6 +532,21 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
+    /// Sites from `occupied` random cells of a `b × cells²` grid (3 levels), and uniform
+    /// features `(N_0, ci)` at level 0, drawn in that order from `rng`.
+    fn random_sites(
+        rng: &mut rand_chacha::ChaCha8Rng,
+        b: usize,
+        cells: usize,
+        occupied: usize,
+        ci: usize,
+    ) -> (SparseHost, Vec<f32>) {
+        let cells_hit: Vec<u32> = (0..occupied).map(|_| rng.random_range(0..(b * cells * cells) as u32)).collect();
+        let h = SparseHost::build(cells, b, &cells_hit, 3, 0, 1);
+        let x = (0..h.sites[0].len() * ci).map(|_| rng.random_range(-1.0..1.0)).collect();
+        (h, x)
+    }
+
     /// A sparse convolution equals candle's dense conv2d at the output sites, for stride 1 and
     /// stride 2, when the dense input is zero off the input sites.
     #[test]
@@ -549,10 +554,8 @@ mod tests {
         let dev = Device::Cpu;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let (b, cells, ci, co) = (2usize, 16usize, 3usize, 4usize);
-        let occupied: Vec<u32> = (0..40).map(|_| rng.random_range(0..(b * cells * cells) as u32)).collect();
-        let h = SparseHost::build(cells, b, &occupied, 3, 0, 1);
+        let (h, x) = random_sites(&mut rng, b, cells, 40, ci);
         let n0 = h.sites[0].len();
-        let x: Vec<f32> = (0..n0 * ci).map(|_| rng.random_range(-1.0..1.0)).collect();
         let xs = Tensor::from_vec(x.clone(), (n0, ci), &dev).unwrap();
         // The dense input: zeros off the sites.
         let mut dense = vec![0f32; b * ci * cells * cells];
@@ -606,10 +609,8 @@ mod tests {
         let dev = Device::Cpu;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let (b, cells, ci, co) = (2usize, 32usize, 5usize, 6usize);
-        let occupied: Vec<u32> = (0..300).map(|_| rng.random_range(0..(b * cells * cells) as u32)).collect();
-        let h = SparseHost::build(cells, b, &occupied, 3, 0, 1);
+        let (h, x) = random_sites(&mut rng, b, cells, 300, ci);
         let n0 = h.sites[0].len();
-        let x: Vec<f32> = (0..n0 * ci).map(|_| rng.random_range(-1.0..1.0)).collect();
         for rules in [&h.subm[0], &h.down[1]] {
             assert!(rules.contains(&NONE) && rules.iter().any(|&r| r != NONE));
             let r = u32s(rules, &dev).unwrap();
