@@ -12,7 +12,7 @@ use anyhow::{Context, Result};
 
 /// candle allocates a fresh buffer for every tensor operation; glibc's malloc hands large ones
 /// back to the kernel on free, so a training step spent about as long in page faults as in
-/// arithmetic. mimalloc keeps them.
+/// arithmetic. mimalloc keeps them (for good in the commands that train: [`PURGE_DELAY`]).
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use clap::{Parser, Subcommand};
@@ -184,44 +184,63 @@ pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
     }
 }
 
-/// Set by [`pin_candle_threads`] in the process it starts: the size of rayon's global pool.
+/// Set by [`pin_training_env`] in the process it starts: the size of rayon's global pool.
 const GLOBAL_THREADS: &str = "HILO_GLOBAL_THREADS";
 
-/// candle sizes its parallelism from `RAYON_NUM_THREADS`, and without the variable it works the
-/// number out again from `/proc/cpuinfo` and `/sys` on every matrix product: about 50 files
-/// opened per training step, 8% of a `centerpoint` step on two cores (2,000 samples: 33–35 s
-/// with the variable, 37 s without, idle). A running process cannot set its own environment
-/// without `unsafe`, so a command that runs candle without the variable starts itself once more
-/// with it and exits with its status:
-/// - `hilo train`, `hilo detect`, `hilo bench train`: `RAYON_NUM_THREADS` = every core.
-/// - `hilo study` trains several detectors at once, each on a one-thread pool, and candle's
+/// mimalloc hands memory it has not reused for a second back to the kernel, and a training
+/// step then faults the pages of its next buffers in again (the kernel's page clearing was 4% of
+/// a `lirafusion-like` step's profile). `-1` keeps what the process once held: 18,000 samples
+/// of `lirafusion-like` took 289.5 s instead of 303.0 s, idle, to the same weights; the price is a
+/// resident size that stays at its peak (the frames held in memory dominate it anyway).
+const PURGE_DELAY: (&str, &str) = ("MIMALLOC_PURGE_DELAY", "-1");
+
+/// The environment candle and the allocator read once, set before they start. A running
+/// process cannot set its own environment without `unsafe`, so a command that trains or
+/// detects and finds a variable unset starts itself once more with it (a value the user set is
+/// kept) and exits with its status:
+/// - `RAYON_NUM_THREADS`: candle sizes its parallelism from it, and without it works the number
+///   out again from `/proc/cpuinfo` and `/sys` on every matrix product: about 50 files opened
+///   per training step, 8% of a `centerpoint` step on two cores (2,000 samples: 33–35 s with the
+///   variable, 37 s without, idle). `hilo train`, `hilo detect`, `hilo bench train`: every
+///   core. `hilo study` trains several detectors at once, each on a one-thread pool, and candle's
 ///   matrix product sizes its parallelism from the variable, not from the pool it runs in (two
 ///   trainings ran about 3× slower per step without it: 29 against 89 steps/s on two cores,
 ///   default profile): `RAYON_NUM_THREADS=1` (for candle) and [`GLOBAL_THREADS`] = every core
 ///   (for rayon's global pool: placement and simulation). Not for a single stage or a workflow
 ///   file, whose engine sets its own.
+/// - [`PURGE_DELAY`], for the same commands and a single study stage.
 ///
 /// Returns `None` where nothing was started.
-fn pin_candle_threads(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
-    if std::env::var_os("RAYON_NUM_THREADS").is_some() {
-        return Ok(None);
-    }
+fn pin_training_env(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get()).to_string();
-    let env: Vec<(&str, &str)> = match &cli.command {
+    let threads: Vec<(&str, &str)> = match &cli.command {
         Command::Study(args) if args.stage.is_none() && args.workflow.is_none() => {
             vec![("RAYON_NUM_THREADS", "1"), (GLOBAL_THREADS, &cores)]
         }
         Command::Train(_) | Command::Detect(_) | Command::Bench { command: BenchCommand::Train { .. } } => {
             vec![("RAYON_NUM_THREADS", &cores)]
         }
+        // A single stage, run by a workflow engine that sets the threads itself.
+        Command::Study(args) if args.stage.is_some() => Vec::new(),
         _ => return Ok(None),
     };
+    let mut env = Vec::new();
+    if std::env::var_os("RAYON_NUM_THREADS").is_none() {
+        env.extend(threads);
+    }
+    if std::env::var_os(PURGE_DELAY.0).is_none() {
+        env.push(PURGE_DELAY);
+    }
+    if env.is_empty() {
+        return Ok(None);
+    }
     let exe = std::env::current_exe().context("finding the hilo binary to run the command")?;
+    let names: Vec<&str> = env.iter().map(|(k, _)| *k).collect();
     let status = std::process::Command::new(exe)
         .args(std::env::args_os().skip(1))
-        .envs(env)
+        .envs(env.iter().copied())
         .status()
-        .context("starting hilo with RAYON_NUM_THREADS set")?;
+        .with_context(|| format!("starting hilo with {} set", names.join(", ")))?;
     Ok(Some(status))
 }
 
@@ -230,7 +249,7 @@ fn main() -> Result<()> {
     if let Some(n) = std::env::var(GLOBAL_THREADS).ok().and_then(|v| v.parse::<usize>().ok()) {
         // Explicit, so it wins over RAYON_NUM_THREADS (which is for candle here).
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("starting the thread pool")?;
-    } else if let Some(status) = pin_candle_threads(&cli)? {
+    } else if let Some(status) = pin_training_env(&cli)? {
         std::process::exit(status.code().unwrap_or(1));
     }
     match cli.command {
