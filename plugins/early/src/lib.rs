@@ -149,10 +149,10 @@ pub fn lirafusion_like() -> DetectorConfig {
 }
 
 /// `lirafusion-like`'s default schedule: [`hilo_fusion::presets::plateau_schedule`] (18,000
-/// samples). With radar clutter removed and ground-truth paste it trains at about 60 samples/s
-/// on two cores (checkpoints included), so 18,000 samples take 297.8 s, just within a
-/// five-minute budget; four times longer gains +0.022 mAP on average over four seeds (the
-/// README's learning curve).
+/// samples). With radar clutter removed and ground-truth paste it trains at 56–62 samples/s
+/// on two cores (checkpoints included), so 18,000 samples take 289.5–323.5 s idle depending on
+/// the machine (within five minutes on the faster ones, 24 s over on the slowest measured); four
+/// times longer gains +0.022 mAP on average over four seeds (the README's learning curve).
 pub fn lirafusion_like_schedule() -> TrainConfig {
     hilo_fusion::presets::plateau_schedule()
 }
