@@ -499,7 +499,8 @@ pub fn eval(frames: usize, max_pred: usize, repeats: usize) -> Result<EvalReport
 pub struct TrainReport {
     pub data: String,
     pub threads: usize,
-    /// candle's f32 matrix product on 2048 × 2048 matrices, GFLOP/s (median of 5).
+    /// candle's f32 matrix product on 2048 × 2048 matrices, one per thread at once, GFLOP/s
+    /// summed over the threads (each the median of 5).
     pub matmul_peak_gflops: f64,
     pub presets: Vec<TrainRow>,
 }
@@ -514,9 +515,16 @@ pub struct TrainRow {
     /// Rare road users pasted into training frames ([`hilo_fusion::paste`]).
     pub ground_truth_paste: bool,
     pub batch: usize,
+    /// Data-parallel replicas of a step, and how many of them ran at once here.
+    pub replicas: usize,
+    pub replicas_at_once: usize,
     pub steps: usize,
+    /// From the wall time of the steps as training runs them (replicas side by side where
+    /// there are threads for them; data prepared on another thread, so not counted unless it
+    /// is slower).
     pub samples_per_s: f64,
-    /// Milliseconds per step of each part (data: on the batch thread when training).
+    /// Milliseconds per step of each part (data: on the batch thread when training), each
+    /// measured alone: with several replicas, summed over them, one after the other.
     pub ms: BTreeMap<&'static str, f64>,
     /// Forward FLOPs of convolutions and pillar layers per step; a training step is counted as
     /// three times that (forward, and the two products of the backward pass).
@@ -529,20 +537,26 @@ pub struct TrainRow {
     pub head_sites_per_batch: f64,
 }
 
+/// candle's f32 matrix product on 2048 × 2048 matrices, one per thread of rayon's pool at once
+/// (the way a training's replicas use the cores: candle itself on one thread each, as
+/// `hilo bench train` runs it), GFLOP/s summed over the threads, each the median of 5 products.
 fn matmul_peak() -> Result<f64> {
-    let dev = candle_core::Device::Cpu;
     let n = 2048;
-    let a = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
-    let b = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
-    let _ = a.matmul(&b)?;
-    let mut t = Vec::new();
-    for _ in 0..5 {
-        let s = Instant::now();
-        let c = a.matmul(&b)?;
-        let _ = c.sum_all()?.to_scalar::<f32>()?;
-        t.push(s.elapsed().as_secs_f64());
-    }
-    Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9)
+    let rates = rayon::broadcast(|_| -> candle_core::Result<f64> {
+        let dev = candle_core::Device::Cpu;
+        let a = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
+        let b = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
+        let _ = a.matmul(&b)?;
+        let mut t = Vec::new();
+        for _ in 0..5 {
+            let s = Instant::now();
+            let c = a.matmul(&b)?;
+            let _ = c.sum_all()?.to_scalar::<f32>()?;
+            t.push(s.elapsed().as_secs_f64());
+        }
+        Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9)
+    });
+    Ok(rates.into_iter().collect::<candle_core::Result<Vec<f64>>>()?.iter().sum())
 }
 
 pub fn train(
@@ -577,6 +591,7 @@ pub fn train(
                 ("paste", _) if v == true => cfg.paste = Some(Default::default()),
                 ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
                 ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
+                ("replicas", Some(n)) if n >= 1 => cfg.replicas = n as usize,
                 ("head_dilation", Some(n)) => {
                     if let Some(sp) = det_cfg.sparse.as_mut() {
                         sp.head_dilation = n as usize;
@@ -584,9 +599,12 @@ pub fn train(
                 }
                 ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
                 _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, head_dilation=N, layers=N)"
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, head_dilation=N, layers=N)"
                 ),
             }
+        }
+        if cfg.replicas == 0 || !cfg.batch.is_multiple_of(cfg.replicas) {
+            anyhow::bail!("{name}: replicas = {} must divide batch = {}", cfg.replicas, cfg.batch);
         }
         let background = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
@@ -596,6 +614,7 @@ pub fn train(
         hilo_fusion::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
         let t = hilo_fusion::train::time_steps(&det, &frames, &cfg, steps)?;
         let flops = hilo_fusion::conv::FORWARD_FLOPS.load(Ordering::Relaxed) as f64 / steps as f64;
+        let wall_s = hilo_fusion::train::time_replicated_steps(&det, &frames, &cfg, steps)?;
         let per = |s: f64| 1e3 * s / steps as f64;
         let ms = BTreeMap::from([
             ("data (host: augmentation, pillars, layout, targets)", per(t.data_s)),
@@ -607,8 +626,9 @@ pub fn train(
             ("backward", per(t.backward_s)),
             ("optimizer", per(t.optimizer_s)),
         ]);
-        // Training overlaps data preparation with the step; the step itself is the rest.
-        let step_s = t.total_s.max(t.data_s) / steps as f64;
+        // Training overlaps data preparation with the step; the step itself (replicas side by
+        // side) is the rest.
+        let step_s = wall_s.max(t.data_s) / steps as f64;
         let achieved = 3.0 * flops / step_s / 1e9;
         let occupancy = {
             let mut pillars = 0usize;
@@ -637,6 +657,8 @@ pub fn train(
             radar_clutter_removed: det_cfg.input.radar_clutter.is_some() && det.uses_radar(),
             ground_truth_paste: cfg.paste.is_some(),
             batch: cfg.batch,
+            replicas: cfg.replicas,
+            replicas_at_once: hilo_fusion::train::ReplicaPools::new(cfg.replicas)?.parallel(),
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
             ms,
@@ -664,12 +686,15 @@ impl TrainReport {
         );
         for r in &self.presets {
             println!(
-                "{} ({}, background {}{}{}): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
+                "{} ({}, background {}{}{}, batch {} in {} replicas, {} at once): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
                 r.preset,
                 r.layout,
                 if r.background_removed { "removed" } else { "kept" },
                 if r.radar_clutter_removed { ", radar clutter removed" } else { "" },
                 if r.ground_truth_paste { ", ground-truth paste" } else { "" },
+                r.batch,
+                r.replicas,
+                r.replicas_at_once,
                 r.samples_per_s,
                 r.forward_gflop_per_step,
                 r.achieved_gflops,

@@ -149,7 +149,7 @@ enum BenchCommand {
         steps: usize,
         /// A lever turned off or changed, for a before/after row: `layout=dense`,
         /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`,
-        /// `batch=N` (repeatable).
+        /// `batch=N`, `replicas=N`, `head_dilation=N`, `layers=N` (repeatable).
         #[arg(long = "variant", value_parser = parse_variant)]
         variants: Vec<(String, serde_json::Value)>,
         #[arg(long)]
@@ -201,13 +201,16 @@ const PURGE_DELAY: (&str, &str) = ("MIMALLOC_PURGE_DELAY", "-1");
 /// - `RAYON_NUM_THREADS`: candle sizes its parallelism from it, and without it works the number
 ///   out again from `/proc/cpuinfo` and `/sys` on every matrix product: about 50 files opened
 ///   per training step, 8% of a `centerpoint` step on two cores (2,000 samples: 33–35 s with the
-///   variable, 37 s without, idle). `hilo train`, `hilo detect`, `hilo bench train`: every
-///   core. `hilo study` trains several detectors at once, each on a one-thread pool, and candle's
-///   matrix product sizes its parallelism from the variable, not from the pool it runs in (two
-///   trainings ran about 3× slower per step without it: 29 against 89 steps/s on two cores,
-///   default profile): `RAYON_NUM_THREADS=1` (for candle) and [`GLOBAL_THREADS`] = every core
-///   (for rayon's global pool: placement and simulation). Not for a single stage or a workflow
-///   file, whose engine sets its own.
+///   variable, 37 s without, idle). `hilo detect`: every core. candle's matrix product sizes
+///   its parallelism from the variable, not from the pool it runs in, and splitting a product
+///   for threads a one-thread pool does not have is slow: `hilo study` trains several detectors
+///   at once, each on a one-thread pool (two trainings ran about 3× slower per step without the
+///   setting: 29 against 89 steps/s on two cores, default profile), and `hilo train` and `hilo
+///   bench train` run a schedule's data-parallel replicas each on a one-thread pool (two
+///   `centerpoint` replicas: 54 samples/s with candle on two threads, 106 with one). These get
+///   `RAYON_NUM_THREADS=1` (for candle) and [`GLOBAL_THREADS`] = every core (for rayon's global
+///   pool: the replicas, the custom kernels of a one-replica schedule, placement and
+///   simulation). Not for a single stage or a workflow file, whose engine sets its own.
 /// - [`PURGE_DELAY`], for the same commands and a single study stage.
 ///
 /// Returns `None` where nothing was started.
@@ -217,9 +220,10 @@ fn pin_training_env(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
         Command::Study(args) if args.stage.is_none() && args.workflow.is_none() => {
             vec![("RAYON_NUM_THREADS", "1"), (GLOBAL_THREADS, &cores)]
         }
-        Command::Train(_) | Command::Detect(_) | Command::Bench { command: BenchCommand::Train { .. } } => {
-            vec![("RAYON_NUM_THREADS", &cores)]
+        Command::Train(_) | Command::Bench { command: BenchCommand::Train { .. } } => {
+            vec![("RAYON_NUM_THREADS", "1"), (GLOBAL_THREADS, &cores)]
         }
+        Command::Detect(_) => vec![("RAYON_NUM_THREADS", &cores)],
         // A single stage, run by a workflow engine that sets the threads itself.
         Command::Study(args) if args.stage.is_some() => Vec::new(),
         _ => return Ok(None),

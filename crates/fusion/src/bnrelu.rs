@@ -11,12 +11,56 @@
 //! pass is the closed form of BatchNorm's gradient. On other devices, in evaluation, or with a
 //! batch of one row it is candle-nn's `BatchNorm` followed by `relu`, which the tests compare
 //! it with (values, running statistics and all three gradients).
+//!
+//! Data-parallel training ([`crate::train`]) runs the replicas of a step side by side on one set
+//! of variables; only the first replica updates the running statistics (as multi-GPU training
+//! without synchronised BatchNorm keeps the first rank's), the others run inside
+//! [`with_running_stats_frozen`]. A plugin that normalises with candle-nn's `BatchNorm`
+//! directly instead of [`bn_relu`] (or the modules built on it) updates them from every
+//! replica, in whatever order the threads reach them.
 
 use crate::conv::{f32_slice, with_cpu};
 use crate::error::Result;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor, Var};
 use candle_nn::{BatchNorm, ModuleT};
 use rayon::prelude::*;
+use std::cell::Cell;
+
+thread_local! {
+    static FROZEN: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Runs `f` with [`bn_relu`]'s running statistics left as they are on this thread (training
+/// still normalises with the batch statistics): the data-parallel replicas after the first.
+pub fn with_running_stats_frozen<T>(f: impl FnOnce() -> T) -> T {
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            FROZEN.with(|c| c.set(self.0));
+        }
+    }
+    let _restore = Restore(FROZEN.with(|c| c.replace(true)));
+    f()
+}
+
+fn frozen() -> bool {
+    FROZEN.with(Cell::get)
+}
+
+/// candle-nn's training pass (batch statistics over every dimension but the channels, dim 1)
+/// without its update of the running statistics.
+fn batch_norm_frozen(bn: &BatchNorm, x: &Tensor) -> Result<Tensor> {
+    let xt = x.transpose(0, 1)?;
+    let dims = xt.dims().to_vec();
+    let flat = xt.flatten_from(1)?.contiguous()?;
+    let centred = flat.broadcast_sub(&flat.mean_keepdim(1)?)?;
+    let var = centred.sqr()?.mean_keepdim(1)?;
+    let mut y = centred.broadcast_div(&(var + bn.eps())?.sqrt()?)?;
+    if let Some((gamma, beta)) = bn.weight_and_bias() {
+        y = y.broadcast_mul(&gamma.unsqueeze(1)?)?.broadcast_add(&beta.unsqueeze(1)?)?;
+    }
+    Ok(y.reshape(dims.as_slice())?.transpose(0, 1)?)
+}
 
 /// `relu(bn(x))` for rows `x` `(N, C)`; in training on the CPU one fused node.
 pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
@@ -27,6 +71,9 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
         && x.dim(0)? > 1
         && bn.weight_and_bias().is_some();
     let Some((gamma, beta)) = bn.weight_and_bias().filter(|_| fused) else {
+        if train && frozen() {
+            return Ok(batch_norm_frozen(bn, x)?.relu()?);
+        }
         return Ok(bn.forward_t(x, train)?.relu()?);
     };
     let x = x.contiguous()?;
@@ -37,10 +84,12 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
     let dev = x.device();
     let mean_t = Tensor::from_slice(&mean, c, dev)?;
     let var_t = Tensor::from_slice(&var, c, dev)?;
-    let running_mean = ((bn.running_mean() * (1.0 - m))? + (&mean_t * m)?)?;
-    let running_var = ((bn.running_var() * (1.0 - m))? + (&var_t * (m * n as f64 / (n as f64 - 1.0)))?)?;
-    Var::from_tensor(bn.running_mean())?.set(&running_mean)?;
-    Var::from_tensor(bn.running_var())?.set(&running_var)?;
+    if !frozen() {
+        let running_mean = ((bn.running_mean() * (1.0 - m))? + (&mean_t * m)?)?;
+        let running_var = ((bn.running_var() * (1.0 - m))? + (&var_t * (m * n as f64 / (n as f64 - 1.0)))?)?;
+        Var::from_tensor(bn.running_mean())?.set(&running_mean)?;
+        Var::from_tensor(bn.running_var())?.set(&running_var)?;
+    }
     let inv: Vec<f32> = var.iter().map(|v| 1.0 / (v + bn.eps() as f32).sqrt()).collect();
     Ok(x.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, BnRelu { mean, inv })?)
 }
@@ -227,5 +276,32 @@ mod tests {
         close(ga.get(b).unwrap(), gb.get(b2).unwrap(), 2e-3, "dbeta");
         // Evaluation takes candle-nn's path with the running statistics.
         close(&bn_relu(&bn_a, &x, false).unwrap(), &bn_b.forward_t(&x, false).unwrap().relu().unwrap(), 1e-5, "eval");
+    }
+
+    /// A replica after the first (statistics frozen) gives the training pass's output, on the
+    /// fused path (rows) and on candle-nn's (a dense `(B, C, H, W)` map), and leaves the running
+    /// statistics as they were; outside the frozen scope they update again.
+    #[test]
+    fn frozen_replicas_normalise_alike_and_keep_the_statistics() {
+        let dev = Device::Cpu;
+        let c = 5usize;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for dims in [vec![41usize, c], vec![2, c, 3, 4]] {
+            let n: usize = dims.iter().product();
+            let v: Vec<f32> = (0..n)
+                .map(|_| 3.0 * rand_distr::Distribution::<f32>::sample(&rand_distr::StandardNormal, &mut rng) + 1.0)
+                .collect();
+            let x = Tensor::from_vec(v, dims.as_slice(), &dev).unwrap();
+            let (vm_a, vm_b) = (VarMap::new(), VarMap::new());
+            let (bn_a, bn_b) = (bn(&vm_a, c), bn(&vm_b, c));
+            let before = (host(bn_a.running_mean()).unwrap(), host(bn_a.running_var()).unwrap());
+            let frozen = with_running_stats_frozen(|| bn_relu(&bn_a, &x, true)).unwrap();
+            assert!(!super::frozen(), "the scope restores the flag");
+            assert_eq!(host(bn_a.running_mean()).unwrap(), before.0, "{dims:?}: running mean kept");
+            assert_eq!(host(bn_a.running_var()).unwrap(), before.1, "{dims:?}: running var kept");
+            let live = bn_relu(&bn_b, &x, true).unwrap();
+            close(&frozen, &live, 1e-4, "frozen output");
+            assert_ne!(host(bn_b.running_mean()).unwrap(), before.0, "{dims:?}: unfrozen updates");
+        }
     }
 }

@@ -45,6 +45,22 @@ pub struct TrainConfig {
     /// frames as loaded, as runs saved before the field existed read it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub paste: Option<PasteConfig>,
+    /// Data-parallel replicas of each step: the batch is split into this many equal parts, each
+    /// run forward and backward on its own (on a core of its own when the thread pool has one,
+    /// else one after the other, to the same bytes), with BatchNorm statistics over its part
+    /// (the first replica's running statistics are kept) and the parts' gradients averaged in
+    /// replica order, as multi-GPU training without synchronised BatchNorm does. Divides
+    /// `batch`; 1 (runs saved before the field existed read it) is the plain batch.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub replicas: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn is_one(n: &usize) -> bool {
+    *n == 1
 }
 
 /// How training frames are drawn.
@@ -112,6 +128,7 @@ impl Default for TrainConfig {
             sampling: Sampling::Uniform,
             keep: Vec::new(),
             paste: Some(PasteConfig::default()),
+            replicas: 1,
         }
     }
 }
@@ -154,10 +171,23 @@ impl AdamW {
 
     /// One update; returns the gradient norm before clipping.
     pub fn step(&mut self, grads: &candle_core::backprop::GradStore, lr: f64, clip: f64) -> Result<f64> {
+        let gs = self.gradients(grads);
+        self.step_with(&gs, lr, clip)
+    }
+
+    /// The gradient of each variable in `grads`, in the optimizer's order, detached (gradients,
+    /// moments and updates carry no graph, so nothing accumulates).
+    pub fn gradients(&self, grads: &candle_core::backprop::GradStore) -> Vec<Option<Tensor>> {
+        self.vars.iter().map(|(_, v)| grads.get(v).map(|g| g.detach())).collect()
+    }
+
+    /// One update from gradients in the optimizer's order ([`Self::gradients`]).
+    pub fn step_with(&mut self, gs: &[Option<Tensor>], lr: f64, clip: f64) -> Result<f64> {
+        if gs.len() != self.vars.len() {
+            return Err(FusionError::Config(format!("{} gradients for {} variables", gs.len(), self.vars.len())));
+        }
         let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8f64);
         let mut sq = 0.0f64;
-        // Gradients, moments and updates carry no graph: detached, so nothing accumulates.
-        let gs: Vec<Option<Tensor>> = self.vars.iter().map(|(_, v)| grads.get(v).map(|g| g.detach())).collect();
         for g in gs.iter().flatten() {
             sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
         }
@@ -345,6 +375,165 @@ fn step_seed(cfg: &TrainConfig, step: usize) -> u64 {
     cfg.seed.wrapping_mul(0x2545_f491_4f6c_dd1d) ^ step as u64
 }
 
+/// The seed of replica `r`'s pillar sampling in step `step` (the first replica's is the step's,
+/// so one replica samples as a plain batch does).
+fn replica_seed(cfg: &TrainConfig, step: usize, r: usize) -> u64 {
+    step_seed(cfg, step) ^ (r as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+}
+
+/// The host batches of step `step`'s replicas: the step's frames split in `replicas` equal parts.
+fn replica_batches(
+    det_cfg: &DetectorConfig,
+    frames: &[Frame],
+    cfg: &TrainConfig,
+    step: usize,
+    with_radar: bool,
+) -> Vec<HostBatch> {
+    let per = (cfg.batch / cfg.replicas.max(1)).max(1);
+    frames
+        .chunks(per)
+        .enumerate()
+        .map(|(r, part)| HostBatch::new(det_cfg, part, with_radar, replica_seed(cfg, step, r)))
+        .collect()
+}
+
+/// Where a step's replicas run: one single-thread pool each when the calling pool has a thread
+/// per replica to spare (so a replica's matrix products and kernels stay on its core), else the
+/// calling thread, one replica after the other. The weights do not depend on which.
+#[derive(Debug)]
+pub struct ReplicaPools(Vec<rayon::ThreadPool>);
+
+impl ReplicaPools {
+    /// Pools for `replicas` replicas within the current rayon pool's threads. None when candle
+    /// splits its matrix products across threads itself (`RAYON_NUM_THREADS` unset or above 1):
+    /// a product split for threads a one-thread pool does not have runs about half as fast
+    /// (two `centerpoint` replicas: 54 samples/s so, 106 with `RAYON_NUM_THREADS=1`), slower
+    /// than the replicas one after the other.
+    pub fn new(replicas: usize) -> Result<Self> {
+        let workers = replicas.min(rayon::current_num_threads());
+        if workers < 2 || candle_core::utils::get_num_threads() > 1 {
+            return Ok(Self::sequential());
+        }
+        Self::threads(workers)
+    }
+
+    /// The calling thread, one replica after the other.
+    pub fn sequential() -> Self {
+        ReplicaPools(Vec::new())
+    }
+
+    /// `n` one-thread pools whatever candle's setting (for tests that compare the two ways).
+    pub fn threads(n: usize) -> Result<Self> {
+        (0..n)
+            .map(|_| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(1)
+                    .build()
+                    .map_err(|e| FusionError::Config(format!("starting a replica's thread: {e}")))
+            })
+            .collect::<Result<Vec<_>>>()
+            .map(ReplicaPools)
+    }
+
+    /// How many replicas run at once.
+    pub fn parallel(&self) -> usize {
+        self.0.len().max(1)
+    }
+}
+
+/// One step's losses (means over its replicas) and gradients (averaged over them, in the
+/// optimizer's order).
+#[derive(Debug)]
+pub struct StepPass {
+    pub grads: Vec<Option<Tensor>>,
+    pub total: f32,
+    pub cls: f32,
+    pub reg: f32,
+}
+
+/// Forward and backward passes of one replica; the replicas after the first leave BatchNorm's
+/// running statistics alone.
+fn replica_pass(det: &Detector, opt: &AdamW, batch: &HostBatch, r: usize) -> Result<StepPass> {
+    let pass = || -> Result<StepPass> {
+        let heads = det.forward_heads(batch, true)?;
+        let loss = det.loss_all(&heads, &batch.targets)?;
+        let grads = loss.total.backward()?;
+        Ok(StepPass {
+            grads: opt.gradients(&grads),
+            total: loss.total.to_scalar::<f32>()?,
+            cls: loss.cls,
+            reg: loss.reg,
+        })
+    };
+    if r == 0 { pass() } else { crate::bnrelu::with_running_stats_frozen(pass) }
+}
+
+/// The forward and backward passes of a step's replicas (`batches`, one each), run on `pools`,
+/// with their gradients summed in replica order and divided by their number.
+pub fn step_pass(det: &Detector, opt: &AdamW, batches: &[HostBatch], pools: &ReplicaPools) -> Result<StepPass> {
+    let passes: Vec<StepPass> = if pools.0.is_empty() {
+        batches.iter().enumerate().map(|(r, b)| replica_pass(det, opt, b, r)).collect::<Result<_>>()?
+    } else {
+        let w = pools.0.len();
+        let joined = std::thread::scope(|scope| {
+            let handles: Vec<_> = pools
+                .0
+                .iter()
+                .enumerate()
+                .map(|(k, pool)| {
+                    scope.spawn(move || {
+                        pool.install(|| {
+                            (k..batches.len())
+                                .step_by(w)
+                                .map(|r| (r, replica_pass(det, opt, &batches[r], r)))
+                                .collect::<Vec<_>>()
+                        })
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join()).collect::<Vec<_>>()
+        });
+        let mut slots: Vec<Option<StepPass>> = (0..batches.len()).map(|_| None).collect();
+        for done in joined {
+            let done = done.map_err(|_| FusionError::Config("a replica's thread panicked".into()))?;
+            for (r, pass) in done {
+                slots[r] = Some(pass?);
+            }
+        }
+        slots
+            .into_iter()
+            .map(|p| p.ok_or_else(|| FusionError::Config("a replica did not run".into())))
+            .collect::<Result<_>>()?
+    };
+    average(passes)
+}
+
+/// The replicas' passes combined: gradients summed in replica order and divided by their
+/// number, losses averaged.
+fn average(passes: Vec<StepPass>) -> Result<StepPass> {
+    let n = passes.len();
+    let mut it = passes.into_iter();
+    let mut acc = it.next().ok_or_else(|| FusionError::Config("a step without replicas".into()))?;
+    if n == 1 {
+        return Ok(acc);
+    }
+    for p in it {
+        for (a, g) in acc.grads.iter_mut().zip(p.grads) {
+            *a = match (a.take(), g) {
+                (Some(x), Some(y)) => Some((x + y)?),
+                (x, y) => x.or(y),
+            };
+        }
+        acc.total += p.total;
+        acc.cls += p.cls;
+        acc.reg += p.reg;
+    }
+    let inv = 1.0 / n as f64;
+    acc.grads = acc.grads.into_iter().map(|g| g.map(|g| g * inv).transpose()).collect::<candle_core::Result<_>>()?;
+    let nf = n as f32;
+    Ok(StepPass { total: acc.total / nf, cls: acc.cls / nf, reg: acc.reg / nf, ..acc })
+}
+
 /// Trains (or resumes) a detector in `run` on frames loaded with its input config (and, when it
 /// removes background, the `background` model they were filtered with, kept in the run for
 /// inference). Batches are prepared one step ahead on another thread. `on_step` returning false
@@ -367,6 +556,12 @@ pub fn train(
         return Err(FusionError::Config(format!(
             "train: batch = {} and samples = {} must be positive",
             cfg.batch, cfg.samples
+        )));
+    }
+    if cfg.replicas == 0 || !cfg.batch.is_multiple_of(cfg.replicas) {
+        return Err(FusionError::Config(format!(
+            "train: replicas = {} must be positive and divide batch = {}",
+            cfg.replicas, cfg.batch
         )));
     }
     if let Some(k) = cfg.keep.iter().find(|k| **k % cfg.batch != 0 || **k == 0 || **k > cfg.steps() * cfg.batch) {
@@ -435,30 +630,24 @@ pub fn train(
     let t_run = std::time::Instant::now();
     let seconds_before = info.seconds;
     std::thread::scope(|scope| -> Result<()> {
-        let (tx, rx) = std::sync::mpsc::sync_channel::<HostBatch>(2);
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<HostBatch>>(2);
         let (epoch, paste) = (&epoch, paste.as_ref());
         scope.spawn(move || {
             for step in start..steps {
-                let b = HostBatch::new(
-                    det_cfg,
-                    &step_frames(frames, epoch, cfg, step, paste),
-                    with_radar,
-                    step_seed(cfg, step),
-                );
-                if tx.send(b).is_err() {
+                let frames = step_frames(frames, epoch, cfg, step, paste);
+                if tx.send(replica_batches(det_cfg, &frames, cfg, step, with_radar)).is_err() {
                     return;
                 }
             }
         });
+        let pools = ReplicaPools::new(cfg.replicas)?;
         let mut window = std::time::Instant::now();
         for step in start..steps {
-            let batch = rx.recv().map_err(|_| FusionError::Config("the batch thread stopped".into()))?;
-            let heads = det.forward_heads(&batch, true)?;
-            let loss = det.loss_all(&heads, &batch.targets)?;
-            let grads = loss.total.backward()?;
+            let batches = rx.recv().map_err(|_| FusionError::Config("the batch thread stopped".into()))?;
+            let pass = step_pass(&det, &opt, &batches, &pools)?;
             let lr = cfg.lr(step);
-            opt.step(&grads, lr, cfg.clip_norm)?;
-            let total = loss.total.to_scalar::<f32>()?;
+            opt.step_with(&pass.grads, lr, cfg.clip_norm)?;
+            let total = pass.total;
             if !total.is_finite() {
                 return Err(FusionError::Config(format!("loss is {total} at step {step}")));
             }
@@ -466,16 +655,17 @@ pub fn train(
             window = std::time::Instant::now();
             info.step = step + 1;
             info.samples_seen = info.step * cfg.batch;
-            let dropped_points = batch.lidar.dropped_points + batch.radar.dropped_points;
-            let dropped_pillars = batch.lidar.dropped_pillars + batch.radar.dropped_pillars;
+            let dropped_points: usize = batches.iter().map(|b| b.lidar.dropped_points + b.radar.dropped_points).sum();
+            let dropped_pillars: usize =
+                batches.iter().map(|b| b.lidar.dropped_pillars + b.radar.dropped_pillars).sum();
             info.dropped_points += dropped_points;
             info.dropped_pillars += dropped_pillars;
             let go_on = on_step(&StepReport {
                 step: step + 1,
                 steps,
                 loss: total,
-                cls: loss.cls,
-                reg: loss.reg,
+                cls: pass.cls,
+                reg: pass.reg,
                 lr,
                 samples_per_s: cfg.batch as f64 / dt.max(1e-9),
                 dropped_points,
@@ -564,7 +754,8 @@ pub struct StepTimes {
 }
 
 /// Runs `steps` training steps of a fresh detector on `frames` with every part timed (the batch
-/// built on the same thread, so each part is measured alone). For benchmarks.
+/// built on the same thread, and the replicas one after the other, so each part is measured
+/// alone; with several replicas a part's time is the sum over them). For benchmarks.
 pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: usize) -> Result<StepTimes> {
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
@@ -573,27 +764,54 @@ pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: us
     let with_radar = det.uses_radar();
     for step in 0..steps {
         let t0 = std::time::Instant::now();
-        let batch = HostBatch::new(
-            &det.cfg,
-            &step_frames(frames, &epoch, cfg, step, paste.as_ref()),
-            with_radar,
-            step_seed(cfg, step),
-        );
+        let step_frames = step_frames(frames, &epoch, cfg, step, paste.as_ref());
+        let batches = replica_batches(&det.cfg, &step_frames, cfg, step, with_radar);
         t.data_s += t0.elapsed().as_secs_f64();
         let t1 = std::time::Instant::now();
-        let heads = det.forward_timed(&batch, true, Some(&mut t.forward))?;
+        let mut passes = Vec::with_capacity(batches.len());
+        for (r, batch) in batches.iter().enumerate() {
+            let mut pass = || -> Result<StepPass> {
+                let heads = det.forward_timed(batch, true, Some(&mut t.forward))?;
+                let c = std::time::Instant::now();
+                let loss = det.loss_all(&heads, &batch.targets)?;
+                t.loss_s += c.elapsed().as_secs_f64();
+                let c = std::time::Instant::now();
+                let grads = loss.total.backward()?;
+                t.backward_s += c.elapsed().as_secs_f64();
+                let total = loss.total.to_scalar::<f32>()?;
+                Ok(StepPass { grads: opt.gradients(&grads), total, cls: loss.cls, reg: loss.reg })
+            };
+            passes.push(if r == 0 { pass()? } else { crate::bnrelu::with_running_stats_frozen(pass)? });
+        }
+        let pass = average(passes)?;
         let c = std::time::Instant::now();
-        let loss = det.loss_all(&heads, &batch.targets)?;
-        t.loss_s += c.elapsed().as_secs_f64();
-        let c = std::time::Instant::now();
-        let grads = loss.total.backward()?;
-        t.backward_s += c.elapsed().as_secs_f64();
-        let c = std::time::Instant::now();
-        opt.step(&grads, cfg.lr(step), cfg.clip_norm)?;
+        opt.step_with(&pass.grads, cfg.lr(step), cfg.clip_norm)?;
         t.optimizer_s += c.elapsed().as_secs_f64();
         t.total_s += t1.elapsed().as_secs_f64();
     }
     Ok(t)
+}
+
+/// Wall seconds of `steps` training steps as training runs them (replicas side by side where
+/// the pool has the threads), batches prepared beforehand. For benchmarks.
+pub fn time_replicated_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: usize) -> Result<f64> {
+    let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
+    let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
+    let paste = paste_db(frames, cfg)?;
+    let with_radar = det.uses_radar();
+    let batches: Vec<Vec<HostBatch>> = (0..steps)
+        .map(|step| {
+            let f = step_frames(frames, &epoch, cfg, step, paste.as_ref());
+            replica_batches(&det.cfg, &f, cfg, step, with_radar)
+        })
+        .collect();
+    let pools = ReplicaPools::new(cfg.replicas)?;
+    let t0 = std::time::Instant::now();
+    for (step, b) in batches.iter().enumerate() {
+        let pass = step_pass(det, &opt, b, &pools)?;
+        opt.step_with(&pass.grads, cfg.lr(step), cfg.clip_norm)?;
+    }
+    Ok(t0.elapsed().as_secs_f64())
 }
 
 #[cfg(test)]

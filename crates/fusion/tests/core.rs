@@ -1,5 +1,5 @@
 //! The detector framework: shapes, losses on hard cases, overfitting one batch, checkpoints,
-//! determinism, resume, and bad input.
+//! determinism, resume, data-parallel replicas, and bad input.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -9,7 +9,7 @@ use hilo_fusion::data::{Augmentation, Frame, GtBox};
 use hilo_fusion::detector::{Detector, DetectorConfig, HostBatch};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::loss::{centernet_focal, sigmoid_focal, softplus};
-use hilo_fusion::train::{TrainConfig, train};
+use hilo_fusion::train::{AdamW, ReplicaPools, TrainConfig, step_pass, train};
 use hilo_fusion::{Registry, Stage};
 use rand::{Rng, SeedableRng};
 
@@ -212,6 +212,108 @@ fn checkpoints_reload_bit_identically_and_training_is_deterministic_and_resumes(
     train(d.path(), &cfg, &TrainConfig { seed: 1, ..tc.clone() }, &frames, None, &reg, &Device::Cpu, &mut |_| true)
         .unwrap();
     assert_ne!(w(a.path()), w(d.path()));
+}
+
+/// The running statistics of a detector, by name.
+fn running_stats(det: &Detector) -> Vec<(String, Vec<f32>)> {
+    let data = det.varmap.data().lock().unwrap();
+    let mut v: Vec<(String, Vec<f32>)> = data
+        .iter()
+        .filter(|(k, _)| k.contains("running_"))
+        .map(|(k, t)| (k.clone(), t.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap()))
+        .collect();
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
+/// Data-parallel replicas: the same gradients (bytes) on threads of their own as one after the
+/// other; equal to candle's gradient of the replicas' mean loss taken through one graph (the
+/// oracle, up to the order of summation); BatchNorm's running statistics moved by the first
+/// replica alone; and a schedule with replicas trains deterministically, resumes to the weights
+/// of an uninterrupted run, and differs from the plain batch (per-replica statistics).
+#[test]
+fn replicas_average_gradients_deterministically() {
+    let cfg = small("centerpoint");
+    let reg = Registry::with_builtin();
+    let frames = [
+        frame(4, &[car(3.0, 2.0, 0.4), ped(-5.0, -3.0)]),
+        frame(5, &[car(-6.0, 6.0, 2.0), car(6.0, -7.0, -1.0)]),
+        frame(6, &[ped(1.0, 1.0)]),
+    ];
+    let batches: Vec<HostBatch> = frames
+        .iter()
+        .enumerate()
+        .map(|(r, f)| HostBatch::new(&cfg, std::slice::from_ref(f), false, r as u64))
+        .collect();
+    type Grads = Vec<Option<Vec<f32>>>;
+    let host = |g: &[Option<Tensor>]| -> Grads {
+        g.iter().map(|g| g.as_ref().map(|g| g.flatten_all().unwrap().to_vec1::<f32>().unwrap())).collect()
+    };
+    let run = |pools: &ReplicaPools| {
+        let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+        let opt = AdamW::new(det.trainable(), 0.01).unwrap();
+        let pass = step_pass(&det, &opt, &batches, pools).unwrap();
+        (host(&pass.grads), pass.total, running_stats(&det))
+    };
+    let one_after_other = run(&ReplicaPools::sequential());
+    // Three replicas on two threads: the second thread runs one, the first two.
+    let side_by_side = run(&ReplicaPools::threads(2).unwrap());
+    assert_eq!(one_after_other, side_by_side, "threads change the step");
+
+    // The oracle: each replica's forward pass (the later ones with frozen statistics), the
+    // mean of their losses, one backward pass through candle's autograd.
+    let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+    let opt = AdamW::new(det.trainable(), 0.01).unwrap();
+    let before = running_stats(&det);
+    let mut total: Option<Tensor> = None;
+    for (r, b) in batches.iter().enumerate() {
+        let pass = || det.loss_all(&det.forward_heads(b, true).unwrap(), &b.targets).unwrap().total;
+        let l = if r == 0 { pass() } else { hilo_fusion::bnrelu::with_running_stats_frozen(pass) };
+        total = Some(match total {
+            None => l,
+            Some(t) => (t + l).unwrap(),
+        });
+        if r == 0 {
+            assert_eq!(running_stats(&det), one_after_other.2, "the first replica's statistics, the step's");
+            assert_ne!(running_stats(&det), before, "training moves the statistics");
+        }
+    }
+    let mean = (total.unwrap() / batches.len() as f64).unwrap();
+    let oracle = host(&opt.gradients(&mean.backward().unwrap()));
+    assert!((mean.to_scalar::<f32>().unwrap() - one_after_other.1).abs() <= 1e-5 * (1.0 + one_after_other.1.abs()));
+    assert_eq!(oracle.len(), one_after_other.0.len());
+    let mut compared = 0;
+    for (k, (a, b)) in one_after_other.0.iter().zip(&oracle).enumerate() {
+        assert_eq!(a.is_some(), b.is_some(), "variable {k}: a gradient on one side only");
+        let (Some(a), Some(b)) = (a, b) else { continue };
+        let scale = b.iter().fold(0f32, |m, v| m.max(v.abs()));
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-5 * (1.0 + scale), "variable {k}: {x} vs {y} (oracle)");
+        }
+        compared += 1;
+    }
+    assert!(compared > 10, "only {compared} variables had gradients");
+
+    // Whole runs: deterministic, resumable, and not the plain batch.
+    let frames: Vec<Frame> =
+        (0..6).map(|k| frame(10 + k, &[car(k as f32 - 3.0, 2.0, 0.1 * k as f32), ped(4.0, -(k as f32))])).collect();
+    let tc = TrainConfig { samples: 2 * 6, batch: 2, replicas: 2, checkpoint_steps: 2, ..TrainConfig::default() };
+    let w = |d: &std::path::Path| std::fs::read(d.join("model.safetensors")).unwrap();
+    let (a, b, c) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    train(a.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    train(b.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |r| r.step < 3).unwrap();
+    let info = train(b.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    assert!(info.finished && info.step == 6);
+    assert_eq!(w(a.path()), w(b.path()), "a resumed run with replicas differs");
+    train(c.path(), &cfg, &TrainConfig { replicas: 1, ..tc.clone() }, &frames, None, &reg, &Device::Cpu, &mut |_| true)
+        .unwrap();
+    assert_ne!(w(a.path()), w(c.path()), "replicas normalise over their own samples");
+    // Replicas that do not divide the batch are refused, naming both.
+    let d = tempfile::tempdir().unwrap();
+    let e = train(d.path(), &cfg, &TrainConfig { replicas: 3, ..tc }, &frames, None, &reg, &Device::Cpu, &mut |_| true)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("replicas = 3") && e.contains("batch = 2"), "{e}");
 }
 
 #[test]

@@ -222,7 +222,11 @@ impl Plan {
                     continue;
                 }
                 for seed in 0..profile.seeds as u64 {
-                    let mut tc = TrainConfig { seed, ..p.train.clone() };
+                    // One replica: the study trains its detectors side by side, one core each
+                    // (`stages::train_all`), so a schedule's data-parallel replicas would run one
+                    // after the other on that core, no faster, with BatchNorm statistics over
+                    // fewer samples.
+                    let mut tc = TrainConfig { seed, replicas: 1, ..p.train.clone() };
                     if let Some(n) = profile.train_samples {
                         tc.samples = n;
                     }
