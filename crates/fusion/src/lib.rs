@@ -53,25 +53,40 @@
 //!   is an option: it helps short schedules (6,000 samples: 0.683 against 0.644 uniform) and
 //!   not long ones (12,000: 0.725 against 0.744), so the presets' default schedule is uniform;
 //! - **default schedule** ([`train::TrainConfig::default`]): 12,000 samples in batches of 2,
-//!   one-cycle to 6e-3, ground-truth paste; `centerpoint` and `lirafusion-like` the same over
-//!   18,000 samples ([`presets::plateau_schedule`]). Before paste, `centerpoint`'s curve (1.5k
+//!   one-cycle to 6e-3, ground-truth paste; `lirafusion-like` the same over 27,000 samples
+//!   with two data-parallel replicas ([`presets::plateau_schedule`]) and `centerpoint` over
+//!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores (below;
+//!   both were 18,000 samples with one replica before). Before paste, `centerpoint`'s curve (1.5k
 //!   0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
 //!   `lirafusion-like` stopped short of its plateau at 18,000 (four times longer gained +0.036 on
 //!   average over four seeds, mostly the large vehicles); larger batches at higher rates (4 at
 //!   1e-2: 0.710, 8 at 2e-2: 0.718), a higher peak rate (1.2e-2: 0.719, 2e-2: 0.721) and dropping
-//!   rotation and flip augmentation (rare classes collapse) did not help. With paste
-//!   `lirafusion-like` reaches 0.810 at 18,000 samples (four seeds) and four times longer gains
-//!   +0.026, +0.002, +0.048, +0.013 (+0.022 on average): within 0.03 of its plateau on three
-//!   seeds of four. `centerpoint` gains more
+//!   rotation and flip augmentation (rare classes collapse) did not help. With paste and one
+//!   replica `lirafusion-like` reaches 0.810 at 18,000 samples (four seeds) and four times
+//!   longer gains +0.026, +0.002, +0.048, +0.013 (+0.022 on average): within 0.03 of its
+//!   plateau on three seeds of four. `centerpoint` gains more
 //!   from paste at long schedules than at short ones (0.778 at 18,000, 0.825 at 48,000): four
-//!   times longer gains +0.040, +0.028 and +0.039 on three seeds (+0.036), so on two cores the
-//!   LiDAR-only preset stops short of its (higher) plateau; the study's learning curves say how
+//!   times longer gains +0.040, +0.028 and +0.039 on three seeds (+0.036), so with one replica the
+//!   LiDAR-only preset stopped short of its (higher) plateau; the study's learning curves say how
 //!   far. Pasting more rare instances per frame (bus 3, truck 3, golf cart 4, motorcycle 3)
 //!   widens that gap (18,000: 0.791 on average over three seeds; 72,000: 0.831 and 0.824, so
 //!   +0.056 and +0.042), so the default fill stays. One training thread runs as fast as two
 //!   (`lirafusion-like`, 18,000 samples: 322.3 s against 323.5 s, same weights): candle cannot
-//!   split such small operations across cores, and data-parallel replicas, one per core, are the
-//!   lever left for more samples within five minutes;
+//!   split such small operations across cores;
+//! - **data-parallel replicas** ([`train::TrainConfig::replicas`], 2 in the schedules of
+//!   `centerpoint` and `lirafusion-like`): a batch of two runs as two replicas of one sample,
+//!   each forward and backward pass on a core of its own (a one-thread pool, candle on one
+//!   thread), their gradients averaged in replica order, BatchNorm statistics per replica and
+//!   the first replica's running statistics kept, as multi-GPU training without synchronised
+//!   BatchNorm does. The weights do not depend on the threads (the replicas one after the
+//!   other give the same bytes). 1.50× the samples/s of one replica for both presets (66.5 →
+//!   99.6 and 65.2 → 97.9 in one idle bench series; two replicas of one sample cost a fifth to
+//!   a third more compute than one batch of two). BatchNorm over one sample costs sample
+//!   efficiency (seed 0 at 18,000 samples: 0.792 against 0.815 for `lirafusion-like`, 0.768
+//!   against 0.786 for `centerpoint`), so the gain is in samples per five minutes:
+//!   `lirafusion-like` 27,000 samples in 291.6 s (0.812, about what 18,000 with one replica
+//!   reach in 323.5 s), `centerpoint` 30,000 in 260.9–295.0 s. The README has their learning
+//!   curves. A study trains its detectors side by side, one core each, so it keeps one replica;
 //! - **fused CPU nodes** ([`layout::GatherConv`], [`bnrelu`]): candle's backward pass gives every
 //!   node a zeroed gradient and adds into it, which was 31% of the training thread (perf,
 //!   `centerpoint`); the sparse convolution and BatchNorm + ReLU are now one node each on the CPU,

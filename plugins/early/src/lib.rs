@@ -148,11 +148,13 @@ pub fn lirafusion_like() -> DetectorConfig {
     }
 }
 
-/// `lirafusion-like`'s default schedule: [`hilo_fusion::presets::plateau_schedule`] (18,000
-/// samples). With radar clutter removed and ground-truth paste it trains at 56–62 samples/s
-/// on two cores (checkpoints included), so 18,000 samples take 289.5–323.5 s idle depending on
-/// the machine (within five minutes on the faster ones, 24 s over on the slowest measured); four
-/// times longer gains +0.022 mAP on average over four seeds (the README's learning curve).
+/// `lirafusion-like`'s default schedule: [`hilo_fusion::presets::plateau_schedule`] (27,000
+/// samples, batches of two as two data-parallel replicas). With radar clutter removed and
+/// ground-truth paste it trains at about 93 samples/s on two cores (checkpoints included; 98 in
+/// the bench), so 27,000 samples take 291.6 s idle on the slowest machine measured; 18,000
+/// samples with one replica, which left the second core idle, took 323.5 s on a faster one, to
+/// about the same mAP (seed 0: 0.815 against 0.812). The README's learning curve has the gains
+/// of four times this.
 pub fn lirafusion_like_schedule() -> TrainConfig {
     hilo_fusion::presets::plateau_schedule()
 }
