@@ -53,7 +53,7 @@
 //!   is an option: it helps short schedules (6,000 samples: 0.683 against 0.644 uniform) and
 //!   not long ones (12,000: 0.725 against 0.744), so the presets' default schedule is uniform;
 //! - **default schedule** ([`train::TrainConfig::default`]): 12,000 samples in batches of 2,
-//!   one-cycle to 6e-3, ground-truth paste; `lirafusion-like` the same over 27,000 samples
+//!   one-cycle to 6e-3, ground-truth paste; `lirafusion-like` the same over 24,000 samples
 //!   with two data-parallel replicas ([`presets::plateau_schedule`]) and `centerpoint` over
 //!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores (below;
 //!   both were 18,000 samples with one replica before). Before paste, `centerpoint`'s curve (1.5k
@@ -83,10 +83,12 @@
 //!   99.6 and 65.2 → 97.9 in one idle bench series; two replicas of one sample cost a fifth to
 //!   a third more compute than one batch of two). BatchNorm over one sample costs sample
 //!   efficiency (seed 0 at 18,000 samples: 0.792 against 0.815 for `lirafusion-like`, 0.768
-//!   against 0.786 for `centerpoint`), so the gain is in samples per five minutes:
-//!   `lirafusion-like` 27,000 samples in 291.6 s (0.812, about what 18,000 with one replica
-//!   reach in 323.5 s), `centerpoint` 30,000 in 260.9–295.0 s. The README has their learning
-//!   curves. A study trains its detectors side by side, one core each, so it keeps one replica;
+//!   against 0.786 for `centerpoint`), so what replicas buy is time: `lirafusion-like` 24,000
+//!   samples in 244–256 s (0.793 on two seeds, 0.02 below 18,000 samples with one replica,
+//!   which took 323.5 s, over five minutes), `centerpoint` 30,000 in 260.9–295.0 s (0.778 and
+//!   0.797, about what 18,000 with one replica reach in 250–272 s). The README has their
+//!   learning curves. A study trains its detectors side by side, one core each, so it keeps one
+//!   replica;
 //! - **fused CPU nodes** ([`layout::GatherConv`], [`bnrelu`]): candle's backward pass gives every
 //!   node a zeroed gradient and adds into it, which was 31% of the training thread (perf,
 //!   `centerpoint`); the sparse convolution and BatchNorm + ReLU are now one node each on the CPU,

@@ -75,15 +75,15 @@ pub fn pointpillars() -> DetectorConfig {
 }
 
 /// The schedule of the presets whose plateau was measured (`lirafusion-like` here, and
-/// `centerpoint` over a few more samples, [`centerpoint_schedule`]): the shared one's shape over
-/// 27,000 samples, each batch of two run as two data-parallel replicas of one sample (one per
-/// core on two cores: with one replica training leaves the second core idle). That is what fits
-/// five minutes of the fused preset on the slowest two-core machine measured (291.6 s), and it
-/// reaches about the mAP of 18,000 samples with one replica (seed 0: 0.812 against 0.815),
-/// which took 323.5 s on a faster machine. The README's learning curve has the gains of four
-/// times this.
+/// `centerpoint` over more samples, [`centerpoint_schedule`]): the shared one's shape over
+/// 24,000 samples, each batch of two run as two data-parallel replicas of one sample (one per
+/// core on two cores: with one replica training leaves the second core idle). That fits five
+/// minutes of the fused preset on the slowest two-core machine measured (244.3 s and 256.0 s on
+/// two seeds; 27,000 samples took 291.6 s and 301.8 s there, at the limit). 18,000 samples with
+/// one replica reached 0.02 mAP more (0.815 and 0.817 against 0.795 and 0.791) but took 323.5 s
+/// on a faster machine. The README's learning curve has the gains of four times this.
 pub fn plateau_schedule() -> TrainConfig {
-    TrainConfig { samples: 27_000, replicas: 2, ..TrainConfig::default() }
+    TrainConfig { samples: 24_000, replicas: 2, ..TrainConfig::default() }
 }
 
 /// `centerpoint`'s schedule: [`plateau_schedule`] over 30,000 samples, what its speed allows

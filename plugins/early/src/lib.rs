@@ -148,13 +148,12 @@ pub fn lirafusion_like() -> DetectorConfig {
     }
 }
 
-/// `lirafusion-like`'s default schedule: [`hilo_fusion::presets::plateau_schedule`] (27,000
+/// `lirafusion-like`'s default schedule: [`hilo_fusion::presets::plateau_schedule`] (24,000
 /// samples, batches of two as two data-parallel replicas). With radar clutter removed and
-/// ground-truth paste it trains at about 93 samples/s on two cores (checkpoints included; 98 in
-/// the bench), so 27,000 samples take 291.6 s idle on the slowest machine measured; 18,000
-/// samples with one replica, which left the second core idle, took 323.5 s on a faster one, to
-/// about the same mAP (seed 0: 0.815 against 0.812). The README's learning curve has the gains
-/// of four times this.
+/// ground-truth paste it trains at about 95 samples/s on two cores (checkpoints included; 98 in
+/// the bench), so 24,000 samples take 244–256 s idle on the slowest machine measured; 18,000
+/// samples with one replica, which left the second core idle, took 323.5 s on a faster one.
+/// The README's learning curve has the gains of four times this.
 pub fn lirafusion_like_schedule() -> TrainConfig {
     hilo_fusion::presets::plateau_schedule()
 }
