@@ -518,6 +518,8 @@ pub struct TrainRow {
     /// Data-parallel replicas of a step, and how many of them ran at once here.
     pub replicas: usize,
     pub replicas_at_once: usize,
+    /// BatchNorm over the whole batch (synchronised across the replicas) or each replica's.
+    pub sync_batch_norm: bool,
     pub steps: usize,
     /// From the wall time of the steps as training runs them (replicas side by side where
     /// there are threads for them; data prepared on another thread, so not counted unless it
@@ -592,6 +594,7 @@ pub fn train(
                 ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
                 ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
                 ("replicas", Some(n)) if n >= 1 => cfg.replicas = n as usize,
+                ("sync_batch_norm", _) if v.is_boolean() => cfg.sync_batch_norm = v == true,
                 ("head_dilation", Some(n)) => {
                     if let Some(sp) = det_cfg.sparse.as_mut() {
                         sp.head_dilation = n as usize;
@@ -599,13 +602,11 @@ pub fn train(
                 }
                 ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
                 _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, head_dilation=N, layers=N)"
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, head_dilation=N, layers=N)"
                 ),
             }
         }
-        if cfg.replicas == 0 || !cfg.batch.is_multiple_of(cfg.replicas) {
-            anyhow::bail!("{name}: replicas = {} must divide batch = {}", cfg.replicas, cfg.batch);
-        }
+        cfg.validate().with_context(|| format!("bench train {name}"))?;
         let background = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
         let det = Detector::new(&det_cfg, &registry, &candle_core::Device::Cpu, 0)?;
@@ -614,7 +615,7 @@ pub fn train(
         hilo_fusion::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
         let t = hilo_fusion::train::time_steps(&det, &frames, &cfg, steps)?;
         let flops = hilo_fusion::conv::FORWARD_FLOPS.load(Ordering::Relaxed) as f64 / steps as f64;
-        let wall_s = hilo_fusion::train::time_replicated_steps(&det, &frames, &cfg, steps)?;
+        let (wall_s, replicas_at_once) = hilo_fusion::train::time_replicated_steps(&det, &frames, &cfg, steps)?;
         let per = |s: f64| 1e3 * s / steps as f64;
         let ms = BTreeMap::from([
             ("data (host: augmentation, pillars, layout, targets)", per(t.data_s)),
@@ -658,7 +659,8 @@ pub fn train(
             ground_truth_paste: cfg.paste.is_some(),
             batch: cfg.batch,
             replicas: cfg.replicas,
-            replicas_at_once: hilo_fusion::train::ReplicaPools::new(cfg.replicas)?.parallel(),
+            replicas_at_once,
+            sync_batch_norm: cfg.sync_batch_norm,
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
             ms,

@@ -149,7 +149,8 @@ enum BenchCommand {
         steps: usize,
         /// A lever turned off or changed, for a before/after row: `layout=dense`,
         /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`,
-        /// `batch=N`, `replicas=N`, `head_dilation=N`, `layers=N` (repeatable).
+        /// `batch=N`, `replicas=N`, `sync_batch_norm=true|false`, `head_dilation=N`, `layers=N`
+        /// (repeatable).
         #[arg(long = "variant", value_parser = parse_variant)]
         variants: Vec<(String, serde_json::Value)>,
         #[arg(long)]

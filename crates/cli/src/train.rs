@@ -126,6 +126,15 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
             db.counts().iter().map(|(c, n)| format!("{} {n}", hilo_fusion::data::CLASSES[*c].name())).collect();
         eprintln!("ground-truth paste: instances to paste from the training frames: {}", held.join(", "));
     }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if cfg.sync_batch_norm && cfg.replicas > cores {
+        eprintln!(
+            "warning: {} replicas with synchronised BatchNorm on {cores} cores: each runs on a thread of its \
+             own and they meet at every BatchNorm layer, so sharing cores slows every step (fewer replicas \
+             would train faster here)",
+            cfg.replicas
+        );
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut bar = crate::progress::Reporter::new();
     let label = format!("train {}", det.name);

@@ -14,20 +14,179 @@
 //!
 //! Data-parallel training ([`crate::train`]) runs the replicas of a step side by side on one set
 //! of variables; only the first replica updates the running statistics (as multi-GPU training
-//! without synchronised BatchNorm keeps the first rank's), the others run inside
-//! [`with_running_stats_frozen`]. A plugin that normalises with candle-nn's `BatchNorm`
-//! directly instead of [`bn_relu`] (or the modules built on it) updates them from every
-//! replica, in whatever order the threads reach them.
+//! keeps the first rank's), the others run inside [`with_running_stats_frozen`]. A plugin that
+//! normalises with candle-nn's `BatchNorm` directly instead of [`bn_relu`] (or the modules built
+//! on it) updates them from every replica, in whatever order the threads reach them.
+//!
+//! Synchronised BatchNorm ([`BatchNormSync`], [`with_synced_batch_norm`]): the replicas of a step
+//! normalise with the statistics of the whole batch, as one batch would. In the forward pass each
+//! replica hands its rows' count, per-channel sums and centred sums of squares to the others
+//! (combined in replica order, Chan's pairwise formula, f64), in the backward pass its sums of
+//! `dz` and `dz · x̂`; each exchange is a barrier all replicas meet at, so they must run at once,
+//! one thread each. The gradient is then the whole batch's: the sum over the replicas of their
+//! parameter gradients is the gradient of the sum of their losses. Only the fused path (rows on
+//! the CPU) exchanges: a dense map normalised by candle-nn keeps its replica's statistics. The
+//! replicas must reach the same BatchNorm layers in the same order (they run one network); one
+//! that does not, or that ends its pass while another waits, fails the step with an error
+//! naming the layer rather than hanging.
 
 use crate::conv::{f32_slice, with_cpu};
 use crate::error::Result;
-use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor, Var};
+use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor, TensorId, Var};
 use candle_nn::{BatchNorm, ModuleT};
 use rayon::prelude::*;
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
+use std::sync::{Arc, Condvar, Mutex};
 
 thread_local! {
     static FROZEN: Cell<bool> = const { Cell::new(false) };
+    static SYNC: RefCell<Option<(Arc<BatchNormSync>, usize)>> = const { RefCell::new(None) };
+}
+
+/// The replicas of one training step exchanging BatchNorm's sums: a barrier per exchange, at
+/// which every replica leaves its numbers and takes all of them, in replica order. One per step.
+#[derive(Debug)]
+pub struct BatchNormSync {
+    ranks: usize,
+    state: Mutex<SyncState>,
+    turn: Condvar,
+}
+
+#[derive(Debug)]
+struct SyncState {
+    /// Exchanges completed.
+    generation: u64,
+    /// The layer (its running mean's id) and pass (backward or not) of the exchange under way.
+    tag: Option<(TensorId, bool)>,
+    arrived: usize,
+    deposits: Vec<Option<Vec<f64>>>,
+    /// The last completed exchange's deposits, in replica order.
+    result: Arc<Vec<Vec<f64>>>,
+    /// Replicas whose pass has ended.
+    left: usize,
+    failure: Option<String>,
+}
+
+impl BatchNormSync {
+    /// An exchange for `ranks` replicas.
+    pub fn new(ranks: usize) -> Arc<Self> {
+        Arc::new(BatchNormSync {
+            ranks,
+            state: Mutex::new(SyncState {
+                generation: 0,
+                tag: None,
+                arrived: 0,
+                deposits: vec![None; ranks],
+                result: Arc::new(Vec::new()),
+                left: 0,
+                failure: None,
+            }),
+            turn: Condvar::new(),
+        })
+    }
+
+    fn fail(&self, s: &mut SyncState, message: String) -> candle_core::Error {
+        s.failure.get_or_insert(message.clone());
+        self.turn.notify_all();
+        candle_core::Error::Msg(message)
+    }
+
+    /// Leaves replica `rank`'s `data` for the exchange of layer `tag` and waits for the others'.
+    fn exchange(&self, rank: usize, tag: (TensorId, bool), data: Vec<f64>) -> candle_core::Result<Arc<Vec<Vec<f64>>>> {
+        let pass = if tag.1 { "backward" } else { "forward" };
+        let mut s = self.state.lock().map_err(|_| candle_core::Error::Msg("a replica panicked in BatchNorm".into()))?;
+        if let Some(f) = &s.failure {
+            return Err(candle_core::Error::Msg(f.clone()));
+        }
+        if rank >= self.ranks || s.deposits[rank].is_some() {
+            return Err(
+                self.fail(&mut s, format!("synchronised BatchNorm: replica {rank} of {} arrived twice", self.ranks))
+            );
+        }
+        if s.left > 0 {
+            let message = format!(
+                "{PARTED}: replica {rank} reached a BatchNorm layer ({pass} pass) after another replica ended its \
+                 pass (it failed, or the replicas' networks took different paths)"
+            );
+            return Err(self.fail(&mut s, message));
+        }
+        match s.tag {
+            None => s.tag = Some(tag),
+            Some(t) if t != tag => {
+                let message = format!(
+                    "{PARTED}: replica {rank} reached BatchNorm layer {:?} ({pass} pass) while another replica waits \
+                     at layer {:?} ({} pass); the replicas' networks took different paths",
+                    tag.0,
+                    t.0,
+                    if t.1 { "backward" } else { "forward" }
+                );
+                return Err(self.fail(&mut s, message));
+            }
+            Some(_) => {}
+        }
+        s.deposits[rank] = Some(data);
+        s.arrived += 1;
+        if s.arrived == self.ranks {
+            s.result = Arc::new(s.deposits.iter_mut().map(|d| d.take().unwrap_or_default()).collect());
+            s.arrived = 0;
+            s.tag = None;
+            s.generation += 1;
+            self.turn.notify_all();
+            return Ok(s.result.clone());
+        }
+        let generation = s.generation;
+        while s.generation == generation && s.failure.is_none() {
+            s = self.turn.wait(s).map_err(|_| candle_core::Error::Msg("a replica panicked in BatchNorm".into()))?;
+        }
+        match (s.generation != generation, &s.failure) {
+            (true, _) => Ok(s.result.clone()),
+            (false, Some(f)) => Err(candle_core::Error::Msg(f.clone())),
+            (false, None) => Err(candle_core::Error::Msg("synchronised BatchNorm: woken without an exchange".into())),
+        }
+    }
+
+    /// Replica's pass ended: any replica waiting now, or arriving later, waits in vain.
+    fn leave(&self) {
+        if let Ok(mut s) = self.state.lock() {
+            s.left += 1;
+            if s.arrived > 0 {
+                let message = format!(
+                    "{PARTED}: a replica ended its pass while another waits at a BatchNorm layer (it failed, or \
+                     the replicas' networks took different paths)"
+                );
+                let _ = self.fail(&mut s, message);
+            }
+        }
+    }
+}
+
+/// Runs `f` (replica `rank`'s forward and backward pass) with [`bn_relu`] normalising over the
+/// rows of all of `sync`'s replicas; on return (or unwinding) the replica is counted as done.
+pub fn with_synced_batch_norm<T>(sync: &Arc<BatchNormSync>, rank: usize, f: impl FnOnce() -> T) -> T {
+    struct Leave(Option<(Arc<BatchNormSync>, usize)>, Arc<BatchNormSync>);
+    impl Drop for Leave {
+        fn drop(&mut self) {
+            SYNC.with(|c| *c.borrow_mut() = self.0.take());
+            self.1.leave();
+        }
+    }
+    let previous = SYNC.with(|c| c.borrow_mut().replace((sync.clone(), rank)));
+    let _leave = Leave(previous, sync.clone());
+    f()
+}
+
+const PARTED: &str = "synchronised BatchNorm: the replicas parted";
+
+/// Whether an error message is a replica's report that the others left the exchange (the
+/// consequence of another replica's failure or of networks that took different paths).
+pub fn is_parting(message: &str) -> bool {
+    message.contains(PARTED)
+}
+
+/// Whether this thread's BatchNorm is synchronised with other replicas' (modules that would
+/// skip an empty input must then still take part in the exchanges, with no rows).
+pub fn synced() -> bool {
+    SYNC.with(|c| c.borrow().is_some())
 }
 
 /// Runs `f` with [`bn_relu`]'s running statistics left as they are on this thread (training
@@ -62,13 +221,15 @@ fn batch_norm_frozen(bn: &BatchNorm, x: &Tensor) -> Result<Tensor> {
     Ok(y.reshape(dims.as_slice())?.transpose(0, 1)?)
 }
 
-/// `relu(bn(x))` for rows `x` `(N, C)`; in training on the CPU one fused node.
+/// `relu(bn(x))` for rows `x` `(N, C)`; in training on the CPU one fused node (synchronised
+/// with the other replicas inside [`with_synced_batch_norm`]).
 pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
+    let sync = SYNC.with(|c| c.borrow().clone());
     let fused = train
         && x.device().is_cpu()
         && x.dtype() == DType::F32
         && x.rank() == 2
-        && x.dim(0)? > 1
+        && (x.dim(0)? > 1 || sync.is_some())
         && bn.weight_and_bias().is_some();
     let Some((gamma, beta)) = bn.weight_and_bias().filter(|_| fused) else {
         if train && frozen() {
@@ -77,41 +238,108 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
         return Ok(bn.forward_t(x, train)?.relu()?);
     };
     let x = x.contiguous()?;
-    let (n, c) = x.dims2()?;
-    let (mean, var) = with_cpu::<f32, _>(&x, OP, |v| Ok(moments(v, c)))?;
+    let c = x.dim(1)?;
+    let local = with_cpu::<f32, _>(&x, OP, |v| Ok(sums(v, c)))?;
+    let layer = bn.running_mean().id();
+    let (sums, sync) = match sync {
+        None => (local, None),
+        Some((group, rank)) => {
+            let all = group.exchange(rank, (layer, false), local.flatten())?;
+            (Sums::combine(&all, c)?, Some((group, rank)))
+        }
+    };
+    let n = sums.n;
+    let (mean, var) = sums.moments();
     // Running statistics as candle-nn updates them: biased mean, unbiased variance.
     let m = bn.momentum();
     let dev = x.device();
-    let mean_t = Tensor::from_slice(&mean, c, dev)?;
-    let var_t = Tensor::from_slice(&var, c, dev)?;
-    if !frozen() {
+    if !frozen() && n > 0.0 {
+        let unbias = if n > 1.0 { n / (n - 1.0) } else { 1.0 };
+        let mean_t = Tensor::from_slice(&mean, c, dev)?;
+        let var_t = Tensor::from_slice(&var, c, dev)?;
         let running_mean = ((bn.running_mean() * (1.0 - m))? + (&mean_t * m)?)?;
-        let running_var = ((bn.running_var() * (1.0 - m))? + (&var_t * (m * n as f64 / (n as f64 - 1.0)))?)?;
+        let running_var = ((bn.running_var() * (1.0 - m))? + (&var_t * (m * unbias))?)?;
         Var::from_tensor(bn.running_mean())?.set(&running_mean)?;
         Var::from_tensor(bn.running_var())?.set(&running_var)?;
     }
     let inv: Vec<f32> = var.iter().map(|v| 1.0 / (v + bn.eps() as f32).sqrt()).collect();
-    Ok(x.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, BnRelu { mean, inv })?)
+    let sync = sync.map(|(group, rank)| Synced { group, rank, layer });
+    Ok(x.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, BnRelu { mean, inv, n, sync })?)
 }
 
-/// Per-channel mean and biased variance of rows `(N, C)`, accumulated in f64.
-fn moments(x: &[f32], c: usize) -> (Vec<f32>, Vec<f32>) {
-    let n = (x.len() / c.max(1)).max(1) as f64;
+/// Rows' count, per-channel sums and centred sums of squares (f64): what replicas exchange.
+#[derive(Debug, Clone, PartialEq)]
+struct Sums {
+    n: f64,
+    sum: Vec<f64>,
+    m2: Vec<f64>,
+}
+
+impl Sums {
+    fn flatten(&self) -> Vec<f64> {
+        let mut v = Vec::with_capacity(1 + 2 * self.sum.len());
+        v.push(self.n);
+        v.extend_from_slice(&self.sum);
+        v.extend_from_slice(&self.m2);
+        v
+    }
+
+    /// The replicas' sums (each [`Self::flatten`]ed) merged in replica order with Chan's
+    /// pairwise update: `M2 = M2_a + M2_b + δ² n_a n_b / n`, δ the difference of the means.
+    fn combine(all: &[Vec<f64>], c: usize) -> candle_core::Result<Sums> {
+        let mut acc = Sums { n: 0.0, sum: vec![0.0; c], m2: vec![0.0; c] };
+        for v in all {
+            if v.len() != 1 + 2 * c {
+                return Err(candle_core::Error::Msg(format!(
+                    "synchronised BatchNorm: a replica sent {} numbers for {c} channels",
+                    v.len()
+                )));
+            }
+            let (nb, sb, qb) = (v[0], &v[1..1 + c], &v[1 + c..]);
+            if nb == 0.0 {
+                continue;
+            }
+            let na = acc.n;
+            let n = na + nb;
+            for k in 0..c {
+                if na > 0.0 {
+                    let d = sb[k] / nb - acc.sum[k] / na;
+                    acc.m2[k] += qb[k] + d * d * na * nb / n;
+                } else {
+                    acc.m2[k] = qb[k];
+                }
+                acc.sum[k] += sb[k];
+            }
+            acc.n = n;
+        }
+        Ok(acc)
+    }
+
+    /// Mean and biased variance (zeros without rows).
+    fn moments(&self) -> (Vec<f32>, Vec<f32>) {
+        let n = self.n.max(1.0);
+        (self.sum.iter().map(|s| (s / n) as f32).collect(), self.m2.iter().map(|q| (q / n) as f32).collect())
+    }
+}
+
+/// Per-channel sums and centred sums of squares of rows `(N, C)`, accumulated in f64.
+fn sums(x: &[f32], c: usize) -> Sums {
+    let rows = x.len() / c.max(1);
     let mut sum = vec![0f64; c];
     for row in x.chunks_exact(c) {
         for (s, &v) in sum.iter_mut().zip(row) {
             *s += v as f64;
         }
     }
-    let mean: Vec<f64> = sum.iter().map(|s| s / n).collect();
-    let mut sq = vec![0f64; c];
+    let mean: Vec<f64> = sum.iter().map(|s| s / rows.max(1) as f64).collect();
+    let mut m2 = vec![0f64; c];
     for row in x.chunks_exact(c) {
-        for ((s, &v), m) in sq.iter_mut().zip(row).zip(&mean) {
+        for ((s, &v), m) in m2.iter_mut().zip(row).zip(&mean) {
             let d = v as f64 - m;
             *s += d * d;
         }
     }
-    (mean.iter().map(|&m| m as f32).collect(), sq.iter().map(|s| (s / n) as f32).collect())
+    Sums { n: rows as f64, sum, m2 }
 }
 
 /// The fused node: `y = max(0, γ · (x − μ) · inv + β)` with the batch's μ and inv = 1/√(σ² + ε).
@@ -119,6 +347,17 @@ fn moments(x: &[f32], c: usize) -> (Vec<f32>, Vec<f32>) {
 struct BnRelu {
     mean: Vec<f32>,
     inv: Vec<f32>,
+    /// Rows the statistics are over (all replicas' when synchronised).
+    n: f64,
+    sync: Option<Synced>,
+}
+
+/// The exchange a synchronised node's backward pass takes part in.
+#[derive(Debug, Clone)]
+struct Synced {
+    group: Arc<BatchNormSync>,
+    rank: usize,
+    layer: TensorId,
 }
 
 const ROWS: usize = 512;
@@ -183,16 +422,37 @@ impl CustomOp3 for BnRelu {
                 }
             }
         }
-        let nf = n as f32;
+        // This replica's dβ and dγ are its parameter gradients; dx takes the whole batch's sums.
         let (db, dg): (Vec<f32>, Vec<f32>) =
             (dbeta.iter().map(|&v| v as f32).collect(), dgamma.iter().map(|&v| v as f32).collect());
-        let scale: Vec<f32> = gamma_v.iter().zip(&self.inv).map(|(g, i)| g * i / nf).collect();
+        let (db_all, dg_all) = match &self.sync {
+            None => (db.clone(), dg.clone()),
+            Some(s) => {
+                let all = s.group.exchange(s.rank, (s.layer, true), [dbeta, dgamma].concat())?;
+                let (mut b, mut g) = (vec![0f64; c], vec![0f64; c]);
+                for v in all.iter() {
+                    if v.len() != 2 * c {
+                        return Err(candle_core::Error::Msg(format!(
+                            "synchronised BatchNorm: a replica sent {} gradient sums for {c} channels",
+                            v.len()
+                        )));
+                    }
+                    for k in 0..c {
+                        b[k] += v[k];
+                        g[k] += v[c + k];
+                    }
+                }
+                (b.iter().map(|&v| v as f32).collect(), g.iter().map(|&v| v as f32).collect())
+            }
+        };
+        let nf = self.n as f32;
+        let scale: Vec<f32> = gamma_v.iter().zip(&self.inv).map(|(g, i)| g * i / nf.max(1.0)).collect();
         let mut dx = vec![0f32; n * c];
         dx.par_chunks_mut(ROWS * c).zip(dz.par_chunks(ROWS * c)).zip(xv.par_chunks(ROWS * c)).for_each(
             |((dxc, dzc), xc)| {
                 for ((dxr, dzr), xr) in dxc.chunks_exact_mut(c).zip(dzc.chunks_exact(c)).zip(xc.chunks_exact(c)) {
                     for k in 0..c {
-                        dxr[k] = scale[k] * (nf * dzr[k] - db[k] - xhat(xr, k) * dg[k]);
+                        dxr[k] = scale[k] * (nf * dzr[k] - db_all[k] - xhat(xr, k) * dg_all[k]);
                     }
                 }
             },
@@ -303,5 +563,134 @@ mod tests {
             close(&frozen, &live, 1e-4, "frozen output");
             assert_ne!(host(bn_b.running_mean()).unwrap(), before.0, "{dims:?}: unfrozen updates");
         }
+    }
+
+    /// Synchronised replicas normalise as one batch: rows split in four unequal parts (one
+    /// empty, one a single row) on four threads give the whole batch's outputs, the running
+    /// statistics of one update over all rows, each replica's dx rows of the whole batch's dx,
+    /// and dγ, dβ whose sum over the replicas is the batch's, on rows with a common offset of
+    /// 1e3 and a part whose mean is far from the others' (what Chan's merge must get right).
+    #[test]
+    fn synchronised_replicas_normalise_as_one_batch() {
+        let dev = Device::Cpu;
+        let c = 6usize;
+        let parts = [0usize, 1, 37, 300];
+        let n: usize = parts.iter().sum();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+        let mut normal = |len: usize| -> Vec<f32> {
+            (0..len).map(|_| rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng)).collect()
+        };
+        let mut v = normal(n * c);
+        for (i, x) in v.iter_mut().enumerate() {
+            let (row, k) = (i / c, i % c);
+            *x += if k == 2 { 1e3 } else { 0.0 } + if row >= 38 { 0.0 } else { 5.0 };
+        }
+        let x = Tensor::from_vec(v, (n, c), &dev).unwrap();
+        let up = Tensor::from_vec(normal(n * c), (n, c), &dev).unwrap();
+        let gs = Tensor::from_slice(&[1.5f32, -0.7, 0.3, 2.0, 1.0, -1.2], c, &dev).unwrap();
+        let bs = Tensor::from_slice(&[0.1f32, 0.2, -0.3, 0.0, 0.5, -0.1], c, &dev).unwrap();
+        let set = |bn: &BatchNorm| {
+            let (g, b) = bn.weight_and_bias().unwrap();
+            Var::from_tensor(g).unwrap().set(&gs).unwrap();
+            Var::from_tensor(b).unwrap().set(&bs).unwrap();
+        };
+
+        // The whole batch in one node.
+        let vm = VarMap::new();
+        let whole = bn(&vm, c);
+        set(&whole);
+        let xv = Var::from_tensor(&x).unwrap();
+        let y = bn_relu(&whole, xv.as_tensor(), true).unwrap();
+        let g = (&y * &up).unwrap().sum_all().unwrap().backward().unwrap();
+        let (gamma, beta) = whole.weight_and_bias().unwrap();
+        let (dx, dgamma, dbeta) =
+            (g.get(xv.as_tensor()).unwrap().clone(), g.get(gamma).unwrap().clone(), g.get(beta).unwrap().clone());
+
+        // The replicas, one thread each, on one set of variables.
+        let vm = VarMap::new();
+        let shared = bn(&vm, c);
+        set(&shared);
+        let sync = BatchNormSync::new(parts.len());
+        let starts: Vec<usize> = parts.iter().scan(0, |s, p| Some(std::mem::replace(s, *s + p))).collect();
+        let results: Vec<(Tensor, Tensor, Tensor, Tensor)> = std::thread::scope(|scope| {
+            let handles: Vec<_> = parts
+                .iter()
+                .zip(&starts)
+                .enumerate()
+                .map(|(r, (&len, &start))| {
+                    let (x, up, shared, sync) = (&x, &up, &shared, &sync);
+                    scope.spawn(move || {
+                        with_synced_batch_norm(sync, r, || {
+                            let pass = || {
+                                let xr = Var::from_tensor(&x.narrow(0, start, len).unwrap()).unwrap();
+                                let y = bn_relu(shared, xr.as_tensor(), true).unwrap();
+                                let loss = (&y * &up.narrow(0, start, len).unwrap()).unwrap().sum_all().unwrap();
+                                let g = loss.backward().unwrap();
+                                let (gamma, beta) = shared.weight_and_bias().unwrap();
+                                (
+                                    y,
+                                    g.get(xr.as_tensor()).unwrap().clone(),
+                                    g.get(gamma).unwrap().clone(),
+                                    g.get(beta).unwrap().clone(),
+                                )
+                            };
+                            if r == 0 { pass() } else { with_running_stats_frozen(pass) }
+                        })
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        assert!(!synced(), "the scope restores the thread");
+        let cat = |f: fn(&(Tensor, Tensor, Tensor, Tensor)) -> &Tensor| {
+            Tensor::cat(&results.iter().map(f).collect::<Vec<_>>(), 0).unwrap()
+        };
+        close(&cat(|r| &r.0), &y, 1e-5, "output");
+        close(&cat(|r| &r.1), &dx, 1e-4, "dx");
+        let sum = |f: fn(&(Tensor, Tensor, Tensor, Tensor)) -> &Tensor| {
+            results.iter().map(f).fold(Tensor::zeros(c, DType::F32, &dev).unwrap(), |a, t| (a + t).unwrap())
+        };
+        close(&sum(|r| &r.2), &dgamma, 1e-4, "dgamma");
+        close(&sum(|r| &r.3), &dbeta, 1e-4, "dbeta");
+        close(shared.running_mean(), whole.running_mean(), 1e-6, "running mean");
+        close(shared.running_var(), whole.running_var(), 1e-5, "running var");
+    }
+
+    /// Replicas that reach different layers, or one that ends its pass while another waits,
+    /// fail with an error naming the cause instead of waiting for ever.
+    #[test]
+    fn diverging_replicas_are_an_error_not_a_hang() {
+        let dev = Device::Cpu;
+        let x = Tensor::from_vec((0..40).map(|v| v as f32).collect::<Vec<_>>(), (10, 4), &dev).unwrap();
+        let (vm_a, vm_b) = (VarMap::new(), VarMap::new());
+        let (bn_a, bn_b) = (bn(&vm_a, 4), bn(&vm_b, 4));
+        // Different layers.
+        let sync = BatchNormSync::new(2);
+        let errors: Vec<String> = std::thread::scope(|scope| {
+            let h: Vec<_> = [&bn_a, &bn_b]
+                .into_iter()
+                .enumerate()
+                .map(|(r, layer)| {
+                    let (x, sync) = (&x, &sync);
+                    scope.spawn(move || {
+                        with_synced_batch_norm(sync, r, || bn_relu(layer, x, true).unwrap_err().to_string())
+                    })
+                })
+                .collect();
+            h.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        for e in &errors {
+            assert!(e.contains("different paths") && e.contains("BatchNorm layer"), "{e}");
+        }
+        // One replica ends its pass without reaching the layer the other waits at.
+        let sync = BatchNormSync::new(2);
+        let waited = std::thread::scope(|scope| {
+            let (x, sync, bn_a) = (&x, &sync, &bn_a);
+            let waiting = scope.spawn(move || with_synced_batch_norm(sync, 0, || bn_relu(bn_a, x, true).map(|_| ())));
+            scope.spawn(move || with_synced_batch_norm(sync, 1, || ()));
+            waiting.join().unwrap()
+        });
+        let e = waited.unwrap_err().to_string();
+        assert!(e.contains("ended its pass"), "{e}");
     }
 }

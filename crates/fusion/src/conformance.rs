@@ -167,6 +167,33 @@ fn check_one(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
         }
         det.detect(&hb).map_err(|x| e(what, x))?;
     }
+    // Synchronised BatchNorm: replicas of those frames, one thread each, meet at every
+    // BatchNorm layer (a plugin that skips an empty modality must still take part, with no
+    // rows) and give finite gradients.
+    let replicas: Vec<HostBatch> = [
+        synthetic_frame(6, &boxes, true, true),
+        synthetic_frame(3, &boxes, true, false),
+        synthetic_frame(4, &boxes, false, true),
+        synthetic_frame(5, &boxes, false, false),
+    ]
+    .iter()
+    .enumerate()
+    .map(|(r, f)| HostBatch::new(&cfg, std::slice::from_ref(f), det.uses_radar(), r as u64))
+    .collect();
+    let opt = crate::train::AdamW::new(det.trainable(), 0.01).map_err(|x| e("optimizer", x))?;
+    let pools = crate::train::ReplicaPools::threads(replicas.len()).map_err(|x| e("replica threads", x))?;
+    let pass = crate::train::step_pass(&det, &opt, &replicas, &pools, true)
+        .map_err(|x| e("a step of synchronised replicas", x))?;
+    for g in pass.grads.iter().flatten() {
+        let s = g
+            .abs()
+            .and_then(|a| a.sum_all())
+            .and_then(|a| a.to_scalar::<f32>())
+            .map_err(|x| e("gradient", x.into()))?;
+        if !s.is_finite() {
+            return Err(fail(&name, format!("a synchronised replicas' gradient sums to {s}")));
+        }
+    }
     Ok(())
 }
 

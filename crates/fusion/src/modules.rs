@@ -78,6 +78,11 @@ impl PillarNet {
         let x = self.linear.forward(&p.features.reshape((n * npp, f))?)?;
         let x = crate::bnrelu::bn_relu(&self.bn, &x, train)?;
         let x = x.reshape((n, npp, self.channels))?.broadcast_mul(&p.mask)?;
+        if n == 0 {
+            // No pillars (a synchronised replica's empty modality): candle reduces no empty
+            // tensor, and the (0, C) rows need only stay in the graph.
+            return Ok(x.narrow(1, 0, 1.min(npp))?.reshape((0, self.channels))?);
+        }
         Ok(x.max(1)?)
     }
 
@@ -96,9 +101,10 @@ impl PillarNet {
         layout.from_rows(flat)
     }
 
-    /// Encode and scatter; an empty modality gives zeros.
+    /// Encode and scatter; an empty modality gives zeros (encoded with no rows when BatchNorm
+    /// is synchronised, so this replica still meets the others at the layer's exchanges).
     pub fn forward(&self, p: &PillarTensors, layout: &Layout, train: bool) -> Result<Tensor> {
-        if p.count == 0 {
+        if p.count == 0 && !(train && crate::bnrelu::synced()) {
             return Self::scatter(None, layout, self.channels, p.features.device());
         }
         let f = self.encode(p, train)?;

@@ -6,6 +6,7 @@
 //! machine's load); each preset's default schedule is registered with it (see the fusion crate's
 //! docs for how they were chosen).
 
+use crate::bnrelu::BatchNormSync;
 use crate::data::{Augmentation, Frame};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
 use crate::error::{FusionError, Result};
@@ -18,6 +19,7 @@ use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -49,10 +51,20 @@ pub struct TrainConfig {
     /// run forward and backward on its own (on a core of its own when the thread pool has one,
     /// else one after the other, to the same bytes), with BatchNorm statistics over its part
     /// (the first replica's running statistics are kept) and the parts' gradients averaged in
-    /// replica order, as multi-GPU training without synchronised BatchNorm does. Divides
-    /// `batch`; 1 (runs saved before the field existed read it) is the plain batch.
+    /// replica order, as multi-GPU training does. Divides `batch`; 1 (runs saved before the
+    /// field existed read it) is the plain batch.
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub replicas: usize,
+    /// With several replicas, BatchNorm normalises over the whole batch's rows rather than each
+    /// replica's ([`crate::bnrelu::BatchNormSync`]): the replicas' speed with the batch's
+    /// statistics. The replicas then always run at once, one thread each. False (runs saved
+    /// before the field existed read it): each replica's own statistics.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub sync_batch_norm: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 fn one() -> usize {
@@ -129,11 +141,36 @@ impl Default for TrainConfig {
             keep: Vec::new(),
             paste: Some(PasteConfig::default()),
             replicas: 1,
+            sync_batch_norm: false,
         }
     }
 }
 
 impl TrainConfig {
+    /// The settings' own consistency (what [`train`] and the benchmarks refuse).
+    pub fn validate(&self) -> Result<()> {
+        if self.batch == 0 || self.samples == 0 {
+            return Err(FusionError::Config(format!(
+                "train: batch = {} and samples = {} must be positive",
+                self.batch, self.samples
+            )));
+        }
+        if self.replicas == 0 || !self.batch.is_multiple_of(self.replicas) {
+            return Err(FusionError::Config(format!(
+                "train: replicas = {} must be positive and divide batch = {}",
+                self.replicas, self.batch
+            )));
+        }
+        if let Some(k) = self.keep.iter().find(|k| **k % self.batch != 0 || **k == 0 || **k > self.steps() * self.batch)
+        {
+            return Err(FusionError::Config(format!(
+                "train: keep = {k} must be a positive multiple of batch {} and at most the {} samples",
+                self.batch, self.samples
+            )));
+        }
+        Ok(())
+    }
+
     pub fn steps(&self) -> usize {
         self.samples.div_ceil(self.batch.max(1))
     }
@@ -435,6 +472,12 @@ impl ReplicaPools {
             .map(ReplicaPools)
     }
 
+    /// The pools a training with `cfg` runs its replicas on: one thread each when BatchNorm is
+    /// synchronised across them (they meet at every BatchNorm layer), else [`Self::new`].
+    pub fn for_config(cfg: &TrainConfig) -> Result<Self> {
+        if cfg.sync_batch_norm && cfg.replicas > 1 { Self::threads(cfg.replicas) } else { Self::new(cfg.replicas) }
+    }
+
     /// How many replicas run at once.
     pub fn parallel(&self) -> usize {
         self.0.len().max(1)
@@ -451,13 +494,28 @@ pub struct StepPass {
     pub reg: f32,
 }
 
-/// Forward and backward passes of one replica; the replicas after the first leave BatchNorm's
-/// running statistics alone.
-fn replica_pass(det: &Detector, opt: &AdamW, batch: &HostBatch, r: usize) -> Result<StepPass> {
-    let pass = || -> Result<StepPass> {
-        let heads = det.forward_heads(batch, true)?;
+/// Forward and backward passes of one replica (each part timed into `times` when given); the
+/// replicas after the first leave BatchNorm's running statistics alone, and with `sync` they
+/// normalise over all replicas' rows.
+fn replica_pass(
+    det: &Detector,
+    opt: &AdamW,
+    batch: &HostBatch,
+    r: usize,
+    sync: Option<&Arc<BatchNormSync>>,
+    mut times: Option<&mut StepTimes>,
+) -> Result<StepPass> {
+    let mut pass = || -> Result<StepPass> {
+        let heads = det.forward_timed(batch, true, times.as_deref_mut().map(|t| &mut t.forward))?;
+        let c = std::time::Instant::now();
         let loss = det.loss_all(&heads, &batch.targets)?;
+        let loss_s = c.elapsed().as_secs_f64();
+        let c = std::time::Instant::now();
         let grads = loss.total.backward()?;
+        if let Some(t) = times.as_deref_mut() {
+            t.loss_s += loss_s;
+            t.backward_s += c.elapsed().as_secs_f64();
+        }
         Ok(StepPass {
             grads: opt.gradients(&grads),
             total: loss.total.to_scalar::<f32>()?,
@@ -465,14 +523,35 @@ fn replica_pass(det: &Detector, opt: &AdamW, batch: &HostBatch, r: usize) -> Res
             reg: loss.reg,
         })
     };
-    if r == 0 { pass() } else { crate::bnrelu::with_running_stats_frozen(pass) }
+    let frozen_after_first = || if r == 0 { pass() } else { crate::bnrelu::with_running_stats_frozen(pass) };
+    match sync {
+        Some(group) => crate::bnrelu::with_synced_batch_norm(group, r, frozen_after_first),
+        None => frozen_after_first(),
+    }
 }
 
 /// The forward and backward passes of a step's replicas (`batches`, one each), run on `pools`,
-/// with their gradients summed in replica order and divided by their number.
-pub fn step_pass(det: &Detector, opt: &AdamW, batches: &[HostBatch], pools: &ReplicaPools) -> Result<StepPass> {
+/// with their gradients summed in replica order and divided by their number. With
+/// `sync_batch_norm` (and several replicas) BatchNorm normalises over all of them, which needs
+/// a pool per replica.
+pub fn step_pass(
+    det: &Detector,
+    opt: &AdamW,
+    batches: &[HostBatch],
+    pools: &ReplicaPools,
+    sync_batch_norm: bool,
+) -> Result<StepPass> {
+    let sync = (sync_batch_norm && batches.len() > 1).then(|| BatchNormSync::new(batches.len()));
+    if sync.is_some() && pools.0.len() < batches.len() {
+        return Err(FusionError::Config(format!(
+            "synchronised BatchNorm: {} replicas need a thread each, {} given",
+            batches.len(),
+            pools.0.len()
+        )));
+    }
+    let sync = sync.as_ref();
     let passes: Vec<StepPass> = if pools.0.is_empty() {
-        batches.iter().enumerate().map(|(r, b)| replica_pass(det, opt, b, r)).collect::<Result<_>>()?
+        batches.iter().enumerate().map(|(r, b)| replica_pass(det, opt, b, r, None, None)).collect::<Result<_>>()?
     } else {
         let w = pools.0.len();
         let joined = std::thread::scope(|scope| {
@@ -485,7 +564,7 @@ pub fn step_pass(det: &Detector, opt: &AdamW, batches: &[HostBatch], pools: &Rep
                         pool.install(|| {
                             (k..batches.len())
                                 .step_by(w)
-                                .map(|r| (r, replica_pass(det, opt, &batches[r], r)))
+                                .map(|r| (r, replica_pass(det, opt, &batches[r], r, sync, None)))
                                 .collect::<Vec<_>>()
                         })
                     })
@@ -494,11 +573,24 @@ pub fn step_pass(det: &Detector, opt: &AdamW, batches: &[HostBatch], pools: &Rep
             handles.into_iter().map(|h| h.join()).collect::<Vec<_>>()
         });
         let mut slots: Vec<Option<StepPass>> = (0..batches.len()).map(|_| None).collect();
+        // A replica's own error before the others' "the replicas parted" that it caused.
+        let mut failure: Option<FusionError> = None;
         for done in joined {
             let done = done.map_err(|_| FusionError::Config("a replica's thread panicked".into()))?;
             for (r, pass) in done {
-                slots[r] = Some(pass?);
+                match pass {
+                    Ok(p) => slots[r] = Some(p),
+                    Err(e) => {
+                        let own = !crate::bnrelu::is_parting(&e.to_string());
+                        if failure.as_ref().is_none_or(|f| own && crate::bnrelu::is_parting(&f.to_string())) {
+                            failure = Some(e);
+                        }
+                    }
+                }
             }
+        }
+        if let Some(e) = failure {
+            return Err(e);
         }
         slots
             .into_iter()
@@ -552,24 +644,7 @@ pub fn train(
     if frames.is_empty() {
         return Err(FusionError::Config("no training frames".into()));
     }
-    if cfg.batch == 0 || cfg.samples == 0 {
-        return Err(FusionError::Config(format!(
-            "train: batch = {} and samples = {} must be positive",
-            cfg.batch, cfg.samples
-        )));
-    }
-    if cfg.replicas == 0 || !cfg.batch.is_multiple_of(cfg.replicas) {
-        return Err(FusionError::Config(format!(
-            "train: replicas = {} must be positive and divide batch = {}",
-            cfg.replicas, cfg.batch
-        )));
-    }
-    if let Some(k) = cfg.keep.iter().find(|k| **k % cfg.batch != 0 || **k == 0 || **k > cfg.steps() * cfg.batch) {
-        return Err(FusionError::Config(format!(
-            "train: keep = {k} must be a positive multiple of batch {} and at most the {} samples",
-            cfg.batch, cfg.samples
-        )));
-    }
+    cfg.validate()?;
     if det_cfg.input.background.is_some() != background.is_some() {
         return Err(FusionError::Config(format!(
             "detector {}: input.background is {} but a background model was {}given",
@@ -640,11 +715,11 @@ pub fn train(
                 }
             }
         });
-        let pools = ReplicaPools::new(cfg.replicas)?;
+        let pools = ReplicaPools::for_config(cfg)?;
         let mut window = std::time::Instant::now();
         for step in start..steps {
             let batches = rx.recv().map_err(|_| FusionError::Config("the batch thread stopped".into()))?;
-            let pass = step_pass(&det, &opt, &batches, &pools)?;
+            let pass = step_pass(&det, &opt, &batches, &pools, cfg.sync_batch_norm)?;
             let lr = cfg.lr(step);
             opt.step_with(&pass.grads, lr, cfg.clip_norm)?;
             let total = pass.total;
@@ -755,7 +830,8 @@ pub struct StepTimes {
 
 /// Runs `steps` training steps of a fresh detector on `frames` with every part timed (the batch
 /// built on the same thread, and the replicas one after the other, so each part is measured
-/// alone; with several replicas a part's time is the sum over them). For benchmarks.
+/// alone; with several replicas a part's time is the sum over them, and BatchNorm is each
+/// replica's own: synchronising it adds barriers, not compute). For benchmarks.
 pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: usize) -> Result<StepTimes> {
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
@@ -768,21 +844,11 @@ pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: us
         let batches = replica_batches(&det.cfg, &step_frames, cfg, step, with_radar);
         t.data_s += t0.elapsed().as_secs_f64();
         let t1 = std::time::Instant::now();
-        let mut passes = Vec::with_capacity(batches.len());
-        for (r, batch) in batches.iter().enumerate() {
-            let mut pass = || -> Result<StepPass> {
-                let heads = det.forward_timed(batch, true, Some(&mut t.forward))?;
-                let c = std::time::Instant::now();
-                let loss = det.loss_all(&heads, &batch.targets)?;
-                t.loss_s += c.elapsed().as_secs_f64();
-                let c = std::time::Instant::now();
-                let grads = loss.total.backward()?;
-                t.backward_s += c.elapsed().as_secs_f64();
-                let total = loss.total.to_scalar::<f32>()?;
-                Ok(StepPass { grads: opt.gradients(&grads), total, cls: loss.cls, reg: loss.reg })
-            };
-            passes.push(if r == 0 { pass()? } else { crate::bnrelu::with_running_stats_frozen(pass)? });
-        }
+        let passes = batches
+            .iter()
+            .enumerate()
+            .map(|(r, batch)| replica_pass(det, &opt, batch, r, None, Some(&mut t)))
+            .collect::<Result<Vec<_>>>()?;
         let pass = average(passes)?;
         let c = std::time::Instant::now();
         opt.step_with(&pass.grads, cfg.lr(step), cfg.clip_norm)?;
@@ -793,8 +859,14 @@ pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: us
 }
 
 /// Wall seconds of `steps` training steps as training runs them (replicas side by side where
-/// the pool has the threads), batches prepared beforehand. For benchmarks.
-pub fn time_replicated_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: usize) -> Result<f64> {
+/// the pool has the threads), batches prepared beforehand, and how many replicas ran at once.
+/// For benchmarks.
+pub fn time_replicated_steps(
+    det: &Detector,
+    frames: &[Frame],
+    cfg: &TrainConfig,
+    steps: usize,
+) -> Result<(f64, usize)> {
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
     let paste = paste_db(frames, cfg)?;
@@ -805,13 +877,13 @@ pub fn time_replicated_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig
             replica_batches(&det.cfg, &f, cfg, step, with_radar)
         })
         .collect();
-    let pools = ReplicaPools::new(cfg.replicas)?;
+    let pools = ReplicaPools::for_config(cfg)?;
     let t0 = std::time::Instant::now();
     for (step, b) in batches.iter().enumerate() {
-        let pass = step_pass(det, &opt, b, &pools)?;
+        let pass = step_pass(det, &opt, b, &pools, cfg.sync_batch_norm)?;
         opt.step_with(&pass.grads, cfg.lr(step), cfg.clip_norm)?;
     }
-    Ok(t0.elapsed().as_secs_f64())
+    Ok((t0.elapsed().as_secs_f64(), pools.parallel()))
 }
 
 #[cfg(test)]

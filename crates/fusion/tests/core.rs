@@ -252,7 +252,7 @@ fn replicas_average_gradients_deterministically() {
     let run = |pools: &ReplicaPools| {
         let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
         let opt = AdamW::new(det.trainable(), 0.01).unwrap();
-        let pass = step_pass(&det, &opt, &batches, pools).unwrap();
+        let pass = step_pass(&det, &opt, &batches, pools, false).unwrap();
         (host(&pass.grads), pass.total, running_stats(&det))
     };
     let one_after_other = run(&ReplicaPools::sequential());
@@ -316,6 +316,95 @@ fn replicas_average_gradients_deterministically() {
     assert!(e.contains("replicas = 3") && e.contains("batch = 2"), "{e}");
 }
 
+/// Two replicas with synchronised BatchNorm train as one batch of two: on frames with as many
+/// boxes each (so the mean of the replicas' losses is the batch's loss) and no pillar over the
+/// point cap (so no pillar is sampled, differently by each replica's seed) their gradients, loss
+/// and running statistics are the plain batch's (to float rounding), the same bytes twice, and
+/// not what unsynchronised replicas give. A replica whose frame is empty still meets the other
+/// at every BatchNorm layer; too few threads are refused; runs resume byte-identically.
+#[test]
+fn synchronised_replicas_train_as_one_batch() {
+    let mut cfg = small("centerpoint");
+    // No pillar over the point cap, so the replicas' pillars are the batch's (no sampling).
+    cfg.grid.max_points_per_pillar = 128;
+    let reg = Registry::with_builtin();
+    let frames = [frame(7, &[car(3.0, 2.0, 0.4), ped(-5.0, -3.0)]), frame(8, &[car(-6.0, 6.0, 2.0), ped(1.0, 1.0)])];
+    let replicas: Vec<HostBatch> = frames
+        .iter()
+        .enumerate()
+        .map(|(r, f)| HostBatch::new(&cfg, std::slice::from_ref(f), false, r as u64))
+        .collect();
+    let whole = [HostBatch::new(&cfg, &frames, false, 0)];
+    type Grads = Vec<Option<Vec<f32>>>;
+    let run = |batches: &[HostBatch], pools: &ReplicaPools, sync: bool| {
+        let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+        let opt = AdamW::new(det.trainable(), 0.01).unwrap();
+        let pass = step_pass(&det, &opt, batches, pools, sync).unwrap();
+        let grads: Grads =
+            pass.grads.iter().map(|g| g.as_ref().map(|g| g.flatten_all().unwrap().to_vec1::<f32>().unwrap())).collect();
+        (grads, pass.total, running_stats(&det))
+    };
+    let synced = run(&replicas, &ReplicaPools::threads(2).unwrap(), true);
+    assert_eq!(
+        synced,
+        run(&replicas, &ReplicaPools::threads(2).unwrap(), true),
+        "synchronised replicas are not repeatable"
+    );
+    let batch = run(&whole, &ReplicaPools::sequential(), false);
+    let unsynced = run(&replicas, &ReplicaPools::threads(2).unwrap(), false);
+    assert!((synced.1 - batch.1).abs() <= 1e-5 * (1.0 + batch.1.abs()), "loss {} vs {}", synced.1, batch.1);
+    for ((name, a), (_, b)) in synced.2.iter().zip(&batch.2) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-5 * (1.0 + y.abs()), "{name}: {x} vs {y}");
+        }
+    }
+    // The largest gradient difference, relative to the variable's scale.
+    let worst = |a: &Grads, b: &Grads| {
+        a.iter().zip(b).fold(0f32, |m, (a, b)| match (a, b) {
+            (Some(a), Some(b)) => {
+                let scale = b.iter().fold(0f32, |s, v| s.max(v.abs())).max(1e-12);
+                a.iter().zip(b).fold(m, |m, (x, y)| m.max((x - y).abs() / scale))
+            }
+            (None, None) => m,
+            _ => f32::INFINITY,
+        })
+    };
+    let (d_synced, d_unsynced) = (worst(&synced.0, &batch.0), worst(&unsynced.0, &batch.0));
+    assert!(d_synced <= 1e-3, "synchronised replicas' gradients differ from the batch's by {d_synced}");
+    assert!(d_unsynced > 100.0 * d_synced, "unsynchronised replicas too close to the batch: {d_unsynced}");
+
+    // A replica with an empty frame takes part with no rows.
+    let empty =
+        Frame { sample_token: "e".into(), scene: "s".into(), lidar: Vec::new(), radar: Vec::new(), boxes: Vec::new() };
+    let with_empty = [replicas[0].clone(), HostBatch::new(&cfg, std::slice::from_ref(&empty), false, 1)];
+    let r = run(&with_empty, &ReplicaPools::threads(2).unwrap(), true);
+    assert!(r.1.is_finite() && r.0.iter().flatten().flatten().all(|g| g.is_finite()));
+    // Synchronised replicas one after the other would wait for each other: refused.
+    let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+    let opt = AdamW::new(det.trainable(), 0.01).unwrap();
+    let e = step_pass(&det, &opt, &replicas, &ReplicaPools::sequential(), true).unwrap_err().to_string();
+    assert!(e.contains("thread each"), "{e}");
+
+    // Whole runs resume to the same bytes.
+    let frames: Vec<Frame> =
+        (0..6).map(|k| frame(20 + k, &[car(k as f32 - 3.0, 2.0, 0.1 * k as f32), ped(4.0, -(k as f32))])).collect();
+    let tc = TrainConfig {
+        samples: 2 * 6,
+        batch: 2,
+        replicas: 2,
+        sync_batch_norm: true,
+        checkpoint_steps: 2,
+        ..TrainConfig::default()
+    };
+    let w = |d: &std::path::Path| std::fs::read(d.join("model.safetensors")).unwrap();
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    train(a.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    train(b.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |r| r.step < 3).unwrap();
+    let info = train(b.path(), &cfg, &tc, &frames, None, &reg, &Device::Cpu, &mut |_| true).unwrap();
+    assert!(info.finished && info.step == 6);
+    assert_eq!(w(a.path()), w(b.path()), "a resumed run with synchronised replicas differs");
+}
+
 #[test]
 fn bad_input_is_a_clear_error() {
     let e = Registry::with_builtin().preset("pointrcnn").unwrap_err().to_string();
@@ -347,4 +436,11 @@ fn bad_input_is_a_clear_error() {
     cfg.fusion_config = serde_json::json!({ "chanels": 32 });
     let e = Detector::new(&cfg, &r, &Device::Cpu, 0).unwrap_err().to_string();
     assert!(e.contains("lidar") && e.contains("chanels"), "{e}");
+}
+
+/// The built-in LiDAR-only plugin's presets (`centerpoint`, `pointpillars`) pass the same
+/// conformance suite as the plugins' crates run on theirs.
+#[test]
+fn the_builtin_plugin_passes_the_conformance_suite() {
+    hilo_fusion::conformance::check_plugin(&Registry::with_builtin(), "lidar").unwrap();
 }

@@ -16,7 +16,7 @@
 //! gated middle fusion). `early = false` is the paper's ablation: the joint encoder then sees
 //! the radar points only, so LiDAR and radar meet only in the middle stage.
 
-use candle_core::Tensor;
+use candle_core::{DType, Tensor};
 use candle_nn::{BatchNorm, Linear, Module, VarBuilder};
 use hilo_fusion::data::LIDAR_FEATURES;
 use hilo_fusion::detector::without_early;
@@ -200,11 +200,18 @@ impl EarlyFusion {
         let c = self.cfg.channels;
         let layout = input.layout;
         if parts.is_empty() {
-            return layout.from_rows(layout.zeros(c, &dev)?);
+            if !(train && hilo_fusion::bnrelu::synced()) {
+                return layout.from_rows(layout.zeros(c, &dev)?);
+            }
+            // A synchronised replica meets the others at the BatchNorm, with no rows.
+            let npp = input.radar.features.dim(1)?;
+            parts.push((Tensor::zeros((0, npp, JOINT), DType::F32, &dev)?, input.radar));
         }
         // One BatchNorm over the points of both modalities.
-        let rows: Vec<Tensor> =
-            parts.iter().map(|(x, _)| x.reshape(((), JOINT))).collect::<candle_core::Result<_>>()?;
+        let rows: Vec<Tensor> = parts
+            .iter()
+            .map(|(x, _)| x.dims3().and_then(|(n, npp, _)| x.reshape((n * npp, JOINT))))
+            .collect::<candle_core::Result<_>>()?;
         let sizes: Vec<usize> = rows.iter().map(|r| r.dim(0)).collect::<candle_core::Result<_>>()?;
         let all = hilo_fusion::bnrelu::bn_relu(&self.bn, &self.linear.forward(&Tensor::cat(&rows, 0)?)?, train)?;
         let mut offset = 0;
@@ -212,6 +219,12 @@ impl EarlyFusion {
         let mut count = layout.zeros(1, &dev)?;
         for ((_, p), rows_k) in parts.iter().zip(sizes) {
             let (n, npp, _) = p.features.dims3()?;
+            if n == 0 {
+                // No pillars: nothing to aggregate (candle reduces no empty tensor), but the
+                // rows stay in the graph so the backward pass meets the other replicas too.
+                acc = acc.index_add(&p.index, &all.narrow(0, offset, 0)?, 0)?;
+                continue;
+            }
             let x = all.narrow(0, offset, rows_k)?.reshape((n, npp, c))?.broadcast_mul(&p.mask)?;
             offset += rows_k;
             match self.cfg.aggregation {
