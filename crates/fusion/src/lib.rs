@@ -54,7 +54,8 @@
 //!   not long ones (12,000: 0.725 against 0.744), so the presets' default schedule is uniform;
 //! - **default schedule** ([`train::TrainConfig::default`]): 12,000 samples in batches of 2,
 //!   one-cycle to 6e-3, ground-truth paste; `lirafusion-like` the same over 24,000 samples
-//!   with two data-parallel replicas ([`presets::plateau_schedule`]) and `centerpoint` over
+//!   with two data-parallel replicas and synchronised BatchNorm ([`presets::plateau_schedule`])
+//!   and `centerpoint` over
 //!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores (below;
 //!   both were 18,000 samples with one replica before). Before paste, `centerpoint`'s curve (1.5k
 //!   0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
@@ -76,17 +77,19 @@
 //! - **data-parallel replicas** ([`train::TrainConfig::replicas`], 2 in the schedules of
 //!   `centerpoint` and `lirafusion-like`): a batch of two runs as two replicas of one sample,
 //!   each forward and backward pass on a core of its own (a one-thread pool, candle on one
-//!   thread), their gradients averaged in replica order, BatchNorm statistics per replica and
-//!   the first replica's running statistics kept, as multi-GPU training without synchronised
-//!   BatchNorm does. The weights do not depend on the threads (the replicas one after the
-//!   other give the same bytes). 1.50× the samples/s of one replica for both presets (66.5 →
-//!   99.6 and 65.2 → 97.9 in one idle bench series; two replicas of one sample cost a fifth to
-//!   a third more compute than one batch of two). BatchNorm over one sample costs sample
-//!   efficiency (seed 0 at 18,000 samples: 0.792 against 0.815 for `lirafusion-like`, 0.768
-//!   against 0.786 for `centerpoint`), so what replicas buy is time: `lirafusion-like` 24,000
-//!   samples in 244–256 s (0.793 on two seeds, 0.02 below 18,000 samples with one replica,
-//!   which took 323.5 s, over five minutes), `centerpoint` 30,000 in 260.9–295.0 s (0.778 and
-//!   0.797, about what 18,000 with one replica reach in 250–272 s). The README has their
+//!   thread), their gradients averaged in replica order and the first replica's running
+//!   statistics kept, as multi-GPU training does. The weights do not depend on the threads.
+//!   1.50× the samples/s of one replica for both presets (66.5 → 99.6 and 65.2 → 97.9 in one
+//!   idle bench series; two replicas of one sample cost a fifth to a third more compute than one
+//!   batch of two). With BatchNorm over each replica's one sample they cost sample efficiency
+//!   (seed 0 at 18,000 samples: 0.792 against 0.815 for `lirafusion-like`, 0.768 against 0.786
+//!   for `centerpoint`), so the schedules synchronise it
+//!   ([`train::TrainConfig::sync_batch_norm`], [`bnrelu::BatchNormSync`]): the replicas exchange
+//!   each BatchNorm layer's per-channel sums in the fused node, forward and backward, and the
+//!   step's gradient is the batch of two's (tested against one batch to float rounding). The
+//!   barriers cost 5–10% of the speed (`lirafusion-like` 24,000 samples in 262.4 s and 272.5 s
+//!   against 244.3 s and 256.0 s) and buy +0.03 mAP at the default schedules (0.829 and 0.827
+//!   against 0.795 and 0.791; `centerpoint` 0.806 against 0.778 on seed 0). The README has their
 //!   learning curves. A study trains its detectors side by side, one core each, so it keeps one
 //!   replica;
 //! - **fused CPU nodes** ([`layout::GatherConv`], [`bnrelu`]): candle's backward pass gives every

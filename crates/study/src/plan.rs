@@ -224,9 +224,9 @@ impl Plan {
                 for seed in 0..profile.seeds as u64 {
                     // One replica: the study trains its detectors side by side, one core each
                     // (`stages::train_all`), so a schedule's data-parallel replicas would run one
-                    // after the other on that core, no faster, with BatchNorm statistics over
-                    // fewer samples.
-                    let mut tc = TrainConfig { seed, replicas: 1, ..p.train.clone() };
+                    // after the other on that core, no faster (and synchronised BatchNorm, which
+                    // needs them at once, could not run).
+                    let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..p.train.clone() };
                     if let Some(n) = profile.train_samples {
                         tc.samples = n;
                     }
