@@ -87,8 +87,9 @@
 //!   ([`train::TrainConfig::sync_batch_norm`], [`bnrelu::BatchNormSync`]): the replicas exchange
 //!   each BatchNorm layer's per-channel sums in the fused node, forward and backward, and the
 //!   step's gradient is the batch of two's (tested against one batch to float rounding). The
-//!   barriers cost 5–10% of the speed (`lirafusion-like` 24,000 samples in 262.4 s and 272.5 s
-//!   against 244.3 s and 256.0 s) and buy +0.03 mAP at the default schedules (0.829 and 0.827
+//!   barriers cost 4% (`centerpoint`) to 12% (`lirafusion-like`) of the samples/s in the bench
+//!   (`lirafusion-like` 24,000 samples in 262.4 s and 272.5 s against 256.0 s and 244.3 s) and
+//!   buy +0.03 mAP at the default schedules (0.829 and 0.827
 //!   against 0.795 and 0.791; `centerpoint` 0.806 against 0.778 on seed 0). The README has their
 //!   learning curves. A study trains its detectors side by side, one core each, so it keeps one
 //!   replica;

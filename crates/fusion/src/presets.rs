@@ -80,8 +80,8 @@ pub fn pointpillars() -> DetectorConfig {
 /// core on two cores: with one replica training leaves the second core idle) with BatchNorm
 /// synchronised across them, so the step normalises as a batch of two does. That fits five
 /// minutes of the fused preset on the slowest two-core machine measured (262.4 s and 272.5 s on
-/// two seeds, mAP 0.829 and 0.827). Without the synchronisation the replicas ran 5–10% faster
-/// (244.3 s and 256.0 s) to 0.795 and 0.791: BatchNorm over one sample cost more than the
+/// two seeds, mAP 0.829 and 0.827). Without the synchronisation the replicas ran up to 12%
+/// faster (256.0 s and 244.3 s) to 0.795 and 0.791: BatchNorm over one sample cost more than the
 /// samples it bought. The README's learning curve has the gains of four times this.
 pub fn plateau_schedule() -> TrainConfig {
     TrainConfig { samples: 24_000, replicas: 2, sync_batch_norm: true, ..TrainConfig::default() }
