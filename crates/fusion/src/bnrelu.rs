@@ -179,7 +179,7 @@ const PARTED: &str = "synchronised BatchNorm: the replicas parted";
 
 /// Whether an error message is a replica's report that the others left the exchange (the
 /// consequence of another replica's failure or of networks that took different paths).
-pub fn is_parting(message: &str) -> bool {
+pub(crate) fn is_parting(message: &str) -> bool {
     message.contains(PARTED)
 }
 

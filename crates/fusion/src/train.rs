@@ -573,24 +573,20 @@ pub fn step_pass(
             handles.into_iter().map(|h| h.join()).collect::<Vec<_>>()
         });
         let mut slots: Vec<Option<StepPass>> = (0..batches.len()).map(|_| None).collect();
-        // A replica's own error before the others' "the replicas parted" that it caused.
-        let mut failure: Option<FusionError> = None;
+        let mut errors = Vec::new();
         for done in joined {
             let done = done.map_err(|_| FusionError::Config("a replica's thread panicked".into()))?;
             for (r, pass) in done {
                 match pass {
                     Ok(p) => slots[r] = Some(p),
-                    Err(e) => {
-                        let own = !crate::bnrelu::is_parting(&e.to_string());
-                        if failure.as_ref().is_none_or(|f| own && crate::bnrelu::is_parting(&f.to_string())) {
-                            failure = Some(e);
-                        }
-                    }
+                    Err(e) => errors.push(e),
                 }
             }
         }
-        if let Some(e) = failure {
-            return Err(e);
+        // A replica's own error before the "replicas parted" errors it caused in the others.
+        if !errors.is_empty() {
+            let own = errors.iter().position(|e| !crate::bnrelu::is_parting(&e.to_string())).unwrap_or(0);
+            return Err(errors.swap_remove(own));
         }
         slots
             .into_iter()
