@@ -7,7 +7,9 @@ use crate::error::{FusionError, Result};
 use crate::fusion::{Fusion, FusionInput, FusionOutput, Registry};
 use crate::grid::BevGrid;
 use crate::layout::{At, Layout, SparseConfig, SparseHost};
-use crate::loss::{centernet_focal, masked_l1, sigmoid_focal};
+use crate::loss::{
+    centernet_focal, centernet_focal_terms, masked_l1, per_class_mean, sigmoid_focal, sigmoid_focal_terms,
+};
 use crate::modules::{Backbone, BackboneConfig, Head, PillarTensors, REG_CHANNELS};
 use crate::targets::{Assignment, Targets};
 use candle_core::{DType, Device, Tensor};
@@ -38,6 +40,30 @@ pub struct DetectorConfig {
     /// Compute on the occupied cells only (`None`: dense maps over the whole grid).
     #[serde(default)]
     pub sparse: Option<SparseConfig>,
+    /// What the losses are normalised by (detectors saved before the field existed read
+    /// [`LossNorm::All`]).
+    #[serde(default, skip_serializing_if = "LossNorm::is_all")]
+    pub loss_norm: LossNorm,
+}
+
+/// What a batch's classification and regression losses are divided by.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LossNorm {
+    /// The number of positives of all classes (CenterNet, PointPillars): each class weighs in
+    /// as often as it occurs, so rare classes move the weights least.
+    #[default]
+    All,
+    /// Each class by its own positives and the classes averaged (CenterPoint's per-task heads,
+    /// one task per class): a bus counts as much as all the cars of the batch together. A class
+    /// without positives in the batch is normalised by 1, its false positives still penalised.
+    PerClass,
+}
+
+impl LossNorm {
+    fn is_all(&self) -> bool {
+        *self == LossNorm::All
+    }
 }
 
 impl DetectorConfig {
@@ -356,11 +382,26 @@ impl Detector {
         } else {
             (Tensor::from_slice(&t.mask, (cls.dim(0)?, 1), dev)?, Tensor::from_slice(&w, (1, REG_CHANNELS), dev)?)
         };
-        let lc = match self.cfg.assignment {
-            Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
-            Assignment::Inside => sigmoid_focal(cls, &tc, t.num_pos)?,
+        let (lc, lr) = match self.cfg.loss_norm {
+            LossNorm::All => (
+                match self.cfg.assignment {
+                    Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
+                    Assignment::Inside => sigmoid_focal(cls, &tc, t.num_pos)?,
+                },
+                masked_l1(reg, &tr, &tm, &cw, t.num_pos)?,
+            ),
+            LossNorm::PerClass => {
+                let terms = match self.cfg.assignment {
+                    Assignment::Center => centernet_focal_terms(cls, &tc)?,
+                    Assignment::Inside => sigmoid_focal_terms(cls, &tc)?,
+                };
+                let site_w = t.per_class_site_weights(cls.dim(1)?, cls.rank() == 4);
+                (
+                    per_class_mean(&terms, &t.pos_per_class)?,
+                    masked_l1(reg, &tr, &Tensor::from_vec(site_w, tm.shape(), dev)?, &cw, 1.0)?,
+                )
+            }
         };
-        let lr = masked_l1(reg, &tr, &tm, &cw, t.num_pos)?;
         let total = (&lc + (&lr * 0.25)?)?;
         Ok(Loss { total, cls: lc.to_scalar::<f32>()?, reg: lr.to_scalar::<f32>()? })
     }

@@ -56,8 +56,9 @@
 //!   one-cycle to 6e-3, ground-truth paste; `lirafusion-like` the same over 24,000 samples
 //!   with two data-parallel replicas and synchronised BatchNorm ([`presets::plateau_schedule`])
 //!   and `centerpoint` over
-//!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores (below;
-//!   both were 18,000 samples with one replica before). Before paste, `centerpoint`'s curve (1.5k
+//!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores of ~200
+//!   GFLOP/s matrix-product peak (below; both were 18,000 samples with one replica before; a
+//!   two-core machine of 75 GFLOP/s takes about ten minutes). Before paste, `centerpoint`'s curve (1.5k
 //!   0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
 //!   `lirafusion-like` stopped short of its plateau at 18,000 (four times longer gained +0.036 on
 //!   average over four seeds, mostly the large vehicles); larger batches at higher rates (4 at
@@ -101,6 +102,13 @@
 //!   product. `centerpoint` 55.6 → 71.8 and `lirafusion-like` 43.1 → 56.1 samples/s on a machine
 //!   whose matrix-product peak is ~200 GFLOP/s, at unchanged mAP (seed 0, 18,000 samples: 0.786
 //!   and 0.815). Other devices keep candle's operations;
+//! - **per-class loss normalisation** ([`detector::LossNorm`], an option, not adopted): each
+//!   class's heatmap and regression losses divided by its own positives and the classes
+//!   averaged, as CenterPoint's per-task heads do. On `centerpoint` four times its default
+//!   schedule then gains +0.016 (seed 0; +0.040 and +0.031 with one normaliser), but because
+//!   the plateau is lower (0.832 against 0.847 at 120,000 samples): at the default schedule the
+//!   mAP is unchanged (0.816 and 0.806 against 0.806 and 0.810) and pedestrian AP falls by
+//!   0.02–0.03, so every preset keeps one normaliser;
 //! - **operators fixed**: `GatedChannel` gates each channel (it computed one scalar per
 //!   modality), and seeded initialisation no longer overrides the weighted operator's α = 0.5.
 

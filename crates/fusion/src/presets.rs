@@ -4,7 +4,7 @@
 
 use crate::data::InputConfig;
 use crate::decode::DecodeConfig;
-use crate::detector::DetectorConfig;
+use crate::detector::{DetectorConfig, LossNorm};
 use crate::fusion::Preset;
 use crate::grid::BevGrid;
 use crate::layout::SparseConfig;
@@ -30,8 +30,10 @@ pub fn default_input() -> InputConfig {
 /// `centerpoint`: PointPillars' pillar encoder (32 channels), a backbone at strides 2/4/8
 /// (32/64/128 channels), a neck back to the pillar grid (stride 1, 0.8 m cells, 16 channels per
 /// block), CenterPoint's head (Gaussian heatmaps, a 3×3 convolution of 16 channels per task,
-/// peak extraction), on the occupied cells only (sparse, head sites dilated by 2 cells). Left
-/// out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second refinement stage,
+/// peak extraction), on the occupied cells only (sparse, head sites dilated by 2 cells), its
+/// losses normalised by the positives of all classes ([`LossNorm::All`]; CenterPoint's per-task
+/// normalisation, [`LossNorm::PerClass`], was measured and not adopted: the README has why).
+/// Left out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second refinement stage,
 /// multi-group heads, circular NMS.
 pub fn centerpoint() -> DetectorConfig {
     DetectorConfig {
@@ -49,6 +51,7 @@ pub fn centerpoint() -> DetectorConfig {
         decode: DecodeConfig::default(),
         input: default_input(),
         sparse: Some(SparseConfig::default()),
+        loss_norm: LossNorm::All,
     }
 }
 
@@ -79,8 +82,9 @@ pub fn pointpillars() -> DetectorConfig {
 /// 24,000 samples, each batch of two run as two data-parallel replicas of one sample (one per
 /// core on two cores: with one replica training leaves the second core idle) with BatchNorm
 /// synchronised across them, so the step normalises as a batch of two does. That fits five
-/// minutes of the fused preset on the slowest two-core machine measured (262.4 s and 272.5 s on
-/// two seeds, mAP 0.829 and 0.827). Without the synchronisation the replicas ran up to 12%
+/// minutes of the fused preset on two-core machines of ~200 GFLOP/s matrix-product peak
+/// (262.4 s and 272.5 s on two seeds, mAP 0.829 and 0.827); one of 75 GFLOP/s measured later
+/// takes about twice as long (the schedule is fixed in samples, not seconds). Without the synchronisation the replicas ran up to 12%
 /// faster (256.0 s and 244.3 s) to 0.795 and 0.791: BatchNorm over one sample cost more than the
 /// samples it bought. The README's learning curve has the gains of four times this.
 pub fn plateau_schedule() -> TrainConfig {

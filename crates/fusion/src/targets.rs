@@ -16,13 +16,15 @@ pub enum Assignment {
 }
 
 /// Targets of a batch: class map (B, K, H, W), regression (B, 10, H, W), positive mask
-/// (B, 1, H, W), all row-major, and the number of positives.
+/// (B, 1, H, W), all row-major, and the number of positives, in all and per class.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Targets {
     pub cls: Vec<f32>,
     pub reg: Vec<f32>,
     pub mask: Vec<f32>,
     pub num_pos: f32,
+    /// Positives per class (their sum is `num_pos`).
+    pub pos_per_class: Vec<f32>,
     pub size: usize,
 }
 
@@ -38,6 +40,7 @@ impl Targets {
             reg: Vec::with_capacity(sites.len() * REG_CHANNELS),
             mask: Vec::with_capacity(sites.len()),
             num_pos: self.num_pos,
+            pos_per_class: self.pos_per_class.clone(),
             size: self.size,
         };
         for &s in sites {
@@ -51,6 +54,25 @@ impl Targets {
             t.mask.push(self.mask[b * hw + rc]);
         }
         t
+    }
+
+    /// The regression's weight at each cell of the mask for [`crate::loss::per_class_mean`]'s
+    /// normalisation: a positive cell weighs its class's `1 / (K · max(1, n_k))` (its class: the
+    /// one whose map is 1 there), other cells 0. `dense`: the maps are `(B, K, H, W)`, else
+    /// `(N, K)` at sites.
+    pub fn per_class_site_weights(&self, classes: usize, dense: bool) -> Vec<f32> {
+        let w = crate::loss::class_weights(&self.pos_per_class, classes);
+        let hw = self.size * self.size;
+        let fallback = 1.0 / (classes as f32 * self.num_pos.max(1.0));
+        (0..self.mask.len())
+            .map(|i| {
+                if self.mask[i] <= 0.0 {
+                    return 0.0;
+                }
+                let at = |k: usize| if dense { (i / hw * classes + k) * hw + i % hw } else { i * classes + k };
+                (0..classes).find(|&k| self.cls[at(k)] >= 0.999).map_or(fallback, |k| w[k])
+            })
+            .collect()
     }
 }
 
@@ -75,6 +97,7 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
         reg: vec![0.0; b * REG_CHANNELS * hw],
         mask: vec![0.0; b * hw],
         num_pos: 0.0,
+        pos_per_class: vec![0.0; classes],
         size: n,
     };
     for (bi, boxes) in frames.iter().enumerate() {
@@ -104,6 +127,7 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
                 }
                 if t.mask[bi * hw + r * n + c] == 0.0 {
                     t.num_pos += 1.0;
+                    t.pos_per_class[g.class] += 1.0;
                 }
                 t.mask[bi * hw + r * n + c] = 1.0;
             };

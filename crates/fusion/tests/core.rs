@@ -6,9 +6,9 @@
 use candle_core::{Device, Tensor};
 use hilo_core::Class;
 use hilo_fusion::data::{Augmentation, Frame, GtBox};
-use hilo_fusion::detector::{Detector, DetectorConfig, HostBatch};
+use hilo_fusion::detector::{Detector, DetectorConfig, HostBatch, LossNorm};
 use hilo_fusion::grid::BevGrid;
-use hilo_fusion::loss::{centernet_focal, sigmoid_focal, softplus};
+use hilo_fusion::loss::{centernet_focal, per_class_mean, sigmoid_focal, softplus};
 use hilo_fusion::train::{AdamW, ReplicaPools, TrainConfig, step_pass, train};
 use hilo_fusion::{Registry, Stage};
 use rand::{Rng, SeedableRng};
@@ -113,6 +113,55 @@ fn losses_are_finite_and_exact_for_extreme_logits() {
         .to_scalar::<f32>()
         .unwrap();
     assert!((v - 0.25 * std::f32::consts::LN_2).abs() < 1e-6, "{v}");
+}
+
+/// CenterPoint's per-task normalisation ([`LossNorm::PerClass`]) against the formula on the
+/// host: `(1/K) Σ_k Σ terms[·, k, ·] / max(1, n_k)`, for site rows and dense maps, with classes
+/// that have no positives; each present class's regression weights sum to `1/K`.
+#[test]
+fn per_class_normalisation_weighs_every_class_alike() {
+    let d = Device::Cpu;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let counts = [7.0f32, 0.0, 1.0, 3.0, 12.0, 0.0];
+    for dims in [vec![37usize, 6], vec![2, 6, 3, 5]] {
+        let n: usize = dims.iter().product();
+        let v: Vec<f32> = (0..n).map(|_| rng.random_range(0.0..2.0)).collect();
+        let terms = Tensor::from_vec(v.clone(), dims.as_slice(), &d).unwrap();
+        let got = per_class_mean(&terms, &counts).unwrap().to_scalar::<f32>().unwrap() as f64;
+        let inner: usize = dims[2..].iter().product();
+        let mut want = 0.0f64;
+        for (i, x) in v.iter().enumerate() {
+            let k = (i / inner) % 6;
+            want += *x as f64 / (6.0 * counts[k].max(1.0) as f64);
+        }
+        assert!((got - want).abs() <= 1e-5 * want, "{dims:?}: {got} vs {want}");
+    }
+    // Targets of a real batch: three cars and a pedestrian over two frames.
+    let frames =
+        vec![frame(1, &[car(2.0, 3.0, 0.3), ped(-4.0, 1.0)]), frame(2, &[car(-6.0, 6.0, 2.0), car(6.0, -7.0, -1.0)])];
+    for cfg in [dense("centerpoint"), small("centerpoint")] {
+        let b = HostBatch::new(&cfg, &frames, false, 0);
+        let t = &b.targets;
+        assert_eq!(t.pos_per_class.len(), 6);
+        assert_eq!((t.pos_per_class[0], t.pos_per_class[4], t.num_pos), (3.0, 1.0, 4.0));
+        let w = t.per_class_site_weights(6, cfg.sparse.is_none());
+        assert_eq!(w.len(), t.mask.len());
+        let total: f32 = w.iter().sum();
+        assert!((total - 2.0 / 6.0).abs() < 1e-6, "two classes present, each weighing 1/6: {total}");
+        assert!(w.iter().zip(&t.mask).all(|(w, m)| (*w > 0.0) == (*m > 0.0)));
+        // The detector's loss with the option: finite, and it differs from the plain one.
+        let per_class = DetectorConfig { loss_norm: LossNorm::PerClass, ..cfg.clone() };
+        let plain = DetectorConfig { loss_norm: LossNorm::All, ..cfg.clone() };
+        let losses: Vec<f32> = [plain, per_class]
+            .iter()
+            .map(|c| {
+                let det = Detector::new(c, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+                let (cls, reg) = det.forward(&b, true).unwrap();
+                det.loss(&cls, &reg, t).unwrap().total.to_scalar::<f32>().unwrap()
+            })
+            .collect();
+        assert!(losses.iter().all(|l| l.is_finite()) && losses[0] != losses[1], "{losses:?}");
+    }
 }
 
 #[test]
@@ -327,6 +376,9 @@ fn synchronised_replicas_train_as_one_batch() {
     let mut cfg = small("centerpoint");
     // No pillar over the point cap, so the replicas' pillars are the batch's (no sampling).
     cfg.grid.max_points_per_pillar = 128;
+    // One normaliser for all classes: the per-class one divides a class absent from the batch
+    // by 1, so the replicas' mean loss would weigh its negatives half as much as the batch does.
+    cfg.loss_norm = LossNorm::All;
     let reg = Registry::with_builtin();
     let frames = [frame(7, &[car(3.0, 2.0, 0.4), ped(-5.0, -3.0)]), frame(8, &[car(-6.0, 6.0, 2.0), ped(1.0, 1.0)])];
     let replicas: Vec<HostBatch> = frames
