@@ -58,8 +58,8 @@
 //!   and `centerpoint` over
 //!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores of ~200
 //!   GFLOP/s matrix-product peak (below; both were 18,000 samples with one replica before; a
-//!   two-core machine of 75 GFLOP/s takes about ten minutes). Before paste, `centerpoint`'s curve (1.5k
-//!   0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
+//!   two-core machine of 75 GFLOP/s takes about ten minutes). Before paste, `centerpoint`'s
+//!   curve (1.5k 0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
 //!   `lirafusion-like` stopped short of its plateau at 18,000 (four times longer gained +0.036 on
 //!   average over four seeds, mostly the large vehicles); larger batches at higher rates (4 at
 //!   1e-2: 0.710, 8 at 2e-2: 0.718), a higher peak rate (1.2e-2: 0.719, 2e-2: 0.721) and dropping
