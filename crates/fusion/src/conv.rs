@@ -252,6 +252,20 @@ impl Conv {
         self.add_bias(crate::layout::gather_conv(x, &self.weight, rules)?)
     }
 
+    /// The kernel `(C_out, C_in, k, k)`.
+    pub(crate) fn weight(&self) -> &Tensor {
+        &self.weight
+    }
+
+    pub(crate) fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// The bias `(C_out,)`, where the convolution has one.
+    pub(crate) fn bias(&self) -> Option<&Tensor> {
+        self.bias.as_ref()
+    }
+
     fn add_bias(&self, y: Tensor) -> Result<Tensor> {
         Ok(match &self.bias {
             Some(b) => y.broadcast_add(b)?,

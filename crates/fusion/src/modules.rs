@@ -136,6 +136,25 @@ impl ConvBn {
     pub fn forward_rules(&self, x: &Tensor, rules: &Tensor, train: bool) -> Result<Tensor> {
         crate::bnrelu::bn_relu(&self.bn, &self.conv.forward_rules(x, rules)?, train)
     }
+
+    /// `(a.forward(x), b.forward(x))` for two 3×3 stride-1 layers without bias that read the
+    /// same sparse rows: one gather of `x` and one matrix product with the two kernels side by
+    /// side instead of two of each (and one scatter of their input gradient instead of two),
+    /// each half then through its own BatchNorm + ReLU. The same function as two calls, its
+    /// sums rounded differently; other layers and layouts take two calls.
+    pub fn forward_pair(a: &ConvBn, b: &ConvBn, x: &Tensor, at: At, train: bool) -> Result<(Tensor, Tensor)> {
+        let (wa, wb) = (a.conv.weight(), b.conv.weight());
+        let pairable = |w: &Tensor, c: &Conv| w.dim(2).ok() == Some(3) && c.stride() == 1 && c.bias().is_none();
+        match at {
+            At::Sparse(plane) if pairable(wa, &a.conv) && pairable(wb, &b.conv) && wa.dims()[1..] == wb.dims()[1..] => {
+                let ca = wa.dim(0)?;
+                let y = crate::layout::gather_conv(x, &Tensor::cat(&[wa, wb], 0)?, &plane.subm)?;
+                let (ya, yb) = (y.narrow(1, 0, ca)?.contiguous()?, y.narrow(1, ca, y.dim(1)? - ca)?.contiguous()?);
+                Ok((crate::bnrelu::bn_relu(&a.bn, &ya, train)?, crate::bnrelu::bn_relu(&b.bn, &yb, train)?))
+            }
+            _ => Ok((a.forward(x, at, train)?, b.forward(x, at, train)?)),
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -290,14 +309,86 @@ impl Head {
     /// Class logits and regression: `(B, K, H, W)` and `(B, 10, H, W)` dense, `(N, K)` and
     /// `(N, 10)` at the head sites when sparse.
     pub fn forward(&self, x: &Tensor, at: At, train: bool) -> Result<(Tensor, Tensor)> {
-        let c = match &self.cls_pre {
-            Some(m) => m.forward(x, at, train)?,
-            None => x.clone(),
-        };
-        let r = match &self.reg_pre {
-            Some(m) => m.forward(x, at, train)?,
-            None => x.clone(),
+        let (c, r) = match (&self.cls_pre, &self.reg_pre) {
+            (Some(c), Some(r)) => ConvBn::forward_pair(c, r, x, at, train)?,
+            (c, r) => (
+                c.as_ref().map_or_else(|| Ok(x.clone()), |m| m.forward(x, at, train))?,
+                r.as_ref().map_or_else(|| Ok(x.clone()), |m| m.forward(x, at, train))?,
+            ),
         };
         Ok((self.cls.forward(&c, at)?, self.reg.forward(&r, at)?))
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::layout::SparseHost;
+    use candle_core::{DType, Var};
+    use candle_nn::VarMap;
+    use rand::{Rng, SeedableRng};
+
+    fn values(t: &Tensor) -> Vec<f32> {
+        t.flatten_all().unwrap().to_vec1().unwrap()
+    }
+
+    /// The paired head convolution (one gather, both kernels side by side) is the function of
+    /// two separate layers: outputs, and the gradients of the input, both kernels and both
+    /// BatchNorms' scales and shifts, for halves of unequal width, on sites of two frames.
+    #[test]
+    fn paired_convolutions_equal_two_separate_ones() {
+        let dev = Device::Cpu;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let (cells, ci) = (12usize, 5usize);
+        let occupied: Vec<u32> = (0..30).map(|_| rng.random_range(0..(2 * cells * cells) as u32)).collect();
+        let host = SparseHost::build(cells, 2, &occupied, 1, 0, 1);
+        let layout = Layout::new(2, cells, Some(&host), &dev).unwrap();
+        let at = layout.level0();
+        let n = layout.rows();
+        let x = Var::from_vec((0..n * ci).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (n, ci), &dev).unwrap();
+        let varmap = VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+        let (a, b) = (ConvBn::new(ci, 4, 3, 1, vb.pp("a")).unwrap(), ConvBn::new(ci, 3, 3, 1, vb.pp("b")).unwrap());
+        // Kernels, scales and shifts away from their initial constants, so every term counts.
+        for (name, var) in varmap.data().lock().unwrap().iter() {
+            if name.ends_with("weight") || name.ends_with("bias") {
+                let k = var.elem_count();
+                let v: Vec<f32> = (0..k).map(|_| rng.random_range(-0.5f32..0.5) + 0.2).collect();
+                var.set(&Tensor::from_vec(v, var.shape(), &dev).unwrap()).unwrap();
+            }
+        }
+        let (ra, rb) = (
+            Tensor::from_vec((0..n * 4).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (n, 4), &dev).unwrap(),
+            Tensor::from_vec((0..n * 3).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (n, 3), &dev).unwrap(),
+        );
+        let run = |paired: bool| {
+            let (ya, yb) = if paired {
+                ConvBn::forward_pair(&a, &b, x.as_tensor(), at, true).unwrap()
+            } else {
+                (a.forward(x.as_tensor(), at, true).unwrap(), b.forward(x.as_tensor(), at, true).unwrap())
+            };
+            let loss = ((&ya * &ra).unwrap().sum_all().unwrap() + (&yb * &rb).unwrap().sum_all().unwrap()).unwrap();
+            let grads = loss.backward().unwrap();
+            let data = varmap.data().lock().unwrap();
+            let mut names: Vec<&String> = data.keys().filter(|k| !k.contains("running")).collect();
+            names.sort();
+            let mut out = vec![("ya".to_string(), values(&ya)), ("yb".to_string(), values(&yb))];
+            out.push(("dx".into(), values(grads.get(x.as_tensor()).unwrap())));
+            for k in names {
+                out.push((format!("d{k}"), values(grads.get(data[k].as_tensor()).unwrap())));
+            }
+            out
+        };
+        let (paired, separate) = (run(true), run(false));
+        assert_eq!(paired.len(), 2 + 1 + 6, "outputs, input gradient, two kernels, scales and shifts");
+        for ((name, p), (_, s)) in paired.iter().zip(&separate) {
+            assert_eq!(p.len(), s.len(), "{name}");
+            let scale = s.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-3);
+            for (i, (u, v)) in p.iter().zip(s).enumerate() {
+                assert!((u - v).abs() <= 1e-5 * scale, "{name}[{i}]: paired {u}, separate {v}");
+            }
+            assert!(s.iter().any(|v| v.abs() > 1e-4), "{name} is not all zeros");
+        }
     }
 }
