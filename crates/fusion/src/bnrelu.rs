@@ -387,14 +387,35 @@ impl BnRelu {
         let mut dz = vec![0f32; n * c];
         let (mut dbeta, mut dgamma) = (vec![0f64; c], vec![0f64; c]);
         let (dbeta_c, dgamma_c) = (&mut dbeta[..c], &mut dgamma[..c]);
+        // Channels in groups of LANES (slices of a constant length and no branch, so the group's
+        // loop is unrolled and vectorised), the rest one by one; each channel's sums in row order.
+        const LANES: usize = 8;
+        let one = |k: usize, x: f32, g: f32, dz: &mut f32, db: &mut f64, dg: &mut f64| {
+            let h = (x - mean[k]) * inv[k];
+            let d = if gamma_v[k] * h + beta_v[k] >= 0.0 { g } else { 0.0 };
+            *dz = d;
+            *db += d as f64;
+            *dg += (d * h) as f64;
+        };
+        let grouped = c / LANES * LANES;
         for ((dzr, xr), gr) in dz.chunks_exact_mut(c).zip(xv.chunks_exact(c)).zip(gv.chunks_exact(c)) {
-            let (dzr, xr, gr) = (&mut dzr[..c], &xr[..c], &gr[..c]);
-            for k in 0..c {
-                let h = (xr[k] - mean[k]) * inv[k];
-                let d = if gamma_v[k] * h + beta_v[k] >= 0.0 { gr[k] } else { 0.0 };
-                dzr[k] = d;
-                dbeta_c[k] += d as f64;
-                dgamma_c[k] += (d * h) as f64;
+            for k0 in (0..grouped).step_by(LANES) {
+                let r = k0..k0 + LANES;
+                let (dz, x, g) = (&mut dzr[r.clone()], &xr[r.clone()], &gr[r.clone()]);
+                let (db, dg) = (&mut dbeta_c[r.clone()], &mut dgamma_c[r.clone()]);
+                let (m, i, ga, be) = (&mean[r.clone()], &inv[r.clone()], &gamma_v[r.clone()], &beta_v[r]);
+                for j in 0..LANES {
+                    let h = (x[j] - m[j]) * i[j];
+                    // dy or +0.0 by a bit mask rather than a branch (the same values).
+                    let on = 0u32.wrapping_sub((ga[j] * h + be[j] >= 0.0) as u32);
+                    let d = f32::from_bits(g[j].to_bits() & on);
+                    dz[j] = d;
+                    db[j] += d as f64;
+                    dg[j] += (d * h) as f64;
+                }
+            }
+            for k in grouped..c {
+                one(k, xr[k], gr[k], &mut dzr[k], &mut dbeta_c[k], &mut dgamma_c[k]);
             }
         }
         let (db, dg): (Vec<f32>, Vec<f32>) =
