@@ -367,6 +367,26 @@ fn host(t: &Tensor) -> candle_core::Result<Vec<f32>> {
     t.flatten_all()?.to_vec1::<f32>()
 }
 
+/// One row's channels of [`BnRelu::input_grad`]'s first pass: x̂ = (x − μ)·inv, dz = dy where
+/// γ·x̂ + β ≥ 0 and +0.0 elsewhere (by a bit mask rather than a branch: the same values, and a
+/// loop the compiler vectorises), dβ += dz and dγ += dz·x̂ in f64.
+#[inline(always)]
+fn gate_sums(
+    dz: &mut [f32],
+    (x, g): (&[f32], &[f32]),
+    (mean, inv, gamma, beta): (&[f32], &[f32], &[f32], &[f32]),
+    (db, dg): (&mut [f64], &mut [f64]),
+) {
+    for j in 0..dz.len() {
+        let h = (x[j] - mean[j]) * inv[j];
+        let on = 0u32.wrapping_sub((gamma[j] * h + beta[j] >= 0.0) as u32);
+        let d = f32::from_bits(g[j].to_bits() & on);
+        dz[j] = d;
+        db[j] += d as f64;
+        dg[j] += (d * h) as f64;
+    }
+}
+
 impl BnRelu {
     /// dx, dγ and dβ from x and dy (`(N, C)` row-major each). dz = dy where the pre-activation
     /// z = γ·x̂ + β is ≥ 0 (candle's relu gradient), else 0; dβ = Σ dz, dγ = Σ dz·x̂ (this
@@ -387,35 +407,22 @@ impl BnRelu {
         let mut dz = vec![0f32; n * c];
         let (mut dbeta, mut dgamma) = (vec![0f64; c], vec![0f64; c]);
         let (dbeta_c, dgamma_c) = (&mut dbeta[..c], &mut dgamma[..c]);
-        // Channels in groups of LANES (slices of a constant length and no branch, so the group's
-        // loop is unrolled and vectorised), the rest one by one; each channel's sums in row order.
+        // Channels in groups of LANES (slices of a constant length, so that [`gate_sums`] is
+        // unrolled and vectorised there), the rest as one shorter group; each channel's sums in
+        // row order.
         const LANES: usize = 8;
-        let one = |k: usize, x: f32, g: f32, dz: &mut f32, db: &mut f64, dg: &mut f64| {
-            let h = (x - mean[k]) * inv[k];
-            let d = if gamma_v[k] * h + beta_v[k] >= 0.0 { g } else { 0.0 };
-            *dz = d;
-            *db += d as f64;
-            *dg += (d * h) as f64;
-        };
         let grouped = c / LANES * LANES;
+        let groups = (0..grouped).step_by(LANES).map(|k0| k0..k0 + LANES).chain(std::iter::once(grouped..c));
+        let groups: Vec<std::ops::Range<usize>> = groups.filter(|r| !r.is_empty()).collect();
         for ((dzr, xr), gr) in dz.chunks_exact_mut(c).zip(xv.chunks_exact(c)).zip(gv.chunks_exact(c)) {
-            for k0 in (0..grouped).step_by(LANES) {
-                let r = k0..k0 + LANES;
-                let (dz, x, g) = (&mut dzr[r.clone()], &xr[r.clone()], &gr[r.clone()]);
-                let (db, dg) = (&mut dbeta_c[r.clone()], &mut dgamma_c[r.clone()]);
-                let (m, i, ga, be) = (&mean[r.clone()], &inv[r.clone()], &gamma_v[r.clone()], &beta_v[r]);
-                for j in 0..LANES {
-                    let h = (x[j] - m[j]) * i[j];
-                    // dy or +0.0 by a bit mask rather than a branch (the same values).
-                    let on = 0u32.wrapping_sub((ga[j] * h + be[j] >= 0.0) as u32);
-                    let d = f32::from_bits(g[j].to_bits() & on);
-                    dz[j] = d;
-                    db[j] += d as f64;
-                    dg[j] += (d * h) as f64;
-                }
-            }
-            for k in grouped..c {
-                one(k, xr[k], gr[k], &mut dzr[k], &mut dbeta_c[k], &mut dgamma_c[k]);
+            for r in &groups {
+                let r = r.clone();
+                gate_sums(
+                    &mut dzr[r.clone()],
+                    (&xr[r.clone()], &gr[r.clone()]),
+                    (&mean[r.clone()], &inv[r.clone()], &gamma_v[r.clone()], &beta_v[r.clone()]),
+                    (&mut dbeta_c[r.clone()], &mut dgamma_c[r]),
+                );
             }
         }
         let (db, dg): (Vec<f32>, Vec<f32>) =

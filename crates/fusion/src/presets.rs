@@ -86,7 +86,8 @@ pub fn pointpillars() -> DetectorConfig {
 /// (262.4 s and 272.5 s on two seeds, mAP 0.829 and 0.827); one of 75 GFLOP/s measured later
 /// takes about twice as long (the schedule is fixed in samples, not seconds). Without the
 /// synchronisation the replicas ran up to 12% faster (256.0 s and 244.3 s) to 0.795 and 0.791:
-/// BatchNorm over one sample cost more than the samples it bought. The README's learning curve has the gains of four times this.
+/// BatchNorm over one sample cost more than the samples it bought. The README's learning curve
+/// has the gains of four times this.
 pub fn plateau_schedule() -> TrainConfig {
     TrainConfig { samples: 24_000, replicas: 2, sync_batch_norm: true, ..TrainConfig::default() }
 }
