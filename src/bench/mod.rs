@@ -498,9 +498,10 @@ pub fn eval(frames: usize, max_pred: usize, repeats: usize) -> Result<EvalReport
 #[derive(Serialize, Debug)]
 pub struct TrainReport {
     pub data: String,
+    /// Where the steps ran: "cpu" or "cuda:0".
+    pub device: String,
     pub threads: usize,
-    /// candle's f32 matrix product on 2048 × 2048 matrices, one per thread at once, GFLOP/s
-    /// summed over the threads (each the median of 5).
+    /// candle's f32 matrix product on the same device ([`matmul_peak`]).
     pub matmul_peak_gflops: f64,
     pub presets: Vec<TrainRow>,
 }
@@ -542,7 +543,33 @@ pub struct TrainRow {
 /// candle's f32 matrix product on 2048 × 2048 matrices, one per thread of rayon's pool at once
 /// (the way a training's replicas use the cores: candle itself on one thread each, as
 /// `hilo bench train` runs it), GFLOP/s summed over the threads, each the median of 5 products.
-fn matmul_peak() -> Result<f64> {
+/// candle's f32 matrix product on `device`: on the CPU one 2048 × 2048 product per thread at
+/// once, GFLOP/s summed over the threads; on a GPU one 8192 × 8192 product (cuBLAS, f32). Each
+/// the median of 5 after a warm-up.
+fn device_name(device: &candle_core::Device) -> String {
+    match device.location() {
+        candle_core::DeviceLocation::Cpu => "cpu".into(),
+        candle_core::DeviceLocation::Cuda { gpu_id } => format!("cuda:{gpu_id}"),
+        candle_core::DeviceLocation::Metal { gpu_id } => format!("metal:{gpu_id}"),
+    }
+}
+
+fn matmul_peak(device: &candle_core::Device) -> Result<f64> {
+    if !device.is_cpu() {
+        let n = 8192;
+        let a = candle_core::Tensor::randn(0f32, 1.0, (n, n), device)?;
+        let b = candle_core::Tensor::randn(0f32, 1.0, (n, n), device)?;
+        let _ = a.matmul(&b)?;
+        device.synchronize()?;
+        let mut t = Vec::new();
+        for _ in 0..5 {
+            let s = Instant::now();
+            let _c = a.matmul(&b)?;
+            device.synchronize()?;
+            t.push(s.elapsed().as_secs_f64());
+        }
+        return Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9);
+    }
     let n = 2048;
     let rates = rayon::broadcast(|_| -> candle_core::Result<f64> {
         let dev = candle_core::Device::Cpu;
@@ -573,7 +600,9 @@ pub fn train(
     let registry = crate::registry()?;
     let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")
         .with_context(|| format!("opening dataset {}", data.display()))?;
-    let peak = matmul_peak()?;
+    // The device training runs on: the first GPU when built with `cuda`, else the CPU.
+    let device = hilo_fusion::default_device();
+    let peak = matmul_peak(&device)?;
     let mut rows = Vec::new();
     for name in presets {
         let preset = registry.preset(name)?;
@@ -609,7 +638,7 @@ pub fn train(
         cfg.validate().with_context(|| format!("bench train {name}"))?;
         let background = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
-        let det = Detector::new(&det_cfg, &registry, &candle_core::Device::Cpu, 0)?;
+        let det = Detector::new(&det_cfg, &registry, &device, 0)?;
         // Warm-up steps (allocator, caches), then the timed ones.
         hilo_fusion::train::time_steps(&det, &frames, &cfg, 3)?;
         hilo_fusion::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
@@ -674,6 +703,7 @@ pub fn train(
     }
     Ok(TrainReport {
         data: data.display().to_string(),
+        device: device_name(&device),
         threads: rayon::current_num_threads(),
         matmul_peak_gflops: peak,
         presets: rows,
@@ -683,8 +713,8 @@ pub fn train(
 impl TrainReport {
     pub fn print_table(&self) {
         println!(
-            "matrix-product peak: {:.1} GFLOP/s ({} threads); data {}",
-            self.matmul_peak_gflops, self.threads, self.data
+            "device {}: matrix-product peak {:.1} GFLOP/s ({} host threads); data {}",
+            self.device, self.matmul_peak_gflops, self.threads, self.data
         );
         for r in &self.presets {
             println!(

@@ -41,7 +41,8 @@ enum Command {
     Place(stages::PlaceArgs),
     /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
     Simulate(stages::SimulateArgs),
-    /// Train a detector (a preset or a detector config of one's own) on a dataset's train split, on the CPU.
+    /// Train a detector (a preset or a detector config of one's own) on a dataset's train split, on the CPU
+    /// (the first GPU when hilo is built with `--features cuda`).
     Train(train::TrainArgs),
     /// Run a trained detector on a split and write a nuScenes submission.
     Detect(train::DetectArgs),

@@ -8,9 +8,12 @@
 //! normalisation cost more than the convolutions it follows. [`bn_relu`] computes the batch
 //! statistics on the host, updates the running statistics exactly as candle-nn does (momentum,
 //! unbiased variance), and applies the normalisation and the ReLU in one pass; its backward
-//! pass is the closed form of BatchNorm's gradient. On other devices, in evaluation, or with a
-//! batch of one row it is candle-nn's `BatchNorm` followed by `relu`, which the tests compare
-//! it with (values, running statistics and all three gradients).
+//! pass is the closed form of BatchNorm's gradient. On other devices (a GPU), in evaluation, or
+//! with a batch of one row it is candle-nn's `BatchNorm` followed by `relu`, which the tests
+//! compare it with (values, running statistics and all three gradients); except synchronised
+//! replicas off the CPU, which need the exchange below and take the same function built from
+//! candle's tensor operations (`bn_relu_composite`, statistics in f64 on the device, the
+//! gradient's path through them in a copy-forward node's backward pass), also tested against it.
 //!
 //! Data-parallel training ([`crate::train`]) runs the replicas of a step side by side on one set
 //! of variables; only the first replica updates the running statistics (as multi-GPU training
@@ -24,11 +27,11 @@
 //! (combined in replica order, Chan's pairwise formula, f64), in the backward pass its sums of
 //! `dz` and `dz · x̂`; each exchange is a barrier all replicas meet at, so they must run at once,
 //! one thread each. The gradient is then the whole batch's: the sum over the replicas of their
-//! parameter gradients is the gradient of the sum of their losses. Only the fused path (rows on
-//! the CPU) exchanges: a dense map normalised by candle-nn keeps its replica's statistics. The
-//! replicas must reach the same BatchNorm layers in the same order (they run one network); one
-//! that does not, or that ends its pass while another waits, fails the step with an error
-//! naming the layer rather than hanging.
+//! parameter gradients is the gradient of the sum of their losses. Rows exchange on any device;
+//! a dense map normalised by candle-nn keeps its replica's statistics. The replicas must reach
+//! the same BatchNorm layers in the same order (they run one network); one that does not, or
+//! that ends its pass while another waits, fails the step with an error naming the layer rather
+//! than hanging.
 
 use crate::conv::{f32_slice, with_cpu};
 use crate::error::Result;
@@ -224,10 +227,19 @@ fn batch_norm_frozen(bn: &BatchNorm, x: &Tensor) -> Result<Tensor> {
 /// `relu(bn(x))` for rows `x` `(N, C)`; in training on the CPU one fused node (synchronised
 /// with the other replicas inside [`with_synced_batch_norm`]).
 pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
+    bn_relu_on(bn, x, train, x.device().is_cpu() && x.dtype() == DType::F32)
+}
+
+/// [`bn_relu`], with the fused node's host kernel ([`BnRelu`]) when `kernel` (f32 rows on the
+/// CPU), else its composite from tensor operations ([`bn_relu_composite`]) for synchronised
+/// replicas and candle-nn's BatchNorm otherwise.
+fn bn_relu_on(bn: &BatchNorm, x: &Tensor, train: bool, kernel: bool) -> Result<Tensor> {
     let sync = SYNC.with(|c| c.borrow().clone());
+    let on_cpu = kernel;
+    // Elsewhere (a GPU) only synchronised replicas take this path: their statistics must be
+    // exchanged, which candle-nn's BatchNorm does not do.
     let fused = train
-        && x.device().is_cpu()
-        && x.dtype() == DType::F32
+        && (on_cpu || sync.is_some())
         && x.rank() == 2
         && (x.dim(0)? > 1 || sync.is_some())
         && bn.weight_and_bias().is_some();
@@ -239,7 +251,7 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
     };
     let x = x.contiguous()?;
     let c = x.dim(1)?;
-    let local = with_cpu::<f32, _>(&x, OP, |v| Ok(sums(v, c)))?;
+    let local = if on_cpu { with_cpu::<f32, _>(&x, OP, |v| Ok(sums(v, c)))? } else { device_sums(&x)? };
     let layer = bn.running_mean().id();
     let (sums, sync) = match sync {
         None => (local, None),
@@ -264,7 +276,103 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
     }
     let inv: Vec<f32> = var.iter().map(|v| 1.0 / (v + bn.eps() as f32).sqrt()).collect();
     let sync = sync.map(|(group, rank)| Synced { group, rank, layer });
-    Ok(x.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, BnRelu { mean, inv, n, sync })?)
+    let op = BnRelu { mean, inv, n, sync };
+    if on_cpu {
+        Ok(x.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, op)?)
+    } else {
+        bn_relu_composite(&x, gamma, beta, op)
+    }
+}
+
+/// [`sums`] of rows `(N, C)` on their device, in f64 as on the host (in f32 a channel at an
+/// offset of 1e3 lost a digit of its variance): the statistics a replica off the CPU hands to
+/// the exchange.
+fn device_sums(x: &Tensor) -> candle_core::Result<Sums> {
+    let (n, _) = x.dims2()?;
+    let x = x.to_dtype(DType::F64)?;
+    let sum = x.sum(0)?;
+    let mean = (&sum / n.max(1) as f64)?;
+    let m2 = x.broadcast_sub(&mean)?.sqr()?.sum(0)?;
+    Ok(Sums { n: n as f64, sum: sum.to_vec1::<f64>()?, m2: m2.to_vec1::<f64>()? })
+}
+
+/// [`BnRelu`]'s function from candle's tensor operations, for devices without its kernel (the
+/// synchronised replicas of a step on a GPU): x̂ = (x − μ)·inv with the batch's μ and inv as
+/// constants, through [`Centre`] (identity forward; its backward subtracts the whole batch's
+/// means of dx̂ and dx̂·x̂, exchanged between replicas, which is the path through μ and σ), then
+/// `relu(γ·x̂ + β)`. The same values and gradients as [`BnRelu`], rounded differently.
+fn bn_relu_composite(x: &Tensor, gamma: &Tensor, beta: &Tensor, op: BnRelu) -> Result<Tensor> {
+    let dev = x.device();
+    let c = op.mean.len();
+    let mean = Tensor::from_slice(&op.mean, (1, c), dev)?;
+    let inv = Tensor::from_slice(&op.inv, (1, c), dev)?;
+    let xhat = x.broadcast_sub(&mean)?.broadcast_mul(&inv)?.contiguous()?;
+    let xhat = xhat.apply_op1(Centre { n: op.n, sync: op.sync })?;
+    Ok(xhat.broadcast_mul(&gamma.reshape((1, c))?)?.broadcast_add(&beta.reshape((1, c))?)?.relu()?)
+}
+
+/// The identity on x̂ whose backward pass is BatchNorm's through its statistics:
+/// dx̂ − mean(dx̂) − x̂ · mean(dx̂ · x̂), the means over all `n` rows of the batch (this replica's
+/// sums exchanged with the other replicas' when synchronised). Any device: the forward pass is a
+/// copy, the backward pass tensor operations.
+#[derive(Debug, Clone)]
+struct Centre {
+    n: f64,
+    sync: Option<Synced>,
+}
+
+const CENTRE: &str = "hilo-bn-centre";
+
+impl candle_core::CustomOp1 for Centre {
+    fn name(&self) -> &'static str {
+        CENTRE
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        Ok((CpuStorage::F32(f32_slice(s, l, CENTRE)?.to_vec()), l.shape().clone()))
+    }
+
+    #[cfg(feature = "cuda")]
+    fn cuda_fwd(
+        &self,
+        s: &candle_core::CudaStorage,
+        l: &Layout,
+    ) -> candle_core::Result<(candle_core::CudaStorage, Shape)> {
+        use candle_core::backend::BackendStorage;
+        match l.contiguous_offsets() {
+            Some((0, end)) if end == l.shape().elem_count() => Ok((s.try_clone(l)?, l.shape().clone())),
+            _ => candle_core::bail!("{CENTRE}: a contiguous input from offset 0 expected"),
+        }
+    }
+
+    fn bwd(&self, xhat: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        let c = xhat.dim(1)?;
+        let dev = xhat.device();
+        let sums = |t: Tensor| -> candle_core::Result<Vec<f64>> { Ok(host(&t)?.into_iter().map(f64::from).collect()) };
+        let mut local = sums(grad.sum(0)?)?;
+        local.extend(sums((grad * xhat)?.sum(0)?)?);
+        let all = match &self.sync {
+            None => local,
+            Some(s) => {
+                let all = s.group.exchange(s.rank, (s.layer, true), local)?;
+                let mut acc = vec![0f64; 2 * c];
+                for v in all.iter() {
+                    if v.len() != 2 * c {
+                        candle_core::bail!(
+                            "synchronised BatchNorm: a replica sent {} gradient sums for {c} channels",
+                            v.len()
+                        );
+                    }
+                    acc.iter_mut().zip(v).for_each(|(a, b)| *a += b);
+                }
+                acc
+            }
+        };
+        let n = self.n.max(1.0);
+        let mean_of = |k: usize| -> Vec<f32> { all[k * c..(k + 1) * c].iter().map(|v| (v / n) as f32).collect() };
+        let (mg, mgx) = (Tensor::from_vec(mean_of(0), (1, c), dev)?, Tensor::from_vec(mean_of(1), (1, c), dev)?);
+        Ok(Some(grad.broadcast_sub(&mg)?.sub(&xhat.broadcast_mul(&mgx)?)?))
+    }
 }
 
 /// Rows' count, per-channel sums and centred sums of squares (f64): what replicas exchange.
@@ -626,6 +734,17 @@ mod tests {
     /// 1e3 and a part whose mean is far from the others' (what Chan's merge must get right).
     #[test]
     fn synchronised_replicas_normalise_as_one_batch() {
+        synchronised_replicas_as_one_batch(true);
+    }
+
+    /// The same with the replicas on the composite path (tensor operations and [`Centre`]'s
+    /// backward), what synchronised replicas on a GPU run, against the host kernel's whole batch.
+    #[test]
+    fn synchronised_composite_replicas_normalise_as_one_batch() {
+        synchronised_replicas_as_one_batch(false);
+    }
+
+    fn synchronised_replicas_as_one_batch(kernel: bool) {
         let dev = Device::Cpu;
         let c = 6usize;
         let parts = [0usize, 1, 37, 300];
@@ -677,16 +796,17 @@ mod tests {
                         with_synced_batch_norm(sync, r, || {
                             let pass = || {
                                 let xr = Var::from_tensor(&x.narrow(0, start, len).unwrap()).unwrap();
-                                let y = bn_relu(shared, xr.as_tensor(), true).unwrap();
+                                let y = bn_relu_on(shared, xr.as_tensor(), true, kernel).unwrap();
                                 let loss = (&y * &up.narrow(0, start, len).unwrap()).unwrap().sum_all().unwrap();
                                 let g = loss.backward().unwrap();
                                 let (gamma, beta) = shared.weight_and_bias().unwrap();
-                                (
-                                    y,
-                                    g.get(xr.as_tensor()).unwrap().clone(),
-                                    g.get(gamma).unwrap().clone(),
-                                    g.get(beta).unwrap().clone(),
-                                )
+                                // candle's backward pass leaves out the parameters of an empty
+                                // replica's composite (their gradients are zero).
+                                let param = |p: &Tensor| {
+                                    let zero = || Tensor::zeros(c, DType::F32, &Device::Cpu).unwrap();
+                                    g.get(p).cloned().or_else(|| (len == 0 && !kernel).then(zero)).unwrap()
+                                };
+                                (y, g.get(xr.as_tensor()).unwrap().clone(), param(gamma), param(beta))
                             };
                             if r == 0 { pass() } else { with_running_stats_frozen(pass) }
                         })
@@ -699,7 +819,10 @@ mod tests {
         let cat = |f: fn(&(Tensor, Tensor, Tensor, Tensor)) -> &Tensor| {
             Tensor::cat(&results.iter().map(f).collect::<Vec<_>>(), 0).unwrap()
         };
-        close(&cat(|r| &r.0), &y, 1e-5, "output");
+        // The reference's kernel computes x·a + b with a = γ·inv, b = β − μ·a: at the channel
+        // offset by 1e3 that rounds at about 1e3 · |a| · 6e-8 = 2e-5, which the composite's x − μ
+        // does not; so its outputs agree to 1e-4 rather than 1e-5.
+        close(&cat(|r| &r.0), &y, if kernel { 1e-5 } else { 1e-4 }, "output");
         close(&cat(|r| &r.1), &dx, 1e-4, "dx");
         let sum = |f: fn(&(Tensor, Tensor, Tensor, Tensor)) -> &Tensor| {
             results.iter().map(f).fold(Tensor::zeros(c, DType::F32, &dev).unwrap(), |a, t| (a + t).unwrap())

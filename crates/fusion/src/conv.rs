@@ -175,14 +175,14 @@ impl CustomOp1 for Col2Im {
 /// `x` (B, C, H, W) convolved with `w` (Co, C, k, k), no bias: im2col and a matrix product on
 /// the CPU, candle's `conv2d` elsewhere.
 pub fn conv2d(x: &Tensor, w: &Tensor, stride: usize, pad: usize) -> Result<Tensor> {
-    if !x.device().is_cpu() {
-        return Ok(x.conv2d(w, pad, stride, 1, 1)?);
-    }
     let (b, c, h, wd) = x.dims4()?;
     let (co, _, k, _) = w.dims4()?;
     let g = Geometry { channels: c, h, w: wd, k, stride, pad };
     let (ho, wo) = g.out();
     count_matmul(b * ho * wo, c * k * k, co);
+    if !x.device().is_cpu() {
+        return Ok(x.conv2d(w, pad, stride, 1, 1)?);
+    }
     let cols = if k == 1 && stride == 1 && pad == 0 {
         x.reshape((b, c, h * wd))?
     } else {

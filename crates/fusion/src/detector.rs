@@ -320,27 +320,31 @@ impl Detector {
         mut times: Option<&mut ForwardTimes>,
     ) -> Result<Vec<(Tensor, Tensor)>> {
         let mut clock = std::time::Instant::now();
-        let mut lap = |slot: fn(&mut ForwardTimes) -> &mut f64, times: &mut Option<&mut ForwardTimes>| {
+        let device = self.device.clone();
+        // Timed, each part waits for the device's queued work (a GPU's kernels run behind the host).
+        let mut lap = |slot: fn(&mut ForwardTimes) -> &mut f64, times: &mut Option<&mut ForwardTimes>| -> Result<()> {
             if let Some(t) = times.as_deref_mut() {
+                device.synchronize()?;
                 *slot(t) += clock.elapsed().as_secs_f64();
             }
             clock = std::time::Instant::now();
+            Ok(())
         };
         let (lidar, radar, layout) = self.tensors(b)?;
-        lap(|t| &mut t.to_device_s, &mut times);
+        lap(|t| &mut t.to_device_s, &mut times)?;
         let input = FusionInput { lidar: &lidar, radar: &radar, batch: b.size, grid: self.cfg.grid, layout: &layout };
         let out = self.fusion.forward(&input, train)?;
-        lap(|t| &mut t.fusion_s, &mut times);
+        lap(|t| &mut t.fusion_s, &mut times)?;
         match (out, &self.backbone, &self.head) {
             (FusionOutput::Bev(bev), Some(backbone), Some(head)) => {
                 let x = backbone.forward(&bev, &layout, self.cfg.backbone.out_stride, train)?;
-                lap(|t| &mut t.backbone_s, &mut times);
+                lap(|t| &mut t.backbone_s, &mut times)?;
                 let at = match &layout {
                     Layout::Dense { .. } => At::Dense,
                     Layout::Sparse(s) => At::Sparse(&s.head),
                 };
                 let h = head.forward(&x, at, train)?;
-                lap(|t| &mut t.head_s, &mut times);
+                lap(|t| &mut t.head_s, &mut times)?;
                 Ok(vec![h])
             }
             (FusionOutput::Heads(h), None, None) if !h.is_empty() => Ok(h),

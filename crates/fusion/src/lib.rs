@@ -1,7 +1,7 @@
 //! hilo's detector framework on Candle: the [`fusion::Fusion`] trait, its registry of plugins
 //! and presets, shared detector modules ([`modules`]: pillar feature net, BEV backbone and neck,
 //! heads), targets and losses, decoding, the LiDAR-only presets `centerpoint` and
-//! `pointpillars` ([`presets`]), training on CPU ([`train`]) and inference ([`infer`]).
+//! `pointpillars` ([`presets`]), training ([`train`]) and inference ([`infer`]).
 //!
 //! Convolutions run on one of two layouts ([`layout`]): dense maps over the whole grid (on the
 //! CPU an im2col matrix product with hilo's own custom ops, [`conv`]; candle's conv2d on other
@@ -11,6 +11,13 @@
 //!
 //! Fusion plugins (raw, early, middle, late) live in their own crates under `plugins/` and only
 //! depend on this one; each registers itself and its presets in a [`fusion::Registry`].
+//!
+//! Training and detection run on the CPU, or with the `cuda` feature on the first GPU
+//! ([`default_device`]), with the same code: the CPU's fused nodes (the sparse convolution
+//! [`layout::GatherConv`], BatchNorm + ReLU [`bnrelu`]) give way there to candle's operations,
+//! and synchronised BatchNorm to the same function built from them. The schedules are sized for
+//! two CPU cores: on one H200 a step of batch 2 is bound by kernel launches and host round trips,
+//! and trains at about half the CPU's speed (README, "Detectors on two CPU cores").
 //!
 //! # What changed to converge on two CPU cores, and why
 //!

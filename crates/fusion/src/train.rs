@@ -507,11 +507,16 @@ fn replica_pass(
 ) -> Result<StepPass> {
     let mut pass = || -> Result<StepPass> {
         let heads = det.forward_timed(batch, true, times.as_deref_mut().map(|t| &mut t.forward))?;
+        // Timed, each part waits for the device's queued work.
+        let timed = times.is_some();
+        let sync = || if timed { det.device().synchronize() } else { Ok(()) };
         let c = std::time::Instant::now();
         let loss = det.loss_all(&heads, &batch.targets)?;
+        sync()?;
         let loss_s = c.elapsed().as_secs_f64();
         let c = std::time::Instant::now();
         let grads = loss.total.backward()?;
+        sync()?;
         if let Some(t) = times.as_deref_mut() {
             t.loss_s += loss_s;
             t.backward_s += c.elapsed().as_secs_f64();
@@ -848,6 +853,7 @@ pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: us
         let pass = average(passes)?;
         let c = std::time::Instant::now();
         opt.step_with(&pass.grads, cfg.lr(step), cfg.clip_norm)?;
+        det.device().synchronize()?;
         t.optimizer_s += c.elapsed().as_secs_f64();
         t.total_s += t1.elapsed().as_secs_f64();
     }
@@ -879,6 +885,7 @@ pub fn time_replicated_steps(
         let pass = step_pass(det, &opt, b, &pools, cfg.sync_batch_norm)?;
         opt.step_with(&pass.grads, cfg.lr(step), cfg.clip_norm)?;
     }
+    det.device().synchronize()?;
     Ok((t0.elapsed().as_secs_f64(), pools.parallel()))
 }
 
