@@ -540,12 +540,6 @@ pub struct TrainRow {
     pub head_sites_per_batch: f64,
 }
 
-/// candle's f32 matrix product on 2048 × 2048 matrices, one per thread of rayon's pool at once
-/// (the way a training's replicas use the cores: candle itself on one thread each, as
-/// `hilo bench train` runs it), GFLOP/s summed over the threads, each the median of 5 products.
-/// candle's f32 matrix product on `device`: on the CPU one 2048 × 2048 product per thread at
-/// once, GFLOP/s summed over the threads; on a GPU one 8192 × 8192 product (cuBLAS, f32). Each
-/// the median of 5 after a warm-up.
 fn device_name(device: &candle_core::Device) -> String {
     match device.location() {
         candle_core::DeviceLocation::Cpu => "cpu".into(),
@@ -554,6 +548,10 @@ fn device_name(device: &candle_core::Device) -> String {
     }
 }
 
+/// candle's f32 matrix product on `device`. On the CPU 2048 × 2048 matrices, one product per
+/// thread of rayon's pool at once (the way a training's replicas use the cores: candle itself on
+/// one thread each, as `hilo bench train` runs it), GFLOP/s summed over the threads; on a GPU one
+/// 8192 × 8192 product (cuBLAS). Each the median of 5 products after a warm-up.
 fn matmul_peak(device: &candle_core::Device) -> Result<f64> {
     if !device.is_cpu() {
         let n = 8192;

@@ -225,7 +225,8 @@ fn batch_norm_frozen(bn: &BatchNorm, x: &Tensor) -> Result<Tensor> {
 }
 
 /// `relu(bn(x))` for rows `x` `(N, C)`; in training on the CPU one fused node (synchronised
-/// with the other replicas inside [`with_synced_batch_norm`]).
+/// with the other replicas inside [`with_synced_batch_norm`]), synchronised replicas elsewhere
+/// the same function from tensor operations.
 pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
     bn_relu_on(bn, x, train, x.device().is_cpu() && x.dtype() == DType::F32)
 }
@@ -235,11 +236,10 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
 /// replicas and candle-nn's BatchNorm otherwise.
 fn bn_relu_on(bn: &BatchNorm, x: &Tensor, train: bool, kernel: bool) -> Result<Tensor> {
     let sync = SYNC.with(|c| c.borrow().clone());
-    let on_cpu = kernel;
     // Elsewhere (a GPU) only synchronised replicas take this path: their statistics must be
     // exchanged, which candle-nn's BatchNorm does not do.
     let fused = train
-        && (on_cpu || sync.is_some())
+        && (kernel || sync.is_some())
         && x.rank() == 2
         && (x.dim(0)? > 1 || sync.is_some())
         && bn.weight_and_bias().is_some();
@@ -251,7 +251,7 @@ fn bn_relu_on(bn: &BatchNorm, x: &Tensor, train: bool, kernel: bool) -> Result<T
     };
     let x = x.contiguous()?;
     let c = x.dim(1)?;
-    let local = if on_cpu { with_cpu::<f32, _>(&x, OP, |v| Ok(sums(v, c)))? } else { device_sums(&x)? };
+    let local = if kernel { with_cpu::<f32, _>(&x, OP, |v| Ok(sums(v, c)))? } else { device_sums(&x)? };
     let layer = bn.running_mean().id();
     let (sums, sync) = match sync {
         None => (local, None),
@@ -277,7 +277,7 @@ fn bn_relu_on(bn: &BatchNorm, x: &Tensor, train: bool, kernel: bool) -> Result<T
     let inv: Vec<f32> = var.iter().map(|v| 1.0 / (v + bn.eps() as f32).sqrt()).collect();
     let sync = sync.map(|(group, rank)| Synced { group, rank, layer });
     let op = BnRelu { mean, inv, n, sync };
-    if on_cpu {
+    if kernel {
         Ok(x.apply_op3(&gamma.contiguous()?, &beta.contiguous()?, op)?)
     } else {
         bn_relu_composite(&x, gamma, beta, op)
