@@ -551,39 +551,29 @@ fn device_name(device: &candle_core::Device) -> String {
 /// candle's f32 matrix product on `device`. On the CPU 2048 × 2048 matrices, one product per
 /// thread of rayon's pool at once (the way a training's replicas use the cores: candle itself on
 /// one thread each, as `hilo bench train` runs it), GFLOP/s summed over the threads; on a GPU one
-/// 8192 × 8192 product (cuBLAS). Each the median of 5 products after a warm-up.
+/// 8192 × 8192 product (cuBLAS).
 fn matmul_peak(device: &candle_core::Device) -> Result<f64> {
     if !device.is_cpu() {
-        let n = 8192;
-        let a = candle_core::Tensor::randn(0f32, 1.0, (n, n), device)?;
-        let b = candle_core::Tensor::randn(0f32, 1.0, (n, n), device)?;
-        let _ = a.matmul(&b)?;
-        device.synchronize()?;
-        let mut t = Vec::new();
-        for _ in 0..5 {
-            let s = Instant::now();
-            let _c = a.matmul(&b)?;
-            device.synchronize()?;
-            t.push(s.elapsed().as_secs_f64());
-        }
-        return Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9);
+        return Ok(product_rate(device, 8192)?);
     }
-    let n = 2048;
-    let rates = rayon::broadcast(|_| -> candle_core::Result<f64> {
-        let dev = candle_core::Device::Cpu;
-        let a = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
-        let b = candle_core::Tensor::randn(0f32, 1.0, (n, n), &dev)?;
-        let _ = a.matmul(&b)?;
-        let mut t = Vec::new();
-        for _ in 0..5 {
-            let s = Instant::now();
-            let c = a.matmul(&b)?;
-            let _ = c.sum_all()?.to_scalar::<f32>()?;
-            t.push(s.elapsed().as_secs_f64());
-        }
-        Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9)
-    });
+    let rates = rayon::broadcast(|_| product_rate(&candle_core::Device::Cpu, 2048));
     Ok(rates.into_iter().collect::<candle_core::Result<Vec<f64>>>()?.iter().sum())
+}
+
+/// GFLOP/s of one `n` × `n` f32 product on `device`: the median of 5 products after a warm-up,
+/// each summed and read back (which waits for a GPU's queued work).
+fn product_rate(device: &candle_core::Device, n: usize) -> candle_core::Result<f64> {
+    let a = candle_core::Tensor::randn(0f32, 1.0, (n, n), device)?;
+    let b = candle_core::Tensor::randn(0f32, 1.0, (n, n), device)?;
+    let _ = a.matmul(&b)?.sum_all()?.to_scalar::<f32>()?;
+    let mut t = Vec::new();
+    for _ in 0..5 {
+        let s = Instant::now();
+        let c = a.matmul(&b)?;
+        let _ = c.sum_all()?.to_scalar::<f32>()?;
+        t.push(s.elapsed().as_secs_f64());
+    }
+    Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9)
 }
 
 pub fn train(

@@ -353,20 +353,7 @@ impl candle_core::CustomOp1 for Centre {
         local.extend(sums((grad * xhat)?.sum(0)?)?);
         let all = match &self.sync {
             None => local,
-            Some(s) => {
-                let all = s.group.exchange(s.rank, (s.layer, true), local)?;
-                let mut acc = vec![0f64; 2 * c];
-                for v in all.iter() {
-                    if v.len() != 2 * c {
-                        candle_core::bail!(
-                            "synchronised BatchNorm: a replica sent {} gradient sums for {c} channels",
-                            v.len()
-                        );
-                    }
-                    acc.iter_mut().zip(v).for_each(|(a, b)| *a += b);
-                }
-                acc
-            }
+            Some(s) => s.gradient_sums(local, c)?,
         };
         let n = self.n.max(1.0);
         let mean_of = |k: usize| -> Vec<f32> { all[k * c..(k + 1) * c].iter().map(|v| (v / n) as f32).collect() };
@@ -468,6 +455,22 @@ struct Synced {
     layer: TensorId,
 }
 
+impl Synced {
+    /// This replica's per-channel gradient sums (`Σ dz` then `Σ dz · x̂`, 2·`c` numbers) left at the
+    /// backward exchange, and all replicas' summed in replica order.
+    fn gradient_sums(&self, local: Vec<f64>, c: usize) -> candle_core::Result<Vec<f64>> {
+        let all = self.group.exchange(self.rank, (self.layer, true), local)?;
+        let mut acc = vec![0f64; 2 * c];
+        for v in all.iter() {
+            if v.len() != 2 * c {
+                candle_core::bail!("synchronised BatchNorm: a replica sent {} gradient sums for {c} channels", v.len());
+            }
+            acc.iter_mut().zip(v).for_each(|(a, b)| *a += b);
+        }
+        Ok(acc)
+    }
+}
+
 const ROWS: usize = 512;
 const OP: &str = "hilo-bn-relu";
 
@@ -538,20 +541,8 @@ impl BnRelu {
         let (db_all, dg_all) = match &self.sync {
             None => (db.clone(), dg.clone()),
             Some(s) => {
-                let all = s.group.exchange(s.rank, (s.layer, true), [dbeta, dgamma].concat())?;
-                let (mut b, mut g) = (vec![0f64; c], vec![0f64; c]);
-                for v in all.iter() {
-                    if v.len() != 2 * c {
-                        return Err(candle_core::Error::Msg(format!(
-                            "synchronised BatchNorm: a replica sent {} gradient sums for {c} channels",
-                            v.len()
-                        )));
-                    }
-                    for k in 0..c {
-                        b[k] += v[k];
-                        g[k] += v[c + k];
-                    }
-                }
+                let all = s.gradient_sums([dbeta, dgamma].concat(), c)?;
+                let (b, g) = all.split_at(c);
                 (b.iter().map(|&v| v as f32).collect(), g.iter().map(|&v| v as f32).collect())
             }
         };

@@ -320,7 +320,7 @@ impl Detector {
         mut times: Option<&mut ForwardTimes>,
     ) -> Result<Vec<(Tensor, Tensor)>> {
         let mut clock = std::time::Instant::now();
-        let device = self.device.clone();
+        let device = &self.device;
         // Timed, each part waits for the device's queued work (a GPU's kernels run behind the host).
         let mut lap = |slot: fn(&mut ForwardTimes) -> &mut f64, times: &mut Option<&mut ForwardTimes>| -> Result<()> {
             if let Some(t) = times.as_deref_mut() {
