@@ -337,13 +337,13 @@ impl Detector {
         lap(|t| &mut t.fusion_s, &mut times)?;
         match (out, &self.backbone, &self.head) {
             (FusionOutput::Bev(bev), Some(backbone), Some(head)) => {
-                let x = backbone.forward(&bev, &layout, self.cfg.backbone.out_stride, train)?;
+                let x = backbone.forward_neck(&bev, &layout, self.cfg.backbone.out_stride, train)?;
                 lap(|t| &mut t.backbone_s, &mut times)?;
                 let at = match &layout {
                     Layout::Dense { .. } => At::Dense,
                     Layout::Sparse(s) => At::Sparse(&s.head),
                 };
-                let h = head.forward(&x, at, train)?;
+                let h = head.forward_neck(&x, at, train)?;
                 lap(|t| &mut t.head_s, &mut times)?;
                 Ok(vec![h])
             }

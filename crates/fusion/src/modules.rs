@@ -155,6 +155,84 @@ impl ConvBn {
             _ => Ok((a.forward(x, at, train)?, b.forward(x, at, train)?)),
         }
     }
+
+    /// [`ConvBn::forward_pair`] at the head sites of a neck held as parts
+    /// ([`Neck::Parts`]): each part's slice of the two kernels side by side convolves its own
+    /// rows through its tap rulebook ([`crate::layout::parent_conv`]), the parts' sums are
+    /// added, and each half goes through its BatchNorm + ReLU. The same function as
+    /// `forward_pair` of the materialised neck ([`Neck::rows`]), rounded differently. `None`
+    /// where the two layers cannot run so (not 3×3 stride 1 without bias, or inputs other than
+    /// the parts' channels).
+    fn forward_pair_parts(a: &ConvBn, b: &ConvBn, parts: &[NeckPart], train: bool) -> Result<Option<(Tensor, Tensor)>> {
+        let (wa, wb) = (a.conv.weight(), b.conv.weight());
+        let pairable = |w: &Tensor, c: &Conv| w.dim(2).ok() == Some(3) && c.stride() == 1 && c.bias().is_none();
+        let width: usize = parts.iter().map(|p| p.values.dim(1).unwrap_or(0)).sum();
+        if !(pairable(wa, &a.conv) && pairable(wb, &b.conv) && wa.dims()[1..] == wb.dims()[1..] && wa.dim(1)? == width)
+        {
+            return Ok(None);
+        }
+        let w = Tensor::cat(&[wa, wb], 0)?;
+        let mut y: Option<Tensor> = None;
+        let mut off = 0;
+        for p in parts {
+            let c = p.values.dim(1)?;
+            let yp = crate::layout::parent_conv(&p.values, &w.narrow(1, off, c)?, &p.taps)?;
+            y = Some(match y {
+                None => yp,
+                Some(acc) => (acc + yp)?,
+            });
+            off += c;
+        }
+        let Some(y) = y else { return Ok(None) };
+        let ca = wa.dim(0)?;
+        let (ya, yb) = (y.narrow(1, 0, ca)?.contiguous()?, y.narrow(1, ca, y.dim(1)? - ca)?.contiguous()?);
+        Ok(Some((crate::bnrelu::bn_relu(&a.bn, &ya, train)?, crate::bnrelu::bn_relu(&b.bn, &yb, train)?)))
+    }
+}
+
+/// One block's contribution to the neck, sparse: its rows where the neck computed them and how
+/// the head sites read them.
+#[derive(Debug, Clone)]
+pub struct NeckPart {
+    /// `(N, C_part)`: at the block's own level's sites when it is as coarse as the head or
+    /// coarser, else at the head sites.
+    pub values: Tensor,
+    /// Each head site's row of `values` (its parent; [`crate::layout::NONE`]: zeros), or `None`
+    /// where `values` is at the head sites already.
+    pub from: Option<Tensor>,
+    /// The head's 3×3 rulebook through those rows ([`crate::layout::SparseHost::head_taps`]).
+    pub taps: Tensor,
+}
+
+/// The neck's output as the head reads it.
+#[derive(Debug, Clone)]
+pub enum Neck {
+    /// `(B, C, H / s, W / s)` dense, or `(N_head, C)` rows at the head sites.
+    Rows(Tensor),
+    /// Sparse, per block in order (their channels concatenated are the neck's): a coarse
+    /// block's rows stay at its parents, which a head convolution reads through its tap
+    /// rulebook instead of copying each parent's row to every head site below it.
+    Parts(Vec<NeckPart>),
+}
+
+impl Neck {
+    /// The neck as one tensor: `(N_head, C)` rows (each head site its parents' rows, blocks
+    /// side by side) or the dense map.
+    pub fn rows(&self) -> Result<Tensor> {
+        match self {
+            Neck::Rows(x) => Ok(x.clone()),
+            Neck::Parts(parts) => {
+                let outs = parts
+                    .iter()
+                    .map(|p| match &p.from {
+                        Some(f) => Ok(p.values.index_select(f, 0)?),
+                        None => Ok(p.values.clone()),
+                    })
+                    .collect::<Result<Vec<_>>>()?;
+                Ok(Tensor::cat(&outs, 1)?)
+            }
+        }
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -217,7 +295,13 @@ impl Backbone {
 
     /// The neck's output at the head: `(B, C, H / s, W / s)` dense, `(N_head, C)` sparse.
     pub fn forward(&self, x: &Tensor, layout: &Layout, out_stride: usize, train: bool) -> Result<Tensor> {
-        let Layout::Sparse(sp) = layout else { return self.forward_dense(x, out_stride, train) };
+        self.forward_neck(x, layout, out_stride, train)?.rows()
+    }
+
+    /// The neck's output as the head reads it: dense rows, or sparse parts (each block's rows
+    /// where they were computed, [`Neck::Parts`]).
+    pub fn forward_neck(&self, x: &Tensor, layout: &Layout, out_stride: usize, train: bool) -> Result<Neck> {
+        let Layout::Sparse(sp) = layout else { return Ok(Neck::Rows(self.forward_dense(x, out_stride, train)?)) };
         let mut x = x.clone();
         let mut level = 0usize;
         let mut outs = Vec::new();
@@ -237,16 +321,25 @@ impl Backbone {
                 .head_from
                 .get(level)
                 .ok_or_else(|| FusionError::Config(format!("no head link from level {level}")))?;
-            // As coarse as the head or coarser: 1×1 convolution, then each head site reads its
-            // parent; finer: a strided 3×3 convolution into the head sites.
-            let y = if *total >= out_stride {
-                n.forward(&x, At::Sparse(&sp.levels[level]), train)?.index_select(from, 0)?
+            let taps = sp
+                .head_taps
+                .get(level)
+                .ok_or_else(|| FusionError::Config(format!("no head tap rulebook for level {level}")))?
+                .clone();
+            // As coarse as the head or coarser: 1×1 convolution at the level's sites, which
+            // each head site reads through its parent; finer: a strided 3×3 convolution into
+            // the head sites.
+            outs.push(if *total >= out_stride {
+                NeckPart {
+                    values: n.forward(&x, At::Sparse(&sp.levels[level]), train)?,
+                    from: Some(from.clone()),
+                    taps,
+                }
             } else {
-                n.forward_rules(&x, from, train)?
-            };
-            outs.push(y);
+                NeckPart { values: n.forward_rules(&x, from, train)?, from: None, taps }
+            });
         }
-        Ok(Tensor::cat(&outs, 1)?)
+        Ok(Neck::Parts(outs))
     }
 
     fn forward_dense(&self, x: &Tensor, out_stride: usize, train: bool) -> Result<Tensor> {
@@ -318,10 +411,22 @@ impl Head {
         };
         Ok((self.cls.forward(&c, at)?, self.reg.forward(&r, at)?))
     }
+
+    /// [`Head::forward`] of the neck as the backbone left it: with a sparse neck held as
+    /// parts, the two 3×3 layers run on the parents' rows ([`ConvBn::forward_pair_parts`]);
+    /// otherwise on the materialised rows.
+    pub fn forward_neck(&self, neck: &Neck, at: At, train: bool) -> Result<(Tensor, Tensor)> {
+        if let (Neck::Parts(parts), Some(c), Some(r), At::Sparse(_)) = (neck, &self.cls_pre, &self.reg_pre, at)
+            && let Some((c, r)) = ConvBn::forward_pair_parts(c, r, parts, train)?
+        {
+            return Ok((self.cls.forward(&c, at)?, self.reg.forward(&r, at)?));
+        }
+        self.forward(&neck.rows()?, at, train)
+    }
 }
 
 #[cfg(test)]
-#[allow(clippy::unwrap_used)]
+#[allow(clippy::unwrap_used, clippy::panic)]
 mod tests {
     use super::*;
     use crate::layout::SparseHost;
@@ -389,6 +494,93 @@ mod tests {
                 assert!((u - v).abs() <= 1e-5 * scale, "{name}[{i}]: paired {u}, separate {v}");
             }
             assert!(s.iter().any(|v| v.abs() > 1e-4), "{name} is not all zeros");
+        }
+    }
+
+    /// The head's 3×3 layers on the neck's parts (each block's rows at its own level, read
+    /// through the tap rulebooks) equal them on the materialised neck (every head site holding
+    /// its parents' rows): outputs, and the gradients of the input and of every weight, with
+    /// the head at level 0 (every block coarser, head sites dilated by 2 so that some parents
+    /// are missing), at level 1 (the first block at the head's level) and at level 2 (the
+    /// first block finer than the head, convolved into the head sites).
+    #[test]
+    fn head_on_the_neck_parts_equals_it_on_the_materialised_neck() {
+        let dev = Device::Cpu;
+        for (seed, out_stride) in [(3u64, 1usize), (4, 2), (5, 4)] {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let (cells, ci) = (32usize, 3usize);
+            let occupied: Vec<u32> = (0..60).map(|_| rng.random_range(0..(2 * cells * cells) as u32)).collect();
+            let head_level = out_stride.trailing_zeros() as usize;
+            let host = SparseHost::build(cells, 2, &occupied, 4, head_level, 2);
+            assert!(host.head_taps[3].contains(&crate::layout::NONE) || head_level > 0);
+            let layout = Layout::new(2, cells, Some(&host), &dev).unwrap();
+            let n = layout.rows();
+            let x =
+                Var::from_vec((0..n * ci).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (n, ci), &dev).unwrap();
+            let varmap = VarMap::new();
+            let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
+            let cfg = BackboneConfig {
+                blocks: vec![
+                    BlockConfig { stride: 2, channels: 4, layers: 1 },
+                    BlockConfig { stride: 2, channels: 6, layers: 0 },
+                    BlockConfig { stride: 2, channels: 5, layers: 1 },
+                ],
+                neck_channels: 3,
+                out_stride,
+            };
+            let backbone = Backbone::new(ci, &cfg, vb.pp("backbone")).unwrap();
+            let head = Head::new(backbone.out_channels, 4, 2, true, vb.pp("head")).unwrap();
+            for (name, var) in varmap.data().lock().unwrap().iter() {
+                if name.ends_with("weight") || name.ends_with("bias") {
+                    let k = var.elem_count();
+                    let v: Vec<f32> = (0..k).map(|_| rng.random_range(-0.5f32..0.5) + 0.2).collect();
+                    var.set(&Tensor::from_vec(v, var.shape(), &dev).unwrap()).unwrap();
+                }
+            }
+            let Layout::Sparse(sp) = &layout else { panic!("sparse layout expected") };
+            let at = At::Sparse(&sp.head);
+            let nh = sp.head.sites;
+            let (rc, rr) = (
+                Tensor::from_vec((0..nh * 2).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (nh, 2), &dev).unwrap(),
+                Tensor::from_vec(
+                    (0..nh * REG_CHANNELS).map(|_| rng.random_range(-1.0f32..1.0)).collect(),
+                    (nh, REG_CHANNELS),
+                    &dev,
+                )
+                .unwrap(),
+            );
+            let run = |parts: bool| {
+                let neck = backbone.forward_neck(x.as_tensor(), &layout, out_stride, true).unwrap();
+                let (c, r) = if parts {
+                    let Neck::Parts(p) = &neck else { panic!("a sparse neck is held as parts") };
+                    let (Some(a), Some(b)) = (&head.cls_pre, &head.reg_pre) else { panic!("a centre head") };
+                    assert!(ConvBn::forward_pair_parts(a, b, p, true).unwrap().is_some(), "the parts path runs");
+                    head.forward_neck(&neck, at, true).unwrap()
+                } else {
+                    head.forward(&neck.rows().unwrap(), at, true).unwrap()
+                };
+                let loss = ((&c * &rc).unwrap().sum_all().unwrap() + (&r * &rr).unwrap().sum_all().unwrap()).unwrap();
+                let grads = loss.backward().unwrap();
+                let data = varmap.data().lock().unwrap();
+                let mut names: Vec<&String> = data.keys().filter(|k| !k.contains("running")).collect();
+                names.sort();
+                let mut out = vec![("cls".to_string(), values(&c)), ("reg".to_string(), values(&r))];
+                out.push(("dx".into(), values(grads.get(x.as_tensor()).unwrap())));
+                for k in names {
+                    out.push((format!("d{k}"), values(grads.get(data[k].as_tensor()).unwrap())));
+                }
+                out
+            };
+            let (parts, rows) = (run(true), run(false));
+            assert_eq!(parts.len(), rows.len());
+            for ((name, p), (_, s)) in parts.iter().zip(&rows) {
+                assert_eq!(p.len(), s.len(), "{name}");
+                let scale = s.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-3);
+                for (i, (u, v)) in p.iter().zip(s).enumerate() {
+                    assert!((u - v).abs() <= 1e-4 * scale, "stride {out_stride}, {name}[{i}]: parts {u}, rows {v}");
+                }
+                assert!(s.iter().any(|v| v.abs() > 1e-5), "stride {out_stride}: {name} is not all zeros");
+            }
         }
     }
 }
