@@ -368,11 +368,22 @@ pub fn gather_conv(x: &Tensor, w: &Tensor, rules: &Tensor) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     let taps = kh * kw;
     crate::conv::count_matmul(rules.dim(0)? / taps, taps * ci, co);
-    if x.device().is_cpu() && x.dtype() == DType::F32 && w.dtype() == DType::F32 {
-        Ok(x.contiguous()?
-            .apply_op2(&w.contiguous()?, GatherConv { rules: rules.clone(), kernel: std::sync::OnceLock::new() })?)
-    } else {
+    fused_on_cpu(x, w, GatherConv { rules: rules.clone(), kernel: std::sync::OnceLock::new() }, || {
         gather_conv_composite(x, w, rules)
+    })
+}
+
+/// `op` on `x` and `w` as one node where both are f32 on the CPU; elsewhere `composite`.
+fn fused_on_cpu(
+    x: &Tensor,
+    w: &Tensor,
+    op: impl CustomOp2 + Send + Sync + 'static,
+    composite: impl FnOnce() -> Result<Tensor>,
+) -> Result<Tensor> {
+    if x.device().is_cpu() && x.dtype() == DType::F32 && w.dtype() == DType::F32 {
+        Ok(x.contiguous()?.apply_op2(&w.contiguous()?, op)?)
+    } else {
+        composite()
     }
 }
 
@@ -502,6 +513,21 @@ fn scatter_rows(g: &[f32], ci: usize, rules: &[u32], n_in: usize) -> Vec<f32> {
     out
 }
 
+/// The kernel matrix a node's forward pass kept, or, should its backward pass run without
+/// one, the same matrix laid out again from the kernel `w` by `layout`.
+fn kept_kernel(
+    kept: &std::sync::OnceLock<Tensor>,
+    w: &Tensor,
+    op: &str,
+    shape: (usize, usize),
+    layout: impl FnOnce(&[f32]) -> Vec<f32>,
+) -> candle_core::Result<Tensor> {
+    match kept.get() {
+        Some(m) => Ok(m.clone()),
+        None => Tensor::from_vec(with_cpu::<f32, _>(w, op, |wv| Ok(layout(wv)))?, shape, w.device()),
+    }
+}
+
 impl CustomOp2 for GatherConv {
     fn name(&self) -> &'static str {
         OP
@@ -543,14 +569,7 @@ impl CustomOp2 for GatherConv {
         let (co, _, kh, kw) = w.dims4()?;
         let taps = kh * kw;
         // d cols = grad · kernelᵀ, scattered back along the rulebook.
-        let wm = match self.kernel.get() {
-            Some(wm) => wm.clone(),
-            None => Tensor::from_vec(
-                with_cpu::<f32, _>(&w, OP, |wv| Ok(kernel_rows(wv, ci, taps)))?,
-                (co, taps * ci),
-                x.device(),
-            )?,
-        };
+        let wm = kept_kernel(&self.kernel, &w, OP, (co, taps * ci), |wv| kernel_rows(wv, ci, taps))?;
         let gcols = grad.matmul(&wm)?;
         let gx = with_cpu::<u32, _>(&self.rules, OP, |rules| {
             with_cpu::<f32, _>(&gcols, OP, |g| Ok(scatter_rows(g, ci, rules, n_in)))
@@ -581,12 +600,9 @@ impl CustomOp2 for GatherConv {
 pub fn parent_conv(v: &Tensor, w: &Tensor, taps: &Tensor) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     crate::conv::count_matmul(v.dim(0)?, ci, kh * kw * co);
-    if v.device().is_cpu() && v.dtype() == DType::F32 && w.dtype() == DType::F32 {
-        Ok(v.contiguous()?
-            .apply_op2(&w.contiguous()?, ParentConv { taps: taps.clone(), kernel: std::sync::OnceLock::new() })?)
-    } else {
+    fused_on_cpu(v, w, ParentConv { taps: taps.clone(), kernel: std::sync::OnceLock::new() }, || {
         parent_conv_composite(v, w, taps)
-    }
+    })
 }
 
 /// [`parent_conv`] from candle's own operations: the tap products `(N_v · 9, C_out)`, the rows
@@ -703,14 +719,7 @@ impl CustomOp2 for ParentConv {
         let (n_v, ci) = v.dims2()?;
         let (co, _, kh, kw) = w.dims4()?;
         let taps = kh * kw;
-        let wm = match self.kernel.get() {
-            Some(wm) => wm.clone(),
-            None => Tensor::from_vec(
-                with_cpu::<f32, _>(&w, PARENT_OP, |wv| Ok(tap_columns(wv, ci, taps)))?,
-                (ci, taps * co),
-                v.device(),
-            )?,
-        };
+        let wm = kept_kernel(&self.kernel, &w, PARENT_OP, (ci, taps * co), |wv| tap_columns(wv, ci, taps))?;
         // d products: each head site's gradient added into the rows it read.
         let gp = with_cpu::<u32, _>(&self.taps, PARENT_OP, |rules| {
             with_cpu::<f32, _>(&grad, PARENT_OP, |g| {

@@ -438,6 +438,47 @@ mod tests {
         t.flatten_all().unwrap().to_vec1().unwrap()
     }
 
+    /// Kernels, scales and shifts away from their initial constants, so every term counts.
+    fn randomise_weights(varmap: &VarMap, rng: &mut rand_chacha::ChaCha8Rng) {
+        for (name, var) in varmap.data().lock().unwrap().iter() {
+            if name.ends_with("weight") || name.ends_with("bias") {
+                let k = var.elem_count();
+                let v: Vec<f32> = (0..k).map(|_| rng.random_range(-0.5f32..0.5) + 0.2).collect();
+                var.set(&Tensor::from_vec(v, var.shape(), var.device()).unwrap()).unwrap();
+            }
+        }
+    }
+
+    /// Two outputs, then the gradients of `Σ out · up` (summed over both) with respect to `x`
+    /// and every trainable variable, by name.
+    fn outputs_and_gradients(outs: [(&str, &Tensor, &Tensor); 2], x: &Var, varmap: &VarMap) -> Vec<(String, Vec<f32>)> {
+        let loss = outs.iter().map(|(_, y, up)| (*y * *up).unwrap().sum_all().unwrap()).reduce(|a, b| (a + b).unwrap());
+        let grads = loss.unwrap().backward().unwrap();
+        let data = varmap.data().lock().unwrap();
+        let mut names: Vec<&String> = data.keys().filter(|k| !k.contains("running")).collect();
+        names.sort();
+        let mut out: Vec<(String, Vec<f32>)> = outs.iter().map(|(n, y, _)| (n.to_string(), values(y))).collect();
+        out.push(("dx".into(), values(grads.get(x.as_tensor()).unwrap())));
+        for k in names {
+            out.push((format!("d{k}"), values(grads.get(data[k].as_tensor()).unwrap())));
+        }
+        out
+    }
+
+    /// Each named vector of `got` within `tol` of `want`'s largest magnitude, and `want` not all
+    /// zeros (`floor`: what counts as zero).
+    fn assert_close(got: &[(String, Vec<f32>)], want: &[(String, Vec<f32>)], tol: f32, floor: f32, what: &str) {
+        assert_eq!(got.len(), want.len(), "{what}");
+        for ((name, p), (_, s)) in got.iter().zip(want) {
+            assert_eq!(p.len(), s.len(), "{what}: {name}");
+            let scale = s.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-3);
+            for (i, (u, v)) in p.iter().zip(s).enumerate() {
+                assert!((u - v).abs() <= tol * scale, "{what}: {name}[{i}]: {u} against {v}");
+            }
+            assert!(s.iter().any(|v| v.abs() > floor), "{what}: {name} is not all zeros");
+        }
+    }
+
     /// The paired head convolution (one gather, both kernels side by side) is the function of
     /// two separate layers: outputs, and the gradients of the input, both kernels and both
     /// BatchNorms' scales and shifts, for halves of unequal width, on sites of two frames.
@@ -455,14 +496,7 @@ mod tests {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
         let (a, b) = (ConvBn::new(ci, 4, 3, 1, vb.pp("a")).unwrap(), ConvBn::new(ci, 3, 3, 1, vb.pp("b")).unwrap());
-        // Kernels, scales and shifts away from their initial constants, so every term counts.
-        for (name, var) in varmap.data().lock().unwrap().iter() {
-            if name.ends_with("weight") || name.ends_with("bias") {
-                let k = var.elem_count();
-                let v: Vec<f32> = (0..k).map(|_| rng.random_range(-0.5f32..0.5) + 0.2).collect();
-                var.set(&Tensor::from_vec(v, var.shape(), &dev).unwrap()).unwrap();
-            }
-        }
+        randomise_weights(&varmap, &mut rng);
         let (ra, rb) = (
             Tensor::from_vec((0..n * 4).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (n, 4), &dev).unwrap(),
             Tensor::from_vec((0..n * 3).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (n, 3), &dev).unwrap(),
@@ -473,28 +507,11 @@ mod tests {
             } else {
                 (a.forward(x.as_tensor(), at, true).unwrap(), b.forward(x.as_tensor(), at, true).unwrap())
             };
-            let loss = ((&ya * &ra).unwrap().sum_all().unwrap() + (&yb * &rb).unwrap().sum_all().unwrap()).unwrap();
-            let grads = loss.backward().unwrap();
-            let data = varmap.data().lock().unwrap();
-            let mut names: Vec<&String> = data.keys().filter(|k| !k.contains("running")).collect();
-            names.sort();
-            let mut out = vec![("ya".to_string(), values(&ya)), ("yb".to_string(), values(&yb))];
-            out.push(("dx".into(), values(grads.get(x.as_tensor()).unwrap())));
-            for k in names {
-                out.push((format!("d{k}"), values(grads.get(data[k].as_tensor()).unwrap())));
-            }
-            out
+            outputs_and_gradients([("ya", &ya, &ra), ("yb", &yb, &rb)], &x, &varmap)
         };
         let (paired, separate) = (run(true), run(false));
         assert_eq!(paired.len(), 2 + 1 + 6, "outputs, input gradient, two kernels, scales and shifts");
-        for ((name, p), (_, s)) in paired.iter().zip(&separate) {
-            assert_eq!(p.len(), s.len(), "{name}");
-            let scale = s.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-3);
-            for (i, (u, v)) in p.iter().zip(s).enumerate() {
-                assert!((u - v).abs() <= 1e-5 * scale, "{name}[{i}]: paired {u}, separate {v}");
-            }
-            assert!(s.iter().any(|v| v.abs() > 1e-4), "{name} is not all zeros");
-        }
+        assert_close(&paired, &separate, 1e-5, 1e-4, "paired against separate");
     }
 
     /// The head's 3×3 layers on the neck's parts (each block's rows at its own level, read
@@ -530,13 +547,7 @@ mod tests {
             };
             let backbone = Backbone::new(ci, &cfg, vb.pp("backbone")).unwrap();
             let head = Head::new(backbone.out_channels, 4, 2, true, vb.pp("head")).unwrap();
-            for (name, var) in varmap.data().lock().unwrap().iter() {
-                if name.ends_with("weight") || name.ends_with("bias") {
-                    let k = var.elem_count();
-                    let v: Vec<f32> = (0..k).map(|_| rng.random_range(-0.5f32..0.5) + 0.2).collect();
-                    var.set(&Tensor::from_vec(v, var.shape(), &dev).unwrap()).unwrap();
-                }
-            }
+            randomise_weights(&varmap, &mut rng);
             let Layout::Sparse(sp) = &layout else { panic!("sparse layout expected") };
             let at = At::Sparse(&sp.head);
             let nh = sp.head.sites;
@@ -559,28 +570,10 @@ mod tests {
                 } else {
                     head.forward(&neck.rows().unwrap(), at, true).unwrap()
                 };
-                let loss = ((&c * &rc).unwrap().sum_all().unwrap() + (&r * &rr).unwrap().sum_all().unwrap()).unwrap();
-                let grads = loss.backward().unwrap();
-                let data = varmap.data().lock().unwrap();
-                let mut names: Vec<&String> = data.keys().filter(|k| !k.contains("running")).collect();
-                names.sort();
-                let mut out = vec![("cls".to_string(), values(&c)), ("reg".to_string(), values(&r))];
-                out.push(("dx".into(), values(grads.get(x.as_tensor()).unwrap())));
-                for k in names {
-                    out.push((format!("d{k}"), values(grads.get(data[k].as_tensor()).unwrap())));
-                }
-                out
+                outputs_and_gradients([("cls", &c, &rc), ("reg", &r, &rr)], &x, &varmap)
             };
             let (parts, rows) = (run(true), run(false));
-            assert_eq!(parts.len(), rows.len());
-            for ((name, p), (_, s)) in parts.iter().zip(&rows) {
-                assert_eq!(p.len(), s.len(), "{name}");
-                let scale = s.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-3);
-                for (i, (u, v)) in p.iter().zip(s).enumerate() {
-                    assert!((u - v).abs() <= 1e-4 * scale, "stride {out_stride}, {name}[{i}]: parts {u}, rows {v}");
-                }
-                assert!(s.iter().any(|v| v.abs() > 1e-5), "stride {out_stride}: {name} is not all zeros");
-            }
+            assert_close(&parts, &rows, 1e-4, 1e-5, &format!("stride {out_stride}, parts against rows"));
         }
     }
 }
