@@ -206,7 +206,7 @@ impl SparseHost {
                     .enumerate()
                     .map(|(k, &nb)| {
                         let row = if nb == NONE || l < head_level { nb } else { head_from[l][nb as usize] };
-                        if row == NONE { NONE } else { row * taps + (k % 9) as u32 }
+                        if row == NONE { NONE } else { row * taps + k as u32 % taps }
                     })
                     .collect()
             })
@@ -528,6 +528,36 @@ fn kept_kernel(
     }
 }
 
+/// A sparse convolution node's operands on the host: rows `(rows, C_in)` and a kernel
+/// `(C_out, C_in, kh, kw)` of `taps = kh · kw`.
+struct Operands<'a> {
+    x: &'a [f32],
+    w: &'a [f32],
+    rows: usize,
+    ci: usize,
+    co: usize,
+    taps: usize,
+}
+
+impl<'a> Operands<'a> {
+    /// The slices and sizes, or an error naming `op` where the channels differ.
+    fn of(
+        xs: &'a CpuStorage,
+        xl: &candle_core::Layout,
+        ws: &'a CpuStorage,
+        wl: &candle_core::Layout,
+        op: &str,
+    ) -> candle_core::Result<Self> {
+        let (x, w) = (f32_slice(xs, xl, op)?, f32_slice(ws, wl, op)?);
+        let (rows, ci) = xl.shape().dims2()?;
+        let (co, wci, kh, kw) = wl.shape().dims4()?;
+        if wci != ci {
+            candle_core::bail!("{op}: input has {ci} channels, kernel {wci}")
+        }
+        Ok(Operands { x, w, rows, ci, co, taps: kh * kw })
+    }
+}
+
 impl CustomOp2 for GatherConv {
     fn name(&self) -> &'static str {
         OP
@@ -540,13 +570,7 @@ impl CustomOp2 for GatherConv {
         ws: &CpuStorage,
         wl: &candle_core::Layout,
     ) -> candle_core::Result<(CpuStorage, candle_core::Shape)> {
-        let (x, w) = (f32_slice(xs, xl, OP)?, f32_slice(ws, wl, OP)?);
-        let (_, ci) = xl.shape().dims2()?;
-        let (co, wci, kh, kw) = wl.shape().dims4()?;
-        if wci != ci {
-            candle_core::bail!("hilo-gather-conv: input has {ci} channels, kernel {wci}")
-        }
-        let taps = kh * kw;
+        let Operands { x, w, ci, co, taps, .. } = Operands::of(xs, xl, ws, wl, OP)?;
         let cols = with_cpu::<u32, _>(&self.rules, OP, |rules| Ok(gather_rows(x, ci, rules)))?;
         let n_out = cols.len() / (taps * ci).max(1);
         let dev = candle_core::Device::Cpu;
@@ -672,13 +696,7 @@ impl CustomOp2 for ParentConv {
         ws: &CpuStorage,
         wl: &candle_core::Layout,
     ) -> candle_core::Result<(CpuStorage, candle_core::Shape)> {
-        let (v, w) = (f32_slice(vs, vl, PARENT_OP)?, f32_slice(ws, wl, PARENT_OP)?);
-        let (n_v, ci) = vl.shape().dims2()?;
-        let (co, wci, kh, kw) = wl.shape().dims4()?;
-        if wci != ci {
-            candle_core::bail!("{PARENT_OP}: input has {ci} channels, kernel {wci}")
-        }
-        let taps = kh * kw;
+        let Operands { x: v, w, rows: n_v, ci, co, taps } = Operands::of(vs, vl, ws, wl, PARENT_OP)?;
         let dev = candle_core::Device::Cpu;
         let wm = Tensor::from_vec(tap_columns(w, ci, taps), (ci, taps * co), &dev)?;
         let products = Tensor::from_vec(v.to_vec(), (n_v, ci), &dev)?.matmul(&wm)?;

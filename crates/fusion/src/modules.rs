@@ -143,17 +143,29 @@ impl ConvBn {
     /// each half then through its own BatchNorm + ReLU. The same function as two calls, its
     /// sums rounded differently; other layers and layouts take two calls.
     pub fn forward_pair(a: &ConvBn, b: &ConvBn, x: &Tensor, at: At, train: bool) -> Result<(Tensor, Tensor)> {
-        let (wa, wb) = (a.conv.weight(), b.conv.weight());
-        let pairable = |w: &Tensor, c: &Conv| w.dim(2).ok() == Some(3) && c.stride() == 1 && c.bias().is_none();
         match at {
-            At::Sparse(plane) if pairable(wa, &a.conv) && pairable(wb, &b.conv) && wa.dims()[1..] == wb.dims()[1..] => {
-                let ca = wa.dim(0)?;
-                let y = crate::layout::gather_conv(x, &Tensor::cat(&[wa, wb], 0)?, &plane.subm)?;
-                let (ya, yb) = (y.narrow(1, 0, ca)?.contiguous()?, y.narrow(1, ca, y.dim(1)? - ca)?.contiguous()?);
-                Ok((crate::bnrelu::bn_relu(&a.bn, &ya, train)?, crate::bnrelu::bn_relu(&b.bn, &yb, train)?))
+            At::Sparse(plane) if Self::pairable(a, b) => {
+                let y =
+                    crate::layout::gather_conv(x, &Tensor::cat(&[a.conv.weight(), b.conv.weight()], 0)?, &plane.subm)?;
+                Self::split_bn_relu(a, b, &y, train)
             }
             _ => Ok((a.forward(x, at, train)?, b.forward(x, at, train)?)),
         }
+    }
+
+    /// Whether two layers can run as one product with their kernels side by side: both 3×3,
+    /// stride 1, without bias, reading the same channels.
+    fn pairable(a: &ConvBn, b: &ConvBn) -> bool {
+        let one = |c: &Conv| c.weight().dim(2).ok() == Some(3) && c.stride() == 1 && c.bias().is_none();
+        one(&a.conv) && one(&b.conv) && a.conv.weight().dims()[1..] == b.conv.weight().dims()[1..]
+    }
+
+    /// The paired product `y` split into `a`'s and `b`'s output channels, each through its own
+    /// BatchNorm + ReLU.
+    fn split_bn_relu(a: &ConvBn, b: &ConvBn, y: &Tensor, train: bool) -> Result<(Tensor, Tensor)> {
+        let ca = a.conv.weight().dim(0)?;
+        let (ya, yb) = (y.narrow(1, 0, ca)?.contiguous()?, y.narrow(1, ca, y.dim(1)? - ca)?.contiguous()?);
+        Ok((crate::bnrelu::bn_relu(&a.bn, &ya, train)?, crate::bnrelu::bn_relu(&b.bn, &yb, train)?))
     }
 
     /// [`ConvBn::forward_pair`] at the head sites of a neck held as parts
@@ -164,14 +176,11 @@ impl ConvBn {
     /// where the two layers cannot run so (not 3×3 stride 1 without bias, or inputs other than
     /// the parts' channels).
     fn forward_pair_parts(a: &ConvBn, b: &ConvBn, parts: &[NeckPart], train: bool) -> Result<Option<(Tensor, Tensor)>> {
-        let (wa, wb) = (a.conv.weight(), b.conv.weight());
-        let pairable = |w: &Tensor, c: &Conv| w.dim(2).ok() == Some(3) && c.stride() == 1 && c.bias().is_none();
         let width: usize = parts.iter().map(|p| p.values.dim(1).unwrap_or(0)).sum();
-        if !(pairable(wa, &a.conv) && pairable(wb, &b.conv) && wa.dims()[1..] == wb.dims()[1..] && wa.dim(1)? == width)
-        {
+        if !(Self::pairable(a, b) && a.conv.weight().dim(1)? == width) {
             return Ok(None);
         }
-        let w = Tensor::cat(&[wa, wb], 0)?;
+        let w = Tensor::cat(&[a.conv.weight(), b.conv.weight()], 0)?;
         let mut y: Option<Tensor> = None;
         let mut off = 0;
         for p in parts {
@@ -184,9 +193,7 @@ impl ConvBn {
             off += c;
         }
         let Some(y) = y else { return Ok(None) };
-        let ca = wa.dim(0)?;
-        let (ya, yb) = (y.narrow(1, 0, ca)?.contiguous()?, y.narrow(1, ca, y.dim(1)? - ca)?.contiguous()?);
-        Ok(Some((crate::bnrelu::bn_relu(&a.bn, &ya, train)?, crate::bnrelu::bn_relu(&b.bn, &yb, train)?)))
+        Ok(Some(Self::split_bn_relu(a, b, &y, train)?))
     }
 }
 
@@ -293,13 +300,9 @@ impl Backbone {
         Ok(Backbone { blocks, strides, neck, out_channels: cfg.neck_channels * cfg.blocks.len() })
     }
 
-    /// The neck's output at the head: `(B, C, H / s, W / s)` dense, `(N_head, C)` sparse.
-    pub fn forward(&self, x: &Tensor, layout: &Layout, out_stride: usize, train: bool) -> Result<Tensor> {
-        self.forward_neck(x, layout, out_stride, train)?.rows()
-    }
-
-    /// The neck's output as the head reads it: dense rows, or sparse parts (each block's rows
-    /// where they were computed, [`Neck::Parts`]).
+    /// The neck's output as the head reads it ([`Head::forward_neck`]): dense rows, or sparse
+    /// parts (each block's rows where they were computed, [`Neck::Parts`]); [`Neck::rows`]
+    /// gives it as one tensor, `(B, C, H / s, W / s)` dense or `(N_head, C)` sparse.
     pub fn forward_neck(&self, x: &Tensor, layout: &Layout, out_stride: usize, train: bool) -> Result<Neck> {
         let Layout::Sparse(sp) = layout else { return Ok(Neck::Rows(self.forward_dense(x, out_stride, train)?)) };
         let mut x = x.clone();

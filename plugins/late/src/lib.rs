@@ -94,8 +94,8 @@ impl Fusion for LateFusion {
         let mut heads = Vec::new();
         for (b, p) in [(&self.lidar, input.lidar), (&self.radar, input.radar)] {
             let bev = b.pfn.forward(p, input.layout, train)?;
-            let x = b.backbone.forward(&bev, input.layout, self.out_stride, train)?;
-            heads.push(b.head.forward(&x, head_at(input.layout), train)?);
+            let x = b.backbone.forward_neck(&bev, input.layout, self.out_stride, train)?;
+            heads.push(b.head.forward_neck(&x, head_at(input.layout), train)?);
         }
         Ok(FusionOutput::Heads(heads))
     }
