@@ -618,8 +618,15 @@ pub fn train(
                     }
                 }
                 ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
+                ("blocks", _) => {
+                    det_cfg.backbone.blocks = serde_json::from_value(v.clone()).with_context(|| {
+                        format!(
+                            "variant blocks = {v}: expected [{{\"stride\": 2, \"channels\": 32, \"layers\": 2}}, ...]"
+                        )
+                    })?
+                }
                 _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, head_dilation=N, layers=N)"
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
                 ),
             }
         }
