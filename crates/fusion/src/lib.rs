@@ -123,9 +123,10 @@
 //!   46% of the forward multiply-adds and half the optimizer's work. Without them a step does
 //!   0.119 instead of 0.220 GFLOP forward (`centerpoint`) and the default schedules train
 //!   1.43× (`centerpoint`, 486.0 → 338.9 s) and 1.35× (`lirafusion-like`, 465.4 → 344.7 s)
-//!   faster on a two-core machine of ~70 GFLOP/s, at mAP within what two runs of one schedule
-//!   differ by (`centerpoint` 0.813 and 0.816 on seeds 0 and 1 against 0.805 and 0.803;
-//!   `lirafusion-like` 0.819 against 0.840, seed 0); the README has the runs;
+//!   faster on a two-core machine of ~70 GFLOP/s, `centerpoint` at mAP within what two runs of
+//!   one schedule differ by (0.813 and 0.816 on seeds 0 and 1 against 0.805 and 0.803),
+//!   `lirafusion-like` about 0.015 lower at 24,000 samples (0.819 and 0.819 against 0.840 and
+//!   0.832) and higher at four times that (0.848 against 0.842); the README has the runs;
 //! - **per-class loss normalisation** ([`detector::LossNorm`], an option, not adopted): each
 //!   class's heatmap and regression losses divided by its own positives and the classes
 //!   averaged, as CenterPoint's per-task heads do. On `centerpoint` four times its default
