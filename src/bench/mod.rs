@@ -630,6 +630,10 @@ pub fn train(
                 ),
             }
         }
+        // A plugin that builds its own branches (`late`) carries the backbone in its config too.
+        if let Some(b) = det_cfg.fusion_config.get_mut("backbone") {
+            *b = serde_json::to_value(&det_cfg.backbone)?;
+        }
         cfg.validate().with_context(|| format!("bench train {name}"))?;
         let background = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
