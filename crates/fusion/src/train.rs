@@ -627,6 +627,25 @@ fn average(passes: Vec<StepPass>) -> Result<StepPass> {
     Ok(StepPass { total: acc.total / nf, cls: acc.cls / nf, reg: acc.reg / nf, ..acc })
 }
 
+/// Lowers the calling thread to the idle scheduling class (Linux `SCHED_IDLE`): the batch thread
+/// then runs on whatever the step leaves idle (the optimizer's serial part, the replicas' waits
+/// at their BatchNorm exchanges, the wait for the next batch) instead of taking a core from a
+/// replica, which stalls the other replica at its next exchange. When it falls behind, the
+/// training thread waits for its batch, leaving a core idle, so it still makes progress. Where
+/// the class is not available the thread keeps its priority (the batches are the same either
+/// way: only when they are made changes).
+fn idle_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        use thread_priority::{NormalThreadSchedulePolicy, ThreadPriority, ThreadSchedulePolicy};
+        let _ = thread_priority::set_thread_priority_and_policy(
+            thread_priority::thread_native_id(),
+            ThreadPriority::Min,
+            ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Idle),
+        );
+    }
+}
+
 /// Trains (or resumes) a detector in `run` on frames loaded with its input config (and, when it
 /// removes background, the `background` model they were filtered with, kept in the run for
 /// inference). Batches are prepared one step ahead on another thread. `on_step` returning false
@@ -709,6 +728,7 @@ pub fn train(
         let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<HostBatch>>(2);
         let (epoch, paste) = (&epoch, paste.as_ref());
         scope.spawn(move || {
+            idle_priority();
             for step in start..steps {
                 let frames = step_frames(frames, epoch, cfg, step, paste);
                 if tx.send(replica_batches(det_cfg, &frames, cfg, step, with_radar)).is_err() {
