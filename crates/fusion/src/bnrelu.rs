@@ -231,6 +231,29 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
     bn_relu_on(bn, x, train, x.device().is_cpu() && x.dtype() == DType::F32)
 }
 
+/// [`bn_relu`] of the rows `x` `(N, C)` followed by `zeros` rows of zeros, returning only the
+/// rows of `x`: the statistics are those of all `N + zeros` rows, and the zero rows are taken to
+/// get no gradient (their outputs are discarded). This is a padded per-point encoder's
+/// BatchNorm (a linear layer without bias maps a padding slot to a zero row, which the batch
+/// statistics count) computed on its real points alone. In training on the CPU the zero rows
+/// enter only the sums (in closed form); elsewhere they are appended and cut off again.
+pub fn bn_relu_padded(bn: &BatchNorm, x: &Tensor, zeros: usize, train: bool) -> Result<Tensor> {
+    bn_relu_padded_on(bn, x, zeros, train, x.device().is_cpu() && x.dtype() == DType::F32)
+}
+
+fn bn_relu_padded_on(bn: &BatchNorm, x: &Tensor, zeros: usize, train: bool, kernel: bool) -> Result<Tensor> {
+    if zeros == 0 || !train {
+        // In evaluation each row is normalised on its own (running statistics).
+        return bn_relu_on(bn, x, train, kernel);
+    }
+    if kernel && x.rank() == 2 && bn.weight_and_bias().is_some() {
+        return bn_relu_stats(bn, x, zeros, kernel);
+    }
+    let (n, c) = x.dims2()?;
+    let padded = Tensor::cat(&[x, &Tensor::zeros((zeros, c), x.dtype(), x.device())?], 0)?;
+    Ok(bn_relu_on(bn, &padded, train, kernel)?.narrow(0, 0, n)?)
+}
+
 /// [`bn_relu`], with the fused node's host kernel ([`BnRelu`]) when `kernel` (f32 rows on the
 /// CPU), else its composite from tensor operations ([`bn_relu_composite`]) for synchronised
 /// replicas and candle-nn's BatchNorm otherwise.
@@ -243,15 +266,26 @@ fn bn_relu_on(bn: &BatchNorm, x: &Tensor, train: bool, kernel: bool) -> Result<T
         && x.rank() == 2
         && (x.dim(0)? > 1 || sync.is_some())
         && bn.weight_and_bias().is_some();
-    let Some((gamma, beta)) = bn.weight_and_bias().filter(|_| fused) else {
-        if train && frozen() {
-            return Ok(batch_norm_frozen(bn, x)?.relu()?);
-        }
-        return Ok(bn.forward_t(x, train)?.relu()?);
+    if fused {
+        return bn_relu_stats(bn, x, 0, kernel);
+    }
+    if train && frozen() {
+        return Ok(batch_norm_frozen(bn, x)?.relu()?);
+    }
+    Ok(bn.forward_t(x, train)?.relu()?)
+}
+
+/// The fused path of [`bn_relu_on`] over the rows `x` and `zeros` further zero rows (which enter
+/// the statistics only).
+fn bn_relu_stats(bn: &BatchNorm, x: &Tensor, zeros: usize, kernel: bool) -> Result<Tensor> {
+    let sync = SYNC.with(|c| c.borrow().clone());
+    let Some((gamma, beta)) = bn.weight_and_bias() else {
+        return Err(crate::error::FusionError::Config("fused BatchNorm without weight and bias".into()));
     };
     let x = x.contiguous()?;
     let c = x.dim(1)?;
     let local = if kernel { with_cpu::<f32, _>(&x, OP, |v| Ok(sums(v, c)))? } else { device_sums(&x)? };
+    let local = local.with_zeros(zeros);
     let layer = bn.running_mean().id();
     let (sums, sync) = match sync {
         None => (local, None),
@@ -408,6 +442,23 @@ impl Sums {
             acc.n = n;
         }
         Ok(acc)
+    }
+
+    /// These sums and `zeros` rows of zeros (Chan's update with a block of mean 0 and no spread).
+    fn with_zeros(mut self, zeros: usize) -> Sums {
+        if zeros == 0 {
+            return self;
+        }
+        let (na, nb) = (self.n, zeros as f64);
+        let n = na + nb;
+        if na > 0.0 {
+            for (q, s) in self.m2.iter_mut().zip(&self.sum) {
+                let d = s / na;
+                *q += d * d * na * nb / n;
+            }
+        }
+        self.n = n;
+        self
     }
 
     /// Mean and biased variance (zeros without rows).
@@ -822,6 +873,94 @@ mod tests {
         close(&sum(|r| &r.3), &dbeta, 1e-4, "dbeta");
         close(shared.running_mean(), whole.running_mean(), 1e-6, "running mean");
         close(shared.running_var(), whole.running_var(), 1e-5, "running var");
+    }
+
+    /// Rows followed by zero rows the encoder leaves out ([`bn_relu_padded`]) normalise as the
+    /// padded rows do: outputs, running statistics and the gradients of x, γ and β equal those
+    /// of [`bn_relu`] over the rows with the zeros appended (their upstream gradient zero, as a
+    /// masked padding slot's is), on the host kernel and on the composite path; and two
+    /// synchronised replicas with different padding normalise as the padded batch.
+    #[test]
+    fn padded_rows_enter_the_statistics_alone() {
+        let dev = Device::Cpu;
+        let (n, c, zeros) = (203usize, 5usize, 611usize);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let mut normal = |len: usize| -> Vec<f32> {
+            (0..len).map(|_| rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng)).collect()
+        };
+        let offset = Tensor::from_slice(&[0f32, 4.0, -3.0, 50.0, 0.5], (1, c), &dev).unwrap();
+        let x = Tensor::from_vec(normal(n * c), (n, c), &dev).unwrap().broadcast_add(&offset).unwrap();
+        let up = Tensor::from_vec(normal(n * c), (n, c), &dev).unwrap();
+        let gs = Tensor::from_slice(&[1.5f32, -0.7, 0.3, 2.0, 1.0], c, &dev).unwrap();
+        let bs = Tensor::from_slice(&[0.1f32, 0.2, -0.3, 0.4, -0.1], c, &dev).unwrap();
+        let set = |bn: &BatchNorm| {
+            let (g, b) = bn.weight_and_bias().unwrap();
+            Var::from_tensor(g).unwrap().set(&gs).unwrap();
+            Var::from_tensor(b).unwrap().set(&bs).unwrap();
+        };
+        let grads = |bn: &BatchNorm, xv: &Var, y: &Tensor, up: &Tensor| {
+            let g = (y * up).unwrap().sum_all().unwrap().backward().unwrap();
+            let (gamma, beta) = bn.weight_and_bias().unwrap();
+            [g.get(xv.as_tensor()).unwrap().clone(), g.get(gamma).unwrap().clone(), g.get(beta).unwrap().clone()]
+        };
+        // The reference: the zero rows appended, their outputs discarded.
+        let vm = VarMap::new();
+        let whole = bn(&vm, c);
+        set(&whole);
+        let xw = Var::from_tensor(&x).unwrap();
+        let padded = Tensor::cat(&[xw.as_tensor(), &Tensor::zeros((zeros, c), DType::F32, &dev).unwrap()], 0).unwrap();
+        let yw = bn_relu(&whole, &padded, true).unwrap().narrow(0, 0, n).unwrap();
+        let want = grads(&whole, &xw, &yw, &up);
+        for kernel in [true, false] {
+            let vm = VarMap::new();
+            let b = bn(&vm, c);
+            set(&b);
+            let xv = Var::from_tensor(&x).unwrap();
+            let y = bn_relu_padded_on(&b, xv.as_tensor(), zeros, true, kernel).unwrap();
+            assert_eq!(y.dims(), &[n, c]);
+            close(&y, &yw, 1e-5, "output");
+            close(b.running_mean(), whole.running_mean(), 1e-6, "running mean");
+            close(b.running_var(), whole.running_var(), 1e-5, "running var");
+            for (got, (want, what)) in grads(&b, &xv, &y, &up).iter().zip(want.iter().zip(["dx", "dgamma", "dbeta"])) {
+                close(got, want, 1e-4, what);
+            }
+        }
+        // Two synchronised replicas: rows 0..80 with 100 zero rows, rows 80.. with the rest.
+        let (split, pad0) = (80usize, 100usize);
+        let vm = VarMap::new();
+        let shared = bn(&vm, c);
+        set(&shared);
+        let sync = BatchNormSync::new(2);
+        let parts = [(0, split, pad0), (split, n - split, zeros - pad0)];
+        let results: Vec<(Tensor, [Tensor; 3])> = std::thread::scope(|scope| {
+            let handles: Vec<_> = parts
+                .iter()
+                .enumerate()
+                .map(|(r, &(start, len, pad))| {
+                    let (x, up, shared, sync, grads) = (&x, &up, &shared, &sync, &grads);
+                    scope.spawn(move || {
+                        with_synced_batch_norm(sync, r, || {
+                            let pass = || {
+                                let xr = Var::from_tensor(&x.narrow(0, start, len).unwrap()).unwrap();
+                                let y = bn_relu_padded(shared, xr.as_tensor(), pad, true).unwrap();
+                                let g = grads(shared, &xr, &y, &up.narrow(0, start, len).unwrap());
+                                (y, g)
+                            };
+                            if r == 0 { pass() } else { with_running_stats_frozen(pass) }
+                        })
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        let y = Tensor::cat(&[&results[0].0, &results[1].0], 0).unwrap();
+        close(&y, &yw, 1e-5, "synchronised output");
+        close(&Tensor::cat(&[&results[0].1[0], &results[1].1[0]], 0).unwrap(), &want[0], 1e-4, "synchronised dx");
+        for (k, want) in want.iter().enumerate().skip(1) {
+            close(&(&results[0].1[k] + &results[1].1[k]).unwrap(), want, 1e-4, "synchronised parameters");
+        }
+        close(shared.running_mean(), whole.running_mean(), 1e-6, "synchronised running mean");
+        close(shared.running_var(), whole.running_var(), 1e-5, "synchronised running var");
     }
 
     /// Replicas that reach different layers, or one that ends its pass while another waits,

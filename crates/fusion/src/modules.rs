@@ -27,6 +27,19 @@ pub struct PillarTensors {
     /// batch offset (dense), or its level-0 site (sparse).
     pub index: Tensor,
     pub count: usize,
+    /// The real points alone, pillar after pillar (padding left out): `(R, F)` features, and
+    /// per point its pillar's layout row (`index` of its pillar, `(R,)` u32) and the share
+    /// 1 / (its pillar's real points) `(R, 1)`. A per-point encoder on these rows does the work
+    /// of the points there are (a roadside pillar holds 2–3 of its 10 slots on average).
+    pub points: Tensor,
+    pub point_rows: Tensor,
+    pub point_share: Tensor,
+    /// `(R,)` u32: each real point's slot in the padded layout (pillar · N + slot), where a
+    /// per-point result goes back to for a per-pillar maximum.
+    pub point_slots: Tensor,
+    /// Padding slots left out of `points` (P·N − R): zero rows, which BatchNorm over the
+    /// padded layout counts ([`crate::bnrelu::bn_relu_padded`]).
+    pub padding: usize,
 }
 
 impl PillarTensors {
@@ -43,11 +56,30 @@ impl PillarTensors {
                 .ok_or_else(|| FusionError::Config("a pillar has no site in the sparse layout".into()))?,
             None => p.index.clone(),
         };
+        let width = p.width.max(1);
+        let (mut points, mut point_rows, mut point_share, mut point_slots) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for (k, (slots, &row)) in p.mask.chunks(npp).zip(&index).enumerate() {
+            let real = slots.iter().filter(|m| **m > 0.5).count();
+            for (j, _) in slots.iter().enumerate().filter(|(_, m)| **m > 0.5) {
+                let at = (k * npp + j) * width;
+                points.extend_from_slice(&p.features[at..at + width]);
+                point_rows.push(row);
+                point_share.push(1.0 / real as f32);
+                point_slots.push((k * npp + j) as u32);
+            }
+        }
+        let r = point_rows.len();
         Ok(PillarTensors {
-            features: Tensor::from_slice(&p.features, (n, npp, p.width.max(1)), device)?,
+            features: Tensor::from_slice(&p.features, (n, npp, width), device)?,
             mask: Tensor::from_slice(&p.mask, (n, npp, 1), device)?,
             index: Tensor::from_vec(index, n, device)?,
             count: n,
+            points: Tensor::from_vec(points, (r, width), device)?,
+            point_rows: Tensor::from_vec(point_rows, r, device)?,
+            point_share: Tensor::from_vec(point_share, (r, 1), device)?,
+            point_slots: Tensor::from_vec(point_slots, r, device)?,
+            padding: n * npp - r,
         })
     }
 }
@@ -71,19 +103,23 @@ impl PillarNet {
         })
     }
 
-    /// (P, C) pillar features.
+    /// (P, C) pillar features: the per-point layers on the real points alone (BatchNorm
+    /// counting the padding slots as the zero rows they are, so the function is that of the
+    /// padded pillars), then the maximum over each pillar's slots (a padding slot's 0 is below
+    /// or equal to every ReLU output, as the masked padding was).
     pub fn encode(&self, p: &PillarTensors, train: bool) -> Result<Tensor> {
         let (n, npp, f) = p.features.dims3()?;
-        crate::conv::count_matmul(n * npp, f, self.channels);
-        let x = self.linear.forward(&p.features.reshape((n * npp, f))?)?;
-        let x = crate::bnrelu::bn_relu(&self.bn, &x, train)?;
-        let x = x.reshape((n, npp, self.channels))?.broadcast_mul(&p.mask)?;
+        let r = p.points.dim(0)?;
+        crate::conv::count_matmul(r, f, self.channels);
+        let x = self.linear.forward(&p.points)?;
+        let x = crate::bnrelu::bn_relu_padded(&self.bn, &x, p.padding, train)?;
         if n == 0 {
             // No pillars (a synchronised replica's empty modality): candle reduces no empty
             // tensor, and the (0, C) rows need only stay in the graph.
-            return Ok(x.narrow(1, 0, 1.min(npp))?.reshape((0, self.channels))?);
+            return Ok(x);
         }
-        Ok(x.max(1)?)
+        let slots = Tensor::zeros((n * npp, self.channels), x.dtype(), x.device())?.index_add(&p.point_slots, &x, 0)?;
+        Ok(slots.reshape((n, npp, self.channels))?.max(1)?)
     }
 
     /// Pillar features (P, C) scattered to the layout's level 0: `(B, C, H, W)` or `(N_0, C)`.
@@ -577,6 +613,90 @@ mod tests {
             };
             let (parts, rows) = (run(true), run(false));
             assert_close(&parts, &rows, 1e-4, 1e-5, &format!("stride {out_stride}, parts against rows"));
+        }
+    }
+
+    /// The pillar net on the real points alone equals PointPillars' padded form (every slot
+    /// through the linear layer, BatchNorm over all of them, the padding masked, the maximum per
+    /// pillar): outputs, running statistics and the gradients of every variable, in training,
+    /// on pillars with one point, full pillars (points left out above the cap) and pillars in
+    /// between. And the packed rows are the mask's real slots.
+    #[test]
+    fn pillar_net_on_real_points_equals_the_padded_form() {
+        let grid = crate::conformance::small_grid();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        // A dense clump (full pillars), a sparse spread (one point per pillar), and between.
+        let mut pts: Vec<[f32; 4]> = (0..60)
+            .map(|_| {
+                [rng.random_range(1.0f32..1.7), rng.random_range(2.0f32..2.7), rng.random_range(-1.0f32..2.0), 0.4]
+            })
+            .collect();
+        pts.extend((0..25).map(|k| [-10.0 + 0.81 * k as f32, -6.0 + 0.1 * k as f32, 0.5, 0.9]));
+        pts.extend((0..30).map(|_| [rng.random_range(4.0f32..6.4), rng.random_range(-3.0f32..-1.4), 0.2, 0.1]));
+        let pillars = crate::data::pillarize(&grid, &[&pts], 3);
+        assert!(pillars.dropped_points > 0, "some pillar is over its cap");
+        let dev = Device::Cpu;
+        let p = PillarTensors::new(&pillars, None, &dev).unwrap();
+        let (n, npp, f) = p.features.dims3().unwrap();
+        let real = pillars.mask.iter().filter(|m| **m > 0.5).count();
+        assert_eq!(p.points.dims(), &[real, f]);
+        assert_eq!(p.padding, n * npp - real);
+        assert!(p.padding > 0 && real > n, "padding and pillars of several points");
+        let packed: Vec<f32> = pillars
+            .features
+            .chunks(f)
+            .zip(&pillars.mask)
+            .filter(|(_, m)| **m > 0.5)
+            .flat_map(|(row, _)| row.to_vec())
+            .collect();
+        assert_eq!(values(&p.points), packed, "the real slots in order");
+
+        let varmap = VarMap::new();
+        let net = PillarNet::new(f, 16, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
+        randomise_weights(&varmap, &mut rng);
+        let up =
+            Tensor::from_vec((0..n * 16).map(|_| rng.random_range(-1.0f32..1.0)).collect(), (n, 16), &dev).unwrap();
+        let stats = |v: &VarMap| {
+            let d = v.data().lock().unwrap();
+            let mut k: Vec<&String> = d.keys().filter(|k| k.contains("running")).collect();
+            k.sort();
+            k.into_iter().flat_map(|k| values(d[k].as_tensor())).collect::<Vec<f32>>()
+        };
+        let before: Vec<(String, Tensor)> =
+            varmap.data().lock().unwrap().iter().map(|(k, v)| (k.clone(), v.as_tensor().copy().unwrap())).collect();
+        let restore = || {
+            let d = varmap.data().lock().unwrap();
+            for (k, v) in &before {
+                d[k].set(v).unwrap();
+            }
+        };
+        // The padded form, by hand.
+        let x = Var::from_tensor(&p.features).unwrap();
+        let h = net.linear.forward(&x.as_tensor().reshape((n * npp, f)).unwrap()).unwrap();
+        let h = crate::bnrelu::bn_relu(&net.bn, &h, true).unwrap();
+        let want_y = h.reshape((n, npp, 16)).unwrap().broadcast_mul(&p.mask).unwrap().max(1).unwrap();
+        let want = outputs_and_gradients([("y", &want_y, &up), ("y", &want_y, &up.zeros_like().unwrap())], &x, &varmap);
+        let want_stats = stats(&varmap);
+        restore();
+        // The net on the packed rows (x enters through the points, so dx is taken on them and
+        // compared on the real slots).
+        let xp = Var::from_tensor(&p.points).unwrap();
+        let q = PillarTensors { points: xp.as_tensor().clone(), ..p.clone() };
+        let got_y = net.encode(&q, true).unwrap();
+        let got = outputs_and_gradients([("y", &got_y, &up), ("y", &got_y, &up.zeros_like().unwrap())], &xp, &varmap);
+        let dx_real: Vec<f32> = want[2]
+            .1
+            .chunks(f)
+            .zip(&pillars.mask)
+            .filter(|(_, m)| **m > 0.5)
+            .flat_map(|(row, _)| row.to_vec())
+            .collect();
+        let want: Vec<(String, Vec<f32>)> =
+            want.into_iter().map(|(k, v)| if k == "dx" { (k, dx_real.clone()) } else { (k, v) }).collect();
+        assert_close(&got, &want, 1e-5, 1e-7, "packed against padded");
+        let got_stats = stats(&varmap);
+        for (a, b) in got_stats.iter().zip(&want_stats) {
+            assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "running statistics: {a} against {b}");
         }
     }
 }

@@ -648,7 +648,8 @@ fn idle_priority() {
 
 /// Trains (or resumes) a detector in `run` on frames loaded with its input config (and, when it
 /// removes background, the `background` model they were filtered with, kept in the run for
-/// inference). Batches are prepared one step ahead on another thread. `on_step` returning false
+/// inference). Batches are prepared one step ahead on another thread, at idle priority where the
+/// system has it (Linux's `SCHED_IDLE`). `on_step` returning false
 /// stops the run after a checkpoint (rerunning resumes it). Returns the run's info.
 #[allow(clippy::too_many_arguments)]
 pub fn train(

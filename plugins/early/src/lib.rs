@@ -9,7 +9,10 @@
 //! the motion fixture (`crates/cli/tests/fusion_motion.rs`) `lirafusion-like` with it stayed at
 //! LiDAR-only mAP (0.41 against 0.43), with `modality_mean` it reaches 0.97. Decorations are taken
 //! per modality (offsets from the modality's own pillar mean), a simplification of a joint pillar
-//! mean.
+//! mean. The encoder runs on the real points alone (a pillar fills 2–3 of its 10 slots on a
+//! roadside frame), its BatchNorm counting the padding slots as the zero rows they are in the
+//! padded form, so the function is that of the padded pillars (1.2× the fused preset's training
+//! samples/s; the README has the bench).
 //!
 //! Optionally (`middle`), a LiDAR-only pillar branch is fused with the joint map by φ
 //! (LiRaFusion's joint voxel encoder + adaptive gating; L4DR's early radar–LiDAR fusion +
@@ -149,11 +152,11 @@ pub fn lirafusion_like() -> DetectorConfig {
 }
 
 /// `lirafusion-like`'s default schedule: [`hilo_fusion::presets::plateau_schedule`] (24,000
-/// samples, batches of two as two data-parallel replicas). With radar clutter removed and
-/// ground-truth paste it trains at about 95 samples/s on two cores (checkpoints included; 98 in
-/// the bench), so 24,000 samples take 244–256 s idle on the slowest machine measured; 18,000
-/// samples with one replica, which left the second core idle, took 323.5 s on a faster one.
-/// The README's learning curve has the gains of four times this.
+/// samples, batches of two as two data-parallel replicas with synchronised BatchNorm). With
+/// radar clutter removed and ground-truth paste it trains at about 90 samples/s on two cores of
+/// ~70 GFLOP/s matrix-product peak (checkpoints included; 94–101 in the bench), so 24,000
+/// samples take about 4.5 minutes there (268.5 s, seed 0). The README's learning curve has the
+/// gains of four times this.
 pub fn lirafusion_like_schedule() -> TrainConfig {
     hilo_fusion::presets::plateau_schedule()
 }
@@ -172,22 +175,23 @@ pub fn register(r: &mut Registry) -> Result<()> {
 }
 
 impl EarlyFusion {
-    /// Joint-layout point features (P, N, 15) of one modality.
+    /// Joint-layout rows `(R, 15)` of one modality's real points (padding left out).
     fn to_joint(p: &PillarTensors, map: &[usize], flag: bool) -> Result<Tensor> {
-        let (n, npp, f) = p.features.dims3()?;
-        let sel = selection(map, p.features.device())?;
-        let x = p.features.reshape((n * npp, f))?.matmul(&sel)?.reshape((n, npp, JOINT))?;
+        let sel = selection(map, p.points.device())?;
+        let x = p.points.matmul(&sel)?;
         if !flag {
             return Ok(x);
         }
-        // The modality flag is 1 on real radar points.
+        // The modality flag is 1 on every (real) radar point.
         let mut e = vec![0f32; JOINT];
         e[JOINT - 1] = 1.0;
-        let e = Tensor::from_vec(e, (1, 1, JOINT), p.features.device())?;
-        Ok((x + p.mask.broadcast_mul(&e)?)?)
+        Ok(x.broadcast_add(&Tensor::from_vec(e, (1, JOINT), p.points.device())?)?)
     }
 
-    /// Per-pillar (sum or max, count) of the joint encoding for each present modality.
+    /// The joint map: the encodings of the real points of each present modality, aggregated
+    /// per cell. BatchNorm counts the padding slots as the zero rows they are in the padded
+    /// layout ([`hilo_fusion::bnrelu::bn_relu_padded`]), so the encoder computes only the points
+    /// there are and gives what it gave on the padded pillars.
     fn joint_map(&self, input: &FusionInput, train: bool) -> Result<Tensor> {
         let dev = input.lidar.features.device().clone();
         let mut parts: Vec<(Tensor, &PillarTensors)> = Vec::new();
@@ -204,38 +208,45 @@ impl EarlyFusion {
                 return layout.from_rows(layout.zeros(c, &dev)?);
             }
             // A synchronised replica meets the others at the BatchNorm, with no rows.
-            let npp = input.radar.features.dim(1)?;
-            parts.push((Tensor::zeros((0, npp, JOINT), DType::F32, &dev)?, input.radar));
+            parts.push((Tensor::zeros((0, JOINT), DType::F32, &dev)?, input.radar));
         }
         // One BatchNorm over the points of both modalities.
-        let rows: Vec<Tensor> = parts
-            .iter()
-            .map(|(x, _)| x.dims3().and_then(|(n, npp, _)| x.reshape((n * npp, JOINT))))
-            .collect::<candle_core::Result<_>>()?;
+        let rows: Vec<&Tensor> = parts.iter().map(|(x, _)| x).collect();
         let sizes: Vec<usize> = rows.iter().map(|r| r.dim(0)).collect::<candle_core::Result<_>>()?;
-        let all = hilo_fusion::bnrelu::bn_relu(&self.bn, &self.linear.forward(&Tensor::cat(&rows, 0)?)?, train)?;
+        let padding = parts.iter().map(|(_, p)| p.padding).sum();
+        let all = hilo_fusion::bnrelu::bn_relu_padded(
+            &self.bn,
+            &self.linear.forward(&Tensor::cat(&rows, 0)?)?,
+            padding,
+            train,
+        )?;
         let mut offset = 0;
         let mut acc = layout.zeros(c, &dev)?;
         let mut count = layout.zeros(1, &dev)?;
         for ((_, p), rows_k) in parts.iter().zip(sizes) {
-            let (n, npp, _) = p.features.dims3()?;
-            if n == 0 {
-                // No pillars: nothing to aggregate (candle reduces no empty tensor), but the
+            let x = all.narrow(0, offset, rows_k)?;
+            offset += rows_k;
+            if rows_k == 0 {
+                // No points: nothing to aggregate (candle reduces no empty tensor), but the
                 // rows stay in the graph so the backward pass meets the other replicas too.
-                acc = acc.index_add(&p.index, &all.narrow(0, offset, 0)?, 0)?;
+                acc = acc.index_add(&p.point_rows, &x, 0)?;
                 continue;
             }
-            let x = all.narrow(0, offset, rows_k)?.reshape((n, npp, c))?.broadcast_mul(&p.mask)?;
-            offset += rows_k;
             match self.cfg.aggregation {
-                Aggregation::Max => acc = acc.maximum(&layout.zeros(c, &dev)?.index_add(&p.index, &x.max(1)?, 0)?)?,
+                Aggregation::Max => {
+                    // Back to the padded slots (zeros there, below every ReLU output) for the
+                    // per-pillar maximum.
+                    let (n, npp, _) = p.features.dims3()?;
+                    let slots = Tensor::zeros((n * npp, c), DType::F32, &dev)?.index_add(&p.point_slots, &x, 0)?;
+                    let max = slots.reshape((n, npp, c))?.max(1)?;
+                    acc = acc.maximum(&layout.zeros(c, &dev)?.index_add(&p.index, &max, 0)?)?;
+                }
                 Aggregation::Mean => {
-                    acc = acc.index_add(&p.index, &x.sum(1)?, 0)?;
-                    count = count.index_add(&p.index, &p.mask.sum(1)?, 0)?;
+                    acc = acc.index_add(&p.point_rows, &x, 0)?;
+                    count = count.index_add(&p.point_rows, &Tensor::ones((rows_k, 1), DType::F32, &dev)?, 0)?;
                 }
                 Aggregation::ModalityMean => {
-                    let mean = x.sum(1)?.broadcast_div(&p.mask.sum(1)?.clamp(1.0, f32::MAX)?)?;
-                    acc = acc.index_add(&p.index, &mean, 0)?;
+                    acc = acc.index_add(&p.point_rows, &x.broadcast_mul(&p.point_share)?, 0)?;
                 }
             }
         }
@@ -269,15 +280,15 @@ mod tests {
     use hilo_fusion::data::pillarize;
     use hilo_fusion::layout::Layout;
 
-    /// Per pillar, the encodings of its real points (inference-mode BatchNorm, so per point).
+    /// Per pillar, the encodings of its real points (inference-mode BatchNorm, so per point),
+    /// from the padded features and the mask (not the packed rows the plugin reads).
     fn encodings(f: &EarlyFusion, p: &PillarTensors, map: &[usize], flag: bool) -> Vec<Vec<Vec<f32>>> {
-        let x = EarlyFusion::to_joint(p, map, flag).unwrap();
-        let (n, npp, _) = x.dims3().unwrap();
-        let e =
-            f.bn.forward_t(&f.linear.forward(&x.reshape((n * npp, JOINT)).unwrap()).unwrap(), false)
-                .unwrap()
-                .relu()
-                .unwrap();
+        let (n, npp, w) = p.features.dims3().unwrap();
+        let x = p.features.reshape((n * npp, w)).unwrap().matmul(&selection(map, &Device::Cpu).unwrap()).unwrap();
+        let mut e = vec![0f32; JOINT];
+        e[JOINT - 1] = if flag { 1.0 } else { 0.0 };
+        let x = x.broadcast_add(&Tensor::from_vec(e, (1, JOINT), &Device::Cpu).unwrap()).unwrap();
+        let e = f.bn.forward_t(&f.linear.forward(&x).unwrap(), false).unwrap().relu().unwrap();
         let e = e.reshape((n, npp, f.cfg.channels)).unwrap().to_vec3::<f32>().unwrap();
         let mask = p.mask.squeeze(2).unwrap().to_vec2::<f32>().unwrap();
         e.into_iter()
