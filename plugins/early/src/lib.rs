@@ -280,25 +280,54 @@ mod tests {
     use hilo_fusion::data::pillarize;
     use hilo_fusion::layout::Layout;
 
-    /// Per pillar, the encodings of its real points (inference-mode BatchNorm, so per point),
-    /// from the padded features and the mask (not the packed rows the plugin reads).
-    fn encodings(f: &EarlyFusion, p: &PillarTensors, map: &[usize], flag: bool) -> Vec<Vec<Vec<f32>>> {
-        let (n, npp, w) = p.features.dims3().unwrap();
-        let x = p.features.reshape((n * npp, w)).unwrap().matmul(&selection(map, &Device::Cpu).unwrap()).unwrap();
-        let mut e = vec![0f32; JOINT];
-        e[JOINT - 1] = if flag { 1.0 } else { 0.0 };
-        let x = x.broadcast_add(&Tensor::from_vec(e, (1, JOINT), &Device::Cpu).unwrap()).unwrap();
-        let e = f.bn.forward_t(&f.linear.forward(&x).unwrap(), false).unwrap().relu().unwrap();
-        let e = e.reshape((n, npp, f.cfg.channels)).unwrap().to_vec3::<f32>().unwrap();
-        let mask = p.mask.squeeze(2).unwrap().to_vec2::<f32>().unwrap();
-        e.into_iter()
-            .zip(mask)
-            .map(|(rows, m)| rows.into_iter().zip(m).filter(|(_, m)| *m > 0.5).map(|(r, _)| r).collect())
+    /// Per modality and pillar, the encodings of its real points, computed on the padded
+    /// features and the mask (not the packed rows the plugin reads): every slot of both
+    /// modalities through the linear layer and one BatchNorm (in training over all slots, the
+    /// padding included, as the padded form normalised), then the real slots kept.
+    fn encodings(
+        f: &EarlyFusion,
+        parts: [(&PillarTensors, &[usize], bool); 2],
+        train: bool,
+    ) -> Vec<Vec<Vec<Vec<f32>>>> {
+        let dev = Device::Cpu;
+        let mut rows = Vec::new();
+        for (p, map, flag) in parts {
+            let (n, npp, w) = p.features.dims3().unwrap();
+            let x = p.features.reshape((n * npp, w)).unwrap().matmul(&selection(map, &dev).unwrap()).unwrap();
+            let mut e = vec![0f32; JOINT];
+            e[JOINT - 1] = 1.0;
+            let e = Tensor::from_vec(e, (1, JOINT), &dev).unwrap();
+            // The flag on real radar points only: a padding slot is a zero row.
+            let flagged = p.mask.reshape((n * npp, 1)).unwrap().broadcast_mul(&e).unwrap();
+            rows.push(if flag { (x + flagged).unwrap() } else { x });
+        }
+        let h = f.linear.forward(&Tensor::cat(&rows, 0).unwrap()).unwrap();
+        let h = if train {
+            hilo_fusion::bnrelu::bn_relu(&f.bn, &h, true).unwrap()
+        } else {
+            f.bn.forward_t(&h, false).unwrap().relu().unwrap()
+        };
+        let mut offset = 0;
+        parts
+            .iter()
+            .map(|(p, _, _)| {
+                let (n, npp, _) = p.features.dims3().unwrap();
+                let e = h.narrow(0, offset, n * npp).unwrap();
+                offset += n * npp;
+                let e = e.reshape((n, npp, f.cfg.channels)).unwrap().to_vec3::<f32>().unwrap();
+                let mask = p.mask.squeeze(2).unwrap().to_vec2::<f32>().unwrap();
+                e.into_iter()
+                    .zip(mask)
+                    .map(|(rows, m)| rows.into_iter().zip(m).filter(|(_, m)| *m > 0.5).map(|(r, _)| r).collect())
+                    .collect()
+            })
             .collect()
     }
 
     /// The joint map of each aggregation against a per-cell loop over the points' encodings: a
-    /// cell with nine LiDAR points and one radar point, a LiDAR-only cell, a radar-only cell.
+    /// cell with nine LiDAR points and one radar point, a LiDAR-only cell, a radar-only cell; in
+    /// evaluation (each point normalised on its own) and in training, where the plugin's
+    /// encoder on the real points must normalise as the padded slots did.
     #[test]
     fn aggregations_match_a_per_cell_oracle() {
         let grid = small_grid();
@@ -317,20 +346,20 @@ mod tests {
             PillarTensors::new(&pillarize(&grid, &[&radar], 0), None, &dev).unwrap(),
         );
         let layout = Layout::Dense { batch: 1, cells: grid.cells() };
-        for aggregation in [Aggregation::Max, Aggregation::Mean, Aggregation::ModalityMean] {
+        let modes = [Aggregation::Max, Aggregation::Mean, Aggregation::ModalityMean];
+        for (aggregation, train) in modes.into_iter().flat_map(|a| [(a, false), (a, true)]) {
             let varmap = candle_nn::VarMap::new();
             let cfg = EarlyConfig { channels: 8, aggregation, early: true, middle: None };
             let f = EarlyFusion::new(cfg, VarBuilder::from_varmap(&varmap, DType::F32, &dev)).unwrap();
             let map =
-                f.joint_map(&FusionInput { lidar: &lt, radar: &rt, batch: 1, grid, layout: &layout }, false).unwrap();
+                f.joint_map(&FusionInput { lidar: &lt, radar: &rt, batch: 1, grid, layout: &layout }, train).unwrap();
             let map = map.squeeze(0).unwrap().to_vec3::<f32>().unwrap();
             // Points per cell, per modality.
             let mut cells: std::collections::BTreeMap<u32, [Vec<Vec<f32>>; 2]> = Default::default();
-            for (m, (p, layout, flag)) in
-                [(&lt, &LIDAR_TO_JOINT[..], false), (&rt, &RADAR_TO_JOINT[..], true)].into_iter().enumerate()
-            {
-                let index = p.index.to_vec1::<u32>().unwrap();
-                for (cell, points) in index.into_iter().zip(encodings(&f, p, layout, flag)) {
+            let parts = [(&lt, &LIDAR_TO_JOINT[..], false), (&rt, &RADAR_TO_JOINT[..], true)];
+            for (m, (p, per_pillar)) in parts.iter().zip(encodings(&f, parts, train)).enumerate() {
+                let index = p.0.index.to_vec1::<u32>().unwrap();
+                for (cell, points) in index.into_iter().zip(per_pillar) {
                     cells.entry(cell).or_default()[m].extend(points);
                 }
             }
@@ -351,7 +380,7 @@ mod tests {
                     let got = map[c][row][col];
                     assert!(
                         (got - want).abs() <= 1e-5 * (1.0 + want.abs()),
-                        "{aggregation:?}, cell {cell}, channel {c}: {got} against {want}"
+                        "{aggregation:?} (training {train}), cell {cell}, channel {c}: {got} against {want}"
                     );
                 }
             }
