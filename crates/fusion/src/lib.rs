@@ -66,7 +66,7 @@
 //!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores of ~200
 //!   GFLOP/s matrix-product peak (below; both were 18,000 samples with one replica before; a
 //!   two-core machine of ~70 GFLOP/s took about ten minutes then, and since the changes below
-//!   takes about five and a half: 323.8–344.7 s). Before paste, `centerpoint`'s
+//!   takes under five: 266.7–292.7 s). Before paste, `centerpoint`'s
 //!   curve (1.5k 0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
 //!   `lirafusion-like` stopped short of its plateau at 18,000 (four times longer gained +0.036 on
 //!   average over four seeds, mostly the large vehicles); larger batches at higher rates (4 at
