@@ -129,7 +129,7 @@
 //!   0.832) and higher at four times that (0.848 against 0.842); the README has the runs;
 //! - **pillar encoders on the real points** ([`modules::PillarNet::encode`], the `early`
 //!   plugin's joint encoder, [`bnrelu::bn_relu_padded`]): a pillar has 10 point slots and a
-//!   roadside pillar fills 2–3 of them, yet the per-point layers, the mask and the reductions
+//!   roadside pillar fills about three of them, yet the per-point layers, the mask and the reductions
 //!   ran on every slot. They now run on the real points ([`modules::PillarTensors::points`]),
 //!   BatchNorm counting the padding slots as the zero rows they are in the padded form (in
 //!   closed form, Chan's update), so the function is the padded one (tested against it:

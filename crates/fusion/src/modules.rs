@@ -30,7 +30,7 @@ pub struct PillarTensors {
     /// The real points alone, pillar after pillar (padding left out): `(R, F)` features, and
     /// per point its pillar's layout row (`index` of its pillar, `(R,)` u32) and the share
     /// 1 / (its pillar's real points) `(R, 1)`. A per-point encoder on these rows does the work
-    /// of the points there are (a roadside pillar holds 2–3 of its 10 slots on average).
+    /// of the points there are (a roadside pillar holds about three of its 10 slots on average).
     pub points: Tensor,
     pub point_rows: Tensor,
     pub point_share: Tensor,

@@ -9,7 +9,7 @@
 //! the motion fixture (`crates/cli/tests/fusion_motion.rs`) `lirafusion-like` with it stayed at
 //! LiDAR-only mAP (0.41 against 0.43), with `modality_mean` it reaches 0.97. Decorations are taken
 //! per modality (offsets from the modality's own pillar mean), a simplification of a joint pillar
-//! mean. The encoder runs on the real points alone (a pillar fills 2–3 of its 10 slots on a
+//! mean. The encoder runs on the real points alone (a pillar fills about three of its 10 slots on a
 //! roadside frame), its BatchNorm counting the padding slots as the zero rows they are in the
 //! padded form, so the function is that of the padded pillars (1.2× the fused preset's training
 //! samples/s; the README has the bench).
