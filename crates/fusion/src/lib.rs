@@ -142,7 +142,8 @@
 //!   scheduling class, on what the step leaves idle (the weights are the same to the byte):
 //!   1.08× (`centerpoint`) and 1.06× (`lirafusion-like`). With both, the default schedules
 //!   train in 266.7–292.7 s on two cores of ~70 GFLOP/s (seeds 0 and 1), under five minutes,
-//!   and four times `centerpoint`'s schedule gains +0.020 and +0.028 mAP on those seeds;
+//!   and four times the schedule gains +0.020 and +0.028 mAP (`centerpoint`, seeds 0 and 1)
+//!   and +0.034 (`lirafusion-like`, seed 0): both presets sit at the 0.03 plateau bar;
 //! - **per-class loss normalisation** ([`detector::LossNorm`], an option, not adopted): each
 //!   class's heatmap and regression losses divided by its own positives and the classes
 //!   averaged, as CenterPoint's per-task heads do. On `centerpoint` four times its default
