@@ -43,6 +43,16 @@ pub struct PillarTensors {
 }
 
 impl PillarTensors {
+    /// `(P, C)`: the maximum over each pillar's slots of per-point rows `x` `(R, C)` (one per
+    /// real point), the padding slots 0, which is at most every ReLU output, as the masked
+    /// padding was.
+    pub fn max_per_pillar(&self, x: &Tensor) -> Result<Tensor> {
+        let (n, npp, _) = self.features.dims3()?;
+        let c = x.dim(1)?;
+        let slots = Tensor::zeros((n * npp, c), x.dtype(), x.device())?.index_add(&self.point_slots, x, 0)?;
+        Ok(slots.reshape((n, npp, c))?.max(1)?)
+    }
+
     /// Pillars scattered to their flat cells (`p.index`), or, with `rows`, to `rows[p.index]`.
     pub fn new(p: &Pillars, rows: Option<&[u32]>, device: &Device) -> Result<Self> {
         let n = p.count();
@@ -108,7 +118,7 @@ impl PillarNet {
     /// padded pillars), then the maximum over each pillar's slots (a padding slot's 0 is below
     /// or equal to every ReLU output, as the masked padding was).
     pub fn encode(&self, p: &PillarTensors, train: bool) -> Result<Tensor> {
-        let (n, npp, f) = p.features.dims3()?;
+        let (n, _, f) = p.features.dims3()?;
         let r = p.points.dim(0)?;
         crate::conv::count_matmul(r, f, self.channels);
         let x = self.linear.forward(&p.points)?;
@@ -118,8 +128,7 @@ impl PillarNet {
             // tensor, and the (0, C) rows need only stay in the graph.
             return Ok(x);
         }
-        let slots = Tensor::zeros((n * npp, self.channels), x.dtype(), x.device())?.index_add(&p.point_slots, &x, 0)?;
-        Ok(slots.reshape((n, npp, self.channels))?.max(1)?)
+        p.max_per_pillar(&x)
     }
 
     /// Pillar features (P, C) scattered to the layout's level 0: `(B, C, H, W)` or `(N_0, C)`.

@@ -234,11 +234,7 @@ impl EarlyFusion {
             }
             match self.cfg.aggregation {
                 Aggregation::Max => {
-                    // Back to the padded slots (zeros there, below every ReLU output) for the
-                    // per-pillar maximum.
-                    let (n, npp, _) = p.features.dims3()?;
-                    let slots = Tensor::zeros((n * npp, c), DType::F32, &dev)?.index_add(&p.point_slots, &x, 0)?;
-                    let max = slots.reshape((n, npp, c))?.max(1)?;
+                    let max = p.max_per_pillar(&x)?;
                     acc = acc.maximum(&layout.zeros(c, &dev)?.index_add(&p.index, &max, 0)?)?;
                 }
                 Aggregation::Mean => {
