@@ -66,7 +66,7 @@
 //!   30,000 ([`presets::centerpoint_schedule`]), what fits five minutes on two cores of ~200
 //!   GFLOP/s matrix-product peak (below; both were 18,000 samples with one replica before; a
 //!   two-core machine of ~70 GFLOP/s took about ten minutes then, and since the changes below
-//!   takes under five: 266.7–292.7 s). Before paste, `centerpoint`'s
+//!   takes under five: 263.8–292.7 s). Before paste, `centerpoint`'s
 //!   curve (1.5k 0.407, 3k 0.476, 6k 0.644, 12k 0.744, 24k 0.751, 48k 0.760) flattened at 12,000, and
 //!   `lirafusion-like` stopped short of its plateau at 18,000 (four times longer gained +0.036 on
 //!   average over four seeds, mostly the large vehicles); larger batches at higher rates (4 at
@@ -141,9 +141,10 @@
 //!   replica waited for it at the next synchronised BatchNorm. On Linux it now runs in the idle
 //!   scheduling class, on what the step leaves idle (the weights are the same to the byte):
 //!   1.08× (`centerpoint`) and 1.06× (`lirafusion-like`). With both, the default schedules
-//!   train in 266.7–292.7 s on two cores of ~70 GFLOP/s (seeds 0 and 1), under five minutes,
-//!   and four times the schedule gains +0.020 and +0.028 mAP (`centerpoint`, seeds 0 and 1)
-//!   and +0.034 (`lirafusion-like`, seed 0): both presets sit at the 0.03 plateau bar;
+//!   train in 263.8–292.7 s on two cores of ~70 GFLOP/s (seeds 0–2), under five minutes,
+//!   and four times the schedule gains +0.020, +0.028 and +0.008 mAP (`centerpoint`, seeds
+//!   0–2, mean +0.019) and +0.034, +0.023 and +0.015 (`lirafusion-like`, mean +0.024): both
+//!   presets within the 0.03 plateau bar on the three-seed mean, one pair of six above it;
 //! - **per-class loss normalisation** ([`detector::LossNorm`], an option, not adopted): each
 //!   class's heatmap and regression losses divided by its own positives and the classes
 //!   averaged, as CenterPoint's per-task heads do. On `centerpoint` four times its default

@@ -91,7 +91,7 @@ pub fn pointpillars() -> DetectorConfig {
 /// took about twice as long (the schedule is fixed in samples, not seconds); since the head
 /// reads the neck's parents and the stride-8 block lost its two further layers, 344.7 s there,
 /// and since the pillar encoders run on the real points and the batch thread on idle cores,
-/// 268.5 s.
+/// 268.5 s, 266.7 s and 263.8 s (seeds 0–2, mAP 0.819, 0.828 and 0.814).
 /// Without the synchronisation the replicas ran up to 12% faster (256.0 s and 244.3 s) to 0.795
 /// and 0.791: BatchNorm over one sample cost more than the samples it bought. The README's
 /// learning curve has the gains of four times this.
@@ -102,9 +102,9 @@ pub fn plateau_schedule() -> TrainConfig {
 /// `centerpoint`'s schedule: [`plateau_schedule`] over 30,000 samples, what its speed allows
 /// within five minutes on two cores with synchronised replicas (282.2 s, mAP 0.806, seed 0, on
 /// a ~200 GFLOP/s machine before the stride-8 block lost its two 3×3 layers; since then 338.9 s
-/// and 336.2 s, mAP 0.813 and 0.816, seeds 0 and 1, on one of ~70 GFLOP/s, and 292.4 s there,
-/// mAP 0.814, seed 0, with the pillar encoders on the real points and the batch thread on idle
-/// cores).
+/// and 336.2 s, mAP 0.813 and 0.816, seeds 0 and 1, on one of ~70 GFLOP/s, and there 292.4 s,
+/// 292.7 s and 288.9 s, mAP 0.814, 0.820 and 0.820, seeds 0–2, with the pillar encoders on the
+/// real points and the batch thread on idle cores).
 /// Ground-truth paste raised what it can reach (0.825 mAP at 48,000 samples with one replica)
 /// more than what it learns in 18,000 (0.778), so it takes every sample the budget buys.
 pub fn centerpoint_schedule() -> TrainConfig {
