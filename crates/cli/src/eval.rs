@@ -2,7 +2,7 @@
 
 use crate::write_atomic;
 use anyhow::{Context, Result, bail};
-use hilo_eval::{DetectionConfig, evaluate_files, read_ground_truth, read_submission};
+use hilo_eval::{DetectionConfig, check_sample_set, evaluate_files, read_ground_truth, read_submission};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -41,10 +41,11 @@ pub struct EvalArgs {
 
 pub fn run(args: &EvalArgs) -> Result<()> {
     let cfg: DetectionConfig = match &args.config {
-        Some(p) => {
-            serde_json::from_str(&std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?)
-                .with_context(|| format!("{}: invalid evaluation config", p.display()))?
-        }
+        Some(p) => serde_json::from_str(
+            &hilo_core::fs::read_text_bounded(p, hilo_core::fs::limit::CONFIG)
+                .with_context(|| format!("reading {}", p.display()))?,
+        )
+        .with_context(|| format!("{}: invalid evaluation config", p.display()))?,
         None => DetectionConfig::default(),
     };
     let gt = match (&args.data, &args.gt) {
@@ -62,17 +63,19 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         (None, None) => bail!("give --data or --gt"),
     };
     let pred = read_submission(&args.results, cfg.max_boxes_per_sample)?;
-    // As the devkit: the submission must cover exactly the ground truth's samples.
-    let pred_samples: std::collections::BTreeSet<&String> = pred.iter().map(|(s, _)| s).collect();
-    let gt_samples: std::collections::BTreeSet<&String> = gt.samples.keys().collect();
-    if pred_samples != gt_samples {
-        let missing: Vec<_> = gt_samples.difference(&pred_samples).take(3).collect();
-        let extra: Vec<_> = pred_samples.difference(&gt_samples).take(3).collect();
-        bail!(
-            "{}: samples differ from the ground truth's (missing e.g. {missing:?}, unknown e.g. {extra:?})",
-            args.results.display()
-        );
+    check_sample_set(&gt, &pred, &args.results)?;
+    // The second submission is read and checked before anything is written.
+    if args.compare.is_some() && args.bootstrap == 0 {
+        bail!("--compare needs the paired bootstrap: give --bootstrap N with N > 0");
     }
+    let compare = match &args.compare {
+        Some(other) => {
+            let b = read_submission(other, cfg.max_boxes_per_sample)?;
+            check_sample_set(&gt, &b, other)?;
+            Some((other, b))
+        }
+        None => None,
+    };
     let m = evaluate_files(&gt, &pred, &cfg);
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     write_atomic(&args.out.join("metrics_summary.json"), serde_json::to_string_pretty(&m)?.as_bytes())?;
@@ -124,9 +127,8 @@ pub fn run(args: &EvalArgs) -> Result<()> {
                 hilo_eval::bootstrap::MIN_SCENES
             );
         }
-        if let Some(other) = &args.compare {
-            let pred_b = read_submission(other, cfg.max_boxes_per_sample)?;
-            let p = hilo_eval::bootstrap::paired(&gt, &pred, &pred_b, &cfg, args.bootstrap as usize, 0.95, args.seed);
+        if let Some((other, pred_b)) = &compare {
+            let p = hilo_eval::bootstrap::paired(&gt, &pred, pred_b, &cfg, args.bootstrap as usize, 0.95, args.seed);
             write_atomic(&args.out.join("paired.json"), serde_json::to_string_pretty(&p)?.as_bytes())?;
             if p.estimable {
                 println!(

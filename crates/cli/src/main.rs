@@ -126,8 +126,8 @@ enum BenchCommand {
     },
     /// The nuScenes metric on synthetic frames (6 classes, up to 500 predictions a frame).
     Eval {
-        #[arg(long, default_value_t = 3000)]
-        frames: usize,
+        #[arg(long, default_value_t = 3000, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+        frames: u32,
         #[arg(long, default_value_t = 500)]
         max_pred: usize,
         #[arg(long, default_value_t = 3)]
@@ -260,6 +260,9 @@ fn main() -> Result<()> {
     }
     match cli.command {
         Command::Scene { command: SceneCommand::Show { scene, out, px_per_m } } => {
+            if !out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+                anyhow::bail!("--out {}: the picture is a PNG; give a file name ending in .png", out.display());
+            }
             let scene = load_scene(scene.as_deref())?;
             if !(px_per_m.is_finite() && px_per_m > 0.0 && px_per_m <= 50.0) {
                 anyhow::bail!("--px-per-m must be in (0, 50], got {px_per_m}");
@@ -285,7 +288,7 @@ fn main() -> Result<()> {
             stages::place(&args)?;
         }
         Command::Bench { command: BenchCommand::Eval { frames, max_pred, repeats, json } } => {
-            let report = hilo::bench::eval(frames.max(1), max_pred, repeats.max(1))?;
+            let report = hilo::bench::eval(frames as usize, max_pred, repeats.max(1))?;
             println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
         }
         Command::Bench { command: BenchCommand::Simulate { scenes, seconds, rate_hz, keep, json } } => {

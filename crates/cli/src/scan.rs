@@ -52,6 +52,9 @@ pub fn run(args: &ScanArgs) -> Result<()> {
     };
     let spec = catalog.get(&args.sensor)?;
     let pose = SensorPose::parse(&args.pose)?;
+    if let Some(why) = hilo_study::rig::outside(&scene, &pose) {
+        bail!("--pose {}: the position {why}", args.pose);
+    }
     let ext = args.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
     if ext != "pcd" && ext != "ply" {
         bail!("--out {}: the extension must be .pcd or .ply", args.out.display());

@@ -105,6 +105,7 @@ pub struct SimulateArgs {
 }
 
 pub fn simulate(args: &SimulateArgs) -> Result<()> {
+    hilo_dataset::reader::check_version(&args.version)?;
     let study = load_study(args.study.as_deref())?;
     let placement = Placement::load(&args.placement)?;
     let mut cfg = study.file.dataset.clone();

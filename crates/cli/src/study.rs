@@ -26,8 +26,8 @@ pub struct StudyArgs {
     /// quick (≤ 5 min), default (≤ 30 min) or paper (the paper's scale; hours here).
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// Seeds per detector (overrides the profile's: 3 for default and paper).
-    #[arg(long)]
+    /// Seeds per detector, 1 to 100 (overrides the profile's: 3 for default and paper).
+    #[arg(long, value_parser = seeds)]
     pub seeds: Option<usize>,
     /// Presets to train (comma-separated), overriding the profile's; `*-no-early` ablations
     /// train on the study's first configuration with a radar.
@@ -73,6 +73,21 @@ pub struct StageArgs {
     /// The study folder.
     #[arg(long)]
     pub out: PathBuf,
+}
+
+/// `--seeds`: each seed is a full set of trainings, so a count past 100 is a typo, and one of
+/// millions would exhaust memory planning them.
+fn seeds(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=100).contains(&n) => Ok(n),
+        _ => Err(format!("{s} is not a seed count from 1 to 100")),
+    }
+}
+
+/// A path as one word of a shell line the user may paste (quoted where it needs it).
+fn shell_quoted(p: &Path) -> String {
+    let s = p.to_string_lossy();
+    shlex::try_quote(&s).map_or_else(|_| format!("{s:?}"), |q| q.into_owned())
 }
 
 fn embedded(source: &str) -> bool {
@@ -172,7 +187,7 @@ fn one_study(args: &StudyArgs, study: &Study, registry: &hilo_fusion::Registry, 
                 "{} stages ({} trainings); run them with: cd {} && snakemake --cores 2",
                 plan.jobs.len() + plan.configurations.len() + 2,
                 plan.jobs.len(),
-                args.out.display()
+                shell_quoted(&args.out)
             );
             Ok(())
         }
@@ -207,7 +222,7 @@ pub fn study(args: &StudyArgs) -> Result<()> {
                     "{} studies, {} stages ({jobs} trainings) and the comparison; run them with: cd {} && snakemake --cores 2",
                     sweep.shards.len(),
                     stages,
-                    args.out.display()
+                    shell_quoted(&args.out)
                 );
                 Ok(())
             }

@@ -59,7 +59,8 @@ pub fn detector(registry: &Registry, name: &str, no_early: bool) -> Result<(hilo
 
 /// A JSON file into `T`; errors name the file and serde's field and position.
 fn read_json<T: serde::de::DeserializeOwned>(path: &std::path::Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
+        .with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{}: not a valid configuration", path.display()))
 }
 

@@ -41,6 +41,89 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     write_atomic_with(path, |tmp| std::fs::write(tmp, bytes), |e| e)
 }
 
+/// Size limits for reading, by kind of file: what the largest legitimate file of that kind
+/// needs with room to spare, so a wrong path (`/dev/zero`, a video, a disk image) is refused
+/// with a clear error instead of filling memory.
+pub mod limit {
+    /// A study, scene, catalog, training or detector configuration (TOML or JSON), a placement.
+    pub const CONFIG: u64 = 16 << 20;
+    /// A mesh imported into a scene (OBJ, glTF and its buffers).
+    pub const MESH: u64 = 1 << 30;
+    /// One point file of a dataset (a LiDAR `.pcd.bin` or radar `.pcd`).
+    pub const POINTS: u64 = 256 << 20;
+    /// A table of a dataset, a results or metrics file, a checkpoint.
+    pub const TABLE: u64 = 4 << 30;
+}
+
+/// Reads a whole regular file of at most `max` bytes. A path that is not a regular file (a
+/// device such as `/dev/zero`, a FIFO, a folder) or a file larger than `max` is an
+/// [`std::io::ErrorKind::InvalidData`] error that says which, before anything large is read.
+pub fn read_bounded(path: &Path, max: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read as _;
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
+    let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidData, m);
+    if !meta.is_file() {
+        return Err(invalid("not a regular file".into()));
+    }
+    if meta.len() > max {
+        return Err(invalid(format!("{} bytes, more than the {max} a file of this kind may have", meta.len())));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    // `take` guards against a file that grows while it is read.
+    file.take(max + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max {
+        return Err(invalid(format!("more than the {max} bytes a file of this kind may have")));
+    }
+    Ok(bytes)
+}
+
+/// [`read_bounded`] as UTF-8 text; a leading byte-order mark is dropped (editors on Windows
+/// write one, and the TOML and JSON parsers refuse it).
+pub fn read_text_bounded(path: &Path, max: u64) -> std::io::Result<String> {
+    let bytes = read_bounded(path, max)?;
+    let mut text = String::from_utf8(bytes)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, format!("not UTF-8 text: {e}")))?;
+    if text.starts_with('\u{feff}') {
+        text.drain(..'\u{feff}'.len_utf8());
+    }
+    Ok(text)
+}
+
+/// Whether a folder holds a file (or anything but a folder) at any depth; a missing folder
+/// holds none.
+pub fn holds_file(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|d| {
+        d.filter_map(|e| e.ok()).any(|e| e.file_type().is_ok_and(|t| !t.is_dir()) || holds_file(&e.path()))
+    })
+}
+
+/// Checks that `name` can be one component of a path inside the folder it belongs to: not
+/// empty, not `.` or `..`, no path separator, no control character (a newline in a file name
+/// breaks every tool that lists files by line), not hidden (a leading `.`), at most 200 bytes.
+/// Returns why not, for the caller's error (which names the file and field).
+pub fn check_file_name(name: &str) -> Result<(), &'static str> {
+    if name.is_empty() {
+        return Err("is empty; a name becomes a file name");
+    }
+    if name == "." || name == ".." {
+        return Err("names a folder, not a file");
+    }
+    if name.contains(['/', '\\']) {
+        return Err("contains a path separator; a name becomes one file name in its folder");
+    }
+    if name.chars().any(char::is_control) {
+        return Err("contains a control character (newline, tab, ...)");
+    }
+    if name.starts_with('.') {
+        return Err("starts with '.', which would make a hidden file");
+    }
+    if name.len() > 200 {
+        return Err("is longer than 200 bytes");
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
@@ -81,5 +164,33 @@ mod tests {
         // Folders are created.
         write_atomic(&d.join("x/y/z.txt"), b"1").unwrap();
         std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn bounded_reads_refuse_devices_and_oversized_files_and_drop_a_bom() {
+        let d = dir();
+        let e = read_bounded(Path::new("/dev/zero"), 1 << 20).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        assert!(read_bounded(&d, 10).unwrap_err().to_string().contains("not a regular file"));
+        let f = d.join("big.toml");
+        std::fs::write(&f, vec![b'a'; 101]).unwrap();
+        let e = read_bounded(&f, 100).unwrap_err();
+        assert!(e.to_string().contains("101 bytes") && e.to_string().contains("100"), "{e}");
+        assert_eq!(read_bounded(&f, 101).unwrap().len(), 101);
+        std::fs::write(&f, "\u{feff}a = 1").unwrap();
+        assert_eq!(read_text_bounded(&f, 100).unwrap(), "a = 1");
+        std::fs::write(&f, [0xff, 0xfe, 0x00]).unwrap();
+        assert!(read_text_bounded(&f, 100).unwrap_err().to_string().contains("UTF-8"));
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn file_names_that_would_leave_their_folder_or_hide_are_refused() {
+        for bad in ["", ".", "..", "a/b", "x/../../../ESC3", "..\\x", "a\nb", "a\rb", ".hidden", &"n".repeat(201)] {
+            assert!(check_file_name(bad).is_err(), "{bad:?}");
+        }
+        for good in ["lidar-16", "radar 4d", "v1.0-trainval", "ARS548_rdi", "lidar..16"] {
+            assert_eq!(check_file_name(good), Ok(()), "{good:?}");
+        }
     }
 }

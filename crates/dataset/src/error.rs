@@ -9,6 +9,8 @@ pub enum DatasetError {
     Json { path: PathBuf, message: String },
     #[error("table {table}: record {token:?} field `{field}` refers to {target} {missing:?}, which does not exist")]
     Dangling { table: &'static str, token: String, field: &'static str, target: &'static str, missing: String },
+    #[error("table {table}: record {token:?} field `{field}` = {value}: {reason}")]
+    Record { table: &'static str, token: String, field: &'static str, value: String, reason: String },
     #[error("{path}: {message}")]
     PointFile { path: PathBuf, message: String },
     #[error("invalid dataset input: {0}")]

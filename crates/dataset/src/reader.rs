@@ -9,8 +9,62 @@ use std::path::{Path, PathBuf};
 
 fn load<T: DeserializeOwned>(dir: &Path, name: &str) -> Result<Vec<T>, DatasetError> {
     let p = dir.join(format!("{name}.json"));
-    let text = std::fs::read_to_string(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+    let text = hilo_core::fs::read_text_bounded(&p, hilo_core::fs::limit::TABLE)
+        .map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
     serde_json::from_str(&text).map_err(|e| DatasetError::Json { path: p, message: e.to_string() })
+}
+
+/// nuScenes' own categories: a dataset may hold them, and those that are not one of hilo's
+/// classes ([`crate::writer::class_of_category`]) are not evaluated, as in the devkit. Any other
+/// name is a mistake (a misspelt class would silently drop its every box from the ground truth).
+pub const NUSCENES_CATEGORIES: [&str; 23] = [
+    "animal",
+    "human.pedestrian.adult",
+    "human.pedestrian.child",
+    "human.pedestrian.construction_worker",
+    "human.pedestrian.personal_mobility",
+    "human.pedestrian.police_officer",
+    "human.pedestrian.stroller",
+    "human.pedestrian.wheelchair",
+    "movable_object.barrier",
+    "movable_object.debris",
+    "movable_object.pushable_pullable",
+    "movable_object.trafficcone",
+    "static_object.bicycle_rack",
+    "vehicle.bicycle",
+    "vehicle.bus.bendy",
+    "vehicle.bus.rigid",
+    "vehicle.car",
+    "vehicle.construction",
+    "vehicle.emergency.ambulance",
+    "vehicle.emergency.police",
+    "vehicle.motorcycle",
+    "vehicle.trailer",
+    "vehicle.truck",
+];
+
+/// The table folder's name: one folder inside the dataroot.
+pub fn check_version(version: &str) -> Result<(), DatasetError> {
+    hilo_core::fs::check_file_name(version)
+        .map_err(|why| DatasetError::Invalid(format!("version (the table folder's name) = {version:?} {why}")))
+}
+
+/// A dataset's file name of a point file: relative, inside the dataroot (no `..`, no root).
+fn check_filename(sd: &SampleData) -> Result<(), DatasetError> {
+    use std::path::Component;
+    let p = Path::new(&sd.filename);
+    let inside = !sd.filename.is_empty() && p.components().all(|c| matches!(c, Component::Normal(_)));
+    if inside {
+        Ok(())
+    } else {
+        Err(DatasetError::Record {
+            table: "sample_data",
+            token: sd.token.clone(),
+            field: "filename",
+            value: format!("{:?}", sd.filename),
+            reason: "must be a relative path inside the dataroot (no `..`, no leading `/`)".into(),
+        })
+    }
 }
 
 /// A loaded dataset.
@@ -28,6 +82,7 @@ pub struct Dataset {
 impl Dataset {
     /// Loads `<root>/<version>/*.json` and checks every link between tables.
     pub fn open(root: &Path, version: &str) -> Result<Self, DatasetError> {
+        check_version(version)?;
         let dir = root.join(version);
         let tables = Tables {
             category: load(&dir, "category")?,
@@ -45,6 +100,7 @@ impl Dataset {
             map: load(&dir, "map")?,
         };
         check_links(&tables)?;
+        check_records(&tables)?;
         let annotation_index = tables.sample_annotation.iter().enumerate().map(|(i, a)| (a.token.clone(), i)).collect();
         let sample_time = tables.sample.iter().map(|s| (s.token.clone(), s.timestamp)).collect();
         Ok(Dataset { root: root.to_path_buf(), version: version.to_owned(), tables, annotation_index, sample_time })
@@ -53,7 +109,8 @@ impl Dataset {
     /// The scene names of a split (`<version>/splits.json`).
     pub fn split(&self, name: &str) -> Result<Vec<String>, DatasetError> {
         let p = self.root.join(&self.version).join("splits.json");
-        let text = std::fs::read_to_string(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+        let text = hilo_core::fs::read_text_bounded(&p, hilo_core::fs::limit::CONFIG)
+            .map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
         let splits: std::collections::BTreeMap<String, Vec<String>> =
             serde_json::from_str(&text).map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
         splits.get(name).cloned().ok_or_else(|| DatasetError::Json {
@@ -84,30 +141,158 @@ impl Dataset {
 
     /// The LiDAR points of a sample_data record (sensor frame; time is not stored).
     pub fn lidar_points(&self, sd: &SampleData) -> Result<Vec<LidarPoint>, DatasetError> {
-        let p = self.root.join(&sd.filename);
-        let bytes = std::fs::read(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+        let (p, bytes) = self.point_file(sd)?;
         if bytes.len() % 20 != 0 {
             return Err(DatasetError::PointFile {
                 path: p,
                 message: format!("truncated: {} bytes is not a whole number of 20-byte points", bytes.len()),
             });
         }
-        Ok(bytes
+        let points: Vec<LidarPoint> = bytes
             .chunks_exact(20)
             .map(|c| {
                 let f = |k: usize| f32::from_le_bytes([c[4 * k], c[4 * k + 1], c[4 * k + 2], c[4 * k + 3]]);
                 LidarPoint { x: f(0), y: f(1), z: f(2), intensity: f(3), ring: f(4) as u16, time_s: 0.0 }
             })
-            .collect())
+            .collect();
+        finite(&p, points.iter().map(|q| [q.x, q.y, q.z, q.intensity]))?;
+        Ok(points)
     }
 
     /// The radar points of a sample_data record (sensor frame).
     pub fn radar_points(&self, sd: &SampleData) -> Result<Vec<RadarPoint>, DatasetError> {
-        let p = self.root.join(&sd.filename);
-        let bytes = std::fs::read(&p).map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
-        hilo_sensor_models::export::from_pcd(&bytes, &p)
-            .map_err(|e| DatasetError::PointFile { path: p, message: e.to_string() })
+        let (p, bytes) = self.point_file(sd)?;
+        let points = hilo_sensor_models::export::from_nuscenes_radar_pcd(&bytes, &p)
+            .map_err(|e| DatasetError::PointFile { path: p.clone(), message: e.to_string() })?;
+        finite(&p, points.iter().map(|q| [q.x, q.y, q.z, q.rcs_dbsm, q.v_r_mps]))?;
+        Ok(points)
     }
+}
+
+impl Dataset {
+    /// A point file's path and bytes: inside the dataroot (checked when the tables were
+    /// loaded, and again here for records built by hand), at most [`hilo_core::fs::limit::POINTS`].
+    fn point_file(&self, sd: &SampleData) -> Result<(PathBuf, Vec<u8>), DatasetError> {
+        check_filename(sd)?;
+        let p = self.root.join(&sd.filename);
+        let bytes = hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::POINTS)
+            .map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+        Ok((p, bytes))
+    }
+}
+
+/// Refuses a point with a NaN or infinite value: it would be drawn and counted as if measured.
+fn finite<const N: usize>(path: &Path, points: impl Iterator<Item = [f32; N]>) -> Result<(), DatasetError> {
+    match points.enumerate().find(|(_, v)| v.iter().any(|x| !x.is_finite())) {
+        Some((i, v)) => Err(DatasetError::PointFile {
+            path: path.to_path_buf(),
+            message: format!("point {i} has a value that is not a finite number: {v:?}"),
+        }),
+        None => Ok(()),
+    }
+}
+
+/// Checks every record as the devkit would trust it: tokens unique per table, `prev`/`next`
+/// chains that agree both ways, annotations with finite translations, positive sizes and
+/// non-zero finite rotations, categories that nuScenes or hilo knows, point file names inside
+/// the dataroot. A defect in the ground truth is refused like one in the predictions.
+fn check_records(t: &Tables) -> Result<(), DatasetError> {
+    let rec = |table: &'static str, token: &str, field: &'static str, value: String, reason: &str| {
+        Err(DatasetError::Record { table, token: token.to_owned(), field, value, reason: reason.to_owned() })
+    };
+    fn unique<'a>(table: &'static str, tokens: impl Iterator<Item = &'a String>) -> Result<(), DatasetError> {
+        let mut seen = HashSet::new();
+        for tk in tokens {
+            if !seen.insert(tk) {
+                return Err(DatasetError::Record {
+                    table,
+                    token: tk.clone(),
+                    field: "token",
+                    value: format!("{tk:?}"),
+                    reason: "appears twice in the table".into(),
+                });
+            }
+        }
+        Ok(())
+    }
+    unique("scene", t.scene.iter().map(|r| &r.token))?;
+    unique("sample", t.sample.iter().map(|r| &r.token))?;
+    unique("sample_data", t.sample_data.iter().map(|r| &r.token))?;
+    unique("sample_annotation", t.sample_annotation.iter().map(|r| &r.token))?;
+    unique("instance", t.instance.iter().map(|r| &r.token))?;
+    unique("category", t.category.iter().map(|r| &r.token))?;
+    unique("attribute", t.attribute.iter().map(|r| &r.token))?;
+    unique("visibility", t.visibility.iter().map(|r| &r.token))?;
+    unique("sensor", t.sensor.iter().map(|r| &r.token))?;
+    unique("calibrated_sensor", t.calibrated_sensor.iter().map(|r| &r.token))?;
+    unique("ego_pose", t.ego_pose.iter().map(|r| &r.token))?;
+    unique("log", t.log.iter().map(|r| &r.token))?;
+    unique("map", t.map.iter().map(|r| &r.token))?;
+    // Chains: if a.next = b then b.prev = a, and the other way round.
+    fn chain<'a>(
+        table: &'static str,
+        rows: impl Iterator<Item = (&'a String, &'a String, &'a String)> + Clone,
+    ) -> Result<(), DatasetError> {
+        let prev_of: HashMap<&String, &String> = rows.clone().map(|(tk, prev, _)| (tk, prev)).collect();
+        let next_of: HashMap<&String, &String> = rows.clone().map(|(tk, _, next)| (tk, next)).collect();
+        for (tk, prev, next) in rows {
+            if !next.is_empty() && prev_of.get(next).is_some_and(|p| *p != tk) {
+                return Err(DatasetError::Record {
+                    table,
+                    token: tk.clone(),
+                    field: "next",
+                    value: format!("{next:?}"),
+                    reason: format!("that record's `prev` is {:?}, not this record", prev_of[next]),
+                });
+            }
+            if !prev.is_empty() && next_of.get(prev).is_some_and(|n| *n != tk) {
+                return Err(DatasetError::Record {
+                    table,
+                    token: tk.clone(),
+                    field: "prev",
+                    value: format!("{prev:?}"),
+                    reason: format!("that record's `next` is {:?}, not this record", next_of[prev]),
+                });
+            }
+        }
+        Ok(())
+    }
+    chain("sample", t.sample.iter().map(|r| (&r.token, &r.prev, &r.next)))?;
+    chain("sample_data", t.sample_data.iter().map(|r| (&r.token, &r.prev, &r.next)))?;
+    chain("sample_annotation", t.sample_annotation.iter().map(|r| (&r.token, &r.prev, &r.next)))?;
+    for c in &t.category {
+        if crate::writer::class_of_category(&c.name).is_none() && !NUSCENES_CATEGORIES.contains(&c.name.as_str()) {
+            return rec(
+                "category",
+                &c.token,
+                "name",
+                format!("{:?}", c.name),
+                "neither a nuScenes category nor one of hilo's (vehicle.golf_cart)",
+            );
+        }
+    }
+    for a in &t.sample_annotation {
+        if a.translation.iter().any(|v| !v.is_finite()) {
+            return rec("sample_annotation", &a.token, "translation", format!("{:?}", a.translation), "must be finite");
+        }
+        if a.size.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+            return rec("sample_annotation", &a.token, "size", format!("{:?}", a.size), "must be finite and > 0");
+        }
+        let norm2: f64 = a.rotation.iter().map(|v| v * v).sum();
+        if a.rotation.iter().any(|v| !v.is_finite()) || norm2 < 1e-12 {
+            return rec(
+                "sample_annotation",
+                &a.token,
+                "rotation",
+                format!("{:?}", a.rotation),
+                "must be a finite, non-zero quaternion",
+            );
+        }
+    }
+    for sd in &t.sample_data {
+        check_filename(sd)?;
+    }
+    Ok(())
 }
 
 fn check_links(t: &Tables) -> Result<(), DatasetError> {

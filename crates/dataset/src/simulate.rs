@@ -104,11 +104,24 @@ impl SceneId {
     }
 }
 
+/// The most training (and, separately, validation) scenes a dataset may have.
+pub const MAX_SCENES: usize = 10_000;
+
+/// The most key frames a dataset may have (the paper's: 14,800).
+pub const MAX_FRAMES: usize = 2_000_000;
+
 impl SimulateConfig {
+    /// Checks every setting before anything is simulated; counts are bounded ([`MAX_SCENES`],
+    /// [`MAX_FRAMES`]) so a typo is an error, not an allocation that exhausts memory.
     pub fn validate(&self) -> Result<(), DatasetError> {
         let bad = |f: &str, v: String, why: &str| Err(DatasetError::Invalid(format!("dataset.{f} = {v}: {why}")));
         if self.scenes == 0 {
             return bad("scenes", "0".into(), "at least one training scene is needed");
+        }
+        for (f, n) in [("scenes", self.scenes), ("val_scenes", self.val_scenes)] {
+            if n > MAX_SCENES {
+                return bad(f, n.to_string(), &format!("at most {MAX_SCENES} scenes (the paper's dataset has 37)"));
+            }
         }
         for (f, v) in [("seconds", self.seconds), ("val_seconds", self.val_seconds)] {
             if !(v > 0.0 && v <= 3600.0) {
@@ -137,6 +150,18 @@ impl SimulateConfig {
         if self.annotate_radius_m.is_nan() || self.annotate_radius_m <= 0.0 {
             return bad("annotate_radius_m", self.annotate_radius_m.to_string(), "must be > 0");
         }
+        if self.total_frames() > MAX_FRAMES {
+            return bad(
+                "scenes",
+                self.scenes.to_string(),
+                &format!(
+                    "{} key frames in all ({} training and {} validation scenes), above the {MAX_FRAMES} a dataset may have",
+                    self.total_frames(),
+                    self.scenes,
+                    self.val_scenes
+                ),
+            );
+        }
         Ok(())
     }
 
@@ -152,7 +177,9 @@ impl SimulateConfig {
 
     /// Key frames of the whole dataset.
     pub fn total_frames(&self) -> usize {
-        self.scenes * self.frames_per_scene() + self.val_scenes * self.val_frames_per_scene()
+        self.scenes
+            .saturating_mul(self.frames_per_scene())
+            .saturating_add(self.val_scenes.saturating_mul(self.val_frames_per_scene()))
     }
 
     /// Every scene, training first.
@@ -404,11 +431,14 @@ pub fn write_dataset(
         token(&[&format!("{cfg:?}"), &format!("{rig:?}"), &format!("{:?}", scene.config), version, namespace]);
     let run_path = root.join(RUN_FILE);
     let run = serde_json::json!({ "fingerprint": fingerprint, "namespace": namespace, "version": version, "scenes": cfg.scenes });
-    match std::fs::read(&run_path) {
+    crate::reader::check_version(version)?;
+    match hilo_core::fs::read_bounded(&run_path, hilo_core::fs::limit::CONFIG) {
         Ok(bytes) => {
             let old: serde_json::Value = serde_json::from_slice(&bytes)
                 .map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
-            if old.get("fingerprint") != run.get("fingerprint") {
+            // A run refused before it finished a scene left only this file: nothing is lost by
+            // taking the folder over, and the corrected rerun must not be blocked by it.
+            if old.get("fingerprint") != run.get("fingerprint") && hilo_core::fs::holds_file(&parts_dir(root)) {
                 return Err(DatasetError::Invalid(format!(
                     "{} holds a dataset made with other settings (fingerprint {} here, {} now); choose another output folder or delete it",
                     root.display(),
@@ -418,18 +448,20 @@ pub fn write_dataset(
             }
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            if root.join(version).join("scene.json").exists() {
+            // Not ours: another program's files are never overwritten.
+            if let Some(first) = std::fs::read_dir(root).ok().and_then(|mut d| d.next()).and_then(|e| e.ok()) {
                 return Err(DatasetError::Invalid(format!(
-                    "{} already holds a dataset not written by this run; choose another output folder",
-                    root.display()
+                    "{} already holds files not written by `hilo simulate` (e.g. {:?}); choose an empty or new output folder",
+                    root.display(),
+                    first.file_name()
                 )));
             }
-            let bytes = serde_json::to_vec_pretty(&run)
-                .map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
-            write_atomic(&run_path, &bytes)?;
         }
         Err(e) => return Err(DatasetError::Io { path: run_path, source: e }),
     }
+    let bytes = serde_json::to_vec_pretty(&run)
+        .map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
+    write_atomic(&run_path, &bytes)?;
     let setups: Vec<SensorSetup> = rig
         .iter()
         .map(|s| {
@@ -453,7 +485,8 @@ pub fn write_dataset(
     };
     for id in cfg.scene_ids() {
         let part = parts_dir(root).join(format!("{}.json", id.name()));
-        let rows: Option<crate::tables::Tables> = match std::fs::read(&part) {
+        let rows: Option<crate::tables::Tables> = match hilo_core::fs::read_bounded(&part, hilo_core::fs::limit::TABLE)
+        {
             Ok(bytes) => Some(
                 serde_json::from_slice(&bytes)
                     .map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?,

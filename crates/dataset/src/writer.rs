@@ -6,16 +6,17 @@
 //! it); each sensor's calibrated pose is its mount pose. LiDAR files are nuScenes `.pcd.bin`
 //! (float32 x, y, z, intensity, ring, in the sensor frame; nuScenes has no per-point time, so
 //! point timestamps are not written: the sample_data timestamp is the start of the sweep). Radar
-//! files are binary PCD with the fields x y z rcs v_r v_r_compensated time (a documented variant
-//! of the nuScenes radar PCD, which has no radial velocity). Tokens are 32 hex digits derived from
-//! names, so the same input gives the same bytes; every file is written atomically.
+//! files are nuScenes radar PCD with its 18 fields
+//! ([`hilo_sensor_models::export::to_nuscenes_radar_pcd`]: the radial velocity as its sensor-frame
+//! `vx, vy` components). Tokens are 32 hex digits derived from names, so the same input gives
+//! the same bytes; every file is written atomically.
 
 use crate::error::DatasetError;
 use crate::tables::*;
 use glam::Vec2;
 use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
 use hilo_sensor_models::SensorPose;
-use hilo_sensor_models::export::to_pcd;
+use hilo_sensor_models::export::to_nuscenes_radar_pcd;
 use std::path::{Path, PathBuf};
 
 /// Which kind of sensor a channel is.
@@ -344,8 +345,8 @@ impl DatasetWriter {
             for (i, c) in chain.iter().enumerate() {
                 let (bytes, ext) = match c.1 {
                     Some(fi) if is_lidar => (lidar_bin(&scene.frames[fi].lidar[k]), "pcd.bin"),
-                    Some(fi) => (to_pcd(&scene.frames[fi].radar[k]), "pcd"),
-                    None => (to_pcd(&scene.sweeps[c.2].radar[k]), "pcd"),
+                    Some(fi) => (to_nuscenes_radar_pcd(&scene.frames[fi].radar[k]), "pcd"),
+                    None => (to_nuscenes_radar_pcd(&scene.sweeps[c.2].radar[k]), "pcd"),
                 };
                 let folder = if c.1.is_some() { "samples" } else { "sweeps" };
                 let filename = format!("{folder}/{}/{}__{}__{}.{ext}", s.channel, scene.name, s.channel, c.0);

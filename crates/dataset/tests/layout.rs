@@ -120,7 +120,13 @@ fn written_datasets_read_back_exactly_and_the_same_input_gives_the_same_bytes() 
     assert_eq!(ds.lidar_points(sd).unwrap(), src.frames[1].lidar[1]);
     let sd =
         ds.tables.sample_data.iter().find(|s| s.filename.contains("scene-0001__RADAR_0__1700000000100000")).unwrap();
-    assert_eq!(ds.radar_points(sd).unwrap(), src.frames[2].radar[0]);
+    // Radar keeps position and RCS exactly; the radial velocity comes back from nuScenes' vx, vy.
+    let read = ds.radar_points(sd).unwrap();
+    assert_eq!(read.len(), src.frames[2].radar[0].len());
+    for (r, w) in read.iter().zip(&src.frames[2].radar[0]) {
+        assert_eq!([r.x, r.y, r.z, r.rcs_dbsm], [w.x, w.y, w.z, w.rcs_dbsm]);
+        assert!((r.v_r_mps - w.v_r_mps).abs() < 1e-5 && (r.v_r_comp_mps - w.v_r_comp_mps).abs() < 1e-5, "{r:?} {w:?}");
+    }
     // Byte-identical datasets from the same input.
     for name in TABLE_NAMES {
         let f = format!("v1.0-trainval/{name}.json");
@@ -161,4 +167,79 @@ fn broken_datasets_name_the_file_or_token() {
     let mut dup = sensors();
     dup[1].channel = "LIDAR_0".into();
     assert!(DatasetWriter::new(d.path(), "v", "t", dup).unwrap_err().to_string().contains("LIDAR_0"));
+}
+
+/// Rewrites one table through a JSON edit, then expects `Dataset::open` to refuse it naming
+/// `want` (table, field, token or value), and restores the table.
+fn refused(root: &Path, table: &str, edit: impl Fn(&mut serde_json::Value), want: &[&str]) {
+    let p = root.join(format!("v1.0-trainval/{table}.json"));
+    let text = std::fs::read_to_string(&p).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    edit(&mut v);
+    std::fs::write(&p, serde_json::to_vec(&v).unwrap()).unwrap();
+    let e = Dataset::open(root, "v1.0-trainval").unwrap_err().to_string();
+    for w in want {
+        assert!(e.contains(w), "{table}: {e:?} lacks {w:?}");
+    }
+    std::fs::write(&p, text).unwrap();
+}
+
+#[test]
+fn ground_truth_with_unknown_categories_bad_boxes_duplicate_tokens_or_broken_chains_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    write(d.path());
+    let root = d.path();
+    refused(root, "category", |v| v[0]["name"] = "vehicle.carx".into(), &["category", "name", "vehicle.carx"]);
+    for (field, value) in [
+        ("size", serde_json::json!([0.0, 4.5, 1.6])),
+        ("size", serde_json::json!([-1.9, 4.5, 1.6])),
+        ("rotation", serde_json::json!([0.0, 0.0, 0.0, 0.0])),
+    ] {
+        refused(root, "sample_annotation", |v| v[3][field] = value.clone(), &["sample_annotation", field]);
+    }
+    refused(
+        root,
+        "sample_annotation",
+        |v| {
+            let a = v.as_array_mut().unwrap();
+            let dup = a[0].clone();
+            a.push(dup);
+        },
+        &["sample_annotation", "appears twice"],
+    );
+    refused(
+        root,
+        "sample",
+        |v| {
+            let a = v.as_array_mut().unwrap();
+            let dup = a[1].clone();
+            a.push(dup);
+        },
+        &["table sample:", "appears twice"],
+    );
+    // A `next` whose record points back elsewhere: both tokens exist, so only the chain check sees it.
+    refused(
+        root,
+        "sample",
+        |v| {
+            let third = v[2]["token"].clone();
+            v[0]["next"] = third;
+        },
+        &["table sample:", "`next`"],
+    );
+    refused(
+        root,
+        "sample_data",
+        |v| v[0]["filename"] = "../../OUTSIDE.pcd.bin".into(),
+        &["sample_data", "filename", "OUTSIDE"],
+    );
+    // A table folder outside the dataroot.
+    let e = Dataset::open(root, "../v1.0-trainval").unwrap_err().to_string();
+    assert!(e.contains("version") && e.contains("../v1.0-trainval"), "{e}");
+    // A point file of NaN: refused, not drawn and counted.
+    let ds = Dataset::open(root, "v1.0-trainval").unwrap();
+    let sd = ds.tables.sample_data.iter().find(|s| s.filename.ends_with(".pcd.bin")).unwrap();
+    std::fs::write(root.join(&sd.filename), f32::NAN.to_le_bytes().repeat(5)).unwrap();
+    let e = ds.lidar_points(sd).unwrap_err().to_string();
+    assert!(e.contains(&sd.filename) && e.contains("not a finite number"), "{e}");
 }

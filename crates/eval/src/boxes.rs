@@ -137,7 +137,9 @@ pub struct SampleInfo {
 /// Ground truth of an evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
 pub struct GroundTruth {
+    #[serde(deserialize_with = "unique_keys")]
     pub samples: BTreeMap<String, SampleInfo>,
+    #[serde(deserialize_with = "unique_keys")]
     pub boxes: BTreeMap<String, Vec<EvalBox>>,
 }
 
@@ -147,7 +149,38 @@ pub struct Submission {
     #[serde(default)]
     pub meta: serde_json::Value,
     /// Sample order is kept: it decides the order of equal-score predictions, as in the devkit.
+    #[serde(deserialize_with = "unique_keys")]
     pub results: serde_json::Map<String, serde_json::Value>,
+}
+
+/// A JSON object into a map, refusing a key that appears twice: JSON parsers keep one of the
+/// two silently (serde_json and Python the last), so a sample listed twice would lose half its
+/// boxes without a word.
+fn unique_keys<'de, D, M, V>(d: D) -> Result<M, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    M: Default + Extend<(String, V)>,
+    V: Deserialize<'de>,
+{
+    struct Visit<M, V>(std::marker::PhantomData<(M, V)>);
+    impl<'de, M: Default + Extend<(String, V)>, V: Deserialize<'de>> serde::de::Visitor<'de> for Visit<M, V> {
+        type Value = M;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("an object keyed by sample token")
+        }
+        fn visit_map<A: serde::de::MapAccess<'de>>(self, mut a: A) -> Result<M, A::Error> {
+            let mut seen = std::collections::HashSet::new();
+            let mut out = M::default();
+            while let Some((k, v)) = a.next_entry::<String, V>()? {
+                if !seen.insert(k.clone()) {
+                    return Err(serde::de::Error::custom(format!("sample {k:?} is listed twice")));
+                }
+                out.extend([(k, v)]);
+            }
+            Ok(out)
+        }
+    }
+    d.deserialize_map(Visit(std::marker::PhantomData))
 }
 
 fn check_box(b: &EvalBox, file: &Path, sample: &str, k: usize, pred: bool) -> Result<(), EvalError> {
@@ -195,15 +228,21 @@ fn check_box(b: &EvalBox, file: &Path, sample: &str, k: usize, pred: bool) -> Re
 /// A JSON syntax error with the sample it occurred in (the last `"sample_token"` before it):
 /// Python writes NaN and Infinity as bare words that JSON does not allow.
 fn json_error(path: &Path, text: &str, e: &serde_json::Error) -> EvalError {
-    let offset: usize = text.lines().take(e.line().saturating_sub(1)).map(|l| l.len() + 1).sum::<usize>() + e.column();
-    let before = &text[..offset.min(text.len())];
+    let mut offset = (text.lines().take(e.line().saturating_sub(1)).map(|l| l.len() + 1).sum::<usize>() + e.column())
+        .min(text.len());
+    // serde_json's column counts bytes; step back to a character boundary (a multi-byte
+    // character, a byte-order mark or a typographic quote, may sit at the error).
+    while !text.is_char_boundary(offset) {
+        offset -= 1;
+    }
+    let before = &text[..offset];
     let sample = before.rfind("\"sample_token\"").and_then(|i| {
         let rest = &before[i + 14..];
         let q0 = rest.find('"')? + 1;
         let q1 = rest[q0..].find('"')?;
         Some(rest[q0..q0 + q1].to_owned())
     });
-    let hint = if text[offset.saturating_sub(1).min(text.len())..].starts_with(['N', 'I', '-']) {
+    let hint = if text.get(offset.saturating_sub(1)..).is_some_and(|t| t.starts_with(['N', 'I', '-'])) {
         " (NaN and Infinity are not JSON numbers)"
     } else {
         ""
@@ -217,8 +256,19 @@ fn json_error(path: &Path, text: &str, e: &serde_json::Error) -> EvalError {
 
 /// Reads and checks a submission; returns boxes grouped by sample in file order.
 pub fn read_submission(path: &Path, max_boxes_per_sample: usize) -> Result<Vec<(String, Vec<EvalBox>)>, EvalError> {
-    let text = std::fs::read_to_string(path).map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
-    let sub: Submission = serde_json::from_str(&text).map_err(|e| json_error(path, &text, &e))?;
+    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::TABLE)
+        .map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
+    parse_submission(&text, path, max_boxes_per_sample)
+}
+
+/// [`read_submission`] of text already read; `path` names it in errors.
+pub fn parse_submission(
+    text: &str,
+    path: &Path,
+    max_boxes_per_sample: usize,
+) -> Result<Vec<(String, Vec<EvalBox>)>, EvalError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let sub: Submission = serde_json::from_str(text).map_err(|e| json_error(path, text, &e))?;
     let mut out = Vec::new();
     for (sample, v) in sub.results {
         let boxes: Vec<EvalBox> = serde_json::from_value(v)
@@ -239,8 +289,21 @@ pub fn read_submission(path: &Path, max_boxes_per_sample: usize) -> Result<Vec<(
 
 /// Reads and checks a ground-truth file.
 pub fn read_ground_truth(path: &Path) -> Result<GroundTruth, EvalError> {
-    let text = std::fs::read_to_string(path).map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
-    let gt: GroundTruth = serde_json::from_str(&text).map_err(|e| json_error(path, &text, &e))?;
+    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::TABLE)
+        .map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
+    parse_ground_truth(&text, path)
+}
+
+/// [`read_ground_truth`] of text already read; `path` names it in errors.
+pub fn parse_ground_truth(text: &str, path: &Path) -> Result<GroundTruth, EvalError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let gt: GroundTruth = serde_json::from_str(text).map_err(|e| json_error(path, text, &e))?;
+    if gt.samples.is_empty() {
+        return Err(EvalError::Json {
+            path: path.to_path_buf(),
+            message: "`samples` is empty: an evaluation over no samples would print mAP 0".into(),
+        });
+    }
     for (sample, boxes) in &gt.boxes {
         if !gt.samples.contains_key(sample) {
             return Err(EvalError::Json {
@@ -268,4 +331,20 @@ pub fn filter_boxes(boxes: &[EvalBox], ego: [f64; 3], class_range: &BTreeMap<Str
         .filter(|b| b.num_pts != 0)
         .cloned()
         .collect()
+}
+
+/// Checks that a submission covers exactly the ground truth's samples, as the devkit does
+/// (a missing sample would count its boxes as misses, an unknown one would be ignored).
+pub fn check_sample_set(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], path: &Path) -> Result<(), EvalError> {
+    let pred_samples: std::collections::BTreeSet<&String> = pred.iter().map(|(s, _)| s).collect();
+    let gt_samples: std::collections::BTreeSet<&String> = gt.samples.keys().collect();
+    if pred_samples == gt_samples {
+        return Ok(());
+    }
+    let missing: Vec<_> = gt_samples.difference(&pred_samples).take(3).collect();
+    let extra: Vec<_> = pred_samples.difference(&gt_samples).take(3).collect();
+    Err(EvalError::Json {
+        path: path.to_path_buf(),
+        message: format!("samples differ from the ground truth's (missing e.g. {missing:?}, unknown e.g. {extra:?})"),
+    })
 }

@@ -12,7 +12,10 @@ pub mod error;
 pub mod iou;
 pub mod nuscenes;
 
-pub use boxes::{EvalBox, GroundTruth, filter_boxes, read_ground_truth, read_submission};
+pub use boxes::{
+    EvalBox, GroundTruth, check_sample_set, filter_boxes, parse_ground_truth, parse_submission, read_ground_truth,
+    read_submission,
+};
 pub use config::DetectionConfig;
 pub use error::EvalError;
 pub use nuscenes::{DetectionMetrics, evaluate};

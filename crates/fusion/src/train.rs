@@ -338,7 +338,7 @@ pub fn background_path(run: &Path) -> PathBuf {
 
 pub fn read_info(run: &Path) -> Result<RunInfo> {
     let p = info_path(run);
-    let bytes = std::fs::read(&p)
+    let bytes = hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::CONFIG)
         .map_err(|e| FusionError::Io { path: p.clone(), message: format!("{e} (not a training run folder?)") })?;
     serde_json::from_slice(&bytes).map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })
 }
@@ -689,8 +689,10 @@ pub fn train(
         dropped_pillars: 0,
         data: frames_fingerprint(frames),
     };
-    if info_path(run).exists() {
-        let old = read_info(run)?;
+    // A run folder whose run never took a step (refused or stopped before its first
+    // checkpoint) holds nothing to lose: it is taken over, so a corrected rerun is not blocked.
+    let old = if info_path(run).exists() { Some(read_info(run)?) } else { None };
+    if let Some(old) = old.filter(|o| o.step > 0) {
         if old.detector != *det_cfg || old.train != *cfg {
             return Err(FusionError::Config(format!(
                 "{} holds a run with other settings (detector {}); use another --out or delete it",
@@ -706,10 +708,8 @@ pub fn train(
                 info.data
             )));
         }
-        if old.step > 0 {
-            det.load(&weights_path(run))?;
-            opt.load(&optimizer_path(run), device)?;
-        }
+        det.load(&weights_path(run))?;
+        opt.load(&optimizer_path(run), device)?;
         info = old;
         if info.finished {
             return Ok(info);
@@ -812,7 +812,8 @@ pub fn load_run_at(
         None => None,
         Some(_) => {
             let p = background_path(run);
-            let bytes = std::fs::read(&p).map_err(|e| FusionError::Io { path: p.clone(), message: e.to_string() })?;
+            let bytes = hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::TABLE)
+                .map_err(|e| FusionError::Io { path: p.clone(), message: e.to_string() })?;
             Some(
                 serde_json::from_slice(&bytes)
                     .map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })?,

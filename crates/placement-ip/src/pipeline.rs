@@ -3,7 +3,7 @@
 
 use crate::candidates::{Candidate, CandidateConfig, Modality, sample_candidates};
 use crate::error::PlacementError;
-use crate::exact::exact_counts;
+use crate::exact::{counts_upper_bound, exact_counts, exact_lidar_first, separable_upper_bound, top_visibilities};
 use crate::greedy::greedy;
 use crate::instance::{Instance, Limit, Outcome, SensorOption, SensorType};
 use crate::mip::{Formulation, solve as solve_mip};
@@ -40,6 +40,24 @@ impl Default for PlacementConfig {
     }
 }
 
+impl PlacementConfig {
+    /// Checks the settings that are not checked where they are used, before any visibility is
+    /// computed (p_min is used only when the instances are built, seconds of ray casting later).
+    pub fn validate(&self) -> Result<(), PlacementError> {
+        let bad = |f: &str, v: String, why: &str| Err(PlacementError::Invalid(format!("placement.{f} = {v}: {why}")));
+        if !(self.p_min > 0.0 && self.p_min < 1.0) {
+            return bad("p_min", self.p_min.to_string(), "must be a probability in (0, 1)");
+        }
+        if !(self.cell_m.is_finite() && self.cell_m >= 0.1) {
+            return bad("cell_m", self.cell_m.to_string(), "must be at least 0.1 m");
+        }
+        if !(self.time_limit_s >= 0.0 && self.time_limit_s <= 86_400.0) {
+            return bad("time_limit_s", self.time_limit_s.to_string(), "must be in [0, 86400] seconds");
+        }
+        self.visibility.validate()
+    }
+}
+
 /// Everything placement computes once per scene.
 #[derive(Clone, Debug)]
 pub struct Prepared {
@@ -58,7 +76,7 @@ pub fn prepare(
     types: &[String],
     cfg: &PlacementConfig,
 ) -> Result<Prepared, PlacementError> {
-    cfg.visibility.validate()?;
+    cfg.validate()?;
     let targets = roi_targets(scene, cfg.cell_m)?;
     let candidates = sample_candidates(scene, &cfg.candidates)?;
     let specs: Vec<&SensorSpec> = types.iter().map(|t| catalog.get(t)).collect::<Result<_, _>>()?;
@@ -123,6 +141,15 @@ pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64
 /// minutes in the root LP, where its time limit is not checked.
 pub const CBC_MAX_NONZEROS: usize = 2_000_000;
 
+/// An upper bound of the objective over every selection of at most `counts` sensors that needs
+/// no search ([`counts_upper_bound`] and [`separable_upper_bound`], the tighter): loose, but
+/// finite, so a placement that no exact method finished still states its gap.
+pub fn counts_bound(inst: &Instance, counts: &[u32]) -> f64 {
+    let kmax = counts.iter().copied().max().unwrap_or(0) as usize;
+    let tops = top_visibilities(inst, kmax);
+    counts_upper_bound(inst, counts, &tops).min(separable_upper_bound(inst, counts, &tops))
+}
+
 /// Solves an instance for a limit: greedy for a first solution; the exact search when the limit
 /// asks for counts with one radar, or a budget (exact over the one-radar count vectors, with a
 /// proven bound over the rest); otherwise CBC on the strengthened model, warm-started from
@@ -153,6 +180,21 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
         }
     }
     let mut fallback = g.clone();
+    // Several radars with one LiDAR type (at most two): the LiDAR-first exact search.
+    if let Limit::Counts(c) = limit {
+        let of = |m: Modality| {
+            (0..inst.types.len()).filter(move |&t| inst.types[t].modality == m && c.get(t).is_some_and(|n| *n > 0))
+        };
+        let lidar_types: Vec<usize> = of(Modality::Lidar).collect();
+        if of(Modality::Radar).count() > 0 && lidar_types.len() == 1 && c[lidar_types[0]] <= 2 {
+            let (mut out, proven) = exact_lidar_first(inst, c, &g.selection, 50_000_000, deadline)?;
+            out.solve_seconds += g.solve_seconds;
+            if proven {
+                return Ok(out);
+            }
+            fallback = out;
+        }
+    }
     if let Limit::Budget { usd, min, max } = limit {
         let (mut out, _) = crate::exact::exact_budget(inst, *usd, min, max, &g.selection, deadline)?;
         out.solve_seconds += g.solve_seconds;
@@ -165,7 +207,17 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
     // CBC gets what is left of the time limit (none left: the exact search's result stands).
     let left = deadline.map_or(time_limit_s, |d| d.saturating_duration_since(std::time::Instant::now()).as_secs_f64());
     if nonzeros > CBC_MAX_NONZEROS || left <= 0.0 {
-        return Ok(fallback);
+        // No search proves more here: state how far the answer can be from the optimum.
+        let cheap = match limit {
+            Limit::Counts(c) => counts_bound(inst, c),
+            _ => f64::INFINITY,
+        };
+        let bound = fallback.bound.min(cheap).max(fallback.objective);
+        return Ok(Outcome {
+            bound,
+            gap: (bound - fallback.objective) / fallback.objective.abs().max(1e-9),
+            ..fallback
+        });
     }
     let out = solve_mip(inst, limit, Formulation::Strengthened, left, Some(&g.selection))?;
     // CBC may stop with something worse than its warm start: never return less than greedy.

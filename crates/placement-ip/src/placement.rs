@@ -41,6 +41,20 @@ impl PlacedSensor {
     }
 }
 
+/// A bound or gap in a placement file: JSON has no infinity, so an unknown bound is written as
+/// `null` and read back as infinity (a placement hilo writes, hilo reads).
+mod unbounded {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() { s.serialize_f64(*v) } else { s.serialize_none() }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
+    }
+}
+
 /// A configuration's placement.
 #[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -49,7 +63,12 @@ pub struct Placement {
     pub name: String,
     pub sensors: Vec<PlacedSensor>,
     pub objective: f64,
+    /// The best proven upper bound of the objective; infinite (`null` in the file) when no
+    /// bound is known.
+    #[serde(with = "unbounded")]
     pub bound: f64,
+    /// `(bound − objective) / objective`; infinite (`null`) without a bound.
+    #[serde(with = "unbounded")]
     pub gap: f64,
     pub proven_optimal: bool,
     pub solve_seconds: f64,
@@ -73,9 +92,14 @@ pub struct Placement {
 impl Placement {
     /// Reads a placement written by [`Placement::save`]; the error names the file and field.
     pub fn load(path: &Path) -> Result<Placement, PlacementError> {
-        let text = std::fs::read_to_string(path)
+        let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
             .map_err(|e| PlacementError::Invalid(format!("reading placement {}: {e}", path.display())))?;
-        let p: Placement = serde_json::from_str(&text).map_err(|e| {
+        Placement::from_json(&text, path)
+    }
+
+    /// [`Placement::load`] of text already read; `path` names it in errors.
+    pub fn from_json(text: &str, path: &Path) -> Result<Placement, PlacementError> {
+        let p: Placement = serde_json::from_str(text).map_err(|e| {
             PlacementError::Invalid(format!("{}: not a placement written by `hilo place`: {e}", path.display()))
         })?;
         if p.sensors.is_empty() {
@@ -164,5 +188,36 @@ mod tests {
         std::fs::write(&path, "{\"name\": 1}").unwrap();
         assert!(Placement::load(&path).unwrap_err().to_string().contains("p.json"));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_placement_without_a_bound_round_trips_through_its_file() {
+        let pose = SensorPose::new(Vec3::new(1.0, 2.0, 6.0), 0.5, 0.1, 0.0);
+        let p = Placement {
+            name: "2x lidar-16 + 2x radar".into(),
+            sensors: vec![PlacedSensor::new("radar-4d", Modality::Radar, 3, "pole", pose)],
+            objective: 10.0,
+            bound: f64::INFINITY,
+            gap: f64::INFINITY,
+            proven_optimal: false,
+            solve_seconds: 1.0,
+            method: "greedy".into(),
+            solved: true,
+            greedy_objective: 10.0,
+            central_coverage: 0.5,
+            lidar_radar_overlap: 0.2,
+            cost_usd: 1.0,
+            targets: 1,
+            candidates: 1,
+            scene_hash: "s".into(),
+            catalog_hash: "c".into(),
+        };
+        let json = p.to_json().unwrap();
+        assert!(json.contains("\"bound\": null") && json.contains("\"gap\": null"), "{json}");
+        let d = std::env::temp_dir().join(format!("hilo-placement-null-{}.json", std::process::id()));
+        std::fs::write(&d, &json).unwrap();
+        let back = Placement::load(&d).unwrap();
+        std::fs::remove_file(&d).unwrap();
+        assert_eq!(back, p);
     }
 }

@@ -174,6 +174,13 @@ pub struct Catalog {
     source: PathBuf,
 }
 
+/// The highest frame rate a catalog may give: spinning LiDARs run at 5–20 Hz, imaging radars
+/// up to ~30 Hz; a rate far above makes a dataset of absurd size.
+pub const MAX_RATE_HZ: f32 = 100.0;
+
+/// The finest angular (degrees) or range (metres) step a catalog may give.
+pub const MIN_STEP: f32 = 0.01;
+
 struct Check<'a> {
     path: &'a Path,
     prefix: String,
@@ -200,16 +207,33 @@ impl Check<'_> {
     fn probability(&self, field: &str, v: f32) -> Result<(), SensorError> {
         if (0.0..=1.0).contains(&v) { Ok(()) } else { Err(self.err(field, v, "must be a probability in [0, 1]")) }
     }
+    /// A sensor's name becomes a file name (visibility exports, dataset channels).
+    fn name(&self, name: &str) -> Result<(), SensorError> {
+        hilo_core::fs::check_file_name(name).map_err(|why| self.err("name", name, why))
+    }
+    /// Frame rates a real roadside sensor runs at: above 0, at most [`MAX_RATE_HZ`].
+    fn rate(&self, v: f32) -> Result<(), SensorError> {
+        if v.is_finite() && v > 0.0 && v <= MAX_RATE_HZ {
+            Ok(())
+        } else {
+            Err(self.err("rate_hz", v, &format!("must be a frame rate in (0, {MAX_RATE_HZ}] Hz")))
+        }
+    }
+    /// An angular or range step of at least [`MIN_STEP`]: finer makes billions of rays a frame.
+    fn fine_step(&self, field: &str, v: f32) -> Result<(), SensorError> {
+        if v >= MIN_STEP { Ok(()) } else { Err(self.err(field, v, &format!("must be at least {MIN_STEP}"))) }
+    }
     fn price(&self, v: f64) -> Result<(), SensorError> {
         if v.is_finite() && v >= 0.0 { Ok(()) } else { Err(self.err("price_usd", v, "must be a finite number >= 0")) }
     }
 }
 
 fn validate_lidar(l: &LidarSpec, c: &Check) -> Result<(), SensorError> {
-    if l.beams == 0 {
-        return Err(c.err("beams", l.beams, "a LiDAR needs at least one beam"));
+    c.name(&l.name)?;
+    if l.beams == 0 || l.beams > 512 {
+        return Err(c.err("beams", l.beams, "a LiDAR has 1 to 512 beams"));
     }
-    c.positive("rate_hz", l.rate_hz)?;
+    c.rate(l.rate_hz)?;
     c.positive("hfov_deg", l.hfov_deg)?;
     if l.hfov_deg > 360.0 {
         return Err(c.err("hfov_deg", l.hfov_deg, "must be at most 360"));
@@ -227,6 +251,7 @@ fn validate_lidar(l: &LidarSpec, c: &Check) -> Result<(), SensorError> {
         }
     }
     c.positive("azimuth_resolution_deg", l.azimuth_resolution_deg)?;
+    c.fine_step("azimuth_resolution_deg", l.azimuth_resolution_deg)?;
     c.non_negative("min_range_m", l.min_range_m)?;
     c.positive("max_range_m", l.max_range_m)?;
     if l.min_range_m >= l.max_range_m {
@@ -241,7 +266,8 @@ fn validate_lidar(l: &LidarSpec, c: &Check) -> Result<(), SensorError> {
 }
 
 fn validate_radar(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {
-    c.positive("rate_hz", r.rate_hz)?;
+    c.name(&r.name)?;
+    c.rate(r.rate_hz)?;
     c.positive("hfov_deg", r.hfov_deg)?;
     if r.hfov_deg >= 180.0 {
         return Err(c.err("hfov_deg", r.hfov_deg, "must be below 180 (a radar looks forward)"));
@@ -263,6 +289,7 @@ fn validate_radar(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {
         ("elevation_resolution_deg", r.elevation_resolution_deg),
     ] {
         c.positive(f, v)?;
+        c.fine_step(f, v)?;
     }
     for (f, v) in [
         ("range_noise_m", r.range_noise_m),
@@ -317,8 +344,8 @@ impl Catalog {
     }
 
     pub fn load(path: &Path) -> Result<Self, SensorError> {
-        let text =
-            std::fs::read_to_string(path).map_err(|e| SensorError::Io { path: path.to_path_buf(), source: e })?;
+        let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
+            .map_err(|e| SensorError::Io { path: path.to_path_buf(), source: e })?;
         Self::from_toml_str(&text, path)
     }
 

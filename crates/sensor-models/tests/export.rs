@@ -78,3 +78,53 @@ fn truncated_or_foreign_files_are_errors_naming_the_file() {
     let e = from_pcd::<LidarPoint>(b"VERSION 0.7\nFIELDS x", Path::new("h.pcd")).unwrap_err().to_string();
     assert!(e.contains("h.pcd"), "{e}");
 }
+
+#[test]
+fn nuscenes_radar_pcd_has_the_devkit_header_and_round_trips_the_radial_velocity() {
+    use hilo_sensor_models::export::{NUSCENES_RADAR_STRIDE, from_nuscenes_radar_pcd, to_nuscenes_radar_pcd};
+    // A pole-mounted radar sees points well below it: the radial velocity has a z component.
+    let pts: Vec<RadarPoint> = (0..40)
+        .map(|i| {
+            let f = i as f32;
+            let v = -9.0 + 0.45 * f;
+            RadarPoint {
+                x: 3.0 + f,
+                y: -12.0 + 0.7 * f,
+                z: -6.5,
+                rcs_dbsm: -5.0 + 0.5 * f,
+                v_r_mps: v,
+                v_r_comp_mps: v,
+                time_s: 0.0,
+            }
+        })
+        .collect();
+    let bytes = to_nuscenes_radar_pcd(&pts);
+    let text = String::from_utf8_lossy(&bytes);
+    let header: Vec<&str> = text.lines().take(11).collect();
+    // The devkit reads the header by line number: FIELDS at 2, SIZE 3, TYPE 4, COUNT 5, WIDTH 6, HEIGHT 7, DATA 10.
+    assert!(header[0].starts_with('#') && header[1].starts_with("VERSION"));
+    assert_eq!(
+        header[2],
+        "FIELDS x y z dyn_prop id rcs vx vy vx_comp vy_comp is_quality_valid ambig_state x_rms y_rms invalid_state pdh0 vx_rms vy_rms"
+    );
+    assert_eq!(header[3], "SIZE 4 4 4 1 2 4 4 4 4 4 1 1 1 1 1 1 1 1");
+    assert_eq!(header[4], "TYPE F F F I I F F F F F I I I I I I I I");
+    assert_eq!((header[6], header[7], header[10]), ("WIDTH 40", "HEIGHT 1", "DATA binary"));
+    let body = bytes.len() - (header.iter().map(|l| l.len() + 1).sum::<usize>());
+    assert_eq!(body, 40 * NUSCENES_RADAR_STRIDE + 1, "a trailing byte after the data, as the devkit's reader needs");
+    let back = from_nuscenes_radar_pcd(&bytes, Path::new("r.pcd")).unwrap();
+    for (a, b) in back.iter().zip(&pts) {
+        assert_eq!([a.x, a.y, a.z, a.rcs_dbsm], [b.x, b.y, b.z, b.rcs_dbsm]);
+        assert!((a.v_r_mps - b.v_r_mps).abs() < 1e-5, "{} {}", a.v_r_mps, b.v_r_mps);
+        // vx, vy are the sensor-frame components of the radial velocity vector v_r · (x, y, z) / r.
+    }
+    // An empty cloud is one NaN point (the devkit refuses width 0) and reads back empty.
+    let e = to_nuscenes_radar_pcd(&[]);
+    assert!(String::from_utf8_lossy(&e).contains("\nWIDTH 1\n"));
+    assert!(from_nuscenes_radar_pcd(&e, Path::new("e.pcd")).unwrap().is_empty());
+    // The generic radar layout is refused by name.
+    let err = from_nuscenes_radar_pcd(&to_pcd(&pts), Path::new("g.pcd")).unwrap_err().to_string();
+    assert!(err.contains("g.pcd") && err.contains("nuScenes' radar layout"), "{err}");
+    let err = from_nuscenes_radar_pcd(&bytes[..bytes.len() - 10], Path::new("cut.pcd")).unwrap_err().to_string();
+    assert!(err.contains("truncated"), "{err}");
+}

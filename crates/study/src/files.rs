@@ -19,7 +19,8 @@ pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<()> {
 
 /// Reads a JSON file into `T`; the error names the file and serde's field and position.
 pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).map_err(|e| StudyError::io(path, e))?;
+    let text =
+        hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::TABLE).map_err(|e| StudyError::io(path, e))?;
     serde_json::from_str(&text).map_err(|e| StudyError::File { path: path.to_path_buf(), message: e.to_string() })
 }
 

@@ -65,6 +65,13 @@ pub fn ground_truth(
             keys.insert(s.token.clone(), k);
         }
     }
+    if gt.samples.is_empty() {
+        return Err(crate::error::StudyError::Invalid(format!(
+            "{}: split {split:?} has no samples ({} scenes listed); an evaluation over nothing would print mAP 0",
+            ds.root.join(&ds.version).display(),
+            scenes.len()
+        )));
+    }
     let category: BTreeMap<&str, &str> = t
         .instance
         .iter()

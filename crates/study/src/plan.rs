@@ -321,7 +321,10 @@ impl Plan {
         let marker = self.record_path();
         if marker.exists() {
             let old: FolderRecord = read_json(&marker)?;
-            if old.fingerprint != self.fingerprint {
+            // A study refused before any stage finished left only its record (and perhaps
+            // workflow files and logs): taking the folder over loses nothing, and the
+            // corrected rerun must not be blocked by it.
+            if old.fingerprint != self.fingerprint && holds_stage_output(&self.out) {
                 return Err(StudyError::Invalid(format!(
                     "{} holds another study (study file, profile or seeds differ: fingerprint {} there, {} now); choose another --out",
                     self.out.display(),
@@ -329,9 +332,10 @@ impl Plan {
                     self.fingerprint
                 )));
             }
-            return Ok(());
-        }
-        if self.out.exists() && std::fs::read_dir(&self.out).map(|mut d| d.next().is_some()).unwrap_or(false) {
+            if old.fingerprint == self.fingerprint {
+                return Ok(());
+            }
+        } else if self.out.exists() && std::fs::read_dir(&self.out).map(|mut d| d.next().is_some()).unwrap_or(false) {
             return Err(StudyError::Invalid(format!(
                 "{} exists and is not a study folder; choose another --out",
                 self.out.display()
@@ -348,6 +352,17 @@ impl Plan {
             },
         )
     }
+}
+
+/// Whether a study folder holds a file a stage wrote: anything but the folder's record, the
+/// workflow files and the logs of a workflow engine.
+fn holds_stage_output(out: &Path) -> bool {
+    const NOT_OUTPUT: [&str; 6] = ["study.json", "Snakefile", "config.yaml", "logs", "benchmarks", ".snakemake"];
+    std::fs::read_dir(out).is_ok_and(|d| {
+        d.filter_map(|e| e.ok())
+            .filter(|e| !NOT_OUTPUT.iter().any(|n| e.file_name() == *n))
+            .any(|e| e.file_type().is_ok_and(|t| !t.is_dir()) || hilo_core::fs::holds_file(&e.path()))
+    })
 }
 
 /// What a study folder records about its study (`study.json`): enough for a single stage, run

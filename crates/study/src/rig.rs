@@ -28,10 +28,10 @@ pub fn rig(placement: &Placement, catalog: &Catalog, scene: &Scene, source: &Pat
                 message: format!("sensors[{i}].pose is not finite: {:?}", s.pose),
             });
         }
-        if p.truncate().length() > 500.0 || p.z < scene.ground.z_m {
+        if let Some(why) = outside(scene, &s.pose) {
             return Err(StudyError::File {
                 path: source.to_path_buf(),
-                message: format!("sensors[{i}].pose.position = {p} is outside the scene"),
+                message: format!("sensors[{i}].pose.position = {p} {why}"),
             });
         }
         match spec {
@@ -67,6 +67,19 @@ pub fn rig_world(scene: &Scene, rig: &[RigSensor]) -> Result<World> {
 /// Simulates and writes the dataset of a placement (resumable; see
 /// [`hilo_dataset::simulate::write_dataset`]), after checking the placement was made for this
 /// study's scene and catalog. `progress` hears the key frames written so far.
+/// Why a sensor pose cannot be simulated on `scene` (more than 500 m from its origin, or below
+/// its ground), or None.
+pub fn outside(scene: &hilo_raycast::Scene, pose: &hilo_sensor_models::SensorPose) -> Option<String> {
+    let p = pose.position;
+    if p.truncate().length() > 500.0 {
+        Some("is outside the scene (more than 500 m from its origin)".into())
+    } else if p.z < scene.ground.z_m {
+        Some(format!("is below the ground of the scene (z = {} m)", scene.ground.z_m))
+    } else {
+        None
+    }
+}
+
 pub fn simulate(
     study: &Study,
     placement: &Placement,

@@ -103,7 +103,8 @@ pub struct Study {
 impl Study {
     /// Reads a study file.
     pub fn load(path: &Path) -> Result<Study> {
-        let text = std::fs::read_to_string(path).map_err(|e| StudyError::io(path, e))?;
+        let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
+            .map_err(|e| StudyError::io(path, e))?;
         Study::parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
     }
 
@@ -131,14 +132,27 @@ impl Study {
         if file.configurations.is_empty() {
             return Err(bad("no [[configurations]]".into()));
         }
-        let mut names = std::collections::HashSet::new();
+        let mut names: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
         for (i, c) in file.configurations.iter().enumerate() {
-            if !names.insert(c.slug()) {
+            let slug = c.slug();
+            if slug.is_empty() {
                 return Err(bad(format!(
-                    "configurations[{i}].name = {:?} repeats another configuration's name",
+                    "configurations[{i}].name = {:?} has no ASCII letter or digit; the name becomes file and folder names",
                     c.name
                 )));
             }
+            if let Some(&j) = names.get(&slug) {
+                let other = &file.configurations[j].name;
+                let why = if *other == c.name {
+                    format!("repeats configurations[{j}].name")
+                } else {
+                    format!(
+                        "and configurations[{j}].name = {other:?} both become the file name {slug:?} (only ASCII letters and digits are kept; the rest becomes '_')"
+                    )
+                };
+                return Err(bad(format!("configurations[{i}].name = {:?} {why}", c.name)));
+            }
+            names.insert(slug, i);
             match (c.budget_usd, c.sensors.is_empty()) {
                 (Some(b), true) if b.is_finite() && b > 0.0 && !c.types.is_empty() => {}
                 (Some(b), true) => {
@@ -163,6 +177,7 @@ impl Study {
             }
         }
         file.dataset.validate()?;
+        file.placement.validate()?;
         let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
         let scene = match &file.scene {
             Some(p) => Scene::load(&resolve(p))?,

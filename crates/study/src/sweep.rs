@@ -51,7 +51,8 @@ pub fn load(path: &Path) -> Result<Loaded> {
     if path.is_dir() {
         return directory(path).map(Loaded::Sweep);
     }
-    let text = std::fs::read_to_string(path).map_err(|e| StudyError::io(path, e))?;
+    let text =
+        hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG).map_err(|e| StudyError::io(path, e))?;
     parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
 }
 

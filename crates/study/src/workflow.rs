@@ -82,14 +82,37 @@ fn rel(plan: &Plan, p: &Path) -> Result<String> {
         StudyError::Invalid(format!("{} is outside the study folder {}", p.display(), plan.out.display()))
     })?;
     let s = r.to_string_lossy().into_owned();
-    if s.contains('"') || s.contains('\\') || s.contains('{') || s.contains('}') {
-        return Err(StudyError::Invalid(format!("{s:?}: a stage path Snakemake cannot quote")));
-    }
+    shell_word(&s)?;
     Ok(s)
 }
 
+/// A Python string literal of `s` (the Snakefile is Python): JSON's escaping, which Python
+/// reads the same, so quotes, backslashes and newlines stay inside the string.
+fn py_str(s: &str) -> String {
+    serde_json::Value::String(s.to_owned()).to_string()
+}
+
+/// A comment line's text: one line whatever `s` holds (a newline in a folder name would end the
+/// comment and run the rest as Python).
+fn comment(s: &str) -> String {
+    format!("{s:?}")
+}
+
+/// Stage paths, configuration slugs and job ids go into each rule's shell command and into
+/// Snakemake's file patterns unquoted: they are built from slugs (ASCII letters, digits, `_`),
+/// preset names and fixed file names, and this keeps them so, refusing anything else.
+fn shell_word(s: &str) -> Result<&str> {
+    if !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c)) {
+        Ok(s)
+    } else {
+        Err(StudyError::Invalid(format!(
+            "{s:?}: a stage path or name in a workflow must be ASCII letters, digits, '_', '-', '.' and '/'"
+        )))
+    }
+}
+
 fn list(items: &[String]) -> String {
-    items.iter().map(|s| format!("\n        \"{s}\",")).collect::<String>()
+    items.iter().map(|s| format!("\n        {},", py_str(s))).collect::<String>()
 }
 
 /// A rule name: letters, digits and `_`.
@@ -119,9 +142,9 @@ impl Rule {
             let _ = writeln!(out, "    input:{}", list(&self.inputs));
         }
         let _ = writeln!(out, "    output:{}", list(&self.outputs));
-        let _ = writeln!(out, "    log: \"logs/{}.log\"", self.log);
+        let _ = writeln!(out, "    log: {}", py_str(&format!("logs/{}.log", self.log)));
         // Snakemake measures each job (seconds, peak memory, I/O, CPU time) into this file.
-        let _ = writeln!(out, "    benchmark: \"benchmarks/{}.tsv\"", self.log);
+        let _ = writeln!(out, "    benchmark: {}", py_str(&format!("benchmarks/{}.tsv", self.log)));
         let _ = writeln!(out, "    threads: {}", self.resources.threads);
         let gpu = if self.gpu { ", gpu=1" } else { "" };
         let _ = writeln!(
@@ -129,9 +152,10 @@ impl Rule {
             "    resources: mem_mb={}, runtime={}{gpu}",
             self.resources.mem_mb, self.resources.runtime_min
         );
+        // `:q` has Snakemake quote the executable's path for the shell (spaces, `$(...)`).
         let _ = writeln!(
             out,
-            "    shell: \"RAYON_NUM_THREADS={{threads}} {{config[hilo]}} study {} --out {} > {{log}} 2>&1\"",
+            "    shell: \"RAYON_NUM_THREADS={{threads}} {{config[hilo]:q}} study {} --out {} > {{log:q}} 2>&1\"",
             self.cmd, self.out
         );
     }
@@ -156,7 +180,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
         rule_name(&parts)
     };
     let log = |l: String| shard.map_or(l.clone(), |s| format!("{s}/{l}"));
-    let out = shard.unwrap_or(".").to_owned();
+    let out = shell_word(shard.unwrap_or("."))?.to_owned();
     let (all_frames, val_frames) = frames(plan);
     let results: usize = plan.jobs.iter().map(|j| 1 + j.curve.len()).sum();
     let placements: Vec<String> = plan.placement_outputs().iter().map(|p| path(p)).collect::<Result<_>>()?;
@@ -191,7 +215,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
         },
     ];
     for (ci, conf) in plan.configurations.iter().enumerate() {
-        let slug = conf.slug();
+        let slug = shell_word(&conf.slug())?.to_owned();
         rules.push(Rule {
             name: name("simulate", &[&slug]),
             inputs: vec![path(&plan.placement(ci))?],
@@ -212,7 +236,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             resources: train(all_frames, j.train.samples),
             gpu: wf.gpu,
             log: log(format!("train-{}", j.id.replace('/', "-"))),
-            cmd: format!("train --job {}", j.id),
+            cmd: format!("train --job {}", shell_word(&j.id)?),
             out: out.clone(),
         });
     }
@@ -226,8 +250,8 @@ pub fn snakefile(plan: &Plan, wf: &Workflow) -> Result<String> {
         s,
         "# The study in {} as a Snakemake workflow, written by `hilo study --workflow snakemake`.\n{HOW_TO_RUN}\n\
          # Profile {}: {} configurations, {} trainings.",
-        plan.out.display(),
-        plan.profile.name,
+        comment(&plan.out.display().to_string()),
+        comment(&plan.profile.name),
         plan.configurations.len(),
         plan.jobs.len()
     );
@@ -238,8 +262,11 @@ pub fn snakefile(plan: &Plan, wf: &Workflow) -> Result<String> {
 /// The config file, the default target and the rules; two rules may not share a name (names
 /// are built from slugs, whose `_` can make two different stages read alike).
 fn emit(s: &mut String, target: &str, rules: &[Rule], what: &str) -> Result<()> {
-    let _ =
-        write!(s, "\nconfigfile: \"config.yaml\"\n\nrule all:\n    input: \"{target}\"\n    default_target: True\n");
+    let _ = write!(
+        s,
+        "\nconfigfile: \"config.yaml\"\n\nrule all:\n    input: {}\n    default_target: True\n",
+        py_str(target)
+    );
     let mut names = std::collections::BTreeSet::new();
     for r in rules {
         if !names.insert(r.name.as_str()) {
@@ -262,7 +289,7 @@ pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<S
         s,
         "# The sweep {} ({} studies) as a Snakemake workflow, written by `hilo study --workflow snakemake`.\n{HOW_TO_RUN}\n\
          # The last rule compares the studies: comparison.md and comparison.json.",
-        sweep.source,
+        comment(&sweep.source),
         sweep.shards.len()
     );
     let mut all = vec![Rule {
@@ -284,12 +311,13 @@ pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<S
 
 /// `config.yaml`: the hilo executable the rules call.
 pub fn config_yaml(wf: &Workflow) -> Result<String> {
-    let exe = wf.hilo.to_string_lossy();
-    if exe.contains('\'') {
-        return Err(StudyError::Invalid(format!("{exe:?}: an executable path YAML cannot quote simply")));
-    }
+    let exe = wf.hilo.to_str().ok_or_else(|| {
+        StudyError::Invalid(format!("{}: the hilo executable's path is not UTF-8", wf.hilo.display()))
+    })?;
+    // A JSON string is a YAML double-quoted scalar: quotes, backslashes and newlines escaped.
     Ok(format!(
-        "# The hilo executable every rule runs (the same build for every stage: hashes cover the code).\nhilo: '{exe}'\n"
+        "# The hilo executable every rule runs (the same build for every stage: hashes cover the code).\nhilo: {}\n",
+        py_str(exe)
     ))
 }
 

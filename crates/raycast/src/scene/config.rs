@@ -398,8 +398,8 @@ impl SceneConfig {
 
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Self, RaycastError> {
-        let text =
-            std::fs::read_to_string(path).map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
+        let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
+            .map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
         Self::from_toml_str(&text, path)
     }
 

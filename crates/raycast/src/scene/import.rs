@@ -67,7 +67,8 @@ pub fn read_obj(path: &Path) -> Result<RawMesh, RaycastError> {
 /// Reads a glTF 2.0 file (.gltf or .glb): every triangle primitive of the default scene (or of
 /// all scenes if none is marked default), with node transforms applied.
 pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
-    let bytes = std::fs::read(path).map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
+    let bytes = hilo_core::fs::read_bounded(path, hilo_core::fs::limit::MESH)
+        .map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| mesh_err(path, format!("malformed glTF: {e}")))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut buffers: Vec<Vec<u8>> = Vec::new();
@@ -86,7 +87,8 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
                         .map_err(|e| mesh_err(path, format!("buffer {i}: bad base64: {e}")))?
                 } else {
                     let p = dir.join(uri);
-                    std::fs::read(&p).map_err(|e| RaycastError::Io { path: p, source: e })?
+                    hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::MESH)
+                        .map_err(|e| RaycastError::Io { path: p, source: e })?
                 }
             }
         };
