@@ -10,6 +10,19 @@ fn hilo() -> Command {
     Command::new(env!("CARGO_BIN_EXE_hilo"))
 }
 
+/// `hilo simulate [study] --placement P --out OUT` with a small dataset (`--scenes 1 --seconds S
+/// --val-scenes 0`), or with `args` in place of the size flags.
+fn simulate(study: Option<&Path>, placement: &Path, out: &Path, args: &[&str]) -> Output {
+    let mut c = hilo();
+    c.arg("simulate");
+    if let Some(s) = study {
+        c.arg(s);
+    }
+    c.args(args).arg("--placement").arg(placement).arg("--out").arg(out).output().unwrap()
+}
+
+const SMALL: [&str; 6] = ["--scenes", "1", "--seconds", "0.5", "--val-scenes", "0"];
+
 fn refused(o: &Output, want: &[&str]) {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "accepted; stderr: {err}");
@@ -94,23 +107,12 @@ fn simulate_refuses_a_version_outside_the_dataroot_and_a_folder_of_foreign_files
     let placements = dir.path().join("placements");
     let o = hilo().args(["place", "--out"]).arg(&placements).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = hilo()
-        .args(["simulate", "--scenes", "1", "--seconds", "0.5", "--val-scenes", "0", "--placement"])
-        .arg(placements.join("2x_lidar_16_radar.json"))
-        .arg("--out")
-        .arg(&foreign)
-        .output()
-        .unwrap();
+    let cheap = placements.join("2x_lidar_16_radar.json");
+    let o = simulate(None, &cheap, &foreign, &SMALL);
     refused(&o, &["theirs", "not written by `hilo simulate`"]);
     assert_eq!(std::fs::read_to_string(foreign.join("v1.0-trainval/sample.json")).unwrap(), "[\"theirs\"]");
     // Counts past what a machine can hold are refused before anything is allocated.
-    let o = hilo()
-        .args(["simulate", "--scenes", "1000000000", "--placement"])
-        .arg(placements.join("2x_lidar_16_radar.json"))
-        .arg("--out")
-        .arg(dir.path().join("big"))
-        .output()
-        .unwrap();
+    let o = simulate(None, &cheap, &dir.path().join("big"), &["--scenes", "1000000000"]);
     refused(&o, &["dataset.scenes = 1000000000", "at most 10000"]);
     let o = hilo().args(["study", "--seeds", "1000000", "--out"]).arg(dir.path().join("s")).output().unwrap();
     refused(&o, &["1000000", "seed count from 1 to 100"]);
@@ -198,15 +200,8 @@ fn every_placement_shape_hilo_writes_hilo_simulates() {
     assert_ne!(two["method"], "greedy", "several radars go to an exact search: {two}");
     assert!(two["gap"].as_f64().is_some(), "the gap is stated: {two}");
     for name in ["two_radars", "two_lidar_types", "lidar_alone"] {
-        let o = hilo()
-            .arg("simulate")
-            .arg(&study)
-            .args(["--scenes", "1", "--seconds", "0.5", "--val-scenes", "0", "--placement"])
-            .arg(out.join(format!("{name}.json")))
-            .arg("--out")
-            .arg(dir.path().join(format!("d-{name}")))
-            .output()
-            .unwrap();
+        let o =
+            simulate(Some(&study), &out.join(format!("{name}.json")), &dir.path().join(format!("d-{name}")), &SMALL);
         assert!(o.status.success(), "{name}: {}", String::from_utf8_lossy(&o.stderr));
     }
 }
@@ -288,21 +283,10 @@ fn a_refused_run_leaves_nothing_that_blocks_the_corrected_rerun() {
         r#"{"fingerprint": "other", "namespace": "x", "version": "v1.0-trainval", "scenes": 1}"#,
     )
     .unwrap();
-    let o = hilo()
-        .args(["simulate", "--scenes", "1", "--seconds", "0.5", "--val-scenes", "0", "--placement"])
-        .arg(placements.join("2x_lidar_16_radar.json"))
-        .arg("--out")
-        .arg(&data)
-        .output()
-        .unwrap();
+    let cheap = placements.join("2x_lidar_16_radar.json");
+    let o = simulate(None, &cheap, &data, &SMALL);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     // One that finished a scene is still refused with other settings.
-    let o = hilo()
-        .args(["simulate", "--scenes", "1", "--seconds", "1.0", "--val-scenes", "0", "--placement"])
-        .arg(placements.join("2x_lidar_16_radar.json"))
-        .arg("--out")
-        .arg(&data)
-        .output()
-        .unwrap();
+    let o = simulate(None, &cheap, &data, &["--scenes", "1", "--seconds", "1.0", "--val-scenes", "0"]);
     refused(&o, &["made with other settings"]);
 }
