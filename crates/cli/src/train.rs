@@ -100,6 +100,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         bail!("--batch and --samples must be at least 1 (batch {}, samples {})", cfg.batch, cfg.samples);
     }
     det.validate()?;
+    hilo_fusion::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;
     let background = hilo_fusion::train::learn_background(&ds, &args.split, &det.input).with_context(|| {
         format!("{}: learning the static background of split {:?}", args.data.display(), args.split)
     })?;
@@ -218,6 +219,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
         .with_context(|| format!("loading run {}", args.run.display()))?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
+    hilo_fusion::data::check_modalities(&ds, &info.detector.name, det.uses_radar())?;
     let (frames, _) =
         hilo_fusion::data::load_split(&ds, &args.split, &LoadOptions::new(&det.cfg.input, background.as_ref()))
             .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;

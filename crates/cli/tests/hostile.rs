@@ -204,6 +204,15 @@ fn every_placement_shape_hilo_writes_hilo_simulates() {
             simulate(Some(&study), &out.join(format!("{name}.json")), &dir.path().join(format!("d-{name}")), &SMALL);
         assert!(o.status.success(), "{name}: {}", String::from_utf8_lossy(&o.stderr));
     }
+    // A fusion detector on the LiDAR-only dataset would train its radar branch on nothing.
+    let o = hilo()
+        .args(["train", "--detector", "lirafusion-like", "--samples", "2", "--data"])
+        .arg(dir.path().join("d-lidar_alone"))
+        .arg("--out")
+        .arg(dir.path().join("run"))
+        .output()
+        .unwrap();
+    refused(&o, &["lirafusion-like fuses radar", "d-lidar_alone", "no radar channel"]);
 }
 
 #[test]

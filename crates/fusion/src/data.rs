@@ -212,6 +212,26 @@ pub struct LoadStats {
     pub radar_clutter_points: usize,
 }
 
+/// Refuses a detector that fuses radar (`uses_radar`) on a dataset with no radar channel: its
+/// radar branch would train and run on empty input, and its scores read as a fusion result.
+pub fn check_modalities(ds: &Dataset, detector: &str, uses_radar: bool) -> Result<()> {
+    let has = |m: &str| ds.tables.sensor.iter().any(|s| s.modality == m);
+    if uses_radar && !has("radar") {
+        return Err(FusionError::Config(format!(
+            "detector {detector} fuses radar, but the dataset {} has no radar channel (sensors: {}); use a LiDAR-only preset such as centerpoint",
+            ds.root.display(),
+            ds.tables.sensor.iter().map(|s| s.channel.as_str()).collect::<Vec<_>>().join(", ")
+        )));
+    }
+    if !has("lidar") {
+        return Err(FusionError::Config(format!(
+            "the dataset {} has no LiDAR channel; every detector needs one",
+            ds.root.display()
+        )));
+    }
+    Ok(())
+}
+
 /// Loads the samples of a split (scenes listed in the dataset's `splits.json`), in sample order.
 /// Boxes without any LiDAR or radar point are left out, as the nuScenes loader does.
 pub fn load_split(ds: &Dataset, split: &str, opts: &LoadOptions) -> Result<(Vec<Frame>, LoadStats)> {
