@@ -33,11 +33,11 @@ pub fn default_input() -> InputConfig {
 /// block), CenterPoint's head (Gaussian heatmaps, a 3×3 convolution of 16 channels per task,
 /// peak extraction), on the occupied cells only (sparse, head sites dilated by 2 cells), its
 /// losses normalised by the positives of all classes ([`LossNorm::All`]; CenterPoint's per-task
-/// normalisation, [`LossNorm::PerClass`], was measured and not adopted: the README has why).
+/// normalisation, [`LossNorm::PerClass`], was measured and not adopted: docs/measurements.md has why).
 /// Left out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second refinement stage,
 /// multi-group heads, circular NMS, and the stride-8 block's two further 3×3 layers: at 128
 /// channels they were 46% of a step's multiply-adds, and without them the default schedule
-/// trains 1.4× faster to the same mAP (0.813 against 0.805, seed 0; the README's "Level 3" has
+/// trains 1.4× faster to the same mAP (0.813 against 0.805, seed 0; "Level 3" in docs/measurements.md has
 /// the runs). The fusion presets share this backbone.
 pub fn centerpoint() -> DetectorConfig {
     DetectorConfig {
@@ -93,8 +93,8 @@ pub fn pointpillars() -> DetectorConfig {
 /// and since the pillar encoders run on the real points and the batch thread on idle cores,
 /// 268.5 s, 266.7 s and 263.8 s (seeds 0–2, mAP 0.819, 0.828 and 0.814).
 /// Without the synchronisation the replicas ran up to 12% faster (256.0 s and 244.3 s) to 0.795
-/// and 0.791: BatchNorm over one sample cost more than the samples it bought. The README's
-/// learning curve has the gains of four times this.
+/// and 0.791: BatchNorm over one sample cost more than the samples it bought. The learning
+/// curve in docs/measurements.md has the gains of four times this.
 pub fn plateau_schedule() -> TrainConfig {
     TrainConfig { samples: 24_000, replicas: 2, sync_batch_norm: true, ..TrainConfig::default() }
 }

@@ -12,7 +12,7 @@
 //! mean. The encoder runs on the real points alone (a pillar fills about three of its 10 slots on a
 //! roadside frame), its BatchNorm counting the padding slots as the zero rows they are in the
 //! padded form, so the function is that of the padded pillars (1.2× the fused preset's training
-//! samples/s; the README has the bench).
+//! samples/s; docs/measurements.md has the bench).
 //!
 //! Optionally (`middle`), a LiDAR-only pillar branch is fused with the joint map by φ
 //! (LiRaFusion's joint voxel encoder + adaptive gating; L4DR's early radar–LiDAR fusion +
@@ -155,8 +155,8 @@ pub fn lirafusion_like() -> DetectorConfig {
 /// samples, batches of two as two data-parallel replicas with synchronised BatchNorm). With
 /// radar clutter removed and ground-truth paste it trains at about 90 samples/s on two cores of
 /// ~70 GFLOP/s matrix-product peak (checkpoints included; 94–101 in the bench), so 24,000
-/// samples take about 4.5 minutes there (268.5 s, seed 0). The README's learning curve has the
-/// gains of four times this.
+/// samples take about 4.5 minutes there (268.5 s, seed 0). The learning curve in
+/// docs/measurements.md has the gains of four times this.
 pub fn lirafusion_like_schedule() -> TrainConfig {
     hilo_fusion::presets::plateau_schedule()
 }
