@@ -33,7 +33,7 @@
 //! that ends its pass while another waits, fails the step with an error naming the layer rather
 //! than hanging.
 
-use crate::conv::{f32_slice, with_cpu};
+use crate::cpu::{f32_slice, with_cpu};
 use crate::error::Result;
 use candle_core::{CpuStorage, CustomOp3, DType, Layout, Shape, Tensor, TensorId, Var};
 use candle_nn::{BatchNorm, ModuleT};
@@ -658,8 +658,8 @@ impl CustomOp3 for BnRelu {
         let (x, grad) = (x.contiguous()?, grad.contiguous()?);
         let (gamma_v, beta_v) = (host(gamma)?, host(beta)?);
         // x and dy are read in place, not copied.
-        let (dx, dg, db) = crate::conv::with_cpu::<f32, _>(&x, OP, |xv| {
-            crate::conv::with_cpu::<f32, _>(&grad, OP, |gv| self.input_grad(xv, gv, &gamma_v, &beta_v, c))
+        let (dx, dg, db) = crate::cpu::with_cpu::<f32, _>(&x, OP, |xv| {
+            crate::cpu::with_cpu::<f32, _>(&grad, OP, |gv| self.input_grad(xv, gv, &gamma_v, &beta_v, c))
         })?;
         let dev = x.device();
         Ok((

@@ -6,19 +6,12 @@
 //! faster on two cores (the oracle test below compares values and both gradients with candle's
 //! `conv2d`). On other devices [`Conv`] calls candle's `conv2d`, so CUDA needs no change.
 
+use crate::cpu::f32_slice;
+pub use crate::cpu::{FORWARD_FLOPS, count_matmul};
 use crate::error::{FusionError, Result};
 use crate::layout::At;
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
-use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Multiply-add FLOPs (2 per multiply-add) of every convolution and pillar linear layer run in
-/// this process's forward passes. Benchmarks read it to express a step's speed as GFLOP/s.
-pub static FORWARD_FLOPS: AtomicU64 = AtomicU64::new(0);
-
-/// Counts the forward FLOPs of an `(m × k) · (k × n)` matrix product.
-pub fn count_matmul(m: usize, k: usize, n: usize) {
-    FORWARD_FLOPS.fetch_add(2 * (m * k * n) as u64, Ordering::Relaxed);
-}
 use candle_nn::VarBuilder;
 use rayon::prelude::*;
 
@@ -79,28 +72,6 @@ pub struct Im2Col(pub Geometry);
 /// The adjoint of [`Im2Col`]: (B, C·k·k, Ho·Wo) → (B, C, H, W), overlapping patches summed.
 #[derive(Debug, Clone, Copy)]
 pub struct Col2Im(pub Geometry);
-
-/// The f32 values of a contiguous CPU storage, as a custom op's `cpu_fwd` receives it.
-pub(crate) fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
-    let CpuStorage::F32(data) = s else { candle_core::bail!("{op}: f32 tensors only") };
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&data[a..b]),
-        None => candle_core::bail!("{op}: contiguous input only"),
-    }
-}
-
-/// `f` on the values of a contiguous CPU tensor, borrowed rather than copied.
-pub(crate) fn with_cpu<T: candle_core::WithDType, R>(
-    t: &Tensor,
-    op: &str,
-    f: impl FnOnce(&[T]) -> candle_core::Result<R>,
-) -> candle_core::Result<R> {
-    let (storage, layout) = t.storage_and_layout();
-    match (&*storage, layout.contiguous_offsets()) {
-        (candle_core::Storage::Cpu(s), Some((a, b))) => f(&s.as_slice::<T>()?[a..b]),
-        _ => candle_core::bail!("{op}: a contiguous CPU tensor expected"),
-    }
-}
 
 impl CustomOp1 for Im2Col {
     fn name(&self) -> &'static str {

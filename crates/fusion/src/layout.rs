@@ -22,7 +22,7 @@
 //! Rulebooks are built on the host, on the batch thread, from the occupied cells ([`SparseHost`]),
 //! and moved to the device once per batch ([`Layout::new`]).
 
-use crate::conv::{f32_slice, with_cpu};
+use crate::cpu::{f32_slice, with_cpu};
 use crate::error::Result;
 use candle_core::{CpuStorage, CustomOp2, DType, Device, Tensor};
 use rayon::prelude::*;
@@ -367,7 +367,7 @@ impl At<'_> {
 pub fn gather_conv(x: &Tensor, w: &Tensor, rules: &Tensor) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     let taps = kh * kw;
-    crate::conv::count_matmul(rules.dim(0)? / taps, taps * ci, co);
+    crate::cpu::count_matmul(rules.dim(0)? / taps, taps * ci, co);
     fused_on_cpu(x, w, GatherConv { rules: rules.clone(), kernel: std::sync::OnceLock::new() }, || {
         gather_conv_composite(x, w, rules)
     })
@@ -623,7 +623,7 @@ impl CustomOp2 for GatherConv {
 /// `index_select` and `sum` ([`parent_conv_composite`]).
 pub fn parent_conv(v: &Tensor, w: &Tensor, taps: &Tensor) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
-    crate::conv::count_matmul(v.dim(0)?, ci, kh * kw * co);
+    crate::cpu::count_matmul(v.dim(0)?, ci, kh * kw * co);
     fused_on_cpu(v, w, ParentConv { taps: taps.clone(), kernel: std::sync::OnceLock::new() }, || {
         parent_conv_composite(v, w, taps)
     })

@@ -31,6 +31,7 @@
 pub mod bnrelu;
 pub mod conformance;
 pub mod conv;
+pub mod cpu;
 pub mod data;
 pub mod decode;
 pub mod detector;

@@ -34,7 +34,7 @@ fn placement_status(c: &crate::assemble::ConfigSummary) -> (String, bool) {
 fn over_seeds(r: &Report, conf: &str, preset: &str, f: impl Fn(&Entry) -> Option<f64>) -> Option<(f64, f64, f64)> {
     let v: Vec<f64> =
         r.entries.iter().filter(|e| e.configuration == conf && e.preset == preset).filter_map(f).collect();
-    crate::compare::OverSeeds::of(&v).map(|o| (o.mean, o.min, o.max))
+    crate::stats::OverSeeds::of(&v).map(|o| (o.mean, o.min, o.max))
 }
 
 fn fmt3(v: Option<(f64, f64, f64)>) -> String {

@@ -35,6 +35,31 @@ pub struct Scores {
     pub replicates: Vec<f64>,
 }
 
+/// Mean, min and max of a metric over a group's seeds.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OverSeeds {
+    pub mean: f64,
+    pub min: f64,
+    pub max: f64,
+    pub seeds: usize,
+}
+
+impl OverSeeds {
+    /// Over the finite values (a detector with no score for a class is left out); None if none.
+    pub fn of(v: &[f64]) -> Option<OverSeeds> {
+        let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return None;
+        }
+        Some(OverSeeds {
+            mean: v.iter().sum::<f64>() / v.len() as f64,
+            min: v.iter().copied().fold(f64::INFINITY, f64::min),
+            max: v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            seeds: v.len(),
+        })
+    }
+}
+
 /// The pooled seed variance of a metric over groups of per-seed full scores.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SeedVariance {

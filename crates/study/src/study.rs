@@ -75,6 +75,9 @@ impl Configuration {
     }
 }
 
+/// The study-file keys that make it a sweep ([`crate::sweep`]).
+pub const LIST_KEYS: [&str; 2] = ["scenes", "catalogs"];
+
 /// A file-name-safe form of a name: lowercase ASCII letters and digits, runs of anything else
 /// as one `_`.
 pub fn slug(name: &str) -> String {
@@ -112,7 +115,7 @@ impl Study {
     /// study passes its text and `.`).
     pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Study> {
         if let Ok(table) = toml::from_str::<toml::Table>(text)
-            && let Some(key) = crate::sweep::LIST_KEYS.iter().find(|k| table.contains_key(**k))
+            && let Some(key) = LIST_KEYS.iter().find(|k| table.contains_key(**k))
         {
             return Err(StudyError::File {
                 path: PathBuf::from(source),

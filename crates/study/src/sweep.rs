@@ -18,8 +18,7 @@ use crate::study::{Study, StudyFile, slug};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// The study-file keys that make it a sweep.
-pub const LIST_KEYS: [&str; 2] = ["scenes", "catalogs"];
+pub use crate::study::LIST_KEYS;
 
 /// One study of a sweep.
 #[derive(Clone, Debug)]

@@ -1,0 +1,191 @@
+//! Modules inside a crate do not import each other in circles: for every folder of modules
+//! (`src/` of each crate and plugin, and their subfolders), the `crate::` paths of each module's
+//! code (comments and `#[cfg(test)]` modules left out) are its edges, and every strongly
+//! connected component of more than one module is a circle. One is known and listed here: the
+//! fusion crate's detector runtime and plugin interface, which the crate's split along its trait
+//! removes; any other circle, or a larger one, fails.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+const KNOWN: &[(&str, &[&str])] = &[("crates/fusion/src", &["detector", "fusion", "presets", "train"])];
+
+/// The module names a module's code reaches through `crate::`: `crate::a::…`, and each first
+/// segment of a `use crate::{a, b::c}` group.
+fn edges_of(code: &str) -> BTreeSet<String> {
+    let code: String = code
+        .split("#[cfg(test)]")
+        .next()
+        .unwrap_or("")
+        .lines()
+        .map(|l| l.split("//").next().unwrap_or(""))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let ident = |s: &str| -> String { s.chars().take_while(|c| c.is_ascii_alphanumeric() || *c == '_').collect() };
+    let mut out = BTreeSet::new();
+    for (i, _) in code.match_indices("crate::") {
+        let before = code[..i].chars().last();
+        if before.is_some_and(|c| c.is_ascii_alphanumeric() || c == '_') {
+            continue; // `hilo_crate::`, not `crate::`
+        }
+        let rest = &code[i + "crate::".len()..];
+        if let Some(group) = rest.strip_prefix('{') {
+            let body = &group[..group.find('}').unwrap_or(group.len())];
+            out.extend(body.split(',').map(|p| ident(p.trim())).filter(|s| !s.is_empty()));
+        } else {
+            let m = ident(rest);
+            if !m.is_empty() {
+                out.insert(m);
+            }
+        }
+    }
+    out
+}
+
+/// Module name → the modules of the same folder it reaches.
+fn graph(dir: &Path) -> BTreeMap<String, BTreeSet<String>> {
+    let files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "rs"))
+        .collect();
+    let names: BTreeSet<String> = files.iter().map(|p| p.file_stem().unwrap().to_string_lossy().into_owned()).collect();
+    files
+        .iter()
+        .map(|p| {
+            let name = p.file_stem().unwrap().to_string_lossy().into_owned();
+            let e = edges_of(&std::fs::read_to_string(p).unwrap())
+                .into_iter()
+                .filter(|m| names.contains(m) && *m != name)
+                .collect();
+            (name, e)
+        })
+        .collect()
+}
+
+/// Strongly connected components of more than one module (Tarjan), each sorted.
+fn circles(g: &BTreeMap<String, BTreeSet<String>>) -> BTreeSet<Vec<String>> {
+    struct T<'a> {
+        g: &'a BTreeMap<String, BTreeSet<String>>,
+        index: BTreeMap<&'a str, usize>,
+        low: BTreeMap<&'a str, usize>,
+        stack: Vec<&'a str>,
+        on: BTreeSet<&'a str>,
+        out: BTreeSet<Vec<String>>,
+    }
+    fn visit<'a>(t: &mut T<'a>, v: &'a str) {
+        let i = t.index.len();
+        t.index.insert(v, i);
+        t.low.insert(v, i);
+        t.stack.push(v);
+        t.on.insert(v);
+        for w in t.g[v].iter().map(String::as_str) {
+            if !t.index.contains_key(w) {
+                visit(t, w);
+                let lw = t.low[w];
+                let lv = t.low.get_mut(v).unwrap();
+                *lv = (*lv).min(lw);
+            } else if t.on.contains(w) {
+                let iw = t.index[w];
+                let lv = t.low.get_mut(v).unwrap();
+                *lv = (*lv).min(iw);
+            }
+        }
+        if t.low[v] == t.index[v] {
+            let mut comp = Vec::new();
+            while let Some(w) = t.stack.pop() {
+                t.on.remove(w);
+                comp.push(w.to_owned());
+                if w == v {
+                    break;
+                }
+            }
+            if comp.len() > 1 {
+                comp.sort();
+                t.out.insert(comp);
+            }
+        }
+    }
+    let mut t = T {
+        g,
+        index: BTreeMap::new(),
+        low: BTreeMap::new(),
+        stack: Vec::new(),
+        on: BTreeSet::new(),
+        out: BTreeSet::new(),
+    };
+    for v in g.keys() {
+        if !t.index.contains_key(v.as_str()) {
+            visit(&mut t, v);
+        }
+    }
+    t.out
+}
+
+/// Every folder of modules in the workspace.
+fn module_dirs(root: &Path) -> Vec<PathBuf> {
+    fn walk(d: &Path, out: &mut Vec<PathBuf>) {
+        if std::fs::read_dir(d).unwrap().any(|e| e.unwrap().path().extension().is_some_and(|x| x == "rs")) {
+            out.push(d.to_path_buf());
+        }
+        for e in std::fs::read_dir(d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(&p, out);
+            }
+        }
+    }
+    let mut out = Vec::new();
+    for top in ["crates", "plugins"] {
+        for c in std::fs::read_dir(root.join(top)).unwrap() {
+            let src = c.unwrap().path().join("src");
+            if src.is_dir() {
+                walk(&src, &mut out);
+            }
+        }
+    }
+    walk(&root.join("src"), &mut out);
+    out.sort();
+    out
+}
+
+#[test]
+fn no_module_imports_another_in_a_circle() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dirs = module_dirs(root);
+    assert!(dirs.len() >= 14, "found only {} module folders", dirs.len());
+    let mut found = Vec::new();
+    for d in &dirs {
+        let rel = d.strip_prefix(root).unwrap().to_string_lossy().into_owned();
+        for c in circles(&graph(d)) {
+            let known =
+                KNOWN.iter().any(|(k, m)| *k == rel && c == m.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+            if !known {
+                found.push(format!("{rel}: {}", c.join(" ↔ ")));
+            }
+        }
+    }
+    assert!(found.is_empty(), "modules importing each other in a circle:\n{}", found.join("\n"));
+}
+
+#[test]
+fn a_planted_circle_is_found() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("a.rs"), "use crate::b::B;\n// crate::c in a comment is no edge\npub struct A;\n")
+        .unwrap();
+    std::fs::write(d.path().join("b.rs"), "use crate::{error::Result, c};\npub struct B;\n").unwrap();
+    std::fs::write(
+        d.path().join("c.rs"),
+        "pub fn f() -> crate::a::A { crate::a::A }\n#[cfg(test)]\nmod tests { use crate::error; }\n",
+    )
+    .unwrap();
+    std::fs::write(d.path().join("error.rs"), "pub type Result = ();\nuse hilo_crate::a;\n").unwrap();
+    let g = graph(d.path());
+    assert_eq!(g["error"], BTreeSet::new(), "a test module and a longer crate name are no edges");
+    assert_eq!(circles(&g), BTreeSet::from([vec!["a".to_owned(), "b".to_owned(), "c".to_owned()]]));
+    // Cut one edge: no circle.
+    std::fs::write(d.path().join("c.rs"), "pub fn f() {}\n").unwrap();
+    assert!(circles(&graph(d.path())).is_empty());
+}
