@@ -1,6 +1,26 @@
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
+/// What is wrong with a box as nuScenes stores it (centre `translation`, `size` as width,
+/// length, height, `rotation` as a w x y z quaternion): the field, its value and why. The ground
+/// truth's reader and the metric's submission reader both check boxes with it.
+pub fn nuscenes_box_defect(
+    translation: &[f64; 3],
+    size: &[f64; 3],
+    rotation: &[f64; 4],
+) -> Option<(&'static str, String, &'static str)> {
+    if translation.iter().any(|v| !v.is_finite()) {
+        return Some(("translation", format!("{translation:?}"), "must be finite"));
+    }
+    if size.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
+        return Some(("size", format!("{size:?}"), "must be finite and > 0"));
+    }
+    if rotation.iter().any(|v| !v.is_finite()) || rotation.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+        return Some(("rotation", format!("{rotation:?}"), "must be a finite, non-zero quaternion"));
+    }
+    None
+}
+
 /// An oriented 3-D box: yaw-only rotation about z, as road-user annotations are.
 ///
 /// `center` is the geometric centre (not the bottom centre); `length_m` runs along the heading

@@ -15,7 +15,7 @@ pub mod fs;
 pub mod iou;
 mod points;
 
-pub use boxes::Box3;
+pub use boxes::{Box3, nuscenes_box_defect};
 pub use class::{Class, UnknownClass};
 pub use frame::{LocalFrame, Pose};
 pub use points::{Detection, LidarPoint, RadarPoint};

@@ -272,21 +272,8 @@ fn check_records(t: &Tables) -> Result<(), DatasetError> {
         }
     }
     for a in &t.sample_annotation {
-        if a.translation.iter().any(|v| !v.is_finite()) {
-            return rec("sample_annotation", &a.token, "translation", format!("{:?}", a.translation), "must be finite");
-        }
-        if a.size.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-            return rec("sample_annotation", &a.token, "size", format!("{:?}", a.size), "must be finite and > 0");
-        }
-        let norm2: f64 = a.rotation.iter().map(|v| v * v).sum();
-        if a.rotation.iter().any(|v| !v.is_finite()) || norm2 < 1e-12 {
-            return rec(
-                "sample_annotation",
-                &a.token,
-                "rotation",
-                format!("{:?}", a.rotation),
-                "must be a finite, non-zero quaternion",
-            );
+        if let Some((field, value, why)) = hilo_core::nuscenes_box_defect(&a.translation, &a.size, &a.rotation) {
+            return rec("sample_annotation", &a.token, field, value, why);
         }
     }
     for sd in &t.sample_data {

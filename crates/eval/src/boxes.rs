@@ -207,14 +207,8 @@ fn check_box(b: &EvalBox, file: &Path, sample: &str, k: usize, pred: bool) -> Re
             ),
         );
     }
-    if b.translation.iter().any(|v| !v.is_finite()) {
-        return bad("translation", format!("{:?}", b.translation));
-    }
-    if b.size.iter().any(|v| !(v.is_finite() && *v > 0.0)) {
-        return bad("size", format!("{:?} (must be finite and > 0)", b.size));
-    }
-    if b.rotation.iter().any(|v| !v.is_finite()) || b.rotation.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
-        return bad("rotation", format!("{:?}", b.rotation));
+    if let Some((field, value, why)) = hilo_core::nuscenes_box_defect(&b.translation, &b.size, &b.rotation) {
+        return bad(field, format!("{value} ({why})"));
     }
     if pred && !(b.detection_score.is_finite() && (0.0..=1.0).contains(&b.detection_score)) {
         return bad("detection_score", format!("{}", b.detection_score));

@@ -166,27 +166,20 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
     // The exact searches stop at the time limit too, with their best selection and bound.
     let deadline = (time_limit_s.is_finite() && time_limit_s >= 0.0)
         .then(|| std::time::Instant::now() + std::time::Duration::from_secs_f64(time_limit_s.min(1e7)));
+    let mut fallback = g.clone();
     if let Limit::Counts(c) = limit {
-        let radars: u32 = c
-            .iter()
-            .enumerate()
-            .filter(|(t, _)| inst.types.get(*t).is_some_and(|x| x.modality == Modality::Radar))
-            .map(|(_, n)| *n)
-            .sum();
+        let of = |m: Modality| {
+            (0..inst.types.len()).filter(move |&t| inst.types[t].modality == m && c.get(t).is_some_and(|n| *n > 0))
+        };
+        let radars: u32 = of(Modality::Radar).map(|t| c[t]).sum();
+        let lidar_types: Vec<usize> = of(Modality::Lidar).collect();
         if radars == 1 {
             let (mut out, _) = exact_counts(inst, c, &g.selection, deadline)?;
             out.solve_seconds += g.solve_seconds;
             return Ok(out);
         }
-    }
-    let mut fallback = g.clone();
-    // Several radars with one LiDAR type (at most two): the LiDAR-first exact search.
-    if let Limit::Counts(c) = limit {
-        let of = |m: Modality| {
-            (0..inst.types.len()).filter(move |&t| inst.types[t].modality == m && c.get(t).is_some_and(|n| *n > 0))
-        };
-        let lidar_types: Vec<usize> = of(Modality::Lidar).collect();
-        if of(Modality::Radar).count() > 0 && lidar_types.len() == 1 && c[lidar_types[0]] <= 2 {
+        // Several radars with one LiDAR type (at most two): the LiDAR-first exact search.
+        if radars > 1 && lidar_types.len() == 1 && c[lidar_types[0]] <= 2 {
             let (mut out, proven) = exact_lidar_first(inst, c, &g.selection, 50_000_000, deadline)?;
             out.solve_seconds += g.solve_seconds;
             if proven {
