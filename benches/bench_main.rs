@@ -180,8 +180,8 @@ fn evaluation(c: &mut Criterion) {
 }
 
 fn fusion(c: &mut Criterion) {
-    use hilo::fusion::conformance::{car, synthetic_frame};
-    use hilo::fusion::detector::{Detector, HostBatch};
+    use hilo::detector::conformance::{car, synthetic_frame};
+    use hilo::detector::detector::{Detector, HostBatch};
     let registry = hilo::registry().expect("registry");
     // Two frames of road users without their static background (what the detectors read): 12
     // cars with LiDAR and radar returns each, on the default grid, on each preset's layout.

@@ -9,6 +9,7 @@ pub mod bench;
 
 pub use hilo_core as core;
 pub use hilo_dataset as dataset;
+pub use hilo_detector as detector;
 pub use hilo_eval as eval;
 pub use hilo_fusion as fusion;
 pub use hilo_placement_ip as placement;
@@ -18,8 +19,8 @@ pub use hilo_study as study;
 
 /// Every fusion plugin hilo ships, with its presets, and the LiDAR-only ones. Adding a plugin is
 /// one crate and one line here.
-pub fn registry() -> hilo_fusion::Result<hilo_fusion::Registry> {
-    let mut r = hilo_fusion::Registry::with_builtin();
+pub fn registry() -> hilo_detector::Result<hilo_detector::Registry> {
+    let mut r = hilo_detector::Registry::with_builtin();
     hilo_fusion_raw::register(&mut r)?;
     hilo_fusion_early::register(&mut r)?;
     hilo_fusion_middle::register(&mut r)?;

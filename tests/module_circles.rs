@@ -1,16 +1,12 @@
 //! Modules inside a crate do not import each other in circles: for every folder of modules
 //! (`src/` of each crate and plugin, and their subfolders), the `crate::` paths of each module's
 //! code (comments and `#[cfg(test)]` modules left out) are its edges, and every strongly
-//! connected component of more than one module is a circle. One is known and listed here: the
-//! fusion crate's detector runtime and plugin interface, which the crate's split along its trait
-//! removes; any other circle, or a larger one, fails.
+//! connected component of more than one module is a circle, and fails the test.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
-
-const KNOWN: &[(&str, &[&str])] = &[("crates/fusion/src", &["detector", "fusion", "presets", "train"])];
 
 /// The module names a module's code reaches through `crate::`: `crate::a::…`, and each first
 /// segment of a `use crate::{a, b::c}` group.
@@ -160,11 +156,7 @@ fn no_module_imports_another_in_a_circle() {
     for d in &dirs {
         let rel = d.strip_prefix(root).unwrap().to_string_lossy().into_owned();
         for c in circles(&graph(d)) {
-            let known =
-                KNOWN.iter().any(|(k, m)| *k == rel && c == m.iter().map(|s| s.to_string()).collect::<Vec<_>>());
-            if !known {
-                found.push(format!("{rel}: {}", c.join(" ↔ ")));
-            }
+            found.push(format!("{rel}: {}", c.join(" ↔ ")));
         }
     }
     assert!(found.is_empty(), "modules importing each other in a circle:\n{}", found.join("\n"));
@@ -188,4 +180,29 @@ fn a_planted_circle_is_found() {
     // Cut one edge: no circle.
     std::fs::write(d.path().join("c.rs"), "pub fn f() {}\n").unwrap();
     assert!(circles(&graph(d.path())).is_empty());
+}
+
+/// Plugins are written against the fusion crate alone: no plugin depends (normally, as a build
+/// or as a dev dependency) on the detector runtime, the dataset or the study, nor on another
+/// plugin.
+#[test]
+fn plugins_depend_on_the_fusion_crate_only() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut seen = 0;
+    for p in std::fs::read_dir(root.join("plugins")).unwrap() {
+        let manifest = p.unwrap().path().join("Cargo.toml");
+        let Ok(text) = std::fs::read_to_string(&manifest) else { continue };
+        let doc: toml::Table = text.parse().unwrap();
+        for section in ["dependencies", "dev-dependencies", "build-dependencies"] {
+            let Some(deps) = doc.get(section).and_then(|d| d.as_table()) else { continue };
+            let hilo: Vec<&String> = deps.keys().filter(|k| k.starts_with("hilo")).collect();
+            assert!(
+                hilo.iter().all(|k| *k == "hilo-fusion" || *k == "hilo-core"),
+                "{}: [{section}] names {hilo:?}; a plugin depends on hilo-fusion (and hilo-core) only",
+                manifest.display()
+            );
+        }
+        seen += 1;
+    }
+    assert!(seen >= 4, "found {seen} plugin crates");
 }

@@ -513,7 +513,7 @@ pub struct TrainRow {
     pub background_removed: bool,
     /// Radar static clutter dropped (fusion presets only).
     pub radar_clutter_removed: bool,
-    /// Rare road users pasted into training frames ([`hilo_fusion::paste`]).
+    /// Rare road users pasted into training frames ([`hilo_detector::paste`]).
     pub ground_truth_paste: bool,
     pub batch: usize,
     /// Data-parallel replicas of a step, and how many of them ran at once here.
@@ -582,14 +582,14 @@ pub fn train(
     steps: usize,
     overrides: &[(String, serde_json::Value)],
 ) -> Result<TrainReport> {
-    use hilo_fusion::data::{LoadOptions, load_split};
-    use hilo_fusion::detector::Detector;
+    use hilo_detector::data::{LoadOptions, load_split};
+    use hilo_detector::detector::Detector;
     use std::sync::atomic::Ordering;
     let registry = crate::registry()?;
     let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")
         .with_context(|| format!("opening dataset {}", data.display()))?;
     // The device training runs on: the first GPU when built with `cuda`, else the CPU.
-    let device = hilo_fusion::default_device();
+    let device = hilo_detector::default_device();
     let peak = matmul_peak(&device)?;
     let mut rows = Vec::new();
     for name in presets {
@@ -635,15 +635,15 @@ pub fn train(
             *b = serde_json::to_value(&det_cfg.backbone)?;
         }
         cfg.validate().with_context(|| format!("bench train {name}"))?;
-        let background = hilo_fusion::train::learn_background(&ds, "train", &det_cfg.input)?;
+        let background = hilo_detector::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
         let det = Detector::new(&det_cfg, &registry, &device, 0)?;
         // Warm-up steps (allocator, caches), then the timed ones.
-        hilo_fusion::train::time_steps(&det, &frames, &cfg, 3)?;
-        hilo_fusion::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
-        let t = hilo_fusion::train::time_steps(&det, &frames, &cfg, steps)?;
-        let flops = hilo_fusion::conv::FORWARD_FLOPS.load(Ordering::Relaxed) as f64 / steps as f64;
-        let (wall_s, replicas_at_once) = hilo_fusion::train::time_replicated_steps(&det, &frames, &cfg, steps)?;
+        hilo_detector::train::time_steps(&det, &frames, &cfg, 3)?;
+        hilo_detector::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
+        let t = hilo_detector::train::time_steps(&det, &frames, &cfg, steps)?;
+        let flops = hilo_detector::conv::FORWARD_FLOPS.load(Ordering::Relaxed) as f64 / steps as f64;
+        let (wall_s, replicas_at_once) = hilo_detector::train::time_replicated_steps(&det, &frames, &cfg, steps)?;
         let per = |s: f64| 1e3 * s / steps as f64;
         let ms = BTreeMap::from([
             ("data (host: augmentation, pillars, layout, targets)", per(t.data_s)),
@@ -663,14 +663,14 @@ pub fn train(
             let mut pillars = 0usize;
             let (mut l0, mut head) = (0usize, 0usize);
             let n = 8.min(frames.len() / cfg.batch.max(1)).max(1);
-            let paste = hilo_fusion::train::paste_db(&frames, &cfg)?;
+            let paste = hilo_detector::train::paste_db(&frames, &cfg)?;
             for k in 0..n {
                 let mut chunk = frames[k * cfg.batch..((k + 1) * cfg.batch).min(frames.len())].to_vec();
                 if let Some(db) = &paste {
                     let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(k as u64);
                     chunk = chunk.iter().map(|f| db.paste(f, &mut rng)).collect();
                 }
-                let b = hilo_fusion::detector::HostBatch::new(&det_cfg, &chunk, det.uses_radar(), 0);
+                let b = hilo_detector::detector::HostBatch::new(&det_cfg, &chunk, det.uses_radar(), 0);
                 pillars += b.lidar.count() + b.radar.count();
                 if let Some(h) = &b.sparse {
                     l0 += h.sites[0].len();

@@ -29,7 +29,8 @@ pub struct StudyArgs {
     /// Seeds per detector, 1 to 100 (overrides the profile's: 3 for default and paper).
     #[arg(long, value_parser = seeds)]
     pub seeds: Option<usize>,
-    /// Presets to train (comma-separated), overriding the profile's; `*-no-early` ablations
+    /// Presets to train (comma-separated), overriding the profile's; ablations (as the plugins
+    /// register them, e.g. `lirafusion-like-no-early`)
     /// train on the study's first configuration with a radar.
     #[arg(long, value_delimiter = ',')]
     pub presets: Option<Vec<String>>,
@@ -94,11 +95,11 @@ fn embedded(source: &str) -> bool {
     source.starts_with("<embedded>")
 }
 
-fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_fusion::Registry) -> Result<hilo_study::Profile> {
+fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_detector::Registry) -> Result<hilo_study::Profile> {
     let mut profile = hilo_study::profile(&args.profile, study, registry)?;
     if let Some(p) = &args.presets {
-        profile.presets = p.iter().filter(|x| !x.ends_with("-no-early")).cloned().collect();
-        profile.ablations = p.iter().filter(|x| x.ends_with("-no-early")).cloned().collect();
+        let (ablations, presets) = p.iter().cloned().partition(|x| registry.ablation_of(x).is_some());
+        (profile.presets, profile.ablations) = (presets, ablations);
     }
     if let Some(s) = args.seeds {
         profile.seeds = s;
@@ -115,7 +116,7 @@ fn load(path: Option<&Path>) -> Result<Loaded> {
 }
 
 /// The study and plan a folder records, checked against the study file as it is now.
-fn open_folder(out: &Path, registry: &hilo_fusion::Registry) -> Result<(Study, Plan)> {
+fn open_folder(out: &Path, registry: &hilo_detector::Registry) -> Result<(Study, Plan)> {
     let record = FolderRecord::read(out)?;
     let study = if embedded(&record.study) {
         load_study(None)?
@@ -169,7 +170,12 @@ fn snakemake(args: &StudyArgs) -> Result<bool> {
 }
 
 /// A study of one scene and catalog: run in-process, or written as a workflow.
-fn one_study(args: &StudyArgs, study: &Study, registry: &hilo_fusion::Registry, reporter: &mut Reporter) -> Result<()> {
+fn one_study(
+    args: &StudyArgs,
+    study: &Study,
+    registry: &hilo_detector::Registry,
+    reporter: &mut Reporter,
+) -> Result<()> {
     let profile = profile_of(args, study, registry)?;
     match snakemake(args)? {
         false => {

@@ -1,9 +1,9 @@
 //! `hilo train` and `hilo detect`.
 
 use anyhow::{Context, Result, bail};
-use hilo_fusion::Registry;
-use hilo_fusion::data::LoadOptions;
-use hilo_fusion::train::{StepReport, TrainConfig};
+use hilo_detector::Registry;
+use hilo_detector::data::LoadOptions;
+use hilo_detector::train::{StepReport, TrainConfig};
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -16,16 +16,15 @@ pub struct TrainArgs {
     pub version: String,
     #[arg(long, default_value = "train")]
     pub split: String,
-    /// Detector preset: centerpoint, pointpillars (LiDAR only); pointpillars-lr, l4dr-like,
-    /// lirafusion-like, bi-lrfusion-like, late (LiDAR + radar).
+    /// Detector preset or ablation, as the plugins register them: centerpoint, pointpillars
+    /// (LiDAR only); pointpillars-lr, l4dr-like, lirafusion-like, bi-lrfusion-like, late
+    /// (LiDAR + radar); l4dr-like-no-early, lirafusion-like-no-early (the paper's ablation).
+    /// An unknown name lists the known ones.
     #[arg(long, default_value = "centerpoint")]
     pub detector: String,
-    /// Remove the early fusion stage (l4dr-like, lirafusion-like): the paper's ablation.
-    #[arg(long)]
-    pub no_early: bool,
     /// A detector of one's own: a JSON file with the fields of run.json's "detector" (grid,
     /// backbone, head, fusion plugin and its config); replaces --detector.
-    #[arg(long, conflicts_with_all = ["detector", "no_early"])]
+    #[arg(long, conflicts_with = "detector")]
     pub detector_config: Option<PathBuf>,
     /// A training schedule: a JSON file with any fields of run.json's "train" (the rest keep
     /// the preset's default schedule); --samples, --batch and --seed override it.
@@ -49,12 +48,10 @@ pub fn registry() -> Result<Registry> {
     Ok(hilo::registry()?)
 }
 
-/// A preset by name, optionally without its early stage (the paper's ablation), and its
-/// default training schedule.
-pub fn detector(registry: &Registry, name: &str, no_early: bool) -> Result<(hilo_fusion::DetectorConfig, TrainConfig)> {
+/// A preset (or ablation) by name, and its default training schedule.
+pub fn detector(registry: &Registry, name: &str) -> Result<(hilo_detector::DetectorConfig, TrainConfig)> {
     let p = registry.preset(name)?;
-    let det = if no_early { hilo_fusion::detector::without_early(&p.detector)? } else { p.detector.clone() };
-    Ok((det, p.train.clone()))
+    Ok((p.detector.clone(), p.train.clone()))
 }
 
 /// A JSON file into `T`; errors name the file and serde's field and position.
@@ -79,8 +76,8 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
     let (det, base) = match &args.detector_config {
-        Some(path) => (read_json::<hilo_fusion::DetectorConfig>(path)?, TrainConfig::default()),
-        None => detector(&registry, &args.detector, args.no_early)?,
+        Some(path) => (read_json::<hilo_detector::DetectorConfig>(path)?, TrainConfig::default()),
+        None => detector(&registry, &args.detector)?,
     };
     let mut cfg = match &args.train_config {
         Some(path) => schedule(&base, &read_json::<serde_json::Value>(path)?)
@@ -100,12 +97,12 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         bail!("--batch and --samples must be at least 1 (batch {}, samples {})", cfg.batch, cfg.samples);
     }
     det.validate()?;
-    hilo_fusion::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;
-    let background = hilo_fusion::train::learn_background(&ds, &args.split, &det.input).with_context(|| {
+    hilo_detector::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;
+    let background = hilo_detector::train::learn_background(&ds, &args.split, &det.input).with_context(|| {
         format!("{}: learning the static background of split {:?}", args.data.display(), args.split)
     })?;
     let (frames, stats) =
-        hilo_fusion::data::load_split(&ds, &args.split, &LoadOptions::new(&det.input, background.as_ref()))
+        hilo_detector::data::load_split(&ds, &args.split, &LoadOptions::new(&det.input, background.as_ref()))
             .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     if background.is_some() {
         eprintln!(
@@ -123,9 +120,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
             100.0 * stats.radar_clutter_points as f64 / (stats.radar_clutter_points + stats.radar_points) as f64
         );
     }
-    if let Some(db) = hilo_fusion::train::paste_db(&frames, &cfg).context("train.paste")? {
+    if let Some(db) = hilo_detector::train::paste_db(&frames, &cfg).context("train.paste")? {
         let held: Vec<String> =
-            db.counts().iter().map(|(c, n)| format!("{} {n}", hilo_fusion::data::CLASSES[*c].name())).collect();
+            db.counts().iter().map(|(c, n)| format!("{} {n}", hilo_detector::data::CLASSES[*c].name())).collect();
         eprintln!("ground-truth paste: instances to paste from the training frames: {}", held.join(", "));
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
@@ -168,14 +165,14 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         );
         true
     };
-    let info = hilo_fusion::train::train(
+    let info = hilo_detector::train::train(
         &args.out,
         &det,
         &cfg,
         &frames,
         background.as_ref(),
         &registry,
-        &hilo_fusion::default_device(),
+        &hilo_detector::default_device(),
         &mut on_step,
     )
     .with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
@@ -188,7 +185,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         info.samples_seen,
         info.seconds,
         info.dropped_points,
-        hilo_fusion::train::weights_path(&args.out).display()
+        hilo_detector::train::weights_path(&args.out).display()
     );
     Ok(())
 }
@@ -215,18 +212,20 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     if args.batch == 0 {
         bail!("--batch must be at least 1");
     }
-    let (det, info, background) = hilo_fusion::train::load_run(&args.run, &registry()?, &hilo_fusion::default_device())
-        .with_context(|| format!("loading run {}", args.run.display()))?;
+    let (det, info, background) =
+        hilo_detector::train::load_run(&args.run, &registry()?, &hilo_detector::default_device())
+            .with_context(|| format!("loading run {}", args.run.display()))?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
-    hilo_fusion::data::check_modalities(&ds, &info.detector.name, det.uses_radar())?;
+    hilo_detector::data::check_modalities(&ds, &info.detector.name, det.uses_radar())?;
     let (frames, _) =
-        hilo_fusion::data::load_split(&ds, &args.split, &LoadOptions::new(&det.cfg.input, background.as_ref()))
+        hilo_detector::data::load_split(&ds, &args.split, &LoadOptions::new(&det.cfg.input, background.as_ref()))
             .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     let mut bar = crate::progress::Reporter::new();
     let total = frames.len();
-    let (dets, per_frame) =
-        hilo_fusion::infer::detect_frames(&det, &frames, args.batch, &mut |n| bar.task("detect", n, total, "frames"))?;
+    let (dets, per_frame) = hilo_detector::infer::detect_frames(&det, &frames, args.batch, &mut |n| {
+        bar.task("detect", n, total, "frames")
+    })?;
     bar.finish();
     let meta = serde_json::json!({ "use_camera": false, "use_lidar": true, "use_radar": det.uses_radar(), "use_map": false, "use_external": false, "detector": det.cfg.name });
     let json = hilo_eval::boxes::submission_json(&hilo_eval::boxes::from_detections(&dets), meta);

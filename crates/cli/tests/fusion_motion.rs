@@ -8,12 +8,12 @@
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use candle_core::Device;
+use hilo_detector::Registry;
+use hilo_detector::conformance::{small_grid, synthetic_frame};
+use hilo_detector::data::{Augmentation, Frame, GtBox};
+use hilo_detector::train::{TrainConfig, load_run, train};
 use hilo_eval::boxes::{EvalBox, GroundTruth, SampleInfo};
 use hilo_eval::config::DetectionConfig;
-use hilo_fusion::Registry;
-use hilo_fusion::conformance::{small_grid, synthetic_frame};
-use hilo_fusion::data::{Augmentation, Frame, GtBox};
-use hilo_fusion::train::{TrainConfig, load_run, train};
 use rand::{Rng, SeedableRng};
 
 fn frames(seed: u64, n: usize) -> Vec<Frame> {
@@ -80,7 +80,7 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
     let dir = tempfile::tempdir().unwrap();
     train(dir.path(), &cfg, &tc, train_frames, None, registry, &Device::Cpu, &mut |_| true).unwrap();
     let (det, _, _) = load_run(dir.path(), registry, &Device::Cpu).unwrap();
-    let (dets, _) = hilo_fusion::infer::detect_frames(&det, val, 4, &mut |_| {}).unwrap();
+    let (dets, _) = hilo_detector::infer::detect_frames(&det, val, 4, &mut |_| {}).unwrap();
     let dets: std::collections::BTreeMap<String, Vec<hilo_core::Detection>> = dets.into_iter().collect();
     let mut gt = GroundTruth::default();
     let mut pred = Vec::new();

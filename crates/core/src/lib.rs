@@ -8,6 +8,7 @@
 //! millimetre precision, so geometry lives in a *local* f32 frame whose origin is an f64 world
 //! point ([`LocalFrame`]); [`Pose`] keeps f64 and converts once.
 
+pub mod background;
 mod boxes;
 mod class;
 mod frame;

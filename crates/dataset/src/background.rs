@@ -29,61 +29,7 @@ use hilo_core::LidarPoint;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-/// How the background is learned and applied.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct BackgroundConfig {
-    /// Width of an azimuth bin, degrees: every LiDAR's resolution should be a whole multiple.
-    pub azimuth_bin_deg: f32,
-    /// Training frames the model is learned from, sampled evenly over the split.
-    pub frames: usize,
-    /// Quantile of a cell's returned ranges taken as its background.
-    pub quantile: f32,
-    /// A cell returning in fewer than this share of the frames has no background.
-    pub min_return_share: f32,
-    /// A point within `margin_m + margin_rel · range` of the background is background.
-    pub margin_m: f32,
-    pub margin_rel: f32,
-}
-
-impl Default for BackgroundConfig {
-    fn default() -> Self {
-        BackgroundConfig {
-            azimuth_bin_deg: 0.05,
-            frames: 120,
-            quantile: 0.9,
-            min_return_share: 0.05,
-            margin_m: 0.15,
-            margin_rel: 0.005,
-        }
-    }
-}
-
-impl BackgroundConfig {
-    pub fn validate(&self) -> Result<(), DatasetError> {
-        let bad = |f: &str, v: String, why: &str| Err(DatasetError::Invalid(format!("background.{f} = {v}: {why}")));
-        if !(self.azimuth_bin_deg > 0.0 && self.azimuth_bin_deg <= 10.0) {
-            return bad("azimuth_bin_deg", self.azimuth_bin_deg.to_string(), "must be in (0, 10]");
-        }
-        if self.frames == 0 {
-            return bad("frames", "0".into(), "at least one frame is needed");
-        }
-        if !(self.quantile > 0.0 && self.quantile <= 1.0) {
-            return bad("quantile", self.quantile.to_string(), "must be in (0, 1]");
-        }
-        if !(0.0..=1.0).contains(&self.min_return_share) {
-            return bad("min_return_share", self.min_return_share.to_string(), "must be in [0, 1]");
-        }
-        if !(self.margin_m >= 0.0 && self.margin_rel >= 0.0 && self.margin_m.is_finite() && self.margin_rel < 1.0) {
-            return bad("margin_m / margin_rel", format!("{} / {}", self.margin_m, self.margin_rel), "must be >= 0");
-        }
-        Ok(())
-    }
-
-    fn bins(&self) -> usize {
-        (360.0 / self.azimuth_bin_deg).round().max(1.0) as usize
-    }
-}
+pub use hilo_core::background::BackgroundConfig;
 
 /// The background of one LiDAR channel: a range per (ring, azimuth bin), 0 where none.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -195,7 +141,7 @@ impl BackgroundModel {
         frames: &BTreeMap<String, Vec<Vec<LidarPoint>>>,
         cfg: &BackgroundConfig,
     ) -> Result<BackgroundModel, DatasetError> {
-        cfg.validate()?;
+        cfg.validate().map_err(DatasetError::Invalid)?;
         let channels = frames
             .iter()
             .map(|(ch, clouds)| {
@@ -209,7 +155,7 @@ impl BackgroundModel {
 
     /// Learns the model from `cfg.frames` samples spread evenly over the scenes of `split`.
     pub fn learn(ds: &Dataset, split: &str, cfg: &BackgroundConfig) -> Result<BackgroundModel, DatasetError> {
-        cfg.validate()?;
+        cfg.validate().map_err(DatasetError::Invalid)?;
         let t = &ds.tables;
         let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
         let scene_tokens: std::collections::HashSet<&str> =

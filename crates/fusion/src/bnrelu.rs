@@ -15,7 +15,7 @@
 //! candle's tensor operations (`bn_relu_composite`, statistics in f64 on the device, the
 //! gradient's path through them in a copy-forward node's backward pass), also tested against it.
 //!
-//! Data-parallel training ([`crate::train`]) runs the replicas of a step side by side on one set
+//! Data-parallel training (the detector crate's `train`) runs the replicas of a step side by side on one set
 //! of variables; only the first replica updates the running statistics (as multi-GPU training
 //! keeps the first rank's), the others run inside [`with_running_stats_frozen`]. A plugin that
 //! normalises with candle-nn's `BatchNorm` directly instead of [`bn_relu`] (or the modules built
@@ -182,7 +182,7 @@ const PARTED: &str = "synchronised BatchNorm: the replicas parted";
 
 /// Whether an error message is a replica's report that the others left the exchange (the
 /// consequence of another replica's failure or of networks that took different paths).
-pub(crate) fn is_parting(message: &str) -> bool {
+pub fn is_parting(message: &str) -> bool {
     message.contains(PARTED)
 }
 

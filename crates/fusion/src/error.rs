@@ -5,14 +5,22 @@ use std::path::PathBuf;
 pub enum FusionError {
     #[error("tensor computation: {0}")]
     Candle(#[from] candle_core::Error),
+    /// An error of the dataset a detector reads (the detector crate's data loading).
     #[error(transparent)]
-    Dataset(#[from] hilo_dataset::DatasetError),
+    Dataset(Box<dyn std::error::Error + Send + Sync>),
     #[error("cannot read or write {path}: {message}")]
     Io { path: PathBuf, message: String },
     #[error("{0}")]
     Config(String),
     #[error("checkpoint {path}: {message}")]
     Checkpoint { path: PathBuf, message: String },
+}
+
+impl FusionError {
+    /// Wraps an error of the dataset layer, keeping it as the source.
+    pub fn dataset(e: impl std::error::Error + Send + Sync + 'static) -> Self {
+        FusionError::Dataset(Box::new(e))
+    }
 }
 
 pub type Result<T> = std::result::Result<T, FusionError>;

@@ -11,13 +11,11 @@
 //! (a preset names the plugin, its config and the rest of the detector, and its training
 //! schedule). Registering a name twice is an error; asking for an unknown name lists the known.
 
-use crate::decode::DecodeConfig;
-use crate::detector::DetectorConfig;
+use crate::config::{DetectorConfig, Preset};
 use crate::error::{FusionError, Result};
 use crate::grid::BevGrid;
 use crate::layout::Layout;
 use crate::modules::{PillarNet, PillarTensors};
-use crate::train::TrainConfig;
 use candle_core::Tensor;
 use candle_nn::VarBuilder;
 use hilo_core::Detection;
@@ -119,19 +117,14 @@ pub struct Plugin {
     pub build: Builder,
 }
 
-/// A named detector and its default training schedule.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Preset {
-    pub detector: DetectorConfig,
-    pub train: TrainConfig,
-}
-
 /// Plugins and presets by name.
 #[derive(Clone, Debug, Default)]
 pub struct Registry {
     plugins: BTreeMap<String, Plugin>,
     /// In registration order.
     presets: Vec<Preset>,
+    /// Ablation preset → the preset it ablates.
+    ablations: BTreeMap<String, String>,
 }
 
 impl Registry {
@@ -175,6 +168,37 @@ impl Registry {
         }
         self.presets.push(p);
         Ok(())
+    }
+
+    /// Adds an ablation: a preset that removes a part of the preset `of` (registered
+    /// before), declared by the plugin that knows what the part is. Studies train ablations on
+    /// one rig only, against the preset they ablate.
+    pub fn add_ablation(&mut self, of: &str, p: Preset) -> Result<()> {
+        self.preset(of)?;
+        let name = p.detector.name.clone();
+        self.add_preset(p)?;
+        self.ablations.insert(name, of.to_owned());
+        Ok(())
+    }
+
+    /// The preset an ablation ablates (`None` for a preset that is not an ablation).
+    pub fn ablation_of(&self, name: &str) -> Option<&str> {
+        self.ablations.get(name).map(String::as_str)
+    }
+
+    /// The ablations of a preset, in name order.
+    pub fn ablations_of(&self, of: &str) -> Vec<String> {
+        self.ablations.iter().filter(|(_, base)| base.as_str() == of).map(|(a, _)| a.clone()).collect()
+    }
+
+    /// Every ablation's name, in name order.
+    pub fn ablation_names(&self) -> Vec<String> {
+        self.ablations.keys().cloned().collect()
+    }
+
+    /// The presets that are not ablations, in registration order.
+    pub fn detector_names(&self) -> Vec<String> {
+        self.presets.iter().map(|p| p.detector.name.clone()).filter(|n| !self.ablations.contains_key(n)).collect()
     }
 
     /// Plugin names.
@@ -240,7 +264,7 @@ pub struct LidarOnly {
 
 fn build_lidar_only(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     let c: LidarOnlyConfig = parse_config("lidar", cfg)?;
-    let net = PillarNet::new(crate::data::LIDAR_FEATURES + 5, c.channels, vb.pp("lidar_pfn"))?;
+    let net = PillarNet::new(crate::config::LIDAR_FEATURES + 5, c.channels, vb.pp("lidar_pfn"))?;
     Ok(Box::new(LidarOnly { net }))
 }
 
@@ -253,7 +277,30 @@ impl Fusion for LidarOnly {
     }
 }
 
-/// Decode settings shared by presets with an anchor-free dense head.
-pub fn dense_head_decode() -> DecodeConfig {
-    DecodeConfig { score_threshold: 0.1, ..DecodeConfig::default() }
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    fn named(name: &str) -> Preset {
+        let mut p = crate::presets::lidar_only().remove(0);
+        p.detector.name = name.into();
+        p
+    }
+
+    #[test]
+    fn ablations_name_the_preset_they_ablate_and_are_kept_apart() {
+        let mut r = Registry::with_builtin();
+        r.add_ablation("centerpoint", named("centerpoint-thin")).unwrap();
+        assert_eq!(r.ablation_of("centerpoint-thin"), Some("centerpoint"));
+        assert_eq!(r.ablation_of("centerpoint"), None);
+        assert_eq!(r.ablations_of("centerpoint"), vec!["centerpoint-thin".to_string()]);
+        assert_eq!(r.detector_names(), vec!["centerpoint".to_string(), "pointpillars".to_string()]);
+        assert!(r.preset_names().contains(&"centerpoint-thin".to_string()));
+        // An ablation of a preset nobody registered, or a name taken, is refused.
+        let e = r.add_ablation("no-such", named("x")).unwrap_err().to_string();
+        assert!(e.contains("no-such"), "{e}");
+        assert!(r.add_ablation("centerpoint", named("pointpillars")).is_err());
+        assert_eq!(r.ablation_names(), vec!["centerpoint-thin".to_string()]);
+    }
 }

@@ -63,3 +63,8 @@ impl BevGrid {
         Ok(())
     }
 }
+
+/// A 32 × 32 grid of 0.8 m pillars: small enough for tests.
+pub fn small_grid() -> BevGrid {
+    BevGrid { half_extent_m: 12.8, cell_m: 0.8, max_pillars: 2000, ..BevGrid::default() }
+}

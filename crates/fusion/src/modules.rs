@@ -3,9 +3,9 @@
 //! either [`Layout`]: dense maps, or the occupied sites only.
 
 use crate::conv::Conv;
-use crate::data::Pillars;
 use crate::error::{FusionError, Result};
 use crate::layout::{At, Layout};
+use crate::pillars::Pillars;
 use candle_core::{Device, Tensor};
 use candle_nn::{BatchNorm, BatchNormConfig, Linear, Module, VarBuilder};
 use serde::{Deserialize, Serialize};
@@ -632,7 +632,7 @@ mod tests {
     /// between. And the packed rows are the mask's real slots.
     #[test]
     fn pillar_net_on_real_points_equals_the_padded_form() {
-        let grid = crate::conformance::small_grid();
+        let grid = crate::grid::small_grid();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
         // A dense clump (full pillars), a sparse spread (one point per pillar), and between.
         let mut pts: Vec<[f32; 4]> = (0..60)
@@ -642,7 +642,7 @@ mod tests {
             .collect();
         pts.extend((0..25).map(|k| [-10.0 + 0.81 * k as f32, -6.0 + 0.1 * k as f32, 0.5, 0.9]));
         pts.extend((0..30).map(|_| [rng.random_range(4.0f32..6.4), rng.random_range(-3.0f32..-1.4), 0.2, 0.1]));
-        let pillars = crate::data::pillarize(&grid, &[&pts], 3);
+        let pillars = crate::pillars::pillarize(&grid, &[&pts], 3);
         assert!(pillars.dropped_points > 0, "some pillar is over its cap");
         let dev = Device::Cpu;
         let p = PillarTensors::new(&pillars, None, &dev).unwrap();

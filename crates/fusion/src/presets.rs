@@ -2,16 +2,13 @@
 //! the sparse layout and the backbone shapes. Fusion presets are registered by their plugin
 //! crates, on top of these.
 
-use crate::data::InputConfig;
-use crate::decode::DecodeConfig;
-use crate::detector::{DetectorConfig, LossNorm};
-use crate::fusion::Preset;
+use crate::config::{
+    Assignment, DecodeConfig, DetectorConfig, InputConfig, LossNorm, Preset, RadarClutterConfig, TrainConfig,
+};
 use crate::grid::BevGrid;
 use crate::layout::SparseConfig;
 use crate::modules::{BackboneConfig, BlockConfig};
-use crate::targets::Assignment;
-use crate::train::TrainConfig;
-use hilo_dataset::background::BackgroundConfig;
+use hilo_core::background::BackgroundConfig;
 
 fn block(stride: usize, channels: usize, layers: usize) -> BlockConfig {
     BlockConfig { stride, channels, layers }
@@ -22,7 +19,7 @@ fn block(stride: usize, channels: usize, layers: usize) -> BlockConfig {
 pub fn default_input() -> InputConfig {
     InputConfig {
         background: Some(BackgroundConfig::default()),
-        radar_clutter: Some(crate::data::RadarClutterConfig::default()),
+        radar_clutter: Some(RadarClutterConfig::default()),
         ..InputConfig::default()
     }
 }
@@ -76,7 +73,7 @@ pub fn pointpillars() -> DetectorConfig {
         },
         assignment: Assignment::Inside,
         head_channels: 0,
-        decode: crate::fusion::dense_head_decode(),
+        decode: dense_head_decode(),
         ..centerpoint()
     }
 }
@@ -117,4 +114,9 @@ pub fn lidar_only() -> Vec<Preset> {
         Preset { detector: centerpoint(), train: centerpoint_schedule() },
         Preset { detector: pointpillars(), train: TrainConfig::default() },
     ]
+}
+
+/// Decode settings shared by presets with an anchor-free dense head.
+pub fn dense_head_decode() -> DecodeConfig {
+    DecodeConfig { score_threshold: 0.1, ..DecodeConfig::default() }
 }

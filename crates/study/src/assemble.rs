@@ -14,10 +14,10 @@ use crate::stages::{DataRecord, JobOutput, Predictions, Progress, ResultMeta};
 use crate::stats::{Scores, scene_draws};
 use crate::study::Study;
 use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, adjust};
+use hilo_detector::Registry;
+use hilo_detector::data::{Frame, LoadOptions, load_split_frame};
 use hilo_eval::bootstrap::Reweighable;
 use hilo_eval::{DetectionConfig, EvalBox, GroundTruth};
-use hilo_fusion::Registry;
-use hilo_fusion::data::{Frame, LoadOptions, load_split_frame};
 use hilo_placement_ip::Placement;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -231,7 +231,7 @@ pub fn assemble(
         // The picture: the middle validation frame as the first detector's input reads it.
         if let Some(job) = jobs.first() {
             let background = match &job.detector.input.background {
-                Some(_) => Some(read_json(&hilo_fusion::train::background_path(&job.run))?),
+                Some(_) => Some(read_json(&hilo_detector::train::background_path(&job.run))?),
                 None => None,
             };
             let lo = LoadOptions::new(&job.detector.input, background.as_ref());
@@ -305,11 +305,14 @@ pub fn assemble(
         .chain(&prof.ablations)
         .filter_map(|p| registry.preset(p).ok().map(|x| (p.clone(), registry.uses_radar(&x.detector))))
         .collect();
+    let ablation_of: BTreeMap<String, String> =
+        prof.ablations.iter().filter_map(|a| registry.ablation_of(a).map(|of| (a.clone(), of.to_owned()))).collect();
     let design = Design {
         scores: &det_scores,
         configurations: &conf_roles,
         presets: &prof.presets,
         ablations: &prof.ablations,
+        ablation_of: &ablation_of,
         uses_radar: &uses,
         scenes: scenes.len(),
         level: 0.95,

@@ -18,7 +18,7 @@ pub enum StudyError {
     #[error(transparent)]
     Dataset(#[from] hilo_dataset::DatasetError),
     #[error(transparent)]
-    Fusion(#[from] hilo_fusion::FusionError),
+    Fusion(#[from] hilo_detector::FusionError),
     #[error(transparent)]
     Eval(#[from] hilo_eval::EvalError),
     #[error("drawing {what}: {message}")]

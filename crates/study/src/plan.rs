@@ -14,8 +14,8 @@ use crate::error::{Result, StudyError};
 use crate::files::{hash, read_json, write_json};
 use crate::profile::Profile;
 use crate::study::{Configuration, Study};
-use hilo_fusion::train::TrainConfig;
-use hilo_fusion::{DetectorConfig, Registry};
+use hilo_detector::train::TrainConfig;
+use hilo_detector::{DetectorConfig, Registry};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

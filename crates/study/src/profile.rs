@@ -5,8 +5,8 @@
 use crate::error::{Result, StudyError};
 use crate::study::Study;
 use hilo_dataset::simulate::SimulateConfig;
-use hilo_fusion::Registry;
-use hilo_fusion::train::Sampling;
+use hilo_detector::Registry;
+use hilo_detector::train::Sampling;
 use serde::{Deserialize, Serialize};
 
 /// The scale of a study.
@@ -46,8 +46,8 @@ pub struct Profile {
 /// `tiny` (seconds; for tests).
 pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile> {
     let base = study.file.dataset.clone();
-    let fusion_presets: Vec<String> =
-        registry.preset_names().into_iter().filter(|n| !n.ends_with("-no-early")).collect();
+    // Every detector and every ablation the plugins register, for the paper profile.
+    let (detectors, ablations) = (registry.detector_names(), registry.ablation_names());
     let p = match name {
         "quick" => Profile {
             name: name.into(),
@@ -68,7 +68,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             name: name.into(),
             dataset: base,
             presets: vec!["centerpoint".into(), "lirafusion-like".into()],
-            ablations: vec!["lirafusion-like-no-early".into()],
+            ablations: registry.ablations_of("lirafusion-like"),
             configurations: Some(3),
             seeds: 3,
             train_samples: Some(6_000),
@@ -82,8 +82,8 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
         "paper" => Profile {
             name: name.into(),
             dataset: SimulateConfig { scenes: 30, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, val_scenes: 20, ..base },
-            presets: fusion_presets,
-            ablations: vec!["l4dr-like-no-early".into(), "lirafusion-like-no-early".into()],
+            presets: detectors,
+            ablations,
             configurations: None,
             seeds: 3,
             train_samples: None,

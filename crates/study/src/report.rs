@@ -55,7 +55,7 @@ fn to_box(b: &EvalBox) -> Box3 {
 /// missed), detections with score ≥ 0.3 (blue when within 2 m of a same-class box, red when
 /// false).
 fn detection_png(
-    frame: &hilo_fusion::data::Frame,
+    frame: &hilo_detector::data::Frame,
     key: &str,
     gboxes: &[EvalBox],
     preds: &[(String, Vec<EvalBox>)],

@@ -17,7 +17,7 @@ use crate::profile::Profile;
 use crate::stages::{self, JobOutput, Progress};
 use crate::study::Study;
 use crate::sweep::Sweep;
-use hilo_fusion::Registry;
+use hilo_detector::Registry;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;

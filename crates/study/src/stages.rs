@@ -10,10 +10,10 @@ use crate::place::{Placed, place_all, prepare_study, write_placements};
 use crate::plan::{Job, Plan};
 use crate::study::Study;
 use hilo_dataset::background::BackgroundModel;
+use hilo_detector::Registry;
+use hilo_detector::data::{Frame, LoadOptions, load_split};
+use hilo_detector::train::{learn_background, load_run_at, train};
 use hilo_eval::EvalBox;
-use hilo_fusion::Registry;
-use hilo_fusion::data::{Frame, LoadOptions, load_split};
-use hilo_fusion::train::{learn_background, load_run_at, train};
 use hilo_placement_ip::Placement;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -170,7 +170,7 @@ pub fn train_job(job: &Job, loaded: &Loaded, registry: &Registry, tick: &(dyn Fn
         &loaded.train,
         loaded.background.as_ref(),
         registry,
-        &hilo_fusion::default_device(),
+        &hilo_detector::default_device(),
         &mut |r| {
             if r.step % 25 == 0 || r.step == steps {
                 tick(r.step as f64 / steps.max(1) as f64);
@@ -182,8 +182,8 @@ pub fn train_job(job: &Job, loaded: &Loaded, registry: &Registry, tick: &(dyn Fn
         StudyError::Invalid(format!("training {} (seed {}) in {}: {e}", job.preset, job.seed, job.run.display()))
     })?;
     let detect = |samples: Option<usize>, path: &std::path::Path| -> Result<(Predictions, f64, usize)> {
-        let (det, _, _) = load_run_at(&job.run, registry, &hilo_fusion::default_device(), samples)?;
-        let (dets, per_frame) = hilo_fusion::infer::detect_frames(&det, &loaded.val, 4, &mut |_| {})?;
+        let (det, _, _) = load_run_at(&job.run, registry, &hilo_detector::default_device(), samples)?;
+        let (dets, per_frame) = hilo_detector::infer::detect_frames(&det, &loaded.val, 4, &mut |_| {})?;
         let mut pred = hilo_eval::boxes::from_detections(&dets);
         pred.sort_by(|a, b| a.0.cmp(&b.0));
         write_json(path, &hilo_eval::boxes::submission_json(&pred, serde_json::json!({ "detector": det.cfg.name })))?;

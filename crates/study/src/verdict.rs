@@ -103,6 +103,8 @@ pub struct Design<'a> {
     /// Presets trained on every configuration, in order; and ablations (cheapest only).
     pub presets: &'a [String],
     pub ablations: &'a [String],
+    /// The preset each ablation ablates (as its plugin registered it).
+    pub ablation_of: &'a BTreeMap<String, String>,
     /// Which presets read radar.
     pub uses_radar: &'a BTreeMap<String, bool>,
     pub scenes: usize,
@@ -251,7 +253,8 @@ impl Design<'_> {
         claims.push(c3);
         // 4. The early-fusion ablation.
         let st4 = "Early fusion helps: the detector with it beats the same detector without it";
-        let ablation = fusion.map(|f| format!("{f}-no-early")).filter(|a| self.ablations.contains(a));
+        let ablation = fusion
+            .and_then(|f| self.ablations.iter().find(|a| self.ablation_of.get(*a).is_some_and(|of| of == f)).cloned());
         let c4 = match (cheap, fusion, ablation) {
             (Some(c), Some(f), Some(a)) => {
                 let rows = self
@@ -265,7 +268,7 @@ impl Design<'_> {
                 "early_fusion_ablation",
                 st4,
                 vec![],
-                Some("needs the fusion preset's -no-early ablation in the profile".into()),
+                Some("needs an ablation of the fusion preset in the profile".into()),
             ),
         };
         claims.push(c4);
@@ -432,11 +435,13 @@ mod tests {
             BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true), ("lf-no-early".to_string(), true)]);
         let presets = vec!["cp".to_string(), "lf".to_string()];
         let ablations = vec!["lf-no-early".to_string()];
+        let ablation_of = BTreeMap::from([("lf-no-early".to_string(), "lf".to_string())]);
         let d = Design {
             scores: &scores,
             configurations: &configurations,
             presets: &presets,
             ablations: &ablations,
+            ablation_of: &ablation_of,
             uses_radar: &uses,
             scenes: 20,
             level: 0.95,

@@ -3,9 +3,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use hilo_fusion::modules::PillarNet;
-use hilo_fusion::train::TrainConfig;
-use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Stage};
+use hilo_detector::modules::PillarNet;
+use hilo_detector::train::TrainConfig;
+use hilo_detector::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Stage};
 use hilo_study::{Progress, RunOptions, Study};
 use std::path::Path;
 
@@ -19,10 +19,10 @@ struct Sum {
 
 fn build(
     _: &serde_json::Value,
-    _: &hilo_fusion::grid::BevGrid,
+    _: &hilo_detector::grid::BevGrid,
     vb: candle_nn::VarBuilder,
-) -> hilo_fusion::Result<Box<dyn Fusion>> {
-    use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES};
+) -> hilo_detector::Result<Box<dyn Fusion>> {
+    use hilo_detector::data::{LIDAR_FEATURES, RADAR_FEATURES};
     Ok(Box::new(Sum {
         l: PillarNet::new(LIDAR_FEATURES + 5, 16, vb.pp("l"))?,
         r: PillarNet::new(RADAR_FEATURES + 5, 16, vb.pp("r"))?,
@@ -30,7 +30,7 @@ fn build(
 }
 
 impl Fusion for Sum {
-    fn forward(&self, x: &FusionInput, train: bool) -> hilo_fusion::Result<FusionOutput> {
+    fn forward(&self, x: &FusionInput, train: bool) -> hilo_detector::Result<FusionOutput> {
         let l = self.l.forward(x.lidar, x.layout, train)?;
         let r = self.r.forward(x.radar, x.layout, train)?;
         Ok(FusionOutput::Bev((l + r)?))
@@ -38,13 +38,13 @@ impl Fusion for Sum {
 }
 
 /// What the plugin's crate would export.
-fn register(r: &mut Registry) -> hilo_fusion::Result<()> {
+fn register(r: &mut Registry) -> hilo_detector::Result<()> {
     r.register("sum", Stage::Middle, build)?;
     let detector = DetectorConfig {
         name: "sum-net".into(),
         fusion: "sum".into(),
         fusion_config: serde_json::json!({}),
-        ..hilo_fusion::presets::centerpoint()
+        ..hilo_detector::presets::centerpoint()
     };
     r.add_preset(Preset { detector, train: TrainConfig::default() })
 }
@@ -89,7 +89,7 @@ sensors = { "lidar-32" = 1, "radar-4d" = 1 }
 fn a_plugin_written_here_joins_the_conformance_suite_and_a_study_by_one_line() {
     let mut registry = Registry::with_builtin();
     register(&mut registry).unwrap(); // the one line
-    hilo_fusion::conformance::check_plugin(&registry, "sum").unwrap();
+    hilo_detector::conformance::check_plugin(&registry, "sum").unwrap();
     let dir = tempfile::tempdir().unwrap();
     let study = Study::parse(TWO_CONFIGS, dir.path(), "two-configs.toml").unwrap();
     let report = tiny(&study, &registry, &["sum-net"], &dir.path().join("study"));

@@ -21,13 +21,12 @@
 
 use candle_core::{DType, Tensor};
 use candle_nn::{BatchNorm, Linear, Module, VarBuilder};
-use hilo_fusion::data::LIDAR_FEATURES;
-use hilo_fusion::detector::without_early;
+use hilo_fusion::config::LIDAR_FEATURES;
+use hilo_fusion::config::TrainConfig;
 use hilo_fusion::fuse::{BevFuse, FuseOp};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{PillarNet, PillarTensors};
 use hilo_fusion::presets::centerpoint;
-use hilo_fusion::train::TrainConfig;
 use hilo_fusion::{DetectorConfig, Fusion, FusionError, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 
@@ -161,6 +160,18 @@ pub fn lirafusion_like_schedule() -> TrainConfig {
     hilo_fusion::presets::plateau_schedule()
 }
 
+/// The paper's ablation: the preset without its early stage (LiDAR points no longer enter the
+/// joint encoding; radar alone does).
+pub fn without_early(cfg: &DetectorConfig) -> Result<DetectorConfig> {
+    if cfg.fusion != "early" {
+        return Err(FusionError::Config(format!("detector {} has no early fusion stage to remove", cfg.name)));
+    }
+    let mut c = cfg.clone();
+    c.fusion_config["early"] = serde_json::Value::Bool(false);
+    c.name = format!("{}-no-early", cfg.name);
+    Ok(c)
+}
+
 /// Registers `early` and its presets: `l4dr-like`, `lirafusion-like`, and each without its early
 /// stage (`*-no-early`, the paper's ablation: LiDAR and radar meet only in the middle stage, on
 /// the same schedule as the preset it ablates).
@@ -168,8 +179,9 @@ pub fn register(r: &mut Registry) -> Result<()> {
     r.register("early", Stage::Early, build)?;
     for (d, train) in [(l4dr_like(), TrainConfig::default()), (lirafusion_like(), lirafusion_like_schedule())] {
         let ablation = without_early(&d)?;
+        let of = d.name.clone();
         r.add_preset(Preset { detector: d, train: train.clone() })?;
-        r.add_preset(Preset { detector: ablation, train })?;
+        r.add_ablation(&of, Preset { detector: ablation, train })?;
     }
     Ok(())
 }
@@ -272,9 +284,9 @@ mod tests {
     use super::*;
     use candle_core::{DType, Device};
     use candle_nn::ModuleT;
-    use hilo_fusion::conformance::small_grid;
-    use hilo_fusion::data::pillarize;
+    use hilo_fusion::grid::small_grid;
     use hilo_fusion::layout::Layout;
+    use hilo_fusion::pillars::pillarize;
 
     /// Per modality and pillar, the encodings of its real points, computed on the padded
     /// features and the mask (not the packed rows the plugin reads): every slot of both

@@ -7,12 +7,12 @@
 use candle_nn::VarBuilder;
 use glam::Vec3;
 use hilo_core::{Box3, Detection};
-use hilo_fusion::data::{CLASSES, LIDAR_FEATURES, RADAR_FEATURES};
+use hilo_fusion::config::TrainConfig;
+use hilo_fusion::config::{CLASSES, LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::layout::{At, Layout};
 use hilo_fusion::modules::{Backbone, BackboneConfig, Head, PillarNet};
 use hilo_fusion::presets::centerpoint;
-use hilo_fusion::train::TrainConfig;
 use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 

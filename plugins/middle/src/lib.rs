@@ -6,12 +6,12 @@
 //! the backbone is left out to keep the backbone shared by every preset).
 
 use candle_nn::VarBuilder;
-use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES};
+use hilo_fusion::config::TrainConfig;
+use hilo_fusion::config::{LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::fuse::{BevFuse, FuseOp};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{ConvBn, PillarNet};
 use hilo_fusion::presets::centerpoint;
-use hilo_fusion::train::TrainConfig;
 use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 

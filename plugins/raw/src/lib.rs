@@ -8,11 +8,11 @@
 //! LiDAR maximum cannot hide its radar feature in a shared channel.
 
 use candle_nn::VarBuilder;
-use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES};
+use hilo_fusion::config::TrainConfig;
+use hilo_fusion::config::{LIDAR_FEATURES, RADAR_FEATURES};
 use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::PillarNet;
 use hilo_fusion::presets::pointpillars;
-use hilo_fusion::train::TrainConfig;
 use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
 use serde::{Deserialize, Serialize};
 

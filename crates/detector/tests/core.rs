@@ -5,12 +5,12 @@
 
 use candle_core::{Device, Tensor};
 use hilo_core::Class;
-use hilo_fusion::data::{Augmentation, Frame, GtBox};
-use hilo_fusion::detector::{Detector, DetectorConfig, HostBatch, LossNorm};
-use hilo_fusion::grid::BevGrid;
-use hilo_fusion::loss::{centernet_focal, per_class_mean, sigmoid_focal, softplus};
-use hilo_fusion::train::{AdamW, ReplicaPools, TrainConfig, step_pass, train};
-use hilo_fusion::{Registry, Stage};
+use hilo_detector::data::{Augmentation, Frame, GtBox};
+use hilo_detector::detector::{Detector, DetectorConfig, HostBatch, LossNorm};
+use hilo_detector::grid::BevGrid;
+use hilo_detector::loss::{centernet_focal, per_class_mean, sigmoid_focal, softplus};
+use hilo_detector::train::{AdamW, ReplicaPools, TrainConfig, step_pass, train};
+use hilo_detector::{Registry, Stage};
 use rand::{Rng, SeedableRng};
 
 /// A preset on a small grid (32 × 32 pillars of 0.8 m) so tests run in seconds, reading frames
@@ -208,7 +208,7 @@ fn one_batch_overfits() {
         let last = losses[losses.len() - 3..].iter().sum::<f32>() / 3.0;
         assert!(last * 10.0 <= first, "{name}: loss {first} → {last}");
         // And the overfit detector finds the boxes it saw.
-        let (det, _, _) = hilo_fusion::train::load_run(dir.path(), &Registry::with_builtin(), &Device::Cpu).unwrap();
+        let (det, _, _) = hilo_detector::train::load_run(dir.path(), &Registry::with_builtin(), &Device::Cpu).unwrap();
         let found = det.detect(&HostBatch::new(&cfg, &frames[..1], false, 0)).unwrap();
         let best = found[0]
             .iter()
@@ -243,8 +243,8 @@ fn checkpoints_reload_bit_identically_and_training_is_deterministic_and_resumes(
     let e = train(c.path(), &cfg, &tc, &frames[..5], None, &reg, &Device::Cpu, &mut |_| true).unwrap_err().to_string();
     assert!(e.contains("other frames"), "{e}");
     // Save → load: bit-identical outputs.
-    let (d1, _, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
-    let (d2, _, _) = hilo_fusion::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
+    let (d1, _, _) = hilo_detector::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
+    let (d2, _, _) = hilo_detector::train::load_run(a.path(), &reg, &Device::Cpu).unwrap();
     let hb = HostBatch::new(&cfg, &frames[..2], false, 0);
     let (x1, y1) = d1.forward(&hb, false).unwrap();
     let (x2, y2) = d2.forward(&hb, false).unwrap();
@@ -317,7 +317,7 @@ fn replicas_average_gradients_deterministically() {
     let mut total: Option<Tensor> = None;
     for (r, b) in batches.iter().enumerate() {
         let pass = || det.loss_all(&det.forward_heads(b, true).unwrap(), &b.targets).unwrap().total;
-        let l = if r == 0 { pass() } else { hilo_fusion::bnrelu::with_running_stats_frozen(pass) };
+        let l = if r == 0 { pass() } else { hilo_detector::bnrelu::with_running_stats_frozen(pass) };
         total = Some(match total {
             None => l,
             Some(t) => (t + l).unwrap(),
@@ -466,8 +466,8 @@ fn bad_input_is_a_clear_error() {
         _: &serde_json::Value,
         _: &BevGrid,
         _: candle_nn::VarBuilder,
-    ) -> hilo_fusion::Result<Box<dyn hilo_fusion::Fusion>> {
-        Err(hilo_fusion::FusionError::Config("unused".into()))
+    ) -> hilo_detector::Result<Box<dyn hilo_detector::Fusion>> {
+        Err(hilo_detector::FusionError::Config("unused".into()))
     }
     let e = r.register("lidar", Stage::Raw, builder).unwrap_err().to_string();
     assert!(e.contains("twice"), "{e}");
@@ -494,5 +494,5 @@ fn bad_input_is_a_clear_error() {
 /// conformance suite as the plugins' crates run on theirs.
 #[test]
 fn the_builtin_plugin_passes_the_conformance_suite() {
-    hilo_fusion::conformance::check_plugin(&Registry::with_builtin(), "lidar").unwrap();
+    hilo_detector::conformance::check_plugin(&Registry::with_builtin(), "lidar").unwrap();
 }

@@ -12,72 +12,9 @@
 //! footprint (residual clutter) make way for the instance's.
 
 use crate::data::{Frame, GtBox, LIDAR_FEATURES, RADAR_FEATURES};
-use crate::error::{FusionError, Result};
-use hilo_core::Class;
+use crate::error::Result;
+pub use hilo_fusion::config::PasteConfig;
 use rand::Rng;
-use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
-
-/// What [`PasteDb::paste`] fills a frame with.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct PasteConfig {
-    /// Class name → the number of instances a training frame is filled up to (OpenPCDet's
-    /// "sample groups"): a frame holding k of the class receives up to n − k pasted ones (fewer
-    /// where they would overlap).
-    pub fill: BTreeMap<String, usize>,
-    /// Fewest LiDAR points an instance needs to enter the database.
-    pub min_lidar_points: usize,
-    /// How far outside its box a LiDAR point still belongs to an instance (m; surface noise).
-    pub lidar_margin_m: f32,
-    /// The same for radar detections (m; the radar's position noise is larger).
-    pub radar_margin_m: f32,
-}
-
-impl Default for PasteConfig {
-    fn default() -> Self {
-        PasteConfig {
-            fill: [("bus", 2), ("truck", 2), ("golf_cart", 3), ("motorcycle", 2)]
-                .into_iter()
-                .map(|(c, n)| (c.to_string(), n))
-                .collect(),
-            min_lidar_points: 5,
-            lidar_margin_m: 0.15,
-            radar_margin_m: 0.5,
-        }
-    }
-}
-
-impl PasteConfig {
-    /// The fill as (class index, count), in class order; errors name the field and value.
-    pub fn fill_by_class(&self) -> Result<Vec<(usize, usize)>> {
-        let mut out = Vec::new();
-        for (name, &n) in &self.fill {
-            let c: Class = name.parse().map_err(|_| {
-                FusionError::Config(format!(
-                    "train.paste.fill: unknown class {name:?} (one of {})",
-                    Class::ALL.map(|c| c.name()).join(", ")
-                ))
-            })?;
-            if n > 64 {
-                return Err(FusionError::Config(format!("train.paste.fill.{name} = {n}: at most 64 per frame")));
-            }
-            out.push((c.index(), n));
-        }
-        out.sort_unstable();
-        Ok(out)
-    }
-
-    pub fn validate(&self) -> Result<()> {
-        self.fill_by_class()?;
-        for (field, v) in [("lidar_margin_m", self.lidar_margin_m), ("radar_margin_m", self.radar_margin_m)] {
-            if !(v.is_finite() && (0.0..=5.0).contains(&v)) {
-                return Err(FusionError::Config(format!("train.paste.{field} = {v}: must be within 0..=5 m")));
-            }
-        }
-        Ok(())
-    }
-}
 
 /// One instance cut from a training frame.
 #[derive(Clone, Debug, PartialEq)]
@@ -209,6 +146,7 @@ impl PasteDb {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use hilo_core::Class;
     use hilo_core::iou::{YawBox, bev_iou};
     use rand::SeedableRng;
 

@@ -3,17 +3,7 @@
 use crate::data::GtBox;
 use crate::grid::BevGrid;
 use crate::modules::REG_CHANNELS;
-
-/// How ground truth is assigned to the head's cells.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Assignment {
-    /// CenterPoint: a Gaussian peak at each box centre; regression at the centre cell.
-    Center,
-    /// Anchor-free PointPillars: every cell whose centre lies in a box footprint is positive
-    /// (the centre cell when none does) and regresses that box.
-    Inside,
-}
+pub use hilo_fusion::config::Assignment;
 
 /// Targets of a batch: class map (B, K, H, W), regression (B, 10, H, W), positive mask
 /// (B, 1, H, W), all row-major, and the number of positives, in all and per class.

@@ -10,7 +10,7 @@ mod common;
 use common::pose;
 use hilo_dataset::background::{BackgroundConfig, BackgroundModel};
 use hilo_dataset::traffic::{ActorState, Traffic, TrafficConfig};
-use hilo_fusion::data::{LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, drop_radar_clutter};
+use hilo_detector::data::{LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, drop_radar_clutter};
 use hilo_raycast::{ActorSet, QueryRegion, Scene, World};
 use hilo_sensor_models::lidar::PointSource;
 use hilo_sensor_models::{Catalog, simulate_lidar, simulate_radar};

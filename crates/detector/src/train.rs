@@ -7,87 +7,20 @@
 //! docs for how they were chosen).
 
 use crate::bnrelu::BatchNormSync;
-use crate::data::{Augmentation, Frame};
+use crate::data::Frame;
 use crate::detector::{Detector, DetectorConfig, HostBatch};
 use crate::error::{FusionError, Result};
 use crate::fusion::Registry;
-use crate::paste::{PasteConfig, PasteDb};
+use crate::paste::PasteDb;
 use candle_core::{Device, Tensor, Var};
 use hilo_dataset::background::BackgroundModel;
+pub use hilo_fusion::config::{Sampling, TrainConfig};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct TrainConfig {
-    /// Training samples to see in total (steps × batch).
-    pub samples: usize,
-    pub batch: usize,
-    pub lr_max: f64,
-    pub weight_decay: f64,
-    /// Global gradient-norm limit.
-    pub clip_norm: f64,
-    /// Share of the schedule spent warming up (one-cycle).
-    pub warmup: f64,
-    pub seed: u64,
-    pub augmentation: Augmentation,
-    pub checkpoint_steps: usize,
-    /// Which frames an epoch holds: each once, or class-balanced (CBGS).
-    #[serde(default)]
-    pub sampling: Sampling,
-    /// Samples seen at which a copy of the weights is kept (`model-<samples>.safetensors`), for
-    /// learning curves; each a multiple of `batch`.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub keep: Vec<usize>,
-    /// Ground-truth paste of rare classes ([`crate::paste`]; on by default); none (`null`):
-    /// frames as loaded, as runs saved before the field existed read it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub paste: Option<PasteConfig>,
-    /// Data-parallel replicas of each step: the batch is split into this many equal parts, each
-    /// run forward and backward on its own (on a core of its own when the thread pool has one,
-    /// else one after the other, to the same bytes), with BatchNorm statistics over its part
-    /// (the first replica's running statistics are kept) and the parts' gradients averaged in
-    /// replica order, as multi-GPU training does. Divides `batch`; 1 (runs saved before the
-    /// field existed read it) is the plain batch.
-    #[serde(default = "one", skip_serializing_if = "is_one")]
-    pub replicas: usize,
-    /// With several replicas, BatchNorm normalises over the whole batch's rows rather than each
-    /// replica's ([`crate::bnrelu::BatchNormSync`]): the replicas' speed with the batch's
-    /// statistics. The replicas then always run at once, one thread each. False (runs saved
-    /// before the field existed read it): each replica's own statistics.
-    #[serde(default, skip_serializing_if = "is_false")]
-    pub sync_batch_norm: bool,
-}
-
-fn is_false(b: &bool) -> bool {
-    !*b
-}
-
-fn one() -> usize {
-    1
-}
-
-fn is_one(n: &usize) -> bool {
-    *n == 1
-}
-
-/// How training frames are drawn.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Sampling {
-    /// Every frame once per epoch, shuffled.
-    #[default]
-    Uniform,
-    /// Class-balanced grouping and sampling (CBGS, Zhu et al. 2019, as CenterPoint trains on
-    /// nuScenes): the frames holding each class are resampled so that every class present
-    /// contributes the same number of frames to an epoch; frames with rare classes (bus,
-    /// motorcycle) repeat, frames with only cars and pedestrians are drawn less often.
-    ClassBalanced,
-}
 
 /// The frames of one epoch before shuffling: every frame once (uniform), or CBGS's
 /// class-balanced draw with replacement, deterministic in `seed`. Each class c present in
@@ -121,70 +54,6 @@ pub fn epoch_frames(frames: &[Frame], sampling: Sampling, seed: u64) -> Vec<usiz
                 }
             }
             out
-        }
-    }
-}
-
-impl Default for TrainConfig {
-    fn default() -> Self {
-        TrainConfig {
-            samples: 12_000,
-            batch: 2,
-            lr_max: 6e-3,
-            weight_decay: 0.01,
-            clip_norm: 10.0,
-            warmup: 0.3,
-            seed: 0,
-            augmentation: Augmentation::default(),
-            checkpoint_steps: 50,
-            sampling: Sampling::Uniform,
-            keep: Vec::new(),
-            paste: Some(PasteConfig::default()),
-            replicas: 1,
-            sync_batch_norm: false,
-        }
-    }
-}
-
-impl TrainConfig {
-    /// The settings' own consistency (what [`train`] and the benchmarks refuse).
-    pub fn validate(&self) -> Result<()> {
-        if self.batch == 0 || self.samples == 0 {
-            return Err(FusionError::Config(format!(
-                "train: batch = {} and samples = {} must be positive",
-                self.batch, self.samples
-            )));
-        }
-        if self.replicas == 0 || !self.batch.is_multiple_of(self.replicas) {
-            return Err(FusionError::Config(format!(
-                "train: replicas = {} must be positive and divide batch = {}",
-                self.replicas, self.batch
-            )));
-        }
-        if let Some(k) = self.keep.iter().find(|k| **k % self.batch != 0 || **k == 0 || **k > self.steps() * self.batch)
-        {
-            return Err(FusionError::Config(format!(
-                "train: keep = {k} must be a positive multiple of batch {} and at most the {} samples",
-                self.batch, self.samples
-            )));
-        }
-        Ok(())
-    }
-
-    pub fn steps(&self) -> usize {
-        self.samples.div_ceil(self.batch.max(1))
-    }
-
-    /// One-cycle learning rate at `step` (cosine up from lr_max/10, cosine down to lr_max/1e4).
-    pub fn lr(&self, step: usize) -> f64 {
-        let total = self.steps().max(1) as f64;
-        let up = (self.warmup * total).max(1.0);
-        let t = step as f64;
-        let cos = |a: f64, b: f64, f: f64| b + (a - b) * 0.5 * (1.0 + (std::f64::consts::PI * f.clamp(0.0, 1.0)).cos());
-        if t < up {
-            cos(self.lr_max / 10.0, self.lr_max, t / up)
-        } else {
-            cos(self.lr_max, self.lr_max / 1e4, (t - up) / (total - up).max(1.0))
         }
     }
 }
@@ -394,9 +263,9 @@ fn step_frames(
                 let mut prng = rand_chacha::ChaCha8Rng::seed_from_u64(
                     cfg.seed.wrapping_add(1 + k as u64).wrapping_mul(0x94d0_49bb_1331_11eb),
                 );
-                out.push(cfg.augmentation.apply(&db.paste(frame, &mut prng), &mut rng));
+                out.push(crate::data::augment(&cfg.augmentation, &db.paste(frame, &mut prng), &mut rng));
             }
-            None => out.push(cfg.augmentation.apply(frame, &mut rng)),
+            None => out.push(crate::data::augment(&cfg.augmentation, frame, &mut rng)),
         }
     }
     out
@@ -832,7 +701,7 @@ pub fn learn_background(
 ) -> Result<Option<BackgroundModel>> {
     match &input.background {
         None => Ok(None),
-        Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, cfg)?)),
+        Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, cfg).map_err(FusionError::dataset)?)),
     }
 }
 

@@ -8,7 +8,7 @@ use glam::{Vec2, Vec3};
 use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
 use hilo_dataset::Dataset;
 use hilo_dataset::writer::{Annotation, DatasetWriter, FrameData, RadarSweep, SceneData, SensorModality, SensorSetup};
-use hilo_fusion::data::{LoadOptions, load_split, load_split_frame};
+use hilo_detector::data::{LoadOptions, load_split, load_split_frame};
 use hilo_sensor_models::SensorPose;
 
 /// A radar point whose RCS encodes the sweep it came from.

@@ -1,122 +1,23 @@
 //! A detector: a fusion stage (from the registry), the shared BEV backbone and a head; host-side
 //! batches; losses and decoding; checkpoints.
 
-use crate::data::{CLASSES, Frame, GtBox, InputConfig, LIDAR_FEATURES, Pillars, RADAR_FEATURES, pillarize};
-use crate::decode::{DecodeConfig, Peaks, decode};
+use crate::data::{CLASSES, Frame, GtBox, LIDAR_FEATURES, Pillars, RADAR_FEATURES, pillarize};
+use crate::decode::{Peaks, decode};
 use crate::error::{FusionError, Result};
 use crate::fusion::{Fusion, FusionInput, FusionOutput, Registry};
-use crate::grid::BevGrid;
-use crate::layout::{At, Layout, SparseConfig, SparseHost};
+use crate::layout::{At, Layout, SparseHost};
 use crate::loss::{
     centernet_focal, centernet_focal_terms, masked_l1, per_class_mean, sigmoid_focal, sigmoid_focal_terms,
 };
-use crate::modules::{Backbone, BackboneConfig, Head, PillarTensors, REG_CHANNELS};
+use crate::modules::{Backbone, Head, PillarTensors, REG_CHANNELS};
 use crate::targets::{Assignment, Targets};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use hilo_core::Detection;
+pub use hilo_fusion::config::{DetectorConfig, LossNorm};
 use rand::{Rng, SeedableRng};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::path::Path;
-
-/// Everything that defines a detector's architecture and what it reads.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DetectorConfig {
-    /// Preset name (for reports).
-    pub name: String,
-    /// Registered fusion plugin and its config.
-    pub fusion: String,
-    pub fusion_config: serde_json::Value,
-    pub grid: BevGrid,
-    pub backbone: BackboneConfig,
-    pub assignment: Assignment,
-    /// Hidden channels of the head's per-task 3×3 convolutions (0: 1×1 outputs only).
-    pub head_channels: usize,
-    pub decode: DecodeConfig,
-    /// What the network reads: background removal, radar sweeps.
-    #[serde(default)]
-    pub input: InputConfig,
-    /// Compute on the occupied cells only (`None`: dense maps over the whole grid).
-    #[serde(default)]
-    pub sparse: Option<SparseConfig>,
-    /// What the losses are normalised by (detectors saved before the field existed read
-    /// [`LossNorm::All`]).
-    #[serde(default, skip_serializing_if = "LossNorm::is_all")]
-    pub loss_norm: LossNorm,
-}
-
-/// What a batch's classification and regression losses are divided by.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum LossNorm {
-    /// The number of positives of all classes (CenterNet, PointPillars): each class weighs in
-    /// as often as it occurs, so rare classes move the weights least.
-    #[default]
-    All,
-    /// Each class by its own positives and the classes averaged (CenterPoint's per-task heads,
-    /// one task per class): a bus counts as much as all the cars of the batch together. A class
-    /// without positives in the batch is normalised by 1, its false positives still penalised.
-    PerClass,
-}
-
-impl LossNorm {
-    fn is_all(&self) -> bool {
-        *self == LossNorm::All
-    }
-}
-
-impl DetectorConfig {
-    /// Levels of the sparse layout: the pillar grid and one per stride-2 block.
-    pub fn levels(&self) -> usize {
-        1 + self.backbone.blocks.iter().filter(|b| b.stride == 2).count()
-    }
-
-    /// The head's level (log2 of its stride).
-    pub fn head_level(&self) -> usize {
-        self.backbone.out_stride.trailing_zeros() as usize
-    }
-
-    /// Checks what the detector can be built from.
-    pub fn validate(&self) -> Result<()> {
-        self.grid.validate().map_err(FusionError::Config)?;
-        self.input.validate()?;
-        let b = &self.backbone;
-        if b.blocks.is_empty() || !b.out_stride.is_power_of_two() {
-            return Err(FusionError::Config(format!(
-                "detector {}: the backbone needs blocks and a power-of-two out_stride",
-                self.name
-            )));
-        }
-        if let Some(k) = b.blocks.iter().position(|x| x.stride != 1 && x.stride != 2) {
-            return Err(FusionError::Config(format!(
-                "detector {}: block {k} has stride {}, not 1 or 2",
-                self.name, b.blocks[k].stride
-            )));
-        }
-        let total: usize = b.blocks.iter().map(|x| x.stride).product();
-        if !self.grid.cells().is_multiple_of(total) || b.out_stride > total {
-            return Err(FusionError::Config(format!(
-                "detector {}: out_stride {} and the backbone's stride {total} must divide the grid's {} cells",
-                self.name,
-                b.out_stride,
-                self.grid.cells()
-            )));
-        }
-        Ok(())
-    }
-}
-
-/// The paper's ablation: a config without its early stage (only the `early` plugin has one).
-pub fn without_early(cfg: &DetectorConfig) -> Result<DetectorConfig> {
-    if cfg.fusion != "early" {
-        return Err(FusionError::Config(format!("detector {} has no early fusion stage to remove", cfg.name)));
-    }
-    let mut c = cfg.clone();
-    c.fusion_config["early"] = serde_json::Value::Bool(false);
-    c.name = format!("{}-no-early", cfg.name);
-    Ok(c)
-}
 
 /// A batch prepared on the host: pillars of both modalities, the sparse layout's sites and
 /// rulebooks, and targets laid out as the head's output is.

@@ -7,21 +7,7 @@ use crate::layout::{NONE, SparseHost};
 use crate::targets::Assignment;
 use glam::{Vec2, Vec3};
 use hilo_core::{Box3, Detection};
-
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct DecodeConfig {
-    pub score_threshold: f32,
-    pub max_per_frame: usize,
-    /// BEV IoU above which the weaker of two same-class boxes is suppressed (Inside only).
-    pub nms_iou: f32,
-}
-
-impl Default for DecodeConfig {
-    fn default() -> Self {
-        DecodeConfig { score_threshold: 0.05, max_per_frame: 200, nms_iou: 0.2 }
-    }
-}
+pub use hilo_fusion::config::DecodeConfig;
 
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())

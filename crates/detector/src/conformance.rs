@@ -1,5 +1,5 @@
 //! The conformance suite every fusion plugin runs by adding one line to its tests:
-//! `hilo_fusion::conformance::check(&registry, &config)`. On both layouts (dense maps and the
+//! `hilo_detector::conformance::check(&registry, &config)`. On both layouts (dense maps and the
 //! sparse occupied cells) it checks output shapes, that gradients reach every parameter,
 //! save/load identity, determinism with a seed, and finite losses on an empty radar frame, a
 //! radar-only frame and a frame with no points at all. It also provides the synthetic frames
@@ -8,14 +8,9 @@
 use crate::data::{Frame, GtBox};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
 use crate::fusion::Registry;
-use crate::grid::BevGrid;
+pub use crate::grid::small_grid;
 use candle_core::Device;
 use rand::{Rng, SeedableRng};
-
-/// A 32 × 32 grid of 0.8 m pillars: small enough for tests.
-pub fn small_grid() -> BevGrid {
-    BevGrid { half_extent_m: 12.8, cell_m: 0.8, max_pillars: 2000, ..BevGrid::default() }
-}
 
 /// A frame with LiDAR points on the boxes' surfaces and on the ground, and radar detections on
 /// the boxes carrying their radial velocity seen from a radar at `radar_at` (and a few static

@@ -1,0 +1,441 @@
+//! The plain configurations of a detector and its training: what a preset is made of. They
+//! are data (serde, with defaults that older saved runs read), checked by their `validate`
+//! methods; the detector crate builds and trains from them.
+
+use crate::error::{FusionError, Result};
+use crate::grid::BevGrid;
+use crate::layout::SparseConfig;
+use crate::modules::BackboneConfig;
+use hilo_core::Class;
+use hilo_core::background::BackgroundConfig;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Everything that defines a detector's architecture and what it reads.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorConfig {
+    /// Preset name (for reports).
+    pub name: String,
+    /// Registered fusion plugin and its config.
+    pub fusion: String,
+    pub fusion_config: serde_json::Value,
+    pub grid: BevGrid,
+    pub backbone: BackboneConfig,
+    pub assignment: Assignment,
+    /// Hidden channels of the head's per-task 3×3 convolutions (0: 1×1 outputs only).
+    pub head_channels: usize,
+    pub decode: DecodeConfig,
+    /// What the network reads: background removal, radar sweeps.
+    #[serde(default)]
+    pub input: InputConfig,
+    /// Compute on the occupied cells only (`None`: dense maps over the whole grid).
+    #[serde(default)]
+    pub sparse: Option<SparseConfig>,
+    /// What the losses are normalised by (detectors saved before the field existed read
+    /// [`LossNorm::All`]).
+    #[serde(default, skip_serializing_if = "LossNorm::is_all")]
+    pub loss_norm: LossNorm,
+}
+
+/// What a batch's classification and regression losses are divided by.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LossNorm {
+    /// The number of positives of all classes (CenterNet, PointPillars): each class weighs in
+    /// as often as it occurs, so rare classes move the weights least.
+    #[default]
+    All,
+    /// Each class by its own positives and the classes averaged (CenterPoint's per-task heads,
+    /// one task per class): a bus counts as much as all the cars of the batch together. A class
+    /// without positives in the batch is normalised by 1, its false positives still penalised.
+    PerClass,
+}
+
+impl LossNorm {
+    fn is_all(&self) -> bool {
+        *self == LossNorm::All
+    }
+}
+
+impl DetectorConfig {
+    /// Levels of the sparse layout: the pillar grid and one per stride-2 block.
+    pub fn levels(&self) -> usize {
+        1 + self.backbone.blocks.iter().filter(|b| b.stride == 2).count()
+    }
+
+    /// The head's level (log2 of its stride).
+    pub fn head_level(&self) -> usize {
+        self.backbone.out_stride.trailing_zeros() as usize
+    }
+
+    /// Checks what the detector can be built from.
+    pub fn validate(&self) -> Result<()> {
+        self.grid.validate().map_err(FusionError::Config)?;
+        self.input.validate()?;
+        let b = &self.backbone;
+        if b.blocks.is_empty() || !b.out_stride.is_power_of_two() {
+            return Err(FusionError::Config(format!(
+                "detector {}: the backbone needs blocks and a power-of-two out_stride",
+                self.name
+            )));
+        }
+        if let Some(k) = b.blocks.iter().position(|x| x.stride != 1 && x.stride != 2) {
+            return Err(FusionError::Config(format!(
+                "detector {}: block {k} has stride {}, not 1 or 2",
+                self.name, b.blocks[k].stride
+            )));
+        }
+        let total: usize = b.blocks.iter().map(|x| x.stride).product();
+        if !self.grid.cells().is_multiple_of(total) || b.out_stride > total {
+            return Err(FusionError::Config(format!(
+                "detector {}: out_stride {} and the backbone's stride {total} must divide the grid's {} cells",
+                self.name,
+                b.out_stride,
+                self.grid.cells()
+            )));
+        }
+        Ok(())
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    /// Training samples to see in total (steps × batch).
+    pub samples: usize,
+    pub batch: usize,
+    pub lr_max: f64,
+    pub weight_decay: f64,
+    /// Global gradient-norm limit.
+    pub clip_norm: f64,
+    /// Share of the schedule spent warming up (one-cycle).
+    pub warmup: f64,
+    pub seed: u64,
+    pub augmentation: Augmentation,
+    pub checkpoint_steps: usize,
+    /// Which frames an epoch holds: each once, or class-balanced (CBGS).
+    #[serde(default)]
+    pub sampling: Sampling,
+    /// Samples seen at which a copy of the weights is kept (`model-<samples>.safetensors`), for
+    /// learning curves; each a multiple of `batch`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub keep: Vec<usize>,
+    /// Ground-truth paste of rare classes (the detector crate's `paste`; on by default); none (`null`):
+    /// frames as loaded, as runs saved before the field existed read it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paste: Option<PasteConfig>,
+    /// Data-parallel replicas of each step: the batch is split into this many equal parts, each
+    /// run forward and backward on its own (on a core of its own when the thread pool has one,
+    /// else one after the other, to the same bytes), with BatchNorm statistics over its part
+    /// (the first replica's running statistics are kept) and the parts' gradients averaged in
+    /// replica order, as multi-GPU training does. Divides `batch`; 1 (runs saved before the
+    /// field existed read it) is the plain batch.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub replicas: usize,
+    /// With several replicas, BatchNorm normalises over the whole batch's rows rather than each
+    /// replica's ([`crate::bnrelu::BatchNormSync`]): the replicas' speed with the batch's
+    /// statistics. The replicas then always run at once, one thread each. False (runs saved
+    /// before the field existed read it): each replica's own statistics.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub sync_batch_norm: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+fn one() -> usize {
+    1
+}
+
+fn is_one(n: &usize) -> bool {
+    *n == 1
+}
+
+/// How training frames are drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Sampling {
+    /// Every frame once per epoch, shuffled.
+    #[default]
+    Uniform,
+    /// Class-balanced grouping and sampling (CBGS, Zhu et al. 2019, as CenterPoint trains on
+    /// nuScenes): the frames holding each class are resampled so that every class present
+    /// contributes the same number of frames to an epoch; frames with rare classes (bus,
+    /// motorcycle) repeat, frames with only cars and pedestrians are drawn less often.
+    ClassBalanced,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            samples: 12_000,
+            batch: 2,
+            lr_max: 6e-3,
+            weight_decay: 0.01,
+            clip_norm: 10.0,
+            warmup: 0.3,
+            seed: 0,
+            augmentation: Augmentation::default(),
+            checkpoint_steps: 50,
+            sampling: Sampling::Uniform,
+            keep: Vec::new(),
+            paste: Some(PasteConfig::default()),
+            replicas: 1,
+            sync_batch_norm: false,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// The settings' own consistency (what the detector crate's training and the benchmarks refuse).
+    pub fn validate(&self) -> Result<()> {
+        if self.batch == 0 || self.samples == 0 {
+            return Err(FusionError::Config(format!(
+                "train: batch = {} and samples = {} must be positive",
+                self.batch, self.samples
+            )));
+        }
+        if self.replicas == 0 || !self.batch.is_multiple_of(self.replicas) {
+            return Err(FusionError::Config(format!(
+                "train: replicas = {} must be positive and divide batch = {}",
+                self.replicas, self.batch
+            )));
+        }
+        if let Some(k) = self.keep.iter().find(|k| **k % self.batch != 0 || **k == 0 || **k > self.steps() * self.batch)
+        {
+            return Err(FusionError::Config(format!(
+                "train: keep = {k} must be a positive multiple of batch {} and at most the {} samples",
+                self.batch, self.samples
+            )));
+        }
+        Ok(())
+    }
+
+    pub fn steps(&self) -> usize {
+        self.samples.div_ceil(self.batch.max(1))
+    }
+
+    /// One-cycle learning rate at `step` (cosine up from lr_max/10, cosine down to lr_max/1e4).
+    pub fn lr(&self, step: usize) -> f64 {
+        let total = self.steps().max(1) as f64;
+        let up = (self.warmup * total).max(1.0);
+        let t = step as f64;
+        let cos = |a: f64, b: f64, f: f64| b + (a - b) * 0.5 * (1.0 + (std::f64::consts::PI * f.clamp(0.0, 1.0)).cos());
+        if t < up {
+            cos(self.lr_max / 10.0, self.lr_max, t / up)
+        } else {
+            cos(self.lr_max, self.lr_max / 1e4, (t - up) / (total - up).max(1.0))
+        }
+    }
+}
+
+/// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).
+pub const CLASSES: [Class; 6] = Class::ALL;
+
+/// LiDAR point features: x, y, z, intensity (local frame).
+pub const LIDAR_FEATURES: usize = 4;
+/// Radar point features: x, y, z, RCS (dBsm), v_r (m/s), line of sight x, y (unit, from the
+/// sensor: the direction v_r is measured along), and the time lag of the point's sweep behind
+/// the frame (s; 0 for the frame's own sweep).
+pub const RADAR_FEATURES: usize = 8;
+
+/// What a detector reads from a dataset.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InputConfig {
+    /// Remove LiDAR points on the static background (a model learned from the training split).
+    pub background: Option<BackgroundConfig>,
+    /// Radar sweeps per frame: the frame's own and the `radar_sweeps − 1` before it.
+    pub radar_sweeps: usize,
+    /// Older sweeps farther than this behind the frame are not used (a gap in the recording).
+    pub max_sweep_lag_s: f32,
+    /// Drop radar static clutter (needs `background`: the LiDAR foreground tells road users
+    /// from clutter).
+    pub radar_clutter: Option<RadarClutterConfig>,
+}
+
+impl Default for InputConfig {
+    fn default() -> Self {
+        InputConfig { background: None, radar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None }
+    }
+}
+
+/// Which radar detections are static clutter: those moving at most `max_speed_mps` along the
+/// line of sight with no LiDAR foreground point within `lidar_radius_m` (bird's-eye view).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RadarClutterConfig {
+    /// Largest |v_r| of a static detection, m/s (three times the catalog radar's velocity noise).
+    pub max_speed_mps: f32,
+    /// A detection with a LiDAR foreground point this close (x, y) is kept, m.
+    pub lidar_radius_m: f32,
+}
+
+impl Default for RadarClutterConfig {
+    fn default() -> Self {
+        RadarClutterConfig { max_speed_mps: 0.15, lidar_radius_m: 1.0 }
+    }
+}
+
+impl RadarClutterConfig {
+    pub fn validate(&self) -> Result<()> {
+        if !(self.max_speed_mps >= 0.0 && self.max_speed_mps.is_finite()) {
+            return Err(FusionError::Config(format!(
+                "input.radar_clutter.max_speed_mps = {}: must be a finite speed >= 0",
+                self.max_speed_mps
+            )));
+        }
+        if !(self.lidar_radius_m > 0.0 && self.lidar_radius_m <= 20.0) {
+            return Err(FusionError::Config(format!(
+                "input.radar_clutter.lidar_radius_m = {}: must be in (0, 20]",
+                self.lidar_radius_m
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl InputConfig {
+    pub fn validate(&self) -> Result<()> {
+        if self.radar_sweeps == 0 || self.radar_sweeps > 20 {
+            return Err(FusionError::Config(format!("input.radar_sweeps = {}: must be in 1..=20", self.radar_sweeps)));
+        }
+        if self.max_sweep_lag_s.is_nan() || self.max_sweep_lag_s <= 0.0 {
+            return Err(FusionError::Config(format!("input.max_sweep_lag_s = {}: must be > 0", self.max_sweep_lag_s)));
+        }
+        if let Some(b) = &self.background {
+            b.validate().map_err(FusionError::Config)?;
+        }
+        if let Some(c) = &self.radar_clutter {
+            c.validate()?;
+            if self.background.is_none() {
+                return Err(FusionError::Config(
+                    "input.radar_clutter needs input.background: without the LiDAR background removed every radar \
+                     detection near a static surface would count as a road user's"
+                        .into(),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Global augmentation (roadside: about the scene origin).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Augmentation {
+    /// Uniform rotation in ±this many degrees.
+    pub rotate_deg: f32,
+    /// Probability of mirroring across the x axis.
+    pub flip_p: f32,
+    /// Uniform scaling in [1 − s, 1 + s].
+    pub scale: f32,
+}
+
+impl Default for Augmentation {
+    fn default() -> Self {
+        Augmentation { rotate_deg: 180.0, flip_p: 0.5, scale: 0.05 }
+    }
+}
+
+impl Augmentation {
+    pub fn none() -> Self {
+        Augmentation { rotate_deg: 0.0, flip_p: 0.0, scale: 0.0 }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DecodeConfig {
+    pub score_threshold: f32,
+    pub max_per_frame: usize,
+    /// BEV IoU above which the weaker of two same-class boxes is suppressed (Inside only).
+    pub nms_iou: f32,
+}
+
+impl Default for DecodeConfig {
+    fn default() -> Self {
+        DecodeConfig { score_threshold: 0.05, max_per_frame: 200, nms_iou: 0.2 }
+    }
+}
+
+/// How ground truth is assigned to the head's cells.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Assignment {
+    /// CenterPoint: a Gaussian peak at each box centre; regression at the centre cell.
+    Center,
+    /// Anchor-free PointPillars: every cell whose centre lies in a box footprint is positive
+    /// (the centre cell when none does) and regresses that box.
+    Inside,
+}
+
+/// What the detector crate's ground-truth paste fills a frame with.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PasteConfig {
+    /// Class name → the number of instances a training frame is filled up to (OpenPCDet's
+    /// "sample groups"): a frame holding k of the class receives up to n − k pasted ones (fewer
+    /// where they would overlap).
+    pub fill: BTreeMap<String, usize>,
+    /// Fewest LiDAR points an instance needs to enter the database.
+    pub min_lidar_points: usize,
+    /// How far outside its box a LiDAR point still belongs to an instance (m; surface noise).
+    pub lidar_margin_m: f32,
+    /// The same for radar detections (m; the radar's position noise is larger).
+    pub radar_margin_m: f32,
+}
+
+impl Default for PasteConfig {
+    fn default() -> Self {
+        PasteConfig {
+            fill: [("bus", 2), ("truck", 2), ("golf_cart", 3), ("motorcycle", 2)]
+                .into_iter()
+                .map(|(c, n)| (c.to_string(), n))
+                .collect(),
+            min_lidar_points: 5,
+            lidar_margin_m: 0.15,
+            radar_margin_m: 0.5,
+        }
+    }
+}
+
+impl PasteConfig {
+    /// The fill as (class index, count), in class order; errors name the field and value.
+    pub fn fill_by_class(&self) -> Result<Vec<(usize, usize)>> {
+        let mut out = Vec::new();
+        for (name, &n) in &self.fill {
+            let c: Class = name.parse().map_err(|_| {
+                FusionError::Config(format!(
+                    "train.paste.fill: unknown class {name:?} (one of {})",
+                    Class::ALL.map(|c| c.name()).join(", ")
+                ))
+            })?;
+            if n > 64 {
+                return Err(FusionError::Config(format!("train.paste.fill.{name} = {n}: at most 64 per frame")));
+            }
+            out.push((c.index(), n));
+        }
+        out.sort_unstable();
+        Ok(out)
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        self.fill_by_class()?;
+        for (field, v) in [("lidar_margin_m", self.lidar_margin_m), ("radar_margin_m", self.radar_margin_m)] {
+            if !(v.is_finite() && (0.0..=5.0).contains(&v)) {
+                return Err(FusionError::Config(format!("train.paste.{field} = {v}: must be within 0..=5 m")));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A named detector and its default training schedule.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Preset {
+    pub detector: DetectorConfig,
+    pub train: TrainConfig,
+}
