@@ -206,3 +206,53 @@ fn plugins_depend_on_the_fusion_crate_only() {
     }
     assert!(seen >= 4, "found {seen} plugin crates");
 }
+
+/// The lines of each function of `code` (outside `#[cfg(test)]` modules): from its `fn` line to
+/// the closing brace at the same indentation.
+fn function_lengths(code: &str) -> Vec<(String, usize)> {
+    let code = code.split("#[cfg(test)]").next().unwrap_or("");
+    let lines: Vec<&str> = code.lines().collect();
+    let mut out = Vec::new();
+    for (i, l) in lines.iter().enumerate() {
+        let t = l.trim_start();
+        let indent = &l[..l.len() - t.len()];
+        let sig = t.strip_prefix("pub ").or_else(|| t.strip_prefix("pub(crate) ")).unwrap_or(t);
+        let Some(rest) = sig.strip_prefix("fn ") else { continue };
+        if l.trim_end().ends_with(';') {
+            continue;
+        }
+        let name: String = rest.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+        let close = format!("{indent}}}");
+        if let Some(end) = lines[i + 1..].iter().position(|x| *x == close) {
+            out.push((name, end + 2));
+        }
+    }
+    out
+}
+
+/// No function of the libraries, plugins or command line is longer than 150 lines (tests
+/// aside): a longer one is several steps that deserve names.
+#[test]
+fn no_function_is_longer_than_150_lines() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut long = Vec::new();
+    for d in module_dirs(root) {
+        for f in std::fs::read_dir(&d).unwrap() {
+            let p = f.unwrap().path();
+            if p.extension().is_some_and(|e| e == "rs") {
+                for (name, n) in function_lengths(&std::fs::read_to_string(&p).unwrap()) {
+                    if n > 150 {
+                        long.push(format!("{}: fn {name}, {n} lines", p.strip_prefix(root).unwrap().display()));
+                    }
+                }
+            }
+        }
+    }
+    assert!(long.is_empty(), "functions over 150 lines:\n{}", long.join("\n"));
+}
+
+#[test]
+fn function_lengths_are_counted_from_fn_to_its_brace() {
+    let code = "fn a() {\n    1;\n}\n\n    pub fn b(x: u8) -> u8 {\n        if x > 0 {\n        }\n        x\n    }\nfn c();\n";
+    assert_eq!(function_lengths(code), vec![("a".to_string(), 3), ("b".to_string(), 5)]);
+}

@@ -211,22 +211,7 @@ impl DatasetWriter {
         let t = &mut self.tables;
         let lidar: Vec<&SensorSetup> = self.sensors.iter().filter(|s| s.modality == SensorModality::Lidar).collect();
         let radar: Vec<&SensorSetup> = self.sensors.iter().filter(|s| s.modality == SensorModality::Radar).collect();
-        if scene.frames.is_empty() {
-            return Err(DatasetError::Invalid(format!("scene {:?} has no frames", scene.name)));
-        }
-        // nuscenes-devkit sorts scenes by start time and cannot order two equal ones.
-        let start = scene.frames[0].timestamp_us;
-        if let Some(other) =
-            t.scene.iter().find(|s| t.sample.iter().any(|x| x.token == s.first_sample_token && x.timestamp == start))
-        {
-            return Err(DatasetError::Invalid(format!(
-                "scene {:?} starts at {start} µs, as scene {:?} does: scene start times must differ",
-                scene.name, other.name
-            )));
-        }
-        if scene.frames.windows(2).any(|w| w[1].timestamp_us <= w[0].timestamp_us) {
-            return Err(DatasetError::Invalid(format!("scene {:?}: frame timestamps must increase", scene.name)));
-        }
+        check_scene(t, scene, lidar.len(), radar.len())?;
         let log_token = token(&[&ns, "log", &scene.name]);
         t.log.push(Log {
             token: log_token.clone(),
@@ -239,68 +224,7 @@ impl DatasetWriter {
         let scene_token = token(&[&ns, "scene", &scene.name]);
         let sample_tokens: Vec<String> =
             scene.frames.iter().map(|f| token(&[&ns, "sample", &scene.name, &f.timestamp_us.to_string()])).collect();
-        // Instances and their annotation chains.
-        let mut chains: std::collections::BTreeMap<u32, Vec<(usize, usize)>> = std::collections::BTreeMap::new();
-        for (fi, f) in scene.frames.iter().enumerate() {
-            if f.lidar.len() != lidar.len() || f.radar.len() != radar.len() {
-                return Err(DatasetError::Invalid(format!(
-                    "scene {:?} frame {fi}: {} LiDAR and {} radar clouds for {} and {} sensors",
-                    scene.name,
-                    f.lidar.len(),
-                    f.radar.len(),
-                    lidar.len(),
-                    radar.len()
-                )));
-            }
-            for (ai, a) in f.annotations.iter().enumerate() {
-                chains.entry(a.instance).or_default().push((fi, ai));
-            }
-        }
-        let ann_token =
-            |inst: u32, fi: usize| token(&[&ns, "annotation", &scene.name, &inst.to_string(), &sample_tokens[fi]]);
-        for (inst, chain) in &chains {
-            let first = &scene.frames[chain[0].0].annotations[chain[0].1];
-            let cat = t
-                .category
-                .iter()
-                .find(|c| c.name == category_name(first.class))
-                .map(|c| c.token.clone())
-                .unwrap_or_default();
-            let inst_token = token(&[&ns, "instance", &scene.name, &inst.to_string()]);
-            t.instance.push(Instance {
-                token: inst_token.clone(),
-                category_token: cat,
-                nbr_annotations: chain.len(),
-                first_annotation_token: ann_token(*inst, chain[0].0),
-                last_annotation_token: ann_token(*inst, chain[chain.len() - 1].0),
-            });
-            for (k, &(fi, ai)) in chain.iter().enumerate() {
-                let a = &scene.frames[fi].annotations[ai];
-                let b = a.box3;
-                let attrs = if a.attribute.is_empty() {
-                    Vec::new()
-                } else {
-                    match t.attribute.iter().find(|x| x.name == a.attribute) {
-                        Some(x) => vec![x.token.clone()],
-                        None => return Err(DatasetError::Invalid(format!("unknown attribute {:?}", a.attribute))),
-                    }
-                };
-                t.sample_annotation.push(SampleAnnotation {
-                    token: ann_token(*inst, fi),
-                    sample_token: sample_tokens[fi].clone(),
-                    instance_token: inst_token.clone(),
-                    visibility_token: a.visibility.clamp(1, 4).to_string(),
-                    attribute_tokens: attrs,
-                    translation: [b.center.x as f64, b.center.y as f64, b.center.z as f64],
-                    size: [b.width_m as f64, b.length_m as f64, b.height_m as f64],
-                    rotation: [(b.yaw as f64 / 2.0).cos(), 0.0, 0.0, (b.yaw as f64 / 2.0).sin()],
-                    prev: if k > 0 { ann_token(*inst, chain[k - 1].0) } else { String::new() },
-                    next: if k + 1 < chain.len() { ann_token(*inst, chain[k + 1].0) } else { String::new() },
-                    num_lidar_pts: a.num_lidar_pts,
-                    num_radar_pts: a.num_radar_pts,
-                });
-            }
-        }
+        add_annotations(t, &ns, scene, &sample_tokens)?;
         // Samples.
         for (fi, f) in scene.frames.iter().enumerate() {
             t.sample.push(Sample {
@@ -310,15 +234,6 @@ impl DatasetWriter {
                 next: sample_tokens.get(fi + 1).cloned().unwrap_or_default(),
                 scene_token: scene_token.clone(),
             });
-        }
-        if let Some(sw) = scene.sweeps.iter().find(|sw| sw.radar.len() != radar.len()) {
-            return Err(DatasetError::Invalid(format!(
-                "scene {:?}: the sweep at {} µs has {} radar clouds for {} radars",
-                scene.name,
-                sw.timestamp_us,
-                sw.radar.len(),
-                radar.len()
-            )));
         }
         // Sample data: per channel, its chain in time order (radars: key frames and sweeps);
         // a sweep belongs to the first key frame at or after it (the one that stacks it).
@@ -488,4 +403,104 @@ impl DatasetWriter {
         put!(map);
         Ok(t)
     }
+}
+
+/// What a scene must hold before any of it is written: frames with increasing timestamps, a
+/// start time no other scene has (nuscenes-devkit orders scenes by it), and one cloud per sensor
+/// in every frame and sweep.
+fn check_scene(t: &Tables, scene: &SceneData, lidars: usize, radars: usize) -> Result<(), DatasetError> {
+    if scene.frames.is_empty() {
+        return Err(DatasetError::Invalid(format!("scene {:?} has no frames", scene.name)));
+    }
+    // nuscenes-devkit sorts scenes by start time and cannot order two equal ones.
+    let start = scene.frames[0].timestamp_us;
+    if let Some(other) =
+        t.scene.iter().find(|s| t.sample.iter().any(|x| x.token == s.first_sample_token && x.timestamp == start))
+    {
+        return Err(DatasetError::Invalid(format!(
+            "scene {:?} starts at {start} µs, as scene {:?} does: scene start times must differ",
+            scene.name, other.name
+        )));
+    }
+    if scene.frames.windows(2).any(|w| w[1].timestamp_us <= w[0].timestamp_us) {
+        return Err(DatasetError::Invalid(format!("scene {:?}: frame timestamps must increase", scene.name)));
+    }
+    for (fi, f) in scene.frames.iter().enumerate() {
+        if f.lidar.len() != lidars || f.radar.len() != radars {
+            return Err(DatasetError::Invalid(format!(
+                "scene {:?} frame {fi}: {} LiDAR and {} radar clouds for {} and {} sensors",
+                scene.name,
+                f.lidar.len(),
+                f.radar.len(),
+                lidars,
+                radars
+            )));
+        }
+    }
+    if let Some(sw) = scene.sweeps.iter().find(|sw| sw.radar.len() != radars) {
+        return Err(DatasetError::Invalid(format!(
+            "scene {:?}: the sweep at {} µs has {} radar clouds for {} radars",
+            scene.name,
+            sw.timestamp_us,
+            sw.radar.len(),
+            radars
+        )));
+    }
+    Ok(())
+}
+
+/// Records a scene's instances and their annotation chains (first to last, linked both ways).
+fn add_annotations(t: &mut Tables, ns: &str, scene: &SceneData, sample_tokens: &[String]) -> Result<(), DatasetError> {
+    let mut chains: std::collections::BTreeMap<u32, Vec<(usize, usize)>> = std::collections::BTreeMap::new();
+    for (fi, f) in scene.frames.iter().enumerate() {
+        for (ai, a) in f.annotations.iter().enumerate() {
+            chains.entry(a.instance).or_default().push((fi, ai));
+        }
+    }
+    let ann_token =
+        |inst: u32, fi: usize| token(&[ns, "annotation", &scene.name, &inst.to_string(), &sample_tokens[fi]]);
+    for (inst, chain) in &chains {
+        let first = &scene.frames[chain[0].0].annotations[chain[0].1];
+        let cat = t
+            .category
+            .iter()
+            .find(|c| c.name == category_name(first.class))
+            .map(|c| c.token.clone())
+            .unwrap_or_default();
+        let inst_token = token(&[ns, "instance", &scene.name, &inst.to_string()]);
+        t.instance.push(Instance {
+            token: inst_token.clone(),
+            category_token: cat,
+            nbr_annotations: chain.len(),
+            first_annotation_token: ann_token(*inst, chain[0].0),
+            last_annotation_token: ann_token(*inst, chain[chain.len() - 1].0),
+        });
+        for (k, &(fi, ai)) in chain.iter().enumerate() {
+            let a = &scene.frames[fi].annotations[ai];
+            let b = a.box3;
+            let attrs = if a.attribute.is_empty() {
+                Vec::new()
+            } else {
+                match t.attribute.iter().find(|x| x.name == a.attribute) {
+                    Some(x) => vec![x.token.clone()],
+                    None => return Err(DatasetError::Invalid(format!("unknown attribute {:?}", a.attribute))),
+                }
+            };
+            t.sample_annotation.push(SampleAnnotation {
+                token: ann_token(*inst, fi),
+                sample_token: sample_tokens[fi].clone(),
+                instance_token: inst_token.clone(),
+                visibility_token: a.visibility.clamp(1, 4).to_string(),
+                attribute_tokens: attrs,
+                translation: [b.center.x as f64, b.center.y as f64, b.center.z as f64],
+                size: [b.width_m as f64, b.length_m as f64, b.height_m as f64],
+                rotation: [(b.yaw as f64 / 2.0).cos(), 0.0, 0.0, (b.yaw as f64 / 2.0).sin()],
+                prev: if k > 0 { ann_token(*inst, chain[k - 1].0) } else { String::new() },
+                next: if k + 1 < chain.len() { ann_token(*inst, chain[k + 1].0) } else { String::new() },
+                num_lidar_pts: a.num_lidar_pts,
+                num_radar_pts: a.num_radar_pts,
+            });
+        }
+    }
+    Ok(())
 }

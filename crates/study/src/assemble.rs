@@ -146,53 +146,12 @@ pub fn assemble(
         }
     }
     let tradeoffs: crate::tradeoff::Tradeoffs = read_json(&plan.tradeoffs)?;
-    let mut summaries = Vec::new();
-    for (ci, conf) in configs.iter().enumerate() {
-        let placement = Placement::load(&plan.placement(ci))?;
-        let data: DataRecord = read_json(&plan.data[ci].done()).map_err(|_| {
-            StudyError::Invalid(format!(
-                "{}: the dataset of {:?} is not complete; run its simulate stage first",
-                plan.data[ci].dir.display(),
-                conf.name
-            ))
-        })?;
-        summaries.push(ConfigSummary {
-            name: conf.name.clone(),
-            cost_usd: placement.cost_usd,
-            has_radar: plan.radar[ci],
-            central_coverage: placement.central_coverage,
-            sensors: placement
-                .sensors
-                .iter()
-                .map(|s| {
-                    format!(
-                        "{} at ({:.1}, {:.1}, {:.1}) m",
-                        s.ty, s.pose.position.x, s.pose.position.y, s.pose.position.z
-                    )
-                })
-                .collect(),
-            placement_proven_optimal: placement.proven_optimal,
-            placement_s: placement.solve_seconds,
-            placement_solved: placement.solved,
-            placement_gap: placement.gap,
-            placement_method: placement.method.clone(),
-            frames: data.frames,
-            annotations: data.annotations,
-            unseen_share: f64::NAN,
-            unseen_by_class: BTreeMap::new(),
-        });
-    }
+    let mut summaries = config_summaries(plan)?;
     // The ground truth every rig is scored on, and what it evaluates.
     let first = hilo_dataset::Dataset::open(&plan.data[0].dir, "v1.0-trainval")?;
     let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
     let base_cfg = DetectionConfig::default();
-    let mut class_boxes: BTreeMap<String, usize> = base_cfg.class_range.keys().map(|k| (k.clone(), 0)).collect();
-    for (s, boxes) in &common.boxes {
-        let ego = common.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
-        for b in hilo_eval::filter_boxes(boxes, ego, &base_cfg.class_range) {
-            *class_boxes.entry(b.detection_name.clone()).or_default() += 1;
-        }
-    }
+    let class_boxes = class_counts(&common, &base_cfg);
     let classes: Vec<ClassInfo> = class_boxes
         .iter()
         .map(|(k, &n)| ClassInfo { name: k.clone(), validation_boxes: n, in_map: n > 0, few_boxes: n < 50 })
@@ -228,19 +187,10 @@ pub fn assemble(
             results_by.insert(key.clone(), sorted(rekey(out.predictions, &keys)));
             metas.insert(key, out.meta);
         }
-        // The picture: the middle validation frame as the first detector's input reads it.
-        if let Some(job) = jobs.first() {
-            let background = match &job.detector.input.background {
-                Some(_) => Some(read_json(&hilo_detector::train::background_path(&job.run))?),
-                None => None,
-            };
-            let lo = LoadOptions::new(&job.detector.input, background.as_ref());
-            let n = keys.len();
-            if let Some(f) = load_split_frame(&ds, "val", &lo, n / 2)? {
-                let k = keys.get(&f.sample_token).cloned().unwrap_or_default();
-                let boxes = common.boxes.get(&k).cloned().unwrap_or_default();
-                pictures.insert(conf.name.clone(), (f, k, boxes));
-            }
+        if let Some(job) = jobs.first()
+            && let Some(pic) = picture(job, &ds, &keys, &common)?
+        {
+            pictures.insert(conf.name.clone(), pic);
         }
         visible.insert(conf.name.clone(), vis);
     }
@@ -296,65 +246,11 @@ pub fn assemble(
         let pos = |c: &str| configs.iter().position(|x| x.name == c).unwrap_or(usize::MAX);
         (pos(&a.configuration), a.preset.as_str(), a.seed).cmp(&(pos(&b.configuration), b.preset.as_str(), b.seed))
     });
-    // The verdict.
-    let conf_roles: Vec<(String, f64, bool)> =
-        summaries.iter().map(|s| (s.name.clone(), s.cost_usd, s.has_radar)).collect();
-    let uses: BTreeMap<String, bool> = prof
-        .presets
-        .iter()
-        .chain(&prof.ablations)
-        .filter_map(|p| registry.preset(p).ok().map(|x| (p.clone(), registry.uses_radar(&x.detector))))
-        .collect();
-    let ablation_of: BTreeMap<String, String> =
-        prof.ablations.iter().filter_map(|a| registry.ablation_of(a).map(|of| (a.clone(), of.to_owned()))).collect();
-    let design = Design {
-        scores: &det_scores,
-        configurations: &conf_roles,
-        presets: &prof.presets,
-        ablations: &prof.ablations,
-        ablation_of: &ablation_of,
-        uses_radar: &uses,
-        scenes: scenes.len(),
-        level: 0.95,
-    };
-    let mut comparisons = design.comparisons();
-    let mut claims = design.claims();
-    adjust(&mut claims, &mut comparisons, 0.05);
-    let calibration = calibrate(&design, &planted, DROP);
-    // Learning curves (seed 0 of every group).
-    let mut learning_curves = Vec::new();
-    for ((conf, preset, seed), _) in results_by.iter().filter(|(k, _)| k.2 == 0) {
-        let mut points: Vec<(usize, f64)> = Vec::new();
-        for ((c, p, samples), pred) in &curve_preds {
-            if c == conf && p == preset {
-                points.push((*samples, score_full(&common, pred, &eval_cfg, &scenes)?));
-            }
-        }
-        let end = metas[&(conf.clone(), preset.clone(), *seed)].samples;
-        points.push((
-            end,
-            entries
-                .iter()
-                .find(|e| &e.configuration == conf && &e.preset == preset && e.seed == 0)
-                .map_or(f64::NAN, |e| e.mean_ap),
-        ));
-        points.sort_by_key(|p| p.0);
-        let half = points.iter().min_by_key(|p| (2 * p.0).abs_diff(end)).map_or(f64::NAN, |p| p.1);
-        let last = points.last().map_or(f64::NAN, |p| p.1);
-        learning_curves.push(Curve {
-            configuration: conf.clone(),
-            preset: preset.clone(),
-            points,
-            gain_last_doubling: last - half,
-        });
-    }
+    let (comparisons, claims, calibration) =
+        verdict(prof, registry, &summaries, &det_scores, &planted, scenes.len(), DROP);
+    let learning_curves = learning_curves(&results_by, &curve_preds, &metas, &entries, &common, &eval_cfg, &scenes)?;
     let ranking_changed = ranking_changes(&learning_curves, &prof.presets);
-    let mut cost_reduction = BTreeMap::new();
-    if let Some(cheap) = summaries.iter().min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd)) {
-        for s in summaries.iter().filter(|s| s.name != cheap.name) {
-            cost_reduction.insert(s.name.clone(), 1.0 - cheap.cost_usd / s.cost_usd);
-        }
-    }
+    let cost_reduction = cost_reduction(&summaries);
     let report = Report {
         study: study.source.clone(),
         profile: prof.clone(),
@@ -376,6 +272,170 @@ pub fn assemble(
         seconds: seconds(),
     };
     Ok(Assembled { report, results: results_by, pictures })
+}
+
+/// Validation boxes per class within the evaluation ranges (every class of the config, 0 where
+/// none).
+fn class_counts(common: &GroundTruth, base: &DetectionConfig) -> BTreeMap<String, usize> {
+    let mut class_boxes: BTreeMap<String, usize> = base.class_range.keys().map(|k| (k.clone(), 0)).collect();
+    for (s, boxes) in &common.boxes {
+        let ego = common.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
+        for b in hilo_eval::filter_boxes(boxes, ego, &base.class_range) {
+            *class_boxes.entry(b.detection_name.clone()).or_default() += 1;
+        }
+    }
+    class_boxes
+}
+
+/// The picture of a configuration: the middle validation frame as the job's detector input
+/// reads it, its sample key and its common ground-truth boxes.
+fn picture(
+    job: &Job,
+    ds: &hilo_dataset::Dataset,
+    keys: &BTreeMap<String, String>,
+    common: &GroundTruth,
+) -> Result<Option<(Frame, String, Vec<EvalBox>)>> {
+    let background = match &job.detector.input.background {
+        Some(_) => Some(read_json(&hilo_detector::train::background_path(&job.run))?),
+        None => None,
+    };
+    let lo = LoadOptions::new(&job.detector.input, background.as_ref());
+    let Some(f) = load_split_frame(ds, "val", &lo, keys.len() / 2)? else { return Ok(None) };
+    let k = keys.get(&f.sample_token).cloned().unwrap_or_default();
+    let boxes = common.boxes.get(&k).cloned().unwrap_or_default();
+    Ok(Some((f, k, boxes)))
+}
+
+/// What the cheapest configuration saves against each other one, as a share of its cost.
+fn cost_reduction(summaries: &[ConfigSummary]) -> BTreeMap<String, f64> {
+    let mut out = BTreeMap::new();
+    if let Some(cheap) = summaries.iter().min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd)) {
+        for s in summaries.iter().filter(|s| s.name != cheap.name) {
+            out.insert(s.name.clone(), 1.0 - cheap.cost_usd / s.cost_usd);
+        }
+    }
+    out
+}
+
+/// Each configuration's placement and dataset, as the report lists them (the unseen shares are
+/// filled in with the validation data).
+fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
+    let configs = &plan.configurations;
+    let mut summaries = Vec::new();
+    for (ci, conf) in configs.iter().enumerate() {
+        let placement = Placement::load(&plan.placement(ci))?;
+        let data: DataRecord = read_json(&plan.data[ci].done()).map_err(|_| {
+            StudyError::Invalid(format!(
+                "{}: the dataset of {:?} is not complete; run its simulate stage first",
+                plan.data[ci].dir.display(),
+                conf.name
+            ))
+        })?;
+        summaries.push(ConfigSummary {
+            name: conf.name.clone(),
+            cost_usd: placement.cost_usd,
+            has_radar: plan.radar[ci],
+            central_coverage: placement.central_coverage,
+            sensors: placement
+                .sensors
+                .iter()
+                .map(|s| {
+                    format!(
+                        "{} at ({:.1}, {:.1}, {:.1}) m",
+                        s.ty, s.pose.position.x, s.pose.position.y, s.pose.position.z
+                    )
+                })
+                .collect(),
+            placement_proven_optimal: placement.proven_optimal,
+            placement_s: placement.solve_seconds,
+            placement_solved: placement.solved,
+            placement_gap: placement.gap,
+            placement_method: placement.method.clone(),
+            frames: data.frames,
+            annotations: data.annotations,
+            unseen_share: f64::NAN,
+            unseen_by_class: BTreeMap::new(),
+        });
+    }
+    Ok(summaries)
+}
+
+/// The verdict: comparisons, the paper's claims (Holm-adjusted together) and the calibration of
+/// the test on A/A pairs and the planted difference.
+fn verdict(
+    prof: &Profile,
+    registry: &Registry,
+    summaries: &[ConfigSummary],
+    det_scores: &[DetectorScores],
+    planted: &[DetectorScores],
+    scenes: usize,
+    drop: f64,
+) -> (Vec<Comparison>, Vec<Claim>, Calibration) {
+    let conf_roles: Vec<(String, f64, bool)> =
+        summaries.iter().map(|s| (s.name.clone(), s.cost_usd, s.has_radar)).collect();
+    let uses: BTreeMap<String, bool> = prof
+        .presets
+        .iter()
+        .chain(&prof.ablations)
+        .filter_map(|p| registry.preset(p).ok().map(|x| (p.clone(), registry.uses_radar(&x.detector))))
+        .collect();
+    let ablation_of: BTreeMap<String, String> =
+        prof.ablations.iter().filter_map(|a| registry.ablation_of(a).map(|of| (a.clone(), of.to_owned()))).collect();
+    let design = Design {
+        scores: det_scores,
+        configurations: &conf_roles,
+        presets: &prof.presets,
+        ablations: &prof.ablations,
+        ablation_of: &ablation_of,
+        uses_radar: &uses,
+        scenes,
+        level: 0.95,
+    };
+    let mut comparisons = design.comparisons();
+    let mut claims = design.claims();
+    adjust(&mut claims, &mut comparisons, 0.05);
+    let calibration = calibrate(&design, planted, drop);
+    (comparisons, claims, calibration)
+}
+
+/// The learning curve of seed 0 of every group: mAP at each kept point of its training and at
+/// the end, and what the last doubling added.
+fn learning_curves(
+    results_by: &ResultsBy,
+    curve_preds: &BTreeMap<(String, String, usize), Predictions>,
+    metas: &BTreeMap<(String, String, u64), ResultMeta>,
+    entries: &[Entry],
+    common: &GroundTruth,
+    eval_cfg: &DetectionConfig,
+    scenes: &[String],
+) -> Result<Vec<Curve>> {
+    let mut learning_curves = Vec::new();
+    for ((conf, preset, seed), _) in results_by.iter().filter(|(k, _)| k.2 == 0) {
+        let mut points: Vec<(usize, f64)> = Vec::new();
+        for ((c, p, samples), pred) in curve_preds {
+            if c == conf && p == preset {
+                points.push((*samples, score_full(common, pred, eval_cfg, scenes)?));
+            }
+        }
+        let end = metas[&(conf.clone(), preset.clone(), *seed)].samples;
+        points.push((
+            end,
+            entries
+                .iter()
+                .find(|e| &e.configuration == conf && &e.preset == preset && e.seed == 0)
+                .map_or(f64::NAN, |e| e.mean_ap),
+        ));
+        points.sort_by_key(|p| p.0);
+        let half = points.iter().min_by_key(|p| (2 * p.0).abs_diff(end)).map_or(f64::NAN, |p| p.1);
+        let last = points.last().map_or(f64::NAN, |p| p.1);
+        learning_curves.push(Curve {
+            configuration: conf.clone(),
+            preset: preset.clone(),
+            points,
+            gain_last_doubling: last - half,
+        });
+    }
+    Ok(learning_curves)
 }
 
 fn sorted(mut p: Predictions) -> Predictions {

@@ -283,6 +283,19 @@ fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
 
 fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets: &[String]) -> String {
     let mut md = String::new();
+    md_header(&mut md, r);
+    md_claims(&mut md, r);
+    md_configurations(&mut md, r);
+    md_accuracy(&mut md, r, presets);
+    md_comparisons(&mut md, r);
+    md_learning_curves(&mut md, r);
+    md_figures(&mut md, r, results, configs, presets);
+    md_speed(&mut md, r);
+    md
+}
+
+/// Where the report came from: study, profile, provenance, datasets, ground truth.
+fn md_header(md: &mut String, r: &Report) {
     let p = &r.profile;
     let pv = &r.provenance;
     let _ = writeln!(
@@ -338,7 +351,11 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
             .collect::<Vec<_>>()
             .join(", ")
     );
-    // The verdict.
+}
+
+/// The paper's claims and their verdicts, and what the profile leaves out.
+fn md_claims(md: &mut String, r: &Report) {
+    let p = &r.profile;
     let _ = writeln!(
         md,
         "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds, `p` Holm-adjusted over every test of this report. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *undecided*.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | verdict |\n|---|---|---|---:|---|---:|---|"
@@ -376,7 +393,10 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
         }
     }
     let _ = writeln!(md, "\nWhat this profile leaves out: {}.\n", p.leaves_out);
-    // Configurations.
+}
+
+/// Each configuration: cost, coverage, placement, sensors.
+fn md_configurations(md: &mut String, r: &Report) {
     let _ = writeln!(
         md,
         "## Configurations\n\n| configuration | cost | central coverage | road users never hit (validation) | placement | sensors |\n|---|---:|---:|---:|---|---|"
@@ -406,7 +426,10 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
                 .join(", ")
         );
     }
-    // Accuracy.
+}
+
+/// mAP, pedestrian AP and per-class AP of every configuration and preset.
+fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
     let _ = writeln!(
         md,
         "\n## Accuracy\n\nSeed mean [min, max] over {} seeds; common ground truth unless marked.\n\n| configuration | preset | mAP | pedestrian AP | mAP, visible-only | training | inference |\n|---|---|---|---|---|---:|---:|",
@@ -457,7 +480,10 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
             let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));
         }
     }
-    // Comparisons.
+}
+
+/// The cheapest configuration against the others, and the calibration of the test.
+fn md_comparisons(md: &mut String, r: &Report) {
     if !r.comparisons.is_empty() {
         let _ = writeln!(
             md,
@@ -497,7 +523,10 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
         sv.map_or(f64::NAN, |s| s.variance.sqrt()),
         sv.map_or(0, |s| s.df)
     );
-    // Learning curves.
+}
+
+/// The learning curves and whether the ranking held over the last doubling.
+fn md_learning_curves(md: &mut String, r: &Report) {
     let _ = writeln!(
         md,
         "## Learning curves\n\nmAP (common ground truth) of seed 0 at points of its training, and what the last doubling of training added. {}\n\n| configuration | preset | mAP at samples | gain over the last doubling |\n|---|---|---|---:|",
@@ -520,7 +549,10 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
             c.gain_last_doubling
         );
     }
-    // Figures.
+}
+
+/// The figures: charts, coverage maps, the detection grid.
+fn md_figures(md: &mut String, r: &Report, results: &ResultsBy, configs: &[Configuration], presets: &[String]) {
     let _ = writeln!(
         md,
         "\n## Figures\n\n![mAP against cost](figures/map_vs_cost.svg)\n\n![pedestrian AP](figures/pedestrian_ap.svg)\n\n![learning curves](figures/learning_curves.svg)\n"
@@ -558,7 +590,10 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
             .collect();
         let _ = writeln!(md, "| {} | {} |", c.name, cells.join(" | "));
     }
-    // Speed against error.
+}
+
+/// Speed against error of each stage.
+fn md_speed(md: &mut String, r: &Report) {
     let _ = writeln!(md, "\n## Speed against error\n\n| stage | speed | error paid |\n|---|---|---|");
     for c in &r.configurations {
         let (status, solved) = placement_status(c);
@@ -618,5 +653,4 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
             e.mean_ap
         );
     }
-    md
 }

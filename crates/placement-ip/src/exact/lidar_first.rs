@@ -46,28 +46,9 @@ pub fn exact_lidar_first(
         .collect();
     let n = inst.n_targets();
     let nr = radars.len();
-    // Per target, the best n_r radar visibilities (for the cheap bound).
-    let mut radar_top = vec![Vec::<f32>::new(); n];
-    for &r in &radars {
-        for &(j, v) in &inst.options[r].row {
-            let l = &mut radar_top[j as usize];
-            l.push(v);
-            if l.len() > n_r {
-                l.sort_by(|a, b| b.total_cmp(a));
-                l.truncate(n_r);
-            }
-        }
-    }
-    let rt: Vec<f64> = radar_top.iter().map(|l| l.iter().map(|&v| v as f64).sum()).collect();
+    let rt = radar_top_sums(inst, &radars, n_r, n);
     let tables = RadarTables::new(inst, &lidars, &radars, &rt, tau);
-    // Radar mounts as dense indices, for "one sensor per mount" in the bound.
-    let mut mount_ids: std::collections::BTreeMap<u32, usize> = std::collections::BTreeMap::new();
-    for &r in &radars {
-        let k = mount_ids.len();
-        mount_ids.entry(inst.options[r].mount).or_insert(k);
-    }
-    let radar_mount: Vec<usize> = radars.iter().map(|&r| mount_ids[&inst.options[r].mount]).collect();
-    let n_mounts = mount_ids.len();
+    let (radar_mount, n_mounts) = dense_mounts(inst, &radars);
     // The radar part's bound of a LiDAR set: the best h per mount, top n_r of them.
     let radar_bound = |h: &[f64], lidar_mounts: &[u32], per_mount: &mut Vec<f64>| -> f64 {
         per_mount.clear();
@@ -81,18 +62,7 @@ pub fn exact_lidar_first(
         per_mount.sort_by(|a, b| b.total_cmp(a));
         per_mount.iter().take(n_r).sum()
     };
-    // LiDAR sets as indices into `lidars`: singles, and pairs on different mounts (with one
-    // sensor per mount, fewer LiDARs than the count can be optimal).
-    let mut sets: Vec<Vec<usize>> = (0..lidars.len()).map(|a| vec![a]).collect();
-    if n_l == 2 {
-        for a in 0..lidars.len() {
-            for b in a + 1..lidars.len() {
-                if inst.options[lidars[a]].mount != inst.options[lidars[b]].mount {
-                    sets.push(vec![a, b]);
-                }
-            }
-        }
-    }
+    let sets = lidar_sets(inst, &lidars, n_l);
     let best0 = crate::instance::evaluate(inst, incumbent);
     struct Cand {
         set: Vec<usize>,
@@ -196,6 +166,49 @@ pub fn exact_lidar_first(
     let proven = open <= best + 1e-9;
     let bound = if proven { best } else { open };
     Ok((Outcome::new(inst, best_sel, bound, proven, start.elapsed().as_secs_f64(), "exact LiDAR-first search"), proven))
+}
+
+/// Per target, the sum of its best `n_r` radar visibilities (for the cheap bound).
+fn radar_top_sums(inst: &Instance, radars: &[usize], n_r: usize, n: usize) -> Vec<f64> {
+    let mut radar_top = vec![Vec::<f32>::new(); n];
+    for &r in radars {
+        for &(j, v) in &inst.options[r].row {
+            let l = &mut radar_top[j as usize];
+            l.push(v);
+            if l.len() > n_r {
+                l.sort_by(|a, b| b.total_cmp(a));
+                l.truncate(n_r);
+            }
+        }
+    }
+    radar_top.iter().map(|l| l.iter().map(|&v| v as f64).sum()).collect()
+}
+
+/// Each radar option's mount as a dense index, and the number of mounts, for "one sensor per
+/// mount" in the bound.
+fn dense_mounts(inst: &Instance, radars: &[usize]) -> (Vec<usize>, usize) {
+    let mut mount_ids: std::collections::BTreeMap<u32, usize> = std::collections::BTreeMap::new();
+    for &r in radars {
+        let k = mount_ids.len();
+        mount_ids.entry(inst.options[r].mount).or_insert(k);
+    }
+    (radars.iter().map(|&r| mount_ids[&inst.options[r].mount]).collect(), mount_ids.len())
+}
+
+/// LiDAR sets as indices into `lidars`: singles, and with two LiDARs pairs on different mounts
+/// (with one sensor per mount, fewer LiDARs than the count can be optimal).
+fn lidar_sets(inst: &Instance, lidars: &[usize], n_l: usize) -> Vec<Vec<usize>> {
+    let mut sets: Vec<Vec<usize>> = (0..lidars.len()).map(|a| vec![a]).collect();
+    if n_l == 2 {
+        for a in 0..lidars.len() {
+            for b in a + 1..lidars.len() {
+                if inst.options[lidars[a]].mount != inst.options[lidars[b]].mount {
+                    sets.push(vec![a, b]);
+                }
+            }
+        }
+    }
+    sets
 }
 
 fn sorted(selection: &[usize]) -> Vec<usize> {
