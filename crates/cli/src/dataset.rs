@@ -1,9 +1,9 @@
 //! `hilo dataset stats`: what a dataset holds, and a bird's-eye picture of one frame.
 
-use crate::write_atomic;
 use anyhow::{Context, Result};
 use glam::{Vec2, Vec3};
 use hilo_core::Box3;
+use hilo_core::fs::write_atomic;
 use hilo_dataset::Dataset;
 use hilo_dataset::writer::class_of_category;
 use hilo_study::render::blank_canvas;

@@ -1,7 +1,7 @@
 //! `hilo eval`: nuScenes detection metrics of a submission against ground truth.
 
-use crate::write_atomic;
 use anyhow::{Context, Result, bail};
+use hilo_core::fs::write_atomic;
 use hilo_eval::{DetectionConfig, check_sample_set, evaluate_files, read_ground_truth, read_submission};
 use std::path::PathBuf;
 

@@ -268,7 +268,7 @@ fn main() -> Result<()> {
                 anyhow::bail!("--px-per-m must be in (0, 50], got {px_per_m}");
             }
             let png = hilo_study::render::scene_png(&scene, px_per_m)?;
-            write_atomic(&out, &png)?;
+            hilo_core::fs::write_atomic(&out, &png)?;
             eprintln!("wrote {} ({})", out.display(), scene.source_name());
         }
         Command::Scene { command: SceneCommand::Info { scene } } => {
@@ -344,9 +344,4 @@ fn main() -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Writes a file atomically (temporary file, then rename; nothing left behind on failure).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    Ok(hilo_study::files::write_atomic(path, bytes)?)
 }

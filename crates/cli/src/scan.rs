@@ -1,8 +1,9 @@
 //! `hilo scan`: one frame of one sensor, written as PCD or PLY, with an optional picture.
 
-use crate::{load_scene, write_atomic};
+use crate::load_scene;
 use anyhow::{Context, Result, bail};
 use glam::Vec2;
+use hilo_core::fs::write_atomic;
 use hilo_raycast::{ActorSet, QueryRegion, World};
 use hilo_sensor_models::export::{to_pcd, to_ply};
 use hilo_sensor_models::{Catalog, SensorPose, SensorSpec, simulate_lidar, simulate_radar};

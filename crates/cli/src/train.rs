@@ -54,13 +54,6 @@ pub fn detector(registry: &Registry, name: &str) -> Result<(hilo_detector::Detec
     Ok((p.detector.clone(), p.train.clone()))
 }
 
-/// A JSON file into `T`; errors name the file and serde's field and position.
-fn read_json<T: serde::de::DeserializeOwned>(path: &std::path::Path) -> Result<T> {
-    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-        .with_context(|| format!("reading {}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{}: not a valid configuration", path.display()))
-}
-
 /// A training schedule from a JSON object: its fields over `base` (the preset's schedule).
 fn schedule(base: &TrainConfig, fields: &serde_json::Value) -> Result<TrainConfig> {
     let Some(fields) = fields.as_object() else { bail!("a training schedule is a JSON object, not {fields}") };
@@ -76,12 +69,17 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
     let (det, base) = match &args.detector_config {
-        Some(path) => (read_json::<hilo_detector::DetectorConfig>(path)?, TrainConfig::default()),
+        Some(path) => (
+            hilo_core::fs::read_json::<hilo_detector::DetectorConfig>(path, hilo_core::fs::limit::CONFIG)?,
+            TrainConfig::default(),
+        ),
         None => detector(&registry, &args.detector)?,
     };
     let mut cfg = match &args.train_config {
-        Some(path) => schedule(&base, &read_json::<serde_json::Value>(path)?)
-            .with_context(|| format!("{}: not a valid training schedule", path.display()))?,
+        Some(path) => {
+            schedule(&base, &hilo_core::fs::read_json::<serde_json::Value>(path, hilo_core::fs::limit::CONFIG)?)
+                .with_context(|| format!("{}: not a valid training schedule", path.display()))?
+        }
         None => base,
     };
     if let Some(s) = args.samples {
@@ -229,7 +227,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     bar.finish();
     let meta = serde_json::json!({ "use_camera": false, "use_lidar": true, "use_radar": det.uses_radar(), "use_map": false, "use_external": false, "detector": det.cfg.name });
     let json = hilo_eval::boxes::submission_json(&hilo_eval::boxes::from_detections(&dets), meta);
-    crate::write_atomic(&args.out, serde_json::to_string(&json)?.as_bytes())?;
+    hilo_core::fs::write_atomic(&args.out, serde_json::to_string(&json)?.as_bytes())?;
     eprintln!(
         "{} ({}) on {} frames: {:.1} ms per frame; wrote {}",
         info.detector.name,

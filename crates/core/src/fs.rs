@@ -1,9 +1,38 @@
-//! Atomic file writes, the one helper every hilo crate writes files with: the content goes to a
-//! temporary file beside the target (same folder, so the rename stays on one file system), then
-//! is renamed over it. A reader never sees half a file, an interrupted run leaves the old file
-//! intact, and a failed write removes its temporary file.
+//! Files, the one set of helpers every hilo crate reads and writes them with, and the one error
+//! that names the file ([`FileError`]; each crate's error wraps it).
+//!
+//! Writes are atomic: the content goes to a temporary file beside the target (same folder, so
+//! the rename stays on one file system), then is renamed over it. A reader never sees half a
+//! file, an interrupted run leaves the old file intact, and a failed write removes its
+//! temporary file. Reads are bounded by the kind of file ([`limit`]).
 
 use std::path::{Path, PathBuf};
+
+/// A file that could not be read or written, or whose content is not what was expected.
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    #[error("cannot read or write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Content { path: PathBuf, message: String },
+}
+
+impl FileError {
+    pub fn io(path: &Path, source: std::io::Error) -> Self {
+        FileError::Io { path: path.to_path_buf(), source }
+    }
+
+    pub fn content(path: &Path, message: impl std::fmt::Display) -> Self {
+        FileError::Content { path: path.to_path_buf(), message: message.to_string() }
+    }
+
+    /// The file the error is about.
+    pub fn path(&self) -> &Path {
+        match self {
+            FileError::Io { path, .. } | FileError::Content { path, .. } => path,
+        }
+    }
+}
 
 /// The temporary name `path`'s content is written under before the rename.
 pub fn temp_path(path: &Path) -> PathBuf {
@@ -37,8 +66,21 @@ pub fn write_atomic_with<E>(
 }
 
 /// Writes `bytes` to `path` atomically.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    write_atomic_with(path, |tmp| std::fs::write(tmp, bytes), |e| e)
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FileError> {
+    write_atomic_with(path, |tmp| std::fs::write(tmp, bytes), |e| e).map_err(|e| FileError::io(path, e))
+}
+
+/// Writes `value` to `path` atomically, as pretty JSON.
+pub fn write_json(path: &Path, value: &impl serde::Serialize) -> Result<(), FileError> {
+    let bytes = serde_json::to_vec_pretty(value).map_err(|e| FileError::content(path, e))?;
+    write_atomic(path, &bytes)
+}
+
+/// Reads a JSON file of at most `max` bytes into `T`; the error names the file and serde's
+/// field and position.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, max: u64) -> Result<T, FileError> {
+    let text = read_text_bounded(path, max).map_err(|e| FileError::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| FileError::content(path, e))
 }
 
 /// Size limits for reading, by kind of file: what the largest legitimate file of that kind

@@ -3,10 +3,9 @@ use std::path::PathBuf;
 /// Dataset errors; each names the file, table, token or field at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum DatasetError {
-    #[error("cannot read or write {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: {message}")]
-    Json { path: PathBuf, message: String },
+    /// A file that could not be read or written, or whose content is malformed.
+    #[error(transparent)]
+    File(#[from] hilo_core::fs::FileError),
     #[error("table {table}: record {token:?} field `{field}` refers to {target} {missing:?}, which does not exist")]
     Dangling { table: &'static str, token: String, field: &'static str, target: &'static str, missing: String },
     #[error("table {table}: record {token:?} field `{field}` = {value}: {reason}")]

@@ -10,8 +10,9 @@ use std::path::{Path, PathBuf};
 fn load<T: DeserializeOwned>(dir: &Path, name: &str) -> Result<Vec<T>, DatasetError> {
     let p = dir.join(format!("{name}.json"));
     let text = hilo_core::fs::read_text_bounded(&p, hilo_core::fs::limit::TABLE)
-        .map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
-    serde_json::from_str(&text).map_err(|e| DatasetError::Json { path: p, message: e.to_string() })
+        .map_err(|e| DatasetError::from(hilo_core::fs::FileError::io(&p, e)))?;
+    serde_json::from_str(&text)
+        .map_err(|e| DatasetError::from(hilo_core::fs::FileError::Content { path: p, message: e.to_string() }))
 }
 
 /// nuScenes' own categories: a dataset may hold them, and those that are not one of hilo's
@@ -110,12 +111,17 @@ impl Dataset {
     pub fn split(&self, name: &str) -> Result<Vec<String>, DatasetError> {
         let p = self.root.join(&self.version).join("splits.json");
         let text = hilo_core::fs::read_text_bounded(&p, hilo_core::fs::limit::CONFIG)
-            .map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
-        let splits: std::collections::BTreeMap<String, Vec<String>> =
-            serde_json::from_str(&text).map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
-        splits.get(name).cloned().ok_or_else(|| DatasetError::Json {
-            path: p,
-            message: format!("no split {name:?}; splits: {}", splits.keys().cloned().collect::<Vec<_>>().join(", ")),
+            .map_err(|e| DatasetError::from(hilo_core::fs::FileError::io(&p, e)))?;
+        let splits: std::collections::BTreeMap<String, Vec<String>> = serde_json::from_str(&text)
+            .map_err(|e| DatasetError::from(hilo_core::fs::FileError::content(&p, e.to_string())))?;
+        splits.get(name).cloned().ok_or_else(|| {
+            DatasetError::from(hilo_core::fs::FileError::Content {
+                path: p,
+                message: format!(
+                    "no split {name:?}; splits: {}",
+                    splits.keys().cloned().collect::<Vec<_>>().join(", ")
+                ),
+            })
         })
     }
 
@@ -176,7 +182,7 @@ impl Dataset {
         check_filename(sd)?;
         let p = self.root.join(&sd.filename);
         let bytes = hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::POINTS)
-            .map_err(|e| DatasetError::Io { path: p.clone(), source: e })?;
+            .map_err(|e| DatasetError::from(hilo_core::fs::FileError::io(&p, e)))?;
         Ok((p, bytes))
     }
 }

@@ -424,7 +424,8 @@ pub fn write_dataset(
     namespace: &str,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<WriteSummary, DatasetError> {
-    use crate::writer::{DatasetWriter, SensorModality, SensorSetup, token, write_atomic};
+    use crate::writer::{DatasetWriter, SensorModality, SensorSetup, token};
+    use hilo_core::fs::write_atomic;
     let t0 = std::time::Instant::now();
     cfg.validate()?;
     let fingerprint =
@@ -435,7 +436,7 @@ pub fn write_dataset(
     match hilo_core::fs::read_bounded(&run_path, hilo_core::fs::limit::CONFIG) {
         Ok(bytes) => {
             let old: serde_json::Value = serde_json::from_slice(&bytes)
-                .map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
+                .map_err(|e| DatasetError::from(hilo_core::fs::FileError::content(&run_path, e.to_string())))?;
             // A run refused before it finished a scene left only this file: nothing is lost by
             // taking the folder over, and the corrected rerun must not be blocked by it.
             if old.get("fingerprint") != run.get("fingerprint") && hilo_core::fs::holds_file(&parts_dir(root)) {
@@ -457,10 +458,10 @@ pub fn write_dataset(
                 )));
             }
         }
-        Err(e) => return Err(DatasetError::Io { path: run_path, source: e }),
+        Err(e) => return Err(DatasetError::from(hilo_core::fs::FileError::Io { path: run_path, source: e })),
     }
     let bytes = serde_json::to_vec_pretty(&run)
-        .map_err(|e| DatasetError::Json { path: run_path.clone(), message: e.to_string() })?;
+        .map_err(|e| DatasetError::from(hilo_core::fs::FileError::content(&run_path, e.to_string())))?;
     write_atomic(&run_path, &bytes)?;
     let setups: Vec<SensorSetup> = rig
         .iter()
@@ -489,7 +490,7 @@ pub fn write_dataset(
         {
             Ok(bytes) => Some(
                 serde_json::from_slice(&bytes)
-                    .map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?,
+                    .map_err(|e| DatasetError::from(hilo_core::fs::FileError::content(&part, e.to_string())))?,
             ),
             Err(_) => None,
         };
@@ -515,7 +516,7 @@ pub fn write_dataset(
                 let rows = writer.add_scene_rows(&data, &location)?;
                 summary.annotations += rows.sample_annotation.len();
                 let bytes = serde_json::to_vec(&rows)
-                    .map_err(|e| DatasetError::Json { path: part.clone(), message: e.to_string() })?;
+                    .map_err(|e| DatasetError::from(hilo_core::fs::FileError::content(&part, e.to_string())))?;
                 write_atomic(&part, &bytes)?;
             }
         }

@@ -14,6 +14,7 @@
 use crate::error::DatasetError;
 use crate::tables::*;
 use glam::Vec2;
+use hilo_core::fs::write_atomic;
 use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
 use hilo_sensor_models::SensorPose;
 use hilo_sensor_models::export::to_nuscenes_radar_pcd;
@@ -118,11 +119,6 @@ pub fn token(parts: &[&str]) -> String {
         }
     }
     format!("{a:016x}{b:016x}")
-}
-
-/// Writes `bytes` to `path` atomically ([`hilo_core::fs::write_atomic`]), naming the file in errors.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), DatasetError> {
-    hilo_core::fs::write_atomic(path, bytes).map_err(|e| DatasetError::Io { path: path.to_path_buf(), source: e })
 }
 
 /// LiDAR points as nuScenes `.pcd.bin` bytes.
@@ -372,8 +368,8 @@ impl DatasetWriter {
         }
         let p = self.root.join(&self.version).join("splits.json");
         let bytes = serde_json::to_vec_pretty(splits)
-            .map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
-        write_atomic(&p, &bytes)
+            .map_err(|e| DatasetError::from(hilo_core::fs::FileError::content(&p, e.to_string())))?;
+        Ok(write_atomic(&p, &bytes)?)
     }
 
     /// Writes the tables and returns them.
@@ -384,7 +380,7 @@ impl DatasetWriter {
             ($name:ident) => {
                 let p = dir.join(concat!(stringify!($name), ".json"));
                 let bytes = serde_json::to_vec_pretty(&t.$name)
-                    .map_err(|e| DatasetError::Json { path: p.clone(), message: e.to_string() })?;
+                    .map_err(|e| DatasetError::from(hilo_core::fs::FileError::content(&p, e.to_string())))?;
                 write_atomic(&p, &bytes)?;
             };
         }

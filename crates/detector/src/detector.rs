@@ -363,7 +363,7 @@ impl Detector {
 
     /// Weights (and BatchNorm statistics) to safetensors.
     pub fn save(&self, path: &Path) -> Result<()> {
-        let io = |e: std::io::Error| FusionError::Io { path: path.to_path_buf(), message: e.to_string() };
+        let io = |e: std::io::Error| FusionError::from(hilo_core::fs::FileError::io(path, e));
         hilo_core::fs::write_atomic_with(
             path,
             |tmp| self.varmap.save(tmp).map_err(|e| io(std::io::Error::other(e.to_string()))),

@@ -131,7 +131,7 @@ impl AdamW {
         hilo_core::fs::write_atomic_with(
             path,
             |tmp| candle_core::safetensors::save(&map, tmp).map_err(FusionError::from),
-            |e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() },
+            |e| FusionError::from(hilo_core::fs::FileError::io(path, e)),
         )
     }
 
@@ -208,15 +208,8 @@ pub fn background_path(run: &Path) -> PathBuf {
 pub fn read_info(run: &Path) -> Result<RunInfo> {
     let p = info_path(run);
     let bytes = hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::CONFIG)
-        .map_err(|e| FusionError::Io { path: p.clone(), message: format!("{e} (not a training run folder?)") })?;
+        .map_err(|e| hilo_core::fs::FileError::content(&p, format!("{e} (not a training run folder?)")))?;
     serde_json::from_slice(&bytes).map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })
-}
-
-fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
-    let bytes = serde_json::to_vec_pretty(value)
-        .map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })?;
-    hilo_core::fs::write_atomic(path, &bytes)
-        .map_err(|e| FusionError::Io { path: path.to_path_buf(), message: e.to_string() })
 }
 
 /// Progress of a training run, reported after every step.
@@ -545,7 +538,7 @@ pub fn train(
     }
     let paste = paste_db(frames, cfg)?;
     let mut det = Detector::new(det_cfg, registry, device, cfg.seed)?;
-    std::fs::create_dir_all(run).map_err(|e| FusionError::Io { path: run.to_path_buf(), message: e.to_string() })?;
+    std::fs::create_dir_all(run).map_err(|e| hilo_core::fs::FileError::io(run, e))?;
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let mut info = RunInfo {
         detector: det_cfg.clone(),
@@ -585,7 +578,7 @@ pub fn train(
         }
     }
     if let Some(bg) = background {
-        write_json(&background_path(run), bg)?;
+        hilo_core::fs::write_json(&background_path(run), bg)?;
     }
     let steps = cfg.steps();
     let with_radar = det.uses_radar();
@@ -646,7 +639,7 @@ pub fn train(
                 info.finished = step + 1 == steps;
                 det.save(&weights_path(run))?;
                 opt.save(&optimizer_path(run))?;
-                write_json(&info_path(run), &info)?;
+                hilo_core::fs::write_json(&info_path(run), &info)?;
             }
             if !go_on {
                 break;
@@ -682,7 +675,7 @@ pub fn load_run_at(
         Some(_) => {
             let p = background_path(run);
             let bytes = hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::TABLE)
-                .map_err(|e| FusionError::Io { path: p.clone(), message: e.to_string() })?;
+                .map_err(|e| hilo_core::fs::FileError::io(&p, e))?;
             Some(
                 serde_json::from_slice(&bytes)
                     .map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })?,

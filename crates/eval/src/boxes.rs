@@ -245,13 +245,13 @@ fn json_error(path: &Path, text: &str, e: &serde_json::Error) -> EvalError {
         Some(s) => format!("sample {s:?}: {e}{hint}"),
         None => format!("{e}{hint}"),
     };
-    EvalError::Json { path: path.to_path_buf(), message }
+    EvalError::from(hilo_core::fs::FileError::Content { path: path.to_path_buf(), message })
 }
 
 /// Reads and checks a submission; returns boxes grouped by sample in file order.
 pub fn read_submission(path: &Path, max_boxes_per_sample: usize) -> Result<Vec<(String, Vec<EvalBox>)>, EvalError> {
     let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::TABLE)
-        .map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
+        .map_err(|e| EvalError::from(hilo_core::fs::FileError::io(path, e)))?;
     parse_submission(&text, path, max_boxes_per_sample)
 }
 
@@ -265,13 +265,17 @@ pub fn parse_submission(
     let sub: Submission = serde_json::from_str(text).map_err(|e| json_error(path, text, &e))?;
     let mut out = Vec::new();
     for (sample, v) in sub.results {
-        let boxes: Vec<EvalBox> = serde_json::from_value(v)
-            .map_err(|e| EvalError::Json { path: path.to_path_buf(), message: format!("sample {sample:?}: {e}") })?;
+        let boxes: Vec<EvalBox> = serde_json::from_value(v).map_err(|e| {
+            EvalError::from(hilo_core::fs::FileError::Content {
+                path: path.to_path_buf(),
+                message: format!("sample {sample:?}: {e}"),
+            })
+        })?;
         if boxes.len() > max_boxes_per_sample {
-            return Err(EvalError::Json {
+            return Err(EvalError::from(hilo_core::fs::FileError::Content {
                 path: path.to_path_buf(),
                 message: format!("sample {sample:?} has {} boxes, above the limit {max_boxes_per_sample}", boxes.len()),
-            });
+            }));
         }
         for (k, b) in boxes.iter().enumerate() {
             check_box(b, path, &sample, k, true)?;
@@ -284,7 +288,7 @@ pub fn parse_submission(
 /// Reads and checks a ground-truth file.
 pub fn read_ground_truth(path: &Path) -> Result<GroundTruth, EvalError> {
     let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::TABLE)
-        .map_err(|e| EvalError::Io { path: path.to_path_buf(), source: e })?;
+        .map_err(|e| EvalError::from(hilo_core::fs::FileError::io(path, e)))?;
     parse_ground_truth(&text, path)
 }
 
@@ -293,17 +297,17 @@ pub fn parse_ground_truth(text: &str, path: &Path) -> Result<GroundTruth, EvalEr
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let gt: GroundTruth = serde_json::from_str(text).map_err(|e| json_error(path, text, &e))?;
     if gt.samples.is_empty() {
-        return Err(EvalError::Json {
+        return Err(EvalError::from(hilo_core::fs::FileError::Content {
             path: path.to_path_buf(),
             message: "`samples` is empty: an evaluation over no samples would print mAP 0".into(),
-        });
+        }));
     }
     for (sample, boxes) in &gt.boxes {
         if !gt.samples.contains_key(sample) {
-            return Err(EvalError::Json {
+            return Err(EvalError::from(hilo_core::fs::FileError::Content {
                 path: path.to_path_buf(),
                 message: format!("boxes listed for sample {sample:?}, which is not in `samples`"),
-            });
+            }));
         }
         for (k, b) in boxes.iter().enumerate() {
             check_box(b, path, sample, k, false)?;
@@ -337,8 +341,8 @@ pub fn check_sample_set(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], path:
     }
     let missing: Vec<_> = gt_samples.difference(&pred_samples).take(3).collect();
     let extra: Vec<_> = pred_samples.difference(&gt_samples).take(3).collect();
-    Err(EvalError::Json {
+    Err(EvalError::from(hilo_core::fs::FileError::Content {
         path: path.to_path_buf(),
         message: format!("samples differ from the ground truth's (missing e.g. {missing:?}, unknown e.g. {extra:?})"),
-    })
+    }))
 }

@@ -8,8 +8,9 @@ pub enum FusionError {
     /// An error of the dataset a detector reads (the detector crate's data loading).
     #[error(transparent)]
     Dataset(Box<dyn std::error::Error + Send + Sync>),
-    #[error("cannot read or write {path}: {message}")]
-    Io { path: PathBuf, message: String },
+    /// A file that could not be read or written, or whose content is malformed.
+    #[error(transparent)]
+    File(#[from] hilo_core::fs::FileError),
     #[error("{0}")]
     Config(String),
     #[error("checkpoint {path}: {message}")]

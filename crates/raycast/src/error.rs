@@ -4,10 +4,9 @@ use std::path::PathBuf;
 /// at fault, and the offending value.
 #[derive(Debug, thiserror::Error)]
 pub enum RaycastError {
-    #[error("cannot read {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: {message}")]
-    Toml { path: PathBuf, message: String },
+    /// A file that could not be read or written, or whose content is malformed.
+    #[error(transparent)]
+    File(#[from] hilo_core::fs::FileError),
     #[error("{path}: field `{field}` = {value}: {reason}")]
     Invalid { path: PathBuf, field: String, value: String, reason: String },
     #[error("{path}: mesh: {message}")]

@@ -3,10 +3,9 @@ use std::path::PathBuf;
 /// Errors of sensor specs and scan simulation; each names the file, field and value at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum SensorError {
-    #[error("cannot read {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: {message}")]
-    Toml { path: PathBuf, message: String },
+    /// A file that could not be read or written, or whose content is malformed.
+    #[error(transparent)]
+    File(#[from] hilo_core::fs::FileError),
     #[error("{path}: field `{field}` = {value}: {reason}")]
     Invalid { path: PathBuf, field: String, value: String, reason: String },
     #[error("unknown sensor {name:?} in {catalog}; known sensors: {known}")]

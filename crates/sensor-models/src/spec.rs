@@ -320,8 +320,8 @@ fn validate_radar(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {
 impl Catalog {
     /// Parses and validates a catalog; `path` names the file in errors.
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self, SensorError> {
-        let file: CatalogFile =
-            toml::from_str(text).map_err(|e| SensorError::Toml { path: path.to_path_buf(), message: e.to_string() })?;
+        let file: CatalogFile = toml::from_str(text)
+            .map_err(|e| SensorError::from(hilo_core::fs::FileError::content(path, e.to_string())))?;
         let mut sensors = Vec::new();
         let mut seen = std::collections::HashSet::new();
         for (i, l) in file.lidar.into_iter().enumerate() {
@@ -345,7 +345,7 @@ impl Catalog {
 
     pub fn load(path: &Path) -> Result<Self, SensorError> {
         let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-            .map_err(|e| SensorError::Io { path: path.to_path_buf(), source: e })?;
+            .map_err(|e| SensorError::from(hilo_core::fs::FileError::io(path, e)))?;
         Self::from_toml_str(&text, path)
     }
 

@@ -6,7 +6,6 @@
 //! numbers round-trip exactly).
 
 use crate::error::{Result, StudyError};
-use crate::files::read_json;
 use crate::gt::{GtKind, SampleKey, ground_truth, rekey};
 use crate::plan::{Job, Plan, Provenance};
 use crate::profile::Profile;
@@ -14,6 +13,7 @@ use crate::stages::{DataRecord, JobOutput, Predictions, Progress, ResultMeta};
 use crate::stats::{Scores, scene_draws};
 use crate::study::Study;
 use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, adjust};
+use hilo_core::fs::{limit, read_json};
 use hilo_detector::Registry;
 use hilo_detector::data::{Frame, LoadOptions, load_split_frame};
 use hilo_eval::bootstrap::Reweighable;
@@ -145,7 +145,7 @@ pub fn assemble(
             return Err(StudyError::Invalid(format!("{}: missing; run the place stage first", p.display())));
         }
     }
-    let tradeoffs: crate::tradeoff::Tradeoffs = read_json(&plan.tradeoffs)?;
+    let tradeoffs: crate::tradeoff::Tradeoffs = read_json(&plan.tradeoffs, limit::TABLE)?;
     let mut summaries = config_summaries(plan)?;
     // The ground truth every rig is scored on, and what it evaluates.
     let first = hilo_dataset::Dataset::open(&plan.data[0].dir, "v1.0-trainval")?;
@@ -296,7 +296,7 @@ fn picture(
     common: &GroundTruth,
 ) -> Result<Option<(Frame, String, Vec<EvalBox>)>> {
     let background = match &job.detector.input.background {
-        Some(_) => Some(read_json(&hilo_detector::train::background_path(&job.run))?),
+        Some(_) => Some(read_json(&hilo_detector::train::background_path(&job.run), limit::TABLE)?),
         None => None,
     };
     let lo = LoadOptions::new(&job.detector.input, background.as_ref());
@@ -324,7 +324,7 @@ fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
     let mut summaries = Vec::new();
     for (ci, conf) in configs.iter().enumerate() {
         let placement = Placement::load(&plan.placement(ci))?;
-        let data: DataRecord = read_json(&plan.data[ci].done()).map_err(|_| {
+        let data: DataRecord = read_json(&plan.data[ci].done(), limit::TABLE).map_err(|_| {
             StudyError::Invalid(format!(
                 "{}: the dataset of {:?} is not complete; run its simulate stage first",
                 plan.data[ci].dir.display(),
@@ -454,7 +454,7 @@ fn read_outputs(job: &Job) -> Result<JobOutput> {
     }
     let read = |p: &std::path::Path| -> Result<Predictions> { Ok(hilo_eval::read_submission(p, 500)?) };
     let curve = job.curve.iter().map(|&s| Ok((s, read(&job.curve_results(s))?))).collect::<Result<Vec<_>>>()?;
-    Ok(JobOutput { predictions: read(&job.results)?, meta: read_json(&job.meta())?, curve })
+    Ok(JobOutput { predictions: read(&job.results)?, meta: read_json(&job.meta(), limit::TABLE)?, curve })
 }
 
 fn score_full(gt: &GroundTruth, pred: &Predictions, cfg: &DetectionConfig, scenes: &[String]) -> Result<f64> {

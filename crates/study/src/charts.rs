@@ -3,8 +3,9 @@
 //! font is needed on the machine).
 
 use crate::error::{Result, StudyError};
-use crate::files::write_atomic;
+use hilo_core::fs::write_atomic;
 use plotters::coord::Shift;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -59,7 +60,7 @@ pub fn save(dir: &Path, stem: &str, chart: &impl Chart) -> Result<()> {
         chart.draw(&root)?;
         root.present().map_err(|e| err(stem, e))?;
     }
-    write_atomic(&dir.join(format!("{stem}.png")), &png(&rgb, W, H, stem)?)
+    Ok(write_atomic(&dir.join(format!("{stem}.png")), &png(&rgb, W, H, stem)?)?)
 }
 
 /// RGB bytes to PNG (through tiny-skia, which the pictures use too).
@@ -141,16 +142,24 @@ impl Chart for XY<'_> {
                 )))
                 .map_err(e)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .label_font(("sans-serif", 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()
-            .map_err(e)?;
-        Ok(())
+        legend(&mut chart, SeriesLabelPosition::LowerRight, self.title)
     }
+}
+
+/// The legend box of every chart, at `pos`.
+fn legend<'a, DB: DrawingBackend + 'a>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    pos: SeriesLabelPosition,
+    title: &str,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(pos)
+        .label_font(("sans-serif", 14))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|x| err(title, x))
 }
 
 /// One bar group's series: its name, and per category a value with its [low, high] range.
@@ -216,15 +225,7 @@ impl Chart for Bars<'_> {
                 )
                 .map_err(e)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .label_font(("sans-serif", 14))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()
-            .map_err(e)?;
-        Ok(())
+        legend(&mut chart, SeriesLabelPosition::UpperRight, self.title)
     }
 }
 

@@ -11,11 +11,11 @@
 use crate::assemble::Report;
 use crate::charts::dollars;
 use crate::error::{Result, StudyError};
-use crate::files::{read_json, write_atomic, write_json};
 use crate::plan::FolderRecord;
 use crate::report::{esc, verdict_word};
 use crate::sweep::{ShardRecord, Sweep, SweepRecord};
 use crate::verdict::Verdict;
+use hilo_core::fs::{limit, read_json, write_atomic, write_json};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -184,7 +184,7 @@ pub fn compare(out: &Path) -> Result<Comparison> {
                 dir.display()
             )));
         }
-        reports.push((s.clone(), read_json::<Report>(&path)?));
+        reports.push((s.clone(), read_json::<Report>(&path, limit::TABLE)?));
     }
     Ok(build(&record, &reports))
 }

@@ -1,12 +1,9 @@
-use std::path::PathBuf;
-
 /// Errors of a study; each names the file, field or value at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum StudyError {
-    #[error("cannot read or write {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: {message}")]
-    File { path: PathBuf, message: String },
+    /// A file that could not be read or written, or whose content is malformed.
+    #[error(transparent)]
+    File(#[from] hilo_core::fs::FileError),
     #[error("{0}")]
     Invalid(String),
     #[error(transparent)]
@@ -26,9 +23,3 @@ pub enum StudyError {
 }
 
 pub type Result<T> = std::result::Result<T, StudyError>;
-
-impl StudyError {
-    pub fn io(path: &std::path::Path, source: std::io::Error) -> Self {
-        StudyError::Io { path: path.to_path_buf(), source }
-    }
-}

@@ -278,9 +278,9 @@ pub fn coverage_png(
 pub fn write_placements(study: &Study, placed: &Placed, dir: &std::path::Path) -> Result<()> {
     for (i, p) in placed.placements.iter().enumerate() {
         let slug = crate::study::slug(&p.name);
-        crate::files::write_atomic(&dir.join(format!("{slug}.json")), p.to_json()?.as_bytes())?;
+        hilo_core::fs::write_atomic(&dir.join(format!("{slug}.json")), p.to_json()?.as_bytes())?;
         let png = coverage_png(study, &placed.prepared, p, &placed.lidar_hits[i], &placed.radar_covered[i])?;
-        crate::files::write_atomic(&dir.join(format!("{slug}.png")), &png)?;
+        hilo_core::fs::write_atomic(&dir.join(format!("{slug}.png")), &png)?;
     }
     Ok(())
 }
@@ -300,8 +300,8 @@ pub fn export(study: &Study, prep: &Prepared, dir: &std::path::Path) -> Result<(
         .iter()
         .map(|c| json!({"id": c.id, "modality": c.modality, "mount": c.mount, "structure": c.structure, "position_m": c.pose.position.to_array(), "yaw_deg": c.pose.yaw.to_degrees(), "pitch_deg": c.pose.pitch.to_degrees()}))
         .collect();
-    crate::files::write_json(&dir.join("targets.json"), &targets)?;
-    crate::files::write_json(&dir.join("candidates.json"), &candidates)?;
+    hilo_core::fs::write_json(&dir.join("targets.json"), &targets)?;
+    hilo_core::fs::write_json(&dir.join("candidates.json"), &candidates)?;
     for t in study.type_names() {
         let Some(v) = prep.visibility.get(&t) else { continue };
         let (mut ci, mut tj, mut vv) = (Vec::new(), Vec::new(), Vec::new());
@@ -314,7 +314,7 @@ pub fn export(study: &Study, prep: &Prepared, dir: &std::path::Path) -> Result<(
         }
         let doc =
             json!({"sensor": t, "format": "coo", "n_targets": v.n_targets, "candidate": ci, "target": tj, "v": vv});
-        crate::files::write_json(&dir.join(format!("visibility_{t}.json")), &doc)?;
+        hilo_core::fs::write_json(&dir.join(format!("visibility_{t}.json")), &doc)?;
     }
     for conf in study.file.configurations.iter().filter(|c| !c.single_modality(&study.catalog)) {
         let types = conf.type_names();

@@ -11,9 +11,10 @@
 //! ```
 
 use crate::error::{Result, StudyError};
-use crate::files::{hash, read_json, write_json};
+use crate::files::hash;
 use crate::profile::Profile;
 use crate::study::{Configuration, Study};
+use hilo_core::fs::{limit, read_json, write_json};
 use hilo_detector::train::TrainConfig;
 use hilo_detector::{DetectorConfig, Registry};
 use serde::{Deserialize, Serialize};
@@ -320,7 +321,7 @@ impl Plan {
     pub fn claim_folder(&self, study: &Study) -> Result<()> {
         let marker = self.record_path();
         if marker.exists() {
-            let old: FolderRecord = read_json(&marker)?;
+            let old: FolderRecord = read_json(&marker, limit::TABLE)?;
             // A study refused before any stage finished left only its record (and perhaps
             // workflow files and logs): taking the folder over loses nothing, and the
             // corrected rerun must not be blocked by it.
@@ -341,16 +342,14 @@ impl Plan {
                 self.out.display()
             )));
         }
-        std::fs::create_dir_all(&self.out).map_err(|e| StudyError::io(&self.out, e))?;
-        write_json(
-            &marker,
-            &FolderRecord {
-                fingerprint: self.fingerprint.clone(),
-                study: study.source.clone(),
-                shard: study.shard.clone(),
-                profile: self.profile.clone(),
-            },
-        )
+        std::fs::create_dir_all(&self.out).map_err(|e| hilo_core::fs::FileError::io(&self.out, e))?;
+        let record = FolderRecord {
+            fingerprint: self.fingerprint.clone(),
+            study: study.source.clone(),
+            shard: study.shard.clone(),
+            profile: self.profile.clone(),
+        };
+        Ok(write_json(&marker, &record)?)
     }
 }
 
@@ -389,6 +388,6 @@ impl FolderRecord {
                 out.display()
             )));
         }
-        read_json(&p)
+        Ok(read_json(&p, limit::TABLE)?)
     }
 }

@@ -3,12 +3,12 @@
 
 use crate::assemble::{Entry, Pictures, Report, ResultsBy};
 use crate::charts::{Bars, Series, XY, dollars, save};
-use crate::error::{Result, StudyError};
-use crate::files::{write_atomic, write_json};
+use crate::error::Result;
 use crate::study::Configuration;
 use crate::verdict::Verdict;
 use glam::{Vec2, Vec3};
 use hilo_core::Box3;
+use hilo_core::fs::{write_atomic, write_json};
 use hilo_eval::EvalBox;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -96,7 +96,7 @@ fn detection_png(
     ]);
     canvas.scale_bar(20.0);
     canvas.north_arrow();
-    write_atomic(path, &canvas.png()?)
+    Ok(write_atomic(path, &canvas.png()?)?)
 }
 
 pub(crate) fn verdict_word(v: Verdict) -> &'static str {
@@ -131,7 +131,7 @@ pub fn write(
     configs: &[Configuration],
 ) -> Result<()> {
     let fig = out.join("figures");
-    std::fs::create_dir_all(fig.join("detections")).map_err(|e| StudyError::io(&fig, e))?;
+    std::fs::create_dir_all(fig.join("detections")).map_err(|e| hilo_core::fs::FileError::io(&fig, e))?;
     write_json(&out.join("report.json"), r)?;
     let mut presets: Vec<String> = r.profile.presets.clone();
     presets.extend(r.profile.ablations.iter().cloned());
@@ -140,7 +140,8 @@ pub fn write(
     for c in configs {
         let src = placements.join(format!("{}.png", c.slug()));
         if src.exists() {
-            std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug()))).map_err(|e| StudyError::io(&src, e))?;
+            std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug())))
+                .map_err(|e| hilo_core::fs::FileError::io(&src, e))?;
         }
         for p in &presets {
             if let (Some(pred), Some((frame, key, gboxes))) =
@@ -156,7 +157,7 @@ pub fn write(
             }
         }
     }
-    write_atomic(&out.join("report.md"), markdown(r, results, configs, &presets).as_bytes())
+    Ok(write_atomic(&out.join("report.md"), markdown(r, results, configs, &presets).as_bytes())?)
 }
 
 fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {

@@ -16,23 +16,25 @@ pub fn rig(placement: &Placement, catalog: &Catalog, scene: &Scene, source: &Pat
     for (i, s) in placement.sensors.iter().enumerate() {
         let spec = catalog
             .get(&s.ty)
-            .map_err(|e| StudyError::File {
-                path: source.to_path_buf(),
-                message: format!("sensors[{i}].type = {:?}: {e}", s.ty),
+            .map_err(|e| {
+                StudyError::from(hilo_core::fs::FileError::Content {
+                    path: source.to_path_buf(),
+                    message: format!("sensors[{i}].type = {:?}: {e}", s.ty),
+                })
             })?
             .clone();
         let p = s.pose.position;
         if !s.pose.is_valid() {
-            return Err(StudyError::File {
+            return Err(StudyError::from(hilo_core::fs::FileError::Content {
                 path: source.to_path_buf(),
                 message: format!("sensors[{i}].pose is not finite: {:?}", s.pose),
-            });
+            }));
         }
         if let Some(why) = outside(scene, &s.pose) {
-            return Err(StudyError::File {
+            return Err(StudyError::from(hilo_core::fs::FileError::Content {
                 path: source.to_path_buf(),
                 message: format!("sensors[{i}].pose.position = {p} {why}"),
-            });
+            }));
         }
         match spec {
             SensorSpec::Lidar(_) => lidars.push((spec, s.pose)),

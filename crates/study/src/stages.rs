@@ -5,10 +5,10 @@
 //! resume from what they kept) and a stage run twice writes the same bytes.
 
 use crate::error::{Result, StudyError};
-use crate::files::{read_json, write_json};
 use crate::place::{Placed, place_all, prepare_study, write_placements};
 use crate::plan::{Job, Plan};
 use crate::study::Study;
+use hilo_core::fs::{limit, read_json, write_json};
 use hilo_dataset::background::BackgroundModel;
 use hilo_detector::Registry;
 use hilo_detector::data::{Frame, LoadOptions, load_split};
@@ -70,7 +70,7 @@ pub fn simulate(
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<DataRecord> {
     let stage = &plan.data[ci];
-    if let Ok(r) = read_json::<DataRecord>(&stage.done()) {
+    if let Ok(r) = read_json::<DataRecord>(&stage.done(), limit::TABLE) {
         return Ok(r);
     }
     let conf = &plan.configurations[ci];
@@ -158,7 +158,7 @@ pub struct JobOutput {
 pub fn train_job(job: &Job, loaded: &Loaded, registry: &Registry, tick: &(dyn Fn(f64) + Sync)) -> Result<JobOutput> {
     let read = |path: &std::path::Path| -> Result<Predictions> { Ok(hilo_eval::read_submission(path, 500)?) };
     if job.done() {
-        let meta: ResultMeta = read_json(&job.meta())?;
+        let meta: ResultMeta = read_json(&job.meta(), limit::TABLE)?;
         let curve = job.curve.iter().map(|&s| Ok((s, read(&job.curve_results(s))?))).collect::<Result<Vec<_>>>()?;
         return Ok(JobOutput { predictions: read(&job.results)?, meta, curve });
     }

@@ -107,7 +107,7 @@ impl Study {
     /// Reads a study file.
     pub fn load(path: &Path) -> Result<Study> {
         let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-            .map_err(|e| StudyError::io(path, e))?;
+            .map_err(|e| hilo_core::fs::FileError::io(path, e))?;
         Study::parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
     }
 
@@ -117,21 +117,26 @@ impl Study {
         if let Ok(table) = toml::from_str::<toml::Table>(text)
             && let Some(key) = LIST_KEYS.iter().find(|k| table.contains_key(**k))
         {
-            return Err(StudyError::File {
+            return Err(StudyError::from(hilo_core::fs::FileError::Content {
                 path: PathBuf::from(source),
                 message: format!(
                     "`{key}` lists several; this file is a sweep of studies: load it with `hilo study` (hilo_study::sweep::load)"
                 ),
-            });
+            }));
         }
-        let file: StudyFile = toml::from_str(text)
-            .map_err(|e| StudyError::File { path: PathBuf::from(source), message: format!("invalid study: {e}") })?;
+        let file: StudyFile = toml::from_str(text).map_err(|e| {
+            StudyError::from(hilo_core::fs::FileError::Content {
+                path: PathBuf::from(source),
+                message: format!("invalid study: {e}"),
+            })
+        })?;
         Study::from_file(file, dir, source)
     }
 
     /// A study from its parsed file: validates it and loads its scene and catalog.
     pub fn from_file(file: StudyFile, dir: &Path, source: &str) -> Result<Study> {
-        let bad = |m: String| StudyError::File { path: PathBuf::from(source), message: m };
+        let bad =
+            |m: String| StudyError::from(hilo_core::fs::FileError::Content { path: PathBuf::from(source), message: m });
         if file.configurations.is_empty() {
             return Err(bad("no [[configurations]]".into()));
         }

@@ -12,9 +12,9 @@
 //! `<out>/comparison.md` / `comparison.json` put them side by side.
 
 use crate::error::{Result, StudyError};
-use crate::files::{read_json, write_json};
 use crate::plan::Plan;
 use crate::study::{Study, StudyFile, slug};
+use hilo_core::fs::{limit, read_json, write_json};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -50,14 +50,15 @@ pub fn load(path: &Path) -> Result<Loaded> {
     if path.is_dir() {
         return directory(path).map(Loaded::Sweep);
     }
-    let text =
-        hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG).map_err(|e| StudyError::io(path, e))?;
+    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
+        .map_err(|e| hilo_core::fs::FileError::io(path, e))?;
     parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
 }
 
 /// [`load`] of a study file's text whose relative paths resolve against `dir`.
 pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
-    let bad = |m: String| StudyError::File { path: PathBuf::from(source), message: m };
+    let bad =
+        |m: String| StudyError::from(hilo_core::fs::FileError::Content { path: PathBuf::from(source), message: m });
     let mut table: toml::Table = toml::from_str(text).map_err(|e| bad(format!("invalid study: {e}")))?;
     let mut lists = Vec::new();
     for key in LIST_KEYS {
@@ -105,7 +106,7 @@ pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
 /// Every `*.toml` directly in `dir` (sorted by name) as a study of one scene and catalog.
 fn directory(dir: &Path) -> Result<Sweep> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|e| StudyError::io(dir, e))?
+        .map_err(|e| hilo_core::fs::FileError::io(dir, e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "toml"))
         .collect();
@@ -115,15 +116,15 @@ fn directory(dir: &Path) -> Result<Sweep> {
     }
     let mut shards = Vec::new();
     for f in files {
-        let abs = std::fs::canonicalize(&f).map_err(|e| StudyError::io(&f, e))?;
+        let abs = std::fs::canonicalize(&f).map_err(|e| hilo_core::fs::FileError::io(&f, e))?;
         let source = abs.display().to_string();
         let study = match load(&abs)? {
             Loaded::Study(s) => s,
             Loaded::Sweep(_) => {
-                return Err(StudyError::File {
+                return Err(StudyError::from(hilo_core::fs::FileError::Content {
                     path: abs,
                     message: "lists several scenes or catalogs; a directory of studies holds studies of one scene and catalog each".into(),
-                });
+                }));
             }
         };
         push_unique(&mut shards, Shard { name: stem(&f, &source)?, study }, &dir.display().to_string())?;
@@ -135,17 +136,17 @@ fn directory(dir: &Path) -> Result<Sweep> {
 fn stem(p: &Path, source: &str) -> Result<String> {
     let s = slug(&p.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default());
     if s.is_empty() {
-        return Err(StudyError::File {
+        return Err(StudyError::from(hilo_core::fs::FileError::Content {
             path: PathBuf::from(source),
             message: format!("{}: no letters or digits in the file name to name its study by", p.display()),
-        });
+        }));
     }
     Ok(s)
 }
 
 fn push_unique(shards: &mut Vec<Shard>, shard: Shard, source: &str) -> Result<()> {
     if let Some(other) = shards.iter().find(|s| s.name == shard.name) {
-        return Err(StudyError::File {
+        return Err(StudyError::from(hilo_core::fs::FileError::Content {
             path: PathBuf::from(source),
             message: format!(
                 "two studies would share the name {:?} ({} and {}): give the files different names",
@@ -153,7 +154,7 @@ fn push_unique(shards: &mut Vec<Shard>, shard: Shard, source: &str) -> Result<()
                 describe(&other.study),
                 describe(&shard.study)
             ),
-        });
+        }));
     }
     shards.push(shard);
     Ok(())
@@ -199,7 +200,7 @@ impl SweepRecord {
                 out.display()
             )));
         }
-        read_json(&p)
+        Ok(read_json(&p, limit::TABLE)?)
     }
 }
 
@@ -230,7 +231,7 @@ impl Sweep {
         };
         let marker = SweepRecord::path(out);
         if marker.exists() {
-            let old: SweepRecord = read_json(&marker)?;
+            let old: SweepRecord = read_json(&marker, limit::TABLE)?;
             if old != record {
                 return Err(StudyError::Invalid(format!(
                     "{} holds another sweep (its studies, their files or the profile differ from {}); choose another --out",
@@ -245,7 +246,7 @@ impl Sweep {
                     out.display()
                 )));
             }
-            std::fs::create_dir_all(out).map_err(|e| StudyError::io(out, e))?;
+            std::fs::create_dir_all(out).map_err(|e| hilo_core::fs::FileError::io(out, e))?;
             write_json(&marker, &record)?;
         }
         for (s, p) in self.shards.iter().zip(plans) {

@@ -334,8 +334,8 @@ pub fn write_sweep(sweep: &Sweep, plans: &[Plan], out: &Path, wf: &Workflow) -> 
 fn write_files(out: &Path, snakefile: &str, wf: &Workflow) -> Result<Vec<PathBuf>> {
     let snake = out.join("Snakefile");
     let cfg = out.join("config.yaml");
-    crate::files::write_atomic(&snake, snakefile.as_bytes())?;
-    crate::files::write_atomic(&cfg, config_yaml(wf)?.as_bytes())?;
+    hilo_core::fs::write_atomic(&snake, snakefile.as_bytes())?;
+    hilo_core::fs::write_atomic(&cfg, config_yaml(wf)?.as_bytes())?;
     Ok(vec![snake, cfg])
 }
 

@@ -391,7 +391,7 @@ impl SceneConfig {
     /// Parses a scene from TOML text; `path` is only used in error messages.
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Self, RaycastError> {
         let cfg: SceneConfig = toml::from_str(text)
-            .map_err(|e| RaycastError::Toml { path: path.to_path_buf(), message: e.to_string() })?;
+            .map_err(|e| RaycastError::from(hilo_core::fs::FileError::content(path, e.to_string())))?;
         cfg.validate(path)?;
         Ok(cfg)
     }
@@ -399,7 +399,7 @@ impl SceneConfig {
     /// Reads and validates a scene file.
     pub fn load(path: &Path) -> Result<Self, RaycastError> {
         let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-            .map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
+            .map_err(|e| RaycastError::from(hilo_core::fs::FileError::io(path, e)))?;
         Self::from_toml_str(&text, path)
     }
 

@@ -40,7 +40,7 @@ pub fn read_obj(path: &Path) -> Result<RawMesh, RaycastError> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
     let (models, _) = tobj::load_obj(path, &opts).map_err(|e| match e {
         tobj::LoadError::OpenFileFailed | tobj::LoadError::ReadError => {
-            RaycastError::Io { path: path.to_path_buf(), source: std::io::Error::other(e.to_string()) }
+            RaycastError::from(hilo_core::fs::FileError::io(path, std::io::Error::other(e.to_string())))
         }
         other => mesh_err(path, format!("malformed OBJ: {other}")),
     })?;
@@ -68,7 +68,7 @@ pub fn read_obj(path: &Path) -> Result<RawMesh, RaycastError> {
 /// all scenes if none is marked default), with node transforms applied.
 pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
     let bytes = hilo_core::fs::read_bounded(path, hilo_core::fs::limit::MESH)
-        .map_err(|e| RaycastError::Io { path: path.to_path_buf(), source: e })?;
+        .map_err(|e| RaycastError::from(hilo_core::fs::FileError::io(path, e)))?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| mesh_err(path, format!("malformed glTF: {e}")))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut buffers: Vec<Vec<u8>> = Vec::new();
@@ -88,7 +88,7 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
                 } else {
                     let p = dir.join(uri);
                     hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::MESH)
-                        .map_err(|e| RaycastError::Io { path: p, source: e })?
+                        .map_err(|e| RaycastError::from(hilo_core::fs::FileError::Io { path: p, source: e }))?
                 }
             }
         };
