@@ -1,8 +1,8 @@
 //! `hilo eval`: nuScenes detection metrics of a submission against ground truth.
 
 use anyhow::{Context, Result, bail};
-use hilo_core::fs::write_atomic;
 use hilo_eval::{DetectionConfig, check_sample_set, evaluate_files, read_ground_truth, read_submission};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -41,11 +41,7 @@ pub struct EvalArgs {
 
 pub fn run(args: &EvalArgs) -> Result<()> {
     let cfg: DetectionConfig = match &args.config {
-        Some(p) => serde_json::from_str(
-            &hilo_core::fs::read_text_bounded(p, hilo_core::fs::limit::CONFIG)
-                .with_context(|| format!("reading {}", p.display()))?,
-        )
-        .with_context(|| format!("{}: invalid evaluation config", p.display()))?,
+        Some(p) => hilo_core::fs::read_json(p, hilo_core::fs::limit::CONFIG)?,
         None => DetectionConfig::default(),
     };
     let gt = match (&args.data, &args.gt) {
@@ -78,28 +74,11 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     };
     let m = evaluate_files(&gt, &pred, &cfg);
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    write_atomic(&args.out.join("metrics_summary.json"), serde_json::to_string_pretty(&m)?.as_bytes())?;
-    let bins = hilo_eval::evaluate_distance_bins(&gt, &pred, &cfg, &[0.0, 30.0, 50.0]);
-    let by_distance: serde_json::Map<String, serde_json::Value> = bins
-        .iter()
-        .map(|(label, bm)| {
-            (
-                label.clone(),
-                serde_json::json!({"mean_ap": bm.mean_ap, "nd_score": bm.nd_score, "mean_dist_aps": bm.mean_dist_aps}),
-            )
-        })
-        .collect();
-    write_atomic(&args.out.join("metrics_by_distance.json"), serde_json::to_string_pretty(&by_distance)?.as_bytes())?;
-    // IoU-based AP (KITTI R40): 0.7 for cars, trucks and buses, 0.5 for the rest.
-    let (gt_f, pred_f) = hilo_eval::filtered(&gt, &pred, &cfg);
-    let mut iou_ap = serde_json::Map::new();
-    for c in cfg.class_names() {
-        let th = if ["car", "truck", "bus"].contains(&c.as_str()) { 0.7 } else { 0.5 };
-        let bev = hilo_eval::iou::ap_r40(&gt_f, &pred_f, &c, th, hilo_eval::iou::IouKind::Bev);
-        let d3 = hilo_eval::iou::ap_r40(&gt_f, &pred_f, &c, th, hilo_eval::iou::IouKind::ThreeD);
-        iou_ap.insert(c, serde_json::json!({"iou_threshold": th, "bev_ap_r40": bev, "ap3d_r40": d3}));
-    }
-    write_atomic(&args.out.join("metrics_iou.json"), serde_json::to_string_pretty(&iou_ap)?.as_bytes())?;
+    hilo_core::fs::write_json(&args.out.join("metrics_summary.json"), &m)?;
+    let bins = hilo_eval::metrics_by_distance(&gt, &pred, &cfg);
+    let by_distance: BTreeMap<&str, &hilo_eval::BinMetrics> = bins.iter().map(|(l, m)| (l.as_str(), m)).collect();
+    hilo_core::fs::write_json(&args.out.join("metrics_by_distance.json"), &by_distance)?;
+    hilo_core::fs::write_json(&args.out.join("metrics_iou.json"), &hilo_eval::iou_aps(&gt, &pred, &cfg))?;
     println!("mAP {:.4}  NDS {:.4}  ({} samples, {:.2} s)", m.mean_ap, m.nd_score, gt.samples.len(), m.eval_time);
     println!("{:<12} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}", "class", "AP", "ATE", "ASE", "AOE", "AVE", "AAE");
     for (c, ap) in &m.mean_dist_aps {
@@ -114,7 +93,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     }
     if args.bootstrap > 0 {
         let b = hilo_eval::bootstrap::bootstrap(&gt, &pred, &cfg, args.bootstrap as usize, 0.95, args.seed);
-        write_atomic(&args.out.join("bootstrap.json"), serde_json::to_string_pretty(&b)?.as_bytes())?;
+        hilo_core::fs::write_json(&args.out.join("bootstrap.json"), &b)?;
         if b.estimable {
             println!(
                 "95% intervals over {} scenes ({} resamples): mAP [{:.4}, {:.4}], NDS [{:.4}, {:.4}]",
@@ -129,7 +108,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
         if let Some((other, pred_b)) = &compare {
             let p = hilo_eval::bootstrap::paired(&gt, &pred, pred_b, &cfg, args.bootstrap as usize, 0.95, args.seed);
-            write_atomic(&args.out.join("paired.json"), serde_json::to_string_pretty(&p)?.as_bytes())?;
+            hilo_core::fs::write_json(&args.out.join("paired.json"), &p)?;
             if p.estimable {
                 println!(
                     "{} − {}: mAP {:+.4} [{:+.4}, {:+.4}] (P[not better] = {:.3}), NDS {:+.4} [{:+.4}, {:+.4}]",

@@ -12,6 +12,9 @@ use std::path::{Path, PathBuf};
 /// The embedded default study: the paper's configurations on the default intersection.
 pub const DEFAULT_STUDY_TOML: &str = include_str!("../../../fixtures/study.toml");
 
+/// The source the embedded default study is reported under.
+pub const EMBEDDED_STUDY: &str = "<embedded>/fixtures/study.toml";
+
 /// The named study, or the embedded default.
 pub fn load_study(path: Option<&Path>) -> Result<Study> {
     match path {
@@ -20,7 +23,7 @@ pub fn load_study(path: Option<&Path>) -> Result<Study> {
             let abs = std::fs::canonicalize(p).with_context(|| format!("study file {}", p.display()))?;
             Study::load(&abs).with_context(|| format!("loading study {}", p.display()))
         }
-        None => Study::parse(DEFAULT_STUDY_TOML, Path::new("."), "<embedded>/fixtures/study.toml")
+        None => Study::parse(DEFAULT_STUDY_TOML, Path::new("."), EMBEDDED_STUDY)
             .context("loading the embedded default study"),
     }
 }

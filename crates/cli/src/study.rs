@@ -4,9 +4,8 @@
 //! directory of study files) runs each of its studies in a folder of its own under --out.
 
 use crate::progress::Reporter;
-use crate::stages::load_study;
+use crate::stages::{EMBEDDED_STUDY, load_study};
 use anyhow::{Context, Result, bail};
-use hilo_study::plan::FolderRecord;
 use hilo_study::sweep::{Loaded, Sweep, SweepRecord};
 use hilo_study::{Plan, RunOptions, Study};
 use std::path::{Path, PathBuf};
@@ -91,10 +90,6 @@ fn shell_quoted(p: &Path) -> String {
     shlex::try_quote(&s).map_or_else(|_| format!("{s:?}"), |q| q.into_owned())
 }
 
-fn embedded(source: &str) -> bool {
-    source.starts_with("<embedded>")
-}
-
 fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_detector::Registry) -> Result<hilo_study::Profile> {
     let mut profile = hilo_study::profile(&args.profile, study, registry)?;
     if let Some(p) = &args.presets {
@@ -117,42 +112,8 @@ fn load(path: Option<&Path>) -> Result<Loaded> {
 
 /// The study and plan a folder records, checked against the study file as it is now.
 fn open_folder(out: &Path, registry: &hilo_detector::Registry) -> Result<(Study, Plan)> {
-    let record = FolderRecord::read(out)?;
-    let study = if embedded(&record.study) {
-        load_study(None)?
-    } else {
-        match (load(Some(Path::new(&record.study)))?, &record.shard) {
-            (Loaded::Study(s), None) => s,
-            (Loaded::Sweep(sweep), Some(name)) => match sweep.shards.into_iter().find(|s| &s.name == name) {
-                Some(s) => s.study,
-                None => bail!(
-                    "{}: study {name:?} of {} is no longer in that file (its scenes or catalogs changed); run it into a new folder",
-                    out.join("study.json").display(),
-                    record.study
-                ),
-            },
-            (Loaded::Study(_), Some(name)) => bail!(
-                "{}: records study {name:?} of a sweep, but {} no longer lists several scenes or catalogs; run it into a new folder",
-                out.join("study.json").display(),
-                record.study
-            ),
-            (Loaded::Sweep(_), None) => bail!(
-                "{}: records a single study, but {} now lists several scenes or catalogs; run it into a new folder",
-                out.join("study.json").display(),
-                record.study
-            ),
-        }
-    };
-    let plan = Plan::new(&study, registry, &record.profile, out)?;
-    if plan.fingerprint != record.fingerprint {
-        bail!(
-            "{}: the study changed since this folder was made (fingerprint {} recorded, {} now: study file, scene or catalog edited); run it into a new folder",
-            out.join("study.json").display(),
-            record.fingerprint,
-            plan.fingerprint
-        );
-    }
-    Ok((study, plan))
+    let default = || Study::parse(crate::stages::DEFAULT_STUDY_TOML, Path::new("."), EMBEDDED_STUDY);
+    Ok(hilo_study::sweep::reopen(out, registry, default)?)
 }
 
 fn workflow() -> Result<hilo_study::workflow::Workflow> {

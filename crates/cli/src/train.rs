@@ -54,16 +54,6 @@ pub fn detector(registry: &Registry, name: &str) -> Result<(hilo_detector::Detec
     Ok((p.detector.clone(), p.train.clone()))
 }
 
-/// A training schedule from a JSON object: its fields over `base` (the preset's schedule).
-fn schedule(base: &TrainConfig, fields: &serde_json::Value) -> Result<TrainConfig> {
-    let Some(fields) = fields.as_object() else { bail!("a training schedule is a JSON object, not {fields}") };
-    let mut cfg = serde_json::to_value(base)?;
-    if let Some(base) = cfg.as_object_mut() {
-        base.extend(fields.iter().map(|(k, v)| (k.clone(), v.clone())));
-    }
-    Ok(serde_json::from_value(cfg)?)
-}
-
 pub fn run_train(args: &TrainArgs) -> Result<()> {
     let registry = registry()?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
@@ -76,10 +66,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         None => detector(&registry, &args.detector)?,
     };
     let mut cfg = match &args.train_config {
-        Some(path) => {
-            schedule(&base, &hilo_core::fs::read_json::<serde_json::Value>(path, hilo_core::fs::limit::CONFIG)?)
-                .with_context(|| format!("{}: not a valid training schedule", path.display()))?
-        }
+        Some(path) => base
+            .with_fields(&hilo_core::fs::read_json::<serde_json::Value>(path, hilo_core::fs::limit::CONFIG)?)
+            .with_context(|| format!("{}: not a valid training schedule", path.display()))?,
         None => base,
     };
     if let Some(s) = args.samples {
@@ -237,32 +226,4 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
         args.out.display()
     );
     Ok(())
-}
-
-#[cfg(test)]
-#[allow(clippy::unwrap_used)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_schedule_file_overrides_only_its_fields_of_the_preset_schedule() {
-        let preset = TrainConfig { samples: 900, ..TrainConfig::default() };
-        let c = schedule(
-            &preset,
-            &serde_json::json!({ "lr_max": 0.001, "augmentation": { "rotate_deg": 0.0, "flip_p": 0.0, "scale": 0.0 } }),
-        )
-        .unwrap();
-        assert_eq!((c.samples, c.batch, c.lr_max, c.augmentation.flip_p), (preset.samples, preset.batch, 0.001, 0.0));
-        assert_eq!(c.paste, preset.paste, "the preset's paste is kept");
-        assert!(preset.paste.is_some());
-        // `null` turns ground-truth paste off; a field of its own changes only that field.
-        assert_eq!(schedule(&preset, &serde_json::json!({ "paste": null })).unwrap().paste, None);
-        let fill = schedule(&preset, &serde_json::json!({ "paste": { "fill": { "bus": 4 } } })).unwrap().paste.unwrap();
-        assert_eq!((fill.fill.len(), fill.min_lidar_points), (1, 5));
-        let bad = schedule(&preset, &serde_json::json!({ "paste": { "margin": 1 } })).unwrap_err();
-        assert!(format!("{bad:#}").contains("margin"), "{bad:#}");
-        let bad = schedule(&preset, &serde_json::json!({ "sampels": 10 })).unwrap_err();
-        assert!(format!("{bad:#}").contains("sampels"), "{bad:#}");
-        assert!(schedule(&preset, &serde_json::json!([1, 2])).is_err());
-    }
 }

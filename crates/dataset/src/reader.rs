@@ -4,6 +4,7 @@ use crate::error::DatasetError;
 use crate::tables::*;
 use hilo_core::{LidarPoint, RadarPoint};
 use serde::de::DeserializeOwned;
+use std::collections::BTreeMap;
 use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
@@ -388,4 +389,43 @@ fn check_links(t: &Tables) -> Result<(), DatasetError> {
         }
     }
     Ok(())
+}
+
+/// Boxes of a class in a dataset and the points on them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ClassStats {
+    pub boxes: usize,
+    pub lidar_points: u64,
+    pub radar_points: u64,
+}
+
+impl Dataset {
+    /// Each instance's class name (hilo's name where the category maps to one, the category's
+    /// name otherwise), by instance token.
+    pub fn instance_classes(&self) -> BTreeMap<&str, String> {
+        let t = &self.tables;
+        t.instance
+            .iter()
+            .filter_map(|i| {
+                let c = t.category.iter().find(|c| c.token == i.category_token)?;
+                let name = crate::writer::class_of_category(&c.name).map_or(c.name.clone(), |k| k.name().to_owned());
+                Some((i.token.as_str(), name))
+            })
+            .collect()
+    }
+
+    /// Per class: its annotated boxes and the LiDAR and radar points they hold ("?" for boxes
+    /// whose instance has no category).
+    pub fn class_stats(&self) -> BTreeMap<String, ClassStats> {
+        let class_of = self.instance_classes();
+        let mut per_class: BTreeMap<String, ClassStats> = BTreeMap::new();
+        for a in &self.tables.sample_annotation {
+            let c = class_of.get(a.instance_token.as_str()).cloned().unwrap_or_else(|| "?".into());
+            let e = per_class.entry(c).or_default();
+            e.boxes += 1;
+            e.lidar_points += a.num_lidar_pts as u64;
+            e.radar_points += a.num_radar_pts as u64;
+        }
+        per_class
+    }
 }

@@ -74,3 +74,51 @@ pub fn evaluate_distance_bins(
         })
         .collect()
 }
+
+/// The range bins `hilo eval` reports: 0–30 m and 30–50 m from the sample's origin.
+pub const DISTANCE_EDGES_M: [f64; 3] = [0.0, 30.0, 50.0];
+
+/// One range bin's summary, as `metrics_by_distance.json` holds it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct BinMetrics {
+    pub mean_ap: f64,
+    pub mean_dist_aps: BTreeMap<String, f64>,
+    pub nd_score: f64,
+}
+
+/// [`evaluate_distance_bins`] at [`DISTANCE_EDGES_M`], each bin's summary by its label.
+pub fn metrics_by_distance(
+    gt: &GroundTruth,
+    pred: &[(String, Vec<EvalBox>)],
+    cfg: &DetectionConfig,
+) -> Vec<(String, BinMetrics)> {
+    evaluate_distance_bins(gt, pred, cfg, &DISTANCE_EDGES_M)
+        .into_iter()
+        .map(|(label, m)| {
+            (label, BinMetrics { mean_ap: m.mean_ap, mean_dist_aps: m.mean_dist_aps, nd_score: m.nd_score })
+        })
+        .collect()
+}
+
+/// One class's IoU-based AP, as `metrics_iou.json` holds it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct IouAp {
+    pub ap3d_r40: f64,
+    pub bev_ap_r40: f64,
+    pub iou_threshold: f64,
+}
+
+/// IoU-based AP per class at KITTI's R40 recall points, in the bird's-eye view and in 3-D, at
+/// KITTI's thresholds: 0.7 for cars, trucks and buses, 0.5 for the rest.
+pub fn iou_aps(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &DetectionConfig) -> BTreeMap<String, IouAp> {
+    let (gt_f, pred_f) = filtered(gt, pred, cfg);
+    cfg.class_names()
+        .into_iter()
+        .map(|c| {
+            let th = if ["car", "truck", "bus"].contains(&c.as_str()) { 0.7 } else { 0.5 };
+            let ap = |kind| iou::ap_r40(&gt_f, &pred_f, &c, th, kind);
+            let v = IouAp { ap3d_r40: ap(iou::IouKind::ThreeD), bev_ap_r40: ap(iou::IouKind::Bev), iou_threshold: th };
+            (c, v)
+        })
+        .collect()
+}

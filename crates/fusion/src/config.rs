@@ -213,6 +213,19 @@ impl TrainConfig {
         Ok(())
     }
 
+    /// This schedule with the fields of a JSON object over it (a user's schedule file names
+    /// only what it changes); an unknown field or a wrong type is an error naming it.
+    pub fn with_fields(&self, fields: &serde_json::Value) -> Result<TrainConfig> {
+        let Some(fields) = fields.as_object() else {
+            return Err(FusionError::Config(format!("a training schedule is a JSON object, not {fields}")));
+        };
+        let mut cfg = serde_json::to_value(self).map_err(|e| FusionError::Config(e.to_string()))?;
+        if let Some(base) = cfg.as_object_mut() {
+            base.extend(fields.iter().map(|(k, v)| (k.clone(), v.clone())));
+        }
+        serde_json::from_value(cfg).map_err(|e| FusionError::Config(format!("training schedule: {e}")))
+    }
+
     pub fn steps(&self) -> usize {
         self.samples.div_ceil(self.batch.max(1))
     }
@@ -438,4 +451,31 @@ impl PasteConfig {
 pub struct Preset {
     pub detector: DetectorConfig,
     pub train: TrainConfig,
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_schedule_file_overrides_only_its_fields_of_the_preset_schedule() {
+        let preset = TrainConfig { samples: 900, ..TrainConfig::default() };
+        let fields =
+            serde_json::json!({ "lr_max": 0.001, "augmentation": { "rotate_deg": 0.0, "flip_p": 0.0, "scale": 0.0 } });
+        let c = preset.with_fields(&fields).unwrap();
+        assert_eq!((c.samples, c.batch, c.lr_max, c.augmentation.flip_p), (preset.samples, preset.batch, 0.001, 0.0));
+        assert_eq!(c.paste, preset.paste, "the preset's paste is kept");
+        assert!(preset.paste.is_some());
+        // `null` turns ground-truth paste off; a field of its own changes only that field.
+        assert_eq!(preset.with_fields(&serde_json::json!({ "paste": null })).unwrap().paste, None);
+        let fill =
+            preset.with_fields(&serde_json::json!({ "paste": { "fill": { "bus": 4 } } })).unwrap().paste.unwrap();
+        assert_eq!((fill.fill.len(), fill.min_lidar_points), (1, 5));
+        let bad = preset.with_fields(&serde_json::json!({ "paste": { "margin": 1 } })).unwrap_err();
+        assert!(bad.to_string().contains("margin"), "{bad}");
+        let bad = preset.with_fields(&serde_json::json!({ "sampels": 10 })).unwrap_err();
+        assert!(bad.to_string().contains("sampels"), "{bad}");
+        assert!(preset.with_fields(&serde_json::json!([1, 2])).is_err());
+    }
 }

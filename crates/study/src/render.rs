@@ -2,7 +2,8 @@
 //! coverage maps, scans, dataset frames and detection pictures are drawn on.
 
 use crate::error::{Result, StudyError};
-use glam::Vec2;
+use glam::{Vec2, Vec3};
+use hilo_core::Box3;
 use hilo_raycast::scene::layout::point_in_polygon;
 use hilo_raycast::{ObjectKind, Scene};
 use serde_json::json;
@@ -429,4 +430,92 @@ pub fn scene_summary(scene: &Scene) -> serde_json::Value {
         "mounting_structures": scene.mounts.iter().map(|m| json!({"name": m.name, "pole_height_m": m.pole_height_m, "arm_length_m": m.arm_length_m, "arm_height_m": m.arm_height_m})).collect::<Vec<_>>(),
         "rois": rois,
     })
+}
+
+/// Box colours, one per class in [`hilo_core::Class::ALL`] order.
+const CLASS_COLOURS: [(u8, u8, u8); 6] =
+    [(80, 170, 255), (255, 170, 60), (120, 230, 120), (255, 90, 200), (250, 250, 120), (160, 120, 255)];
+/// Point colours, one per sensor of the frame (greys and pastels, apart from the box colours).
+const SENSOR_COLOURS: [(u8, u8, u8); 6] =
+    [(210, 210, 210), (130, 220, 230), (240, 180, 180), (150, 150, 150), (200, 230, 160), (230, 200, 240)];
+
+/// One frame of a dataset drawn from above, and how many points and boxes it holds.
+#[derive(Debug)]
+pub struct FramePicture {
+    pub canvas: Canvas,
+    pub points: usize,
+    pub boxes: usize,
+}
+
+/// Frame `frame` (in sample order) of a dataset from above: each sensor's points in the world
+/// frame in a colour of its own, the annotated boxes by class, a legend, a scale bar and north.
+pub fn dataset_frame(ds: &hilo_dataset::Dataset, frame: usize) -> Result<FramePicture> {
+    let t = &ds.tables;
+    let class_of = ds.instance_classes();
+    let sample = t
+        .sample
+        .get(frame)
+        .ok_or_else(|| StudyError::Invalid(format!("--frame {frame}: the dataset has {} frames", t.sample.len())))?;
+    let mut dots = Vec::new();
+    let mut keys: Vec<((u8, u8, u8), String)> = Vec::new();
+    for (k, sd) in t.sample_data.iter().filter(|s| s.sample_token == sample.token).enumerate() {
+        let cs = t
+            .calibrated_sensor
+            .iter()
+            .find(|c| c.token == sd.calibrated_sensor_token)
+            .ok_or_else(|| StudyError::Invalid(format!("sample_data {}: no calibrated sensor", sd.token)))?;
+        let q = glam::Quat::from_xyzw(
+            cs.rotation[1] as f32,
+            cs.rotation[2] as f32,
+            cs.rotation[3] as f32,
+            cs.rotation[0] as f32,
+        );
+        let position = Vec3::new(cs.translation[0] as f32, cs.translation[1] as f32, cs.translation[2] as f32);
+        let col = SENSOR_COLOURS[k % SENSOR_COLOURS.len()];
+        let channel = t.sensor.iter().find(|x| x.token == cs.sensor_token).map_or("sensor", |x| x.channel.as_str());
+        keys.push((col, format!("{channel} point")));
+        let pts: Vec<Vec3> = if sd.filename.ends_with(".pcd.bin") {
+            ds.lidar_points(sd)?.iter().map(|p| Vec3::new(p.x, p.y, p.z)).collect()
+        } else {
+            ds.radar_points(sd)?.iter().map(|p| Vec3::new(p.x, p.y, p.z)).collect()
+        };
+        dots.extend(pts.into_iter().map(|p| ((position + q * p).truncate(), col)));
+    }
+    let boxes: Vec<(Box3, (u8, u8, u8))> = t
+        .sample_annotation
+        .iter()
+        .filter(|a| a.sample_token == sample.token)
+        .map(|a| {
+            let yaw = 2.0 * a.rotation[3].atan2(a.rotation[0]);
+            let b = Box3::new(
+                Vec3::new(a.translation[0] as f32, a.translation[1] as f32, a.translation[2] as f32),
+                a.size[1] as f32,
+                a.size[0] as f32,
+                a.size[2] as f32,
+                yaw as f32,
+            );
+            let c = class_of
+                .get(a.instance_token.as_str())
+                .and_then(|c| c.parse::<hilo_core::Class>().ok())
+                .map_or(0, |c| c.index());
+            (b, CLASS_COLOURS[c])
+        })
+        .collect();
+    let all: Vec<Vec2> = dots.iter().map(|d| d.0).chain(boxes.iter().map(|b| b.0.center.truncate())).collect();
+    let lo = all.iter().fold(Vec2::splat(-20.0), |a, b| a.min(*b)) - Vec2::splat(5.0);
+    let hi = all.iter().fold(Vec2::splat(20.0), |a, b| a.max(*b)) + Vec2::splat(5.0);
+    let scale = (1600.0 / (hi - lo).max_element()).clamp(1.0, 10.0);
+    let mut canvas = blank_canvas(lo, hi, scale)?;
+    canvas.dots(&dots, 1.0);
+    for (b, col) in &boxes {
+        canvas.boxes(std::slice::from_ref(b), *col);
+    }
+    keys.extend(
+        hilo_core::Class::ALL.iter().map(|c| (CLASS_COLOURS[c.index()], format!("{} box (tick: heading)", c.name()))),
+    );
+    let key_refs: Vec<((u8, u8, u8), &str)> = keys.iter().map(|(c, t)| (*c, t.as_str())).collect();
+    canvas.legend(&key_refs);
+    canvas.scale_bar(20.0);
+    canvas.north_arrow();
+    Ok(FramePicture { canvas, points: dots.len(), boxes: boxes.len() })
 }

@@ -256,6 +256,56 @@ impl Sweep {
     }
 }
 
+/// The study and plan a study folder records, checked against the study file as it is now: the
+/// same file (or the same study of a sweep's file) must still give the recorded fingerprint.
+/// `default` gives the embedded default study, for a folder made from it.
+pub fn reopen(
+    out: &Path,
+    registry: &hilo_detector::Registry,
+    default: impl FnOnce() -> Result<Study>,
+) -> Result<(Study, Plan)> {
+    let record = crate::plan::FolderRecord::read(out)?;
+    let marker = out.join("study.json");
+    let refuse =
+        |why: String| Err(StudyError::Invalid(format!("{}: {why}; run it into a new folder", marker.display())));
+    let study = if record.study.starts_with("<embedded>") {
+        default()?
+    } else {
+        match (load(Path::new(&record.study))?, &record.shard) {
+            (Loaded::Study(s), None) => s,
+            (Loaded::Sweep(sweep), Some(name)) => match sweep.shards.into_iter().find(|s| &s.name == name) {
+                Some(s) => s.study,
+                None => {
+                    return refuse(format!(
+                        "study {name:?} of {} is no longer in that file (its scenes or catalogs changed)",
+                        record.study
+                    ));
+                }
+            },
+            (Loaded::Study(_), Some(name)) => {
+                return refuse(format!(
+                    "records study {name:?} of a sweep, but {} no longer lists several scenes or catalogs",
+                    record.study
+                ));
+            }
+            (Loaded::Sweep(_), None) => {
+                return refuse(format!(
+                    "records a single study, but {} now lists several scenes or catalogs",
+                    record.study
+                ));
+            }
+        }
+    };
+    let plan = Plan::new(&study, registry, &record.profile, out)?;
+    if plan.fingerprint != record.fingerprint {
+        return refuse(format!(
+            "the study changed since this folder was made (fingerprint {} recorded, {} now: study file, scene or catalog edited)",
+            record.fingerprint, plan.fingerprint
+        ));
+    }
+    Ok((study, plan))
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
