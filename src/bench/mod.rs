@@ -331,7 +331,7 @@ pub fn placement(cbc_seconds: f64) -> Result<PlacementReport> {
     use hilo_sensor_models::Catalog;
     let scene = Scene::default_fixture()?;
     let catalog = Catalog::default_catalog()?;
-    let cfg = PlacementConfig::default();
+    let cfg = PlacementConfig::default().validate()?;
     let names: Vec<String> = ["lidar-16", "lidar-32", "lidar-64", "radar-4d"].iter().map(|s| s.to_string()).collect();
     let t = Instant::now();
     let prep = prepare(&scene, &catalog, &names, &cfg)?;
@@ -634,7 +634,7 @@ pub fn train(
         if let Some(b) = det_cfg.fusion_config.get_mut("backbone") {
             *b = serde_json::to_value(&det_cfg.backbone)?;
         }
-        cfg.validate().with_context(|| format!("bench train {name}"))?;
+        let cfg = cfg.validate().with_context(|| format!("bench train {name}"))?;
         let background = hilo_detector::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
         let det = Detector::new(&det_cfg, &registry, &device, 0)?;

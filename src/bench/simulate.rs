@@ -65,8 +65,9 @@ pub fn bench(
         rate_hz,
         val_scenes: 0,
         sweep_rate_hz: rate_hz,
-        ..study.file.dataset.clone()
-    };
+        ..study.dataset.clone().into_inner()
+    }
+    .validate()?;
     let out = keep.map(Path::to_path_buf).unwrap_or_else(|| tmp.path().join("data"));
     let summary = hilo_study::rig::simulate(study, first, &path, &cfg, &out, "v1.0-trainval", progress)?;
     let rig = hilo_study::rig::rig(first, &study.catalog, &study.scene, &path)?;

@@ -298,7 +298,7 @@ fn main() -> Result<()> {
                 seconds,
                 rate_hz,
                 val_scenes: 0,
-                ..study.file.dataset.clone()
+                ..study.dataset.clone().into_inner()
             };
             let total = cfg.total_frames();
             let reporter = std::sync::Mutex::new(progress::Reporter::new());

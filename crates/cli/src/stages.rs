@@ -2,6 +2,7 @@
 
 use crate::progress::Reporter;
 use anyhow::{Context, Result};
+use hilo_core::Valid;
 use hilo_dataset::simulate::SimulateConfig;
 use hilo_placement_ip::Placement;
 use hilo_study::Study;
@@ -111,7 +112,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<()> {
     hilo_dataset::reader::check_version(&args.version)?;
     let study = load_study(args.study.as_deref())?;
     let placement = Placement::load(&args.placement)?;
-    let mut cfg = study.file.dataset.clone();
+    let mut cfg = study.dataset.clone().into_inner();
     if let Some(n) = args.scenes {
         cfg.scenes = n;
     }
@@ -135,7 +136,7 @@ pub fn simulate(args: &SimulateArgs) -> Result<()> {
         &study,
         &placement,
         &args.placement,
-        &cfg,
+        &cfg.validate()?,
         &args.out,
         &args.version,
         &format!("simulating {}", placement.name),
@@ -164,7 +165,7 @@ pub fn write_dataset(
     study: &Study,
     placement: &Placement,
     source: &Path,
-    cfg: &SimulateConfig,
+    cfg: &Valid<SimulateConfig>,
     out: &Path,
     version: &str,
     label: &str,

@@ -80,9 +80,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     if let Some(s) = args.seed {
         cfg.seed = s;
     }
-    if cfg.batch == 0 || cfg.samples == 0 {
-        bail!("--batch and --samples must be at least 1 (batch {}, samples {})", cfg.batch, cfg.samples);
-    }
+    let cfg = cfg.validate().context("--batch, --samples or the training schedule")?;
     det.validate()?;
     hilo_detector::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;
     let background = hilo_detector::train::learn_background(&ds, &args.split, &det.input).with_context(|| {

@@ -15,11 +15,13 @@ mod frame;
 pub mod fs;
 pub mod iou;
 mod points;
+pub mod valid;
 
 pub use boxes::{Box3, nuscenes_box_defect};
 pub use class::{Class, UnknownClass};
 pub use frame::{LocalFrame, Pose};
 pub use points::{Detection, LidarPoint, RadarPoint};
+pub use valid::{Check, Valid};
 
 /// Re-exported so that every crate names the same glam.
 pub use glam;

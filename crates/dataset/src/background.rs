@@ -142,6 +142,11 @@ impl BackgroundModel {
         cfg: &BackgroundConfig,
     ) -> Result<BackgroundModel, DatasetError> {
         cfg.validate().map_err(DatasetError::Invalid)?;
+        Ok(Self::fit(frames, cfg))
+    }
+
+    /// The model of checked settings.
+    fn fit(frames: &BTreeMap<String, Vec<Vec<LidarPoint>>>, cfg: &BackgroundConfig) -> BackgroundModel {
         let channels = frames
             .iter()
             .map(|(ch, clouds)| {
@@ -150,7 +155,7 @@ impl BackgroundModel {
             })
             .collect();
         let n = frames.values().map(Vec::len).max().unwrap_or(0);
-        Ok(BackgroundModel { config: cfg.clone(), channels, frames: n })
+        BackgroundModel { config: cfg.clone(), channels, frames: n }
     }
 
     /// Learns the model from `cfg.frames` samples spread evenly over the scenes of `split`.
@@ -188,7 +193,7 @@ impl BackgroundModel {
                 frames.entry((*ch).to_owned()).or_default().push(ds.lidar_points(sd)?);
             }
         }
-        Self::learn_from(&frames, cfg)
+        Ok(Self::fit(&frames, cfg))
     }
 
     /// The points of `channel` that are not background (all of them for an unknown channel).

@@ -12,6 +12,7 @@ use crate::error::DatasetError;
 use crate::traffic::{ActorState, Traffic, TrafficConfig};
 use crate::writer::{Annotation, FrameData, RadarSweep, SceneData};
 use glam::Vec3;
+use hilo_core::{Check, Valid};
 use hilo_raycast::{ActorSet, HitTarget, Ray, Scene, World};
 use hilo_sensor_models::{SensorPose, SensorSpec, simulate_lidar, simulate_radar};
 use serde::{Deserialize, Serialize};
@@ -111,9 +112,18 @@ pub const MAX_SCENES: usize = 10_000;
 pub const MAX_FRAMES: usize = 2_000_000;
 
 impl SimulateConfig {
+    /// The checked configuration that simulation takes ([`Check`]).
+    pub fn validate(self) -> Result<Valid<SimulateConfig>, DatasetError> {
+        Valid::new(self)
+    }
+}
+
+impl Check for SimulateConfig {
+    type Error = DatasetError;
+
     /// Checks every setting before anything is simulated; counts are bounded ([`MAX_SCENES`],
     /// [`MAX_FRAMES`]) so a typo is an error, not an allocation that exhausts memory.
-    pub fn validate(&self) -> Result<(), DatasetError> {
+    fn check(&self) -> Result<(), DatasetError> {
         let bad = |f: &str, v: String, why: &str| Err(DatasetError::Invalid(format!("dataset.{f} = {v}: {why}")));
         if self.scenes == 0 {
             return bad("scenes", "0".into(), "at least one training scene is needed");
@@ -164,7 +174,9 @@ impl SimulateConfig {
         }
         Ok(())
     }
+}
 
+impl SimulateConfig {
     /// Key frames of a training scene.
     pub fn frames_per_scene(&self) -> usize {
         (self.seconds * self.rate_hz).round() as usize
@@ -277,7 +289,7 @@ pub fn simulate_scene(
     scene: &Scene,
     world: &World,
     rig: &[RigSensor],
-    cfg: &SimulateConfig,
+    cfg: &Valid<SimulateConfig>,
     id: &SceneId,
 ) -> Result<SceneData, DatasetError> {
     simulate_scene_with(scene, world, rig, cfg, id, &|_| {})
@@ -288,11 +300,10 @@ pub fn simulate_scene_with(
     scene: &Scene,
     world: &World,
     rig: &[RigSensor],
-    cfg: &SimulateConfig,
+    cfg: &Valid<SimulateConfig>,
     id: &SceneId,
     on_frame: &(dyn Fn(usize) + Sync),
 ) -> Result<SceneData, DatasetError> {
-    cfg.validate()?;
     let stream = id.stream();
     let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, stream]))?;
     let rate = match id.split {
@@ -418,7 +429,7 @@ pub fn write_dataset(
     scene: &Scene,
     world: &World,
     rig: &[RigSensor],
-    cfg: &SimulateConfig,
+    cfg: &Valid<SimulateConfig>,
     root: &std::path::Path,
     version: &str,
     namespace: &str,
@@ -427,7 +438,6 @@ pub fn write_dataset(
     use crate::writer::{DatasetWriter, SensorModality, SensorSetup, token};
     use hilo_core::fs::write_atomic;
     let t0 = std::time::Instant::now();
-    cfg.validate()?;
     let fingerprint =
         token(&[&format!("{cfg:?}"), &format!("{rig:?}"), &format!("{:?}", scene.config), version, namespace]);
     let run_path = root.join(RUN_FILE);

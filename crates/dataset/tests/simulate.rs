@@ -74,7 +74,7 @@ fn hashes(root: &Path) -> Vec<(String, Vec<u8>)> {
 #[test]
 fn simulated_datasets_round_trip_are_deterministic_and_resume() {
     let scene = Scene::default_fixture().unwrap();
-    let (w, r, c) = (world(&scene), rig(&scene), cfg());
+    let (w, r, c) = (world(&scene), rig(&scene), cfg().validate().unwrap());
     let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
     let sa = write_dataset(&scene, &w, &r, &c, a.path(), "v1.0-trainval", "test", &|_| {}).unwrap();
     // 3 training scenes of 20 key frames (10 Hz), 2 validation scenes of 4 (2 Hz).
@@ -139,7 +139,7 @@ fn simulated_datasets_round_trip_are_deterministic_and_resume() {
     assert_eq!(sb.resumed_scenes, 4);
     assert_eq!(ha, hashes(b.path()));
     // Another seed is another dataset, and the folder refuses it.
-    let other = SimulateConfig { seed: 6, ..c.clone() };
+    let other = SimulateConfig { seed: 6, ..c.clone().into_inner() }.validate().unwrap();
     let e = write_dataset(&scene, &w, &r, &other, b.path(), "v1.0-trainval", "test", &|_| {}).unwrap_err().to_string();
     assert!(e.contains("other settings"), "{e}");
     common::devkit_check(a.path());
@@ -149,7 +149,7 @@ fn simulated_datasets_round_trip_are_deterministic_and_resume() {
 fn radar_doppler_is_the_annotated_velocity_on_the_line_of_sight() {
     let scene = Scene::default_fixture().unwrap();
     let (w, r) = (world(&scene), rig(&scene));
-    let c = SimulateConfig { scenes: 1, seconds: 3.0, ..cfg() };
+    let c = SimulateConfig { scenes: 1, seconds: 3.0, ..cfg() }.validate().unwrap();
     let data = simulate_scene(&scene, &w, &r, &c, &train(0)).unwrap();
     let pose = r[1].pose;
     let rot = pose.rotation();

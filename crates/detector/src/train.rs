@@ -13,6 +13,7 @@ use crate::error::{FusionError, Result};
 use crate::fusion::Registry;
 use crate::paste::PasteDb;
 use candle_core::{Device, Tensor, Var};
+use hilo_core::Valid;
 use hilo_dataset::background::BackgroundModel;
 pub use hilo_fusion::config::{Sampling, TrainConfig};
 use rand::SeedableRng;
@@ -517,7 +518,7 @@ fn idle_priority() {
 pub fn train(
     run: &Path,
     det_cfg: &DetectorConfig,
-    cfg: &TrainConfig,
+    cfg: &Valid<TrainConfig>,
     frames: &[Frame],
     background: Option<&BackgroundModel>,
     registry: &Registry,
@@ -527,7 +528,6 @@ pub fn train(
     if frames.is_empty() {
         return Err(FusionError::Config("no training frames".into()));
     }
-    cfg.validate()?;
     if det_cfg.input.background.is_some() != background.is_some() {
         return Err(FusionError::Config(format!(
             "detector {}: input.background is {} but a background model was {}given",
@@ -542,7 +542,7 @@ pub fn train(
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let mut info = RunInfo {
         detector: det_cfg.clone(),
-        train: cfg.clone(),
+        train: (**cfg).clone(),
         step: 0,
         samples_seen: 0,
         seconds: 0.0,
@@ -555,7 +555,7 @@ pub fn train(
     // checkpoint) holds nothing to lose: it is taken over, so a corrected rerun is not blocked.
     let old = if info_path(run).exists() { Some(read_info(run)?) } else { None };
     if let Some(old) = old.filter(|o| o.step > 0) {
-        if old.detector != *det_cfg || old.train != *cfg {
+        if old.detector != *det_cfg || old.train != **cfg {
             return Err(FusionError::Config(format!(
                 "{} holds a run with other settings (detector {}); use another --out or delete it",
                 run.display(),

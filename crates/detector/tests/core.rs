@@ -9,7 +9,7 @@ use hilo_detector::data::{Augmentation, Frame, GtBox};
 use hilo_detector::detector::{Detector, DetectorConfig, HostBatch, LossNorm};
 use hilo_detector::grid::BevGrid;
 use hilo_detector::loss::{centernet_focal, per_class_mean, sigmoid_focal, softplus};
-use hilo_detector::train::{AdamW, ReplicaPools, TrainConfig, step_pass, train};
+use hilo_detector::train::{AdamW, ReplicaPools, RunInfo, StepReport, TrainConfig, step_pass};
 use hilo_detector::{Registry, Stage};
 use rand::{Rng, SeedableRng};
 
@@ -59,6 +59,22 @@ fn car(x: f32, y: f32, yaw: f32) -> GtBox {
 
 fn ped(x: f32, y: f32) -> GtBox {
     GtBox { class: 4, center: [x, y, 0.9], wlh: [0.6, 0.6, 1.75], yaw: 0.0, velocity: [0.0, 1.2] }
+}
+
+/// Training with the schedule checked first, as every caller does.
+#[allow(clippy::too_many_arguments)]
+fn train(
+    run: &std::path::Path,
+    det: &DetectorConfig,
+    tc: &TrainConfig,
+    frames: &[Frame],
+    background: Option<&hilo_dataset::background::BackgroundModel>,
+    registry: &Registry,
+    device: &Device,
+    on_step: &mut dyn FnMut(&StepReport) -> bool,
+) -> hilo_detector::Result<RunInfo> {
+    let tc = tc.clone().validate()?;
+    hilo_detector::train::train(run, det, &tc, frames, background, registry, device, on_step)
 }
 
 #[test]

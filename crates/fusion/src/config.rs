@@ -6,8 +6,8 @@ use crate::error::{FusionError, Result};
 use crate::grid::BevGrid;
 use crate::layout::SparseConfig;
 use crate::modules::BackboneConfig;
-use hilo_core::Class;
 use hilo_core::background::BackgroundConfig;
+use hilo_core::{Check, Class, Valid};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -189,8 +189,17 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// The checked schedule that training takes ([`Check`]).
+    pub fn validate(self) -> Result<Valid<TrainConfig>> {
+        Valid::new(self)
+    }
+}
+
+impl Check for TrainConfig {
+    type Error = FusionError;
+
     /// The settings' own consistency (what the detector crate's training and the benchmarks refuse).
-    pub fn validate(&self) -> Result<()> {
+    fn check(&self) -> Result<()> {
         if self.batch == 0 || self.samples == 0 {
             return Err(FusionError::Config(format!(
                 "train: batch = {} and samples = {} must be positive",
@@ -212,7 +221,9 @@ impl TrainConfig {
         }
         Ok(())
     }
+}
 
+impl TrainConfig {
     /// This schedule with the fields of a JSON object over it (a user's schedule file names
     /// only what it changes); an unknown field or a wrong type is an error naming it.
     pub fn with_fields(&self, fields: &serde_json::Value) -> Result<TrainConfig> {

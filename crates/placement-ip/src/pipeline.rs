@@ -9,6 +9,7 @@ use crate::instance::{Instance, Limit, Outcome, SensorOption, SensorType};
 use crate::mip::{Formulation, solve as solve_mip};
 use crate::targets::{Target, roi_targets};
 use crate::visibility::{LineOfSight, Visibility, VisibilityConfig, compute_visibility};
+use hilo_core::{Check, Valid};
 use hilo_raycast::{QueryRegion, Scene, World};
 use hilo_sensor_models::{Catalog, SensorSpec};
 use serde::{Deserialize, Serialize};
@@ -41,9 +42,18 @@ impl Default for PlacementConfig {
 }
 
 impl PlacementConfig {
+    /// The checked configuration that [`prepare`] takes ([`Check`]).
+    pub fn validate(self) -> Result<Valid<PlacementConfig>, PlacementError> {
+        Valid::new(self)
+    }
+}
+
+impl Check for PlacementConfig {
+    type Error = PlacementError;
+
     /// Checks the settings that are not checked where they are used, before any visibility is
     /// computed (p_min is used only when the instances are built, seconds of ray casting later).
-    pub fn validate(&self) -> Result<(), PlacementError> {
+    fn check(&self) -> Result<(), PlacementError> {
         let bad = |f: &str, v: String, why: &str| Err(PlacementError::Invalid(format!("placement.{f} = {v}: {why}")));
         if !(self.p_min > 0.0 && self.p_min < 1.0) {
             return bad("p_min", self.p_min.to_string(), "must be a probability in (0, 1)");
@@ -74,9 +84,8 @@ pub fn prepare(
     scene: &Scene,
     catalog: &Catalog,
     types: &[String],
-    cfg: &PlacementConfig,
+    cfg: &Valid<PlacementConfig>,
 ) -> Result<Prepared, PlacementError> {
-    cfg.validate()?;
     let targets = roi_targets(scene, cfg.cell_m)?;
     let candidates = sample_candidates(scene, &cfg.candidates)?;
     let specs: Vec<&SensorSpec> = types.iter().map(|t| catalog.get(t)).collect::<Result<_, _>>()?;

@@ -39,7 +39,7 @@ fn visibility_grows_with_resolution_and_candidates_number_about_six_hundred() {
     let full = sample_candidates(&scene, &CandidateConfig::default()).unwrap();
     assert!((550..=700).contains(&full.len()), "{} candidates", full.len());
     let types: Vec<String> = ["lidar-16", "lidar-32", "lidar-64", "radar-4d"].iter().map(|s| s.to_string()).collect();
-    let prep = prepare(&scene, &catalog, &types, &cfg).unwrap();
+    let prep = prepare(&scene, &catalog, &types, &cfg.clone().validate().unwrap()).unwrap();
     let total = |t: &str| prep.visibility[t].rows.iter().flatten().map(|(_, v)| *v as f64).sum::<f64>();
     let (v16, v32, v64) = (total("lidar-16"), total("lidar-32"), total("lidar-64"));
     assert!(v16 < v32 && v32 <= v64, "{v16} {v32} {v64}");

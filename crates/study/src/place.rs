@@ -48,14 +48,14 @@ fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> 
 
 /// Visibility of every sensor type of the study.
 pub fn prepare_study(study: &Study) -> Result<Prepared> {
-    Ok(prepare(&study.scene, &study.catalog, &study.type_names(), &study.file.placement)?)
+    Ok(prepare(&study.scene, &study.catalog, &study.type_names(), &study.placement)?)
 }
 
 /// Places every configuration; `progress` hears one line per configuration.
 pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) -> Result<Placed> {
     let scene = &study.scene;
     let catalog = &study.catalog;
-    let cfg = &study.file.placement;
+    let cfg = &study.placement;
     let world = World::build(scene, &QueryRegion::everything())?;
     let central_roi: Vec<usize> =
         scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
@@ -318,7 +318,7 @@ pub fn export(study: &Study, prep: &Prepared, dir: &std::path::Path) -> Result<(
     }
     for conf in study.file.configurations.iter().filter(|c| !c.single_modality(&study.catalog)) {
         let types = conf.type_names();
-        let inst = instance(prep, &study.catalog, &types, study.file.placement.p_min)?;
+        let inst = instance(prep, &study.catalog, &types, study.placement.p_min)?;
         let limit = limit_for(conf, &types);
         hilo_placement_ip::mip::write_mps(
             &inst,

@@ -14,6 +14,7 @@ use crate::error::{Result, StudyError};
 use crate::files::hash;
 use crate::profile::Profile;
 use crate::study::{Configuration, Study};
+use hilo_core::Valid;
 use hilo_core::fs::{limit, read_json, write_json};
 use hilo_detector::train::TrainConfig;
 use hilo_detector::{DetectorConfig, Registry};
@@ -116,7 +117,7 @@ pub struct Job {
     pub run: PathBuf,
     pub results: PathBuf,
     pub detector: DetectorConfig,
-    pub train: TrainConfig,
+    pub train: Valid<TrainConfig>,
     /// Samples at which weights are kept and evaluated for the learning curve (the end
     /// excluded; seed 0 only).
     pub curve: Vec<usize>,
@@ -197,7 +198,7 @@ impl Plan {
             &[
                 &study.scene_hash,
                 &study.catalog_hash,
-                &format!("{:?}", study.file.placement),
+                &format!("{:?}", study.placement),
                 &format!("{:?}", study.file.configurations),
             ],
         );
@@ -261,7 +262,7 @@ impl Plan {
                         run: out.join("runs").join(conf.slug()).join(&name),
                         results: out.join("results").join(conf.slug()).join(format!("{name}.json")),
                         detector: p.detector.clone(),
-                        train: tc,
+                        train: tc.validate()?,
                         curve,
                     });
                 }

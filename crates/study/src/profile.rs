@@ -4,6 +4,7 @@
 
 use crate::error::{Result, StudyError};
 use crate::study::Study;
+use hilo_core::Valid;
 use hilo_dataset::simulate::SimulateConfig;
 use hilo_detector::Registry;
 use hilo_detector::train::Sampling;
@@ -13,7 +14,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Profile {
     pub name: String,
-    pub dataset: SimulateConfig,
+    /// The datasets' settings, checked when the profile is made.
+    pub dataset: Valid<SimulateConfig>,
     /// Presets trained on every configuration they can run on (fusion presets need a radar).
     pub presets: Vec<String>,
     /// Ablation presets, trained on the study's first configuration with a radar only (the rig
@@ -45,13 +47,13 @@ pub struct Profile {
 /// The profiles: `quick` (≤ 5 min), `default` (≤ 30 min), `paper` (the paper's scale), and
 /// `tiny` (seconds; for tests).
 pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile> {
-    let base = study.file.dataset.clone();
+    let base = study.dataset.clone().into_inner();
     // Every detector and every ablation the plugins register, for the paper profile.
     let (detectors, ablations) = (registry.detector_names(), registry.ablation_names());
     let p = match name {
         "quick" => Profile {
             name: name.into(),
-            dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..base },
+            dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..base }.validate()?,
             presets: vec!["centerpoint".into()],
             ablations: vec![],
             configurations: Some(2),
@@ -66,7 +68,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
         },
         "default" => Profile {
             name: name.into(),
-            dataset: base,
+            dataset: study.dataset.clone(),
             presets: vec!["centerpoint".into(), "lirafusion-like".into()],
             ablations: registry.ablations_of("lirafusion-like"),
             configurations: Some(3),
@@ -81,7 +83,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
         },
         "paper" => Profile {
             name: name.into(),
-            dataset: SimulateConfig { scenes: 30, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, val_scenes: 20, ..base },
+            dataset: SimulateConfig { scenes: 30, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, val_scenes: 20, ..base }.validate()?,
             presets: detectors,
             ablations,
             configurations: None,
@@ -96,7 +98,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
         },
         "tiny" => Profile {
             name: name.into(),
-            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..base },
+            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..base }.validate()?,
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             ablations: vec![],
             configurations: Some(2),

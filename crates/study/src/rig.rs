@@ -2,6 +2,7 @@
 
 use crate::error::{Result, StudyError};
 use crate::study::Study;
+use hilo_core::Valid;
 use hilo_dataset::simulate::{RigSensor, SimulateConfig, WriteSummary, write_dataset};
 use hilo_placement_ip::Placement;
 use hilo_raycast::{QueryRegion, Scene, World};
@@ -86,13 +87,12 @@ pub fn simulate(
     study: &Study,
     placement: &Placement,
     source: &Path,
-    cfg: &SimulateConfig,
+    cfg: &Valid<SimulateConfig>,
     out: &Path,
     version: &str,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<WriteSummary> {
     placement.check_made_for(&study.scene_hash, &study.catalog_hash, source)?;
-    cfg.validate()?;
     let rig = rig(placement, &study.catalog, &study.scene, source)?;
     let world = rig_world(&study.scene, &rig)?;
     Ok(write_dataset(&study.scene, &world, &rig, cfg, out, version, &placement.name, progress)?)

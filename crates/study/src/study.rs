@@ -3,6 +3,7 @@
 
 use crate::error::{Result, StudyError};
 use crate::files::hash;
+use hilo_core::Valid;
 use hilo_dataset::simulate::SimulateConfig;
 use hilo_placement_ip::pipeline::PlacementConfig;
 use hilo_raycast::Scene;
@@ -89,7 +90,11 @@ pub fn slug(name: &str) -> String {
 /// A loaded study: the file, where its relative paths resolve, its scene and catalog.
 #[derive(Clone, Debug)]
 pub struct Study {
+    /// The file as written; [`Study::dataset`] and [`Study::placement`] are its settings,
+    /// checked once when the study is loaded.
     pub file: StudyFile,
+    pub dataset: Valid<SimulateConfig>,
+    pub placement: Valid<PlacementConfig>,
     pub dir: PathBuf,
     /// Where it came from, for messages.
     pub source: String,
@@ -184,8 +189,8 @@ impl Study {
                 )));
             }
         }
-        file.dataset.validate()?;
-        file.placement.validate()?;
+        let dataset = file.dataset.clone().validate()?;
+        let placement = file.placement.clone().validate()?;
         let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
         let scene = match &file.scene {
             Some(p) => Scene::load(&resolve(p))?,
@@ -206,6 +211,8 @@ impl Study {
         let catalog_hash = hash(&[&format!("{:?}", catalog.sensors())]);
         Ok(Study {
             file,
+            dataset,
+            placement,
             dir: dir.to_path_buf(),
             source: source.to_owned(),
             scene,

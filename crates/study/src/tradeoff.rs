@@ -108,10 +108,10 @@ fn cost(catalog: &Catalog, c: &Configuration) -> Result<f64> {
 /// coarse grid for quick tests, which then recomputes).
 pub fn compute(study: &Study, prepared: Option<&Prepared>, cell_m: Option<f32>) -> Result<Tradeoffs> {
     let (scene, catalog) = (&study.scene, &study.catalog);
-    let mut cfg: PlacementConfig = study.file.placement.clone();
-    if let Some(c) = cell_m {
-        cfg.cell_m = c;
-    }
+    let cfg = match cell_m {
+        Some(c) => PlacementConfig { cell_m: c, ..study.placement.clone().into_inner() }.validate()?,
+        None => study.placement.clone(),
+    };
     // Line-of-sight samples, on the first configuration with fixed counts of both modalities
     // (none: no rows).
     let conf = study
@@ -187,7 +187,7 @@ fn los_rows(
             p.los_heights_m = spread(&p.los_heights_m, k);
         }
         let t = Instant::now();
-        let prep = prepare(scene, catalog, &types, &c)?;
+        let prep = prepare(scene, catalog, &types, &c.validate()?)?;
         let seconds = t.elapsed().as_secs_f64();
         let inst = instance(&prep, catalog, &types, cfg.p_min)?;
         let o = solve_from(&inst, &limit, cfg.time_limit_s, &greedy(&inst, &limit))?;
