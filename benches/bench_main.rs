@@ -238,7 +238,7 @@ fn fusion(c: &mut Criterion) {
             eprintln!("fusion plugin {plugin}: no preset uses it, not benchmarked");
             continue;
         };
-        let cfg = registry.preset(&preset).expect("preset").detector.clone();
+        let cfg = registry.preset(&preset).expect("preset").detector.clone().validate().expect("a valid preset");
         let det = Detector::new(&cfg, &registry, &candle_core::Device::Cpu, 0).expect("detector");
         let batch = HostBatch::new(&cfg, &frames, det.uses_radar(), 0);
         g.bench_function(format!("{plugin}/{preset}/forward"), |b| {

@@ -81,7 +81,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         cfg.seed = s;
     }
     let cfg = cfg.validate().context("--batch, --samples or the training schedule")?;
-    det.validate()?;
+    let det = det.validate()?;
     hilo_detector::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;
     let background = hilo_detector::train::learn_background(&ds, &args.split, &det.input).with_context(|| {
         format!("{}: learning the static background of split {:?}", args.data.display(), args.split)

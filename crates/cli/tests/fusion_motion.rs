@@ -78,8 +78,17 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
         ..TrainConfig::default()
     };
     let dir = tempfile::tempdir().unwrap();
-    train(dir.path(), &cfg, &tc.clone().validate().unwrap(), train_frames, None, registry, &Device::Cpu, &mut |_| true)
-        .unwrap();
+    train(
+        dir.path(),
+        &cfg.clone().validate().unwrap(),
+        &tc.clone().validate().unwrap(),
+        train_frames,
+        None,
+        registry,
+        &Device::Cpu,
+        &mut |_| true,
+    )
+    .unwrap();
     let (det, _, _) = load_run(dir.path(), registry, &Device::Cpu).unwrap();
     let (dets, _) = hilo_detector::infer::detect_frames(&det, val, 4, &mut |_| {}).unwrap();
     let dets: std::collections::BTreeMap<String, Vec<hilo_core::Detection>> = dets.into_iter().collect();

@@ -14,6 +14,7 @@ use crate::targets::{Assignment, Targets};
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use hilo_core::Detection;
+use hilo_core::Valid;
 pub use hilo_fusion::config::{DetectorConfig, LossNorm};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
@@ -146,12 +147,12 @@ fn probe(cfg: &DetectorConfig) -> HostBatch {
 }
 
 impl Detector {
-    pub fn new(cfg: &DetectorConfig, registry: &Registry, device: &Device, seed: u64) -> Result<Self> {
-        cfg.validate()?;
+    pub fn new(cfg: &Valid<DetectorConfig>, registry: &Registry, device: &Device, seed: u64) -> Result<Self> {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
         let fusion = registry.build(&cfg.fusion, &cfg.fusion_config, &cfg.grid, vb.pp("fusion"))?;
-        let mut det = Detector { cfg: cfg.clone(), varmap, fusion, backbone: None, head: None, device: device.clone() };
+        let mut det =
+            Detector { cfg: (**cfg).clone(), varmap, fusion, backbone: None, head: None, device: device.clone() };
         // The plugin's output, on a probe batch, decides the rest: a map of C channels gets the
         // shared backbone and head; per-modality heads need nothing more.
         let (lidar, radar, layout) = det.tensors(&probe(cfg))?;

@@ -517,7 +517,7 @@ fn idle_priority() {
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     run: &Path,
-    det_cfg: &DetectorConfig,
+    det_cfg: &Valid<DetectorConfig>,
     cfg: &Valid<TrainConfig>,
     frames: &[Frame],
     background: Option<&BackgroundModel>,
@@ -541,7 +541,7 @@ pub fn train(
     std::fs::create_dir_all(run).map_err(|e| hilo_core::fs::FileError::io(run, e))?;
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let mut info = RunInfo {
-        detector: det_cfg.clone(),
+        detector: (**det_cfg).clone(),
         train: (**cfg).clone(),
         step: 0,
         samples_seen: 0,
@@ -555,7 +555,7 @@ pub fn train(
     // checkpoint) holds nothing to lose: it is taken over, so a corrected rerun is not blocked.
     let old = if info_path(run).exists() { Some(read_info(run)?) } else { None };
     if let Some(old) = old.filter(|o| o.step > 0) {
-        if old.detector != *det_cfg || old.train != **cfg {
+        if old.detector != **det_cfg || old.train != **cfg {
             return Err(FusionError::Config(format!(
                 "{} holds a run with other settings (detector {}); use another --out or delete it",
                 run.display(),
@@ -668,7 +668,7 @@ pub fn load_run_at(
     samples: Option<usize>,
 ) -> Result<(Detector, RunInfo, Option<BackgroundModel>)> {
     let info = read_info(run)?;
-    let mut det = Detector::new(&info.detector, registry, device, 0)?;
+    let mut det = Detector::new(&info.detector.clone().validate()?, registry, device, 0)?;
     det.load(&samples.map_or_else(|| weights_path(run), |s| kept_weights_path(run, s)))?;
     let background = match &info.detector.input.background {
         None => None,

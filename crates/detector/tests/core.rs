@@ -74,7 +74,12 @@ fn train(
     on_step: &mut dyn FnMut(&StepReport) -> bool,
 ) -> hilo_detector::Result<RunInfo> {
     let tc = tc.clone().validate()?;
-    hilo_detector::train::train(run, det, &tc, frames, background, registry, device, on_step)
+    hilo_detector::train::train(run, &det.clone().validate()?, &tc, frames, background, registry, device, on_step)
+}
+
+/// A detector built from a config checked first, as every caller does.
+fn build(cfg: &DetectorConfig, registry: &Registry, device: &Device, seed: u64) -> hilo_detector::Result<Detector> {
+    Detector::new(&cfg.clone().validate()?, registry, device, seed)
 }
 
 #[test]
@@ -83,7 +88,7 @@ fn module_shapes() {
         let frames = vec![frame(1, &[car(2.0, 3.0, 0.3)]), frame(2, &[ped(-4.0, 1.0)])];
         // Dense: maps over the head's grid, the 32 × 32 pillar grid divided by the output stride.
         let cfg = dense(name);
-        let det = Detector::new(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+        let det = build(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
         let b = HostBatch::new(&cfg, &frames, false, 0);
         assert_eq!(b.lidar.width, 9);
         assert_eq!(b.lidar.features.len(), b.lidar.count() * b.lidar.points_per_pillar * 9);
@@ -96,7 +101,7 @@ fn module_shapes() {
         assert!(b.targets.num_pos >= 2.0);
         // Sparse: one row per head site, targets gathered to them.
         let cfg = small(name);
-        let det = Detector::new(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+        let det = build(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
         let b = HostBatch::new(&cfg, &frames, false, 0);
         let sites = b.sparse.as_ref().unwrap().head_sites.len();
         assert!(sites > 0 && sites <= 2 * n * n, "{name}: {sites} head sites");
@@ -171,7 +176,7 @@ fn per_class_normalisation_weighs_every_class_alike() {
         let losses: Vec<f32> = [plain, per_class]
             .iter()
             .map(|c| {
-                let det = Detector::new(c, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+                let det = build(c, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
                 let (cls, reg) = det.forward(&b, true).unwrap();
                 det.loss(&cls, &reg, t).unwrap().total.to_scalar::<f32>().unwrap()
             })
@@ -183,7 +188,7 @@ fn per_class_normalisation_weighs_every_class_alike() {
 #[test]
 fn empty_clouds_and_frames_without_boxes_give_finite_losses() {
     let cfg = small("centerpoint");
-    let det = Detector::new(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+    let det = build(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
     let empty =
         Frame { sample_token: "e".into(), scene: "s".into(), lidar: Vec::new(), radar: Vec::new(), boxes: Vec::new() };
     for frames in [vec![empty.clone()], vec![frame(3, &[]), empty]] {
@@ -315,7 +320,7 @@ fn replicas_average_gradients_deterministically() {
         g.iter().map(|g| g.as_ref().map(|g| g.flatten_all().unwrap().to_vec1::<f32>().unwrap())).collect()
     };
     let run = |pools: &ReplicaPools| {
-        let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+        let det = build(&cfg, &reg, &Device::Cpu, 0).unwrap();
         let opt = AdamW::new(det.trainable(), 0.01).unwrap();
         let pass = step_pass(&det, &opt, &batches, pools, false).unwrap();
         (host(&pass.grads), pass.total, running_stats(&det))
@@ -327,7 +332,7 @@ fn replicas_average_gradients_deterministically() {
 
     // The oracle: each replica's forward pass (the later ones with frozen statistics), the
     // mean of their losses, one backward pass through candle's autograd.
-    let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+    let det = build(&cfg, &reg, &Device::Cpu, 0).unwrap();
     let opt = AdamW::new(det.trainable(), 0.01).unwrap();
     let before = running_stats(&det);
     let mut total: Option<Tensor> = None;
@@ -405,7 +410,7 @@ fn synchronised_replicas_train_as_one_batch() {
     let whole = [HostBatch::new(&cfg, &frames, false, 0)];
     type Grads = Vec<Option<Vec<f32>>>;
     let run = |batches: &[HostBatch], pools: &ReplicaPools, sync: bool| {
-        let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+        let det = build(&cfg, &reg, &Device::Cpu, 0).unwrap();
         let opt = AdamW::new(det.trainable(), 0.01).unwrap();
         let pass = step_pass(&det, &opt, batches, pools, sync).unwrap();
         let grads: Grads =
@@ -448,7 +453,7 @@ fn synchronised_replicas_train_as_one_batch() {
     let r = run(&with_empty, &ReplicaPools::threads(2).unwrap(), true);
     assert!(r.1.is_finite() && r.0.iter().flatten().flatten().all(|g| g.is_finite()));
     // Synchronised replicas one after the other would wait for each other: refused.
-    let det = Detector::new(&cfg, &reg, &Device::Cpu, 0).unwrap();
+    let det = build(&cfg, &reg, &Device::Cpu, 0).unwrap();
     let opt = AdamW::new(det.trainable(), 0.01).unwrap();
     let e = step_pass(&det, &opt, &replicas, &ReplicaPools::sequential(), true).unwrap_err().to_string();
     assert!(e.contains("thread each"), "{e}");
@@ -489,20 +494,20 @@ fn bad_input_is_a_clear_error() {
     assert!(e.contains("twice"), "{e}");
     let mut cfg = small("centerpoint");
     cfg.fusion = "radar-magic".into();
-    let e = Detector::new(&cfg, &r, &Device::Cpu, 0).unwrap_err().to_string();
+    let e = build(&cfg, &r, &Device::Cpu, 0).unwrap_err().to_string();
     assert!(e.contains("radar-magic") && e.contains("lidar"), "{e}");
     // A checkpoint of another architecture.
     let dir = tempfile::tempdir().unwrap();
-    let pp = Detector::new(&small("pointpillars"), &r, &Device::Cpu, 0).unwrap();
+    let pp = build(&small("pointpillars"), &r, &Device::Cpu, 0).unwrap();
     let path = dir.path().join("pp.safetensors");
     pp.save(&path).unwrap();
-    let mut cp = Detector::new(&small("centerpoint"), &r, &Device::Cpu, 0).unwrap();
+    let mut cp = build(&small("centerpoint"), &r, &Device::Cpu, 0).unwrap();
     let e = cp.load(&path).unwrap_err().to_string();
     assert!(e.contains("another architecture") && e.contains("pp.safetensors"), "{e}");
     // Bad fusion config names the plugin and the field.
     let mut cfg = small("centerpoint");
     cfg.fusion_config = serde_json::json!({ "chanels": 32 });
-    let e = Detector::new(&cfg, &r, &Device::Cpu, 0).unwrap_err().to_string();
+    let e = build(&cfg, &r, &Device::Cpu, 0).unwrap_err().to_string();
     assert!(e.contains("lidar") && e.contains("chanels"), "{e}");
 }
 

@@ -69,8 +69,17 @@ impl DetectorConfig {
         self.backbone.out_stride.trailing_zeros() as usize
     }
 
+    /// The checked configuration a detector is built from ([`Check`]).
+    pub fn validate(self) -> Result<Valid<DetectorConfig>> {
+        Valid::new(self)
+    }
+}
+
+impl Check for DetectorConfig {
+    type Error = FusionError;
+
     /// Checks what the detector can be built from.
-    pub fn validate(&self) -> Result<()> {
+    fn check(&self) -> Result<()> {
         self.grid.validate().map_err(FusionError::Config)?;
         self.input.validate()?;
         let b = &self.backbone;
@@ -98,6 +107,8 @@ impl DetectorConfig {
         Ok(())
     }
 }
+
+impl DetectorConfig {}
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -116,7 +116,7 @@ pub struct Job {
     pub seed: u64,
     pub run: PathBuf,
     pub results: PathBuf,
-    pub detector: DetectorConfig,
+    pub detector: Valid<DetectorConfig>,
     pub train: Valid<TrainConfig>,
     /// Samples at which weights are kept and evaluated for the learning curve (the end
     /// excluded; seed 0 only).
@@ -261,7 +261,7 @@ impl Plan {
                         seed,
                         run: out.join("runs").join(conf.slug()).join(&name),
                         results: out.join("results").join(conf.slug()).join(format!("{name}.json")),
-                        detector: p.detector.clone(),
+                        detector: p.detector.clone().validate()?,
                         train: tc.validate()?,
                         curve,
                     });
