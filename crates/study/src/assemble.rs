@@ -12,7 +12,7 @@ use crate::profile::Profile;
 use crate::stages::{DataRecord, JobOutput, Predictions, Progress, ResultMeta};
 use crate::stats::{Scores, scene_draws};
 use crate::study::Study;
-use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, adjust};
+use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, PresetRoles, adjust};
 use hilo_core::fs::{limit, read_json};
 use hilo_detector::Registry;
 use hilo_detector::data::{Frame, LoadOptions, load_split_frame};
@@ -99,6 +99,9 @@ pub struct Report {
     pub entries: Vec<Entry>,
     pub comparisons: Vec<Comparison>,
     pub claims: Vec<Claim>,
+    /// The equivalence margin of the claims' TOST (the study file's `verdict.equivalence_margin`).
+    #[serde(default)]
+    pub margin: f64,
     pub calibration: Calibration,
     pub learning_curves: Vec<Curve>,
     /// Whether every preset ranks the configurations the same at half its training and at the
@@ -215,7 +218,6 @@ pub fn assemble(
     let mut entries = Vec::new();
     let mut det_scores = Vec::new();
     let mut planted = Vec::new();
-    const DROP: f64 = 0.05;
     for ((conf, preset, seed), pred) in &results_by {
         let (full, scores) = score(pred)?;
         let meta = &metas[&(conf.clone(), preset.clone(), *seed)];
@@ -246,9 +248,11 @@ pub fn assemble(
         let pos = |c: &str| configs.iter().position(|x| x.name == c).unwrap_or(usize::MAX);
         (pos(&a.configuration), a.preset.as_str(), a.seed).cmp(&(pos(&b.configuration), b.preset.as_str(), b.seed))
     });
-    let (comparisons, claims, calibration) =
-        verdict(prof, registry, &summaries, &det_scores, &planted, scenes.len(), DROP);
     let learning_curves = learning_curves(&results_by, &curve_preds, &metas, &entries, &common, &eval_cfg, &scenes)?;
+    let margin = study.file.verdict.equivalence_margin;
+    let (comparisons, mut claims, calibration) =
+        verdict(prof, registry, &summaries, &det_scores, &planted, scenes.len(), margin);
+    crate::verdict::budget_gate(&mut claims, &learning_curves);
     let ranking_changed = ranking_changes(&learning_curves, &prof.presets);
     let cost_reduction = cost_reduction(&summaries);
     let report = Report {
@@ -263,6 +267,7 @@ pub fn assemble(
         entries,
         comparisons,
         claims,
+        margin,
         calibration,
         learning_curves,
         ranking_stable: ranking_changed.is_empty(),
@@ -317,6 +322,9 @@ fn cost_reduction(summaries: &[ConfigSummary]) -> BTreeMap<String, f64> {
     out
 }
 
+/// The share of a detector's boxes dropped for the planted difference of the calibration.
+const DROP: f64 = 0.05;
+
 /// Each configuration's placement and dataset, as the report lists them (the unseen shares are
 /// filled in with the validation data).
 fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
@@ -369,32 +377,27 @@ fn verdict(
     det_scores: &[DetectorScores],
     planted: &[DetectorScores],
     scenes: usize,
-    drop: f64,
+    margin: f64,
 ) -> (Vec<Comparison>, Vec<Claim>, Calibration) {
     let conf_roles: Vec<(String, f64, bool)> =
         summaries.iter().map(|s| (s.name.clone(), s.cost_usd, s.has_radar)).collect();
-    let uses: BTreeMap<String, bool> = prof
-        .presets
-        .iter()
-        .chain(&prof.ablations)
-        .filter_map(|p| registry.preset(p).ok().map(|x| (p.clone(), registry.uses_radar(&x.detector))))
-        .collect();
-    let ablation_of: BTreeMap<String, String> =
-        prof.ablations.iter().filter_map(|a| registry.ablation_of(a).map(|of| (a.clone(), of.to_owned()))).collect();
+    let roles = PresetRoles::of(prof, registry);
     let design = Design {
         scores: det_scores,
         configurations: &conf_roles,
         presets: &prof.presets,
         ablations: &prof.ablations,
-        ablation_of: &ablation_of,
-        uses_radar: &uses,
+        ablation_of: &roles.ablation_of,
+        uses_radar: &roles.uses_radar,
+        counterpart: &roles.counterpart,
+        pointpillars_head: &roles.pointpillars_head,
         scenes,
         level: 0.95,
     };
     let mut comparisons = design.comparisons();
     let mut claims = design.claims();
-    adjust(&mut claims, &mut comparisons, 0.05);
-    let calibration = calibrate(&design, planted, drop);
+    adjust(&mut claims, &mut comparisons, 0.05, margin);
+    let calibration = calibrate(&design, planted, DROP);
     (comparisons, claims, calibration)
 }
 
@@ -502,6 +505,8 @@ fn calibrate(design: &Design, planted: &[DetectorScores], share: f64) -> Calibra
         pairs: aa.len(),
         false_positives: fp,
         false_positive_rate: fp as f64 / aa.len().max(1) as f64,
+        false_positive_interval: crate::stats::binomial_interval(fp, aa.len(), 0.95),
+        held_out: true,
         planted_drop_share: share,
         planted_pairs: tests.len(),
         planted_mean_effect: tests.iter().map(|t| t.estimate).sum::<f64>() / tests.len().max(1) as f64,

@@ -189,7 +189,7 @@ impl Plan {
                 .map_err(|e| StudyError::Invalid(format!("--presets / profile {}: preset {p:?}: {e}", profile.name)))?;
         }
         let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
-        let fingerprint = hash(&[&format!("{:?}", study.file), &pjson, &study.scene_hash, &study.catalog_hash]);
+        let fingerprint = hash(&[&defining(&study.file), &pjson, &study.scene_hash, &study.catalog_hash]);
         let configurations: Vec<Configuration> =
             study.file.configurations.iter().take(profile.configurations.unwrap_or(usize::MAX)).cloned().collect();
         let radar: Vec<bool> = configurations.iter().map(|c| c.has_radar(&study.catalog)).collect();
@@ -390,5 +390,32 @@ impl FolderRecord {
             )));
         }
         Ok(read_json(&p, limit::TABLE)?)
+    }
+}
+
+/// The parts of a study file that define what its stages compute, as text for the folder's
+/// fingerprint: everything but the `[verdict]` settings, which only change how the report
+/// judges (a new margin rewrites the report, not the trained detectors). Written as the file's
+/// derived `Debug` was before the section existed, so folders made then still open.
+fn defining(f: &crate::study::StudyFile) -> String {
+    format!(
+        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?} }}",
+        f.scene, f.catalog, f.placement, f.dataset, f.configurations
+    )
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// The fingerprint's text is the study file's own `Debug` without its `[verdict]` section:
+    /// a field added to the file and left out here (or the other way round) fails.
+    #[test]
+    fn the_fingerprint_reads_every_field_but_the_verdict_settings() {
+        let text = include_str!("../../../fixtures/study.toml");
+        let file: crate::study::StudyFile = toml::from_str(text).unwrap();
+        let whole = format!("{file:?}").replace(&format!(", verdict: {:?}", file.verdict), "");
+        assert_eq!(defining(&file), whole);
     }
 }

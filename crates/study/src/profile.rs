@@ -44,12 +44,21 @@ pub struct Profile {
     pub leaves_out: String,
 }
 
+/// The presets of the default profile: the LiDAR-only detector and the fusion detector under
+/// study, which share their head.
+pub const DEFAULT_PRESETS: [&str; 2] = ["centerpoint", "lirafusion-like"];
+
 /// The profiles: `quick` (≤ 5 min), `default` (≤ 30 min), `paper` (the paper's scale), and
 /// `tiny` (seconds; for tests).
 pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile> {
     let base = study.dataset.clone().into_inner();
-    // Every detector and every ablation the plugins register, for the paper profile.
-    let (detectors, ablations) = (registry.detector_names(), registry.ablation_names());
+    // Every detector and every ablation the plugins register, for the paper profile: the
+    // default profile's presets first (the verdict takes the first fusion preset as the one
+    // under study), then the others in registration order.
+    let mut detectors: Vec<String> =
+        DEFAULT_PRESETS.iter().filter(|p| registry.preset(p).is_ok()).map(|p| p.to_string()).collect();
+    detectors.extend(registry.detector_names().into_iter().filter(|p| !DEFAULT_PRESETS.contains(&p.as_str())));
+    let ablations = registry.ablation_names();
     let p = match name {
         "quick" => Profile {
             name: name.into(),
@@ -69,7 +78,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
         "default" => Profile {
             name: name.into(),
             dataset: study.dataset.clone(),
-            presets: vec!["centerpoint".into(), "lirafusion-like".into()],
+            presets: DEFAULT_PRESETS.iter().map(|p| p.to_string()).collect(),
             ablations: registry.ablations_of("lirafusion-like"),
             configurations: Some(3),
             seeds: 3,

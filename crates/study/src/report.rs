@@ -99,11 +99,23 @@ fn detection_png(
     Ok(write_atomic(path, &canvas.png()?)?)
 }
 
+fn relation_word(r: crate::stats::PaperRelation) -> &'static str {
+    use crate::stats::PaperRelation::*;
+    match r {
+        Consistent => "consistent",
+        Larger => "larger",
+        Smaller => "smaller",
+        Opposite => "opposite",
+    }
+}
+
 pub(crate) fn verdict_word(v: Verdict) -> &'static str {
     match v {
         Verdict::Supported => "supported",
         Verdict::Contradicted => "contradicted",
+        Verdict::Equivalent => "equivalent",
         Verdict::Undecided => "undecided",
+        Verdict::BudgetBound => "budget-bound",
     }
 }
 
@@ -359,13 +371,14 @@ fn md_claims(md: &mut String, r: &Report) {
     let p = &r.profile;
     let _ = writeln!(
         md,
-        "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds, `p` Holm-adjusted over every test of this report. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *undecided*.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | verdict |\n|---|---|---|---:|---|---:|---|"
+        "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds, `p` Holm-adjusted over every test of this report. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *equivalent* (not significant, and within ±{:.3} by two one-sided tests), *budget-bound* (its sign changed over the last doubling of training), *undecided*. `vs paper`: where the interval lies against the paper's number; `MDE`: the smallest true difference this design finds with 80% power.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | vs paper | MDE | verdict |\n|---|---|---|---:|---|---:|---|---:|---|",
+        r.margin
     );
     for c in &r.claims {
         if c.rows.is_empty() {
             let _ = writeln!(
                 md,
-                "| {} | – | – | – | not tested: {} | – | {} |",
+                "| {} | – | – | – | not tested: {} | – | – | – | {} |",
                 esc(&c.statement),
                 esc(c.not_tested.as_deref().unwrap_or("")),
                 verdict_word(c.verdict)
@@ -375,20 +388,22 @@ fn md_claims(md: &mut String, r: &Report) {
             let (est, pv) = test_cells(&row.test);
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 esc(&c.statement),
                 row.metric,
                 esc(&row.comparison),
                 row.paper.map_or("–".into(), |v| format!("{v:+.3}")),
                 est,
                 pv,
+                row.paper_relation.map_or("–", relation_word),
+                if row.mde.is_finite() { format!("{:.3}", row.mde) } else { "–".into() },
                 verdict_word(row.verdict)
             );
         }
         if !c.per_preset.is_empty() {
             let _ = writeln!(
                 md,
-                "| ↳ per preset | mAP | | | {} | | |",
+                "| ↳ per preset | mAP | | | {} | | | | |",
                 c.per_preset.iter().map(|(p, d)| format!("{p} {d:+.3}")).collect::<Vec<_>>().join(", ")
             );
         }
@@ -512,11 +527,13 @@ fn md_comparisons(md: &mut String, r: &Report) {
     let sv = cal.seed_variance.get("mAP");
     let _ = writeln!(
         md,
-        "\n## Calibration of the test\n\nOn {} A/A pairs (two seeds of one configuration and preset, and the LiDAR-only preset on the two rigs that see the same LiDAR data), the test called {} significant at α = {}: a false-positive rate of {:.3}. A planted degradation ({:.0}% of every detector's boxes dropped, a mean mAP change of {:+.3}) was found in {:.0}% of {} groups. Seed standard deviation of mAP (pooled over every group): {:.4} ({} degrees of freedom).\n",
+        "\n## Calibration of the test\n\nOn {} A/A pairs (two seeds of one configuration and preset, and the LiDAR-only preset on the two rigs that see the same LiDAR data), each tested with the seed variance of the other groups only (so the test is not calibrated by the pairs it judges), the test called {} significant at α = {}: a false-positive rate of {:.3} [{:.3}, {:.3}] (exact 95% interval). A planted degradation ({:.0}% of every detector's boxes dropped, a mean mAP change of {:+.3}) was found in {:.0}% of {} groups. Seed standard deviation of mAP (pooled over every group): {:.4} ({} degrees of freedom).\n",
         cal.pairs,
         cal.false_positives,
         cal.alpha,
         cal.false_positive_rate,
+        cal.false_positive_interval.0,
+        cal.false_positive_interval.1,
         100.0 * cal.planted_drop_share,
         cal.planted_mean_effect,
         100.0 * cal.power,

@@ -98,6 +98,10 @@ pub struct Test {
     /// False when the design cannot estimate the interval (fewer than 5 scenes, or no seed
     /// variance): the interval and p are then not reported.
     pub estimable: bool,
+    /// Degrees of freedom of the t reference (the pooled seed variance's; 0 in reports written
+    /// before the field existed).
+    #[serde(default)]
+    pub df: usize,
 }
 
 /// Fewer validation scenes than this: a scene bootstrap has too few distinct resamples.
@@ -165,6 +169,7 @@ pub fn test(
         seeds_b: b.len(),
         scenes,
         estimable,
+        df: seed.df,
     }
 }
 
@@ -173,6 +178,98 @@ pub fn compare(a: &[&Scores], b: &[&Scores], seed: SeedVariance, scenes: usize, 
     let wa: Vec<(&Scores, f64)> = a.iter().map(|s| (*s, 1.0 / a.len() as f64)).collect();
     let wb: Vec<(&Scores, f64)> = b.iter().map(|s| (*s, 1.0 / b.len() as f64)).collect();
     test(&wa, &wb, seed, 1.0 / a.len() as f64 + 1.0 / b.len() as f64, scenes, level)
+}
+
+/// Two one-sided tests (TOST) of equivalence: the p-value of "|B − A| < margin", the larger of
+/// the two one-sided p-values against B − A ≤ −margin and B − A ≥ margin, with the test's
+/// standard error and degrees of freedom. Below α the difference is shown to lie within the
+/// margin (equivalently: the 1 − 2α interval lies inside ±margin). NaN when not estimable.
+pub fn tost_p(t: &Test, margin: f64) -> f64 {
+    use statrs::distribution::ContinuousCDF;
+    match t_dist(t.df) {
+        Some(d) if t.estimable && t.se > 0.0 && margin > 0.0 => {
+            let lower = 1.0 - d.cdf((t.estimate + margin) / t.se);
+            let upper = d.cdf((t.estimate - margin) / t.se);
+            lower.max(upper).clamp(0.0, 1.0)
+        }
+        _ => f64::NAN,
+    }
+}
+
+/// The minimum detectable effect: the true difference a two-sided test at `alpha` finds with
+/// probability `power`, given the standard error and degrees of freedom of its estimate,
+/// (t_{1−α/2} + t_{power}) · SE.
+pub fn mde(se: f64, df: usize, alpha: f64, power: f64) -> f64 {
+    use statrs::distribution::ContinuousCDF;
+    match t_dist(df) {
+        Some(d) if se.is_finite() && df > 0 => (d.inverse_cdf(1.0 - alpha / 2.0) + d.inverse_cdf(power)) * se,
+        _ => f64::NAN,
+    }
+}
+
+/// Where a difference's interval lies against the paper's number.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PaperRelation {
+    /// The interval holds the paper's number.
+    Consistent,
+    /// The interval lies above it (same sign, a larger effect).
+    Larger,
+    /// The interval lies below it and not wholly on the other side of zero.
+    Smaller,
+    /// The interval lies wholly on the other side of zero from the paper's number.
+    Opposite,
+}
+
+/// The relation of the interval [lo, hi] to the paper's number (None when it is not finite).
+pub fn paper_relation(lo: f64, hi: f64, paper: f64) -> Option<PaperRelation> {
+    if !(lo.is_finite() && hi.is_finite() && paper.is_finite()) {
+        return None;
+    }
+    Some(if (paper > 0.0 && hi < 0.0) || (paper < 0.0 && lo > 0.0) {
+        PaperRelation::Opposite
+    } else if lo > paper {
+        if paper >= 0.0 { PaperRelation::Larger } else { PaperRelation::Smaller }
+    } else if hi < paper {
+        if paper >= 0.0 { PaperRelation::Smaller } else { PaperRelation::Larger }
+    } else {
+        PaperRelation::Consistent
+    })
+}
+
+/// The exact (Clopper–Pearson) interval of a binomial proportion `k` of `n` at `level`.
+pub fn binomial_interval(k: usize, n: usize, level: f64) -> (f64, f64) {
+    use statrs::distribution::{Beta, ContinuousCDF};
+    if n == 0 {
+        return (0.0, 1.0);
+    }
+    let a = (1.0 - level) / 2.0;
+    let (k, n) = (k as f64, n as f64);
+    let lo = if k == 0.0 { 0.0 } else { Beta::new(k, n - k + 1.0).map_or(0.0, |b| b.inverse_cdf(a)) };
+    let hi = if k == n { 1.0 } else { Beta::new(k + 1.0, n - k).map_or(1.0, |b| b.inverse_cdf(1.0 - a)) };
+    (lo, hi)
+}
+
+/// Held-out A/A tests: every pair of seeds within each group (one configuration and preset),
+/// each tested with the seed variance pooled over the *other* groups (leave one group out), so
+/// the variance behind a test is never estimated from the pair it judges. `scale` multiplies
+/// that variance (1 in reports; below 1 it understates the error, which the rate must expose).
+/// Returns the tests.
+pub fn held_out_aa(groups: &[Vec<&Scores>], scenes: usize, level: f64, scale: f64) -> Vec<Test> {
+    let fulls: Vec<Vec<f64>> = groups.iter().map(|g| g.iter().map(|s| s.full).collect()).collect();
+    let mut out = Vec::new();
+    for (gi, g) in groups.iter().enumerate() {
+        let others: Vec<Vec<f64>> =
+            fulls.iter().enumerate().filter(|(k, _)| *k != gi).map(|(_, v)| v.clone()).collect();
+        let mut sv = pooled_seed_variance(&others);
+        sv.variance *= scale;
+        for i in 0..g.len() {
+            for j in i + 1..g.len() {
+                out.push(compare(&[g[i]], &[g[j]], sv, scenes, level));
+            }
+        }
+    }
+    out
 }
 
 /// Holm's step-down adjustment of p-values (NaN stays NaN and does not count in the family).
@@ -294,6 +391,86 @@ mod tests {
             assert!(fpr <= 0.05, "seed sd {sd_seed}: false-positive rate {fpr}");
             assert!(power >= 0.8, "seed sd {sd_seed}: power {power}");
         }
+    }
+
+    /// The A/A false-positive rate with a leave-one-group-out seed variance: near α when the
+    /// error is estimated honestly, well above it when the seed variance is understated (a
+    /// fifth of the true one), so a miscalibrated test cannot hide behind its own pairs.
+    #[test]
+    fn held_out_calibration_catches_an_understated_standard_error() {
+        let syn = Synthetic { scenes: 20, seeds: 3, sd_seed: 0.03, sd_scene: 0.05, sd_noise: 0.02 };
+        let draws = scene_draws(syn.scenes, 200, 3);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let (mut honest, mut understated, mut n) = (0usize, 0usize, 0usize);
+        for _ in 0..150 {
+            // Ten groups (five draws of two), three seeds each: 30 A/A pairs, as in `paper`.
+            let groups: Vec<Vec<Scores>> = (0..5)
+                .flat_map(|_| {
+                    let (a, b, _) = syn.draw(&mut rng, 0.0, &draws, 0);
+                    [a, b]
+                })
+                .collect();
+            let refs: Vec<Vec<&Scores>> = groups.iter().map(|g| g.iter().collect()).collect();
+            let fp = |scale: f64| {
+                held_out_aa(&refs, syn.scenes, 0.95, scale).iter().filter(|t| t.estimable && t.p < 0.05).count()
+            };
+            honest += fp(1.0);
+            understated += fp(0.2);
+            n += 30;
+        }
+        let (h, u) = (honest as f64 / n as f64, understated as f64 / n as f64);
+        eprintln!("held-out A/A false-positive rate: {h:.3} honest, {u:.3} with a fifth of the seed variance");
+        assert!(h <= 0.065, "honest standard error: false-positive rate {h}");
+        assert!(u > 0.10, "understated standard error not caught: false-positive rate {u}");
+    }
+
+    /// TOST, the minimum detectable effect and the binomial interval against closed forms.
+    #[test]
+    fn tost_mde_and_binomial_interval_match_closed_forms() {
+        let t = |estimate: f64, se: f64, df: usize| Test {
+            estimate,
+            lo: f64::NAN,
+            hi: f64::NAN,
+            se,
+            se_scenes: 0.0,
+            se_seeds: se,
+            p: f64::NAN,
+            p_adjusted: f64::NAN,
+            seeds_a: 3,
+            seeds_b: 3,
+            scenes: 20,
+            estimable: true,
+            df,
+        };
+        // Estimate 0, SE 0.01, margin 0.02: both one-sided t are 2; 1 − Φ(2) = 0.022750 for a
+        // large df, 1 − T₁₀(2) = 0.036694.
+        assert!((tost_p(&t(0.0, 0.01, 100_000), 0.02) - 0.022750).abs() < 1e-4);
+        assert!((tost_p(&t(0.0, 0.01, 10), 0.02) - 0.036694).abs() < 1e-5);
+        // Off-centre the nearer bound decides: estimate 0.01 → t = 1 against the upper margin.
+        assert!((tost_p(&t(0.01, 0.01, 100_000), 0.02) - 0.158655).abs() < 1e-4);
+        assert!(tost_p(&t(0.05, 0.01, 10), 0.02) > 0.99);
+        // MDE at α = 0.05, 80% power: (z_0.975 + z_0.8)·SE = 2.801585·SE; with 4 df
+        // (t_0.975 = 2.776445, t_0.8 = 0.940965) 3.717410·SE.
+        assert!((mde(0.01, 100_000, 0.05, 0.8) - 0.02801585).abs() < 2e-6);
+        assert!((mde(0.01, 4, 0.05, 0.8) - 0.03717410).abs() < 2e-6);
+        // Clopper–Pearson: 0 of 30 → [0, 1 − 0.025^(1/30)]; 30 of 30 → [0.025^(1/30), 1].
+        let (lo, hi) = binomial_interval(0, 30, 0.95);
+        assert!(lo == 0.0 && (hi - (1.0 - 0.025f64.powf(1.0 / 30.0))).abs() < 1e-9);
+        let (lo, hi) = binomial_interval(30, 30, 0.95);
+        assert!(hi == 1.0 && (lo - 0.025f64.powf(1.0 / 30.0)).abs() < 1e-9);
+        // 5 of 20: the textbook interval [0.0866, 0.4910].
+        let (lo, hi) = binomial_interval(5, 20, 0.95);
+        assert!((lo - 0.0866).abs() < 1e-4 && (hi - 0.4910).abs() < 1e-4, "{lo} {hi}");
+    }
+
+    #[test]
+    fn the_interval_is_placed_against_the_paper() {
+        use PaperRelation::*;
+        assert_eq!(paper_relation(0.083, 0.176, 0.015), Some(Larger));
+        assert_eq!(paper_relation(-0.031, 0.030, 0.031), Some(Smaller));
+        assert_eq!(paper_relation(-0.01, 0.05, 0.031), Some(Consistent));
+        assert_eq!(paper_relation(-0.05, -0.01, 0.031), Some(Opposite));
+        assert_eq!(paper_relation(f64::NAN, 0.1, 0.031), None);
     }
 
     #[test]

@@ -26,7 +26,25 @@ pub struct StudyFile {
     /// Traffic and recording settings of the datasets.
     #[serde(default)]
     pub dataset: SimulateConfig,
+    /// How the verdict judges the claims.
+    #[serde(default)]
+    pub verdict: VerdictSettings,
     pub configurations: Vec<Configuration>,
+}
+
+/// The `[verdict]` section of a study file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VerdictSettings {
+    /// A difference smaller than this (in the metric's units: 0.02 = 2 points of mAP) is no
+    /// difference that matters: a claim whose TOST shows it within ±margin is "equivalent".
+    pub equivalence_margin: f64,
+}
+
+impl Default for VerdictSettings {
+    fn default() -> Self {
+        VerdictSettings { equivalence_margin: 0.02 }
+    }
 }
 
 /// One sensor configuration to place.
@@ -188,6 +206,10 @@ impl Study {
                     c.name
                 )));
             }
+        }
+        let m = file.verdict.equivalence_margin;
+        if !(m > 0.0 && m < 1.0) {
+            return Err(bad(format!("verdict.equivalence_margin = {m}: must be in (0, 1)")));
         }
         let dataset = file.dataset.clone().validate()?;
         let placement = file.placement.clone().validate()?;

@@ -1,7 +1,10 @@
 //! From every trained detector's scores to the study's verdict: comparisons between rigs, the
 //! paper's claims answered one by one, the test's calibration, and the learning curves.
 
-use crate::stats::{Scores, SeedVariance, Test, compare, holm, pooled_seed_variance, test};
+use crate::stats::{
+    PaperRelation, Scores, SeedVariance, Test, compare, held_out_aa, holm, mde, paper_relation, pooled_seed_variance,
+    test, tost_p,
+};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -38,6 +41,24 @@ pub struct ClaimRow {
     pub paper: Option<f64>,
     pub test: Test,
     pub verdict: Verdict,
+    /// The detector groups (configuration, preset) of each side, A and B.
+    #[serde(default)]
+    pub a: Vec<(String, String)>,
+    #[serde(default)]
+    pub b: Vec<(String, String)>,
+    /// Where the interval lies against the paper's number.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paper_relation: Option<PaperRelation>,
+    /// TOST p-value of |B − A| < the study's equivalence margin.
+    #[serde(default = "nan")]
+    pub tost_p: f64,
+    /// The smallest true difference this design finds with 80% power at α = 0.05.
+    #[serde(default = "nan")]
+    pub mde: f64,
+}
+
+fn nan() -> f64 {
+    f64::NAN
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -47,8 +68,14 @@ pub enum Verdict {
     Supported,
     /// Significant against it.
     Contradicted,
-    /// Not significant, or not estimable.
+    /// Not significant, and shown to lie within the equivalence margin (TOST p < 0.05): no
+    /// difference that matters.
+    Equivalent,
+    /// Not significant and not shown equivalent: the design cannot tell.
     Undecided,
+    /// The sign of the difference changed over the last doubling of training: the answer is
+    /// about the training budget, not the rigs or detectors.
+    BudgetBound,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -63,6 +90,12 @@ pub struct Claim {
     /// Per preset, the sign of its own difference (the "whichever module" claim).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub per_preset: BTreeMap<String, f64>,
+    /// Of its first row: where the interval lies against the paper's number, and the minimum
+    /// detectable effect at 80% power.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paper_relation: Option<PaperRelation>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mde: Option<f64>,
 }
 
 /// The test's measured calibration in this study.
@@ -74,6 +107,13 @@ pub struct Calibration {
     pub pairs: usize,
     pub false_positives: usize,
     pub false_positive_rate: f64,
+    /// The rate's exact 95% binomial interval.
+    #[serde(default)]
+    pub false_positive_interval: (f64, f64),
+    /// Whether each A/A pair was tested with a seed variance pooled over the other groups only
+    /// (leave one group out), so that the test cannot be calibrated by the pairs it judges.
+    #[serde(default)]
+    pub held_out: bool,
     /// A planted degradation (a share of every box dropped) against the undegraded seeds.
     pub planted_drop_share: f64,
     pub planted_pairs: usize,
@@ -107,6 +147,12 @@ pub struct Design<'a> {
     pub ablation_of: &'a BTreeMap<String, String>,
     /// Which presets read radar.
     pub uses_radar: &'a BTreeMap<String, bool>,
+    /// Each fusion preset's LiDAR-only counterpart: the LiDAR-only preset of the profile with
+    /// the same head and target assignment, so a comparison isolates the fusion.
+    pub counterpart: &'a BTreeMap<String, String>,
+    /// The LiDAR-only presets with PointPillars' head (every cell of a box footprint positive),
+    /// as against CenterPoint's (a peak at each centre).
+    pub pointpillars_head: &'a std::collections::BTreeSet<String>,
     pub scenes: usize,
     pub level: f64,
 }
@@ -148,10 +194,26 @@ impl Design<'_> {
         (radar.first().map(|c| c.0.as_str()), radar.last().map(|c| c.0.as_str()), lidar.last().map(|c| c.0.as_str()))
     }
 
+    /// The fusion preset under study and the LiDAR-only preset it is compared with: the first
+    /// fusion preset of the profile whose counterpart has CenterPoint's head, and that
+    /// counterpart (without counterparts: the first fusion and the first LiDAR-only preset).
     fn fusion_and_lidar(&self) -> (Option<&str>, Option<&str>) {
+        if let Some((f, l)) = self.fusion_with_head(false) {
+            return (Some(f), Some(l));
+        }
         let f = self.presets.iter().find(|p| self.uses_radar.get(*p).copied().unwrap_or(false));
         let l = self.presets.iter().find(|p| !self.uses_radar.get(*p).copied().unwrap_or(true));
         (f.map(String::as_str), l.map(String::as_str))
+    }
+
+    /// The first fusion preset of the profile whose LiDAR-only counterpart has PointPillars'
+    /// head (`pointpillars`) or CenterPoint's, and the counterpart.
+    fn fusion_with_head(&self, pointpillars: bool) -> Option<(&str, &str)> {
+        self.presets.iter().find_map(|f| {
+            let l = self.counterpart.get(f)?;
+            (self.presets.contains(l) && self.pointpillars_head.contains(l) == pointpillars)
+                .then_some((f.as_str(), l.as_str()))
+        })
     }
 
     /// The cheapest configuration against every other one, per preset and metric.
@@ -175,33 +237,30 @@ impl Design<'_> {
         out
     }
 
-    /// The paper's claims, each as B − A in the paper's favoured direction.
+    /// The paper's claims, each as B − A in the paper's favoured direction: the rigs against
+    /// each other with the fusion detector, fusion against LiDAR only and the ablation, and
+    /// the rigs over every preset.
     pub fn claims(&self) -> Vec<Claim> {
+        let mut claims = self.claims_rigs();
+        claims.extend(self.claims_fusion());
+        claims.extend(self.claims_pooled());
+        claims
+    }
+
+    /// The cheap rig against one high-resolution LiDAR, alone and with a radar.
+    fn claims_rigs(&self) -> Vec<Claim> {
         let (cheap, dear_radar, lidar_alone) = self.roles();
         let (fusion, lidar) = self.fusion_and_lidar();
         let mut claims = Vec::new();
-        let row = |metric: &str, what: String, paper: Option<f64>, t: Test| ClaimRow {
-            metric: metric.into(),
-            comparison: what,
-            paper,
-            test: t,
-            verdict: Verdict::Undecided,
-        };
-        let claim = |id: &str, statement: &str, rows: Vec<ClaimRow>, missing: Option<String>| Claim {
-            id: id.into(),
-            statement: statement.into(),
-            rows,
-            verdict: Verdict::Undecided,
-            not_tested: missing,
-            per_preset: BTreeMap::new(),
-        };
         // 1. Low-resolution LiDAR + radar against a high-resolution LiDAR alone.
         let c1 = match (cheap, lidar_alone, fusion, lidar) {
             (Some(c), Some(l), Some(f), Some(lp)) => {
                 let rows = [("mAP", Some(0.015)), ("pedestrian AP", Some(0.14))]
                     .iter()
                     .filter_map(|(m, paper)| {
-                        self.cmp(m, (l, lp), (c, f)).map(|t| row(m, format!("{f} on {c} − {lp} on {l}"), *paper, t))
+                        self.cmp(m, (l, lp), (c, f)).map(|t| {
+                            with(row(m, format!("{f} on {c} − {lp} on {l}"), *paper, t), &[(l, lp)], &[(c, f)])
+                        })
                     })
                     .collect();
                 claim(
@@ -229,7 +288,11 @@ impl Design<'_> {
                 let rows = [("mAP", Some(0.015)), ("pedestrian AP", None)]
                     .iter()
                     .filter_map(|(m, paper)| {
-                        self.pooled(m, d, c).map(|(t, _)| row(m, format!("{c} − {d}, mean over presets"), *paper, t))
+                        self.pooled(m, d, c).map(|(t, per)| {
+                            let a: Vec<(&str, &str)> = per.keys().map(|p| (d, p.as_str())).collect();
+                            let b: Vec<(&str, &str)> = per.keys().map(|p| (c, p.as_str())).collect();
+                            with(row(m, format!("{c} − {d}, mean over presets"), *paper, t), &a, &b)
+                        })
                     })
                     .collect();
                 claim("vs_lidar_radar", st2, rows, None)
@@ -237,13 +300,21 @@ impl Design<'_> {
             _ => claim("vs_lidar_radar", st2, vec![], Some("needs two configurations with radar".into())),
         };
         claims.push(c2);
+        claims
+    }
+
+    /// Fusion against the LiDAR-only counterpart on the cheap rig, and the early-fusion ablation.
+    fn claims_fusion(&self) -> Vec<Claim> {
+        let (cheap, _, _) = self.roles();
+        let (fusion, lidar) = self.fusion_and_lidar();
+        let mut claims = Vec::new();
         // 3. Fusion against LiDAR only on the same (cheapest) rig.
         let st3 = "Fusing radar beats the LiDAR-only detector on the same rig";
         let c3 = match (cheap, fusion, lidar) {
             (Some(c), Some(f), Some(lp)) => {
                 let rows = self
                     .cmp("mAP", (c, lp), (c, f))
-                    .map(|t| row("mAP", format!("{f} − {lp} on {c}"), Some(0.031), t))
+                    .map(|t| with(row("mAP", format!("{f} − {lp} on {c}"), Some(0.031), t), &[(c, lp)], &[(c, f)]))
                     .into_iter()
                     .collect();
                 claim("fusion_vs_lidar_only", st3, rows, None)
@@ -251,6 +322,47 @@ impl Design<'_> {
             _ => claim("fusion_vs_lidar_only", st3, vec![], Some("needs a fusion and a LiDAR-only preset".into())),
         };
         claims.push(c3);
+        // 3b. Fused pedestrian AP over CenterPoint's head; 3c. fusion over PointPillars' head.
+        let st3b = "Fusing radar raises pedestrian AP over the LiDAR-only CenterPoint on the same rig";
+        let c3b = match (cheap, self.fusion_with_head(false)) {
+            (Some(c), Some((f, lp))) => {
+                let rows = self
+                    .cmp("pedestrian AP", (c, lp), (c, f))
+                    .map(|t| {
+                        with(row("pedestrian AP", format!("{f} − {lp} on {c}"), Some(0.068), t), &[(c, lp)], &[(c, f)])
+                    })
+                    .into_iter()
+                    .collect();
+                claim("fused_pedestrian_over_centerpoint", st3b, rows, None)
+            }
+            _ => claim(
+                "fused_pedestrian_over_centerpoint",
+                st3b,
+                vec![],
+                Some("needs a fusion preset and its LiDAR-only counterpart with CenterPoint's head".into()),
+            ),
+        };
+        claims.push(c3b);
+        let st3c = "Fusing radar beats the LiDAR-only PointPillars on the same rig";
+        let c3c = match (cheap, self.fusion_with_head(true)) {
+            (Some(c), Some((f, lp))) => {
+                let rows = [("mAP", 0.077), ("pedestrian AP", 0.092)]
+                    .iter()
+                    .filter_map(|(m, paper)| {
+                        self.cmp(m, (c, lp), (c, f))
+                            .map(|t| with(row(m, format!("{f} − {lp} on {c}"), Some(*paper), t), &[(c, lp)], &[(c, f)]))
+                    })
+                    .collect();
+                claim("fusion_over_pointpillars", st3c, rows, None)
+            }
+            _ => claim(
+                "fusion_over_pointpillars",
+                st3c,
+                vec![],
+                Some("needs a fusion preset and its LiDAR-only counterpart with PointPillars' head".into()),
+            ),
+        };
+        claims.push(c3c);
         // 4. The early-fusion ablation.
         let st4 = "Early fusion helps: the detector with it beats the same detector without it";
         let ablation = fusion
@@ -259,7 +371,7 @@ impl Design<'_> {
             (Some(c), Some(f), Some(a)) => {
                 let rows = self
                     .cmp("mAP", (c, &a), (c, f))
-                    .map(|t| row("mAP", format!("{f} − {a} on {c}"), Some(0.009), t))
+                    .map(|t| with(row("mAP", format!("{f} − {a} on {c}"), Some(0.009), t), &[(c, &a)], &[(c, f)]))
                     .into_iter()
                     .collect();
                 claim("early_fusion_ablation", st4, rows, None)
@@ -272,6 +384,13 @@ impl Design<'_> {
             ),
         };
         claims.push(c4);
+        claims
+    }
+
+    /// The cheap rig's advantage over the other radar rigs, over every preset.
+    fn claims_pooled(&self) -> Vec<Claim> {
+        let (cheap, dear_radar, _) = self.roles();
+        let mut claims = Vec::new();
         // 5. Whichever module: the cheap rig's advantage over the dear radar rig, per preset.
         let st5 = "The cheap rig's advantage holds whichever detector module is used";
         let c5 = match (cheap, dear_radar) {
@@ -280,7 +399,11 @@ impl Design<'_> {
                     let mut cl = claim(
                         "whichever_module",
                         st5,
-                        vec![row("mAP", format!("{c} − {d}, mean over presets"), Some(0.015), t)],
+                        vec![with(
+                            row("mAP", format!("{c} − {d}, mean over presets"), Some(0.015), t),
+                            &per.keys().map(|p| (d, p.as_str())).collect::<Vec<_>>(),
+                            &per.keys().map(|p| (c, p.as_str())).collect::<Vec<_>>(),
+                        )],
                         None,
                     );
                     cl.per_preset = per;
@@ -291,6 +414,41 @@ impl Design<'_> {
             _ => claim("whichever_module", st5, vec![], Some("needs two configurations with radar".into())),
         };
         claims.push(c5);
+        // 6. Against a mid-resolution LiDAR and a radar (a radar rig between the cheapest and
+        // the dearest), pooled over presets.
+        let st6 = "Two cheap LiDARs and a radar beat one mid-resolution LiDAR and a radar with the same detector";
+        let mid = self
+            .configurations
+            .iter()
+            .filter(|x| x.2 && Some(x.0.as_str()) != cheap && Some(x.0.as_str()) != dear_radar)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|x| x.0.as_str());
+        let c6 = match (cheap, mid) {
+            (Some(c), Some(m)) => match self.pooled("mAP", m, c) {
+                Some((t, per)) => {
+                    let mut cl = claim(
+                        "vs_mid_lidar_radar",
+                        st6,
+                        vec![with(
+                            row("mAP", format!("{c} − {m}, mean over presets"), Some(0.032), t),
+                            &per.keys().map(|p| (m, p.as_str())).collect::<Vec<_>>(),
+                            &per.keys().map(|p| (c, p.as_str())).collect::<Vec<_>>(),
+                        )],
+                        None,
+                    );
+                    cl.per_preset = per;
+                    cl
+                }
+                None => claim("vs_mid_lidar_radar", st6, vec![], Some("no preset ran on both configurations".into())),
+            },
+            _ => claim(
+                "vs_mid_lidar_radar",
+                st6,
+                vec![],
+                Some("needs a third configuration with radar, between the cheapest and the dearest".into()),
+            ),
+        };
+        claims.push(c6);
         claims
     }
 
@@ -328,26 +486,29 @@ impl Design<'_> {
 
     /// A/A pairs: for every group, each pair of its seeds; for the LiDAR-only preset on the
     /// two rigs with the same LiDAR (the dearest with and without radar), seed against seed.
+    /// Each is tested with a seed variance pooled over the groups it does not involve
+    /// ([`held_out_aa`]), so the variance is never estimated from the pair it judges.
     pub fn aa_pairs(&self) -> Vec<Test> {
         let metric = "mAP";
-        let sv = self.seed_variance(metric);
-        let mut out = Vec::new();
         let mut groups: BTreeMap<(&str, &str), Vec<&Scores>> = BTreeMap::new();
         for d in self.scores {
             if let Some(s) = d.scores.get(metric) {
                 groups.entry((&d.configuration, &d.preset)).or_default().push(s);
             }
         }
-        for seeds in groups.values() {
-            for i in 0..seeds.len() {
-                for j in i + 1..seeds.len() {
-                    out.push(compare(&[seeds[i]], &[seeds[j]], sv, self.scenes, self.level));
-                }
-            }
-        }
+        let keys: Vec<(&str, &str)> = groups.keys().copied().collect();
+        let all: Vec<Vec<&Scores>> = groups.values().cloned().collect();
+        let mut out = held_out_aa(&all, self.scenes, self.level, 1.0);
         let (_, dear_radar, lidar_alone) = self.roles();
         let (_, lidar) = self.fusion_and_lidar();
         if let (Some(d), Some(l), Some(lp)) = (dear_radar, lidar_alone, lidar) {
+            let others: Vec<Vec<f64>> = keys
+                .iter()
+                .zip(&all)
+                .filter(|(k, _)| **k != (l, lp) && **k != (d, lp))
+                .map(|(_, g)| g.iter().map(|s| s.full).collect())
+                .collect();
+            let sv = pooled_seed_variance(&others);
             let (a, b) = (self.seeds(l, lp, metric), self.seeds(d, lp, metric));
             for (x, y) in a.iter().zip(&b) {
                 out.push(compare(&[*x], &[*y], sv, self.scenes, self.level));
@@ -357,14 +518,111 @@ impl Design<'_> {
     }
 }
 
+/// A claim row of B − A, its verdict not yet set.
+fn row(metric: &str, what: String, paper: Option<f64>, t: Test) -> ClaimRow {
+    ClaimRow {
+        metric: metric.into(),
+        comparison: what,
+        paper,
+        test: t,
+        verdict: Verdict::Undecided,
+        a: Vec::new(),
+        b: Vec::new(),
+        paper_relation: None,
+        tost_p: f64::NAN,
+        mde: f64::NAN,
+    }
+}
+
+/// The row with the detector groups of its sides.
+fn with(mut r: ClaimRow, a: &[(&str, &str)], b: &[(&str, &str)]) -> ClaimRow {
+    let groups = |v: &[(&str, &str)]| v.iter().map(|(c, p)| (c.to_string(), p.to_string())).collect::<Vec<_>>();
+    r.a = groups(a);
+    r.b = groups(b);
+    r
+}
+
+/// A claim of rows (none, with the reason, when it cannot be tested).
+fn claim(id: &str, statement: &str, rows: Vec<ClaimRow>, missing: Option<String>) -> Claim {
+    Claim {
+        id: id.into(),
+        statement: statement.into(),
+        rows,
+        verdict: Verdict::Undecided,
+        not_tested: missing,
+        per_preset: BTreeMap::new(),
+        paper_relation: None,
+        mde: None,
+    }
+}
+
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
 }
 
+/// What the verdict needs to know of a profile's presets, from the registry: which read radar,
+/// which ablation ablates which preset, each fusion preset's LiDAR-only counterpart (the same
+/// head, target assignment and output stride) and which LiDAR-only presets have PointPillars'
+/// head.
+#[derive(Clone, Debug, Default)]
+pub struct PresetRoles {
+    pub uses_radar: BTreeMap<String, bool>,
+    pub ablation_of: BTreeMap<String, String>,
+    pub counterpart: BTreeMap<String, String>,
+    pub pointpillars_head: std::collections::BTreeSet<String>,
+}
+
+impl PresetRoles {
+    pub fn of(prof: &crate::profile::Profile, registry: &hilo_detector::Registry) -> PresetRoles {
+        let uses_radar: BTreeMap<String, bool> = prof
+            .presets
+            .iter()
+            .chain(&prof.ablations)
+            .filter_map(|p| registry.preset(p).ok().map(|x| (p.clone(), registry.uses_radar(&x.detector))))
+            .collect();
+        let ablation_of: BTreeMap<String, String> = prof
+            .ablations
+            .iter()
+            .filter_map(|a| registry.ablation_of(a).map(|of| (a.clone(), of.to_owned())))
+            .collect();
+        // Each fusion preset's LiDAR-only counterpart: same head and target assignment.
+        let cfg_of = |p: &str| registry.preset(p).ok().map(|x| &x.detector);
+        let lidar_only: Vec<&String> =
+            prof.presets.iter().filter(|p| !uses_radar.get(*p).copied().unwrap_or(true)).collect();
+        let counterpart: BTreeMap<String, String> = prof
+            .presets
+            .iter()
+            .chain(&prof.ablations)
+            .filter(|p| uses_radar.get(*p).copied().unwrap_or(false))
+            .filter_map(|f| {
+                let fc = cfg_of(f)?;
+                let l = lidar_only.iter().find(|l| {
+                    cfg_of(l).is_some_and(|lc| {
+                        lc.assignment == fc.assignment
+                            && lc.head_channels == fc.head_channels
+                            && lc.backbone.out_stride == fc.backbone.out_stride
+                    })
+                })?;
+                Some((f.clone(), (*l).clone()))
+            })
+            .collect();
+        let pointpillars_head: std::collections::BTreeSet<String> = lidar_only
+            .iter()
+            .filter(|l| cfg_of(l).is_some_and(|c| c.assignment == hilo_detector::targets::Assignment::Inside))
+            .map(|l| (*l).clone())
+            .collect();
+        PresetRoles { uses_radar, ablation_of, counterpart, pointpillars_head }
+    }
+}
+
 /// Holm-adjusts a family of tests (claims' rows and comparisons together) and sets each claim
-/// row's and claim's verdict: supported when every row is significant in the paper's favoured
-/// direction (B − A > 0), contradicted when one is significant against it, undecided otherwise.
-pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64) {
+/// row's and claim's verdict. A row is supported when it is significant in the paper's favoured
+/// direction (B − A > 0), contradicted when significant against it, equivalent when not
+/// significant and its TOST against ±`margin` is (unadjusted p < α), undecided otherwise. A claim
+/// is contradicted when a row is, supported when every row is (and every preset's own difference
+/// is positive), equivalent when every row is, undecided otherwise. Each row also gets where its
+/// interval lies against the paper's number and its minimum detectable effect (80% power).
+pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64, margin: f64) {
     let mut p: Vec<f64> = claims.iter().flat_map(|c| c.rows.iter().map(|r| r.test.p)).collect();
     p.extend(comparisons.iter().map(|c| c.test.p));
     let adj = holm(&p);
@@ -373,27 +631,71 @@ pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64) 
         for r in &mut c.rows {
             r.test.p_adjusted = adj[k];
             k += 1;
-            r.verdict = if !(r.test.estimable && r.test.p_adjusted < alpha) {
-                Verdict::Undecided
-            } else if r.test.estimate > 0.0 {
-                Verdict::Supported
+            r.tost_p = tost_p(&r.test, margin);
+            r.mde = if r.test.estimable { mde(r.test.se, r.test.df, alpha, 0.8) } else { f64::NAN };
+            r.paper_relation = r.paper.and_then(|x| paper_relation(r.test.lo, r.test.hi, x));
+            r.verdict = if r.test.estimable && r.test.p_adjusted < alpha {
+                if r.test.estimate > 0.0 { Verdict::Supported } else { Verdict::Contradicted }
+            } else if r.tost_p < alpha {
+                Verdict::Equivalent
             } else {
-                Verdict::Contradicted
+                Verdict::Undecided
             };
         }
-        c.verdict = if c.rows.is_empty() {
-            Verdict::Undecided
-        } else if c.rows.iter().any(|r| r.verdict == Verdict::Contradicted) {
+        let all = |v: Verdict| !c.rows.is_empty() && c.rows.iter().all(|r| r.verdict == v);
+        c.verdict = if c.rows.iter().any(|r| r.verdict == Verdict::Contradicted) {
             Verdict::Contradicted
-        } else if c.rows.iter().all(|r| r.verdict == Verdict::Supported) && c.per_preset.values().all(|d| *d > 0.0) {
+        } else if all(Verdict::Supported) && c.per_preset.values().all(|d| *d > 0.0) {
             Verdict::Supported
+        } else if all(Verdict::Equivalent) {
+            Verdict::Equivalent
         } else {
             Verdict::Undecided
         };
+        c.paper_relation = c.rows.first().and_then(|r| r.paper_relation);
+        c.mde = c.rows.first().map(|r| r.mde).filter(|m| m.is_finite());
     }
     for c in comparisons.iter_mut() {
         c.test.p_adjusted = adj[k];
         k += 1;
+    }
+}
+
+/// The budget gate: a claim row whose difference, seed 0 against seed 0, changes sign between
+/// half the training and the end (the learning curves' points) is budget-bound, and so is its
+/// claim when it would otherwise be supported, contradicted or equivalent. Rows without curves
+/// on both sides are left as they are.
+pub fn budget_gate(claims: &mut [Claim], curves: &[Curve]) {
+    let at = |conf: &str, preset: &str| -> Option<(f64, f64)> {
+        let c = curves.iter().find(|c| c.configuration == conf && c.preset == preset)?;
+        let (end, last) = *c.points.last()?;
+        let half = c.points.iter().min_by_key(|q| (2 * q.0).abs_diff(end))?;
+        (half.0 < end).then_some((half.1, last))
+    };
+    let side = |g: &[(String, String)]| -> Option<(f64, f64)> {
+        let v: Vec<(f64, f64)> = g.iter().map(|(c, p)| at(c, p)).collect::<Option<_>>()?;
+        (!v.is_empty()).then(|| {
+            let n = v.len() as f64;
+            (v.iter().map(|x| x.0).sum::<f64>() / n, v.iter().map(|x| x.1).sum::<f64>() / n)
+        })
+    };
+    for c in claims.iter_mut() {
+        let mut bound = false;
+        for r in &mut c.rows {
+            if r.metric != "mAP" {
+                continue;
+            }
+            if let (Some(a), Some(b)) = (side(&r.a), side(&r.b)) {
+                let (half, end) = (b.0 - a.0, b.1 - a.1);
+                if half * end < 0.0 && r.verdict != Verdict::Undecided {
+                    r.verdict = Verdict::BudgetBound;
+                    bound = true;
+                }
+            }
+        }
+        if bound && c.verdict != Verdict::Undecided {
+            c.verdict = Verdict::BudgetBound;
+        }
     }
 }
 
@@ -443,13 +745,15 @@ mod tests {
             ablations: &ablations,
             ablation_of: &ablation_of,
             uses_radar: &uses,
+            counterpart: &BTreeMap::new(),
+            pointpillars_head: &std::collections::BTreeSet::new(),
             scenes: 20,
             level: 0.95,
         };
         let mut claims = d.claims();
         let mut comps = d.comparisons();
-        adjust(&mut claims, &mut comps, 0.05);
-        assert_eq!(claims.len(), 5);
+        adjust(&mut claims, &mut comps, 0.05, 0.02);
+        assert_eq!(claims.len(), 8);
         let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap();
         // lf on 2x16+R (0.804) against cp on 64 (0.604).
         assert!((by("vs_lidar_alone").rows[0].test.estimate - 0.2).abs() < 1e-9);
@@ -462,5 +766,74 @@ mod tests {
         assert!(comps.iter().all(|c| c.test.p_adjusted >= c.test.p - 1e-15));
         // A/A: 6 groups × 3 pairs, and cp on 64 against cp on 64+R seed by seed.
         assert_eq!(d.aa_pairs().len(), 6 * 3 + 3);
+    }
+
+    /// A difference shown within the margin is equivalent, not undecided; a claim whose sign
+    /// flips over the last doubling of training is budget-bound; each row carries its MDE and
+    /// its relation to the paper's number.
+    #[test]
+    fn equivalence_budget_gate_mde_and_paper_relation() {
+        let mut scores = Vec::new();
+        for s in 0..3 {
+            let j = 0.004 * s as f64;
+            scores.push(det("2x16+R", "cp", s, 0.70 + j));
+            scores.push(det("2x16+R", "lf", s, 0.80 + j));
+            // The ablation scores as the preset does: no difference.
+            scores.push(det("2x16+R", "lf-no-early", s, 0.80 + j));
+            scores.push(det("64+R", "cp", s, 0.60 + j));
+            scores.push(det("64+R", "lf", s, 0.62 + j));
+        }
+        let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("64+R".to_string(), 22_750.0, true)];
+        let uses =
+            BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true), ("lf-no-early".to_string(), true)]);
+        let (presets, ablations) = (vec!["cp".to_string(), "lf".to_string()], vec!["lf-no-early".to_string()]);
+        let ablation_of = BTreeMap::from([("lf-no-early".to_string(), "lf".to_string())]);
+        let d = Design {
+            scores: &scores,
+            configurations: &configurations,
+            presets: &presets,
+            ablations: &ablations,
+            ablation_of: &ablation_of,
+            uses_radar: &uses,
+            counterpart: &BTreeMap::new(),
+            pointpillars_head: &std::collections::BTreeSet::new(),
+            scenes: 20,
+            level: 0.95,
+        };
+        let (mut claims, mut comps) = (d.claims(), d.comparisons());
+        adjust(&mut claims, &mut comps, 0.05, 0.02);
+        let by = |claims: &[Claim], id: &str| claims.iter().find(|c| c.id == id).unwrap().clone();
+        let early = by(&claims, "early_fusion_ablation");
+        assert_eq!(early.verdict, Verdict::Equivalent, "{:?}", early.rows[0]);
+        assert!(early.rows[0].tost_p < 0.05);
+        // A margin below what the design resolves leaves it undecided.
+        let (mut tight, mut c2) = (d.claims(), d.comparisons());
+        adjust(&mut tight, &mut c2, 0.05, 0.001);
+        assert_eq!(by(&tight, "early_fusion_ablation").verdict, Verdict::Undecided);
+        // lf − cp on 2x16+R: +0.10 against the paper's +0.031, interval well above it.
+        let fusion = by(&claims, "fusion_vs_lidar_only");
+        assert_eq!(fusion.verdict, Verdict::Supported);
+        assert_eq!(fusion.paper_relation, Some(PaperRelation::Larger));
+        let r = &fusion.rows[0];
+        assert!((r.mde - mde(r.test.se, r.test.df, 0.05, 0.8)).abs() < 1e-12 && r.mde > 2.0 * r.test.se);
+        assert_eq!(
+            (r.a.clone(), r.b.clone()),
+            (vec![("2x16+R".into(), "cp".into())], vec![("2x16+R".into(), "lf".into())])
+        );
+        // Learning curves: at half the training cp led lf (0.50 against 0.45); at the end lf leads.
+        let curve = |conf: &str, preset: &str, half: f64, end: f64| Curve {
+            configuration: conf.into(),
+            preset: preset.into(),
+            points: vec![(3000, half), (6000, end)],
+            gain_last_doubling: end - half,
+        };
+        let curves = vec![curve("2x16+R", "cp", 0.50, 0.70), curve("2x16+R", "lf", 0.45, 0.80)];
+        budget_gate(&mut claims, &curves);
+        assert_eq!(by(&claims, "fusion_vs_lidar_only").verdict, Verdict::BudgetBound);
+        // The same ranking at half and at the end keeps the verdict.
+        let (mut kept, mut c3) = (d.claims(), d.comparisons());
+        adjust(&mut kept, &mut c3, 0.05, 0.02);
+        budget_gate(&mut kept, &[curve("2x16+R", "cp", 0.40, 0.70), curve("2x16+R", "lf", 0.45, 0.80)]);
+        assert_eq!(by(&kept, "fusion_vs_lidar_only").verdict, Verdict::Supported);
     }
 }
