@@ -287,13 +287,7 @@ impl Design<'_> {
             (Some(c), Some(d)) if c != d => {
                 let rows = [("mAP", Some(0.015)), ("pedestrian AP", None)]
                     .iter()
-                    .filter_map(|(m, paper)| {
-                        self.pooled(m, d, c).map(|(t, per)| {
-                            let a: Vec<(&str, &str)> = per.keys().map(|p| (d, p.as_str())).collect();
-                            let b: Vec<(&str, &str)> = per.keys().map(|p| (c, p.as_str())).collect();
-                            with(row(m, format!("{c} − {d}, mean over presets"), *paper, t), &a, &b)
-                        })
-                    })
+                    .filter_map(|(m, paper)| self.pooled_row(m, d, c, *paper).map(|(r, _)| r))
                     .collect();
                 claim("vs_lidar_radar", st2, rows, None)
             }
@@ -392,64 +386,62 @@ impl Design<'_> {
         let (cheap, dear_radar, _) = self.roles();
         let mut claims = Vec::new();
         // 5. Whichever module: the cheap rig's advantage over the dear radar rig, per preset.
-        let st5 = "The cheap rig's advantage holds whichever detector module is used";
-        let c5 = match (cheap, dear_radar) {
-            (Some(c), Some(d)) if c != d => match self.pooled("mAP", d, c) {
-                Some((t, per)) => {
-                    let mut cl = claim(
-                        "whichever_module",
-                        st5,
-                        vec![with(
-                            row("mAP", format!("{c} − {d}, mean over presets"), Some(0.015), t),
-                            &per.keys().map(|p| (d, p.as_str())).collect::<Vec<_>>(),
-                            &per.keys().map(|p| (c, p.as_str())).collect::<Vec<_>>(),
-                        )],
-                        None,
-                    );
-                    cl.per_preset = per;
-                    cl
-                }
-                None => claim("whichever_module", st5, vec![], Some("no preset ran on both configurations".into())),
-            },
-            _ => claim("whichever_module", st5, vec![], Some("needs two configurations with radar".into())),
-        };
+        let c5 = self.pooled_claim(
+            "whichever_module",
+            "The cheap rig's advantage holds whichever detector module is used",
+            cheap.zip(dear_radar).filter(|(c, d)| c != d).map(|(c, d)| (d, c)),
+            0.015,
+            "needs two configurations with radar",
+        );
         claims.push(c5);
         // 6. Against a mid-resolution LiDAR and a radar (a radar rig between the cheapest and
         // the dearest), pooled over presets.
-        let st6 = "Two cheap LiDARs and a radar beat one mid-resolution LiDAR and a radar with the same detector";
         let mid = self
             .configurations
             .iter()
             .filter(|x| x.2 && Some(x.0.as_str()) != cheap && Some(x.0.as_str()) != dear_radar)
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|x| x.0.as_str());
-        let c6 = match (cheap, mid) {
-            (Some(c), Some(m)) => match self.pooled("mAP", m, c) {
-                Some((t, per)) => {
-                    let mut cl = claim(
-                        "vs_mid_lidar_radar",
-                        st6,
-                        vec![with(
-                            row("mAP", format!("{c} − {m}, mean over presets"), Some(0.032), t),
-                            &per.keys().map(|p| (m, p.as_str())).collect::<Vec<_>>(),
-                            &per.keys().map(|p| (c, p.as_str())).collect::<Vec<_>>(),
-                        )],
-                        None,
-                    );
-                    cl.per_preset = per;
-                    cl
-                }
-                None => claim("vs_mid_lidar_radar", st6, vec![], Some("no preset ran on both configurations".into())),
-            },
-            _ => claim(
-                "vs_mid_lidar_radar",
-                st6,
-                vec![],
-                Some("needs a third configuration with radar, between the cheapest and the dearest".into()),
-            ),
-        };
+        let c6 = self.pooled_claim(
+            "vs_mid_lidar_radar",
+            "Two cheap LiDARs and a radar beat one mid-resolution LiDAR and a radar with the same detector",
+            cheap.zip(mid).map(|(c, m)| (m, c)),
+            0.032,
+            "needs a third configuration with radar, between the cheapest and the dearest",
+        );
         claims.push(c6);
         claims
+    }
+
+    /// [`Self::pooled`] as a claim row "b − a, mean over presets" with each side's groups, and
+    /// each preset's own difference.
+    fn pooled_row(
+        &self,
+        metric: &str,
+        a: &str,
+        b: &str,
+        paper: Option<f64>,
+    ) -> Option<(ClaimRow, BTreeMap<String, f64>)> {
+        let (t, per) = self.pooled(metric, a, b)?;
+        let side = |rig: &str| per.keys().map(|p| (rig.to_owned(), p.clone())).collect::<Vec<_>>();
+        let mut r = row(metric, format!("{b} − {a}, mean over presets"), paper, t);
+        (r.a, r.b) = (side(a), side(b));
+        Some((r, per))
+    }
+
+    /// A claim of one mAP row pooled over presets, rig `b` against rig `a` (`rigs` as (a, b);
+    /// None: not tested, for `missing`), supported only when every preset's own difference
+    /// favours `b` too.
+    fn pooled_claim(&self, id: &str, statement: &str, rigs: Option<(&str, &str)>, paper: f64, missing: &str) -> Claim {
+        let Some((a, b)) = rigs else { return claim(id, statement, vec![], Some(missing.into())) };
+        match self.pooled_row("mAP", a, b, Some(paper)) {
+            Some((r, per)) => {
+                let mut cl = claim(id, statement, vec![r], None);
+                cl.per_preset = per;
+                cl
+            }
+            None => claim(id, statement, vec![], Some("no preset ran on both configurations".into())),
+        }
     }
 
     /// B − A averaged over the presets that ran on both, paired by preset and seed structure;
