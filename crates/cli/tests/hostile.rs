@@ -258,13 +258,13 @@ fn weak_inputs_are_refused_naming_the_field_before_the_work_starts() {
 fn a_refused_run_leaves_nothing_that_blocks_the_corrected_rerun() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    // A study refused at its place stage (a LiDAR-only rig without a sibling) has claimed its
-    // folder; the corrected study takes the folder over.
+    // A study refused at its place stage (more LiDARs than the scene has mounts) has claimed
+    // its folder; the corrected study takes the folder over.
     let bad = d.join("bad.toml");
-    std::fs::write(&bad, "[[configurations]]\nname = \"16 alone\"\nsensors = { \"lidar-16\" = 1 }\n").unwrap();
+    std::fs::write(&bad, "[[configurations]]\nname = \"16 alone\"\nsensors = { \"lidar-16\" = 5000 }\n").unwrap();
     let out = d.join("study");
     let o = hilo().arg("study").arg(&bad).args(["--profile", "tiny", "--out"]).arg(&out).output().unwrap();
-    refused(&o, &["16 alone"]);
+    refused(&o, &["16 alone", "5000 x lidar-16"]);
     assert!(out.join("study.json").exists(), "the refused run claimed the folder");
     let good = d.join("good.toml");
     std::fs::write(

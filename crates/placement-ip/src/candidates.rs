@@ -2,10 +2,12 @@
 //!
 //! A *mount point* is a position on a pole (at several heights) or on a mast arm (at several
 //! distances from the pole, just above the arm). A LiDAR candidate is a mount point with the
-//! sensor tilted down by `lidar_tilt_deg` toward the junction centre (turned by each of
-//! `lidar_yaw_offsets_deg`); a radar candidate is a mount point with the radar aimed at the
-//! centre turned by each of `radar_yaw_offsets_deg` and tilted by `radar_tilt_deg` (its
-//! horizontal field of view is only 120°, so where it looks matters).
+//! sensor turned from the junction centre by one of `lidar_yaw_offsets_deg` and tilted down by
+//! one of `lidar_tilts_deg`; a radar candidate is a mount point with the radar aimed at the
+//! centre turned by one of `radar_yaw_offsets_deg` and tilted by one of `radar_tilts_deg` (its
+//! horizontal field of view is only 120°, so where it looks matters). Yaw and tilt are both
+//! decision variables: every (yaw, tilt) pair of a mount is a candidate, and the solvers choose
+//! at most one per mount, as the paper's formulation allows for any discrete orientation set.
 
 use crate::error::PlacementError;
 use glam::{Vec2, Vec3};
@@ -25,10 +27,29 @@ pub struct CandidateConfig {
     pub arm_step_m: f32,
     /// Mounts on an arm sit this far above its axis.
     pub arm_clearance_m: f32,
-    pub lidar_tilt_deg: f32,
+    /// Downward tilts offered to a LiDAR (degrees; one value is a fixed tilt). The key
+    /// `lidar_tilt_deg = 10.0` of older study files reads as `[10.0]`.
+    #[serde(alias = "lidar_tilt_deg", deserialize_with = "one_or_many")]
+    pub lidar_tilts_deg: Vec<f32>,
     pub lidar_yaw_offsets_deg: Vec<f32>,
-    pub radar_tilt_deg: f32,
+    /// Downward tilts offered to a radar (degrees); `radar_tilt_deg` reads as one.
+    #[serde(alias = "radar_tilt_deg", deserialize_with = "one_or_many")]
+    pub radar_tilts_deg: Vec<f32>,
     pub radar_yaw_offsets_deg: Vec<f32>,
+}
+
+/// A number or a list of numbers, as a list.
+fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f32>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum OneOrMany {
+        One(f32),
+        Many(Vec<f32>),
+    }
+    Ok(match OneOrMany::deserialize(d)? {
+        OneOrMany::One(x) => vec![x],
+        OneOrMany::Many(v) => v,
+    })
 }
 
 impl Default for CandidateConfig {
@@ -38,9 +59,9 @@ impl Default for CandidateConfig {
             pole_step_m: 0.5,
             arm_step_m: 1.0,
             arm_clearance_m: 0.3,
-            lidar_tilt_deg: 10.0,
+            lidar_tilts_deg: vec![10.0],
             lidar_yaw_offsets_deg: vec![-45.0, 0.0, 45.0],
-            radar_tilt_deg: 8.0,
+            radar_tilts_deg: vec![8.0],
             radar_yaw_offsets_deg: vec![-45.0, -15.0, 15.0, 45.0],
         }
     }
@@ -71,6 +92,22 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
     for (name, v) in [("pole_step_m", cfg.pole_step_m), ("arm_step_m", cfg.arm_step_m)] {
         if !(v.is_finite() && v > 0.05) {
             return Err(PlacementError::Invalid(format!("candidates.{name} = {v}: must be a step above 0.05 m")));
+        }
+    }
+    for (name, v) in [
+        ("lidar_tilts_deg", &cfg.lidar_tilts_deg),
+        ("radar_tilts_deg", &cfg.radar_tilts_deg),
+        ("lidar_yaw_offsets_deg", &cfg.lidar_yaw_offsets_deg),
+        ("radar_yaw_offsets_deg", &cfg.radar_yaw_offsets_deg),
+    ] {
+        if v.is_empty() {
+            return Err(PlacementError::Invalid(format!("candidates.{name} is empty: give at least one angle")));
+        }
+        let limit = if name.contains("tilt") { 90.0 } else { 180.0 };
+        if let Some(a) = v.iter().find(|a| !(a.is_finite() && a.abs() <= limit)) {
+            return Err(PlacementError::Invalid(format!(
+                "candidates.{name} holds {a}: angles are degrees within ±{limit}"
+            )));
         }
     }
     if scene.mounts.is_empty() {
@@ -113,25 +150,22 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
     for (mount, (structure, p)) in points.iter().enumerate() {
         let to_centre = centre - p.truncate();
         let yaw0 = to_centre.y.atan2(to_centre.x);
-        for off in &cfg.lidar_yaw_offsets_deg {
-            let pose = SensorPose::new(*p, yaw0 + off.to_radians(), cfg.lidar_tilt_deg.to_radians(), 0.0);
-            out.push(Candidate {
-                id: out.len() as u32,
-                modality: Modality::Lidar,
-                mount: mount as u32,
-                structure: structure.clone(),
-                pose,
-            });
-        }
-        for off in &cfg.radar_yaw_offsets_deg {
-            let pose = SensorPose::new(*p, yaw0 + off.to_radians(), cfg.radar_tilt_deg.to_radians(), 0.0);
-            out.push(Candidate {
-                id: out.len() as u32,
-                modality: Modality::Radar,
-                mount: mount as u32,
-                structure: structure.clone(),
-                pose,
-            });
+        for (modality, yaws, tilts) in [
+            (Modality::Lidar, &cfg.lidar_yaw_offsets_deg, &cfg.lidar_tilts_deg),
+            (Modality::Radar, &cfg.radar_yaw_offsets_deg, &cfg.radar_tilts_deg),
+        ] {
+            for tilt in tilts {
+                for off in yaws {
+                    let pose = SensorPose::new(*p, yaw0 + off.to_radians(), tilt.to_radians(), 0.0);
+                    out.push(Candidate {
+                        id: out.len() as u32,
+                        modality,
+                        mount: mount as u32,
+                        structure: structure.clone(),
+                        pose,
+                    });
+                }
+            }
         }
     }
     Ok(out)

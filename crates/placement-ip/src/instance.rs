@@ -6,6 +6,12 @@
 //! Σ_{o ∈ S_L} −ln(1 − V_oj) ≥ τ and Σ_{o ∈ S_R} −ln(1 − V_oj) ≥ τ, τ = −ln(1 − p_min)
 //! (the paper's "≥ 1" is p_min = 1 − e⁻¹ ≈ 0.632). For a given selection the best t is forced,
 //! so [`evaluate`] is the exact objective of any selection, whichever solver produced it.
+//!
+//! "Both modalities" means the modalities the instance *offers* ([`Instance::requires`]): an
+//! instance whose types are all LiDARs asks only for LiDAR coverage (and one of radars only for
+//! radar coverage). The paper poses the problem for mixed rigs only, where the two readings
+//! agree; read literally, its objective is zero for every LiDAR-only rig, which could then be
+//! neither placed nor ranked.
 
 use crate::candidates::Modality;
 use crate::error::PlacementError;
@@ -77,6 +83,16 @@ impl Instance {
 
     pub fn n_targets(&self) -> usize {
         self.weights.len()
+    }
+
+    /// Whether the objective asks for coverage by `m`: some offered type is of that modality.
+    pub fn requires(&self, m: Modality) -> bool {
+        self.types.iter().any(|t| t.modality == m)
+    }
+
+    /// Whether coverage sums `a_l` (LiDAR) and `a_r` (radar) make a target count.
+    pub fn counts_target(&self, a_l: f64, a_r: f64, tau: f64) -> bool {
+        (a_l >= tau || !self.requires(Modality::Lidar)) && (a_r >= tau || !self.requires(Modality::Radar))
     }
 
     pub fn modality(&self, o: usize) -> Modality {
@@ -193,6 +209,7 @@ pub fn evaluate(inst: &Instance, sel: &[usize]) -> f64 {
 /// [`evaluate`] with caller-owned buffers.
 pub fn evaluate_with(inst: &Instance, sel: &[usize], s: &mut Scratch) -> f64 {
     let tau = inst.tau() * (1.0 - 1e-9);
+    let (need_l, need_r) = (inst.requires(Modality::Lidar), inst.requires(Modality::Radar));
     for &o in sel {
         let lidar = inst.modality(o) == Modality::Lidar;
         for &(j, v) in &inst.options[o].row {
@@ -212,7 +229,7 @@ pub fn evaluate_with(inst: &Instance, sel: &[usize], s: &mut Scratch) -> f64 {
     let mut f = 0.0;
     for &j in &s.touched {
         let j = j as usize;
-        if s.a_l[j] >= tau && s.a_r[j] >= tau {
+        if (s.a_l[j] >= tau || !need_l) && (s.a_r[j] >= tau || !need_r) {
             f += inst.weights[j] * s.rho[j];
         }
         s.a_l[j] = 0.0;

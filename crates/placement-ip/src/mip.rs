@@ -4,7 +4,8 @@
 //! Variables: x_o ∈ {0,1} per option, t_j ∈ {0,1} per target, z_j ≥ 0 (the linearised t_j ρ_j).
 //! maximise Σ_j z_j subject to
 //! - z_j ≤ ρ_j = w_j Σ_o V_oj x_o and z_j ≤ ρ̄_j t_j (ρ̄_j an upper bound of ρ_j);
-//! - Σ_{o ∈ L} a_oj x_o ≥ τ t_j and Σ_{o ∈ R} a_oj x_o ≥ τ t_j, a_oj = −ln(1 − V_oj), τ = −ln(1 − p_min);
+//! - Σ_{o ∈ L} a_oj x_o ≥ τ t_j and Σ_{o ∈ R} a_oj x_o ≥ τ t_j, a_oj = −ln(1 − V_oj), τ = −ln(1 − p_min)
+//!   (for each modality the instance offers, [`Instance::requires`]);
 //! - the limit, and Σ_{o at mount m} x_o ≤ 1.
 //!
 //! The strengthened model keeps the same integer solutions but a tighter relaxation:
@@ -79,10 +80,11 @@ pub fn build(inst: &Instance, limit: &Limit, form: Formulation) -> Result<Model,
             by_target[j as usize].push((o, v));
         }
     }
+    let required: Vec<Modality> =
+        [Modality::Lidar, Modality::Radar].into_iter().filter(|&m| inst.requires(m)).collect();
     let sees = |j: usize, m: Modality| by_target[j].iter().any(|&(o, _)| inst.modality(o) == m);
-    let kept: Vec<usize> = (0..n)
-        .filter(|&j| !strong || (sees(j, Modality::Lidar) && sees(j, Modality::Radar) && inst.weights[j] > 0.0))
-        .collect();
+    let kept: Vec<usize> =
+        (0..n).filter(|&j| !strong || (required.iter().all(|&m| sees(j, m)) && inst.weights[j] > 0.0)).collect();
     let t: Vec<(usize, Variable)> = kept.iter().map(|&j| (j, vars.add(variable().binary()))).collect();
     let z: Vec<Variable> = kept.iter().map(|_| vars.add(variable().min(0.0))).collect();
     let objective: Expression = z.iter().copied().sum();
@@ -106,7 +108,7 @@ pub fn build(inst: &Instance, limit: &Limit, form: Formulation) -> Result<Model,
         problem.add_constraint((z[k] - rho_max * tj).leq(0.0));
         rows += 2;
         nonzeros += col.len() + 3;
-        for m in [Modality::Lidar, Modality::Radar] {
+        for &m in &required {
             let cover: Expression = col
                 .iter()
                 .filter(|&&(o, _)| inst.modality(o) == m)

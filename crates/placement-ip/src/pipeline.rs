@@ -182,13 +182,20 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
         };
         let radars: u32 = of(Modality::Radar).map(|t| c[t]).sum();
         let lidar_types: Vec<usize> = of(Modality::Lidar).collect();
-        if radars == 1 {
+        // One modality offered: its own coverage objective, searched exactly.
+        if !(inst.requires(Modality::Lidar) && inst.requires(Modality::Radar)) {
+            let (mut out, proven) = crate::exact::exact_single(inst, c, &g.selection, 50_000_000, deadline)?;
+            out.solve_seconds += g.solve_seconds;
+            if proven {
+                return Ok(out);
+            }
+            fallback = out;
+        } else if radars == 1 {
             let (mut out, _) = exact_counts(inst, c, &g.selection, deadline)?;
             out.solve_seconds += g.solve_seconds;
             return Ok(out);
-        }
-        // Several radars with one LiDAR type (at most two): the LiDAR-first exact search.
-        if radars > 1 && lidar_types.len() == 1 && c[lidar_types[0]] <= 2 {
+        } else if radars > 1 && lidar_types.len() == 1 && c[lidar_types[0]] <= 2 {
+            // Several radars with one LiDAR type (at most two): the LiDAR-first exact search.
             let (mut out, proven) = exact_lidar_first(inst, c, &g.selection, 50_000_000, deadline)?;
             out.solve_seconds += g.solve_seconds;
             if proven {

@@ -73,8 +73,9 @@ pub struct Placement {
     pub proven_optimal: bool,
     pub solve_seconds: f64,
     pub method: String,
-    /// Whether it was optimised: a single-modality configuration takes the poses of a sibling
-    /// with both modalities instead (its own multimodal objective is zero whatever it does).
+    /// Whether it was optimised (hilo places every configuration now, one of a single modality
+    /// for that modality's coverage; placements of older versions gave such a configuration the
+    /// poses of a sibling with both modalities and wrote `false`).
     pub solved: bool,
     pub greedy_objective: f64,
     /// Share of central-ROI cells hit by at least one LiDAR ray (the paper's central coverage).

@@ -71,3 +71,69 @@ fn a_pole_outside_the_scene_is_refused() {
     let e = sample_candidates(&scene, &CandidateConfig::default()).unwrap_err().to_string();
     assert!(e.contains("NE") && e.contains("outside"), "{e}");
 }
+
+/// Tilt is a decision variable: every (yaw, tilt) pair of a mount is a candidate, a placement
+/// chosen among them keeps its tilt through the placement file, and a LiDAR-only configuration
+/// is placed for its own objective (LiDAR coverage), which is positive.
+#[test]
+fn tilt_candidates_round_trip_through_a_placement_file() {
+    use hilo_placement_ip::greedy::greedy;
+    use hilo_placement_ip::pipeline::{instance, solve_from};
+    use hilo_placement_ip::{Limit, PlacedSensor, Placement};
+    let scene = Scene::default_fixture().unwrap();
+    let catalog = Catalog::default_catalog().unwrap();
+    let mut cfg = PlacementConfig { cell_m: 3.0, ..PlacementConfig::default() };
+    cfg.candidates.pole_step_m = 1.5;
+    cfg.candidates.lidar_tilts_deg = vec![4.0, 16.0];
+    cfg.candidates.lidar_yaw_offsets_deg = vec![0.0];
+    let one = sample_candidates(&scene, &CandidateConfig { lidar_tilts_deg: vec![4.0], ..cfg.candidates.clone() })
+        .unwrap()
+        .len();
+    let cands = sample_candidates(&scene, &cfg.candidates).unwrap();
+    let lidar = |c: &&hilo_placement_ip::Candidate| c.modality == hilo_placement_ip::Modality::Lidar;
+    assert_eq!(cands.iter().filter(lidar).count(), 2 * (one - cands.iter().filter(|c| !lidar(c)).count()));
+    let tilts: std::collections::BTreeSet<i32> =
+        cands.iter().filter(lidar).map(|c| c.pose.pitch.to_degrees().round() as i32).collect();
+    assert_eq!(tilts.into_iter().collect::<Vec<_>>(), vec![4, 16]);
+    let types = vec!["lidar-16".to_string()];
+    let prep = prepare(&scene, &catalog, &types, &cfg.clone().validate().unwrap()).unwrap();
+    let inst = instance(&prep, &catalog, &types, cfg.p_min).unwrap();
+    let limit = Limit::Counts(vec![2]);
+    let g = greedy(&inst, &limit);
+    let out = solve_from(&inst, &limit, 60.0, &g).unwrap();
+    assert!(out.objective > 0.0 && out.proven_optimal, "{out:?}");
+    let sensors: Vec<PlacedSensor> = out
+        .selection
+        .iter()
+        .map(|&o| {
+            let c = &prep.candidates[inst.options[o].candidate as usize];
+            PlacedSensor::new("lidar-16", c.modality, c.id, &c.structure, c.pose)
+        })
+        .collect();
+    let p = Placement {
+        name: "2x lidar-16".into(),
+        sensors,
+        objective: out.objective,
+        bound: out.bound,
+        gap: out.gap,
+        proven_optimal: out.proven_optimal,
+        solve_seconds: out.solve_seconds,
+        method: out.method.clone(),
+        solved: true,
+        greedy_objective: g.objective,
+        central_coverage: 0.0,
+        lidar_radar_overlap: 0.0,
+        cost_usd: inst.cost(&out.selection),
+        targets: prep.targets.len(),
+        candidates: prep.candidates.len(),
+        scene_hash: "s".into(),
+        catalog_hash: "c".into(),
+    };
+    let back = Placement::from_json(&p.to_json().unwrap(), std::path::Path::new("p.json")).unwrap();
+    assert_eq!(back, p);
+    for (s, &o) in back.sensors.iter().zip(&out.selection) {
+        let c = &prep.candidates[inst.options[o].candidate as usize];
+        assert_eq!(s.pose.pitch, c.pose.pitch);
+        assert!([4.0, 16.0].iter().any(|t: &f32| (s.pitch_deg - t).abs() < 1e-4), "{}", s.pitch_deg);
+    }
+}

@@ -58,8 +58,7 @@ pub struct ConfigSummary {
     pub sensors: Vec<String>,
     pub placement_proven_optimal: bool,
     pub placement_s: f64,
-    /// Whether the placement was optimised (a single-modality configuration takes a sibling's
-    /// poses instead).
+    /// Whether the placement was optimised ([`hilo_placement_ip::Placement::solved`]).
     pub placement_solved: bool,
     /// Relative gap of an unproven placement.
     pub placement_gap: f64,

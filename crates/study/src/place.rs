@@ -1,6 +1,6 @@
 //! Placement of every configuration of a study: visibility computed once for every sensor type,
-//! each configuration solved (exact search or CBC), single-modality configurations given a
-//! sibling's poses, coverage measured by casting the chosen LiDARs' rays.
+//! each configuration solved (exact search or CBC; one of a single modality for that
+//! modality's coverage), coverage measured by casting the chosen LiDARs' rays.
 
 use crate::error::{Result, StudyError};
 use crate::render::scene_canvas;
@@ -75,14 +75,9 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         radar_covered: Vec<HashSet<usize>>,
     }
     let mut out = Out { placements: Vec::new(), lidar_hits: Vec::new(), radar_covered: Vec::new() };
-    let mut deferred = Vec::new();
     for conf in &study.file.configurations {
-        // One modality: the paper's objective (targets covered by both) is zero whatever the
-        // placement; placed after the others, from a configuration that adds the other modality.
-        if conf.single_modality(catalog) {
-            deferred.push(conf);
-            continue;
-        }
+        // A configuration of one modality is placed for that modality's coverage
+        // (`Instance::requires`): the paper's both-modality objective would be zero for it.
         let types = conf.type_names();
         let inst = instance(&prep, catalog, &types, cfg.p_min)?;
         let limit = limit_for(conf, &types);
@@ -128,65 +123,7 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         out.lidar_hits.push(hits);
         out.radar_covered.push(radar);
     }
-    for conf in deferred {
-        let want = &conf.sensors;
-        let sibling = out.placements.iter().find(|p| {
-            let mut counts: std::collections::BTreeMap<String, u32> = std::collections::BTreeMap::new();
-            for s in p.sensors.iter().filter(|s| want.contains_key(&s.ty)) {
-                *counts.entry(s.ty.clone()).or_default() += 1;
-            }
-            conf.budget_usd.is_none() && &counts == want && p.sensors.len() > want.values().sum::<u32>() as usize
-        });
-        let Some(sib) = sibling else {
-            return Err(StudyError::Invalid(format!(
-                "{}: configuration {:?} has a single modality, for which the paper's objective (targets seen by both LiDAR and radar) is zero whatever the placement; add a configuration with the same sensors plus the other modality (hilo then uses its poses), e.g. {:?} + a radar",
-                study.source, conf.name, conf.name
-            )));
-        };
-        let sensors: Vec<PlacedSensor> = sib.sensors.iter().filter(|s| want.contains_key(&s.ty)).cloned().collect();
-        let hits = hits_of(&sensors)?;
-        let cost_usd =
-            sensors.iter().map(|s| catalog.get(&s.ty).map(|c| c.price_usd())).sum::<std::result::Result<f64, _>>()?;
-        let p = Placement {
-            name: conf.name.clone(),
-            sensors,
-            objective: 0.0,
-            bound: 0.0,
-            gap: 0.0,
-            proven_optimal: false,
-            solve_seconds: 0.0,
-            method: format!(
-                "the {} poses of {:?} (one modality: the multimodal objective is zero)",
-                conf.type_names().join(", "),
-                sib.name
-            ),
-            solved: false,
-            greedy_objective: 0.0,
-            central_coverage: hilo_placement_ip::coverage::share(&central, &hits),
-            lidar_radar_overlap: 0.0,
-            cost_usd,
-            targets: prep.targets.len(),
-            candidates: prep.candidates.len(),
-            scene_hash: study.scene_hash.clone(),
-            catalog_hash: study.catalog_hash.clone(),
-        };
-        progress(&format!(
-            "{:<24} {}, central coverage {:.1}%, cost {} USD",
-            p.name,
-            p.method,
-            100.0 * p.central_coverage,
-            p.cost_usd
-        ));
-        out.placements.push(p);
-        out.lidar_hits.push(hits);
-        out.radar_covered.push(HashSet::new());
-    }
-    // In the study's order.
-    let order: Vec<usize> =
-        study.file.configurations.iter().filter_map(|c| out.placements.iter().position(|p| p.name == c.name)).collect();
-    let placements = order.iter().map(|&i| out.placements[i].clone()).collect();
-    let lidar_hits = order.iter().map(|&i| out.lidar_hits[i].clone()).collect();
-    let radar_covered = order.iter().map(|&i| out.radar_covered[i].clone()).collect();
+    let Out { placements, lidar_hits, radar_covered } = out;
     Ok(Placed { prepared: prep, placements, lidar_hits, radar_covered })
 }
 
@@ -316,7 +253,7 @@ pub fn export(study: &Study, prep: &Prepared, dir: &std::path::Path) -> Result<(
             json!({"sensor": t, "format": "coo", "n_targets": v.n_targets, "candidate": ci, "target": tj, "v": vv});
         hilo_core::fs::write_json(&dir.join(format!("visibility_{t}.json")), &doc)?;
     }
-    for conf in study.file.configurations.iter().filter(|c| !c.single_modality(&study.catalog)) {
+    for conf in &study.file.configurations {
         let types = conf.type_names();
         let inst = instance(prep, &study.catalog, &types, study.placement.p_min)?;
         let limit = limit_for(conf, &types);

@@ -18,8 +18,8 @@ pub(crate) fn esc(s: &str) -> String {
     s.replace('|', "\\|").replace('<', "&lt;").replace('>', "&gt;")
 }
 
-/// How a configuration was placed, and whether it was solved (a single-modality configuration
-/// takes its poses from a sibling: its own multimodal objective is zero, so there is no gap).
+/// How a configuration was placed, and whether it was solved (placements of older versions gave
+/// a single-modality configuration a sibling's poses, without a gap).
 fn placement_status(c: &crate::assemble::ConfigSummary) -> (String, bool) {
     if !c.placement_solved {
         (c.placement_method.clone(), false)

@@ -86,12 +86,6 @@ impl Configuration {
     pub fn has_lidar(&self, catalog: &Catalog) -> bool {
         self.type_names().iter().any(|t| matches!(catalog.get(t), Ok(SensorSpec::Lidar(_))))
     }
-
-    /// Whether it has sensors of one modality only: the paper's objective (targets covered by
-    /// both) is then zero whatever the placement, so it takes the poses of a sibling.
-    pub fn single_modality(&self, catalog: &Catalog) -> bool {
-        self.has_radar(catalog) != self.has_lidar(catalog)
-    }
 }
 
 /// The study-file keys that make it a sweep ([`crate::sweep`]).

@@ -49,7 +49,7 @@ pub fn maximal_count_vectors(inst: &Instance, usd: f64, min: &[u32], max: &[u32]
 
 /// An upper bound of the objective over all selections with at most `counts[t]` sensors of each
 /// type: per target, the best `counts[t]` visibilities of each type, counted only where the best
-/// coverage coefficients of both modalities could reach τ.
+/// coverage coefficients of every required modality could reach τ.
 pub fn counts_upper_bound(inst: &Instance, counts: &[u32], tops: &[Vec<Vec<f32>>]) -> f64 {
     let tau = inst.tau() * (1.0 - 1e-9);
     (0..inst.n_targets())
@@ -62,7 +62,7 @@ pub fn counts_upper_bound(inst: &Instance, counts: &[u32], tops: &[Vec<Vec<f32>>
                     if ty.modality == Modality::Lidar { a_l += a } else { a_r += a }
                 }
             }
-            if a_l >= tau && a_r >= tau { inst.weights[j] * rho } else { 0.0 }
+            if inst.counts_target(a_l, a_r, tau) { inst.weights[j] * rho } else { 0.0 }
         })
         .sum()
 }
@@ -83,7 +83,7 @@ pub fn separable_upper_bound(inst: &Instance, counts: &[u32], tops: &[Vec<Vec<f3
                     if ty.modality == Modality::Lidar { a_l += a } else { a_r += a }
                 }
             }
-            a_l >= tau && a_r >= tau
+            inst.counts_target(a_l, a_r, tau)
         })
         .collect();
     (0..inst.types.len())

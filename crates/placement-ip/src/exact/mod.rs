@@ -2,17 +2,20 @@
 //! one file per algorithm:
 //! - [`counts`]: count-limited configurations with one radar (the paper's three);
 //! - [`budget`]: the budgeted problem, decomposed into the count vectors the budget allows;
-//! - [`lidar_first`]: count vectors with several radars and at most two LiDARs of one type.
+//! - [`lidar_first`]: count vectors with several radars and at most two LiDARs of one type;
+//! - [`single`]: count vectors of one modality (LiDAR-only or radar-only rigs).
 //!
 //! This file holds what they share: the incumbent across threads and the deadline.
 
 mod budget;
 mod counts;
 mod lidar_first;
+mod single;
 
 pub use budget::{counts_upper_bound, exact_budget, maximal_count_vectors, separable_upper_bound, top_visibilities};
 pub use counts::exact_counts;
 pub use lidar_first::exact_lidar_first;
+pub use single::exact_single;
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
