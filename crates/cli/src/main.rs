@@ -39,6 +39,8 @@ enum Command {
     Study(study::StudyArgs),
     /// Place each configuration of a study optimally (integer programming over visibility).
     Place(stages::PlaceArgs),
+    /// Check the placement objective against trained detectors over a set of placements.
+    Validate(study::ValidateArgs),
     /// Simulate traffic and record a dataset (nuScenes layout) with a placement's sensors.
     Simulate(stages::SimulateArgs),
     /// Train a detector (a preset or a detector config of one's own) on a dataset's train split, on the CPU
@@ -222,7 +224,7 @@ fn pin_training_env(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
         Command::Study(args) if args.stage.is_none() && args.workflow.is_none() => {
             vec![("RAYON_NUM_THREADS", "1"), (GLOBAL_THREADS, &cores)]
         }
-        Command::Train(_) | Command::Bench { command: BenchCommand::Train { .. } } => {
+        Command::Train(_) | Command::Validate(_) | Command::Bench { command: BenchCommand::Train { .. } } => {
             vec![("RAYON_NUM_THREADS", "1"), (GLOBAL_THREADS, &cores)]
         }
         Command::Detect(_) => vec![("RAYON_NUM_THREADS", &cores)],
@@ -287,6 +289,7 @@ fn main() -> Result<()> {
         Command::Place(args) => {
             stages::place(&args)?;
         }
+        Command::Validate(args) => study::validate(&args)?,
         Command::Bench { command: BenchCommand::Eval { frames, max_pred, repeats, json } } => {
             let report = hilo::bench::eval(frames as usize, max_pred, repeats.max(1))?;
             println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });

@@ -282,3 +282,48 @@ fn print_plan(plan: &Plan) {
         plan.out.join("report.json").display()
     );
 }
+
+#[derive(clap::Args, Debug)]
+pub struct ValidateArgs {
+    /// Study TOML (its `[validation]` section sets the placement set); the embedded default
+    /// when omitted.
+    pub study: Option<PathBuf>,
+    #[arg(long, default_value = "validation")]
+    pub out: PathBuf,
+    /// The scale of the datasets and the scene bootstrap: quick, default or paper.
+    #[arg(long, default_value = "default")]
+    pub profile: String,
+    /// Placements in the set (overrides `validation.placements`).
+    #[arg(long)]
+    pub placements: Option<usize>,
+    /// Trainings per placement (overrides `validation.seeds`).
+    #[arg(long)]
+    pub seeds: Option<usize>,
+    /// The budget b in samples (overrides `validation.samples`): trained to 2b, scored at b and 2b.
+    #[arg(long)]
+    pub samples: Option<usize>,
+}
+
+/// `hilo validate`: does the placement objective predict trained accuracy?
+pub fn validate(args: &ValidateArgs) -> Result<()> {
+    let registry = crate::train::registry()?;
+    let study = load_study(args.study.as_deref())?;
+    let profile = hilo_study::profile(&args.profile, &study, &registry)?;
+    let mut settings = study.file.validation.clone();
+    if let Some(n) = args.placements {
+        settings.placements = n;
+    }
+    if let Some(n) = args.seeds {
+        settings.seeds = n;
+    }
+    if let Some(n) = args.samples {
+        settings.samples = n;
+    }
+    let mut reporter = Reporter::new();
+    let report =
+        hilo_study::validation::run(&study, &registry, &profile, &settings, &args.out, &mut |p| reporter.study(p))?;
+    for p in hilo_study::validation::write(&args.out, &report)? {
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
+}

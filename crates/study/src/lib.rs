@@ -11,6 +11,9 @@
 //! - [`assemble`], [`stats`], [`verdict`]: the verdict from the stage outputs (common ground
 //!   truth, scene bootstrap with pooled seed variance, Holm, calibration, the paper's claims);
 //! - [`tradeoff`]: placement's speed-against-error sweeps;
+//! - [`validation`] and [`rank`]: does the placement objective predict trained accuracy? A set
+//!   of placements of the study's scene, predictors computed without training, trained accuracy
+//!   per placement, rank agreement with bootstrap intervals;
 //! - [`report`] and [`render`]: `report.md`, `report.json`, charts and pictures;
 //! - [`sweep`] and [`compare`]: one study over several scenes or catalogs (or a directory of
 //!   studies), each a study of its own, and one comparison across them.
@@ -28,6 +31,7 @@ pub mod gt;
 pub mod place;
 pub mod plan;
 pub mod profile;
+pub mod rank;
 pub mod render;
 pub mod report;
 pub mod rig;
@@ -37,6 +41,7 @@ pub mod stats;
 pub mod study;
 pub mod sweep;
 pub mod tradeoff;
+pub mod validation;
 pub mod verdict;
 pub mod workflow;
 

@@ -395,7 +395,8 @@ impl FolderRecord {
 
 /// The parts of a study file that define what its stages compute, as text for the folder's
 /// fingerprint: everything but the `[verdict]` settings, which only change how the report
-/// judges (a new margin rewrites the report, not the trained detectors). Written as the file's
+/// judges (a new margin rewrites the report, not the trained detectors), and the `[validation]`
+/// settings, which only `hilo validate` reads. Written as the file's
 /// derived `Debug` was before the section existed, so folders made then still open.
 fn defining(f: &crate::study::StudyFile) -> String {
     format!(
@@ -409,13 +410,16 @@ fn defining(f: &crate::study::StudyFile) -> String {
 mod tests {
     use super::*;
 
-    /// The fingerprint's text is the study file's own `Debug` without its `[verdict]` section:
-    /// a field added to the file and left out here (or the other way round) fails.
+    /// The fingerprint's text is the study file's own `Debug` without its `[verdict]` and
+    /// `[validation]` sections: a field added to the file and left out here (or the other way
+    /// round) fails.
     #[test]
     fn the_fingerprint_reads_every_field_but_the_verdict_settings() {
         let text = include_str!("../../../fixtures/study.toml");
         let file: crate::study::StudyFile = toml::from_str(text).unwrap();
-        let whole = format!("{file:?}").replace(&format!(", verdict: {:?}", file.verdict), "");
+        let whole = format!("{file:?}")
+            .replace(&format!(", verdict: {:?}", file.verdict), "")
+            .replace(&format!(", validation: {:?}", file.validation), "");
         assert_eq!(defining(&file), whole);
     }
 }

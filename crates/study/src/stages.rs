@@ -116,7 +116,12 @@ pub struct Loaded {
 
 /// Loads configuration `ci`'s frames once per distinct detector input among `jobs`.
 pub fn load_inputs(plan: &Plan, ci: usize, jobs: &[&Job]) -> Result<BTreeMap<String, Loaded>> {
-    let ds = hilo_dataset::Dataset::open(&plan.data[ci].dir, "v1.0-trainval")?;
+    load_inputs_from(&plan.data[ci].dir, jobs)
+}
+
+/// Loads the frames of the dataset in `dir` once per distinct detector input among `jobs`.
+pub fn load_inputs_from(dir: &std::path::Path, jobs: &[&Job]) -> Result<BTreeMap<String, Loaded>> {
+    let ds = hilo_dataset::Dataset::open(dir, "v1.0-trainval")?;
     let mut inputs = BTreeMap::new();
     for j in jobs {
         let key = input_key(j);
@@ -231,8 +236,19 @@ pub fn train_all(
     tick: &(dyn Fn(&Job, f64) + Sync),
 ) -> Result<Vec<JobOutput>> {
     let jobs: Vec<&Job> = plan.jobs.iter().filter(|j| j.configuration == ci).collect();
+    train_jobs(&plan.data[ci].dir, &jobs, registry, workers, tick)
+}
+
+/// Trains (or resumes) `jobs` on the dataset in `dir`, `workers` at a time (see [`train_all`]).
+pub fn train_jobs(
+    dir: &std::path::Path,
+    jobs: &[&Job],
+    registry: &Registry,
+    workers: usize,
+    tick: &(dyn Fn(&Job, f64) + Sync),
+) -> Result<Vec<JobOutput>> {
     let todo: Vec<&Job> = jobs.iter().copied().filter(|j| !j.done()).collect();
-    let inputs = if todo.is_empty() { BTreeMap::new() } else { load_inputs(plan, ci, &todo)? };
+    let inputs = if todo.is_empty() { BTreeMap::new() } else { load_inputs_from(dir, &todo)? };
     let empty = Loaded { background: None, train: Vec::new(), val: Vec::new() };
     let queue = Mutex::new((0..jobs.len()).collect::<Vec<usize>>());
     let outcomes: Mutex<BTreeMap<usize, Result<JobOutput>>> = Mutex::new(BTreeMap::new());

@@ -29,6 +29,9 @@ pub struct StudyFile {
     /// How the verdict judges the claims.
     #[serde(default)]
     pub verdict: VerdictSettings,
+    /// The placement set of `hilo validate` (the study's own stages do not read it).
+    #[serde(default)]
+    pub validation: crate::validation::ValidationSettings,
     pub configurations: Vec<Configuration>,
 }
 

@@ -1,0 +1,582 @@
+//! Does the placement objective predict trained accuracy? (`hilo validate`)
+//!
+//! The placement IP proves its answer optimal for its objective; this module asks whether the
+//! objective orders placements as trained detectors do. It draws a set of placements of the
+//! study's scene ([`set`]), computes predictors without training (the paper's objective, the
+//! objective over the modalities a rig offers, LiDAR, radar and central coverage, and the
+//! occupancy of the study's simulated traffic: the share of road users hit by at least k LiDAR
+//! points, points per road user, the share with a radar point), simulates every placement with
+//! the same traffic, trains one detector per placement and seed (the fusion preset where the
+//! rig has a radar, its LiDAR-only counterpart with the same head otherwise) to 2b samples,
+//! keeping the weights at b, scores both on the common ground truth under the study's scene
+//! bootstrap, and reports Spearman's ρ and Kendall's τ of every predictor with mAP and
+//! pedestrian AP, with intervals from a bootstrap over placements and scenes ([`crate::rank`]),
+//! and τ between the accuracies at b and 2b (does the budget rank placements as longer
+//! training would?).
+//!
+//! What it leaves out: a calibrated objective fitted to these measurements (the IP still
+//! maximises the paper's), and a workflow-engine form of its jobs (it runs in one process and
+//! resumes from its folder).
+//!
+//! Layout of its folder (every stage resumable; a stage's folder is named by the hash of
+//! what decides it):
+//!
+//! ```text
+//! set/<h>/set.json, <member>.json        the placement set and its predictors
+//! data/<member>-<h>/                     a member's dataset (the study's traffic)
+//! runs/<member>/<preset>-seed<k>-<h>/    a trained detector
+//! results/<member>/…json                 its detections at 2b and at b
+//! validation.json, validation.md, validation-*.png/svg
+//! ```
+
+pub mod occupancy;
+pub mod set;
+
+use crate::error::{Result, StudyError};
+use crate::files::hash;
+use crate::gt::{GtKind, SampleKey, ground_truth, rekey};
+use crate::plan::{DataStage, Job, Provenance, short, stage_hash};
+use crate::profile::Profile;
+use crate::rank::{Agreement, agreement, kendall};
+use crate::stages::{DataRecord, Predictions, Progress};
+use crate::stats::scene_draws;
+use crate::study::Study;
+use hilo_core::fs::{limit, read_json, write_json};
+use hilo_detector::Registry;
+use hilo_detector::train::TrainConfig;
+use hilo_eval::DetectionConfig;
+use hilo_eval::bootstrap::Reweighable;
+use serde::{Deserialize, Serialize};
+use set::Member;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// The `[validation]` section of a study file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ValidationSettings {
+    /// Placements in the set (at least 10; 30 by default).
+    pub placements: usize,
+    /// Seed of the random and perturbed placements.
+    pub seed: u64,
+    /// Tilts offered to LiDARs and radars (degrees down): tilt is a decision variable here.
+    pub lidar_tilts_deg: Vec<f32>,
+    pub radar_tilts_deg: Vec<f32>,
+    /// The detector trained on rigs without a radar, and the one on rigs with one (they should
+    /// share head and assignment, so the rig is what differs).
+    pub lidar_preset: String,
+    pub fusion_preset: String,
+    /// Trainings per placement.
+    pub seeds: usize,
+    /// The budget b: detectors train to 2b samples and are scored at b and at 2b.
+    pub samples: usize,
+    /// k of the occupancy predictor: a road user counts when hit by at least k LiDAR points.
+    pub min_points: u32,
+}
+
+impl Default for ValidationSettings {
+    fn default() -> Self {
+        ValidationSettings {
+            placements: 30,
+            seed: 0,
+            lidar_tilts_deg: vec![6.0, 10.0, 14.0],
+            radar_tilts_deg: vec![4.0, 8.0, 12.0],
+            lidar_preset: "centerpoint".into(),
+            fusion_preset: "lirafusion-like".into(),
+            seeds: 2,
+            samples: 6_000,
+            min_points: 5,
+        }
+    }
+}
+
+impl ValidationSettings {
+    /// Checks the values a study file may get wrong; `source` names the file.
+    pub fn check(&self, registry: &Registry, source: &str) -> Result<()> {
+        let bad = |m: String| StudyError::Invalid(format!("{source}: validation.{m}"));
+        if !(10..=500).contains(&self.placements) {
+            return Err(bad(format!("placements = {}: give 10 to 500", self.placements)));
+        }
+        if !(1..=20).contains(&self.seeds) {
+            return Err(bad(format!("seeds = {}: give 1 to 20", self.seeds)));
+        }
+        if self.samples < 2 {
+            return Err(bad(format!("samples = {}: give at least 2", self.samples)));
+        }
+        if self.min_points == 0 {
+            return Err(bad("min_points = 0: give at least 1".into()));
+        }
+        for (key, p) in [("lidar_preset", &self.lidar_preset), ("fusion_preset", &self.fusion_preset)] {
+            registry.preset(p).map_err(|e| bad(format!("{key} = {p:?}: {e}")))?;
+        }
+        if registry.uses_radar(&registry.preset(&self.lidar_preset)?.detector) {
+            return Err(bad(format!("lidar_preset = {:?} needs a radar", self.lidar_preset)));
+        }
+        Ok(())
+    }
+}
+
+/// One member's trained accuracy: per seed, at b and at 2b.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Trained {
+    pub preset: String,
+    /// mAP per seed at 2b, and its mean.
+    pub map: Vec<f64>,
+    pub map_mean: f64,
+    /// mAP per seed at b.
+    pub map_at_b: Vec<f64>,
+    pub map_at_b_mean: f64,
+    pub pedestrian_ap_mean: f64,
+    /// Per class, AP averaged over seeds at 2b.
+    pub class_ap: BTreeMap<String, f64>,
+    pub train_s: f64,
+}
+
+/// One predictor's agreement with the accuracy.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PredictorRow {
+    pub predictor: String,
+    pub spearman_map: Agreement,
+    pub kendall_map: Agreement,
+    pub spearman_pedestrian: Agreement,
+    pub kendall_pedestrian: Agreement,
+    /// Where it is undefined (rigs of one modality for the paper's objective).
+    pub undefined_for: Vec<String>,
+}
+
+/// What `validation.json` holds.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ValidationReport {
+    pub study: String,
+    pub profile: String,
+    pub settings: ValidationSettings,
+    pub provenance: Provenance,
+    pub validation_scenes: usize,
+    /// Scene-bootstrap replicates behind the intervals.
+    pub resamples: usize,
+    pub members: Vec<(Member, Trained)>,
+    pub predictors: Vec<PredictorRow>,
+    /// Does the budget rank placements as longer training would? mAP at b against mAP at 2b.
+    pub budget_spearman: Agreement,
+    pub budget_kendall: Agreement,
+    pub seconds: f64,
+}
+
+/// The folder's record: which validation it holds.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct FolderRecord {
+    fingerprint: String,
+    study: String,
+}
+
+/// Claims `out` for this validation (refuses a folder that holds anything else).
+fn claim(out: &Path, fingerprint: &str, study: &Study) -> Result<()> {
+    let record = out.join("validation-folder.json");
+    if record.exists() {
+        let old: FolderRecord = read_json(&record, limit::TABLE)?;
+        if old.fingerprint != fingerprint {
+            return Err(StudyError::Invalid(format!(
+                "{} holds another validation (study, settings or profile differ); choose another --out",
+                out.display()
+            )));
+        }
+        return Ok(());
+    }
+    if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(false) {
+        return Err(StudyError::Invalid(format!(
+            "{} exists and is not a validation folder; choose another --out",
+            out.display()
+        )));
+    }
+    std::fs::create_dir_all(out).map_err(|e| hilo_core::fs::FileError::io(out, e))?;
+    Ok(write_json(&record, &FolderRecord { fingerprint: fingerprint.to_owned(), study: study.source.clone() })?)
+}
+
+/// Runs (or resumes) the validation of `study` in `out` at the scale of `profile` (its dataset
+/// settings, sampling, scene-bootstrap replicates and trainings at once).
+pub fn run(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    settings: &ValidationSettings,
+    out: &Path,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<ValidationReport> {
+    let t0 = std::time::Instant::now();
+    settings.check(registry, &study.source)?;
+    let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
+    let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
+    let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, study.file.configurations);
+    let fingerprint = hash(&[&defining, &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
+    claim(out, &fingerprint, study)?;
+    // 1. The set.
+    let set_hash = stage_hash("validation-set", &[&defining, &sjson, &study.scene_hash, &study.catalog_hash]);
+    let set_dir = out.join("set").join(short(&set_hash));
+    let set_file = set_dir.join("set.json");
+    let members: Vec<Member> = match read_json(&set_file, limit::TABLE) {
+        Ok(m) => m,
+        Err(_) => {
+            progress(Progress::Stage("validation: drawing the placement set"));
+            let m = set::placement_set(study, settings, &mut |l| progress(Progress::Stage(l)))?;
+            for x in &m {
+                hilo_core::fs::write_atomic(
+                    &set_dir.join(format!("{}.json", x.slug)),
+                    x.placement.to_json()?.as_bytes(),
+                )?;
+            }
+            write_json(&set_file, &m)?;
+            m
+        }
+    };
+    // 2. A dataset per member, the study's traffic.
+    let data: Vec<DataStage> = members
+        .iter()
+        .map(|m| {
+            let h = stage_hash("data", &[&set_hash, &m.slug, &format!("{:?}", profile.dataset)]);
+            DataStage { dir: out.join("data").join(format!("{}-{}", m.slug, short(&h))), hash: h }
+        })
+        .collect();
+    for (m, d) in members.iter().zip(&data) {
+        if d.done().exists() {
+            continue;
+        }
+        let ppath = set_dir.join(format!("{}.json", m.slug));
+        let total = profile.dataset.total_frames();
+        let label = format!("dataset {}", m.slug);
+        let summary = {
+            let cell = std::sync::Mutex::new(&mut *progress);
+            crate::rig::simulate(study, &m.placement, &ppath, &profile.dataset, &d.dir, "v1.0-trainval", &|done| {
+                if let Ok(mut f) = cell.lock() {
+                    f(Progress::Task { label: &label, done, total, unit: "frames" })
+                }
+            })?
+        };
+        progress(Progress::TaskDone);
+        write_json(
+            &d.done(),
+            &DataRecord { configuration: m.slug.clone(), frames: summary.frames, annotations: summary.annotations },
+        )?;
+    }
+    // 3. Training: 2b samples per seed, weights kept at b.
+    let jobs = jobs(&members, &data, registry, profile, settings, out)?;
+    let mut outputs = Vec::new();
+    for (mi, d) in data.iter().enumerate() {
+        let mine: Vec<&Job> = jobs.iter().filter(|j| j.configuration == mi).collect();
+        let label = format!("training on {} ({} of {})", members[mi].slug, mi + 1, members.len());
+        let shared = std::sync::Mutex::new(&mut *progress);
+        let tick = |_: &Job, f: f64| {
+            if let Ok(mut p) = shared.lock() {
+                p(Progress::Task { label: &label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
+            }
+        };
+        let outs = crate::stages::train_jobs(&d.dir, &mine, registry, profile.trainings_at_once, &tick)?;
+        progress(Progress::TaskDone);
+        outputs.push(mine.into_iter().cloned().zip(outs).collect::<Vec<_>>());
+    }
+    // 4. Scores on the common ground truth, predictors of the traffic, agreement.
+    progress(Progress::Stage("validation: scoring"));
+    score(study, profile, settings, members, &data, outputs, t0)
+}
+
+fn jobs(
+    members: &[Member],
+    data: &[DataStage],
+    registry: &Registry,
+    profile: &Profile,
+    settings: &ValidationSettings,
+    out: &Path,
+) -> Result<Vec<Job>> {
+    let mut jobs = Vec::new();
+    for (mi, m) in members.iter().enumerate() {
+        let radar = m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar);
+        let preset = if radar { &settings.fusion_preset } else { &settings.lidar_preset };
+        let p = registry.preset(preset)?;
+        for seed in 0..settings.seeds as u64 {
+            let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..p.train.clone() };
+            tc.samples = 2 * settings.samples;
+            if let Some(s) = profile.sampling {
+                tc.sampling = s;
+            }
+            let at_b = (settings.samples / tc.batch).max(1) * tc.batch;
+            tc.keep = vec![at_b];
+            let detector = serde_json::to_string(&p.detector).map_err(|e| StudyError::Invalid(e.to_string()))?;
+            let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
+            let h = stage_hash("run", &[&data[mi].hash, &detector, &schedule]);
+            let name = format!("{preset}-seed{seed}-{}", short(&h));
+            jobs.push(Job {
+                id: format!("{}/{preset}-seed{seed}", m.slug),
+                configuration: mi,
+                preset: preset.clone(),
+                seed,
+                run: out.join("runs").join(&m.slug).join(&name),
+                results: out.join("results").join(&m.slug).join(format!("{name}.json")),
+                detector: p.detector.clone().validate()?,
+                train: tc.validate()?,
+                curve: vec![at_b],
+            });
+        }
+    }
+    Ok(jobs)
+}
+
+type Outputs = Vec<Vec<(Job, crate::stages::JobOutput)>>;
+
+fn score(
+    study: &Study,
+    profile: &Profile,
+    settings: &ValidationSettings,
+    mut members: Vec<Member>,
+    data: &[DataStage],
+    outputs: Outputs,
+    t0: std::time::Instant,
+) -> Result<ValidationReport> {
+    let first = hilo_dataset::Dataset::open(&data[0].dir, "v1.0-trainval")?;
+    let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
+    let mut cfg = DetectionConfig::default();
+    let in_gt: std::collections::BTreeSet<&str> =
+        common.boxes.values().flatten().map(|b| b.detection_name.as_str()).collect();
+    cfg.class_range.retain(|k, _| in_gt.contains(k.as_str()));
+    let mut scenes: Vec<String> = common.samples.values().map(|i| i.scene.clone()).collect();
+    scenes.sort();
+    scenes.dedup();
+    let draws = scene_draws(scenes.len(), profile.resamples, 0);
+    let mut trained = Vec::new();
+    // Per member: mAP and pedestrian AP at 2b under each scene replicate (mean over seeds).
+    let (mut map_reps, mut ped_reps) = (Vec::new(), Vec::new());
+    for ((m, d), outs) in members.iter_mut().zip(data).zip(outputs) {
+        let ds = hilo_dataset::Dataset::open(&d.dir, "v1.0-trainval")?;
+        let occ = occupancy::occupancy(&ds, "val", &cfg, settings.min_points)?;
+        m.predictors.extend(occ.predictors());
+        let (_, keys) = ground_truth(&ds, "val", GtKind::VisibleOnly, SampleKey::SceneTime)?;
+        let rescore = |p: &Predictions| -> Result<Reweighable> {
+            let mut p = rekey(p.clone(), &keys);
+            p.sort_by(|a, b| a.0.cmp(&b.0));
+            Reweighable::new(&common, &p, &cfg, &scenes).map_err(StudyError::Invalid)
+        };
+        let (mut map, mut at_b, mut ped, mut train_s) = (Vec::new(), Vec::new(), Vec::new(), 0.0);
+        let mut class_ap: BTreeMap<String, f64> = BTreeMap::new();
+        let (mut mr, mut pr) = (vec![0.0; draws.len()], vec![0.0; draws.len()]);
+        let n = outs.len() as f64;
+        let preset = outs.first().map(|(j, _)| j.preset.clone()).unwrap_or_default();
+        for (_, o) in &outs {
+            let r = rescore(&o.predictions)?;
+            let full = r.full(&cfg);
+            map.push(full.0);
+            ped.push(full.2.get("pedestrian").copied().unwrap_or(f64::NAN));
+            for (k, v) in &full.2 {
+                *class_ap.entry(k.clone()).or_default() += v / n;
+            }
+            for (i, x) in r.under(&cfg, &draws).iter().enumerate() {
+                mr[i] += x.0 / n;
+                pr[i] += x.2.get("pedestrian").copied().unwrap_or(f64::NAN) / n;
+            }
+            if let Some((_, p)) = o.curve.first() {
+                at_b.push(rescore(p)?.full(&cfg).0);
+            }
+            train_s += o.meta.train_s;
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        trained.push(Trained {
+            preset,
+            map_mean: mean(&map),
+            map_at_b_mean: mean(&at_b),
+            pedestrian_ap_mean: mean(&ped),
+            map,
+            map_at_b: at_b,
+            class_ap,
+            train_s,
+        });
+        map_reps.push(mr);
+        ped_reps.push(pr);
+    }
+    let transpose =
+        |v: &[Vec<f64>]| -> Vec<Vec<f64>> { (0..draws.len()).map(|r| v.iter().map(|m| m[r]).collect()).collect() };
+    let (map_t, ped_t) = (transpose(&map_reps), transpose(&ped_reps));
+    let acc: Vec<f64> = trained.iter().map(|t| t.map_mean).collect();
+    let ped: Vec<f64> = trained.iter().map(|t| t.pedestrian_ap_mean).collect();
+    let mut names: Vec<String> = members.first().map(|m| m.predictors.keys().cloned().collect()).unwrap_or_default();
+    let order = [
+        set::PAPER_OBJECTIVE,
+        set::OWN_OBJECTIVE,
+        set::LIDAR_COVERAGE,
+        set::RADAR_COVERAGE,
+        set::CENTRAL_COVERAGE,
+        occupancy::HIT_SHARE,
+        occupancy::POINTS_PER_USER,
+        occupancy::RADAR_SHARE,
+    ];
+    names.sort_by_key(|n| (order.iter().position(|o| o == n).unwrap_or(order.len()), n.clone()));
+    let predictors = names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let x: Vec<f64> =
+                members.iter().map(|m| m.predictors.get(name).copied().flatten().unwrap_or(f64::NAN)).collect();
+            let (spearman_map, kendall_map) = agreement(&x, &acc, &map_t, 0.95, k as u64);
+            let (spearman_pedestrian, kendall_pedestrian) = agreement(&x, &ped, &ped_t, 0.95, k as u64);
+            let undefined_for =
+                members.iter().zip(&x).filter(|(_, v)| !v.is_finite()).map(|(m, _)| m.slug.clone()).collect();
+            PredictorRow {
+                predictor: name.clone(),
+                spearman_map,
+                kendall_map,
+                spearman_pedestrian,
+                kendall_pedestrian,
+                undefined_for,
+            }
+        })
+        .collect();
+    let at_b: Vec<f64> = trained.iter().map(|t| t.map_at_b_mean).collect();
+    let (budget_spearman, budget_kendall) = agreement(&at_b, &acc, &map_t, 0.95, 99);
+    debug_assert!((budget_kendall.value - kendall(&at_b, &acc)).abs() < 1e-12 || budget_kendall.value.is_nan());
+    Ok(ValidationReport {
+        study: study.source.clone(),
+        profile: profile.name.clone(),
+        settings: settings.clone(),
+        provenance: Provenance::here(profile.trainings_at_once),
+        validation_scenes: scenes.len(),
+        resamples: draws.len(),
+        members: members.into_iter().zip(trained).collect(),
+        predictors,
+        budget_spearman,
+        budget_kendall,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Writes `validation.json`, `validation.md` and the scatter charts into `out`; returns the
+/// files written.
+pub fn write(out: &Path, r: &ValidationReport) -> Result<Vec<PathBuf>> {
+    let json = out.join("validation.json");
+    write_json(&json, r)?;
+    let md = out.join("validation.md");
+    hilo_core::fs::write_atomic(&md, markdown(r).as_bytes())?;
+    let mut files = vec![json, md];
+    for name in [set::PAPER_OBJECTIVE, set::OWN_OBJECTIVE, occupancy::HIT_SHARE] {
+        let stem = format!("validation-{}", crate::study::slug(name));
+        if scatter(out, &stem, r, name)? {
+            files.push(out.join(format!("{stem}.png")));
+        }
+    }
+    Ok(files)
+}
+
+fn fmt_agreement(a: &Agreement) -> String {
+    if a.value.is_finite() { format!("{:+.2} [{:+.2}, {:+.2}]", a.value, a.lo, a.hi) } else { "–".into() }
+}
+
+/// The report section "Does the objective predict accuracy?".
+pub fn markdown(r: &ValidationReport) -> String {
+    let mut s = String::new();
+    let lidar_only =
+        r.members.iter().filter(|(m, _)| m.predictors.get(set::PAPER_OBJECTIVE).is_some_and(|v| v.is_none())).count();
+    s.push_str("# Does the objective predict accuracy?\n\n");
+    s.push_str(&format!(
+        "{} placements of {} ({} of one modality), each trained {} time(s) at {} samples (scored at b = {} and 2b), \
+         profile `{}` ({} validation scenes), {:.0} s. Rank agreement of each predictor with the mean trained mAP and \
+         pedestrian AP; 95% intervals from {} bootstrap replicates over placements and validation scenes.\n\n",
+        r.members.len(),
+        r.study,
+        lidar_only,
+        r.settings.seeds,
+        2 * r.settings.samples,
+        r.settings.samples,
+        r.profile,
+        r.validation_scenes,
+        r.seconds,
+        r.resamples,
+    ));
+    s.push_str("| predictor | ρ with mAP | τ with mAP | ρ with pedestrian AP | τ with pedestrian AP | placements |\n|---|---:|---:|---:|---:|---:|\n");
+    for p in &r.predictors {
+        s.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} |\n",
+            p.predictor,
+            fmt_agreement(&p.spearman_map),
+            fmt_agreement(&p.kendall_map),
+            fmt_agreement(&p.spearman_pedestrian),
+            fmt_agreement(&p.kendall_pedestrian),
+            p.spearman_map.n
+        ));
+    }
+    s.push_str(&format!(
+        "\nThe paper's objective is undefined (zero whatever the poses) for the {lidar_only} rig(s) of one modality and is \
+         ranked over the others. The budget: mAP at b against mAP at 2b, Spearman ρ {}, Kendall τ {} \
+         (τ ≥ 0.8 means b ranks placements as longer training would).\n\n",
+        fmt_agreement(&r.budget_spearman),
+        fmt_agreement(&r.budget_kendall)
+    ));
+    s.push_str("| placement | kind | sensors | cost (USD) | paper objective | LiDAR coverage | occupancy | detector | mAP at b | mAP at 2b (seeds) | pedestrian AP |\n|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|\n");
+    for (m, t) in &r.members {
+        let p = |k: &str| m.predictors.get(k).copied().flatten();
+        let sensors: BTreeMap<&str, usize> = m.placement.sensors.iter().fold(BTreeMap::new(), |mut a, x| {
+            *a.entry(x.ty.as_str()).or_default() += 1;
+            a
+        });
+        let sensors: Vec<String> = sensors.iter().map(|(k, n)| format!("{n}× {k}")).collect();
+        s.push_str(&format!(
+            "| {} | {} | {} | {:.0} | {} | {} | {} | {} | {:.3} | {:.3} ({}) | {:.3} |\n",
+            m.slug,
+            m.kind,
+            sensors.join(" + "),
+            m.placement.cost_usd,
+            p(set::PAPER_OBJECTIVE).map_or("–".into(), |v| format!("{v:.0}")),
+            p(set::LIDAR_COVERAGE).map_or("–".into(), |v| format!("{:.1}%", 100.0 * v)),
+            p(occupancy::HIT_SHARE).map_or("–".into(), |v| format!("{:.1}%", 100.0 * v)),
+            t.preset,
+            t.map_at_b_mean,
+            t.map_mean,
+            t.map.iter().map(|v| format!("{v:.3}")).collect::<Vec<_>>().join(", "),
+            t.pedestrian_ap_mean
+        ));
+    }
+    s
+}
+
+/// A scatter of one predictor against mAP (rigs with and without radar apart, seed range as
+/// error bars) with its least-squares line; false when the predictor has too few values.
+fn scatter(out: &Path, stem: &str, r: &ValidationReport, name: &str) -> Result<bool> {
+    use crate::charts::{Series, XY, save};
+    let mut with = Vec::new();
+    let mut without = Vec::new();
+    for (m, t) in &r.members {
+        let Some(x) = m.predictors.get(name).copied().flatten().filter(|v| v.is_finite()) else { continue };
+        let lo = t.map.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = t.map.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let radar = m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar);
+        (if radar { &mut with } else { &mut without }).push((x, t.map_mean, lo, hi));
+    }
+    let all: Vec<&(f64, f64, f64, f64)> = with.iter().chain(&without).collect();
+    if all.len() < 3 {
+        return Ok(false);
+    }
+    let (xmin, xmax) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.0), a.1.max(p.0)));
+    let (ymin, ymax) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.2), a.1.max(p.3)));
+    let n = all.len() as f64;
+    let (mx, my) = (all.iter().map(|p| p.0).sum::<f64>() / n, all.iter().map(|p| p.1).sum::<f64>() / n);
+    let sxx: f64 = all.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let slope = if sxx > 0.0 { all.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / sxx } else { 0.0 };
+    let line = |x: f64| my + slope * (x - mx);
+    let series = vec![
+        Series { label: "rigs with a radar".into(), points: with, line: false },
+        Series { label: "LiDAR-only rigs".into(), points: without, line: false },
+        Series {
+            label: "least-squares line".into(),
+            points: vec![(xmin, line(xmin), line(xmin), line(xmin)), (xmax, line(xmax), line(xmax), line(xmax))],
+            line: true,
+        },
+    ];
+    let pad = |a: f64, b: f64| (b - a).abs().max(1e-9) * 0.05;
+    let title = format!("{name} against trained mAP");
+    let chart = XY {
+        title: &title,
+        x_label: name,
+        y_label: "mAP (mean over seeds; bars: seed range)",
+        x: (xmin - pad(xmin, xmax), xmax + pad(xmin, xmax)),
+        y: ((ymin - pad(ymin, ymax)).max(0.0), (ymax + pad(ymin, ymax)).min(1.0)),
+        series: &series,
+        x_fmt: &|v| if v.abs() >= 100.0 { format!("{v:.0}") } else { format!("{v:.2}") },
+        notes: &[],
+    };
+    save(out, stem, &chart)?;
+    Ok(true)
+}

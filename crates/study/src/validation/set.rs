@@ -1,0 +1,314 @@
+//! The placement set: placements of the study's scene that span what a buyer might mount, each
+//! with the predictors computed without training.
+//!
+//! For every configuration of the study, and for the rigs a buyer compares them with (each
+//! LiDAR type of the study alone, two of the cheapest, the cheapest with one radar and two with
+//! two radars, the budgeted optimum at the cost of the dearest configuration), the optimum and
+//! greedy's answer; then, in turn over the count configurations, the optimum with one sensor
+//! moved (another mount, yaw or tilt) and a random selection, until the set has the size asked.
+//! Candidates offer every tilt of the `[validation]` section, so poses differ in tilt too.
+//! Same seed, same set.
+
+use super::ValidationSettings;
+use crate::error::{Result, StudyError};
+use crate::place::limit_for;
+use crate::study::{Configuration, Study};
+use hilo_placement_ip::greedy::greedy;
+use hilo_placement_ip::instance::{covered_targets, evaluate};
+use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve_from};
+use hilo_placement_ip::{Instance, Limit, Modality, PlacedSensor, Placement};
+use hilo_raycast::scene::config::RoiKind;
+use hilo_raycast::{QueryRegion, World};
+use hilo_sensor_models::SensorSpec;
+use rand::{Rng, SeedableRng};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet};
+
+/// One placement of the set.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Member {
+    /// File-name-safe and unique: `m<k>-<kind>-<configuration slug>`.
+    pub slug: String,
+    /// optimum, greedy, perturbed or random.
+    pub kind: String,
+    pub configuration: String,
+    pub placement: Placement,
+    /// Predictors without training: name → value (None where undefined for this rig).
+    pub predictors: BTreeMap<String, Option<f64>>,
+}
+
+/// Predictor names computed from the placement alone.
+pub const PAPER_OBJECTIVE: &str = "paper objective";
+pub const OWN_OBJECTIVE: &str = "objective (offered modalities)";
+pub const LIDAR_COVERAGE: &str = "LiDAR coverage";
+pub const RADAR_COVERAGE: &str = "radar coverage";
+pub const CENTRAL_COVERAGE: &str = "central coverage";
+
+/// The configurations the set is drawn from: the study's, then the rigs a buyer compares them
+/// with, once each (by sensor counts).
+pub fn set_configurations(study: &Study) -> Vec<Configuration> {
+    let cat = &study.catalog;
+    let price = |t: &String| cat.get(t).map_or(f64::INFINITY, |s| s.price_usd());
+    let mut lidars: Vec<String> =
+        study.type_names().into_iter().filter(|t| matches!(cat.get(t), Ok(SensorSpec::Lidar(_)))).collect();
+    lidars.sort_by(|a, b| price(a).total_cmp(&price(b)).then(a.cmp(b)));
+    let mut radars: Vec<String> =
+        study.type_names().into_iter().filter(|t| matches!(cat.get(t), Ok(SensorSpec::Radar(_)))).collect();
+    radars.sort_by(|a, b| price(a).total_cmp(&price(b)).then(a.cmp(b)));
+    let counts = |name: String, s: &[(&String, u32)]| Configuration {
+        name,
+        sensors: s.iter().map(|(t, n)| ((*t).clone(), *n)).collect(),
+        budget_usd: None,
+        types: Vec::new(),
+        min: BTreeMap::new(),
+        max: BTreeMap::new(),
+    };
+    let mut out: Vec<Configuration> = study.file.configurations.clone();
+    for l in &lidars {
+        out.push(counts(format!("1x {l}"), &[(l, 1)]));
+    }
+    if let Some(l) = lidars.first() {
+        out.push(counts(format!("2x {l}"), &[(l, 2)]));
+        if let Some(r) = radars.first() {
+            out.push(counts(format!("1x {l} + {r}"), &[(l, 1), (r, 1)]));
+            out.push(counts(format!("2x {l} + 2x {r}"), &[(l, 2), (r, 2)]));
+        }
+    }
+    let dearest = study
+        .file
+        .configurations
+        .iter()
+        .filter(|c| c.budget_usd.is_none())
+        .map(|c| c.sensors.iter().map(|(t, n)| price(t) * *n as f64).sum::<f64>())
+        .fold(0.0, f64::max);
+    if !radars.is_empty() && !lidars.is_empty() && study.file.configurations.iter().all(|c| c.budget_usd.is_none()) {
+        out.push(Configuration {
+            name: format!("budget {dearest:.0} USD"),
+            sensors: BTreeMap::new(),
+            budget_usd: Some(dearest),
+            types: study.type_names(),
+            min: BTreeMap::new(),
+            max: BTreeMap::new(),
+        });
+    }
+    let mut seen = BTreeSet::new();
+    out.retain(|c| seen.insert((format!("{:?}", c.sensors), c.budget_usd.map(f64::to_bits), c.types.clone())));
+    out
+}
+
+/// The study's placement settings with the validation's tilts.
+fn settings_with_tilts(
+    study: &Study,
+    v: &ValidationSettings,
+) -> Result<hilo_core::Valid<hilo_placement_ip::pipeline::PlacementConfig>> {
+    let mut pc = study.placement.clone().into_inner();
+    pc.candidates.lidar_tilts_deg = v.lidar_tilts_deg.clone();
+    pc.candidates.radar_tilts_deg = v.radar_tilts_deg.clone();
+    Ok(pc.validate()?)
+}
+
+/// Draws the placement set (see the module doc); `progress` hears one line per step.
+pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn FnMut(&str)) -> Result<Vec<Member>> {
+    let pc = settings_with_tilts(study, v)?;
+    let types = study.type_names();
+    let prep = prepare(&study.scene, &study.catalog, &types, &pc)?;
+    progress(&format!(
+        "placement set: {} candidates ({} LiDAR and {} radar tilts), {} targets",
+        prep.candidates.len(),
+        v.lidar_tilts_deg.len(),
+        v.radar_tilts_deg.len(),
+        prep.targets.len()
+    ));
+    let confs = set_configurations(study);
+    let mut drawn: Vec<(String, String, Vec<PlacedSensor>, bool)> = Vec::new();
+    let mut keys = BTreeSet::new();
+    let mut push = |kind: &str, conf: &str, sensors: Vec<PlacedSensor>, proven: bool, out: &mut Vec<_>| {
+        let mut key: Vec<(String, u32)> = sensors.iter().map(|s| (s.ty.clone(), s.candidate_id)).collect();
+        key.sort();
+        if !sensors.is_empty() && keys.insert(key) {
+            out.push((kind.to_owned(), conf.to_owned(), sensors, proven));
+        }
+    };
+    let mut optima: Vec<(usize, Instance, Limit, Vec<usize>)> = Vec::new();
+    for (ci, conf) in confs.iter().enumerate() {
+        let ctypes = conf.type_names();
+        let inst = instance(&prep, &study.catalog, &ctypes, pc.p_min)?;
+        let limit = limit_for(conf, &ctypes);
+        let g = greedy(&inst, &limit);
+        let o = solve_from(&inst, &limit, pc.time_limit_s, &g)?;
+        progress(&format!(
+            "  {:<28} optimum {:>9.1} ({}), greedy {:>9.1}",
+            conf.name,
+            o.objective,
+            if o.proven_optimal { "proven".to_owned() } else { format!("gap {:.1}%", 100.0 * o.gap) },
+            g.objective
+        ));
+        push("optimum", &conf.name, sensors_of(&inst, &prep, &o.selection), o.proven_optimal, &mut drawn);
+        push("greedy", &conf.name, sensors_of(&inst, &prep, &g.selection), false, &mut drawn);
+        if matches!(limit, Limit::Counts(_)) {
+            optima.push((ci, inst, limit, o.selection));
+        }
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(v.seed);
+    let mut attempts = 0;
+    while drawn.len() < v.placements && !optima.is_empty() && attempts < 100 * v.placements {
+        let (ci, inst, limit, opt) = &optima[attempts % optima.len()];
+        let (kind, sel) = if (attempts / optima.len()).is_multiple_of(2) {
+            ("perturbed", perturb(inst, opt, &mut rng))
+        } else {
+            ("random", random(inst, limit, &mut rng))
+        };
+        attempts += 1;
+        if let Some(sel) = sel {
+            push(kind, &confs[*ci].name, sensors_of(inst, &prep, &sel), false, &mut drawn);
+        }
+    }
+    if drawn.len() < v.placements {
+        return Err(StudyError::Invalid(format!(
+            "{}: the scene offers {} distinct placements of these configurations, fewer than validation.placements = {}",
+            study.source,
+            drawn.len(),
+            v.placements
+        )));
+    }
+    let world = World::build(&study.scene, &QueryRegion::everything())?;
+    let all = instance(&prep, &study.catalog, &types, pc.p_min)?;
+    drawn
+        .into_iter()
+        .enumerate()
+        .map(|(k, (kind, conf, sensors, proven))| {
+            member(study, &prep, &world, &all, k, &kind, &conf, sensors, proven, pc.cell_m, pc.p_min)
+        })
+        .collect()
+}
+
+fn sensors_of(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
+    sel.iter()
+        .map(|&o| {
+            let opt = &inst.options[o];
+            let c = &prep.candidates[opt.candidate as usize];
+            PlacedSensor::new(&inst.types[opt.ty].name, c.modality, c.id, &c.structure, c.pose)
+        })
+        .collect()
+}
+
+/// The optimum with one sensor moved to another option of its type (another mount, or the same
+/// mount at another yaw or tilt).
+fn perturb(inst: &Instance, opt: &[usize], rng: &mut impl Rng) -> Option<Vec<usize>> {
+    if opt.is_empty() {
+        return None;
+    }
+    let i = rng.random_range(0..opt.len());
+    let ty = inst.options[opt[i]].ty;
+    let taken: BTreeSet<u32> =
+        opt.iter().enumerate().filter(|(k, _)| *k != i).map(|(_, &o)| inst.options[o].mount).collect();
+    let choices: Vec<usize> = (0..inst.options.len())
+        .filter(|&o| o != opt[i] && inst.options[o].ty == ty && !taken.contains(&inst.options[o].mount))
+        .collect();
+    if choices.is_empty() {
+        return None;
+    }
+    let mut sel = opt.to_vec();
+    sel[i] = choices[rng.random_range(0..choices.len())];
+    Some(sel)
+}
+
+/// A uniformly random selection with the limit's counts, one sensor per mount.
+fn random(inst: &Instance, limit: &Limit, rng: &mut impl Rng) -> Option<Vec<usize>> {
+    let Limit::Counts(counts) = limit else { return None };
+    let mut sel = Vec::new();
+    let mut mounts = BTreeSet::new();
+    for (ty, &n) in counts.iter().enumerate() {
+        for _ in 0..n {
+            let choices: Vec<usize> = (0..inst.options.len())
+                .filter(|&o| inst.options[o].ty == ty && !mounts.contains(&inst.options[o].mount))
+                .collect();
+            if choices.is_empty() {
+                return None;
+            }
+            let o = choices[rng.random_range(0..choices.len())];
+            mounts.insert(inst.options[o].mount);
+            sel.push(o);
+        }
+    }
+    Some(sel)
+}
+
+/// The options of `inst` that are these sensors (by type and candidate); sensors whose
+/// candidate sees no target have no option and add nothing.
+fn selection(inst: &Instance, sensors: &[PlacedSensor]) -> Vec<usize> {
+    sensors
+        .iter()
+        .filter_map(|s| {
+            inst.options.iter().position(|o| inst.types[o.ty].name == s.ty && o.candidate == s.candidate_id)
+        })
+        .collect()
+}
+
+#[allow(clippy::too_many_arguments)]
+fn member(
+    study: &Study,
+    prep: &Prepared,
+    world: &World,
+    all: &Instance,
+    k: usize,
+    kind: &str,
+    conf: &str,
+    sensors: Vec<PlacedSensor>,
+    proven: bool,
+    cell_m: f32,
+    p_min: f64,
+) -> Result<Member> {
+    let mut own_types: Vec<String> = sensors.iter().map(|s| s.ty.clone()).collect();
+    own_types.sort();
+    own_types.dedup();
+    let own = instance(prep, &study.catalog, &own_types, p_min)?;
+    let sel_own = selection(&own, &sensors);
+    let sel_all = selection(all, &sensors);
+    let has = |m: Modality| sensors.iter().any(|s| s.modality == m);
+    let weight: f64 = all.weights.iter().sum::<f64>().max(1e-12);
+    let share = |m: Modality| covered_targets(all, &sel_all, m).iter().map(|&j| all.weights[j]).sum::<f64>() / weight;
+    let lidars = sensors
+        .iter()
+        .filter(|s| s.modality == Modality::Lidar)
+        .map(|s| Ok((study.catalog.lidar(&s.ty)?.clone(), s.pose)))
+        .collect::<Result<Vec<_>>>()?;
+    let hits = hilo_placement_ip::coverage::lidar_hit_targets(&study.scene, world, &prep.targets, cell_m, &lidars)?;
+    let central_roi: Vec<usize> =
+        study.scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
+    let central: Vec<usize> =
+        (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect();
+    let own_objective = evaluate(&own, &sel_own);
+    let predictors = BTreeMap::from([
+        // The paper's objective reads literally: targets seen by both modalities; undefined
+        // (zero whatever the poses) for a rig of one modality.
+        (PAPER_OBJECTIVE.to_owned(), (has(Modality::Lidar) && has(Modality::Radar)).then(|| evaluate(all, &sel_all))),
+        (OWN_OBJECTIVE.to_owned(), Some(own_objective)),
+        (LIDAR_COVERAGE.to_owned(), Some(share(Modality::Lidar))),
+        (RADAR_COVERAGE.to_owned(), Some(share(Modality::Radar))),
+        (CENTRAL_COVERAGE.to_owned(), Some(hilo_placement_ip::coverage::share(&central, &hits))),
+    ]);
+    let cost_usd =
+        sensors.iter().map(|s| study.catalog.get(&s.ty).map(|c| c.price_usd())).sum::<std::result::Result<f64, _>>()?;
+    let slug = format!("m{k:02}-{kind}-{}", crate::study::slug(conf));
+    let placement = Placement {
+        name: slug.clone(),
+        sensors,
+        objective: own_objective,
+        bound: if proven { own_objective } else { f64::INFINITY },
+        gap: if proven { 0.0 } else { f64::INFINITY },
+        proven_optimal: proven,
+        solve_seconds: 0.0,
+        method: format!("{kind} placement of {conf:?} (validation set)"),
+        solved: kind == "optimum",
+        greedy_objective: 0.0,
+        central_coverage: predictors[CENTRAL_COVERAGE].unwrap_or(0.0),
+        lidar_radar_overlap: 0.0,
+        cost_usd,
+        targets: prep.targets.len(),
+        candidates: prep.candidates.len(),
+        scene_hash: study.scene_hash.clone(),
+        catalog_hash: study.catalog_hash.clone(),
+    };
+    Ok(Member { slug, kind: kind.to_owned(), configuration: conf.to_owned(), placement, predictors })
+}
