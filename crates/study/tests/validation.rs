@@ -1,0 +1,131 @@
+//! The validation's placement set and its occupancy predictor, on a coarse version of the
+//! default scene.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use hilo_study::Study;
+use hilo_study::validation::ValidationSettings;
+use hilo_study::validation::set::{PAPER_OBJECTIVE, placement_set};
+
+const COARSE: &str = r#"
+[placement]
+cell_m = 3.0
+time_limit_s = 5.0
+[placement.candidates]
+pole_step_m = 1.5
+arm_step_m = 3.0
+lidar_yaw_offsets_deg = [0.0]
+radar_yaw_offsets_deg = [-30.0, 30.0]
+
+[dataset]
+scenes = 1
+seconds = 1.5
+val_scenes = 2
+val_seconds = 2.0
+val_rate_hz = 2.0
+
+[[configurations]]
+name = "2x lidar-16 + radar"
+sensors = { "lidar-16" = 2, "radar-4d" = 1 }
+
+[[configurations]]
+name = "1x lidar-32 + radar"
+sensors = { "lidar-32" = 1, "radar-4d" = 1 }
+"#;
+
+fn settings() -> ValidationSettings {
+    ValidationSettings {
+        placements: 26,
+        lidar_tilts_deg: vec![5.0, 15.0],
+        radar_tilts_deg: vec![4.0, 12.0],
+        ..ValidationSettings::default()
+    }
+}
+
+/// Same seed, same set; it holds every kind of placement, LiDAR-only rigs (for which the
+/// paper's objective is undefined, and only for them), and poses at more than one tilt.
+#[test]
+fn the_placement_set_is_deterministic_and_spans_kinds_tilts_and_modalities() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = Study::parse(COARSE, dir.path(), "coarse.toml").unwrap();
+    let a = placement_set(&study, &settings(), &mut |_| {}).unwrap();
+    let b = placement_set(&study, &settings(), &mut |_| {}).unwrap();
+    assert_eq!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&b).unwrap());
+    assert!(a.len() >= 26, "{}", a.len());
+    for kind in ["optimum", "greedy", "perturbed", "random"] {
+        assert!(a.iter().any(|m| m.kind == kind), "no {kind} placement");
+    }
+    let radar = |m: &hilo_study::validation::set::Member| {
+        m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar)
+    };
+    assert!(a.iter().any(|m| !radar(m)), "no LiDAR-only rig");
+    for m in &a {
+        assert_eq!(m.predictors[PAPER_OBJECTIVE].is_some(), radar(m), "{}", m.slug);
+        assert!((1..=9).contains(&m.placement.sensors.len()));
+    }
+    let tilts: std::collections::BTreeSet<i32> =
+        a.iter().flat_map(|m| m.placement.sensors.iter().map(|s| s.pitch_deg.round() as i32)).collect();
+    assert!(tilts.len() >= 2, "{tilts:?}");
+    // Another seed draws other random and perturbed placements.
+    let c = placement_set(&study, &ValidationSettings { seed: 1, ..settings() }, &mut |_| {}).unwrap();
+    assert_ne!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&c).unwrap());
+}
+
+/// The occupancy predictor (the simulator's per-ray count of points on each road user) against
+/// a brute-force count of the LiDAR points inside each annotated box, on a small dataset.
+#[test]
+fn occupancy_agrees_with_a_brute_force_count_of_points_in_boxes() {
+    use hilo_detector::data::{CLASSES, LoadOptions, load_split};
+    let dir = tempfile::tempdir().unwrap();
+    let study = Study::parse(COARSE, dir.path(), "coarse.toml").unwrap();
+    let set = placement_set(&study, &settings(), &mut |_| {}).unwrap();
+    let m = set.iter().find(|m| m.kind == "optimum").unwrap();
+    let ppath = dir.path().join("p.json");
+    std::fs::write(&ppath, m.placement.to_json().unwrap()).unwrap();
+    let data = dir.path().join("data");
+    hilo_study::rig::simulate(&study, &m.placement, &ppath, &study.dataset, &data, "v1.0-trainval", &|_| {}).unwrap();
+    let ds = hilo_dataset::Dataset::open(&data, "v1.0-trainval").unwrap();
+    let cfg = hilo_eval::DetectionConfig::default();
+    // k where shares are neither 0 nor 1, so that a miscount shows.
+    let k = 25;
+    let occ = hilo_study::validation::occupancy::occupancy(&ds, "val", &cfg, k).unwrap();
+    // Brute force: points within each box (grown by 0.15 m sideways and on top; from 0.1 m above
+    // its bottom, so the ground under it does not count).
+    let (frames, _) = load_split(&ds, "val", &LoadOptions::default()).unwrap();
+    let mut brute: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
+    for f in &frames {
+        for b in &f.boxes {
+            let class = CLASSES[b.class].name();
+            let range = cfg.class_range[class];
+            if (b.center[0] as f64).hypot(b.center[1] as f64) >= range {
+                continue;
+            }
+            let (s, c) = b.yaw.sin_cos();
+            let inside = f
+                .lidar
+                .iter()
+                .filter(|p| {
+                    let (dx, dy) = (p[0] - b.center[0], p[1] - b.center[1]);
+                    let (along, across) = (c * dx + s * dy, -s * dx + c * dy);
+                    let dz = p[2] - b.center[2];
+                    along.abs() <= b.wlh[1] / 2.0 + 0.15
+                        && across.abs() <= b.wlh[0] / 2.0 + 0.15
+                        && dz >= -b.wlh[2] / 2.0 + 0.1
+                        && dz <= b.wlh[2] / 2.0 + 0.15
+                })
+                .count();
+            let e = brute.entry(class.to_owned()).or_default();
+            e.0 += 1;
+            e.1 += usize::from(inside >= k as usize);
+        }
+    }
+    assert!(!occ.classes.is_empty());
+    assert!(occ.classes.values().any(|c| (0.1..0.9).contains(&(c.hit as f64 / c.road_users as f64))), "{occ:?}");
+    for (class, o) in &occ.classes {
+        let (n, hit) = brute[class];
+        assert_eq!(n, o.road_users, "{class}: the same road users in range");
+        let (a, b) = (o.hit as f64 / n as f64, hit as f64 / n as f64);
+        eprintln!("{class}: {} road users, hit share {a:.3} (per-ray count) vs {b:.3} (points in boxes)", n);
+        assert!((a - b).abs() <= 0.05, "{class}: {a} vs {b}");
+    }
+}
