@@ -401,6 +401,8 @@ fn score(
         set::LIDAR_COVERAGE,
         set::RADAR_COVERAGE,
         set::CENTRAL_COVERAGE,
+        set::LIDAR_SATURATED,
+        set::RADAR_SATURATED,
         occupancy::HIT_SHARE,
         occupancy::POINTS_PER_USER,
         occupancy::RADAR_SHARE,

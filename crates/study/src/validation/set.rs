@@ -43,6 +43,11 @@ pub const OWN_OBJECTIVE: &str = "objective (offered modalities)";
 pub const LIDAR_COVERAGE: &str = "LiDAR coverage";
 pub const RADAR_COVERAGE: &str = "radar coverage";
 pub const CENTRAL_COVERAGE: &str = "central coverage";
+/// Σ_j w_j min(1, A_j / τ) / Σ_j w_j with A_j a modality's coverage sum Σ −ln(1 − V): coverage
+/// that counts a partly seen target in part and saturates at the paper's threshold; linear in
+/// per-candidate, per-target terms under a cap, so an IP can maximise it.
+pub const LIDAR_SATURATED: &str = "LiDAR coverage (saturated)";
+pub const RADAR_SATURATED: &str = "radar coverage (saturated)";
 
 /// The configurations the set is drawn from: the study's, then the rigs a buyer compares them
 /// with, once each (by sensor counts).
@@ -268,6 +273,15 @@ fn member(
     let has = |m: Modality| sensors.iter().any(|s| s.modality == m);
     let weight: f64 = all.weights.iter().sum::<f64>().max(1e-12);
     let share = |m: Modality| covered_targets(all, &sel_all, m).iter().map(|&j| all.weights[j]).sum::<f64>() / weight;
+    let tau = all.tau();
+    let saturated = |m: Modality| {
+        hilo_placement_ip::instance::modality_coverage(all, &sel_all, m)
+            .iter()
+            .zip(&all.weights)
+            .map(|(a, w)| w * (a / tau).min(1.0))
+            .sum::<f64>()
+            / weight
+    };
     let lidars = sensors
         .iter()
         .filter(|s| s.modality == Modality::Lidar)
@@ -287,6 +301,8 @@ fn member(
         (LIDAR_COVERAGE.to_owned(), Some(share(Modality::Lidar))),
         (RADAR_COVERAGE.to_owned(), Some(share(Modality::Radar))),
         (CENTRAL_COVERAGE.to_owned(), Some(hilo_placement_ip::coverage::share(&central, &hits))),
+        (LIDAR_SATURATED.to_owned(), Some(saturated(Modality::Lidar))),
+        (RADAR_SATURATED.to_owned(), Some(saturated(Modality::Radar))),
     ]);
     let cost_usd =
         sensors.iter().map(|s| study.catalog.get(&s.ty).map(|c| c.price_usd())).sum::<std::result::Result<f64, _>>()?;
