@@ -129,6 +129,9 @@ pub struct Trained {
     pub pedestrian_ap_mean: f64,
     /// Per class, AP averaged over seeds at 2b.
     pub class_ap: BTreeMap<String, f64>,
+    /// mAP and pedestrian AP at 2b (mean over seeds) under each scene-bootstrap replicate.
+    pub map_replicates: Vec<f64>,
+    pub pedestrian_replicates: Vec<f64>,
     pub train_s: f64,
 }
 
@@ -384,6 +387,8 @@ fn score(
             map,
             map_at_b: at_b,
             class_ap,
+            map_replicates: mr.clone(),
+            pedestrian_replicates: pr.clone(),
             train_s,
         });
         map_reps.push(mr);
