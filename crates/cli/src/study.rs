@@ -302,10 +302,20 @@ pub struct ValidateArgs {
     /// The budget b in samples (overrides `validation.samples`): trained to 2b, scored at b and 2b.
     #[arg(long)]
     pub samples: Option<usize>,
+    /// Only fit the calibrated objective again from --out's validation.json (no training).
+    #[arg(long)]
+    pub refit: bool,
 }
 
 /// `hilo validate`: does the placement objective predict trained accuracy?
 pub fn validate(args: &ValidateArgs) -> Result<()> {
+    if args.refit {
+        let report = hilo_study::validation::refit(&args.out)?;
+        for p in hilo_study::validation::write(&args.out, &report)? {
+            eprintln!("wrote {}", p.display());
+        }
+        return Ok(());
+    }
     let registry = crate::train::registry()?;
     let study = load_study(args.study.as_deref())?;
     let profile = hilo_study::profile(&args.profile, &study, &registry)?;
