@@ -310,10 +310,15 @@ fn picture(
     Ok(Some((f, k, boxes)))
 }
 
-/// What the cheapest configuration saves against each other one, as a share of its cost.
+/// What the rig under study (the cheapest configuration with a radar; the cheapest of all when
+/// none has one) saves against each other one, as a share of its cost (negative where it costs
+/// more).
 fn cost_reduction(summaries: &[ConfigSummary]) -> BTreeMap<String, f64> {
     let mut out = BTreeMap::new();
-    if let Some(cheap) = summaries.iter().min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd)) {
+    let cheapest = |radar: bool| {
+        summaries.iter().filter(|s| s.has_radar || !radar).min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd))
+    };
+    if let Some(cheap) = cheapest(true).or_else(|| cheapest(false)) {
         for s in summaries.iter().filter(|s| s.name != cheap.name) {
             out.insert(s.name.clone(), 1.0 - cheap.cost_usd / s.cost_usd);
         }

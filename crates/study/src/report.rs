@@ -434,10 +434,10 @@ fn md_configurations(md: &mut String, r: &Report) {
     if !r.cost_reduction.is_empty() {
         let _ = writeln!(
             md,
-            "\nCost of the cheapest configuration against the others: {}.",
+            "\nCost of the rig under study (the cheapest with a radar) against the others: {}.",
             r.cost_reduction
                 .iter()
-                .map(|(k, v)| format!("−{:.1}% against {k}", v * 100.0))
+                .map(|(k, v)| format!("{:+.1}% against {k}", -v * 100.0))
                 .collect::<Vec<_>>()
                 .join(", ")
         );
@@ -498,12 +498,12 @@ fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
     }
 }
 
-/// The cheapest configuration against the others, and the calibration of the test.
+/// The rig under study against the others, and the calibration of the test.
 fn md_comparisons(md: &mut String, r: &Report) {
     if !r.comparisons.is_empty() {
         let _ = writeln!(
             md,
-            "\n## Is the difference real?\n\nThe cheapest configuration against each other one, per preset: B − A with its 95% interval, whose standard error combines the scene bootstrap (paired: the same traffic) and the pooled seed variance; p Holm-adjusted over every test of this report.\n\n| metric | B | A | B − A [95%] | SE (scenes, seeds) | p | adjusted p |\n|---|---|---|---|---|---:|---:|"
+            "\n## Is the difference real?\n\nThe rig under study (the cheapest configuration with a radar) against each other one, per preset: B − A with its 95% interval, whose standard error combines the scene bootstrap (paired: the same traffic) and the pooled seed variance; p Holm-adjusted over every test of this report.\n\n| metric | B | A | B − A [95%] | SE (scenes, seeds) | p | adjusted p |\n|---|---|---|---|---|---:|---:|"
         );
         for c in &r.comparisons {
             let (est, _) = test_cells(&c.test);

@@ -94,4 +94,10 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
     assert_eq!((a.len(), paper), (prof.presets.len(), Some(0.032)));
     let (a, _, _) = sides("vs_lidar_radar");
     assert!(a.iter().all(|x| x.0 == "1x lidar-64 + radar"));
+    // The confounds: the cheap rig without its radar, and two viewpoints against one.
+    assert_eq!(sides("radar_adds"), (vec![g("2x lidar-16", "centerpoint")], vec![g(cheap, "lirafusion-like")], None));
+    assert_eq!(
+        sides("second_viewpoint"),
+        (vec![g("1x lidar-64", "centerpoint")], vec![g("2x lidar-16", "centerpoint")], None)
+    );
 }
