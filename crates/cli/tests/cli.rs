@@ -226,6 +226,38 @@ fn a_lidar_only_configuration_is_placed_for_its_own_coverage() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// With the calibrated objective and a radar worth nothing to the detectors, the budget buys
+/// LiDARs only; the paper's objective spends it on radars. Without weights it is refused.
+#[test]
+fn a_calibrated_objective_that_prices_radar_at_zero_buys_lidars() {
+    let dir = tempfile::tempdir().unwrap();
+    let budget = "[[configurations]]\nname = \"budget\"\nbudget_usd = 12000.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n";
+    let text = |objective: &str| {
+        format!(
+            "[placement]\ncell_m = 3.0\ntime_limit_s = 20.0\n{objective}\n[placement.candidates]\npole_step_m = 1.5\narm_step_m = 3.0\n{budget}"
+        )
+    };
+    let types = |name: &str, objective: &str| -> Vec<String> {
+        let study = dir.path().join(format!("{name}.toml"));
+        std::fs::write(&study, text(objective)).unwrap();
+        let out = dir.path().join(name);
+        let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let p: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("budget.json")).unwrap()).unwrap();
+        p["sensors"].as_array().unwrap().iter().map(|s| s["type"].as_str().unwrap().to_owned()).collect()
+    };
+    let calibrated = types("calibrated", "objective = \"calibrated\"\ncalibration = { lidar = 0.6, radar = 0.0 }");
+    assert!(calibrated.iter().all(|t| t == "lidar-16") && calibrated.len() == 3, "{calibrated:?}");
+    let paper = types("paper", "");
+    assert!(paper.iter().any(|t| t == "radar-4d"), "{paper:?}");
+    let study = dir.path().join("bad.toml");
+    std::fs::write(&study, text("objective = \"calibrated\"")).unwrap();
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("bad")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("placement.calibration"), "{err}");
+}
+
 #[test]
 fn place_with_bad_configurations_explains_itself() {
     let dir = tempfile::tempdir().unwrap();

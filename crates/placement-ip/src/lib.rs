@@ -6,8 +6,10 @@
 //! - [`instance`]: the problem as solvers see it, and the exact objective of any selection;
 //! - solvers: [`exact`] (branch and bound that proves the paper's count-limited
 //!   configurations optimal), [`mip`] (the IP for CBC, plain or strengthened, any limit),
+//!   [`calibrated`] (the objective `hilo validate` fits to trained accuracy, for CBC),
 //!   [`greedy`] (the baseline), [`exhaustive`] (the oracle on small instances).
 
+pub mod calibrated;
 pub mod candidates;
 pub mod coverage;
 pub mod error;

@@ -127,7 +127,14 @@ pub fn build(inst: &Instance, limit: &Limit, form: Formulation) -> Result<Model,
             nonzeros += 2 * col.len();
         }
     }
-    // Limit.
+    rows += add_limit(&mut problem, inst, limit, &x);
+    Ok(Model { problem, x, t, z, rows, nonzeros })
+}
+
+/// Adds `limit` and one sensor per mount point to `problem` over the option variables `x`;
+/// returns the rows added.
+pub(crate) fn add_limit(problem: &mut CoinCbcProblem, inst: &Instance, limit: &Limit, x: &[Variable]) -> usize {
+    let mut rows = 0usize;
     match limit {
         Limit::Counts(c) => {
             for (ty, &cap) in c.iter().enumerate() {
@@ -171,7 +178,7 @@ pub fn build(inst: &Instance, limit: &Limit, form: Formulation) -> Result<Model,
         problem.add_constraint(e.leq(1.0));
         rows += 1;
     }
-    Ok(Model { problem, x, t, z, rows, nonzeros })
+    rows
 }
 
 /// Solves with CBC within `time_limit_s` (CBC rounds to whole seconds), optionally warm-started

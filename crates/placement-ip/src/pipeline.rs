@@ -27,6 +27,22 @@ pub struct PlacementConfig {
     pub time_limit_s: f64,
     pub candidates: CandidateConfig,
     pub visibility: VisibilityConfig,
+    /// What the solvers maximise: the paper's objective, or the calibrated one
+    /// ([`crate::calibrated`]) with the weights `hilo validate` fitted.
+    pub objective: ObjectiveKind,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<crate::calibrated::Weights>,
+}
+
+/// Which objective placement maximises.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectiveKind {
+    /// The paper's: weighted visibility of the targets every offered modality covers.
+    #[default]
+    Paper,
+    /// Saturated coverage per modality, weighted by measured accuracy (`calibration`).
+    Calibrated,
 }
 
 impl Default for PlacementConfig {
@@ -37,6 +53,8 @@ impl Default for PlacementConfig {
             time_limit_s: 60.0,
             candidates: CandidateConfig::default(),
             visibility: VisibilityConfig::default(),
+            objective: ObjectiveKind::Paper,
+            calibration: None,
         }
     }
 }
@@ -63,6 +81,15 @@ impl Check for PlacementConfig {
         }
         if !(self.time_limit_s >= 0.0 && self.time_limit_s <= 86_400.0) {
             return bad("time_limit_s", self.time_limit_s.to_string(), "must be in [0, 86400] seconds");
+        }
+        match (self.objective, &self.calibration) {
+            (ObjectiveKind::Calibrated, None) => {
+                return Err(PlacementError::Invalid(
+                    "placement.objective = \"calibrated\" needs placement.calibration = { lidar = …, radar = … } (the weights `hilo validate` fits)".into(),
+                ));
+            }
+            (ObjectiveKind::Calibrated, Some(w)) => w.check()?,
+            (ObjectiveKind::Paper, _) => {}
         }
         self.visibility.validate()
     }

@@ -7,7 +7,7 @@ use crate::render::scene_canvas;
 use crate::study::{Configuration, Study};
 use glam::{Vec2, Vec3};
 use hilo_placement_ip::greedy::greedy;
-use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve_from};
+use hilo_placement_ip::pipeline::{ObjectiveKind, Prepared, instance, prepare, solve_from};
 use hilo_placement_ip::{Instance, Limit, Modality, PlacedSensor, Placement};
 use hilo_raycast::scene::config::RoiKind;
 use hilo_raycast::{QueryRegion, World};
@@ -82,8 +82,18 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         let inst = instance(&prep, catalog, &types, cfg.p_min)?;
         let limit = limit_for(conf, &types);
         check_limit(study, conf, &inst, &limit, &prep)?;
-        let g = greedy(&inst, &limit);
-        let o = solve_from(&inst, &limit, cfg.time_limit_s, &g)?;
+        let (g, o) = match (cfg.objective, &cfg.calibration) {
+            (ObjectiveKind::Calibrated, Some(w)) => {
+                let g = hilo_placement_ip::calibrated::greedy(&inst, &limit, w);
+                let o = hilo_placement_ip::calibrated::solve(&inst, &limit, w, cfg.time_limit_s, &g)?;
+                (g, o)
+            }
+            _ => {
+                let g = greedy(&inst, &limit);
+                let o = solve_from(&inst, &limit, cfg.time_limit_s, &g)?;
+                (g, o)
+            }
+        };
         let sensors = placed(&inst, &prep, &o.selection);
         let hits = hits_of(&sensors)?;
         let radar: HashSet<usize> =

@@ -578,6 +578,12 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
         c.covered,
         c.held_out.len()
     ));
+    s.push_str(&format!(
+        "To place with it, in the study file: `[placement]` `objective = \"calibrated\"` and \
+         `calibration = {{ lidar = {:.4}, radar = {:.4} }}`.\n\n",
+        c.weights.first().copied().unwrap_or(0.0),
+        c.weights.get(1).copied().unwrap_or(0.0)
+    ));
     s.push_str("| held-out placement | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
     for h in &c.held_out {
         s.push_str(&format!(
