@@ -34,6 +34,9 @@ pub struct GtBox {
     /// Width, length, height (nuScenes order).
     pub wlh: [f32; 3],
     pub yaw: f32,
+    /// m/s, x y; NaN where it is unknown (an annotation without a neighbour in time: the
+    /// devkit's velocity is NaN there too), which the loss leaves out rather than training
+    /// the box as standing still.
     pub velocity: [f32; 2],
 }
 
@@ -258,7 +261,8 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             let [w, x, y, z] = a.rotation;
             let yaw = (2.0 * (x * y + w * z)).atan2(1.0 - 2.0 * (y * y + z * z)) as f32;
             let v = ds.box_velocity(a);
-            let velocity = if v[0].is_finite() && v[1].is_finite() { [v[0] as f32, v[1] as f32] } else { [0.0, 0.0] };
+            let velocity =
+                if v[0].is_finite() && v[1].is_finite() { [v[0] as f32, v[1] as f32] } else { [f32::NAN; 2] };
             boxes.push(GtBox {
                 class: k,
                 center: a.translation.map(|v| v as f32),

@@ -281,30 +281,41 @@ impl Detector {
         let dev = &self.device;
         let tc = Tensor::from_slice(&t.cls, cls.shape(), dev)?;
         let tr = Tensor::from_slice(&t.reg, reg.shape(), dev)?;
-        let w = [1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2];
-        let (tm, cw) = if cls.rank() == 4 {
+        // Box channels weigh 1, velocity 0.2; velocity only where it is known.
+        let w_box = [1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0];
+        let w_vel = [0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.2, 0.2];
+        let (mask_shape, cw_shape): (Vec<usize>, Vec<usize>) = if cls.rank() == 4 {
             let (b, _, h, wd) = cls.dims4()?;
-            (Tensor::from_slice(&t.mask, (b, 1, h, wd), dev)?, Tensor::from_slice(&w, (1, REG_CHANNELS, 1, 1), dev)?)
+            (vec![b, 1, h, wd], vec![1, REG_CHANNELS, 1, 1])
         } else {
-            (Tensor::from_slice(&t.mask, (cls.dim(0)?, 1), dev)?, Tensor::from_slice(&w, (1, REG_CHANNELS), dev)?)
+            (vec![cls.dim(0)?, 1], vec![1, REG_CHANNELS])
         };
+        let cw_box = Tensor::from_slice(&w_box, cw_shape.as_slice(), dev)?;
+        let cw_vel = Tensor::from_slice(&w_vel, cw_shape.as_slice(), dev)?;
         let (lc, lr) = match self.cfg.loss_norm {
-            LossNorm::All => (
-                match self.cfg.assignment {
-                    Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
-                    Assignment::Inside => sigmoid_focal(cls, &tc, t.num_pos)?,
-                },
-                masked_l1(reg, &tr, &tm, &cw, t.num_pos)?,
-            ),
+            LossNorm::All => {
+                let tm = Tensor::from_slice(&t.mask, mask_shape.as_slice(), dev)?;
+                let vm = Tensor::from_slice(&t.vel_mask, mask_shape.as_slice(), dev)?;
+                (
+                    match self.cfg.assignment {
+                        Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
+                        Assignment::Inside => sigmoid_focal(cls, &tc, t.num_pos)?,
+                    },
+                    (masked_l1(reg, &tr, &tm, &cw_box, t.num_pos)? + masked_l1(reg, &tr, &vm, &cw_vel, t.num_pos)?)?,
+                )
+            }
             LossNorm::PerClass => {
                 let terms = match self.cfg.assignment {
                     Assignment::Center => centernet_focal_terms(cls, &tc)?,
                     Assignment::Inside => sigmoid_focal_terms(cls, &tc)?,
                 };
                 let site_w = t.per_class_site_weights(cls.dim(1)?, cls.rank() == 4);
+                let vel_w: Vec<f32> = site_w.iter().zip(&t.vel_mask).map(|(w, k)| w * k).collect();
+                let sw = Tensor::from_vec(site_w, mask_shape.as_slice(), dev)?;
+                let vw = Tensor::from_vec(vel_w, mask_shape.as_slice(), dev)?;
                 (
                     per_class_mean(&terms, &t.pos_per_class)?,
-                    masked_l1(reg, &tr, &Tensor::from_vec(site_w, tm.shape(), dev)?, &cw, 1.0)?,
+                    (masked_l1(reg, &tr, &sw, &cw_box, 1.0)? + masked_l1(reg, &tr, &vw, &cw_vel, 1.0)?)?,
                 )
             }
         };

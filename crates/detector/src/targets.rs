@@ -6,12 +6,16 @@ use crate::modules::REG_CHANNELS;
 pub use hilo_fusion::config::Assignment;
 
 /// Targets of a batch: class map (B, K, H, W), regression (B, 10, H, W), positive mask
-/// (B, 1, H, W), all row-major, and the number of positives, in all and per class.
+/// (B, 1, H, W), the mask of positives whose velocity is known (B, 1, H, W), all row-major,
+/// and the number of positives, in all and per class.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Targets {
     pub cls: Vec<f32>,
     pub reg: Vec<f32>,
     pub mask: Vec<f32>,
+    /// 1 at a positive cell whose box's velocity is known, else 0: the velocity channels'
+    /// loss is masked by it (an unknown velocity is not trained as zero).
+    pub vel_mask: Vec<f32>,
     pub num_pos: f32,
     /// Positives per class (their sum is `num_pos`).
     pub pos_per_class: Vec<f32>,
@@ -29,6 +33,7 @@ impl Targets {
             cls: Vec::with_capacity(sites.len() * classes),
             reg: Vec::with_capacity(sites.len() * REG_CHANNELS),
             mask: Vec::with_capacity(sites.len()),
+            vel_mask: Vec::with_capacity(sites.len()),
             num_pos: self.num_pos,
             pos_per_class: self.pos_per_class.clone(),
             size: self.size,
@@ -42,6 +47,7 @@ impl Targets {
                 t.reg.push(self.reg[(b * REG_CHANNELS + ch) * hw + rc]);
             }
             t.mask.push(self.mask[b * hw + rc]);
+            t.vel_mask.push(self.vel_mask[b * hw + rc]);
         }
         t
     }
@@ -86,6 +92,7 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
         cls: vec![0.0; b * classes * hw],
         reg: vec![0.0; b * REG_CHANNELS * hw],
         mask: vec![0.0; b * hw],
+        vel_mask: vec![0.0; b * hw],
         num_pos: 0.0,
         pos_per_class: vec![0.0; classes],
         size: n,
@@ -98,6 +105,8 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
                 continue;
             }
             let (ci, ri) = (u as usize, v as usize);
+            let known = g.velocity.iter().all(|v| v.is_finite());
+            let vel = if known { g.velocity } else { [0.0; 2] };
             let put_reg = |t: &mut Targets, r: usize, c: usize| {
                 let base = bi * REG_CHANNELS * hw + r * n + c;
                 let vals = [
@@ -109,8 +118,8 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
                     g.wlh[2].max(0.05).ln(),
                     g.yaw.sin(),
                     g.yaw.cos(),
-                    g.velocity[0],
-                    g.velocity[1],
+                    vel[0],
+                    vel[1],
                 ];
                 for (k, val) in vals.iter().enumerate() {
                     t.reg[base + k * hw] = *val;
@@ -120,6 +129,7 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
                     t.pos_per_class[g.class] += 1.0;
                 }
                 t.mask[bi * hw + r * n + c] = 1.0;
+                t.vel_mask[bi * hw + r * n + c] = if known { 1.0 } else { 0.0 };
             };
             let cls_base = bi * classes * hw + g.class * hw;
             match how {

@@ -185,6 +185,49 @@ fn per_class_normalisation_weighs_every_class_alike() {
     }
 }
 
+/// A box whose velocity is unknown (NaN: no neighbour in time) trains its box but not its
+/// velocity: the targets mark it, and the loss does not move when the predicted velocity at its
+/// cell changes, while it does at a box whose velocity is known. Both normalisations, dense
+/// maps and sparse sites.
+#[test]
+fn unknown_velocity_is_masked_out_of_the_loss() {
+    let mut still = car(-6.0, 6.0, 2.0);
+    still.velocity = [f32::NAN; 2];
+    let frames = vec![frame(4, &[car(4.0, 3.0, 0.3), still])];
+    for cfg in [dense("centerpoint"), small("centerpoint")] {
+        let b = HostBatch::new(&cfg, &frames, false, 0);
+        let t = &b.targets;
+        assert!(t.reg.iter().all(|v| v.is_finite()));
+        let (pos, known) =
+            (t.mask.iter().filter(|m| **m > 0.0).count(), t.vel_mask.iter().filter(|m| **m > 0.0).count());
+        assert_eq!((pos, known), (2, 1), "two centres, one with a known velocity");
+        for norm in [LossNorm::All, LossNorm::PerClass] {
+            let c = DetectorConfig { loss_norm: norm, ..cfg.clone() };
+            let det = build(&c, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
+            let (cls, reg) = det.forward(&b, true).unwrap();
+            let base = det.loss(&cls, &reg, t).unwrap().reg;
+            // Adds 5 m/s to the predicted velocity channels at the cells where `pick` holds.
+            let nudge = |pick: &dyn Fn(usize) -> bool| -> f32 {
+                let mut v: Vec<f32> = reg.flatten_all().unwrap().to_vec1().unwrap();
+                let cells = t.mask.len();
+                let dense = reg.rank() == 4;
+                for i in (0..cells).filter(|&i| t.mask[i] > 0.0 && pick(i)) {
+                    for ch in 8..10 {
+                        let at = if dense { ch * cells + i } else { i * 10 + ch };
+                        v[at] += 5.0;
+                    }
+                }
+                let r = Tensor::from_vec(v, reg.shape(), &Device::Cpu).unwrap();
+                det.loss(&cls, &r, t).unwrap().reg
+            };
+            let unknown = nudge(&|i| t.vel_mask[i] == 0.0);
+            let known = nudge(&|i| t.vel_mask[i] > 0.0);
+            assert!((unknown - base).abs() <= 1e-6 * base.abs().max(1.0), "{norm:?}: {base} → {unknown}");
+            assert!((known - base).abs() > 0.01, "{norm:?}: {base} → {known}");
+        }
+    }
+}
+
 #[test]
 fn empty_clouds_and_frames_without_boxes_give_finite_losses() {
     let cfg = small("centerpoint");
