@@ -13,8 +13,10 @@
 //! are sized for two CPU cores; how they were chosen, with the measurements, is in the
 //! repository's `docs/measurements.md`.
 //!
-//! The fusion crate's modules are re-exported here, so that `hilo_fusion::grid` and
-//! `hilo_fusion::grid` name the same thing.
+//! The fusion crate's modules are re-exported here, so that `hilo_detector::grid` and
+//! `hilo_fusion::grid` name the same thing. A road user whose velocity is unknown (no
+//! annotation of it before or after the frame) trains its box and not its velocity
+//! ([`targets::Targets::vel_mask`]), as the devkit leaves it out of AVE.
 
 pub mod conformance;
 pub mod data;
