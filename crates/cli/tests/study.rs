@@ -45,7 +45,7 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
             .all(|e| e["class_ap"].as_object().unwrap().len() == 6 && e["visible_only"]["mean_ap"].is_number())
     );
     assert_eq!(json["ground_truth"], "common");
-    assert_eq!(json["claims"].as_array().unwrap().len(), 8);
+    assert_eq!(json["claims"].as_array().unwrap().len(), 10);
     assert!(json["calibration"]["pairs"].as_u64().unwrap() >= 4);
     assert!(json["learning_curves"].as_array().unwrap().iter().all(|c| c["points"].as_array().unwrap().len() == 2));
     assert!(json["provenance"]["hilo_version"].is_string() && json["provenance"]["cpu_features"].is_array());

@@ -29,7 +29,8 @@ use std::collections::{BTreeMap, BTreeSet};
 pub struct Member {
     /// File-name-safe and unique: `m<k>-<kind>-<configuration slug>`.
     pub slug: String,
-    /// optimum, greedy, perturbed or random.
+    /// optimum (proven), best-found (a solve stopped at its time limit), greedy, perturbed or
+    /// random.
     pub kind: String,
     pub configuration: String,
     pub placement: Placement,
@@ -148,7 +149,9 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
             if o.proven_optimal { "proven".to_owned() } else { format!("gap {:.1}%", 100.0 * o.gap) },
             g.objective
         ));
-        push("optimum", &conf.name, sensors_of(&inst, &prep, &o.selection), o.proven_optimal, &mut drawn);
+        // An unproven solve (stopped at the time limit) is the best found, not an optimum.
+        let kind = if o.proven_optimal { "optimum" } else { "best-found" };
+        push(kind, &conf.name, sensors_of(&inst, &prep, &o.selection), o.proven_optimal, &mut drawn);
         push("greedy", &conf.name, sensors_of(&inst, &prep, &g.selection), false, &mut drawn);
         if matches!(limit, Limit::Counts(_)) {
             optima.push((ci, inst, limit, o.selection));
@@ -316,7 +319,7 @@ fn member(
         proven_optimal: proven,
         solve_seconds: 0.0,
         method: format!("{kind} placement of {conf:?} (validation set)"),
-        solved: kind == "optimum",
+        solved: kind == "optimum" || kind == "best-found",
         greedy_objective: 0.0,
         central_coverage: predictors[CENTRAL_COVERAGE].unwrap_or(0.0),
         lidar_radar_overlap: 0.0,
