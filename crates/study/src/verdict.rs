@@ -798,8 +798,12 @@ mod tests {
         let mut claims = d.claims();
         let mut comps = d.comparisons();
         adjust(&mut claims, &mut comps, 0.05, 0.02);
-        assert_eq!(claims.len(), 8);
+        assert_eq!(claims.len(), 10);
         let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap();
+        // The confounds: the one LiDAR-only rig against the fused cheap rig; two viewpoints need
+        // two LiDAR-only rigs.
+        assert!((by("radar_adds").rows[0].test.estimate - 0.2).abs() < 1e-9);
+        assert!(by("second_viewpoint").not_tested.is_some());
         // lf on 2x16+R (0.804) against cp on 64 (0.604).
         assert!((by("vs_lidar_alone").rows[0].test.estimate - 0.2).abs() < 1e-9);
         assert_eq!(by("vs_lidar_alone").verdict, Verdict::Supported);
