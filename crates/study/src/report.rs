@@ -527,7 +527,7 @@ fn md_comparisons(md: &mut String, r: &Report) {
     let sv = cal.seed_variance.get("mAP");
     let _ = writeln!(
         md,
-        "\n## Calibration of the test\n\nOn {} A/A pairs (two seeds of one configuration and preset, and the LiDAR-only preset on the two rigs that see the same LiDAR data), each tested with the seed variance of the other groups only (so the test is not calibrated by the pairs it judges), the test called {} significant at α = {}: a false-positive rate of {:.3} [{:.3}, {:.3}] (exact 95% interval). A planted degradation ({:.0}% of every detector's boxes dropped, a mean mAP change of {:+.3}) was found in {:.0}% of {} groups. Seed standard deviation of mAP (pooled over every group): {:.4} ({} degrees of freedom).\n",
+        "\n## Calibration of the test\n\nOn {} A/A pairs (two seeds of one configuration and preset), each tested with the seed variance of the other groups only (so the test is not calibrated by the pairs it judges), the test called {} significant at α = {}: a false-positive rate of {:.3} [{:.3}, {:.3}] (exact 95% interval). A planted degradation ({:.0}% of every detector's boxes dropped, a mean mAP change of {:+.3}) was found in {:.0}% of {} groups. Seed standard deviation of mAP (pooled over every group): {:.4} ({} degrees of freedom).\n",
         cal.pairs,
         cal.false_positives,
         cal.alpha,
