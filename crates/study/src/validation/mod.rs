@@ -15,9 +15,11 @@
 //! training would?).
 //!
 //! A calibrated objective ([`calibrate`]) is fitted to these measurements on half of the set
-//! and scored on the other half. What it leaves out: placing with the calibrated objective (the
-//! IP still maximises the paper's), and a workflow-engine form of its jobs (it runs in one
-//! process and resumes from its folder).
+//! and scored on the other half; `[placement] objective = "calibrated"` places with it
+//! ([`hilo_placement_ip::calibrated`]). What it leaves out: training the calibrated placement to
+//! check its prediction, and a workflow-engine form of its jobs (it runs in one process and
+//! resumes from its folder; its stage folders are named by hashes that include the code, so a
+//! run is resumed by the same build).
 //!
 //! Layout of its folder (every stage resumable; a stage's folder is named by the hash of
 //! what decides it):
