@@ -205,16 +205,7 @@ pub fn solve(
         start,
         "CBC, calibrated objective",
     );
-    Ok(if out.objective + 1e-12 < warm.objective {
-        Outcome {
-            selection: warm.selection.clone(),
-            objective: warm.objective,
-            gap: (out.bound - warm.objective) / warm.objective.max(1e-9),
-            ..out
-        }
-    } else {
-        out
-    })
+    Ok(out.no_worse_than(warm, 1e-12))
 }
 
 #[cfg(test)]

@@ -258,6 +258,22 @@ pub struct Outcome {
 }
 
 impl Outcome {
+    /// This outcome, or `warm`'s selection and objective (with this outcome's bound) where this
+    /// one is worse by more than `tol`: a solver warm-started from `warm` and stopped early may
+    /// return less than it was given.
+    pub fn no_worse_than(self, warm: &Outcome, tol: f64) -> Outcome {
+        if self.objective + tol < warm.objective {
+            Outcome {
+                selection: warm.selection.clone(),
+                objective: warm.objective,
+                gap: (self.bound - warm.objective) / warm.objective.max(1e-9),
+                ..self
+            }
+        } else {
+            self
+        }
+    }
+
     pub fn new(inst: &Instance, selection: Vec<usize>, bound: f64, proven: bool, seconds: f64, method: &str) -> Self {
         let objective = evaluate(inst, &selection);
         let bound = if proven { objective } else { bound.max(objective) };

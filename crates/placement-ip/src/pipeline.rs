@@ -257,14 +257,5 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
     }
     let out = solve_mip(inst, limit, Formulation::Strengthened, left, Some(&g.selection))?;
     // CBC may stop with something worse than its warm start: never return less than greedy.
-    Ok(if out.objective + 1e-9 < g.objective {
-        Outcome {
-            selection: g.selection.clone(),
-            objective: g.objective,
-            gap: (out.bound - g.objective) / g.objective.max(1e-9),
-            ..out
-        }
-    } else {
-        out
-    })
+    Ok(out.no_worse_than(g, 1e-9))
 }

@@ -36,7 +36,8 @@ pub fn limit_for(cfg: &Configuration, types: &[String]) -> Limit {
     }
 }
 
-fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
+/// The sensors an instance's selection places (type, candidate, structure, pose).
+pub(crate) fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
     sel.iter()
         .map(|&o| {
             let opt = &inst.options[o];
@@ -44,6 +45,29 @@ fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> 
             PlacedSensor::new(&inst.types[opt.ty].name, c.modality, c.id, &c.structure, c.pose)
         })
         .collect()
+}
+
+/// The targets in the scene's central ROIs (where the paper's central coverage is measured).
+pub(crate) fn central_targets(study: &Study, prep: &Prepared) -> Vec<usize> {
+    let central_roi: Vec<usize> =
+        study.scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
+    (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect()
+}
+
+/// The targets the placed LiDARs hit with a ray (ideal scans of the static `world`).
+pub(crate) fn lidar_hits(
+    study: &Study,
+    world: &World,
+    prep: &Prepared,
+    cell_m: f32,
+    sensors: &[PlacedSensor],
+) -> Result<HashSet<usize>> {
+    let lidars = sensors
+        .iter()
+        .filter(|s| s.modality == Modality::Lidar)
+        .map(|s| Ok((study.catalog.lidar(&s.ty)?.clone(), s.pose)))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(hilo_placement_ip::coverage::lidar_hit_targets(&study.scene, world, &prep.targets, cell_m, &lidars)?)
 }
 
 /// Visibility of every sensor type of the study.
@@ -57,18 +81,8 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
     let catalog = &study.catalog;
     let cfg = &study.placement;
     let world = World::build(scene, &QueryRegion::everything())?;
-    let central_roi: Vec<usize> =
-        scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
-    let central: Vec<usize> =
-        (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect();
-    let hits_of = |sensors: &[PlacedSensor]| -> Result<HashSet<usize>> {
-        let lidars = sensors
-            .iter()
-            .filter(|s| s.modality == Modality::Lidar)
-            .map(|s| Ok((catalog.lidar(&s.ty)?.clone(), s.pose)))
-            .collect::<Result<Vec<_>>>()?;
-        Ok(hilo_placement_ip::coverage::lidar_hit_targets(scene, &world, &prep.targets, cfg.cell_m, &lidars)?)
-    };
+    let central = central_targets(study, &prep);
+    let hits_of = |sensors: &[PlacedSensor]| lidar_hits(study, &world, &prep, cfg.cell_m, sensors);
     struct Out {
         placements: Vec<Placement>,
         lidar_hits: Vec<HashSet<usize>>,

@@ -11,13 +11,13 @@
 
 use super::ValidationSettings;
 use crate::error::{Result, StudyError};
-use crate::place::limit_for;
+use crate::place::{central_targets, lidar_hits, limit_for, placed};
 use crate::study::{Configuration, Study};
+use hilo_placement_ip::calibrated;
 use hilo_placement_ip::greedy::greedy;
 use hilo_placement_ip::instance::{covered_targets, evaluate};
 use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve_from};
 use hilo_placement_ip::{Instance, Limit, Modality, PlacedSensor, Placement};
-use hilo_raycast::scene::config::RoiKind;
 use hilo_raycast::{QueryRegion, World};
 use hilo_sensor_models::SensorSpec;
 use rand::{Rng, SeedableRng};
@@ -151,8 +151,8 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
         ));
         // An unproven solve (stopped at the time limit) is the best found, not an optimum.
         let kind = if o.proven_optimal { "optimum" } else { "best-found" };
-        push(kind, &conf.name, sensors_of(&inst, &prep, &o.selection), o.proven_optimal, &mut drawn);
-        push("greedy", &conf.name, sensors_of(&inst, &prep, &g.selection), false, &mut drawn);
+        push(kind, &conf.name, placed(&inst, &prep, &o.selection), o.proven_optimal, &mut drawn);
+        push("greedy", &conf.name, placed(&inst, &prep, &g.selection), false, &mut drawn);
         if matches!(limit, Limit::Counts(_)) {
             optima.push((ci, inst, limit, o.selection));
         }
@@ -168,7 +168,7 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
         };
         attempts += 1;
         if let Some(sel) = sel {
-            push(kind, &confs[*ci].name, sensors_of(inst, &prep, &sel), false, &mut drawn);
+            push(kind, &confs[*ci].name, placed(inst, &prep, &sel), false, &mut drawn);
         }
     }
     if drawn.len() < v.placements {
@@ -179,24 +179,20 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
             v.placements
         )));
     }
-    let world = World::build(&study.scene, &QueryRegion::everything())?;
-    let all = instance(&prep, &study.catalog, &types, pc.p_min)?;
+    let mut ctx = Context {
+        study,
+        world: World::build(&study.scene, &QueryRegion::everything())?,
+        all: instance(&prep, &study.catalog, &types, pc.p_min)?,
+        central: central_targets(study, &prep),
+        own: BTreeMap::new(),
+        prep: &prep,
+        cell_m: pc.cell_m,
+        p_min: pc.p_min,
+    };
     drawn
         .into_iter()
         .enumerate()
-        .map(|(k, (kind, conf, sensors, proven))| {
-            member(study, &prep, &world, &all, k, &kind, &conf, sensors, proven, pc.cell_m, pc.p_min)
-        })
-        .collect()
-}
-
-fn sensors_of(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
-    sel.iter()
-        .map(|&o| {
-            let opt = &inst.options[o];
-            let c = &prep.candidates[opt.candidate as usize];
-            PlacedSensor::new(&inst.types[opt.ty].name, c.modality, c.id, &c.structure, c.pose)
-        })
+        .map(|(k, (kind, conf, sensors, proven))| ctx.member(k, &kind, &conf, sensors, proven))
         .collect()
 }
 
@@ -253,81 +249,82 @@ fn selection(inst: &Instance, sensors: &[PlacedSensor]) -> Vec<usize> {
         .collect()
 }
 
-#[allow(clippy::too_many_arguments)]
-fn member(
-    study: &Study,
-    prep: &Prepared,
-    world: &World,
-    all: &Instance,
-    k: usize,
-    kind: &str,
-    conf: &str,
-    sensors: Vec<PlacedSensor>,
-    proven: bool,
+/// What every member's predictors are computed from, once for the set.
+struct Context<'a> {
+    study: &'a Study,
+    prep: &'a Prepared,
+    world: World,
+    /// The instance over every type of the study (the paper's objective asks for both
+    /// modalities there).
+    all: Instance,
+    central: Vec<usize>,
+    /// The instance over each set of types a member uses (its own objective), built once.
+    own: BTreeMap<Vec<String>, Instance>,
     cell_m: f32,
     p_min: f64,
-) -> Result<Member> {
-    let mut own_types: Vec<String> = sensors.iter().map(|s| s.ty.clone()).collect();
-    own_types.sort();
-    own_types.dedup();
-    let own = instance(prep, &study.catalog, &own_types, p_min)?;
-    let sel_own = selection(&own, &sensors);
-    let sel_all = selection(all, &sensors);
-    let has = |m: Modality| sensors.iter().any(|s| s.modality == m);
-    let weight: f64 = all.weights.iter().sum::<f64>().max(1e-12);
-    let share = |m: Modality| covered_targets(all, &sel_all, m).iter().map(|&j| all.weights[j]).sum::<f64>() / weight;
-    let tau = all.tau();
-    let saturated = |m: Modality| {
-        hilo_placement_ip::instance::modality_coverage(all, &sel_all, m)
+}
+
+impl Context<'_> {
+    fn member(&mut self, k: usize, kind: &str, conf: &str, sensors: Vec<PlacedSensor>, proven: bool) -> Result<Member> {
+        let (study, prep, all) = (self.study, self.prep, &self.all);
+        let mut own_types: Vec<String> = sensors.iter().map(|s| s.ty.clone()).collect();
+        own_types.sort();
+        own_types.dedup();
+        if !self.own.contains_key(&own_types) {
+            let inst = instance(prep, &study.catalog, &own_types, self.p_min)?;
+            self.own.insert(own_types.clone(), inst);
+        }
+        let own = &self.own[&own_types];
+        let sel_own = selection(own, &sensors);
+        let sel_all = selection(all, &sensors);
+        let has = |m: Modality| sensors.iter().any(|s| s.modality == m);
+        let weight: f64 = all.weights.iter().sum::<f64>().max(1e-12);
+        let share =
+            |m: Modality| covered_targets(all, &sel_all, m).iter().map(|&j| all.weights[j]).sum::<f64>() / weight;
+        // The calibrated objective's terms, one modality at a time.
+        let saturated =
+            |lidar: f64, radar: f64| calibrated::evaluate(all, &sel_all, &calibrated::Weights { lidar, radar });
+        let hits = lidar_hits(study, &self.world, prep, self.cell_m, &sensors)?;
+        let central = &self.central;
+        let own_objective = evaluate(own, &sel_own);
+        let predictors = BTreeMap::from([
+            // The paper's objective reads literally: targets seen by both modalities; undefined
+            // (zero whatever the poses) for a rig of one modality.
+            (
+                PAPER_OBJECTIVE.to_owned(),
+                (has(Modality::Lidar) && has(Modality::Radar)).then(|| evaluate(all, &sel_all)),
+            ),
+            (OWN_OBJECTIVE.to_owned(), Some(own_objective)),
+            (LIDAR_COVERAGE.to_owned(), Some(share(Modality::Lidar))),
+            (RADAR_COVERAGE.to_owned(), Some(share(Modality::Radar))),
+            (CENTRAL_COVERAGE.to_owned(), Some(hilo_placement_ip::coverage::share(central, &hits))),
+            (LIDAR_SATURATED.to_owned(), Some(saturated(1.0, 0.0))),
+            (RADAR_SATURATED.to_owned(), Some(saturated(0.0, 1.0))),
+        ]);
+        let cost_usd = sensors
             .iter()
-            .zip(&all.weights)
-            .map(|(a, w)| w * (a / tau).min(1.0))
-            .sum::<f64>()
-            / weight
-    };
-    let lidars = sensors
-        .iter()
-        .filter(|s| s.modality == Modality::Lidar)
-        .map(|s| Ok((study.catalog.lidar(&s.ty)?.clone(), s.pose)))
-        .collect::<Result<Vec<_>>>()?;
-    let hits = hilo_placement_ip::coverage::lidar_hit_targets(&study.scene, world, &prep.targets, cell_m, &lidars)?;
-    let central_roi: Vec<usize> =
-        study.scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
-    let central: Vec<usize> =
-        (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect();
-    let own_objective = evaluate(&own, &sel_own);
-    let predictors = BTreeMap::from([
-        // The paper's objective reads literally: targets seen by both modalities; undefined
-        // (zero whatever the poses) for a rig of one modality.
-        (PAPER_OBJECTIVE.to_owned(), (has(Modality::Lidar) && has(Modality::Radar)).then(|| evaluate(all, &sel_all))),
-        (OWN_OBJECTIVE.to_owned(), Some(own_objective)),
-        (LIDAR_COVERAGE.to_owned(), Some(share(Modality::Lidar))),
-        (RADAR_COVERAGE.to_owned(), Some(share(Modality::Radar))),
-        (CENTRAL_COVERAGE.to_owned(), Some(hilo_placement_ip::coverage::share(&central, &hits))),
-        (LIDAR_SATURATED.to_owned(), Some(saturated(Modality::Lidar))),
-        (RADAR_SATURATED.to_owned(), Some(saturated(Modality::Radar))),
-    ]);
-    let cost_usd =
-        sensors.iter().map(|s| study.catalog.get(&s.ty).map(|c| c.price_usd())).sum::<std::result::Result<f64, _>>()?;
-    let slug = format!("m{k:02}-{kind}-{}", crate::study::slug(conf));
-    let placement = Placement {
-        name: slug.clone(),
-        sensors,
-        objective: own_objective,
-        bound: if proven { own_objective } else { f64::INFINITY },
-        gap: if proven { 0.0 } else { f64::INFINITY },
-        proven_optimal: proven,
-        solve_seconds: 0.0,
-        method: format!("{kind} placement of {conf:?} (validation set)"),
-        solved: kind == "optimum" || kind == "best-found",
-        greedy_objective: 0.0,
-        central_coverage: predictors[CENTRAL_COVERAGE].unwrap_or(0.0),
-        lidar_radar_overlap: 0.0,
-        cost_usd,
-        targets: prep.targets.len(),
-        candidates: prep.candidates.len(),
-        scene_hash: study.scene_hash.clone(),
-        catalog_hash: study.catalog_hash.clone(),
-    };
-    Ok(Member { slug, kind: kind.to_owned(), configuration: conf.to_owned(), placement, predictors })
+            .map(|s| study.catalog.get(&s.ty).map(|c| c.price_usd()))
+            .sum::<std::result::Result<f64, _>>()?;
+        let slug = format!("m{k:02}-{kind}-{}", crate::study::slug(conf));
+        let placement = Placement {
+            name: slug.clone(),
+            sensors,
+            objective: own_objective,
+            bound: if proven { own_objective } else { f64::INFINITY },
+            gap: if proven { 0.0 } else { f64::INFINITY },
+            proven_optimal: proven,
+            solve_seconds: 0.0,
+            method: format!("{kind} placement of {conf:?} (validation set)"),
+            solved: kind == "optimum" || kind == "best-found",
+            greedy_objective: 0.0,
+            central_coverage: predictors[CENTRAL_COVERAGE].unwrap_or(0.0),
+            lidar_radar_overlap: 0.0,
+            cost_usd,
+            targets: prep.targets.len(),
+            candidates: prep.candidates.len(),
+            scene_hash: study.scene_hash.clone(),
+            catalog_hash: study.catalog_hash.clone(),
+        };
+        Ok(Member { slug, kind: kind.to_owned(), configuration: conf.to_owned(), placement, predictors })
+    }
 }
