@@ -83,12 +83,25 @@ pub fn simulate(
         )));
     }
     let placement = Placement::load(&ppath)?;
-    let cfg = &plan.profile.dataset;
+    record_dataset(study, &placement, &ppath, &plan.profile.dataset, stage, &conf.name, progress)
+}
+
+/// Records `placement`'s dataset into `stage` (resumable scene by scene) and writes the stage's
+/// completion record; `name` labels the progress and the record.
+pub fn record_dataset(
+    study: &Study,
+    placement: &Placement,
+    ppath: &std::path::Path,
+    cfg: &hilo_core::Valid<hilo_dataset::simulate::SimulateConfig>,
+    stage: &crate::plan::DataStage,
+    name: &str,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<DataRecord> {
     let total = cfg.total_frames();
-    let label = format!("dataset {}", conf.name);
+    let label = format!("dataset {name}");
     let summary = {
         let cell = Mutex::new(&mut *progress);
-        crate::rig::simulate(study, &placement, &ppath, cfg, &stage.dir, "v1.0-trainval", &|done| {
+        crate::rig::simulate(study, placement, ppath, cfg, &stage.dir, "v1.0-trainval", &|done| {
             if let Ok(mut f) = cell.lock() {
                 f(Progress::Task { label: &label, done, total, unit: "frames" })
             }
@@ -96,11 +109,11 @@ pub fn simulate(
     };
     progress(Progress::TaskDone);
     progress(Progress::Stage(&format!(
-        "dataset {}: {} key frames, {} annotations ({} scenes resumed)",
-        conf.name, summary.frames, summary.annotations, summary.resumed_scenes
+        "dataset {name}: {} key frames, {} annotations ({} scenes resumed)",
+        summary.frames, summary.annotations, summary.resumed_scenes
     )));
     let record =
-        DataRecord { configuration: conf.name.clone(), frames: summary.frames, annotations: summary.annotations };
+        DataRecord { configuration: name.to_owned(), frames: summary.frames, annotations: summary.annotations };
     write_json(&stage.done(), &record)?;
     Ok(record)
 }

@@ -42,7 +42,7 @@ use crate::gt::{GtKind, SampleKey, ground_truth, rekey};
 use crate::plan::{DataStage, Job, Provenance, short, stage_hash};
 use crate::profile::Profile;
 use crate::rank::{Agreement, agreement};
-use crate::stages::{DataRecord, Predictions, Progress};
+use crate::stages::{Predictions, Progress};
 use crate::stats::scene_draws;
 use crate::study::Study;
 use hilo_core::fs::{limit, read_json, write_json};
@@ -251,21 +251,7 @@ pub fn run(
             continue;
         }
         let ppath = set_dir.join(format!("{}.json", m.slug));
-        let total = profile.dataset.total_frames();
-        let label = format!("dataset {}", m.slug);
-        let summary = {
-            let cell = std::sync::Mutex::new(&mut *progress);
-            crate::rig::simulate(study, &m.placement, &ppath, &profile.dataset, &d.dir, "v1.0-trainval", &|done| {
-                if let Ok(mut f) = cell.lock() {
-                    f(Progress::Task { label: &label, done, total, unit: "frames" })
-                }
-            })?
-        };
-        progress(Progress::TaskDone);
-        write_json(
-            &d.done(),
-            &DataRecord { configuration: m.slug.clone(), frames: summary.frames, annotations: summary.annotations },
-        )?;
+        crate::stages::record_dataset(study, &m.placement, &ppath, &profile.dataset, d, &m.slug, progress)?;
     }
     // 3. Training: 2b samples per seed, weights kept at b.
     let jobs = jobs(&members, &data, registry, profile, settings, out)?;
