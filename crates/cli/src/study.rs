@@ -302,7 +302,8 @@ pub struct ValidateArgs {
     /// The budget b in samples (overrides `validation.samples`): trained to 2b, scored at b and 2b.
     #[arg(long)]
     pub samples: Option<usize>,
-    /// Only fit the calibrated objective again from --out's validation.json (no training).
+    /// Only compute the placement predictors and fit the calibrated objective again from
+    /// --out's validation.json (no simulation, no training; the study must be the one validated).
     #[arg(long)]
     pub refit: bool,
 }
@@ -310,7 +311,8 @@ pub struct ValidateArgs {
 /// `hilo validate`: does the placement objective predict trained accuracy?
 pub fn validate(args: &ValidateArgs) -> Result<()> {
     if args.refit {
-        let report = hilo_study::validation::refit(&args.out)?;
+        let study = load_study(args.study.as_deref())?;
+        let report = hilo_study::validation::refit(&study, &args.out)?;
         for p in hilo_study::validation::write(&args.out, &report)? {
             eprintln!("wrote {}", p.display());
         }

@@ -1,13 +1,18 @@
 //! The calibrated objective: accuracy predicted from saturated coverage, weighted per modality
 //! by what trained detectors measured (`hilo validate` fits the weights).
 //!
-//! f(S) = Σ_j (w_j / W) (β_L min(1, A_Lj / τ) + β_R min(1, A_Rj / τ)), with A_mj = Σ_{o ∈ S_m}
-//! −ln(1 − V_oj), W = Σ_j w_j and β_L, β_R ≥ 0: a target partly seen counts in part, and a
-//! modality the detectors gain nothing from (β = 0) is worth nothing to the optimiser. As an IP:
-//! maximise Σ_j (w_j / W)(β_L z_Lj + β_R z_Rj) with 0 ≤ z_mj ≤ 1, z_mj ≤ Σ_{o ∈ m} (a_oj / τ) x_o,
-//! the limit and one sensor per mount; z needs no integrality (with β ≥ 0 the optimum sets each
-//! z to its cap). f is monotone and submodular, so greedy is a (1 − 1/e)-approximation under a
-//! count limit; CBC, warm-started from greedy, closes or bounds the gap.
+//! f(S) = Σ_m Σ_{k ∈ {1, 2}} β_mk Σ_j (w_j / W) min(1, s_mj / k), with s_mj = Σ_{o ∈ S_m}
+//! min(1, a_oj / τ), a_oj = −ln(1 − V_oj), W = Σ_j w_j and β_mk ≥ 0. The k = 1 term is the
+//! paper's coverage made partial (a target partly seen counts in part; min(1, s) = min(1, Σ a / τ));
+//! the k = 2 term counts a target fully only when two sensors each see it well, so it pays for
+//! the second viewpoint (other sides of a road user, views past occluders) that one denser
+//! sensor cannot give. A modality the detectors gain nothing from (β = 0) is worth nothing to
+//! the optimiser. As an IP: maximise Σ_mkj β_mk (w_j / W) z_mkj with 0 ≤ z_mkj ≤ 1 and
+//! z_mkj ≤ Σ_{o ∈ m} (min(1, a_oj / τ) / k) x_o, the limit and one sensor per mount; z needs
+//! no integrality (with β ≥ 0 the optimum sets each z to its cap). f is monotone and submodular
+//! (a non-negative sum of concave functions of modular sums), so greedy is a
+//! (1 − 1/e)-approximation under a count limit; CBC, warm-started from greedy, closes or bounds
+//! the gap.
 
 use crate::candidates::Modality;
 use crate::error::PlacementError;
@@ -20,34 +25,52 @@ use good_lp::{
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
-/// The per-modality weights (mAP per unit of saturated coverage).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+/// The weights (mAP per unit of saturated coverage): per modality, of the coverage term and of
+/// the two-view term (`lidar_two_views`, `radar_two_views`; 0 when absent).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Weights {
     pub lidar: f64,
     pub radar: f64,
+    #[serde(default)]
+    pub lidar_two_views: f64,
+    #[serde(default)]
+    pub radar_two_views: f64,
 }
 
 impl Weights {
-    fn of(&self, m: Modality) -> f64 {
-        match m {
-            Modality::Lidar => self.lidar,
-            Modality::Radar => self.radar,
-        }
+    /// Only the terms saturating at τ.
+    pub fn once(lidar: f64, radar: f64) -> Self {
+        Weights { lidar, radar, ..Weights::default() }
+    }
+
+    /// The terms: (modality, views k that count a target fully, weight), zero weights included.
+    fn terms(&self) -> [(Modality, f64, f64); 4] {
+        [
+            (Modality::Lidar, 1.0, self.lidar),
+            (Modality::Radar, 1.0, self.radar),
+            (Modality::Lidar, 2.0, self.lidar_two_views),
+            (Modality::Radar, 2.0, self.radar_two_views),
+        ]
     }
 
     /// Refuses weights that would not keep the objective an IP with capped terms.
     pub fn check(&self) -> Result<(), PlacementError> {
-        for (name, v) in [("lidar", self.lidar), ("radar", self.radar)] {
+        for (name, v) in [
+            ("lidar", self.lidar),
+            ("radar", self.radar),
+            ("lidar_two_views", self.lidar_two_views),
+            ("radar_two_views", self.radar_two_views),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(PlacementError::Invalid(format!(
                     "placement.calibration.{name} = {v}: a weight must be finite and ≥ 0"
                 )));
             }
         }
-        if self.lidar == 0.0 && self.radar == 0.0 {
+        if self.terms().iter().all(|t| t.2 == 0.0) {
             return Err(PlacementError::Invalid(
-                "placement.calibration: both weights are 0; nothing to maximise".into(),
+                "placement.calibration: every weight is 0; nothing to maximise".into(),
             ));
         }
         Ok(())
@@ -59,15 +82,26 @@ pub fn evaluate(inst: &Instance, sel: &[usize], w: &Weights) -> f64 {
     let tau = inst.tau();
     let total: f64 = inst.weights.iter().sum::<f64>().max(1e-12);
     let mut f = 0.0;
-    for m in [Modality::Lidar, Modality::Radar] {
-        let beta = w.of(m);
+    for (m, k, beta) in w.terms() {
         if beta == 0.0 {
             continue;
         }
-        let a = crate::instance::modality_coverage(inst, sel, m);
-        f += beta * a.iter().zip(&inst.weights).map(|(a, wj)| wj * (a / tau).min(1.0)).sum::<f64>() / total;
+        let s = views(inst, sel, m, tau);
+        f += beta * s.iter().zip(&inst.weights).map(|(s, wj)| wj * (s / k).min(1.0)).sum::<f64>() / total;
     }
     f
+}
+
+/// Per target, s_j = Σ_{o ∈ sel, of modality m} min(1, a_oj / τ): how many sensors see it well,
+/// each counting at most once.
+fn views(inst: &Instance, sel: &[usize], m: Modality, tau: f64) -> Vec<f64> {
+    let mut s = vec![0.0; inst.n_targets()];
+    for &o in sel.iter().filter(|&&o| inst.modality(o) == m) {
+        for &(j, v) in &inst.options[o].row {
+            s[j as usize] += (coverage_coef(v as f64) / tau).min(1.0);
+        }
+    }
+    s
 }
 
 /// Whether `sel` plus option `o` stays within `limit` (minimum counts are not asked of a
@@ -162,23 +196,24 @@ pub fn solve(
             cols[m][j as usize].push((o, coverage_coef(v as f64) / tau));
         }
     }
-    let mut z: Vec<(Variable, f64, usize, usize)> = Vec::new();
-    for (m, modality) in [Modality::Lidar, Modality::Radar].into_iter().enumerate() {
-        let beta = w.of(modality);
+    // (variable, objective coefficient, modality, saturation multiple, target)
+    let mut z: Vec<(Variable, f64, usize, f64, usize)> = Vec::new();
+    for (modality, k, beta) in w.terms() {
         if beta == 0.0 {
             continue;
         }
+        let m = usize::from(modality == Modality::Radar);
         for (j, col) in cols[m].iter().enumerate() {
             if !col.is_empty() && inst.weights[j] > 0.0 {
-                z.push((vars.add(variable().min(0.0).max(1.0)), beta * inst.weights[j] / total, m, j));
+                z.push((vars.add(variable().min(0.0).max(1.0)), beta * inst.weights[j] / total, m, k, j));
             }
         }
     }
-    let objective: Expression = z.iter().map(|&(v, c, _, _)| c * v).sum();
+    let objective: Expression = z.iter().map(|&(v, c, ..)| c * v).sum();
     let mut problem = vars.maximise(objective).using(coin_cbc);
     problem.set_parameter("log", "0");
-    for &(v, _, m, j) in &z {
-        let cover: Expression = cols[m][j].iter().map(|&(o, a)| a.min(1.0) * x[o]).sum();
+    for &(v, _, m, k, j) in &z {
+        let cover: Expression = cols[m][j].iter().map(|&(o, a)| (a.min(1.0) / k) * x[o]).sum();
         problem.add_constraint((v - cover).leq(0.0));
     }
     crate::mip::add_limit(&mut problem, inst, limit, &x);
@@ -186,11 +221,9 @@ pub fn solve(
     let chosen: std::collections::HashSet<usize> = warm.selection.iter().copied().collect();
     let mut init: Vec<(Variable, f64)> =
         x.iter().enumerate().map(|(o, &v)| (v, if chosen.contains(&o) { 1.0 } else { 0.0 })).collect();
-    let a: Vec<Vec<f64>> = [Modality::Lidar, Modality::Radar]
-        .iter()
-        .map(|&m| crate::instance::modality_coverage(inst, &warm.selection, m))
-        .collect();
-    init.extend(z.iter().map(|&(v, _, m, j)| (v, (a[m][j] / tau).min(1.0))));
+    let s: Vec<Vec<f64>> =
+        [Modality::Lidar, Modality::Radar].iter().map(|&m| views(inst, &warm.selection, m, tau)).collect();
+    init.extend(z.iter().map(|&(v, _, m, k, j)| (v, (s[m][j] / k).min(1.0))));
     problem = problem.with_initial_solution(init);
     let sol = problem.solve().map_err(|e| PlacementError::Solver(format!("CBC, calibrated objective: {e}")))?;
     let proven = matches!(sol.status(), SolutionStatus::Optimal);
@@ -251,12 +284,17 @@ mod tests {
     }
 
     /// CBC on the calibrated IP equals brute force over every selection, under counts and under
-    /// a budget, with both weights and with the radar's at 0; greedy is never above it.
+    /// a budget, with both weights, with the radar's at 0 and with the two-view terms;
+    /// greedy is never above it.
     #[test]
     fn the_calibrated_ip_equals_brute_force() {
         for seed in 0..6 {
             let inst = random_instance(seed);
-            let w = if seed % 2 == 0 { Weights { lidar: 0.6, radar: 0.2 } } else { Weights { lidar: 0.5, radar: 0.0 } };
+            let w = match seed % 3 {
+                0 => Weights::once(0.6, 0.2),
+                1 => Weights::once(0.5, 0.0),
+                _ => Weights { lidar: 0.3, radar: 0.1, lidar_two_views: 0.4, radar_two_views: 0.05 },
+            };
             for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
                 let g = greedy(&inst, &limit, &w);
                 let out = solve(&inst, &limit, &w, 30.0, &g).unwrap();
@@ -282,9 +320,13 @@ mod tests {
             }],
             p_min: 1.0 - (-1.0f64).exp(),
         };
-        let f = evaluate(&inst, &[0], &Weights { lidar: 1.0, radar: 0.0 });
+        let f = evaluate(&inst, &[0], &Weights::once(1.0, 0.0));
         assert!((f - (1.0 + 0.5) / 2.0).abs() < 1e-6, "{f}");
-        assert!(Weights { lidar: -0.1, radar: 1.0 }.check().is_err());
-        assert!(Weights { lidar: 0.0, radar: 0.0 }.check().is_err());
+        // Two views: one sensor, however well it sees (a ≈ 4.6 τ), counts a target half.
+        let f2 = evaluate(&inst, &[0], &Weights { lidar_two_views: 1.0, ..Weights::default() });
+        assert!((f2 - (0.5 + 0.25) / 2.0).abs() < 1e-6, "{f2}");
+        assert!(Weights::once(-0.1, 1.0).check().is_err());
+        assert!(Weights { radar_two_views: -0.1, ..Weights::once(1.0, 0.0) }.check().is_err());
+        assert!(Weights::default().check().is_err());
     }
 }

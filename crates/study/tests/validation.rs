@@ -129,3 +129,38 @@ fn occupancy_agrees_with_a_brute_force_count_of_points_in_boxes() {
         assert!((a - b).abs() <= 0.05, "{class}: {a} vs {b}");
     }
 }
+
+/// A set's placement predictors computed again (as `hilo validate --refit` does) are the same
+/// values; the two-view coverage lies between half the coverage and the coverage, and is
+/// exactly half for a rig with one sensor of the modality (one sensor is one view).
+#[test]
+fn predictors_recompute_to_the_same_values_and_two_views_need_two_sensors() {
+    use hilo_study::validation::set::{LIDAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_SATURATED, RADAR_TWO_VIEWS, recompute};
+    let dir = tempfile::tempdir().unwrap();
+    let study = Study::parse(COARSE, dir.path(), "coarse.toml").unwrap();
+    let set = placement_set(&study, &settings(), &mut |_| {}).unwrap();
+    let again = recompute(&study, &settings(), &set).unwrap();
+    assert_eq!(serde_json::to_string(&set).unwrap(), serde_json::to_string(&again).unwrap());
+    for m in &set {
+        for (one, two, modality) in [
+            (LIDAR_SATURATED, LIDAR_TWO_VIEWS, hilo_placement_ip::Modality::Lidar),
+            (RADAR_SATURATED, RADAR_TWO_VIEWS, hilo_placement_ip::Modality::Radar),
+        ] {
+            let (c1, c2) = (m.predictors[one].unwrap(), m.predictors[two].unwrap());
+            assert!(c2 <= c1 + 1e-12 && c2 >= c1 / 2.0 - 1e-12, "{}: {c1} {c2}", m.slug);
+            if m.placement.sensors.iter().filter(|s| s.modality == modality).count() == 1 {
+                assert!((c2 - c1 / 2.0).abs() < 1e-12, "{}: {c1} {c2}", m.slug);
+            }
+        }
+    }
+    assert!(
+        set.iter()
+            .any(|m| m.predictors[LIDAR_TWO_VIEWS].unwrap() > m.predictors[LIDAR_SATURATED].unwrap() / 2.0 + 0.01),
+        "some rig sees targets twice"
+    );
+    // A placement drawn on another scene is refused by name.
+    let mut moved = set.clone();
+    moved[0].placement.scene_hash = "other".into();
+    let e = recompute(&study, &settings(), &moved).unwrap_err().to_string();
+    assert!(e.contains(&set[0].slug), "{e}");
+}

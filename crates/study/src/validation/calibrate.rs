@@ -1,19 +1,21 @@
 //! A calibrated objective: trained mAP predicted from saturated LiDAR and radar coverage,
 //! fitted on part of the placement set and scored on the placements it did not see.
 //!
-//! predicted mAP = β₀ + β_L · C_L + β_R · C_R, with C_m = Σ_j w_j min(1, A_mj / τ) / Σ_j w_j
-//! ([`super::set::LIDAR_SATURATED`], [`super::set::RADAR_SATURATED`]). The weights are fitted by
-//! least squares with β_L, β_R ≥ 0 (the best of the fits on every subset of the two features
-//! whose weights come out non-negative): a non-negative weight on a capped sum keeps the
-//! objective an integer program (maximise Σ_j w_j z_j with z_j ≤ 1, z_j ≤ A_j / τ), and β_R is
-//! the measured marginal accuracy of radar coverage — zero when the trained detectors gain
-//! nothing from it, so an optimiser stops buying radars. The placements are split in half by a
-//! seeded shuffle; the held-out half gets Spearman's ρ and Kendall's τ against its measured mAP
-//! (intervals by the bootstrap over placements and scenes of [`crate::rank`]) and a 95%
-//! prediction interval per placement.
+//! predicted mAP = β₀ + Σ_m Σ_k β_mk · C_mk, with C_mk = Σ_j w_j min(1, s_mj / k) / Σ_j w_j,
+//! s_mj = Σ_o min(1, a_oj / τ), for each modality m and views k ∈ {1, 2} ([`super::set::LIDAR_SATURATED`],
+//! [`super::set::RADAR_SATURATED`], [`super::set::LIDAR_TWO_VIEWS`], [`super::set::RADAR_TWO_VIEWS`]).
+//! The weights are fitted by least squares with every β ≥ 0: a non-negative weight on a capped
+//! sum keeps the objective an integer program ([`hilo_placement_ip::calibrated`]), and the radar
+//! weights are the measured marginal accuracy of radar coverage — zero when the trained
+//! detectors gain nothing from it, so an optimiser stops buying radars. Of the subsets of the
+//! features whose fitted weights are all ≥ 0, the one with the smallest leave-one-out error on
+//! the fitting half is kept (PRESS: more features always fit better in sample, not out of it).
+//! The placements are split in half by a seeded shuffle; the held-out half gets Spearman's ρ and
+//! Kendall's τ against its measured mAP (intervals by the bootstrap over placements and scenes
+//! of [`crate::rank`]) and a 95% prediction interval per placement.
 
 use super::ValidationReport;
-use super::set::{LIDAR_SATURATED, PAPER_OBJECTIVE, RADAR_SATURATED};
+use super::set::{LIDAR_SATURATED, LIDAR_TWO_VIEWS, PAPER_OBJECTIVE, RADAR_SATURATED, RADAR_TWO_VIEWS};
 use crate::rank::{Agreement, agreement};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -32,14 +34,24 @@ pub struct HeldOut {
 /// The fitted objective and how it predicts placements it did not see.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Calibrated {
+    /// Feature names, in the order of `weights`.
     pub features: Vec<String>,
     pub intercept: f64,
     /// Per feature, ≥ 0 (0 where the constrained fit dropped it).
     pub weights: Vec<f64>,
+    /// The members the weights were fitted on.
     pub fit_on: Vec<String>,
     /// Residual standard deviation of the fit and its degrees of freedom.
     pub residual_sd: f64,
     pub df: usize,
+    /// Root mean square of the leave-one-out errors of the fit on every member (what chose its
+    /// features).
+    #[serde(default)]
+    pub loo_rmse: f64,
+    /// Folds of the cross-fitting behind `held_out` (0 in reports from before it: a half split).
+    #[serde(default)]
+    pub folds: usize,
+    /// Every member, predicted by the fit on the folds it is not in.
     pub held_out: Vec<HeldOut>,
     pub held_out_spearman: Agreement,
     pub held_out_kendall: Agreement,
@@ -94,90 +106,147 @@ fn least_squares(x: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)>
     Some((beta, inv))
 }
 
-/// Fits the calibrated objective on a seeded half of `r`'s placements and scores it on the
-/// other half. None with fewer than eight placements.
-pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
-    let n = r.members.len();
-    if n < 8 {
-        return None;
+/// The features the calibrated objective may use, in the order of [`Calibrated::weights`].
+pub const FEATURES: [&str; 4] = [LIDAR_SATURATED, RADAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_TWO_VIEWS];
+
+/// The placement's weights for the calibrated IP, from a fit over [`FEATURES`].
+pub fn weights(c: &Calibrated) -> hilo_placement_ip::calibrated::Weights {
+    let w = |name: &str| c.features.iter().position(|f| f == name).map_or(0.0, |k| c.weights[k]);
+    hilo_placement_ip::calibrated::Weights {
+        lidar: w(LIDAR_SATURATED),
+        radar: w(RADAR_SATURATED),
+        lidar_two_views: w(LIDAR_TWO_VIEWS),
+        radar_two_views: w(RADAR_TWO_VIEWS),
     }
-    let features = [LIDAR_SATURATED, RADAR_SATURATED];
+}
+
+/// xᵀ (XᵀX)⁻¹ x: a row's leverage.
+fn leverage(x: &[f64], inv: &[Vec<f64>]) -> f64 {
+    (0..x.len()).map(|p| (0..x.len()).map(|q| x[p] * inv[p][q] * x[q]).sum::<f64>()).sum()
+}
+
+/// One constrained fit: the features used, coefficients (intercept first), (XᵀX)⁻¹, residual SD,
+/// degrees of freedom and PRESS.
+struct Fit {
+    used: Vec<usize>,
+    beta: Vec<f64>,
+    inv: Vec<Vec<f64>>,
+    sd: f64,
+    df: usize,
+    press: f64,
+}
+
+impl Fit {
+    fn row(&self, x: &dyn Fn(&str) -> f64) -> Vec<f64> {
+        std::iter::once(1.0).chain(self.used.iter().map(|&f| x(FEATURES[f]))).collect()
+    }
+
+    fn predict(&self, x: &dyn Fn(&str) -> f64) -> f64 {
+        self.row(x).iter().zip(&self.beta).map(|(a, b)| a * b).sum()
+    }
+
+    /// Half-width of the 95% prediction interval at `x`.
+    fn half_width(&self, x: &dyn Fn(&str) -> f64) -> f64 {
+        let t = statrs::distribution::StudentsT::new(0.0, 1.0, self.df as f64)
+            .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
+            .unwrap_or(1.96);
+        t * self.sd * (1.0 + leverage(&self.row(x), &self.inv)).sqrt()
+    }
+}
+
+/// Fits mAP on [`FEATURES`] over the members `idx`: of the feature subsets whose least-squares
+/// weights are all ≥ 0, the one with the smallest PRESS.
+fn fit(r: &ValidationReport, idx: &[usize]) -> Option<Fit> {
     let value = |i: usize, f: &str| r.members[i].0.predictors.get(f).copied().flatten().unwrap_or(0.0);
-    let mut order: Vec<usize> = (0..n).collect();
-    order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
-    let (fit, held) = order.split_at(n.div_ceil(2));
-    let y: Vec<f64> = fit.iter().map(|&i| r.members[i].1.map_mean).collect();
-    // Every subset of the features; keep the best fit whose weights are all ≥ 0.
-    // (sum of squared errors, features used, coefficients, (XᵀX)⁻¹)
-    type Fit = (f64, Vec<usize>, Vec<f64>, Vec<Vec<f64>>);
+    let y: Vec<f64> = idx.iter().map(|&i| r.members[i].1.map_mean).collect();
     let mut best: Option<Fit> = None;
-    for mask in 0..(1usize << features.len()) {
-        let used: Vec<usize> = (0..features.len()).filter(|f| mask & (1 << f) != 0).collect();
-        let cols: Vec<Vec<f64>> = used.iter().map(|&f| fit.iter().map(|&i| value(i, features[f])).collect()).collect();
+    for mask in 0..(1usize << FEATURES.len()) {
+        let used: Vec<usize> = (0..FEATURES.len()).filter(|f| mask & (1 << f) != 0).collect();
+        if used.len() + 2 > idx.len() {
+            continue;
+        }
+        let cols: Vec<Vec<f64>> = used.iter().map(|&f| idx.iter().map(|&i| value(i, FEATURES[f])).collect()).collect();
         let Some((beta, inv)) = least_squares(&cols, &y) else { continue };
         if beta[1..].iter().any(|b| *b < 0.0) {
             continue;
         }
-        let sse: f64 = fit
-            .iter()
-            .zip(&y)
-            .map(|(&i, yi)| {
-                let p = beta[0] + used.iter().zip(&beta[1..]).map(|(&f, b)| b * value(i, features[f])).sum::<f64>();
-                (yi - p).powi(2)
-            })
-            .sum();
-        if best.as_ref().is_none_or(|b| sse < b.0 - 1e-15) {
-            best = Some((sse, used, beta, inv));
+        let df = idx.len() - used.len() - 1;
+        let mut f = Fit { used, beta, inv, sd: 0.0, df, press: 0.0 };
+        let mut sse = 0.0;
+        for (&i, yi) in idx.iter().zip(&y) {
+            let x = |name: &str| value(i, name);
+            let e = yi - f.predict(&x);
+            sse += e * e;
+            f.press += (e / (1.0 - leverage(&f.row(&x), &f.inv)).max(1e-9)).powi(2);
+        }
+        f.sd = (sse / df as f64).sqrt();
+        if best.as_ref().is_none_or(|b| f.press < b.press - 1e-15) {
+            best = Some(f);
         }
     }
-    let (sse, used, beta, inv) = best?;
-    let df = fit.len().saturating_sub(used.len() + 1).max(1);
-    let sd = (sse / df as f64).sqrt();
-    let t = statrs::distribution::StudentsT::new(0.0, 1.0, df as f64)
-        .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
-        .unwrap_or(1.96);
-    let mut weights = vec![0.0; features.len()];
-    for (&f, b) in used.iter().zip(&beta[1..]) {
-        weights[f] = *b;
+    best
+}
+
+/// Folds of the cross-fitting.
+pub const FOLDS: usize = 5;
+
+/// Fits the calibrated objective and scores it on placements it did not see: the members are
+/// dealt into [`FOLDS`] folds by a seeded shuffle, each fold is predicted by a fit on the
+/// others (ρ, τ and the 95% prediction intervals are over these out-of-fold predictions), and
+/// the weights an optimiser uses are those of the fit on every member. None with fewer than
+/// ten placements.
+pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
+    let n = r.members.len();
+    if n < 10 {
+        return None;
     }
-    let predict =
-        |i: usize| beta[0] + used.iter().zip(&beta[1..]).map(|(&f, b)| b * value(i, features[f])).sum::<f64>();
-    let held_out: Vec<HeldOut> = held
-        .iter()
-        .map(|&i| {
-            let x: Vec<f64> = std::iter::once(1.0).chain(used.iter().map(|&f| value(i, features[f]))).collect();
-            let h: f64 = (0..x.len()).map(|p| (0..x.len()).map(|q| x[p] * inv[p][q] * x[q]).sum::<f64>()).sum();
-            let half = t * sd * (1.0 + h).sqrt();
-            let p = predict(i);
-            HeldOut {
+    let value = |i: usize, f: &str| r.members[i].0.predictors.get(f).copied().flatten().unwrap_or(0.0);
+    let mut order: Vec<usize> = (0..n).collect();
+    order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
+    let mut held_out = vec![None; n];
+    for k in 0..FOLDS {
+        let train: Vec<usize> = order.iter().enumerate().filter(|(p, _)| p % FOLDS != k).map(|(_, &i)| i).collect();
+        let f = fit(r, &train)?;
+        for (_, &i) in order.iter().enumerate().filter(|(p, _)| p % FOLDS == k) {
+            let x = |name: &str| value(i, name);
+            let (p, half) = (f.predict(&x), f.half_width(&x));
+            held_out[i] = Some(HeldOut {
                 placement: r.members[i].0.slug.clone(),
                 predicted: p,
                 lo: p - half,
                 hi: p + half,
                 measured: r.members[i].1.map_mean,
-            }
-        })
-        .collect();
-    let reps = |idx: &[usize]| -> Vec<Vec<f64>> {
-        let m = idx.iter().map(|&i| r.members[i].1.map_replicates.len()).min().unwrap_or(0);
-        (0..m).map(|k| idx.iter().map(|&i| r.members[i].1.map_replicates[k]).collect()).collect()
-    };
-    let acc: Vec<f64> = held.iter().map(|&i| r.members[i].1.map_mean).collect();
-    let pred: Vec<f64> = held.iter().map(|&i| predict(i)).collect();
-    let (held_out_spearman, held_out_kendall) = agreement(&pred, &acc, &reps(held), 0.95, seed);
-    let paper: Vec<f64> = held
+            });
+        }
+    }
+    let held_out: Vec<HeldOut> = held_out.into_iter().collect::<Option<_>>()?;
+    let all: Vec<usize> = (0..n).collect();
+    let whole = fit(r, &all)?;
+    let mut weights = vec![0.0; FEATURES.len()];
+    for (&f, b) in whole.used.iter().zip(&whole.beta[1..]) {
+        weights[f] = *b;
+    }
+    let m = r.members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0);
+    let reps: Vec<Vec<f64>> = (0..m).map(|k| r.members.iter().map(|(_, t)| t.map_replicates[k]).collect()).collect();
+    let acc: Vec<f64> = held_out.iter().map(|h| h.measured).collect();
+    let pred: Vec<f64> = held_out.iter().map(|h| h.predicted).collect();
+    let (held_out_spearman, held_out_kendall) = agreement(&pred, &acc, &reps, 0.95, seed);
+    let paper: Vec<f64> = r
+        .members
         .iter()
-        .map(|&i| r.members[i].0.predictors.get(PAPER_OBJECTIVE).copied().flatten().unwrap_or(f64::NAN))
+        .map(|(m, _)| m.predictors.get(PAPER_OBJECTIVE).copied().flatten().unwrap_or(f64::NAN))
         .collect();
-    let (paper_held_out_spearman, _) = agreement(&paper, &acc, &reps(held), 0.95, seed);
+    let (paper_held_out_spearman, _) = agreement(&paper, &acc, &reps, 0.95, seed);
     let covered = held_out.iter().filter(|h| (h.lo..=h.hi).contains(&h.measured)).count();
     Some(Calibrated {
-        features: features.iter().map(|f| f.to_string()).collect(),
-        intercept: beta[0],
+        features: FEATURES.iter().map(|f| f.to_string()).collect(),
+        intercept: whole.beta[0],
         weights,
-        fit_on: fit.iter().map(|&i| r.members[i].0.slug.clone()).collect(),
-        residual_sd: sd,
-        df,
+        fit_on: r.members.iter().map(|(m, _)| m.slug.clone()).collect(),
+        residual_sd: whole.sd,
+        df: whole.df,
+        loo_rmse: (whole.press / n as f64).sqrt(),
+        folds: FOLDS,
         held_out,
         held_out_spearman,
         held_out_kendall,
@@ -196,12 +265,16 @@ mod tests {
     use rand::Rng;
     use std::collections::BTreeMap;
 
-    /// A report of `n` placements whose mAP is `truth(C_L, C_R)` plus seed noise of SD 0.01.
-    fn synthetic(n: usize, truth: impl Fn(f64, f64) -> f64) -> ValidationReport {
+    /// A report of `n` placements whose mAP is `truth(C_L, C_R, C_L by two views)` plus seed noise of
+    /// SD 0.01.
+    fn synthetic(n: usize, truth: impl Fn(f64, f64, f64) -> f64) -> ValidationReport {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let members = (0..n)
             .map(|i| {
                 let (cl, cr) = (rng.random_range(0.3..0.95), if i % 3 == 0 { 0.0 } else { rng.random_range(0.2..0.9) });
+                // By two views a target counts at most half as much as by one, up to as much;
+                // how much depends on the second views, independent of C_L.
+                let cl2 = cl * rng.random_range(0.5..1.0);
                 let placement: hilo_placement_ip::Placement = serde_json::from_value(serde_json::json!({
                     "name": format!("p{i}"), "sensors": [], "objective": 0.0, "bound": null, "gap": null,
                     "proven_optimal": false, "solve_seconds": 0.0, "method": "", "solved": false,
@@ -212,6 +285,8 @@ mod tests {
                 let predictors = BTreeMap::from([
                     (LIDAR_SATURATED.to_owned(), Some(cl)),
                     (RADAR_SATURATED.to_owned(), Some(cr)),
+                    (LIDAR_TWO_VIEWS.to_owned(), Some(cl2)),
+                    (RADAR_TWO_VIEWS.to_owned(), Some(cr * 0.5)),
                     (PAPER_OBJECTIVE.to_owned(), (cr > 0.0).then_some(cl * cr)),
                 ]);
                 let m = Member {
@@ -221,7 +296,7 @@ mod tests {
                     placement,
                     predictors,
                 };
-                let map = truth(cl, cr) + rng.random_range(-0.017..0.017);
+                let map = truth(cl, cr, cl2) + rng.random_range(-0.017..0.017);
                 let t = Trained {
                     preset: String::new(),
                     map: vec![map],
@@ -259,23 +334,38 @@ mod tests {
     /// the measured values.
     #[test]
     fn a_planted_calibration_is_recovered_on_held_out_placements() {
-        let r = synthetic(40, |cl, _| 0.1 + 0.6 * cl);
+        let r = synthetic(40, |cl, _, _| 0.1 + 0.6 * cl);
         let c = calibrate(&r, 0).unwrap();
         assert!((c.weights[0] - 0.6).abs() < 0.06, "{c:?}");
-        assert!(c.weights[1] < 0.03, "{c:?}");
+        assert!(c.weights[1] < 0.03 && c.weights[3] < 0.03, "{c:?}");
         assert!(c.held_out_spearman.value > 0.9, "{:?}", c.held_out_spearman);
         assert!(c.covered as f64 >= 0.8 * c.held_out.len() as f64, "{} of {}", c.covered, c.held_out.len());
-        assert_eq!(c.fit_on.len() + c.held_out.len(), 40);
+        assert_eq!((c.fit_on.len(), c.held_out.len()), (40, 40), "every placement fitted and predicted out of fold");
     }
 
     /// Radar coverage that lowers accuracy gets weight 0, not a negative one (the objective must
     /// stay an IP with capped terms), and an optimiser then buys no radar for it.
     #[test]
     fn a_harmful_feature_is_dropped_not_weighted_negatively() {
-        let r = synthetic(30, |cl, cr| 0.1 + 0.6 * cl - 0.2 * cr);
+        let r = synthetic(30, |cl, cr, _| 0.1 + 0.6 * cl - 0.2 * cr);
         let c = calibrate(&r, 0).unwrap();
         assert_eq!(c.weights[1], 0.0, "{c:?}");
+        assert_eq!(c.weights[3], 0.0, "{c:?}");
         assert!(c.weights[0] > 0.0);
+    }
+
+    /// Accuracy that keeps rising with second views is found in the two-view term, and
+    /// the weights go to the IP under their names; a fit without it predicts worse out of
+    /// sample.
+    #[test]
+    fn a_second_view_term_is_found_when_accuracy_needs_it() {
+        let r = synthetic(40, |cl, _, cl2| 0.1 + 0.2 * cl + 0.5 * cl2);
+        let c = calibrate(&r, 0).unwrap();
+        assert!((c.weights[2] - 0.5).abs() < 0.1, "{c:?}");
+        let w = weights(&c);
+        assert_eq!((w.lidar, w.lidar_two_views), (c.weights[0], c.weights[2]));
+        assert!(c.held_out_spearman.value > 0.9, "{:?}", c.held_out_spearman);
+        assert!(c.loo_rmse < 0.02, "{c:?}");
     }
 
     /// Least squares recovers an exact plane, and its (XᵀX)⁻¹ is the inverse.

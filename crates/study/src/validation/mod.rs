@@ -337,8 +337,6 @@ fn score(
     scenes.dedup();
     let draws = scene_draws(scenes.len(), profile.resamples, 0);
     let mut trained = Vec::new();
-    // Per member: mAP and pedestrian AP at 2b under each scene replicate (mean over seeds).
-    let (mut map_reps, mut ped_reps) = (Vec::new(), Vec::new());
     for ((m, d), outs) in members.iter_mut().zip(data).zip(outputs) {
         let ds = hilo_dataset::Dataset::open(&d.dir, "v1.0-trainval")?;
         let occ = occupancy::occupancy(&ds, "val", &cfg, settings.min_points)?;
@@ -380,54 +378,13 @@ fn score(
             map,
             map_at_b: at_b,
             class_ap,
-            map_replicates: mr.clone(),
-            pedestrian_replicates: pr.clone(),
+            map_replicates: mr,
+            pedestrian_replicates: pr,
             train_s,
         });
-        map_reps.push(mr);
-        ped_reps.push(pr);
     }
-    let transpose =
-        |v: &[Vec<f64>]| -> Vec<Vec<f64>> { (0..draws.len()).map(|r| v.iter().map(|m| m[r]).collect()).collect() };
-    let (map_t, ped_t) = (transpose(&map_reps), transpose(&ped_reps));
-    let acc: Vec<f64> = trained.iter().map(|t| t.map_mean).collect();
-    let ped: Vec<f64> = trained.iter().map(|t| t.pedestrian_ap_mean).collect();
-    let mut names: Vec<String> = members.first().map(|m| m.predictors.keys().cloned().collect()).unwrap_or_default();
-    let order = [
-        set::PAPER_OBJECTIVE,
-        set::OWN_OBJECTIVE,
-        set::LIDAR_COVERAGE,
-        set::RADAR_COVERAGE,
-        set::CENTRAL_COVERAGE,
-        set::LIDAR_SATURATED,
-        set::RADAR_SATURATED,
-        occupancy::HIT_SHARE,
-        occupancy::POINTS_PER_USER,
-        occupancy::RADAR_SHARE,
-    ];
-    names.sort_by_key(|n| (order.iter().position(|o| o == n).unwrap_or(order.len()), n.clone()));
-    let predictors = names
-        .iter()
-        .enumerate()
-        .map(|(k, name)| {
-            let x: Vec<f64> =
-                members.iter().map(|m| m.predictors.get(name).copied().flatten().unwrap_or(f64::NAN)).collect();
-            let (spearman_map, kendall_map) = agreement(&x, &acc, &map_t, 0.95, k as u64);
-            let (spearman_pedestrian, kendall_pedestrian) = agreement(&x, &ped, &ped_t, 0.95, k as u64);
-            let undefined_for =
-                members.iter().zip(&x).filter(|(_, v)| !v.is_finite()).map(|(m, _)| m.slug.clone()).collect();
-            PredictorRow {
-                predictor: name.clone(),
-                spearman_map,
-                kendall_map,
-                spearman_pedestrian,
-                kendall_pedestrian,
-                undefined_for,
-            }
-        })
-        .collect();
-    let at_b: Vec<f64> = trained.iter().map(|t| t.map_at_b_mean).collect();
-    let (budget_spearman, budget_kendall) = agreement(&at_b, &acc, &map_t, 0.95, 99);
+    let members: Vec<(Member, Trained)> = members.into_iter().zip(trained).collect();
+    let (predictors, budget_spearman, budget_kendall) = agreements(&members);
     let mut report = ValidationReport {
         study: study.source.clone(),
         profile: profile.name.clone(),
@@ -435,7 +392,7 @@ fn score(
         provenance: Provenance::here(profile.trainings_at_once),
         validation_scenes: scenes.len(),
         resamples: draws.len(),
-        members: members.into_iter().zip(trained).collect(),
+        members,
         predictors,
         budget_spearman,
         budget_kendall,
@@ -446,10 +403,70 @@ fn score(
     Ok(report)
 }
 
-/// Reads `<out>/validation.json` and fits the calibrated objective again (no training): for a
-/// validation run before the fit existed, or after the fit changed.
-pub fn refit(out: &Path) -> Result<ValidationReport> {
+/// Every predictor's agreement with mAP and pedestrian AP, and the budget's (mAP at b against
+/// 2b), with intervals from the members' scene-bootstrap replicates.
+fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, Agreement) {
+    let draws = members.iter().map(|(_, t)| t.map_replicates.len().min(t.pedestrian_replicates.len())).min();
+    let draws = draws.unwrap_or(0);
+    let transpose = |f: &dyn Fn(&Trained) -> &Vec<f64>| -> Vec<Vec<f64>> {
+        (0..draws).map(|r| members.iter().map(|(_, t)| f(t)[r]).collect()).collect()
+    };
+    let (map_t, ped_t) = (transpose(&|t| &t.map_replicates), transpose(&|t| &t.pedestrian_replicates));
+    let acc: Vec<f64> = members.iter().map(|(_, t)| t.map_mean).collect();
+    let ped: Vec<f64> = members.iter().map(|(_, t)| t.pedestrian_ap_mean).collect();
+    let mut names: Vec<String> =
+        members.first().map(|(m, _)| m.predictors.keys().cloned().collect()).unwrap_or_default();
+    let order = [
+        set::PAPER_OBJECTIVE,
+        set::OWN_OBJECTIVE,
+        set::LIDAR_COVERAGE,
+        set::RADAR_COVERAGE,
+        set::CENTRAL_COVERAGE,
+        set::LIDAR_SATURATED,
+        set::RADAR_SATURATED,
+        set::LIDAR_TWO_VIEWS,
+        set::RADAR_TWO_VIEWS,
+        occupancy::HIT_SHARE,
+        occupancy::POINTS_PER_USER,
+        occupancy::RADAR_SHARE,
+    ];
+    names.sort_by_key(|n| (order.iter().position(|o| o == n).unwrap_or(order.len()), n.clone()));
+    let rows = names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let x: Vec<f64> =
+                members.iter().map(|(m, _)| m.predictors.get(name).copied().flatten().unwrap_or(f64::NAN)).collect();
+            let (spearman_map, kendall_map) = agreement(&x, &acc, &map_t, 0.95, k as u64);
+            let (spearman_pedestrian, kendall_pedestrian) = agreement(&x, &ped, &ped_t, 0.95, k as u64);
+            let undefined_for =
+                members.iter().zip(&x).filter(|(_, v)| !v.is_finite()).map(|((m, _), _)| m.slug.clone()).collect();
+            PredictorRow {
+                predictor: name.clone(),
+                spearman_map,
+                kendall_map,
+                spearman_pedestrian,
+                kendall_pedestrian,
+                undefined_for,
+            }
+        })
+        .collect();
+    let at_b: Vec<f64> = members.iter().map(|(_, t)| t.map_at_b_mean).collect();
+    let (budget_spearman, budget_kendall) = agreement(&at_b, &acc, &map_t, 0.95, 99);
+    (rows, budget_spearman, budget_kendall)
+}
+
+/// Reads `<out>/validation.json`, computes the placement predictors again with this build (a
+/// validation run by an older build gains the predictors added since) and fits the calibrated
+/// objective again: no simulation, no training.
+pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
     let mut r: ValidationReport = read_json(&out.join("validation.json"), limit::TABLE)?;
+    let members: Vec<Member> = r.members.iter().map(|(m, _)| m.clone()).collect();
+    let again = set::recompute(study, &r.settings, &members)?;
+    for ((m, _), a) in r.members.iter_mut().zip(again) {
+        *m = a;
+    }
+    (r.predictors, r.budget_spearman, r.budget_kendall) = agreements(&r.members);
     r.calibrated = calibrate::calibrate(&r, r.settings.seed);
     Ok(r)
 }
@@ -548,9 +565,14 @@ pub fn markdown(r: &ValidationReport) -> String {
 fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
     let mut s = String::from("## A calibrated objective\n\n");
     let terms: Vec<String> = c.features.iter().zip(&c.weights).map(|(f, w)| format!("{w:.3} × {f}")).collect();
+    let held = if c.folds > 0 {
+        format!("Each placement predicted by the fit on the other {} folds of {} (cross-fitting)", c.folds - 1, c.folds)
+    } else {
+        format!("On the {} held-out placements", c.held_out.len())
+    };
     s.push_str(&format!(
         "Fitted on {} placements (least squares, weights ≥ 0; residual SD {:.3} mAP, {} degrees of freedom): \
-         predicted mAP = {:.3} + {}. On the {} held-out placements: Spearman ρ {}, Kendall τ {} with measured mAP \
+         predicted mAP = {:.3} + {}. {held}: Spearman ρ {}, Kendall τ {} with measured mAP \
          (the paper's objective on the same placements, where defined: ρ {}); {} of {} measured values inside their \
          95% prediction interval.\n\n",
         c.fit_on.len(),
@@ -558,20 +580,20 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
         c.df,
         c.intercept,
         terms.join(" + "),
-        c.held_out.len(),
         fmt_agreement(&c.held_out_spearman),
         fmt_agreement(&c.held_out_kendall),
         fmt_agreement(&c.paper_held_out_spearman),
         c.covered,
         c.held_out.len()
     ));
+    let w = calibrate::weights(c);
     s.push_str(&format!(
-        "To place with it, in the study file: `[placement]` `objective = \"calibrated\"` and \
-         `calibration = {{ lidar = {:.4}, radar = {:.4} }}`.\n\n",
-        c.weights.first().copied().unwrap_or(0.0),
-        c.weights.get(1).copied().unwrap_or(0.0)
+        "The features were chosen by leave-one-out error of the fit on every placement (RMSE {:.3} mAP). To place with it, \
+         in the study file: `[placement]` `objective = \"calibrated\"` and `calibration = {{ lidar = {:.4}, \
+         radar = {:.4}, lidar_two_views = {:.4}, radar_two_views = {:.4} }}`.\n\n",
+        c.loo_rmse, w.lidar, w.radar, w.lidar_two_views, w.radar_two_views
     ));
-    s.push_str("| held-out placement | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
+    s.push_str("| placement (predicted out of fold) | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
     for h in &c.held_out {
         s.push_str(&format!(
             "| {} | {:.3} [{:.3}, {:.3}] | {:.3} |\n",

@@ -49,6 +49,11 @@ pub const CENTRAL_COVERAGE: &str = "central coverage";
 /// per-candidate, per-target terms under a cap, so an IP can maximise it.
 pub const LIDAR_SATURATED: &str = "LiDAR coverage (saturated)";
 pub const RADAR_SATURATED: &str = "radar coverage (saturated)";
+/// Σ_j w_j min(1, s_j / 2) / Σ_j w_j with s_j = Σ_o min(1, a_oj / τ): a target counts fully
+/// only when two sensors of the modality each see it well (one sensor, however dense, counts
+/// half).
+pub const LIDAR_TWO_VIEWS: &str = "LiDAR coverage by two views";
+pub const RADAR_TWO_VIEWS: &str = "radar coverage by two views";
 
 /// The configurations the set is drawn from: the study's, then the rigs a buyer compares them
 /// with, once each (by sensor counts).
@@ -179,20 +184,39 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
             v.placements
         )));
     }
-    let mut ctx = Context {
-        study,
-        world: World::build(&study.scene, &QueryRegion::everything())?,
-        all: instance(&prep, &study.catalog, &types, pc.p_min)?,
-        central: central_targets(study, &prep),
-        own: BTreeMap::new(),
-        prep: &prep,
-        cell_m: pc.cell_m,
-        p_min: pc.p_min,
-    };
+    let mut ctx = Context::new(study, &prep, &pc)?;
     drawn
         .into_iter()
         .enumerate()
         .map(|(k, (kind, conf, sensors, proven))| ctx.member(k, &kind, &conf, sensors, proven))
+        .collect()
+}
+
+/// The members' placement predictors computed again by this build (a set drawn by an older one
+/// gains the predictors added since); the predictors of the traffic are kept as they were.
+pub fn recompute(study: &Study, v: &ValidationSettings, members: &[Member]) -> Result<Vec<Member>> {
+    let pc = settings_with_tilts(study, v)?;
+    let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
+    let mut ctx = Context::new(study, &prep, &pc)?;
+    members
+        .iter()
+        .enumerate()
+        .map(|(k, m)| {
+            if m.placement.scene_hash != study.scene_hash || m.placement.catalog_hash != study.catalog_hash {
+                return Err(StudyError::Invalid(format!(
+                    "placement {} was drawn on another scene or catalog than {}",
+                    m.slug, study.source
+                )));
+            }
+            let mut again =
+                ctx.member(k, &m.kind, &m.configuration, m.placement.sensors.clone(), m.placement.proven_optimal)?;
+            if again.slug != m.slug {
+                return Err(StudyError::Invalid(format!("placement {} reads back as {}", m.slug, again.slug)));
+            }
+            let mut predictors = m.predictors.clone();
+            predictors.append(&mut again.predictors);
+            Ok(Member { predictors, ..m.clone() })
+        })
         .collect()
 }
 
@@ -264,7 +288,20 @@ struct Context<'a> {
     p_min: f64,
 }
 
-impl Context<'_> {
+impl<'a> Context<'a> {
+    fn new(study: &'a Study, prep: &'a Prepared, pc: &hilo_placement_ip::pipeline::PlacementConfig) -> Result<Self> {
+        Ok(Context {
+            study,
+            world: World::build(&study.scene, &QueryRegion::everything())?,
+            all: instance(prep, &study.catalog, &study.type_names(), pc.p_min)?,
+            central: central_targets(study, prep),
+            own: BTreeMap::new(),
+            prep,
+            cell_m: pc.cell_m,
+            p_min: pc.p_min,
+        })
+    }
+
     fn member(&mut self, k: usize, kind: &str, conf: &str, sensors: Vec<PlacedSensor>, proven: bool) -> Result<Member> {
         let (study, prep, all) = (self.study, self.prep, &self.all);
         let mut own_types: Vec<String> = sensors.iter().map(|s| s.ty.clone()).collect();
@@ -282,8 +319,7 @@ impl Context<'_> {
         let share =
             |m: Modality| covered_targets(all, &sel_all, m).iter().map(|&j| all.weights[j]).sum::<f64>() / weight;
         // The calibrated objective's terms, one modality at a time.
-        let saturated =
-            |lidar: f64, radar: f64| calibrated::evaluate(all, &sel_all, &calibrated::Weights { lidar, radar });
+        let saturated = |w: calibrated::Weights| calibrated::evaluate(all, &sel_all, &w);
         let hits = lidar_hits(study, &self.world, prep, self.cell_m, &sensors)?;
         let central = &self.central;
         let own_objective = evaluate(own, &sel_own);
@@ -298,8 +334,16 @@ impl Context<'_> {
             (LIDAR_COVERAGE.to_owned(), Some(share(Modality::Lidar))),
             (RADAR_COVERAGE.to_owned(), Some(share(Modality::Radar))),
             (CENTRAL_COVERAGE.to_owned(), Some(hilo_placement_ip::coverage::share(central, &hits))),
-            (LIDAR_SATURATED.to_owned(), Some(saturated(1.0, 0.0))),
-            (RADAR_SATURATED.to_owned(), Some(saturated(0.0, 1.0))),
+            (LIDAR_SATURATED.to_owned(), Some(saturated(calibrated::Weights::once(1.0, 0.0)))),
+            (RADAR_SATURATED.to_owned(), Some(saturated(calibrated::Weights::once(0.0, 1.0)))),
+            (
+                LIDAR_TWO_VIEWS.to_owned(),
+                Some(saturated(calibrated::Weights { lidar_two_views: 1.0, ..Default::default() })),
+            ),
+            (
+                RADAR_TWO_VIEWS.to_owned(),
+                Some(saturated(calibrated::Weights { radar_two_views: 1.0, ..Default::default() })),
+            ),
         ]);
         let cost_usd = sensors
             .iter()
