@@ -306,13 +306,30 @@ pub struct ValidateArgs {
     /// --out's validation.json (no simulation, no training; the study must be the one validated).
     #[arg(long)]
     pub refit: bool,
+    /// Refit as --refit does, then place the rig the calibrated objective buys under the
+    /// study's budget and simulate, train and score it as the set was (resumes from --out).
+    #[arg(long, conflicts_with = "refit")]
+    pub recommend: bool,
 }
 
 /// `hilo validate`: does the placement objective predict trained accuracy?
 pub fn validate(args: &ValidateArgs) -> Result<()> {
-    if args.refit {
+    if args.refit || args.recommend {
         let study = load_study(args.study.as_deref())?;
-        let report = hilo_study::validation::refit(&study, &args.out)?;
+        let mut report = hilo_study::validation::refit(&study, &args.out)?;
+        if args.recommend {
+            let registry = crate::train::registry()?;
+            let profile = hilo_study::profile(&report.profile, &study, &registry)?;
+            let mut reporter = Reporter::new();
+            report.recommendation = hilo_study::validation::recommend::recommend(
+                &study,
+                &registry,
+                &profile,
+                &report,
+                &args.out,
+                &mut |p| reporter.study(p),
+            )?;
+        }
         for p in hilo_study::validation::write(&args.out, &report)? {
             eprintln!("wrote {}", p.display());
         }

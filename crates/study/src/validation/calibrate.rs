@@ -187,6 +187,16 @@ fn fit(r: &ValidationReport, idx: &[usize]) -> Option<Fit> {
     best
 }
 
+/// A placement outside the set predicted by the fit on every member: (mAP, 95% prediction
+/// interval low, high).
+pub fn predict(r: &ValidationReport, m: &super::set::Member) -> Option<(f64, f64, f64)> {
+    let all: Vec<usize> = (0..r.members.len()).collect();
+    let f = fit(r, &all)?;
+    let x = |name: &str| m.predictors.get(name).copied().flatten().unwrap_or(0.0);
+    let (p, half) = (f.predict(&x), f.half_width(&x));
+    Some((p, p - half, p + half))
+}
+
 /// Folds of the cross-fitting.
 pub const FOLDS: usize = 5;
 
@@ -325,6 +335,7 @@ mod tests {
             budget_spearman: none,
             budget_kendall: none,
             calibrated: None,
+            recommendation: None,
             seconds: 0.0,
         }
     }

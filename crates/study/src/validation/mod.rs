@@ -14,12 +14,14 @@
 //! and τ between the accuracies at b and 2b (does the budget rank placements as longer
 //! training would?).
 //!
-//! A calibrated objective ([`calibrate`]) is fitted to these measurements on half of the set
-//! and scored on the other half; `[placement] objective = "calibrated"` places with it
-//! ([`hilo_placement_ip::calibrated`]). What it leaves out: training the calibrated placement to
-//! check its prediction, and a workflow-engine form of its jobs (it runs in one process and
-//! resumes from its folder; its stage folders are named by hashes that include the code, so a
-//! run is resumed by the same build).
+//! A calibrated objective ([`calibrate`]) is fitted to these measurements and scored by
+//! cross-fitting; `[placement] objective = "calibrated"` places with it
+//! ([`hilo_placement_ip::calibrated`]). The rig it buys under the study's budget is then
+//! trained as the members were and set beside its prediction and the best configuration of the
+//! study at equal or lower cost ([`recommend`]). What it leaves out: a workflow-engine form of
+//! its jobs (it runs in one process and resumes from its folder; its stage folders are named by
+//! hashes that include the code, so a run is resumed by the same build; `--refit` and
+//! `--recommend` read a finished run's `validation.json` with any later build).
 //!
 //! Layout of its folder (every stage resumable; a stage's folder is named by the hash of
 //! what decides it):
@@ -29,11 +31,13 @@
 //! data/<member>-<h>/                     a member's dataset (the study's traffic)
 //! runs/<member>/<preset>-seed<k>-<h>/    a trained detector
 //! results/<member>/…json                 its detections at 2b and at b
+//! recommendation/<member>.json           the calibrated recommendation (then data/, runs/, results/)
 //! validation.json, validation.md, validation-*.png/svg
 //! ```
 
 pub mod calibrate;
 pub mod occupancy;
+pub mod recommend;
 pub mod set;
 
 use crate::error::{Result, StudyError};
@@ -166,9 +170,12 @@ pub struct ValidationReport {
     /// Does the budget rank placements as longer training would? mAP at b against mAP at 2b.
     pub budget_spearman: Agreement,
     pub budget_kendall: Agreement,
-    /// The calibrated objective, fitted on half of the set and scored on the other half.
+    /// The calibrated objective, fitted on the set and scored by cross-fitting.
     #[serde(default)]
     pub calibrated: Option<calibrate::Calibrated>,
+    /// The rig it buys under the study's budget, trained.
+    #[serde(default)]
+    pub recommendation: Option<recommend::Recommendation>,
     pub seconds: f64,
 }
 
@@ -271,7 +278,11 @@ pub fn run(
     }
     // 4. Scores on the common ground truth, predictors of the traffic, agreement.
     progress(Progress::Stage("validation: scoring"));
-    score(study, profile, settings, members, &data, outputs, t0)
+    let mut report = score(study, profile, settings, members, &data, outputs, t0)?;
+    // 5. The rig the calibrated objective buys, trained as the members were.
+    report.recommendation = recommend::recommend(study, registry, profile, &report, out, progress)?;
+    report.seconds = t0.elapsed().as_secs_f64();
+    Ok(report)
 }
 
 fn jobs(
@@ -317,60 +328,72 @@ fn jobs(
 
 type Outputs = Vec<Vec<(Job, crate::stages::JobOutput)>>;
 
-fn score(
-    study: &Study,
-    profile: &Profile,
-    settings: &ValidationSettings,
-    mut members: Vec<Member>,
-    data: &[DataStage],
-    outputs: Outputs,
-    t0: std::time::Instant,
-) -> Result<ValidationReport> {
-    let first = hilo_dataset::Dataset::open(&data[0].dir, "v1.0-trainval")?;
-    let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
-    let mut cfg = DetectionConfig::default();
-    let in_gt: std::collections::BTreeSet<&str> =
-        common.boxes.values().flatten().map(|b| b.detection_name.as_str()).collect();
-    cfg.class_range.retain(|k, _| in_gt.contains(k.as_str()));
-    let mut scenes: Vec<String> = common.samples.values().map(|i| i.scene.clone()).collect();
-    scenes.sort();
-    scenes.dedup();
-    let draws = scene_draws(scenes.len(), profile.resamples, 0);
-    let mut trained = Vec::new();
-    for ((m, d), outs) in members.iter_mut().zip(data).zip(outputs) {
-        let ds = hilo_dataset::Dataset::open(&d.dir, "v1.0-trainval")?;
-        let occ = occupancy::occupancy(&ds, "val", &cfg, settings.min_points)?;
-        m.predictors.extend(occ.predictors());
+/// What every placement is scored against: the common ground truth of the validation traffic
+/// (every road user in range, the same whatever the rig), under the study's scene bootstrap.
+pub(crate) struct Scorer {
+    common: hilo_eval::boxes::GroundTruth,
+    cfg: DetectionConfig,
+    scenes: Vec<String>,
+    draws: Vec<Vec<u32>>,
+    min_points: u32,
+}
+
+impl Scorer {
+    /// From any dataset of the validation (they share the traffic).
+    pub(crate) fn new(data: &Path, profile: &Profile, settings: &ValidationSettings) -> Result<Self> {
+        let first = hilo_dataset::Dataset::open(data, "v1.0-trainval")?;
+        let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
+        let mut cfg = DetectionConfig::default();
+        let in_gt: std::collections::BTreeSet<&str> =
+            common.boxes.values().flatten().map(|b| b.detection_name.as_str()).collect();
+        cfg.class_range.retain(|k, _| in_gt.contains(k.as_str()));
+        let mut scenes: Vec<String> = common.samples.values().map(|i| i.scene.clone()).collect();
+        scenes.sort();
+        scenes.dedup();
+        let draws = scene_draws(scenes.len(), profile.resamples, 0);
+        Ok(Scorer { common, cfg, scenes, draws, min_points: settings.min_points })
+    }
+
+    /// One placement's trained accuracy (its jobs' detections, one per seed) and the occupancy
+    /// predictors of its dataset.
+    pub(crate) fn trained(
+        &self,
+        data: &Path,
+        outs: &[(Job, crate::stages::JobOutput)],
+    ) -> Result<(Trained, BTreeMap<String, Option<f64>>)> {
+        let (cfg, draws) = (&self.cfg, &self.draws);
+        let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")?;
+        let occ = occupancy::occupancy(&ds, "val", cfg, self.min_points)?;
         let (_, keys) = ground_truth(&ds, "val", GtKind::VisibleOnly, SampleKey::SceneTime)?;
         let rescore = |p: &Predictions| -> Result<Reweighable> {
             let mut p = rekey(p.clone(), &keys);
             p.sort_by(|a, b| a.0.cmp(&b.0));
-            Reweighable::new(&common, &p, &cfg, &scenes).map_err(StudyError::Invalid)
+            Reweighable::new(&self.common, &p, cfg, &self.scenes).map_err(StudyError::Invalid)
         };
         let (mut map, mut at_b, mut ped, mut train_s) = (Vec::new(), Vec::new(), Vec::new(), 0.0);
         let mut class_ap: BTreeMap<String, f64> = BTreeMap::new();
         let (mut mr, mut pr) = (vec![0.0; draws.len()], vec![0.0; draws.len()]);
         let n = outs.len() as f64;
         let preset = outs.first().map(|(j, _)| j.preset.clone()).unwrap_or_default();
-        for (_, o) in &outs {
+        for (_, o) in outs {
             let r = rescore(&o.predictions)?;
-            let full = r.full(&cfg);
+            let full = r.full(cfg);
             map.push(full.0);
             ped.push(full.2.get("pedestrian").copied().unwrap_or(f64::NAN));
             for (k, v) in &full.2 {
                 *class_ap.entry(k.clone()).or_default() += v / n;
             }
-            for (i, x) in r.under(&cfg, &draws).iter().enumerate() {
+            for (i, x) in r.under(cfg, draws).iter().enumerate() {
                 mr[i] += x.0 / n;
                 pr[i] += x.2.get("pedestrian").copied().unwrap_or(f64::NAN) / n;
             }
             if let Some((_, p)) = o.curve.first() {
-                at_b.push(rescore(p)?.full(&cfg).0);
+                at_b.push(rescore(p)?.full(cfg).0);
             }
             train_s += o.meta.train_s;
         }
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-        trained.push(Trained {
+        let trained = Trained {
             preset,
             map_mean: mean(&map),
             map_at_b_mean: mean(&at_b),
@@ -381,7 +404,26 @@ fn score(
             map_replicates: mr,
             pedestrian_replicates: pr,
             train_s,
-        });
+        };
+        Ok((trained, occ.predictors()))
+    }
+}
+
+fn score(
+    study: &Study,
+    profile: &Profile,
+    settings: &ValidationSettings,
+    mut members: Vec<Member>,
+    data: &[DataStage],
+    outputs: Outputs,
+    t0: std::time::Instant,
+) -> Result<ValidationReport> {
+    let scorer = Scorer::new(&data[0].dir, profile, settings)?;
+    let mut trained = Vec::new();
+    for ((m, d), outs) in members.iter_mut().zip(data).zip(outputs) {
+        let (t, occupancy) = scorer.trained(&d.dir, &outs)?;
+        m.predictors.extend(occupancy);
+        trained.push(t);
     }
     let members: Vec<(Member, Trained)> = members.into_iter().zip(trained).collect();
     let (predictors, budget_spearman, budget_kendall) = agreements(&members);
@@ -390,13 +432,14 @@ fn score(
         profile: profile.name.clone(),
         settings: settings.clone(),
         provenance: Provenance::here(profile.trainings_at_once),
-        validation_scenes: scenes.len(),
-        resamples: draws.len(),
+        validation_scenes: scorer.scenes.len(),
+        resamples: scorer.draws.len(),
         members,
         predictors,
         budget_spearman,
         budget_kendall,
         calibrated: None,
+        recommendation: None,
         seconds: t0.elapsed().as_secs_f64(),
     };
     report.calibrated = calibrate::calibrate(&report, settings.seed);
@@ -467,7 +510,12 @@ pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
         *m = a;
     }
     (r.predictors, r.budget_spearman, r.budget_kendall) = agreements(&r.members);
+    let before = r.calibrated.as_ref().map(calibrate::weights);
     r.calibrated = calibrate::calibrate(&r, r.settings.seed);
+    // A recommendation trained for other weights is not this fit's.
+    if r.calibrated.as_ref().map(calibrate::weights) != before {
+        r.recommendation = None;
+    }
     Ok(r)
 }
 
@@ -535,6 +583,10 @@ pub fn markdown(r: &ValidationReport) -> String {
     if let Some(c) = &r.calibrated {
         s.push_str(&calibrated_markdown(c));
     }
+    if let Some(rec) = &r.recommendation {
+        s.push_str(&recommend::markdown(rec));
+    }
+    s.push_str("## Every placement\n\n");
     s.push_str("| placement | kind | sensors | cost (USD) | paper objective | LiDAR coverage | occupancy | detector | mAP at b | mAP at 2b (seeds) | pedestrian AP |\n|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|\n");
     for (m, t) in &r.members {
         let p = |k: &str| m.predictors.get(k).copied().flatten();
@@ -587,6 +639,13 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
         c.held_out.len()
     ));
     let w = calibrate::weights(c);
+    if c.weights.iter().all(|v| *v == 0.0) {
+        s.push_str(
+            "No coverage term predicts mAP better than the mean of the set (by leave-one-out error): the \
+             calibrated objective has nothing to place for, and no recommendation is trained.\n\n",
+        );
+        return s;
+    }
     s.push_str(&format!(
         "The features were chosen by leave-one-out error of the fit on every placement (RMSE {:.3} mAP). To place with it, \
          in the study file: `[placement]` `objective = \"calibrated\"` and `calibration = {{ lidar = {:.4}, \

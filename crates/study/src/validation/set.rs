@@ -192,6 +192,37 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
         .collect()
 }
 
+/// The budget the set's budgeted optimum is placed under: the study's own budgeted
+/// configuration, or else the cost of its dearest configuration (None without both a LiDAR and
+/// a radar type).
+pub fn budget_configuration(study: &Study) -> Option<Configuration> {
+    set_configurations(study).into_iter().find(|c| c.budget_usd.is_some())
+}
+
+/// The rig the calibrated objective buys under [`budget_configuration`] (CBC warm-started from
+/// greedy, the study's time limit), as member number `k` of kind `calibrated`, with its
+/// predictors.
+pub fn calibrated_member(
+    study: &Study,
+    v: &ValidationSettings,
+    w: &calibrated::Weights,
+    k: usize,
+) -> Result<Option<Member>> {
+    let Some(conf) = budget_configuration(study) else { return Ok(None) };
+    w.check()?;
+    let pc = settings_with_tilts(study, v)?;
+    let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
+    let types = conf.type_names();
+    let inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
+    let limit = limit_for(&conf, &types);
+    let g = calibrated::greedy(&inst, &limit, w);
+    let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, &g)?;
+    let sensors = placed(&inst, &prep, &o.selection);
+    let mut ctx = Context::new(study, &prep, &pc)?;
+    let kind = if o.proven_optimal { "calibrated" } else { "calibrated-best-found" };
+    Ok(Some(ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)?))
+}
+
 /// The members' placement predictors computed again by this build (a set drawn by an older one
 /// gains the predictors added since); the predictors of the traffic are kept as they were.
 pub fn recompute(study: &Study, v: &ValidationSettings, members: &[Member]) -> Result<Vec<Member>> {

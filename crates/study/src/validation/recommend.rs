@@ -1,0 +1,190 @@
+//! The calibrated recommendation, trained: the rig the calibrated objective buys under the
+//! study's budget is placed, simulated with the validation's traffic, trained as every member
+//! of the set was (same detector rule, seeds and budget) and scored on the common ground
+//! truth; its measured mAP is set beside the calibrated prediction's 95% interval and beside
+//! the best configuration of the study at equal or lower cost (its optimum under the paper's
+//! objective, a member of the set), with the difference's interval from the scene bootstrap
+//! (the same draws for both, over the means of their seeds; the seeds' spread is shown apart).
+//!
+//! Its stages live beside the set's: `recommendation/<member>.json` (the placement),
+//! `data/<member>-<h>/`, `runs/<member>/…`, `results/<member>/…`, each named by the hash of
+//! what decides it, so a rerun resumes.
+
+use super::set::{Member, calibrated_member};
+use super::{Scorer, Trained, ValidationReport, calibrate, jobs};
+use crate::error::Result;
+use crate::plan::{DataStage, Job, short, stage_hash};
+use crate::profile::Profile;
+use crate::stages::Progress;
+use crate::study::Study;
+use hilo_detector::Registry;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The best study configuration at equal or lower cost, against the recommendation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Rival {
+    pub placement: String,
+    pub configuration: String,
+    pub cost_usd: f64,
+    pub map_mean: f64,
+    /// Recommendation minus rival, mAP, and its 95% scene-bootstrap interval.
+    pub difference: f64,
+    pub lo: f64,
+    pub hi: f64,
+}
+
+/// The calibrated recommendation, trained and scored.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Recommendation {
+    pub budget_usd: f64,
+    pub member: Member,
+    pub trained: Trained,
+    /// The calibrated prediction (fit on every member) and its 95% prediction interval.
+    pub predicted: f64,
+    pub lo: f64,
+    pub hi: f64,
+    /// Whether the measured mAP lies inside that interval.
+    pub inside: bool,
+    pub rival: Option<Rival>,
+}
+
+/// Places, simulates, trains and scores the calibrated recommendation of `r` (resuming what
+/// `out` holds). None when `r` has no calibrated fit, when the fit gives every coverage term
+/// weight 0 (no placement predicts better than the mean: nothing to place for) or the study
+/// has no budget.
+pub fn recommend(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    r: &ValidationReport,
+    out: &Path,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<Option<Recommendation>> {
+    let Some(c) = &r.calibrated else { return Ok(None) };
+    if c.weights.iter().all(|w| *w == 0.0) {
+        return Ok(None);
+    }
+    progress(Progress::Stage("validation: placing the calibrated recommendation"));
+    let w = calibrate::weights(c);
+    let Some(member) = calibrated_member(study, &r.settings, &w, r.members.len())? else { return Ok(None) };
+    let Some(budget_usd) = super::set::budget_configuration(study).and_then(|b| b.budget_usd) else { return Ok(None) };
+    let Some((predicted, lo, hi)) = calibrate::predict(r, &member) else { return Ok(None) };
+    let pjson = member.placement.to_json()?;
+    let ppath = out.join("recommendation").join(format!("{}.json", member.slug));
+    hilo_core::fs::write_atomic(&ppath, pjson.as_bytes())?;
+    let h = stage_hash("data", &[&pjson, &member.slug, &format!("{:?}", profile.dataset)]);
+    let data = DataStage { dir: out.join("data").join(format!("{}-{}", member.slug, short(&h))), hash: h };
+    if !data.done().exists() {
+        crate::stages::record_dataset(
+            study,
+            &member.placement,
+            &ppath,
+            &profile.dataset,
+            &data,
+            &member.slug,
+            progress,
+        )?;
+    }
+    let all = jobs(std::slice::from_ref(&member), std::slice::from_ref(&data), registry, profile, &r.settings, out)?;
+    let mine: Vec<&Job> = all.iter().collect();
+    let label = format!("training the recommendation {}", member.slug);
+    let shared = std::sync::Mutex::new(&mut *progress);
+    let tick = |_: &Job, f: f64| {
+        if let Ok(mut p) = shared.lock() {
+            p(Progress::Task { label: &label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
+        }
+    };
+    let outs = crate::stages::train_jobs(&data.dir, &mine, registry, profile.trainings_at_once, &tick)?;
+    progress(Progress::TaskDone);
+    let outs: Vec<_> = all.into_iter().zip(outs).collect();
+    let scorer = Scorer::new(&data.dir, profile, &r.settings)?;
+    let (trained, occupancy) = scorer.trained(&data.dir, &outs)?;
+    let mut member = member;
+    member.predictors.extend(occupancy);
+    let rival = rival(study, r, &trained, budget_usd);
+    Ok(Some(Recommendation {
+        budget_usd,
+        inside: (lo..=hi).contains(&trained.map_mean),
+        member,
+        trained,
+        predicted,
+        lo,
+        hi,
+        rival,
+    }))
+}
+
+/// The best-measured optimum (or best-found placement) of the study's own configurations that
+/// costs no more than the budget.
+fn rival(study: &Study, r: &ValidationReport, rec: &Trained, budget_usd: f64) -> Option<Rival> {
+    let own: Vec<&str> =
+        study.file.configurations.iter().filter(|c| c.budget_usd.is_none()).map(|c| c.name.as_str()).collect();
+    let (m, t) = r
+        .members
+        .iter()
+        .filter(|(m, _)| {
+            matches!(m.kind.as_str(), "optimum" | "best-found")
+                && own.contains(&m.configuration.as_str())
+                && m.placement.cost_usd <= budget_usd + 1e-6
+        })
+        .max_by(|a, b| a.1.map_mean.total_cmp(&b.1.map_mean))?;
+    let mut d: Vec<f64> = rec.map_replicates.iter().zip(&t.map_replicates).map(|(a, b)| a - b).collect();
+    d.sort_by(f64::total_cmp);
+    let q = |p: f64| d.get(((d.len() as f64 - 1.0) * p).round() as usize).copied().unwrap_or(f64::NAN);
+    Some(Rival {
+        placement: m.slug.clone(),
+        configuration: m.configuration.clone(),
+        cost_usd: m.placement.cost_usd,
+        map_mean: t.map_mean,
+        difference: rec.map_mean - t.map_mean,
+        lo: q(0.025),
+        hi: q(0.975),
+    })
+}
+
+/// The report's section on the recommendation.
+pub fn markdown(r: &Recommendation) -> String {
+    let sensors: Vec<String> = {
+        let mut counts = std::collections::BTreeMap::new();
+        for s in &r.member.placement.sensors {
+            *counts.entry(s.ty.as_str()).or_insert(0) += 1;
+        }
+        counts.into_iter().map(|(t, n)| format!("{n}× {t}")).collect()
+    };
+    let seeds: Vec<String> = r.trained.map.iter().map(|v| format!("{v:.3}")).collect();
+    let mut s = String::from("## The calibrated recommendation, trained\n\n");
+    s.push_str(&format!(
+        "Under a budget of {:.0} USD the calibrated objective buys {} ({:.0} USD; {}). Trained as every placement \
+         above ({}, seeds {}): measured mAP {:.3}, predicted {:.3} [{:.3}, {:.3}] — {} the 95% prediction interval.\n\n",
+        r.budget_usd,
+        sensors.join(" + "),
+        r.member.placement.cost_usd,
+        r.member.slug,
+        r.trained.preset,
+        seeds.join(", "),
+        r.trained.map_mean,
+        r.predicted,
+        r.lo,
+        r.hi,
+        if r.inside { "inside" } else { "outside" }
+    ));
+    match &r.rival {
+        Some(v) => s.push_str(&format!(
+            "The best configuration of the study at equal or lower cost, {} ({:.0} USD, placed for the paper's \
+             objective: {}), measured {:.3}: the recommendation {} by {:+.3} mAP [{:+.3}, {:+.3}] (95%, scene \
+             bootstrap of seed means){}.\n\n",
+            v.configuration,
+            v.cost_usd,
+            v.placement,
+            v.map_mean,
+            if v.difference >= 0.0 { "leads" } else { "trails" },
+            v.difference,
+            v.lo,
+            v.hi,
+            if v.lo > 0.0 || v.hi < 0.0 { "" } else { "; the interval holds 0, so neither wins clearly" }
+        )),
+        None => s.push_str("No configuration of the study costs as little as the budget.\n\n"),
+    }
+    s
+}
