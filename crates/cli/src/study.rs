@@ -310,10 +310,56 @@ pub struct ValidateArgs {
     /// study's budget and simulate, train and score it as the set was (resumes from --out).
     #[arg(long, conflicts_with = "refit")]
     pub recommend: bool,
+    /// Draw the placement set, then write the validation as a workflow for this engine
+    /// (`snakemake`) into --out instead of running it.
+    #[arg(long, conflicts_with_all = ["refit", "recommend"])]
+    pub workflow: Option<String>,
+    /// One stage of the validation in --out (as its Snakefile runs it): record this
+    /// placement's dataset.
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "train", "resume"])]
+    pub simulate: Option<String>,
+    /// One stage of the validation in --out: this training (`<placement>/<preset>-seed<k>`).
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "resume"])]
+    pub train: Option<String>,
+    /// Run what remains of the validation in --out with the study, profile and settings it
+    /// records (the Snakefile's last step: scores, fit, recommendation).
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow"])]
+    pub resume: bool,
+}
+
+/// A stage of the validation in `out`, run alone: the study, profile and settings it records.
+fn validation_stage(args: &ValidateArgs) -> Result<()> {
+    let rec = hilo_study::validation::record(&args.out)?;
+    let path = (rec.study != EMBEDDED_STUDY).then(|| PathBuf::from(&rec.study));
+    let study = load_study(path.as_deref())?;
+    let registry = crate::train::registry()?;
+    let (Some(profile), Some(settings)) = (rec.profile, rec.settings) else {
+        bail!("{}: the validation record lacks its profile or settings", args.out.display())
+    };
+    let mut reporter = Reporter::new();
+    let mut progress = |p: hilo_study::stages::Progress<'_>| reporter.study(p);
+    if args.resume {
+        let report = hilo_study::validation::run(&study, &registry, &profile, &settings, &args.out, &mut progress)?;
+        for p in hilo_study::validation::write(&args.out, &report)? {
+            eprintln!("wrote {}", p.display());
+        }
+        return Ok(());
+    }
+    let plan = hilo_study::validation::plan(&study, &registry, &profile, &settings, &args.out, &mut progress)?;
+    if let Some(slug) = &args.simulate {
+        hilo_study::validation::simulate(&study, &profile, &plan, slug, &mut progress)?;
+    }
+    if let Some(id) = &args.train {
+        hilo_study::validation::train_job(&registry, &profile, &plan, id, &mut progress)?;
+    }
+    Ok(())
 }
 
 /// `hilo validate`: does the placement objective predict trained accuracy?
 pub fn validate(args: &ValidateArgs) -> Result<()> {
+    if args.simulate.is_some() || args.train.is_some() || args.resume {
+        return validation_stage(args);
+    }
     if args.refit || args.recommend {
         let study = load_study(args.study.as_deref())?;
         let mut report = hilo_study::validation::refit(&study, &args.out)?;
@@ -349,6 +395,25 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
         settings.samples = n;
     }
     let mut reporter = Reporter::new();
+    match args.workflow.as_deref() {
+        None => {}
+        Some("snakemake") => {
+            let plan = hilo_study::validation::plan(&study, &registry, &profile, &settings, &args.out, &mut |p| {
+                reporter.study(p)
+            })?;
+            for p in hilo_study::workflow::write_validation(&plan, &profile, &workflow()?)? {
+                eprintln!("wrote {}", p.display());
+            }
+            eprintln!(
+                "{} placements, {} trainings; run them with: cd {} && snakemake --cores 2",
+                plan.members.len(),
+                plan.jobs.len(),
+                shell_quoted(&args.out)
+            );
+            return Ok(());
+        }
+        Some(other) => bail!("--workflow {other:?}: the supported engine is snakemake"),
+    }
     let report =
         hilo_study::validation::run(&study, &registry, &profile, &settings, &args.out, &mut |p| reporter.study(p))?;
     for p in hilo_study::validation::write(&args.out, &report)? {

@@ -6,29 +6,8 @@
 
 use std::process::Command;
 
-const COARSE: &str = r#"
-[placement]
-cell_m = 3.0
-time_limit_s = 5.0
-[placement.candidates]
-pole_step_m = 1.5
-arm_step_m = 3.0
-lidar_yaw_offsets_deg = [0.0]
-radar_yaw_offsets_deg = [-30.0, 30.0]
-
-[[configurations]]
-name = "2x lidar-16 + radar"
-sensors = { "lidar-16" = 2, "radar-4d" = 1 }
-
-[[configurations]]
-name = "1x lidar-32 + radar"
-sensors = { "lidar-32" = 1, "radar-4d" = 1 }
-
-[validation]
-placements = 12
-lidar_tilts_deg = [5.0, 15.0]
-radar_tilts_deg = [4.0, 12.0]
-"#;
+/// The default scene on a coarse grid with few candidates, a validation of twelve placements.
+const COARSE: &str = include_str!("../../../fixtures/validation-coarse.toml");
 
 fn hilo() -> Command {
     Command::new(env!("CARGO_BIN_EXE_hilo"))
@@ -114,4 +93,80 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     assert_eq!(json(&out.join("validation.json"))["recommendation"], r["recommendation"]);
     run(&["--recommend"]);
     assert_eq!(json(&out.join("validation.json"))["recommendation"], r["recommendation"]);
+}
+
+/// Drops what measures time (`seconds`, `*_s`, `*_seconds`): it differs between any two runs.
+fn untimed(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Object(m) => {
+            m.retain(|k, _| !(k == "seconds" || k.ends_with("_s") || k.ends_with("_seconds")));
+            m.values_mut().for_each(untimed);
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(untimed),
+        _ => {}
+    }
+}
+
+/// The validation written as a Snakefile names a job per placement's dataset and per training,
+/// each a `hilo validate` stage of the folder; run one by one, as the engine runs them, then the
+/// last step, they give the validation of one process apart from timing fields.
+#[test]
+fn a_validation_run_stage_by_stage_as_its_snakefile_says_equals_one_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = dir.path().join("coarse.toml");
+    std::fs::write(&study, COARSE).unwrap();
+    let validate = |out: &std::path::Path, extra: &[&str]| {
+        let o = hilo()
+            .arg("validate")
+            .arg(&study)
+            .args(["--profile", "tiny", "--seeds", "1", "--samples", "4", "--out"])
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{extra:?}: {}", String::from_utf8_lossy(&o.stderr));
+    };
+    let (one, wf) = (dir.path().join("one"), dir.path().join("wf"));
+    validate(&one, &[]);
+    validate(&wf, &["--workflow", "snakemake"]);
+    assert!(!wf.join("validation.json").exists(), "the workflow is written, not run");
+    let snake = std::fs::read_to_string(wf.join("Snakefile")).unwrap();
+    assert!(wf.join("config.yaml").exists());
+    let stage = |flag: &str| -> Vec<String> {
+        snake
+            .lines()
+            .filter_map(|l| l.split(&format!("validate {flag} ")).nth(1))
+            .map(|rest| rest.split(' ').next().unwrap().to_owned())
+            .collect()
+    };
+    let (members, trainings) = (stage("--simulate"), stage("--train"));
+    let r = json(&one.join("validation.json"));
+    assert_eq!(members.len(), r["members"].as_array().unwrap().len());
+    assert_eq!(trainings.len(), members.len(), "one seed per placement");
+    assert_eq!(
+        snake.matches("\nrule ").count(),
+        1 + 1 + members.len() + trainings.len(),
+        "all, the last step, the stages"
+    );
+    assert!(snake.contains("validate --resume --out ."), "{snake}");
+    // As the engine would: each stage alone, from the folder's record (no study argument).
+    let stage_run = |args: &[&str]| {
+        let o = hilo().arg("validate").args(args).arg("--out").arg(&wf).output().unwrap();
+        assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+    };
+    for m in &members {
+        stage_run(&["--simulate", m]);
+    }
+    for t in &trainings {
+        stage_run(&["--train", t]);
+    }
+    stage_run(&["--resume"]);
+    let (mut a, mut b) = (r, json(&wf.join("validation.json")));
+    untimed(&mut a);
+    untimed(&mut b);
+    assert_eq!(a, b);
+    // A stage that names no placement of the folder is refused by name.
+    let o = hilo().args(["validate", "--simulate", "m99-nothing", "--out"]).arg(&wf).output().unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("m99-nothing"));
 }

@@ -6,7 +6,9 @@
 
 use crate::error::{Result, StudyError};
 use crate::plan::Plan;
+use crate::profile::Profile;
 use crate::sweep::Sweep;
+use crate::validation::ValidationPlan;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -64,7 +66,11 @@ pub fn report(results: usize, val_frames: usize) -> Resources {
 
 /// Frames of one configuration's dataset: (training + validation, validation).
 pub fn frames(plan: &Plan) -> (usize, usize) {
-    let d = &plan.profile.dataset;
+    frames_of(&plan.profile)
+}
+
+fn frames_of(profile: &Profile) -> (usize, usize) {
+    let d = &profile.dataset;
     (d.total_frames(), d.val_scenes * d.val_frames_per_scene())
 }
 
@@ -78,9 +84,13 @@ pub struct Workflow {
 }
 
 fn rel(plan: &Plan, p: &Path) -> Result<String> {
-    let r = p.strip_prefix(&plan.out).map_err(|_| {
-        StudyError::Invalid(format!("{} is outside the study folder {}", p.display(), plan.out.display()))
-    })?;
+    rel_to(&plan.out, p)
+}
+
+fn rel_to(base: &Path, p: &Path) -> Result<String> {
+    let r = p
+        .strip_prefix(base)
+        .map_err(|_| StudyError::Invalid(format!("{} is outside the study folder {}", p.display(), base.display())))?;
     let s = r.to_string_lossy().into_owned();
     shell_word(&s)?;
     Ok(s)
@@ -129,7 +139,7 @@ struct Rule {
     resources: Resources,
     gpu: bool,
     log: String,
-    /// The `hilo study` stage command, without `--out`.
+    /// The hilo command of the stage (`study train --job …`), without `--out`.
     cmd: String,
     /// The study folder the stage works on, relative to the Snakefile's folder.
     out: String,
@@ -155,7 +165,7 @@ impl Rule {
         // `:q` has Snakemake quote the executable's path for the shell (spaces, `$(...)`).
         let _ = writeln!(
             out,
-            "    shell: \"RAYON_NUM_THREADS={{threads}} {{config[hilo]:q}} study {} --out {} > {{log:q}} 2>&1\"",
+            "    shell: \"RAYON_NUM_THREADS={{threads}} {{config[hilo]:q}} {} --out {} > {{log:q}} 2>&1\"",
             self.cmd, self.out
         );
     }
@@ -163,7 +173,7 @@ impl Rule {
 
 const HOW_TO_RUN: &str = "# Run it from this folder: `snakemake --cores 2` (locally), `snakemake --executor slurm --jobs 20`,\n\
      # or `snakemake --executor kubernetes --jobs 20 --default-storage-provider s3 ...`.\n\
-     # Each rule is one stage (`hilo study <stage> --out <study folder>`); outputs are written\n\
+     # Each rule is one stage (a hilo command run with --out this folder); outputs are written\n\
      # atomically and named by content hash, so a rerun redoes only unfinished stages (use\n\
      # --rerun-incomplete after a killed run). benchmarks/ receives each job's seconds and peak\n\
      # memory (max_rss, MB), as Snakemake measures them.";
@@ -200,7 +210,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             resources: report(results, val_frames),
             gpu: false,
             log: log("report".into()),
-            cmd: "report".into(),
+            cmd: "study report".into(),
             out: out.clone(),
         },
         Rule {
@@ -210,7 +220,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             resources: PLACE,
             gpu: false,
             log: log("place".into()),
-            cmd: "place".into(),
+            cmd: "study place".into(),
             out: out.clone(),
         },
     ];
@@ -223,7 +233,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             resources: simulate(all_frames),
             gpu: false,
             log: log(format!("simulate-{slug}")),
-            cmd: format!("simulate --configuration {slug}"),
+            cmd: format!("study simulate --configuration {slug}"),
             out: out.clone(),
         });
     }
@@ -236,7 +246,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             resources: train(all_frames, j.train.samples),
             gpu: wf.gpu,
             log: log(format!("train-{}", j.id.replace('/', "-"))),
-            cmd: format!("train --job {}", shell_word(&j.id)?),
+            cmd: format!("study train --job {}", shell_word(&j.id)?),
             out: out.clone(),
         });
     }
@@ -299,7 +309,7 @@ pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<S
         resources: COMPARE,
         gpu: false,
         log: "compare".into(),
-        cmd: "compare".into(),
+        cmd: "study compare".into(),
         out: ".".into(),
     }];
     for (sh, plan) in sweep.shards.iter().zip(plans) {
@@ -307,6 +317,88 @@ pub fn sweep_snakefile(sweep: &Sweep, plans: &[Plan], wf: &Workflow) -> Result<S
     }
     emit(&mut s, "comparison.json", &all, &format!("the sweep {}", sweep.source))?;
     Ok(s)
+}
+
+/// The Snakefile of a validation (its placement set already drawn): one job per placement's
+/// dataset and per training of the set, then the last step in one process (`hilo validate
+/// --resume`: scores, the calibrated fit, and the recommendation placed, simulated and trained).
+pub fn validation_snakefile(plan: &ValidationPlan, profile: &Profile, wf: &Workflow) -> Result<String> {
+    let base = &plan.out;
+    let (all_frames, val_frames) = frames_of(profile);
+    let set = rel_to(base, &plan.set_file())?;
+    let data: Vec<String> = plan.data.iter().map(|d| rel_to(base, &d.done())).collect::<Result<_>>()?;
+    let samples = plan.jobs.iter().map(|j| j.train.samples).max().unwrap_or(0);
+    let trainer = train(all_frames, samples);
+    let mut last_inputs = data.clone();
+    let mut rules = Vec::new();
+    for j in &plan.jobs {
+        let outputs: Vec<String> = j.outputs().iter().map(|p| rel_to(base, p)).collect::<Result<_>>()?;
+        last_inputs.extend(outputs.iter().cloned());
+        let id = shell_word(&j.id)?;
+        rules.push(Rule {
+            name: rule_name(&["train", &j.id]),
+            inputs: vec![data[j.configuration].clone()],
+            outputs,
+            resources: trainer,
+            gpu: wf.gpu,
+            log: format!("train-{}", id.replace('/', "-")),
+            cmd: format!("validate --train {id}"),
+            out: ".".into(),
+        });
+    }
+    for (m, d) in plan.members.iter().zip(&data) {
+        let slug = shell_word(&m.slug)?;
+        rules.push(Rule {
+            name: rule_name(&["simulate", slug]),
+            inputs: vec![set.clone()],
+            outputs: vec![d.clone()],
+            resources: simulate(all_frames),
+            gpu: false,
+            log: format!("simulate-{slug}"),
+            cmd: format!("validate --simulate {slug}"),
+            out: ".".into(),
+        });
+    }
+    // Scoring every placement, then the recommendation's dataset and trainings (its seeds at
+    // once): the sum of their hints, the largest memory.
+    let results = plan.jobs.len() * 2;
+    let (rep, sim) = (report(results, val_frames), simulate(all_frames));
+    let last = Resources {
+        threads: 2,
+        mem_mb: rep.mem_mb.max(sim.mem_mb).max(2 * trainer.mem_mb),
+        runtime_min: rep.runtime_min + sim.runtime_min + trainer.runtime_min,
+    };
+    rules.insert(
+        0,
+        Rule {
+            name: "validation".into(),
+            inputs: last_inputs,
+            outputs: vec!["validation.json".into(), "validation.md".into()],
+            resources: last,
+            gpu: wf.gpu,
+            log: "validation".into(),
+            cmd: "validate --resume".into(),
+            out: ".".into(),
+        },
+    );
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# The validation in {} as a Snakemake workflow, written by `hilo validate --workflow snakemake`.\n{HOW_TO_RUN}\n\
+         # Profile {}: {} placements, {} trainings; the placement set is drawn (set/), the last rule scores\n\
+         # them, fits the calibrated objective and trains its recommendation.",
+        comment(&base.display().to_string()),
+        comment(&profile.name),
+        plan.members.len(),
+        plan.jobs.len()
+    );
+    emit(&mut s, "validation.json", &rules, &format!("the validation in {}", base.display()))?;
+    Ok(s)
+}
+
+/// Writes a validation's `Snakefile` and `config.yaml` into its folder.
+pub fn write_validation(plan: &ValidationPlan, profile: &Profile, wf: &Workflow) -> Result<Vec<PathBuf>> {
+    write_files(&plan.out, &validation_snakefile(plan, profile, wf)?, wf)
 }
 
 /// `config.yaml`: the hilo executable the rules call.

@@ -18,10 +18,11 @@
 //! cross-fitting; `[placement] objective = "calibrated"` places with it
 //! ([`hilo_placement_ip::calibrated`]). The rig it buys under the study's budget is then
 //! trained as the members were and set beside its prediction and the best configuration of the
-//! study at equal or lower cost ([`recommend`]). What it leaves out: a workflow-engine form of
-//! its jobs (it runs in one process and resumes from its folder; its stage folders are named by
-//! hashes that include the code, so a run is resumed by the same build; `--refit` and
-//! `--recommend` read a finished run's `validation.json` with any later build).
+//! study at equal or lower cost ([`recommend`]). It runs in one process ([`run`]) or as a
+//! workflow engine's jobs ([`plan`] draws the set and names the stages, [`simulate`] and
+//! [`train_job`] run one each, `crate::workflow::validation_snakefile` writes them); its stage
+//! folders are named by hashes that include the code, so a run is resumed by the same build
+//! (`--refit` and `--recommend` read a finished run's `validation.json` with any later build).
 //!
 //! Layout of its folder (every stage resumable; a stage's folder is named by the hash of
 //! what decides it):
@@ -179,16 +180,40 @@ pub struct ValidationReport {
     pub seconds: f64,
 }
 
-/// The folder's record: which validation it holds.
+/// The folder's record: which validation it holds, and what a stage run alone (by a workflow
+/// engine's job) needs to take it up: the study's source, the profile and the settings.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-struct FolderRecord {
+pub struct FolderRecord {
     fingerprint: String,
-    study: String,
+    /// The study file's absolute path, or the embedded default's name.
+    pub study: String,
+    #[serde(default)]
+    pub profile: Option<Profile>,
+    #[serde(default)]
+    pub settings: Option<ValidationSettings>,
+}
+
+/// The record of the validation in `out` (for a stage run alone).
+pub fn record(out: &Path) -> Result<FolderRecord> {
+    let r: FolderRecord = read_json(&out.join("validation-folder.json"), limit::TABLE)?;
+    if r.profile.is_none() || r.settings.is_none() {
+        return Err(StudyError::Invalid(format!(
+            "{}: written by an older hilo that did not record the profile and settings; run the validation again in one process",
+            out.display()
+        )));
+    }
+    Ok(r)
 }
 
 /// Claims `out` for this validation (refuses a folder that holds anything else).
-fn claim(out: &Path, fingerprint: &str, study: &Study) -> Result<()> {
+fn claim(out: &Path, fingerprint: &str, study: &Study, profile: &Profile, settings: &ValidationSettings) -> Result<()> {
     let record = out.join("validation-folder.json");
+    let mine = FolderRecord {
+        fingerprint: fingerprint.to_owned(),
+        study: study.source.clone(),
+        profile: Some(profile.clone()),
+        settings: Some(settings.clone()),
+    };
     if record.exists() {
         let old: FolderRecord = read_json(&record, limit::TABLE)?;
         if old.fingerprint != fingerprint {
@@ -196,6 +221,9 @@ fn claim(out: &Path, fingerprint: &str, study: &Study) -> Result<()> {
                 "{} holds another validation (study, settings or profile differ); choose another --out",
                 out.display()
             )));
+        }
+        if old.profile.is_none() {
+            write_json(&record, &mine)?;
         }
         return Ok(());
     }
@@ -206,26 +234,56 @@ fn claim(out: &Path, fingerprint: &str, study: &Study) -> Result<()> {
         )));
     }
     std::fs::create_dir_all(out).map_err(|e| hilo_core::fs::FileError::io(out, e))?;
-    Ok(write_json(&record, &FolderRecord { fingerprint: fingerprint.to_owned(), study: study.source.clone() })?)
+    Ok(write_json(&record, &mine)?)
 }
 
-/// Runs (or resumes) the validation of `study` in `out` at the scale of `profile` (its dataset
-/// settings, sampling, scene-bootstrap replicates and trainings at once).
-pub fn run(
+/// The stages of a validation, known once its placement set is drawn: what `run` does in one
+/// process and a workflow engine does as one job per placement (simulate) and per placement ×
+/// seed (train).
+#[derive(Clone, Debug)]
+pub struct ValidationPlan {
+    pub out: PathBuf,
+    pub members: Vec<Member>,
+    /// The set stage's folder (`set/<h>/`), its `set.json` written last.
+    pub set_dir: PathBuf,
+    /// Per member, its dataset stage.
+    pub data: Vec<DataStage>,
+    /// Every training, `configuration` the member's index.
+    pub jobs: Vec<Job>,
+}
+
+impl ValidationPlan {
+    pub fn set_file(&self) -> PathBuf {
+        self.set_dir.join("set.json")
+    }
+
+    fn member(&self, slug: &str) -> Result<usize> {
+        self.members.iter().position(|m| m.slug == slug).ok_or_else(|| {
+            StudyError::Invalid(format!(
+                "no placement {slug:?} in the validation in {}; it has {}",
+                self.out.display(),
+                self.members.iter().map(|m| m.slug.as_str()).collect::<Vec<_>>().join(", ")
+            ))
+        })
+    }
+}
+
+/// Claims `out` for the validation of `study` at the scale of `profile`, draws (or reads) its
+/// placement set and names every stage.
+pub fn plan(
     study: &Study,
     registry: &Registry,
     profile: &Profile,
     settings: &ValidationSettings,
     out: &Path,
     progress: &mut (dyn FnMut(Progress) + Send),
-) -> Result<ValidationReport> {
-    let t0 = std::time::Instant::now();
+) -> Result<ValidationPlan> {
     settings.check(registry, &study.source)?;
     let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
     let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
     let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, study.file.configurations);
     let fingerprint = hash(&[&defining, &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
-    claim(out, &fingerprint, study)?;
+    claim(out, &fingerprint, study, profile, settings)?;
     // 1. The set.
     let set_hash = stage_hash("validation-set", &[&defining, &sjson, &study.scene_hash, &study.catalog_hash]);
     let set_dir = out.join("set").join(short(&set_hash));
@@ -245,7 +303,7 @@ pub fn run(
             m
         }
     };
-    // 2. A dataset per member, the study's traffic.
+    // 2. A dataset per member, the study's traffic; 3. trainings.
     let data: Vec<DataStage> = members
         .iter()
         .map(|m| {
@@ -253,32 +311,86 @@ pub fn run(
             DataStage { dir: out.join("data").join(format!("{}-{}", m.slug, short(&h))), hash: h }
         })
         .collect();
-    for (m, d) in members.iter().zip(&data) {
-        if d.done().exists() {
-            continue;
-        }
-        let ppath = set_dir.join(format!("{}.json", m.slug));
-        crate::stages::record_dataset(study, &m.placement, &ppath, &profile.dataset, d, &m.slug, progress)?;
-    }
-    // 3. Training: 2b samples per seed, weights kept at b.
     let jobs = jobs(&members, &data, registry, profile, settings, out)?;
+    Ok(ValidationPlan { out: out.to_owned(), members, set_dir, data, jobs })
+}
+
+/// Records one member's dataset (skipped when done).
+pub fn simulate(
+    study: &Study,
+    profile: &Profile,
+    plan: &ValidationPlan,
+    slug: &str,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<()> {
+    let i = plan.member(slug)?;
+    let (m, d) = (&plan.members[i], &plan.data[i]);
+    if d.done().exists() {
+        return Ok(());
+    }
+    let ppath = plan.set_dir.join(format!("{}.json", m.slug));
+    crate::stages::record_dataset(study, &m.placement, &ppath, &profile.dataset, d, &m.slug, progress).map(|_| ())
+}
+
+/// Trains the jobs of one member (all of them, or the one named `only`), skipping those done.
+pub fn train(
+    registry: &Registry,
+    profile: &Profile,
+    plan: &ValidationPlan,
+    member: usize,
+    only: Option<&str>,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<Vec<(Job, crate::stages::JobOutput)>> {
+    let mine: Vec<&Job> =
+        plan.jobs.iter().filter(|j| j.configuration == member && only.is_none_or(|id| j.id == id)).collect();
+    let label = format!("training on {} ({} of {})", plan.members[member].slug, member + 1, plan.members.len());
+    let shared = std::sync::Mutex::new(&mut *progress);
+    let tick = |_: &Job, f: f64| {
+        if let Ok(mut p) = shared.lock() {
+            p(Progress::Task { label: &label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
+        }
+    };
+    let outs = crate::stages::train_jobs(&plan.data[member].dir, &mine, registry, profile.trainings_at_once, &tick)?;
+    progress(Progress::TaskDone);
+    Ok(mine.into_iter().cloned().zip(outs).collect())
+}
+
+/// Trains one job by its id (`<member>/<preset>-seed<k>`, as the Snakefile names it).
+pub fn train_job(
+    registry: &Registry,
+    profile: &Profile,
+    plan: &ValidationPlan,
+    id: &str,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<()> {
+    let j = plan.jobs.iter().find(|j| j.id == id).ok_or_else(|| {
+        StudyError::Invalid(format!("no training {id:?} in the validation in {}", plan.out.display()))
+    })?;
+    train(registry, profile, plan, j.configuration, Some(id), progress).map(|_| ())
+}
+
+/// Runs (or resumes) the validation of `study` in `out` at the scale of `profile` (its dataset
+/// settings, sampling, scene-bootstrap replicates and trainings at once).
+pub fn run(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    settings: &ValidationSettings,
+    out: &Path,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<ValidationReport> {
+    let t0 = std::time::Instant::now();
+    let plan = plan(study, registry, profile, settings, out, progress)?;
+    for m in &plan.members {
+        simulate(study, profile, &plan, &m.slug, progress)?;
+    }
     let mut outputs = Vec::new();
-    for (mi, d) in data.iter().enumerate() {
-        let mine: Vec<&Job> = jobs.iter().filter(|j| j.configuration == mi).collect();
-        let label = format!("training on {} ({} of {})", members[mi].slug, mi + 1, members.len());
-        let shared = std::sync::Mutex::new(&mut *progress);
-        let tick = |_: &Job, f: f64| {
-            if let Ok(mut p) = shared.lock() {
-                p(Progress::Task { label: &label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
-            }
-        };
-        let outs = crate::stages::train_jobs(&d.dir, &mine, registry, profile.trainings_at_once, &tick)?;
-        progress(Progress::TaskDone);
-        outputs.push(mine.into_iter().cloned().zip(outs).collect::<Vec<_>>());
+    for mi in 0..plan.members.len() {
+        outputs.push(train(registry, profile, &plan, mi, None, progress)?);
     }
     // 4. Scores on the common ground truth, predictors of the traffic, agreement.
     progress(Progress::Stage("validation: scoring"));
-    let mut report = score(study, profile, settings, members, &data, outputs, t0)?;
+    let mut report = score(study, profile, settings, plan.members, &plan.data, outputs, t0)?;
     // 5. The rig the calibrated objective buys, trained as the members were.
     report.recommendation = recommend::recommend(study, registry, profile, &report, out, progress)?;
     report.seconds = t0.elapsed().as_secs_f64();
