@@ -95,6 +95,27 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("holds another study"), "{err}");
     assert_eq!(before, std::fs::read(out.join("report.json")).unwrap());
+    // A validation of this study in its `validation/` folder joins the report (the committed
+    // quick validation of the embedded study stands in for `hilo validate --out study/validation`);
+    // one of another study is named and left out.
+    let quick = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/validation-quick/validation.json");
+    let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(quick).unwrap()).unwrap();
+    std::fs::create_dir_all(out.join("validation")).unwrap();
+    let report = |v: &serde_json::Value| {
+        std::fs::write(out.join("validation/validation.json"), serde_json::to_vec(v).unwrap()).unwrap();
+        let o = hilo().args(["study", "report", "--out"]).arg(&out).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read_to_string(out.join("report.md")).unwrap()
+    };
+    let md = report(&v);
+    for section in
+        ["\n## Does the objective predict accuracy?", "\n### A calibrated objective", "\n### Every placement"]
+    {
+        assert!(md.contains(section), "report.md lacks {section:?}");
+    }
+    v["study"] = "elsewhere.toml".into();
+    let md = report(&v);
+    assert!(md.contains("holds a validation of elsewhere.toml") && !md.contains("### A calibrated objective"));
 }
 
 #[test]

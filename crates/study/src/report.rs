@@ -169,7 +169,39 @@ pub fn write(
             }
         }
     }
-    Ok(write_atomic(&out.join("report.md"), markdown(r, results, configs, &presets).as_bytes())?)
+    let mut md = markdown(r, results, configs, &presets);
+    md.push_str(&validation_section(out, &r.study)?);
+    Ok(write_atomic(&out.join("report.md"), md.as_bytes())?)
+}
+
+/// The folder, inside a study's, where `hilo validate --out <study>/validation` puts the
+/// validation that the study's report then includes.
+pub const VALIDATION_DIR: &str = "validation";
+
+/// The section "Does the objective predict accuracy?" from `<out>/validation/validation.json`
+/// when that folder holds a finished validation of this study (headings one level down, under
+/// the report's); empty otherwise, and a line saying why when it holds another study's.
+fn validation_section(out: &Path, study: &str) -> Result<String> {
+    let path = out.join(VALIDATION_DIR).join("validation.json");
+    if !path.exists() {
+        return Ok(String::new());
+    }
+    let v: crate::validation::ValidationReport = hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE)?;
+    if v.study != study {
+        return Ok(format!(
+            "\n## Does the objective predict accuracy?\n\n{} holds a validation of {}, not of this study; it is not \
+             included.\n",
+            path.display(),
+            v.study
+        ));
+    }
+    let body = crate::validation::markdown(&v);
+    let demoted: String =
+        body.lines().map(|l| if l.starts_with('#') { format!("#{l}\n") } else { format!("{l}\n") }).collect();
+    Ok(format!(
+        "\n{demoted}\n(From `{VALIDATION_DIR}/validation.json`, made by `hilo validate --out <this folder>/{VALIDATION_DIR}` \
+         with the study's file; its charts are in `{VALIDATION_DIR}/`.)\n"
+    ))
 }
 
 fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
