@@ -14,7 +14,7 @@ use crate::writer::{Annotation, FrameData, RadarSweep, SceneData};
 use glam::Vec3;
 use hilo_core::{Check, Valid};
 use hilo_raycast::{ActorSet, HitTarget, Ray, Scene, World};
-use hilo_sensor_models::{SensorPose, SensorSpec, simulate_lidar, simulate_radar};
+use hilo_sensor_models::{SensorPose, SensorSpec, Weather, simulate_lidar, simulate_radar};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -45,6 +45,9 @@ pub struct SimulateConfig {
     /// Road users farther than this from the scene origin are not annotated.
     pub annotate_radius_m: f32,
     pub traffic: TrafficConfig,
+    /// Rain and fog (clear when absent): the sensors' specs are changed by the published
+    /// models of [`hilo_sensor_models::weather`] before every scan.
+    pub weather: Weather,
 }
 
 impl Default for SimulateConfig {
@@ -60,6 +63,7 @@ impl Default for SimulateConfig {
             seed: 0,
             annotate_radius_m: 70.0,
             traffic: TrafficConfig::default(),
+            weather: Weather::default(),
         }
     }
 }
@@ -125,6 +129,7 @@ impl Check for SimulateConfig {
     /// [`MAX_FRAMES`]) so a typo is an error, not an allocation that exhausts memory.
     fn check(&self) -> Result<(), DatasetError> {
         let bad = |f: &str, v: String, why: &str| Err(DatasetError::Invalid(format!("dataset.{f} = {v}: {why}")));
+        self.weather.check().map_err(|e| DatasetError::Invalid(format!("dataset.{e}")))?;
         if self.scenes == 0 {
             return bad("scenes", "0".into(), "at least one training scene is needed");
         }
@@ -305,6 +310,18 @@ pub fn simulate_scene_with(
     on_frame: &(dyn Fn(usize) + Sync),
 ) -> Result<SceneData, DatasetError> {
     let stream = id.stream();
+    // The rig in the scene's weather (clear weather leaves every spec as it is).
+    let weathered: Vec<RigSensor> = rig
+        .iter()
+        .map(|s| RigSensor {
+            spec: match &s.spec {
+                SensorSpec::Lidar(l) => SensorSpec::Lidar(cfg.weather.lidar(l)),
+                SensorSpec::Radar(r) => SensorSpec::Radar(cfg.weather.radar(r)),
+            },
+            ..s.clone()
+        })
+        .collect();
+    let rig = &weathered[..];
     let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, stream]))?;
     let rate = match id.split {
         Split::Train => cfg.rate_hz,

@@ -221,3 +221,45 @@ fn radar_doppler_is_the_true_velocity_on_the_line_of_sight() {
     assert!(median <= sigma + 0.05, "median error {median} m/s for σ = {sigma}");
     assert!(p95 <= 3.0 * sigma + 0.3, "95th percentile error {p95} m/s for σ = {sigma}");
 }
+
+/// Weather reaches the scans and nothing else: the same traffic is annotated in every condition;
+/// in dense fog the LiDAR returns fewer points and none beyond the fog's maximum range; in a
+/// cloudburst the radar reports fewer detections. A bad weather value is refused by its name.
+#[test]
+fn fog_and_rain_thin_the_scans_of_the_same_traffic() {
+    use hilo_core::Check;
+    use hilo_sensor_models::Weather;
+    use hilo_sensor_models::weather::{fog_extinction_per_m, max_range_m};
+    let scene = Scene::default_fixture().unwrap();
+    let (w, r) = (world(&scene), rig(&scene));
+    let run = |weather: Weather| {
+        let c = SimulateConfig { scenes: 1, seconds: 1.0, weather, ..cfg() }.validate().unwrap();
+        simulate_scene(&scene, &w, &r, &c, &train(0)).unwrap()
+    };
+    let clear = run(Weather::default());
+    let fog = run(Weather { fog_visibility_m: Some(60.0), ..Weather::default() });
+    let rain = run(Weather { rain_mm_h: 100.0, ..Weather::default() });
+    let boxes = |d: &hilo_dataset::writer::SceneData| -> Vec<String> {
+        d.frames.iter().flat_map(|f| f.annotations.iter().map(|a| format!("{:?}", a.box3))).collect()
+    };
+    assert_eq!(boxes(&clear), boxes(&fog));
+    assert_eq!(boxes(&clear), boxes(&rain));
+    let lidar = |d: &hilo_dataset::writer::SceneData| d.frames.iter().map(|f| f.lidar[0].len()).sum::<usize>();
+    let radar = |d: &hilo_dataset::writer::SceneData| d.frames.iter().map(|f| f.radar[0].len()).sum::<usize>();
+    let clear_reach = match &r[0].spec {
+        hilo_sensor_models::SensorSpec::Lidar(l) => l.max_range_m,
+        _ => unreachable!(),
+    };
+    let reach = max_range_m(clear_reach, fog_extinction_per_m(60.0));
+    let far = fog
+        .frames
+        .iter()
+        .flat_map(|f| f.lidar[0].iter())
+        .map(|p| Vec3::new(p.x, p.y, p.z).length())
+        .fold(0.0, f32::max);
+    assert!(far <= reach + 1e-3, "a return at {far} m, beyond the fog's {reach} m");
+    assert!(lidar(&fog) < lidar(&clear) * 9 / 10, "fog {} vs clear {}", lidar(&fog), lidar(&clear));
+    assert!(radar(&rain) < radar(&clear), "rain {} vs clear {}", radar(&rain), radar(&clear));
+    let e = SimulateConfig { weather: Weather { rain_mm_h: f32::NAN, ..Weather::default() }, ..cfg() }.check();
+    assert!(e.unwrap_err().to_string().contains("dataset.weather.rain_mm_h"));
+}

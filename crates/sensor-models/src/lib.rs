@@ -7,6 +7,7 @@
 //! - [`probability`]: the detection-probability model placement uses (expected LiDAR returns,
 //!   radar detection probability) for probe targets.
 //! - [`export`]: PCD and PLY writers and readers.
+//! - [`weather`]: rain and fog (published attenuation models) applied to the specs.
 //!
 //! The difference the paper studies is made physical here: a LiDAR returns dense geometry whose
 //! density falls with range and beam count; a radar returns a few detections per target, each
@@ -20,6 +21,7 @@ pub mod pose;
 pub mod probability;
 pub mod radar;
 pub mod spec;
+pub mod weather;
 
 pub use error::SensorError;
 pub use lidar::{LidarScan, PointSource, simulate_lidar};
@@ -27,3 +29,4 @@ pub use pose::SensorPose;
 pub use probability::{Probe, lidar_expected_returns, radar_detection_probability};
 pub use radar::{RadarScan, simulate_radar};
 pub use spec::{Catalog, LidarSpec, RadarSpec, SensorSpec};
+pub use weather::Weather;

@@ -9,8 +9,9 @@
 //!
 //! Left out, on purpose: actors are frozen at the frame time during the sweep (a 50 ms sweep
 //! moves a 20 m/s car by at most 1 m; point timestamps are still recorded per column, so a
-//! consumer can de-skew), there are no multiple returns, beam divergence or rain and fog; the
-//! beams fire from one point (no per-laser offsets).
+//! consumer can de-skew), there are no multiple returns or beam divergence; the beams fire from
+//! one point (no per-laser offsets). Rain and fog act through the spec
+//! ([`crate::weather::Weather::lidar`]: shorter maximum range, weaker returns).
 
 use crate::error::SensorError;
 use crate::noise::{rng_for, stream};

@@ -59,9 +59,12 @@ impl RadarScan {
 }
 
 /// Mean SNR (dB) of a target of `rcs_dbsm` at `range_m`: the radar equation, SNR ∝ σ/R⁴,
-/// anchored at `snr_at_max_range_db` for 10 dBsm at `max_range_m`.
+/// anchored at `snr_at_max_range_db` for 10 dBsm at `max_range_m`, less the air's two-way path
+/// loss (`path_loss_db_per_m`: rain, 0 in clear air).
 pub fn snr_db(spec: &RadarSpec, rcs_dbsm: f32, range_m: f32) -> f32 {
-    spec.snr_at_max_range_db + (rcs_dbsm - 10.0) - 40.0 * (range_m.max(1e-3) / spec.max_range_m).log10()
+    spec.snr_at_max_range_db + (rcs_dbsm - 10.0)
+        - 40.0 * (range_m.max(1e-3) / spec.max_range_m).log10()
+        - 2.0 * spec.path_loss_db_per_m * range_m
 }
 
 /// Probability that a Swerling-I target of mean SNR `mean_snr_db` passes the threshold:

@@ -83,6 +83,18 @@ pub struct RadarSpec {
     pub rcs_dbsm: RcsTable,
     pub price_usd: f64,
     pub price_source: String,
+    /// Carrier frequency, GHz (what rain attenuates by; 77 for automotive and roadside 4D
+    /// radars).
+    #[serde(default = "carrier_77")]
+    pub carrier_ghz: f32,
+    /// One-way path loss of the air, dB per metre: 0 in clear air; set by
+    /// [`crate::weather::Weather::radar`] for rain. The SNR loses it twice over the range.
+    #[serde(default)]
+    pub path_loss_db_per_m: f32,
+}
+
+fn carrier_77() -> f32 {
+    77.0
 }
 
 /// Mean radar cross-section per class, dBsm.
@@ -314,6 +326,10 @@ fn validate_radar(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {
     if r.max_points == 0 {
         return Err(c.err("max_points", r.max_points, "must be at least 1"));
     }
+    if !(r.carrier_ghz.is_finite() && (1.0..=1000.0).contains(&r.carrier_ghz)) {
+        return Err(c.err("carrier_ghz", r.carrier_ghz, "must be 1 to 1,000 GHz (the rain model's range)"));
+    }
+    c.non_negative("path_loss_db_per_m", r.path_loss_db_per_m)?;
     c.price(r.price_usd)
 }
 
