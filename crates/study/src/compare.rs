@@ -32,6 +32,52 @@ pub struct Comparison {
     /// Per preset, the configuration with the highest mean mAP in each study.
     pub leaders: Vec<Leader>,
     pub claims: Vec<ClaimAcross>,
+    /// Per study and metric, what the radar adds (the `radar_adds` claim) and per $1,000 it
+    /// costs: the radar's marginal value per condition when the sweep is over weathers.
+    #[serde(default)]
+    pub radar_worth: Vec<RadarWorth>,
+}
+
+/// What a radar adds in one study, for one metric.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RadarWorth {
+    pub study: String,
+    pub metric: String,
+    /// The rig with the radar, fused, minus the LiDAR-only rig, and its 95% interval.
+    pub estimate: f64,
+    pub lo: f64,
+    pub hi: f64,
+    /// What the rig with the radar costs over the LiDAR-only one (USD).
+    pub extra_cost_usd: f64,
+    /// `estimate` per $1,000 of `extra_cost_usd` (None when it costs nothing more).
+    pub per_1000_usd: Option<f64>,
+    pub verdict: Verdict,
+}
+
+/// The `radar_adds` rows of each study, priced by the configurations they compare.
+fn radar_worth(reports: &[(ShardRecord, Report)]) -> Vec<RadarWorth> {
+    let mut out = Vec::new();
+    for (s, r) in reports {
+        let Some(c) = r.claims.iter().find(|c| c.id == "radar_adds" && c.not_tested.is_none()) else { continue };
+        let cost = |side: &[(String, String)]| -> Option<f64> {
+            let name = &side.first()?.0;
+            r.configurations.iter().find(|c| &c.name == name).map(|c| c.cost_usd)
+        };
+        for row in &c.rows {
+            let Some(extra) = cost(&row.b).zip(cost(&row.a)).map(|(b, a)| b - a) else { continue };
+            out.push(RadarWorth {
+                study: s.name.clone(),
+                metric: row.metric.clone(),
+                estimate: row.test.estimate,
+                lo: row.test.lo,
+                hi: row.test.hi,
+                extra_cost_usd: extra,
+                per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
+                verdict: row.verdict,
+            });
+        }
+    }
+    out
 }
 
 /// One study of the sweep: its design and its test's measured calibration.
@@ -303,6 +349,7 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
         configurations,
         leaders,
         claims,
+        radar_worth: radar_worth(reports),
     }
 }
 
@@ -427,6 +474,27 @@ pub fn markdown(c: &Comparison) -> String {
             .collect();
         let _ = writeln!(s, "| {} | {} |", l.preset, cells.join(" | "));
     }
+    if !c.radar_worth.is_empty() {
+        s.push_str(
+            "\n## What the radar is worth, per study\n\nThe rig with the radar (fused) against the cheapest \
+             LiDAR-only rig, each study's own test (95% interval), and per $1,000 the radar rig costs more.\n\n\
+             | study | metric | radar adds | per $1,000 | extra cost (USD) | verdict |\n|---|---|---:|---:|---:|---|\n",
+        );
+        for w in &c.radar_worth {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:+.3} [{:+.3}, {:+.3}] | {} | {:.0} | {} |",
+                esc(&w.study),
+                w.metric,
+                w.estimate,
+                w.lo,
+                w.hi,
+                w.per_1000_usd.map_or("–".into(), |v| format!("{v:+.4}")),
+                w.extra_cost_usd,
+                verdict_word(w.verdict)
+            );
+        }
+    }
     s.push_str(
         "\n## What this comparison leaves out\n\n\
          Differences between studies mix the scene's or catalog's effect with each study's sampling noise \
@@ -464,6 +532,32 @@ mod tests {
         assert_eq!(Across::of(&[None, None]), Across::NotTested);
         assert_eq!(Across::of(&[]), Across::NotTested);
         assert_eq!(Across::of(&[s]), Across::SupportedEverywhere);
+    }
+
+    /// The radar's worth is the `radar_adds` claim's rows priced by the configurations they
+    /// compare: on the committed default-study report, the radar rig's extra cost is the
+    /// radar's price, and each metric's value per $1,000 is its estimate scaled by it.
+    #[test]
+    fn the_radar_is_priced_by_what_its_rig_costs_more() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/example-report/report.json");
+        let r: Report = hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE).unwrap();
+        let shard = ShardRecord { name: "clear".into(), scene: None, catalog: None, fingerprint: String::new() };
+        let record = SweepRecord { source: "s.toml".into(), profile: "default".into(), shards: vec![shard.clone()] };
+        let c = build(&record, &[(shard, r.clone())]);
+        let claim = r.claims.iter().find(|c| c.id == "radar_adds").unwrap();
+        assert_eq!(c.radar_worth.len(), claim.rows.len());
+        assert!(
+            c.radar_worth.iter().any(|w| w.metric == "mAP")
+                && c.radar_worth.iter().any(|w| w.metric == "pedestrian AP")
+        );
+        let cost = |name: &str| r.configurations.iter().find(|x| x.name == name).unwrap().cost_usd;
+        for (w, row) in c.radar_worth.iter().zip(&claim.rows) {
+            let extra = cost(&row.b[0].0) - cost(&row.a[0].0);
+            assert!(extra > 0.0 && (w.extra_cost_usd - extra).abs() < 1e-9, "{w:?}");
+            assert!((w.per_1000_usd.unwrap() - 1000.0 * row.test.estimate / extra).abs() < 1e-12);
+            assert_eq!((w.estimate, w.lo, w.hi, w.verdict), (row.test.estimate, row.test.lo, row.test.hi, row.verdict));
+        }
+        assert!(markdown(&c).contains("## What the radar is worth, per study"));
     }
 
     #[test]

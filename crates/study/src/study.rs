@@ -91,8 +91,11 @@ impl Configuration {
     }
 }
 
-/// The study-file keys that make it a sweep ([`crate::sweep`]).
+/// The study-file keys that make it a sweep ([`crate::sweep`]): lists of files.
 pub const LIST_KEYS: [&str; 2] = ["scenes", "catalogs"];
+
+/// The study-file key of a sweep over weather conditions: a table of named conditions.
+pub const WEATHERS_KEY: &str = "weathers";
 
 /// A file-name-safe form of a name: lowercase ASCII letters and digits, runs of anything else
 /// as one `_`.
@@ -135,7 +138,7 @@ impl Study {
     /// study passes its text and `.`).
     pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Study> {
         if let Ok(table) = toml::from_str::<toml::Table>(text)
-            && let Some(key) = LIST_KEYS.iter().find(|k| table.contains_key(**k))
+            && let Some(key) = LIST_KEYS.iter().chain(&[WEATHERS_KEY]).find(|k| table.contains_key(**k))
         {
             return Err(StudyError::from(hilo_core::fs::FileError::Content {
                 path: PathBuf::from(source),

@@ -3,8 +3,10 @@
 //!
 //! Two ways to write one:
 //! - a study file with `scenes = [...]` and/or `catalogs = [...]` instead of `scene` /
-//!   `catalog`: every (scene, catalog) pair is a study, named after the files' stems
-//!   (`<scene>` or `<catalog>`, `<scene>-<catalog>` when both lists are given);
+//!   `catalog`, and/or `weathers = { clear = {}, fog = { fog_visibility_m = 60 } }` instead of
+//!   `[dataset.weather]`: every (scene, catalog, weather) is a study, named after the files'
+//!   stems and the weather's name, joined by `-` (`<scene>-<catalog>-<weather>`, each part
+//!   present when its list is given);
 //! - a directory: every `*.toml` directly in it is a study, named after its stem.
 //!
 //! Each study of a sweep (a *shard*) has its own folder `<out>/<name>/`, its own plan, hashes
@@ -77,10 +79,18 @@ pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
         }
         lists.push(Some(paths));
     }
-    if lists.iter().all(Option::is_none) {
+    let weathers = match table.remove(crate::study::WEATHERS_KEY) {
+        None => None,
+        Some(v) => Some(weathers(v, &table).map_err(bad)?),
+    };
+    if lists.iter().all(Option::is_none) && weathers.is_none() {
         return Study::parse(text, dir, source).map(Loaded::Study);
     }
     let base: StudyFile = toml::Value::Table(table).try_into().map_err(|e| bad(format!("invalid study: {e}")))?;
+    let weathers: Vec<(Option<String>, hilo_sensor_models::Weather)> = match weathers {
+        None => vec![(None, base.dataset.weather)],
+        Some(w) => w.into_iter().map(|(n, w)| (Some(n), w)).collect(),
+    };
     let axis =
         |list: &Option<Vec<PathBuf>>, default: &Option<PathBuf>| -> Result<Vec<(Option<String>, Option<PathBuf>)>> {
             match list {
@@ -93,14 +103,51 @@ pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
     let mut shards: Vec<Shard> = Vec::new();
     for (scene_name, scene) in &scenes {
         for (catalog_name, catalog) in &catalogs {
-            let name = [scene_name, catalog_name].into_iter().flatten().cloned().collect::<Vec<_>>().join("-");
-            let file = StudyFile { scene: scene.clone(), catalog: catalog.clone(), ..base.clone() };
-            let mut study = Study::from_file(file, dir, source).map_err(|e| bad(format!("study {name:?}: {e}")))?;
-            study.shard = Some(name.clone());
-            push_unique(&mut shards, Shard { name, study }, source)?;
+            for (weather_name, weather) in &weathers {
+                let name = [scene_name, catalog_name, weather_name]
+                    .into_iter()
+                    .flatten()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join("-");
+                let mut file = StudyFile { scene: scene.clone(), catalog: catalog.clone(), ..base.clone() };
+                file.dataset.weather = *weather;
+                let mut study = Study::from_file(file, dir, source).map_err(|e| bad(format!("study {name:?}: {e}")))?;
+                study.shard = Some(name.clone());
+                push_unique(&mut shards, Shard { name, study }, source)?;
+            }
         }
     }
     Ok(Loaded::Sweep(Sweep { source: source.to_owned(), shards }))
+}
+
+/// The named weather conditions of `weathers = { name = { rain_mm_h = …, fog_visibility_m = … } }`
+/// (names as slugs, in name order), each checked; refused beside `[dataset.weather]`.
+fn weathers(
+    v: toml::Value,
+    table: &toml::Table,
+) -> std::result::Result<Vec<(String, hilo_sensor_models::Weather)>, String> {
+    let key = crate::study::WEATHERS_KEY;
+    let t: toml::Table = v.try_into().map_err(|e| {
+        format!("`{key}` must be a table of named conditions, e.g. {key} = {{ clear = {{}}, fog = {{ fog_visibility_m = 60.0 }} }}: {e}")
+    })?;
+    if t.is_empty() {
+        return Err(format!("`{key}` = {{}}: name at least one condition, or leave it out"));
+    }
+    if table.get("dataset").and_then(|d| d.get("weather")).is_some() {
+        return Err(format!("give `dataset.weather` or `{key}`, not both"));
+    }
+    let mut out: Vec<(String, hilo_sensor_models::Weather)> = Vec::new();
+    for (name, v) in t {
+        let w: hilo_sensor_models::Weather = v.try_into().map_err(|e| format!("{key}.{name}: {e}"))?;
+        w.check().map_err(|e| format!("{key}.{name}: {e}"))?;
+        let s = slug(&name);
+        if s.is_empty() || out.iter().any(|(n, _)| *n == s) {
+            return Err(format!("{key}.{name}: give each condition a distinct name of letters or digits"));
+        }
+        out.push((s, w));
+    }
+    Ok(out)
 }
 
 /// Every `*.toml` directly in `dir` (sorted by name) as a study of one scene and catalog.
@@ -377,6 +424,50 @@ mod tests {
         assert!(e.contains("study \"missing\"") && e.contains("missing.toml"), "{e}");
         // The single-study loader points at the sweep loader.
         let e = Study::parse(&format!("scenes = [\"arterial.toml\"]\n{CONFIG}"), d.path(), "s.toml").unwrap_err();
+        assert!(e.to_string().contains("a sweep of studies"), "{e}");
+    }
+
+    /// `weathers` is an axis of its own: one study per named condition (times scenes and
+    /// catalogs), each with its weather in its dataset settings and so its own hashes; a bad
+    /// condition, one beside `[dataset.weather]`, or an empty table is refused by name.
+    #[test]
+    fn weathers_are_studies_named_by_their_conditions() {
+        let d = folder();
+        let text = format!(
+            "scenes = [\"arterial.toml\", \"collector.toml\"]\n\
+             weathers = {{ clear = {{}}, \"Dense fog\" = {{ fog_visibility_m = 60.0 }}, rain = {{ rain_mm_h = 25.0 }} }}\n{CONFIG}"
+        );
+        let Loaded::Sweep(s) = parse(&text, d.path(), "sweep.toml").unwrap() else { panic!("not a sweep") };
+        let names: Vec<&str> = s.shards.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "arterial-dense_fog",
+                "arterial-clear",
+                "arterial-rain",
+                "collector-dense_fog",
+                "collector-clear",
+                "collector-rain"
+            ]
+        );
+        let w = |i: usize| s.shards[i].study.dataset.weather;
+        assert_eq!(w(0).fog_visibility_m, Some(60.0));
+        assert!(w(1).is_clear());
+        assert_eq!(w(2).rain_mm_h, 25.0);
+        assert_ne!(format!("{:?}", s.shards[0].study.dataset), format!("{:?}", s.shards[1].study.dataset));
+        // Weathers alone make a sweep of the one scene and catalog.
+        let text = format!("weathers = {{ fog = {{ fog_visibility_m = 100.0 }} }}\n{CONFIG}");
+        let Loaded::Sweep(s) = parse(&text, d.path(), "sweep.toml").unwrap() else { panic!("not a sweep") };
+        assert_eq!(s.shards.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["fog"]);
+        let e = err(&format!("weathers = {{ fog = {{ fog_visibility_m = 0.5 }} }}\n{CONFIG}"), d.path());
+        assert!(e.contains("weathers.fog") && e.contains("fog_visibility_m"), "{e}");
+        let e = err(&format!("weathers = {{ fog = {{ visibility = 50.0 }} }}\n{CONFIG}"), d.path());
+        assert!(e.contains("weathers.fog") && e.contains("visibility"), "{e}");
+        let e = err(&format!("weathers = {{}}\n{CONFIG}"), d.path());
+        assert!(e.contains("`weathers` = {}"), "{e}");
+        let e = err(&format!("weathers = {{ a = {{}} }}\n[dataset.weather]\nrain_mm_h = 5.0\n{CONFIG}"), d.path());
+        assert!(e.contains("not both"), "{e}");
+        let e = Study::parse(&format!("weathers = {{ a = {{}} }}\n{CONFIG}"), d.path(), "s.toml").unwrap_err();
         assert!(e.to_string().contains("a sweep of studies"), "{e}");
     }
 
