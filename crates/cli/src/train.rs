@@ -17,7 +17,7 @@ pub struct TrainArgs {
     #[arg(long, default_value = "train")]
     pub split: String,
     /// Detector preset or ablation, as the plugins register them: centerpoint, pointpillars
-    /// (LiDAR only); pointpillars-lr, l4dr-like, lirafusion-like, bi-lrfusion-like, late
+    /// (LiDAR only); pointpillars-lr, l4dr-like, lirafusion-like, bi-lrfusion-like, middle-attention, late
     /// (LiDAR + radar); l4dr-like-no-early, lirafusion-like-no-early (the paper's ablation).
     /// An unknown name lists the known ones.
     #[arg(long, default_value = "centerpoint")]

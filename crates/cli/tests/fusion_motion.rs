@@ -149,7 +149,7 @@ fn every_fusion_preset_separates_classes_that_differ_only_by_motion() {
             "{lidar} (LiDAR only) separates the classes: mAP {base:.3}; the fixture leaks the class into LiDAR"
         );
     }
-    for name in ["pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "late"] {
+    for name in ["pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "middle-attention", "late"] {
         let (base_name, base) = if name == "pointpillars-lr" { lidar_only[0] } else { lidar_only[1] };
         let fused = map_for(name, &r, &tr, &val);
         assert!(fused >= base + 0.25, "{name}: mAP {fused:.3} against LiDAR-only {base_name} {base:.3}");

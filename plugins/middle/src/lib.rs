@@ -1,7 +1,8 @@
 //! Middle fusion: each modality is encoded to its own BEV map (a pillar feature net per
 //! modality; the sparse radar map is widened by a 3×3 convolution), and the maps are fused by
 //! φ, selectable: concatenation, a weighted sum with a learned α, adaptive gating per channel or
-//! per pixel, or bidirectional enhancement (see `hilo_fusion::fuse::FuseOp`). One scale: the
+//! per pixel, bidirectional enhancement, or cross-attention per cell (see
+//! `hilo_fusion::fuse::FuseOp`). One scale: the
 //! gating acts on the pillar-grid maps before the shared backbone (multi-scale gating inside
 //! the backbone is left out to keep the backbone shared by every preset).
 
@@ -60,10 +61,23 @@ pub fn bi_lrfusion_like() -> DetectorConfig {
     }
 }
 
-/// Registers `middle` and its preset `bi-lrfusion-like`.
+/// `middle-attention`: the paper's third middle-fusion operator, attention, as φ (multi-head
+/// cross-attention of the LiDAR feature over the cell's LiDAR and radar tokens), on
+/// `centerpoint`'s backbone and head.
+pub fn middle_attention() -> DetectorConfig {
+    DetectorConfig {
+        name: "middle-attention".into(),
+        fusion: "middle".into(),
+        fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "attention" }),
+        ..centerpoint()
+    }
+}
+
+/// Registers `middle` and its presets `bi-lrfusion-like` and `middle-attention`.
 pub fn register(r: &mut Registry) -> Result<()> {
     r.register("middle", Stage::Middle, build)?;
-    r.add_preset(Preset { detector: bi_lrfusion_like(), train: TrainConfig::default() })
+    r.add_preset(Preset { detector: bi_lrfusion_like(), train: TrainConfig::default() })?;
+    r.add_preset(Preset { detector: middle_attention(), train: TrainConfig::default() })
 }
 
 impl Fusion for MiddleFusion {
