@@ -42,6 +42,7 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
         let map = m[1]["map_mean"].as_f64().unwrap();
         assert!((0.0..=1.0).contains(&map), "{m}");
     }
+    assert!(r["seed_spearman"].is_null(), "one seed: no seed-against-seed agreement");
     let c = &r["calibrated"];
     assert_eq!(c["held_out"].as_array().unwrap().len(), members.len(), "every placement predicted out of fold");
     assert!(c["weights"].as_array().unwrap().iter().all(|w| w.as_f64().unwrap() >= 0.0), "{c}");

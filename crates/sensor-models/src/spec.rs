@@ -43,7 +43,7 @@ pub struct LidarSpec {
 }
 
 /// A 4D imaging radar (range, azimuth, elevation, Doppler).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RadarSpec {
     pub name: String,
@@ -95,6 +95,48 @@ pub struct RadarSpec {
 
 fn carrier_77() -> f32 {
     77.0
+}
+
+/// As derived, but the fields added after the first catalogs (`carrier_ghz`,
+/// `path_loss_db_per_m`) appear only when they differ from their defaults: a catalog's content
+/// hash (taken over this form) stays what it was for the radars it already described.
+impl std::fmt::Debug for RadarSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("RadarSpec");
+        d.field("name", &self.name)
+            .field("rate_hz", &self.rate_hz)
+            .field("hfov_deg", &self.hfov_deg)
+            .field("vfov_deg", &self.vfov_deg)
+            .field("min_range_m", &self.min_range_m)
+            .field("max_range_m", &self.max_range_m)
+            .field("ray_azimuth_step_deg", &self.ray_azimuth_step_deg)
+            .field("ray_elevation_step_deg", &self.ray_elevation_step_deg)
+            .field("range_resolution_m", &self.range_resolution_m)
+            .field("azimuth_resolution_deg", &self.azimuth_resolution_deg)
+            .field("elevation_resolution_deg", &self.elevation_resolution_deg)
+            .field("range_noise_m", &self.range_noise_m)
+            .field("azimuth_noise_deg", &self.azimuth_noise_deg)
+            .field("elevation_noise_deg", &self.elevation_noise_deg)
+            .field("velocity_noise_mps", &self.velocity_noise_mps)
+            .field("rcs_noise_db", &self.rcs_noise_db)
+            .field("snr_at_max_range_db", &self.snr_at_max_range_db)
+            .field("detection_threshold_db", &self.detection_threshold_db)
+            .field("clutter_probability", &self.clutter_probability)
+            .field("ground_clutter_probability", &self.ground_clutter_probability)
+            .field("static_rcs_dbsm", &self.static_rcs_dbsm)
+            .field("max_points", &self.max_points)
+            .field("max_detections_per_target", &self.max_detections_per_target)
+            .field("rcs_dbsm", &self.rcs_dbsm)
+            .field("price_usd", &self.price_usd)
+            .field("price_source", &self.price_source);
+        if self.carrier_ghz != carrier_77() {
+            d.field("carrier_ghz", &self.carrier_ghz);
+        }
+        if self.path_loss_db_per_m != 0.0 {
+            d.field("path_loss_db_per_m", &self.path_loss_db_per_m);
+        }
+        d.finish()
+    }
 }
 
 /// Mean radar cross-section per class, dBsm.

@@ -114,3 +114,17 @@ fn rain_lowers_the_radar_snr_by_the_two_way_path_loss() {
     );
     assert!(w.check().is_ok());
 }
+
+/// The radar's fields added for weather appear in its `Debug` form (which catalog hashes are
+/// taken over) only when set: a catalog that does not set them hashes as before they existed.
+#[test]
+fn weather_fields_at_their_defaults_leave_a_catalogs_hash_as_it_was() {
+    let spec = catalog().radar("radar-4d").unwrap().clone();
+    let plain = format!("{spec:?}");
+    assert!(!plain.contains("carrier_ghz") && !plain.contains("path_loss_db_per_m"), "{plain}");
+    assert!(plain.ends_with(&format!("price_source: {:?} }}", spec.price_source)), "{plain}");
+    let wet = Weather { rain_mm_h: 10.0, ..Weather::default() }.radar(&spec);
+    assert!(format!("{wet:?}").contains("path_loss_db_per_m"));
+    let other = hilo_sensor_models::RadarSpec { carrier_ghz: 24.0, ..spec };
+    assert!(format!("{other:?}").contains("carrier_ghz: 24.0"));
+}

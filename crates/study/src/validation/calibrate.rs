@@ -334,6 +334,7 @@ mod tests {
             predictors: Vec::new(),
             budget_spearman: none,
             budget_kendall: none,
+            seed_spearman: None,
             calibrated: None,
             recommendation: None,
             seconds: 0.0,
