@@ -348,15 +348,28 @@ pub fn train(
     let mine: Vec<&Job> =
         plan.jobs.iter().filter(|j| j.configuration == member && only.is_none_or(|id| j.id == id)).collect();
     let label = format!("training on {} ({} of {})", plan.members[member].slug, member + 1, plan.members.len());
+    train_on(registry, profile, &plan.data[member].dir, mine, &label, progress)
+}
+
+/// Trains `jobs` on the dataset in `data` (skipping those done), telling `progress` their share
+/// done under `label`: one placement's trainings, of the set or the recommendation.
+pub(crate) fn train_on(
+    registry: &Registry,
+    profile: &Profile,
+    data: &Path,
+    jobs: Vec<&Job>,
+    label: &str,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<Vec<(Job, crate::stages::JobOutput)>> {
     let shared = std::sync::Mutex::new(&mut *progress);
     let tick = |_: &Job, f: f64| {
         if let Ok(mut p) = shared.lock() {
-            p(Progress::Task { label: &label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
+            p(Progress::Task { label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
         }
     };
-    let outs = crate::stages::train_jobs(&plan.data[member].dir, &mine, registry, profile.trainings_at_once, &tick)?;
+    let outs = crate::stages::train_jobs(data, &jobs, registry, profile.trainings_at_once, &tick)?;
     progress(Progress::TaskDone);
-    Ok(mine.into_iter().cloned().zip(outs).collect())
+    Ok(jobs.into_iter().cloned().zip(outs).collect())
 }
 
 /// Trains one job by its id (`<member>/<preset>-seed<k>`, as the Snakefile names it).

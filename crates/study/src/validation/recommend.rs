@@ -11,9 +11,9 @@
 //! what decides it, so a rerun resumes.
 
 use super::set::{Member, calibrated_member};
-use super::{Scorer, Trained, ValidationReport, calibrate, jobs};
+use super::{Scorer, Trained, ValidationReport, calibrate, jobs, train_on};
 use crate::error::Result;
-use crate::plan::{DataStage, Job, short, stage_hash};
+use crate::plan::{DataStage, short, stage_hash};
 use crate::profile::Profile;
 use crate::stages::Progress;
 use crate::study::Study;
@@ -65,10 +65,10 @@ pub fn recommend(
     if c.weights.iter().all(|w| *w == 0.0) {
         return Ok(None);
     }
+    let Some(budget) = super::set::budget_configuration(study) else { return Ok(None) };
+    let Some(budget_usd) = budget.budget_usd else { return Ok(None) };
     progress(Progress::Stage("validation: placing the calibrated recommendation"));
-    let w = calibrate::weights(c);
-    let Some(member) = calibrated_member(study, &r.settings, &w, r.members.len())? else { return Ok(None) };
-    let Some(budget_usd) = super::set::budget_configuration(study).and_then(|b| b.budget_usd) else { return Ok(None) };
+    let member = calibrated_member(study, &r.settings, &calibrate::weights(c), &budget, r.members.len())?;
     let Some((predicted, lo, hi)) = calibrate::predict(r, &member) else { return Ok(None) };
     let pjson = member.placement.to_json()?;
     let ppath = out.join("recommendation").join(format!("{}.json", member.slug));
@@ -87,17 +87,8 @@ pub fn recommend(
         )?;
     }
     let all = jobs(std::slice::from_ref(&member), std::slice::from_ref(&data), registry, profile, &r.settings, out)?;
-    let mine: Vec<&Job> = all.iter().collect();
     let label = format!("training the recommendation {}", member.slug);
-    let shared = std::sync::Mutex::new(&mut *progress);
-    let tick = |_: &Job, f: f64| {
-        if let Ok(mut p) = shared.lock() {
-            p(Progress::Task { label: &label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
-        }
-    };
-    let outs = crate::stages::train_jobs(&data.dir, &mine, registry, profile.trainings_at_once, &tick)?;
-    progress(Progress::TaskDone);
-    let outs: Vec<_> = all.into_iter().zip(outs).collect();
+    let outs = train_on(registry, profile, &data.dir, all.iter().collect(), &label, progress)?;
     let scorer = Scorer::new(&data.dir, profile, &r.settings)?;
     let (trained, occupancy) = scorer.trained(&data.dir, &outs)?;
     let mut member = member;

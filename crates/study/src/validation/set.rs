@@ -199,28 +199,28 @@ pub fn budget_configuration(study: &Study) -> Option<Configuration> {
     set_configurations(study).into_iter().find(|c| c.budget_usd.is_some())
 }
 
-/// The rig the calibrated objective buys under [`budget_configuration`] (CBC warm-started from
-/// greedy, the study's time limit), as member number `k` of kind `calibrated`, with its
-/// predictors.
+/// The rig the calibrated objective buys under the budgeted configuration `conf` (see
+/// [`budget_configuration`]; CBC warm-started from greedy, the study's time limit), as member
+/// number `k` of kind `calibrated`, with its predictors.
 pub fn calibrated_member(
     study: &Study,
     v: &ValidationSettings,
     w: &calibrated::Weights,
+    conf: &Configuration,
     k: usize,
-) -> Result<Option<Member>> {
-    let Some(conf) = budget_configuration(study) else { return Ok(None) };
+) -> Result<Member> {
     w.check()?;
     let pc = settings_with_tilts(study, v)?;
     let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
     let types = conf.type_names();
     let inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
-    let limit = limit_for(&conf, &types);
+    let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
     let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, &g)?;
     let sensors = placed(&inst, &prep, &o.selection);
     let mut ctx = Context::new(study, &prep, &pc)?;
     let kind = if o.proven_optimal { "calibrated" } else { "calibrated-best-found" };
-    Ok(Some(ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)?))
+    ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)
 }
 
 /// The members' placement predictors computed again by this build (a set drawn by an older one
