@@ -86,6 +86,11 @@ pub struct Agreement {
     pub n: usize,
 }
 
+/// The `p` quantile of sorted `v` (the nearest rank, p ∈ [0, 1]); NaN when `v` is empty.
+pub(crate) fn percentile(v: &[f64], p: f64) -> f64 {
+    if v.is_empty() { f64::NAN } else { v[((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1)] }
+}
+
 /// Spearman's ρ and Kendall's τ of `predictor` with `accuracy`, and their percentile intervals
 /// at `level` over `replicates[r]` (each placement's accuracy under scene replicate r; one
 /// entry per placement) with placements drawn with replacement (seeded by `seed`). Placements
@@ -121,11 +126,8 @@ pub fn agreement(
     }
     let interval = |mut v: Vec<f64>, value: f64| -> Agreement {
         v.sort_by(f64::total_cmp);
-        let q = |p: f64| {
-            if v.is_empty() { f64::NAN } else { v[((p * (v.len() - 1) as f64).round() as usize).min(v.len() - 1)] }
-        };
         let a = (1.0 - level) / 2.0;
-        Agreement { value, lo: q(a), hi: q(1.0 - a), n: keep.len() }
+        Agreement { value, lo: percentile(&v, a), hi: percentile(&v, 1.0 - a), n: keep.len() }
     };
     (interval(rhos, spearman(&x, &y)), interval(taus, kendall(&x, &y)))
 }

@@ -122,15 +122,14 @@ fn rival(study: &Study, r: &ValidationReport, rec: &Trained, budget_usd: f64) ->
         .max_by(|a, b| a.1.map_mean.total_cmp(&b.1.map_mean))?;
     let mut d: Vec<f64> = rec.map_replicates.iter().zip(&t.map_replicates).map(|(a, b)| a - b).collect();
     d.sort_by(f64::total_cmp);
-    let q = |p: f64| d.get(((d.len() as f64 - 1.0) * p).round() as usize).copied().unwrap_or(f64::NAN);
     Some(Rival {
         placement: m.slug.clone(),
         configuration: m.configuration.clone(),
         cost_usd: m.placement.cost_usd,
         map_mean: t.map_mean,
         difference: rec.map_mean - t.map_mean,
-        lo: q(0.025),
-        hi: q(0.975),
+        lo: crate::rank::percentile(&d, 0.025),
+        hi: crate::rank::percentile(&d, 0.975),
     })
 }
 
