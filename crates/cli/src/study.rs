@@ -329,13 +329,10 @@ pub struct ValidateArgs {
 
 /// A stage of the validation in `out`, run alone: the study, profile and settings it records.
 fn validation_stage(args: &ValidateArgs) -> Result<()> {
-    let rec = hilo_study::validation::record(&args.out)?;
-    let path = (rec.study != EMBEDDED_STUDY).then(|| PathBuf::from(&rec.study));
+    let (source, profile, settings) = hilo_study::validation::record(&args.out)?;
+    let path = (source != EMBEDDED_STUDY).then(|| PathBuf::from(&source));
     let study = load_study(path.as_deref())?;
     let registry = crate::train::registry()?;
-    let (Some(profile), Some(settings)) = (rec.profile, rec.settings) else {
-        bail!("{}: the validation record lacks its profile or settings", args.out.display())
-    };
     let mut reporter = Reporter::new();
     let mut progress = |p: hilo_study::stages::Progress<'_>| reporter.study(p);
     if args.resume {

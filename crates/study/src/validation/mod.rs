@@ -187,26 +187,27 @@ pub struct ValidationReport {
 /// The folder's record: which validation it holds, and what a stage run alone (by a workflow
 /// engine's job) needs to take it up: the study's source, the profile and the settings.
 #[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct FolderRecord {
+struct FolderRecord {
     fingerprint: String,
     /// The study file's absolute path, or the embedded default's name.
-    pub study: String,
+    study: String,
     #[serde(default)]
-    pub profile: Option<Profile>,
+    profile: Option<Profile>,
     #[serde(default)]
-    pub settings: Option<ValidationSettings>,
+    settings: Option<ValidationSettings>,
 }
 
-/// The record of the validation in `out` (for a stage run alone).
-pub fn record(out: &Path) -> Result<FolderRecord> {
+/// What the validation in `out` records for a stage run alone: its study's source (an absolute
+/// path or the embedded default's name), profile and settings.
+pub fn record(out: &Path) -> Result<(String, Profile, ValidationSettings)> {
     let r: FolderRecord = read_json(&out.join("validation-folder.json"), limit::TABLE)?;
-    if r.profile.is_none() || r.settings.is_none() {
-        return Err(StudyError::Invalid(format!(
+    match (r.profile, r.settings) {
+        (Some(profile), Some(settings)) => Ok((r.study, profile, settings)),
+        _ => Err(StudyError::Invalid(format!(
             "{}: written by an older hilo that did not record the profile and settings; run the validation again in one process",
             out.display()
-        )));
+        ))),
     }
-    Ok(r)
 }
 
 /// Claims `out` for this validation (refuses a folder that holds anything else).
