@@ -132,22 +132,26 @@ fn occupancy_agrees_with_a_brute_force_count_of_points_in_boxes() {
 
 /// A set's placement predictors computed again (as `hilo validate --refit` does) are the same
 /// values; the two-view coverage lies between half the coverage and the coverage, and is
-/// exactly half for a rig with one sensor of the modality (one sensor is one view).
+/// exactly half for a rig with one sensor of the modality (one sensor is one view); coverage at
+/// twice the threshold (uncapped per sensor) is never below the two-view coverage.
 #[test]
 fn predictors_recompute_to_the_same_values_and_two_views_need_two_sensors() {
-    use hilo_study::validation::set::{LIDAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_SATURATED, RADAR_TWO_VIEWS, recompute};
+    use hilo_study::validation::set::{
+        LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS, recompute,
+    };
     let dir = tempfile::tempdir().unwrap();
     let study = Study::parse(COARSE, dir.path(), "coarse.toml").unwrap();
     let set = placement_set(&study, &settings(), &mut |_| {}).unwrap();
     let again = recompute(&study, &settings(), &set).unwrap();
     assert_eq!(serde_json::to_string(&set).unwrap(), serde_json::to_string(&again).unwrap());
     for m in &set {
-        for (one, two, modality) in [
-            (LIDAR_SATURATED, LIDAR_TWO_VIEWS, hilo_placement_ip::Modality::Lidar),
-            (RADAR_SATURATED, RADAR_TWO_VIEWS, hilo_placement_ip::Modality::Radar),
+        for (one, two, dense, modality) in [
+            (LIDAR_SATURATED, LIDAR_TWO_VIEWS, LIDAR_DENSE, hilo_placement_ip::Modality::Lidar),
+            (RADAR_SATURATED, RADAR_TWO_VIEWS, RADAR_DENSE, hilo_placement_ip::Modality::Radar),
         ] {
-            let (c1, c2) = (m.predictors[one].unwrap(), m.predictors[two].unwrap());
+            let (c1, c2, d) = (m.predictors[one].unwrap(), m.predictors[two].unwrap(), m.predictors[dense].unwrap());
             assert!(c2 <= c1 + 1e-12 && c2 >= c1 / 2.0 - 1e-12, "{}: {c1} {c2}", m.slug);
+            assert!(d >= c2 - 1e-12 && d <= 1.0 + 1e-12, "{}: {c2} {d}", m.slug);
             if m.placement.sensors.iter().filter(|s| s.modality == modality).count() == 1 {
                 assert!((c2 - c1 / 2.0).abs() < 1e-12, "{}: {c1} {c2}", m.slug);
             }
@@ -157,6 +161,10 @@ fn predictors_recompute_to_the_same_values_and_two_views_need_two_sensors() {
         set.iter()
             .any(|m| m.predictors[LIDAR_TWO_VIEWS].unwrap() > m.predictors[LIDAR_SATURATED].unwrap() / 2.0 + 0.01),
         "some rig sees targets twice"
+    );
+    assert!(
+        set.iter().any(|m| m.predictors[LIDAR_DENSE].unwrap() > m.predictors[LIDAR_TWO_VIEWS].unwrap() + 0.01),
+        "some rig sees targets densely with fewer views"
     );
     // A placement drawn on another scene is refused by name.
     let mut moved = set.clone();

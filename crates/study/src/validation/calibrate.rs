@@ -1,21 +1,26 @@
 //! A calibrated objective: trained mAP predicted from saturated LiDAR and radar coverage,
 //! fitted on part of the placement set and scored on the placements it did not see.
 //!
-//! predicted mAP = β₀ + Σ_m Σ_k β_mk · C_mk, with C_mk = Σ_j w_j min(1, s_mj / k) / Σ_j w_j,
+//! predicted mAP = β₀ + Σ_m (Σ_k β_mk · C_mk + δ_m · D_m), with C_mk = Σ_j w_j min(1, s_mj / k) / Σ_j w_j,
 //! s_mj = Σ_o min(1, a_oj / τ), for each modality m and views k ∈ {1, 2} ([`super::set::LIDAR_SATURATED`],
-//! [`super::set::RADAR_SATURATED`], [`super::set::LIDAR_TWO_VIEWS`], [`super::set::RADAR_TWO_VIEWS`]).
+//! [`super::set::RADAR_SATURATED`], [`super::set::LIDAR_TWO_VIEWS`], [`super::set::RADAR_TWO_VIEWS`]),
+//! and D_m = Σ_j w_j min(1, Σ_o a_oj / 2τ) / Σ_j w_j, coverage that pays for density
+//! ([`super::set::LIDAR_DENSE`], [`super::set::RADAR_DENSE`]).
 //! The weights are fitted by least squares with every β ≥ 0: a non-negative weight on a capped
 //! sum keeps the objective an integer program ([`hilo_placement_ip::calibrated`]), and the radar
 //! weights are the measured marginal accuracy of radar coverage — zero when the trained
 //! detectors gain nothing from it, so an optimiser stops buying radars. Of the subsets of the
 //! features whose fitted weights are all ≥ 0, the one with the smallest leave-one-out error on
-//! the fitting half is kept (PRESS: more features always fit better in sample, not out of it).
-//! The placements are split in half by a seeded shuffle; the held-out half gets Spearman's ρ and
-//! Kendall's τ against its measured mAP (intervals by the bootstrap over placements and scenes
+//! the fitting placements is kept (PRESS: more features always fit better in sample, not out
+//! of it). The placements are dealt into folds by a seeded shuffle and each is predicted by the
+//! fit on the other folds (cross-fitting); these out-of-fold predictions get Spearman's ρ and
+//! Kendall's τ against the measured mAP (intervals by the bootstrap over placements and scenes
 //! of [`crate::rank`]) and a 95% prediction interval per placement.
 
 use super::ValidationReport;
-use super::set::{LIDAR_SATURATED, LIDAR_TWO_VIEWS, PAPER_OBJECTIVE, RADAR_SATURATED, RADAR_TWO_VIEWS};
+use super::set::{
+    LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, PAPER_OBJECTIVE, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS,
+};
 use crate::rank::{Agreement, agreement};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -107,7 +112,8 @@ fn least_squares(x: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)>
 }
 
 /// The features the calibrated objective may use, in the order of [`Calibrated::weights`].
-pub const FEATURES: [&str; 4] = [LIDAR_SATURATED, RADAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_TWO_VIEWS];
+pub const FEATURES: [&str; 6] =
+    [LIDAR_SATURATED, RADAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_TWO_VIEWS, LIDAR_DENSE, RADAR_DENSE];
 
 /// The placement's weights for the calibrated IP, from a fit over [`FEATURES`].
 pub fn weights(c: &Calibrated) -> hilo_placement_ip::calibrated::Weights {
@@ -117,6 +123,8 @@ pub fn weights(c: &Calibrated) -> hilo_placement_ip::calibrated::Weights {
         radar: w(RADAR_SATURATED),
         lidar_two_views: w(LIDAR_TWO_VIEWS),
         radar_two_views: w(RADAR_TWO_VIEWS),
+        lidar_dense: w(LIDAR_DENSE),
+        radar_dense: w(RADAR_DENSE),
     }
 }
 

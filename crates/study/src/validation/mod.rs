@@ -601,6 +601,8 @@ fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, A
         set::RADAR_SATURATED,
         set::LIDAR_TWO_VIEWS,
         set::RADAR_TWO_VIEWS,
+        set::LIDAR_DENSE,
+        set::RADAR_DENSE,
         occupancy::HIT_SHARE,
         occupancy::POINTS_PER_USER,
         occupancy::RADAR_SHARE,
@@ -794,8 +796,8 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
     s.push_str(&format!(
         "The features were chosen by leave-one-out error of the fit on every placement (RMSE {:.3} mAP). To place with it, \
          in the study file: `[placement]` `objective = \"calibrated\"` and `calibration = {{ lidar = {:.4}, \
-         radar = {:.4}, lidar_two_views = {:.4}, radar_two_views = {:.4} }}`.\n\n",
-        c.loo_rmse, w.lidar, w.radar, w.lidar_two_views, w.radar_two_views
+         radar = {:.4}, lidar_two_views = {:.4}, radar_two_views = {:.4}, lidar_dense = {:.4}, radar_dense = {:.4} }}`.\n\n",
+        c.loo_rmse, w.lidar, w.radar, w.lidar_two_views, w.radar_two_views, w.lidar_dense, w.radar_dense
     ));
     s.push_str("| placement (predicted out of fold) | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
     for h in &c.held_out {

@@ -159,6 +159,22 @@ pub fn markdown(r: &Recommendation) -> String {
         r.hi,
         if r.inside { "inside" } else { "outside" }
     ));
+    let p = &r.member.placement;
+    s.push_str(&format!(
+        "Placed by {} in {:.0} s: {}.\n\n",
+        p.method,
+        p.solve_seconds,
+        if p.proven_optimal {
+            "proven optimal".to_owned()
+        } else {
+            format!(
+                "calibrated objective {:.4}; the optimum is at most {:.4} ({:.1}% more)",
+                p.objective,
+                p.bound,
+                100.0 * p.gap
+            )
+        }
+    ));
     match &r.rival {
         Some(v) => s.push_str(&format!(
             "The best configuration of the study at equal or lower cost, {} ({:.0} USD, placed for the paper's \

@@ -54,6 +54,11 @@ pub const RADAR_SATURATED: &str = "radar coverage (saturated)";
 /// half).
 pub const LIDAR_TWO_VIEWS: &str = "LiDAR coverage by two views";
 pub const RADAR_TWO_VIEWS: &str = "radar coverage by two views";
+/// Σ_j w_j min(1, d_j / 2) / Σ_j w_j with d_j = Σ_o a_oj / τ: a target counts fully when the
+/// modality's summed coverage reaches twice the detection threshold, from one sensor or
+/// several (density, which the capped terms ignore).
+pub const LIDAR_DENSE: &str = "LiDAR coverage at twice the threshold";
+pub const RADAR_DENSE: &str = "radar coverage at twice the threshold";
 
 /// The configurations the set is drawn from: the study's, then the rigs a buyer compares them
 /// with, once each (by sensor counts).
@@ -200,8 +205,10 @@ pub fn budget_configuration(study: &Study) -> Option<Configuration> {
 }
 
 /// The rig the calibrated objective buys under the budgeted configuration `conf` (see
-/// [`budget_configuration`]; CBC warm-started from greedy, the study's time limit), as member
-/// number `k` of kind `calibrated`, with its predictors.
+/// [`budget_configuration`]; [`calibrated::solve`] from greedy within the study's time limit),
+/// as member number `k` of kind `calibrated` (or `calibrated-best-found` when not proven
+/// optimal), with its predictors; its placement's objective, bound, gap and method are those
+/// of the calibrated solve.
 pub fn calibrated_member(
     study: &Study,
     v: &ValidationSettings,
@@ -220,7 +227,15 @@ pub fn calibrated_member(
     let sensors = placed(&inst, &prep, &o.selection);
     let mut ctx = Context::new(study, &prep, &pc)?;
     let kind = if o.proven_optimal { "calibrated" } else { "calibrated-best-found" };
-    ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)
+    let mut m = ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)?;
+    // The placement records the solve of the objective it was placed for.
+    m.placement.objective = o.objective;
+    m.placement.bound = o.bound;
+    m.placement.gap = o.gap;
+    m.placement.solve_seconds = o.solve_seconds;
+    m.placement.greedy_objective = g.objective;
+    m.placement.method = o.method;
+    Ok(m)
 }
 
 /// The members' placement predictors computed again by this build (a set drawn by an older one
@@ -375,6 +390,8 @@ impl<'a> Context<'a> {
                 RADAR_TWO_VIEWS.to_owned(),
                 Some(saturated(calibrated::Weights { radar_two_views: 1.0, ..Default::default() })),
             ),
+            (LIDAR_DENSE.to_owned(), Some(saturated(calibrated::Weights { lidar_dense: 1.0, ..Default::default() }))),
+            (RADAR_DENSE.to_owned(), Some(saturated(calibrated::Weights { radar_dense: 1.0, ..Default::default() }))),
         ]);
         let cost_usd = sensors
             .iter()
