@@ -521,6 +521,10 @@ pub struct TrainRow {
     pub replicas_at_once: usize,
     /// BatchNorm over the whole batch (synchronised across the replicas) or each replica's.
     pub sync_batch_norm: bool,
+    /// How the sparse convolutions' backward pass forms the input gradient: `gather` (through
+    /// the inverted rulebook) or `scatter`.
+    #[serde(default)]
+    pub sparse_backward: String,
     pub steps: usize,
     /// From the wall time of the steps as training runs them (replicas side by side where
     /// there are threads for them; data prepared on another thread, so not counted unless it
@@ -596,6 +600,7 @@ pub fn train(
         let preset = registry.preset(name)?;
         let mut det_cfg = preset.detector.clone();
         let mut cfg = preset.train.clone();
+        let mut backward = hilo_fusion::layout::Backward::Scatter;
         // Variants for the levers' rows.
         for (k, v) in overrides {
             match (k.as_str(), v.as_u64()) {
@@ -612,6 +617,8 @@ pub fn train(
                 ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
                 ("replicas", Some(n)) if n >= 1 => cfg.replicas = n as usize,
                 ("sync_batch_norm", _) if v.is_boolean() => cfg.sync_batch_norm = v == true,
+                ("sparse_backward", _) if v == "scatter" => backward = hilo_fusion::layout::Backward::Scatter,
+                ("sparse_backward", _) if v == "gather" => backward = hilo_fusion::layout::Backward::Gather,
                 ("head_dilation", Some(n)) => {
                     if let Some(sp) = det_cfg.sparse.as_mut() {
                         sp.head_dilation = n as usize;
@@ -626,7 +633,7 @@ pub fn train(
                     })?
                 }
                 _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, sparse_backward=gather|scatter, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
                 ),
             }
         }
@@ -639,6 +646,7 @@ pub fn train(
         let background = hilo_detector::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
         let det = Detector::new(&det_cfg, &registry, &device, 0)?;
+        hilo_fusion::layout::Backward::set_default(backward);
         // Warm-up steps (allocator, caches), then the timed ones.
         hilo_detector::train::time_steps(&det, &frames, &cfg, 3)?;
         hilo_detector::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
@@ -690,6 +698,7 @@ pub fn train(
             replicas: cfg.replicas,
             replicas_at_once,
             sync_batch_norm: cfg.sync_batch_norm,
+            sparse_backward: format!("{backward:?}").to_lowercase(),
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
             ms,
@@ -701,6 +710,7 @@ pub fn train(
             head_sites_per_batch: occupancy.2,
         });
     }
+    hilo_fusion::layout::Backward::set_default(hilo_fusion::layout::Backward::Scatter);
     Ok(TrainReport {
         data: data.display().to_string(),
         device: device_name(&device),
@@ -718,9 +728,10 @@ impl TrainReport {
         );
         for r in &self.presets {
             println!(
-                "{} ({}, background {}{}{}, batch {} in {} replicas, {} at once): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
+                "{} ({}, {} backward, background {}{}{}, batch {} in {} replicas, {} at once): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
                 r.preset,
                 r.layout,
+                r.sparse_backward,
                 if r.background_removed { "removed" } else { "kept" },
                 if r.radar_clutter_removed { ", radar clutter removed" } else { "" },
                 if r.ground_truth_paste { ", ground-truth paste" } else { "" },

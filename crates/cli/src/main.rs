@@ -152,7 +152,8 @@ enum BenchCommand {
         steps: usize,
         /// A lever turned off or changed, for a before/after row: `layout=dense`,
         /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`,
-        /// `batch=N`, `replicas=N`, `sync_batch_norm=true|false`, `head_dilation=N`, `layers=N`,
+        /// `batch=N`, `replicas=N`, `sync_batch_norm=true|false`, `sparse_backward=gather|scatter`,
+        /// `head_dilation=N`, `layers=N`,
         /// `blocks=[{"stride":2,"channels":32,"layers":2},...]` (repeatable).
         #[arg(long = "variant", value_parser = parse_variant)]
         variants: Vec<(String, serde_json::Value)>,

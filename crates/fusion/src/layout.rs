@@ -365,12 +365,81 @@ impl At<'_> {
 /// On the CPU the whole convolution is one autograd node ([`GatherConv`]); elsewhere it is
 /// candle's `index_select` and `matmul` ([`gather_conv_composite`]).
 pub fn gather_conv(x: &Tensor, w: &Tensor, rules: &Tensor) -> Result<Tensor> {
+    gather_conv_with(x, w, rules, Backward::default_now())
+}
+
+/// How [`GatherConv`]'s backward pass forms the input's gradient. The default is
+/// [`Backward::Scatter`]: on a 2-core AVX-512 EPYC, idle, `hilo bench train --variant
+/// sparse_backward=gather|scatter` (alternating, two rounds) gave `centerpoint` 180–195 samples/s
+/// gathering against 210–218 scattering, and `lirafusion-like` 174–179 against 194–196 (the
+/// gather of the output gradient is nine rows per input row, the scatter's adds stay in cache).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backward {
+    /// Through the inverted rulebook: per tap a rulebook reads each input row at most once, so
+    /// the input's gradient at row i is Σ_t grad[o_t(i)] · W_t over the outputs o_t(i) that
+    /// read i through tap t: a gather of the output gradient's rows (`N_in`, taps · C_out) and
+    /// one matrix product with the kernel, no scatter. Falls back to [`Backward::Scatter`] for
+    /// a rulebook that reads a row twice through one tap.
+    Gather,
+    /// The gathered matrix's gradient (`N_out`, taps · C_in) by a matrix product, each row
+    /// added into the input row its rule names.
+    Scatter,
+}
+
+static GATHER_BACKWARD: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+impl Backward {
+    /// The process's choice for [`gather_conv`]: [`Backward::Scatter`] unless
+    /// [`Backward::set_default`] chose otherwise (a benchmark's before/after lever).
+    pub fn default_now() -> Self {
+        if GATHER_BACKWARD.load(std::sync::atomic::Ordering::Relaxed) { Backward::Gather } else { Backward::Scatter }
+    }
+
+    pub fn set_default(b: Backward) {
+        GATHER_BACKWARD.store(b == Backward::Gather, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// [`gather_conv`] with the backward pass `backward`.
+pub fn gather_conv_with(x: &Tensor, w: &Tensor, rules: &Tensor, backward: Backward) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     let taps = kh * kw;
     crate::cpu::count_matmul(rules.dim(0)? / taps, taps * ci, co);
-    fused_on_cpu(x, w, GatherConv { rules: rules.clone(), kernel: std::sync::OnceLock::new() }, || {
+    fused_on_cpu(x, w, GatherConv { rules: rules.clone(), kernel: std::sync::OnceLock::new(), backward }, || {
         gather_conv_composite(x, w, rules)
     })
+}
+
+/// The rulebook inverted per tap: for each input row i and tap t, the output row that reads i
+/// through t (or [`NONE`]), as `N_in · taps` entries; None when some tap reads a row twice.
+fn inverse_rules(rules: &[u32], n_in: usize, taps: usize) -> Option<Vec<u32>> {
+    let mut inv = vec![NONE; n_in * taps];
+    for (o, site) in rules.chunks_exact(taps.max(1)).enumerate() {
+        for (t, &r) in site.iter().enumerate() {
+            if r != NONE {
+                let slot = inv.get_mut(r as usize * taps + t)?;
+                if *slot != NONE {
+                    return None;
+                }
+                *slot = o as u32;
+            }
+        }
+    }
+    Some(inv)
+}
+
+/// A kernel `(C_out, C_in, taps)` on the host as the `(taps · C_out, C_in)` matrix that the
+/// inverted gather's rows (taps major, as [`gather_rows`] lays out a row's taps) multiply.
+fn kernel_taps_out(w: &[f32], co: usize, ci: usize, taps: usize) -> Vec<f32> {
+    let mut out = vec![0f32; w.len()];
+    for o in 0..co {
+        for c in 0..ci {
+            for t in 0..taps {
+                out[(t * co + o) * ci + c] = w[(o * ci + c) * taps + t];
+            }
+        }
+    }
+    out
 }
 
 /// `op` on `x` and `w` as one node where both are f32 on the CPU; elsewhere `composite`.
@@ -419,6 +488,7 @@ pub struct GatherConv {
     /// The kernel as the `(C_out, taps · C_in)` matrix, kept by the forward pass (which
     /// multiplies by its transpose, a strided view) for the backward one.
     kernel: std::sync::OnceLock<Tensor>,
+    backward: Backward,
 }
 
 const OP: &str = "hilo-gather-conv";
@@ -592,12 +662,27 @@ impl CustomOp2 for GatherConv {
         let (n_in, ci) = x.dims2()?;
         let (co, _, kh, kw) = w.dims4()?;
         let taps = kh * kw;
-        // d cols = grad · kernelᵀ, scattered back along the rulebook.
-        let wm = kept_kernel(&self.kernel, &w, OP, (co, taps * ci), |wv| kernel_rows(wv, ci, taps))?;
-        let gcols = grad.matmul(&wm)?;
-        let gx = with_cpu::<u32, _>(&self.rules, OP, |rules| {
-            with_cpu::<f32, _>(&gcols, OP, |g| Ok(scatter_rows(g, ci, rules, n_in)))
-        })?;
+        let inverse = match self.backward {
+            Backward::Gather => with_cpu::<u32, _>(&self.rules, OP, |rules| Ok(inverse_rules(rules, n_in, taps)))?,
+            Backward::Scatter => None,
+        };
+        let gx = match inverse {
+            // d x = (grad gathered through the inverted rulebook) · kernel.
+            Some(inv) => {
+                let gcols = with_cpu::<f32, _>(&grad, OP, |g| Ok(gather_rows(g, co, &inv)))?;
+                let wt = with_cpu::<f32, _>(&w, OP, |wv| Ok(kernel_taps_out(wv, co, ci, taps)))?;
+                let gcols = Tensor::from_vec(gcols, (n_in, taps * co), x.device())?;
+                gcols.matmul(&Tensor::from_vec(wt, (taps * co, ci), x.device())?)?.flatten_all()?.to_vec1::<f32>()?
+            }
+            // d cols = grad · kernelᵀ, scattered back along the rulebook.
+            None => {
+                let wm = kept_kernel(&self.kernel, &w, OP, (co, taps * ci), |wv| kernel_rows(wv, ci, taps))?;
+                let gcols = grad.matmul(&wm)?;
+                with_cpu::<u32, _>(&self.rules, OP, |rules| {
+                    with_cpu::<f32, _>(&gcols, OP, |g| Ok(scatter_rows(g, ci, rules, n_in)))
+                })?
+            }
+        };
         // d kernel = colsᵀ · grad, the gather recomputed rather than kept from the forward pass.
         let cols = with_cpu::<u32, _>(&self.rules, OP, |rules| {
             with_cpu::<f32, _>(&x, OP, |xv| Ok(gather_rows(xv, ci, rules)))
@@ -841,6 +926,17 @@ mod tests {
     /// The fused node equals the composite of candle's operations: output, and the gradients
     /// of the input and the kernel, for a submanifold (stride 1) and a strided rulebook, with
     /// rulebook rows that read nothing (`NONE`) and input rows read by several outputs.
+    /// The inverted rulebook names, per input row and tap, the one output that reads it; a
+    /// rulebook that reads a row twice through one tap has none (the scatter is used).
+    #[test]
+    fn the_rulebook_inverts_per_tap_or_refuses() {
+        // Two outputs, two taps: output 0 reads rows 2, 0; output 1 reads row 1 and nothing.
+        let inv = inverse_rules(&[2, 0, 1, NONE], 3, 2).unwrap();
+        assert_eq!(inv, vec![NONE, 0, 1, NONE, 0, NONE]);
+        assert!(inverse_rules(&[1, 0, 1, NONE], 3, 2).is_none(), "row 1 read twice through tap 0");
+        assert!(inverse_rules(&[1, 0, 2, 0], 3, 2).is_none(), "row 0 read twice through tap 1");
+    }
+
     #[test]
     fn fused_gather_conv_equals_candle_ops_with_gradients() {
         let dev = Device::Cpu;
@@ -855,25 +951,30 @@ mod tests {
             let mut uniform = |len: usize| -> Vec<f32> { (0..len).map(|_| rng.random_range(-1.0..1.0)).collect() };
             let up = Tensor::from_vec(uniform(n_out * co), (n_out, co), &dev).unwrap();
             let w0 = Tensor::from_vec(uniform(co * ci * 9), (co, ci, 3, 3), &dev).unwrap();
-            let run = |fused: bool| {
+            let run = |fused: Option<Backward>| {
                 let xv = candle_core::Var::from_vec(x.clone(), (n0, ci), &dev).unwrap();
                 let wv = candle_core::Var::from_tensor(&w0.copy().unwrap()).unwrap();
-                let y = if fused {
-                    gather_conv(xv.as_tensor(), wv.as_tensor(), &r).unwrap()
-                } else {
-                    gather_conv_composite(xv.as_tensor(), wv.as_tensor(), &r).unwrap()
+                let y = match fused {
+                    Some(b) => gather_conv_with(xv.as_tensor(), wv.as_tensor(), &r, b).unwrap(),
+                    None => gather_conv_composite(xv.as_tensor(), wv.as_tensor(), &r).unwrap(),
                 };
                 let g = (&y * &up).unwrap().sum_all().unwrap().backward().unwrap();
                 let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
                 (flat(&y), flat(g.get(xv.as_tensor()).unwrap()), flat(g.get(wv.as_tensor()).unwrap()))
             };
-            let (fused, reference) = (run(true), run(false));
-            for (what, a, b) in
-                [("y", &fused.0, &reference.0), ("dx", &fused.1, &reference.1), ("dw", &fused.2, &reference.2)]
-            {
-                assert_eq!(a.len(), b.len());
-                for (i, (p, q)) in a.iter().zip(b.iter()).enumerate() {
-                    assert!((p - q).abs() <= 1e-4 * (1.0 + q.abs()), "{what}[{i}]: {p} vs {q}");
+            // Both backward passes; the rulebooks read each row at most once per tap, so the
+            // gather-only one does not fall back.
+            assert!(inverse_rules(rules, n0, 9).is_some());
+            let reference = run(None);
+            for b in [Backward::Gather, Backward::Scatter] {
+                let fused = run(Some(b));
+                for (what, a, c) in
+                    [("y", &fused.0, &reference.0), ("dx", &fused.1, &reference.1), ("dw", &fused.2, &reference.2)]
+                {
+                    assert_eq!(a.len(), c.len());
+                    for (i, (p, q)) in a.iter().zip(c.iter()).enumerate() {
+                        assert!((p - q).abs() <= 1e-4 * (1.0 + q.abs()), "{b:?} {what}[{i}]: {p} vs {q}");
+                    }
                 }
             }
         }
