@@ -146,7 +146,7 @@ pub fn markdown(r: &Recommendation) -> String {
     let mut s = String::from("## The calibrated recommendation, trained\n\n");
     s.push_str(&format!(
         "Under a budget of {:.0} USD the calibrated objective buys {} ({:.0} USD; {}). Trained as every placement \
-         above ({}, seeds {}): measured mAP {:.3}, predicted {:.3} [{:.3}, {:.3}] — {} the 95% prediction interval.\n\n",
+         above ({}; mAP by seed {}): measured mAP {:.3}, predicted {:.3} [{:.3}, {:.3}] — {} the 95% prediction interval.\n\n",
         r.budget_usd,
         sensors.join(" + "),
         r.member.placement.cost_usd,
