@@ -32,7 +32,8 @@ use std::time::Instant;
 mod search;
 pub use search::{greedy, swaps, upper_bound};
 
-/// The largest calibrated IP (non-zeros of its coverage rows) handed to CBC. CBC checks its
+/// The largest calibrated IP (non-zeros of its coverage rows) handed to CBC by default
+/// (`[placement] calibrated_cbc_max_nonzeros`). CBC checks its
 /// time limit only between branch-and-bound nodes, so a larger root LP runs unbounded (a
 /// default-scale instance, 3 terms over 4,846 targets, ran 12 min at 13 GB without finishing
 /// its root); beyond this size the solve is greedy and swaps with the submodular bound.
@@ -180,26 +181,25 @@ pub(crate) fn outcome(
 }
 
 /// Solves the calibrated objective: swaps from `warm` (at most `time_limit_s`), then CBC
-/// warm-started from them within `time_limit_s` when the IP has at most [`CBC_MAX_NONZEROS`]
-/// non-zeros; otherwise the swaps' selection with the submodular bound ([`upper_bound`]). Never
+/// warm-started from them within `time_limit_s` when the IP has at most `max_nonzeros`
+/// non-zeros (default [`CBC_MAX_NONZEROS`]); otherwise the swaps' selection with the submodular bound ([`upper_bound`]). Never
 /// returns less than the warm start; an unproven result reports the tighter of the two bounds.
 pub fn solve(
     inst: &Instance,
     limit: &Limit,
     w: &Weights,
     time_limit_s: f64,
+    max_nonzeros: usize,
     warm: &Outcome,
 ) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
     w.check()?;
     let local = swaps(inst, limit, w, warm, time_limit_s).no_worse_than(warm, 1e-12);
     let nz = nonzeros(inst, w);
-    if nz > CBC_MAX_NONZEROS {
+    if nz > max_nonzeros {
         return Ok(Outcome {
             solve_seconds: start.elapsed().as_secs_f64(),
-            method: format!(
-                "greedy and swaps, calibrated objective (CBC not run: {nz} non-zeros > {CBC_MAX_NONZEROS})"
-            ),
+            method: format!("greedy and swaps, calibrated objective (CBC not run: {nz} non-zeros > {max_nonzeros})"),
             ..local
         });
     }
@@ -345,7 +345,7 @@ mod tests {
             };
             for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
                 let g = greedy(&inst, &limit, &w);
-                let out = solve(&inst, &limit, &w, 30.0, &g).unwrap();
+                let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
                 let best = brute(&inst, &limit, &w);
                 assert!(inst.check(&limit, &out.selection).is_ok());
                 assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
@@ -411,7 +411,7 @@ mod tests {
         let w = Weights { lidar: 0.5, radar: 0.1, lidar_two_views: 0.3, ..Weights::default() };
         assert!(nonzeros(&inst, &w) > CBC_MAX_NONZEROS);
         let limit = Limit::Counts(vec![2, 1]);
-        let out = solve(&inst, &limit, &w, 30.0, &greedy(&inst, &limit, &w)).unwrap();
+        let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &greedy(&inst, &limit, &w)).unwrap();
         assert!(out.method.contains("CBC not run"), "{}", out.method);
         assert!(inst.check(&limit, &out.selection).is_ok() && out.selection.len() == 3);
         assert!(out.bound.is_finite() && out.bound >= out.objective && !out.proven_optimal);

@@ -32,6 +32,9 @@ pub struct PlacementConfig {
     pub objective: ObjectiveKind,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration: Option<crate::calibrated::Weights>,
+    /// The largest calibrated IP (non-zeros of its coverage rows) handed to CBC; a larger one is
+    /// solved by greedy and swaps with the submodular bound ([`crate::calibrated::solve`]).
+    pub calibrated_cbc_max_nonzeros: usize,
 }
 
 /// Which objective placement maximises.
@@ -55,6 +58,7 @@ impl Default for PlacementConfig {
             visibility: VisibilityConfig::default(),
             objective: ObjectiveKind::Paper,
             calibration: None,
+            calibrated_cbc_max_nonzeros: crate::calibrated::CBC_MAX_NONZEROS,
         }
     }
 }

@@ -99,7 +99,14 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         let (g, o) = match (cfg.objective, &cfg.calibration) {
             (ObjectiveKind::Calibrated, Some(w)) => {
                 let g = hilo_placement_ip::calibrated::greedy(&inst, &limit, w);
-                let o = hilo_placement_ip::calibrated::solve(&inst, &limit, w, cfg.time_limit_s, &g)?;
+                let o = hilo_placement_ip::calibrated::solve(
+                    &inst,
+                    &limit,
+                    w,
+                    cfg.time_limit_s,
+                    cfg.calibrated_cbc_max_nonzeros,
+                    &g,
+                )?;
                 (g, o)
             }
             _ => {

@@ -223,7 +223,7 @@ pub fn calibrated_member(
     let inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
-    let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, &g)?;
+    let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, pc.calibrated_cbc_max_nonzeros, &g)?;
     let sensors = placed(&inst, &prep, &o.selection);
     let mut ctx = Context::new(study, &prep, &pc)?;
     let kind = if o.proven_optimal { "calibrated" } else { "calibrated-best-found" };
