@@ -48,7 +48,7 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
                 let n = (dx * dx + dy * dy).sqrt().max(1e-3);
                 let (lx, ly) = (dx / n, dy / n);
                 let vr = b.velocity[0] * lx + b.velocity[1] * ly + rng.random_range(-0.05..0.05);
-                rp.push([p[0], p[1], p[2], rng.random_range(5.0..12.0), vr, lx, ly, 0.0]);
+                rp.push(crate::data::radar_point(p, rng.random_range(5.0..12.0), vr, [lx, ly], 0.0));
             }
         }
     }
@@ -56,7 +56,8 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
         for _ in 0..10 {
             let (x, y) = (rng.random_range(-12.5f32..12.5), rng.random_range(-12.5f32..12.5));
             let n = ((x - radar_at[0]).powi(2) + (y - radar_at[1]).powi(2)).sqrt().max(1e-3);
-            rp.push([x, y, 0.2, rng.random_range(-5.0..5.0), 0.0, (x - radar_at[0]) / n, (y - radar_at[1]) / n, 0.0]);
+            let los = [(x - radar_at[0]) / n, (y - radar_at[1]) / n];
+            rp.push(crate::data::radar_point([x, y, 0.2], rng.random_range(-5.0..5.0), 0.0, los, 0.0));
         }
     }
     Frame {

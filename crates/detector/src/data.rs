@@ -20,7 +20,9 @@ use crate::error::{FusionError, Result};
 use hilo_core::Class;
 use hilo_dataset::Dataset;
 use hilo_dataset::background::BackgroundModel;
-pub use hilo_fusion::config::{Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig};
+pub use hilo_fusion::config::{
+    Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, radar_point,
+};
 pub use hilo_fusion::pillars::{Pillars, pillarize};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -235,7 +237,7 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
                             let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
                             let (dx, dy) = (q[0] - c.translation[0] as f32, q[1] - c.translation[1] as f32);
                             let n = (dx * dx + dy * dy).sqrt().max(1e-6);
-                            radar.push([q[0], q[1], q[2], p.rcs_dbsm, p.v_r_mps, dx / n, dy / n, lag]);
+                            radar.push(radar_point([q[0], q[1], q[2]], p.rcs_dbsm, p.v_r_mps, [dx / n, dy / n], lag));
                             stats.radar_points += 1;
                         }
                         sweep = sd_by_token.get(cur.prev.as_str()).copied().filter(|_| !cur.prev.is_empty());
@@ -295,7 +297,7 @@ pub fn augment(aug: &Augmentation, f: &Frame, rng: &mut impl Rng) -> Frame {
     for p in &mut out.radar {
         let (x, y) = xy(p[0], p[1]);
         let (lx, ly) = xy(p[5], p[6]);
-        *p = [x * s, y * s, p[2] * s, p[3], p[4] * s, lx, ly, p[7]];
+        *p = radar_point([x * s, y * s, p[2] * s], p[3], p[4] * s, [lx, ly], p[7]);
     }
     for b in &mut out.boxes {
         let (x, y) = xy(b.center[0], b.center[1]);
@@ -328,20 +330,21 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let mut lidar: Vec<[f32; 4]> =
             (0..400).map(|_| [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0), 0.5, 0.2]).collect();
-        let mut radar: Vec<[f32; 8]> = (0..600)
+        let mut radar: Vec<[f32; RADAR_FEATURES]> = (0..600)
             .map(|_| {
                 let v = if rng.random::<f32>() < 0.5 { 0.0 } else { rng.random_range(-5.0..5.0) };
-                [rng.random_range(-32.0..32.0), rng.random_range(-32.0..32.0), 1.0, 5.0, v, 1.0, 0.0, 0.0]
+                let (x, y) = (rng.random_range(-32.0..32.0), rng.random_range(-32.0..32.0));
+                radar_point([x, y, 1.0], 5.0, v, [1.0, 0.0], 0.0)
             })
             .collect();
         // Hard cases: LiDAR at (40, -40.5); radar exactly 1 m away (kept), 1.001 m away (dropped),
         // a fast one 10 m from everything (kept), one at exactly the speed limit (static: dropped).
         lidar.push([40.0, -40.5, 0.0, 0.0]);
-        radar.push([40.0, -39.5, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
-        radar.push([41.001, -40.5, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
-        radar.push([60.0, 60.0, 0.0, 0.0, 3.0, 1.0, 0.0, 0.0]);
-        radar.push([-60.0, 60.0, 0.0, 0.0, -0.15, 1.0, 0.0, 0.0]);
-        let oracle: Vec<[f32; 8]> = radar
+        radar.push(radar_point([40.0, -39.5, 0.0], 0.0, 0.0, [1.0, 0.0], 0.0));
+        radar.push(radar_point([41.001, -40.5, 0.0], 0.0, 0.0, [1.0, 0.0], 0.0));
+        radar.push(radar_point([60.0, 60.0, 0.0], 0.0, 3.0, [1.0, 0.0], 0.0));
+        radar.push(radar_point([-60.0, 60.0, 0.0], 0.0, -0.15, [1.0, 0.0], 0.0));
+        let oracle: Vec<[f32; RADAR_FEATURES]> = radar
             .iter()
             .filter(|p| {
                 p[4].abs() > cfg.max_speed_mps
@@ -355,7 +358,7 @@ mod tests {
         assert_eq!(kept, oracle, "the kept detections, in their order");
         assert_eq!(dropped, n - oracle.len());
         assert!(dropped > 50 && oracle.len() > 300, "both outcomes exercised ({dropped} dropped)");
-        let tail: Vec<[f32; 8]> = kept.iter().rev().take(2).rev().copied().collect();
+        let tail: Vec<[f32; RADAR_FEATURES]> = kept.iter().rev().take(2).rev().copied().collect();
         assert_eq!(tail[1], radar[n - 2], "the fast detection far from the LiDAR is kept");
         assert_eq!(tail[0], radar[n - 4], "the detection exactly at the radius is kept");
         // No LiDAR at all: every static detection goes, every moving one stays.
@@ -379,5 +382,32 @@ mod tests {
         input.radar_clutter = Some(RadarClutterConfig { max_speed_mps: f32::NAN, ..RadarClutterConfig::default() });
         let e = input.validate().unwrap_err().to_string();
         assert!(e.contains("input.radar_clutter.max_speed_mps = NaN"), "{e}");
+    }
+
+    /// Augmentation turns a radar point's radial velocity vector with its line of sight and
+    /// scales it with v_r: the vector stays v_r times the line of sight, and the box's
+    /// velocity projected on the line of sight stays v_r (rotation, mirror and scale together).
+    #[test]
+    fn augmentation_keeps_the_radial_velocity_vector_consistent() {
+        let aug = Augmentation { rotate_deg: 180.0, flip_p: 0.5, scale: 0.05 };
+        let (lx, ly) = (0.6f32, 0.8f32);
+        let velocity = [3.0f32, -4.0];
+        let v_r = velocity[0] * lx + velocity[1] * ly;
+        let frame = Frame {
+            sample_token: "s".into(),
+            scene: "a".into(),
+            lidar: Vec::new(),
+            radar: vec![radar_point([10.0, 5.0, 1.0], 3.0, v_r, [lx, ly], 0.0)],
+            boxes: vec![GtBox { class: 0, center: [10.0, 5.0, 1.0], wlh: [1.9, 4.6, 1.6], yaw: 0.3, velocity }],
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for _ in 0..20 {
+            let f = augment(&aug, &frame, &mut rng);
+            let p = f.radar[0];
+            assert!((p[8] - p[4] * p[5]).abs() < 1e-5 && (p[9] - p[4] * p[6]).abs() < 1e-5, "{p:?}");
+            assert!((p[5].hypot(p[6]) - 1.0).abs() < 1e-5, "the line of sight stays a unit vector");
+            let v = f.boxes[0].velocity;
+            assert!((v[0] * p[5] + v[1] * p[6] - p[4]).abs() < 1e-4, "{v:?} {p:?}");
+        }
     }
 }

@@ -140,7 +140,7 @@ fn probe(cfg: &DetectorConfig) -> HostBatch {
         sample_token: "probe".into(),
         scene: String::new(),
         lidar: vec![[0.1, 0.1, 0.5, 0.5]],
-        radar: vec![[0.1, 0.1, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0]],
+        radar: vec![crate::data::radar_point([0.1, 0.1, 0.5], 0.0, 0.0, [1.0, 0.0], 0.0)],
         boxes: Vec::new(),
     };
     HostBatch::new(cfg, &[f], true, 0)
@@ -281,9 +281,10 @@ impl Detector {
         let dev = &self.device;
         let tc = Tensor::from_slice(&t.cls, cls.shape(), dev)?;
         let tr = Tensor::from_slice(&t.reg, reg.shape(), dev)?;
-        // Box channels weigh 1, velocity 0.2; velocity only where it is known.
+        // Box channels weigh 1, velocity `velocity_weight`; velocity only where it is known.
+        let vw = self.cfg.velocity_weight as f32;
         let w_box = [1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0];
-        let w_vel = [0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.2, 0.2];
+        let w_vel = [0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, vw, vw];
         let (mask_shape, cw_shape): (Vec<usize>, Vec<usize>) = if cls.rank() == 4 {
             let (b, _, h, wd) = cls.dims4()?;
             (vec![b, 1, h, wd], vec![1, REG_CHANNELS, 1, 1])

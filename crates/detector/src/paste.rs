@@ -206,7 +206,7 @@ mod tests {
     fn frame_with(boxes: Vec<GtBox>) -> Frame {
         // 20 LiDAR points and 2 radar points in every box, and clutter at the origin.
         let mut lidar = vec![[0.0, 0.0, 0.5, 1.0]];
-        let mut radar = vec![[0.0, 0.0, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0]];
+        let mut radar = vec![crate::data::radar_point([0.0, 0.0, 0.5], 0.0, 0.0, [1.0, 0.0], 0.0)];
         for (k, b) in boxes.iter().enumerate() {
             for i in 0..20 {
                 let t = i as f32 / 20.0 - 0.5;
@@ -215,7 +215,13 @@ mod tests {
                 lidar.push([b.center[0] + a * c - x * s, b.center[1] + a * s + x * c, b.center[2], k as f32]);
             }
             for _ in 0..2 {
-                radar.push([b.center[0] + 0.6, b.center[1], b.center[2], 5.0, 1.0, 1.0, 0.0, 0.0]);
+                radar.push(crate::data::radar_point(
+                    [b.center[0] + 0.6, b.center[1], b.center[2]],
+                    5.0,
+                    1.0,
+                    [1.0, 0.0],
+                    0.0,
+                ));
             }
         }
         Frame { sample_token: "s".into(), scene: "a".into(), lidar, radar, boxes }

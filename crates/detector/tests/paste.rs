@@ -55,8 +55,11 @@ fn simulate(scene: &Scene, world: &World, seed: u64, n: usize, every: usize, bg:
                     lidar_sources.push(s.actor());
                 }
             }
-            let radar_pts: Vec<[f32; RADAR_FEATURES]> =
-                r.points_local().iter().map(|p| [p.x, p.y, p.z, p.rcs_dbsm, p.v_r_mps, 0.0, 0.0, 0.0]).collect();
+            let radar_pts: Vec<[f32; RADAR_FEATURES]> = r
+                .points_local()
+                .iter()
+                .map(|p| hilo_detector::data::radar_point([p.x, p.y, p.z], p.rcs_dbsm, p.v_r_mps, [0.0, 0.0], 0.0))
+                .collect();
             let radar_sources = r.sources.iter().map(PointSource::actor).collect();
             let boxes = actors
                 .iter()

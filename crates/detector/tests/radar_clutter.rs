@@ -38,8 +38,11 @@ fn frames(scene: &Scene, world: &World, seed: u64, n: usize, every: usize) -> Ve
                 traffic.step();
             }
             // Radar features as the loader writes them (local frame; the rule reads x, y, v_r).
-            let radar_local =
-                r.points_local().iter().map(|p| [p.x, p.y, p.z, p.rcs_dbsm, p.v_r_mps, 0.0, 0.0, 0.0]).collect();
+            let radar_local = r
+                .points_local()
+                .iter()
+                .map(|p| hilo_detector::data::radar_point([p.x, p.y, p.z], p.rcs_dbsm, p.v_r_mps, [0.0, 0.0], 0.0))
+                .collect();
             Frame { lidar: l.points, radar: radar_local, radar_sources: r.sources }
         })
         .collect()

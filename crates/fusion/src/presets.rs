@@ -53,6 +53,7 @@ pub fn centerpoint() -> DetectorConfig {
         input: default_input(),
         sparse: Some(SparseConfig::default()),
         loss_norm: LossNorm::All,
+        velocity_weight: 0.2,
     }
 }
 

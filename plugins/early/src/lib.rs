@@ -1,8 +1,8 @@
 //! Early fusion: the combined point space is pillarised with one joint encoder over mixed features,
 //! and aggregated per cell by A (max, mean, or mean per modality). Every point, LiDAR or radar, is
 //! written in one layout: x, y, z, PointPillars' five decorations, LiDAR intensity, radar RCS,
-//! radial velocity and line of sight (zeros where a modality has no such field) and a modality
-//! flag; a shared linear layer, BatchNorm and ReLU encode it; a cell's feature aggregates the
+//! radial velocity, line of sight, sweep lag and radial velocity vector (zeros where a modality
+//! has no such field) and a modality flag; a shared linear layer, BatchNorm and ReLU encode it; a cell's feature aggregates the
 //! encodings of all its points of both modalities by A: the maximum, the mean, or the mean per
 //! modality summed (`modality_mean`: LiDAR's mean plus radar's mean, so each modality counts once
 //! in a cell). The plain mean lets a cell's many LiDAR points drown its one or two radar points: on
@@ -31,8 +31,8 @@ use hilo_fusion::{DetectorConfig, Fusion, FusionError, FusionInput, FusionOutput
 use serde::{Deserialize, Serialize};
 
 /// Joint point layout: x, y, z, five decorations, intensity, RCS, v_r, line of sight x, y,
-/// sweep lag, modality flag.
-const JOINT: usize = 15;
+/// sweep lag, radial velocity x, y, modality flag.
+const JOINT: usize = 17;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -80,7 +80,7 @@ pub struct EarlyFusion {
 
 /// Column `k` of the joint layout each input feature goes to.
 const LIDAR_TO_JOINT: [usize; 9] = [0, 1, 2, 8, 3, 4, 5, 6, 7];
-const RADAR_TO_JOINT: [usize; 13] = [0, 1, 2, 9, 10, 11, 12, 13, 3, 4, 5, 6, 7];
+const RADAR_TO_JOINT: [usize; 15] = [0, 1, 2, 9, 10, 11, 12, 13, 14, 15, 3, 4, 5, 6, 7];
 
 fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
     let mut m = vec![0f32; map.len() * JOINT];
@@ -284,6 +284,7 @@ mod tests {
     use super::*;
     use candle_core::{DType, Device};
     use candle_nn::ModuleT;
+    use hilo_fusion::config::radar_point;
     use hilo_fusion::grid::small_grid;
     use hilo_fusion::layout::Layout;
     use hilo_fusion::pillars::pillarize;
@@ -343,10 +344,10 @@ mod tests {
             .map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3])
             .chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8]))
             .collect();
-        let radar: Vec<[f32; 8]> = vec![
-            [1.2, 2.2, 0.9, 8.0, 7.0, 0.1, 0.99, 0.0],
-            [6.1, -3.3, 0.4, 3.0, -2.0, 0.8, 0.6, 0.1],
-            [6.2, -3.4, 0.6, 5.0, -2.5, 0.8, 0.6, 0.0],
+        let radar: Vec<[f32; hilo_fusion::config::RADAR_FEATURES]> = vec![
+            radar_point([1.2, 2.2, 0.9], 8.0, 7.0, [0.1, 0.99], 0.0),
+            radar_point([6.1, -3.3, 0.4], 3.0, -2.0, [0.8, 0.6], 0.1),
+            radar_point([6.2, -3.4, 0.6], 5.0, -2.5, [0.8, 0.6], 0.0),
         ];
         let dev = Device::Cpu;
         let (lt, rt) = (
