@@ -614,6 +614,7 @@ pub fn train(
                 ("paste", _) if v == false => cfg.paste = None,
                 ("paste", _) if v == true => cfg.paste = Some(Default::default()),
                 ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
+                ("lidar_sweeps", Some(n)) if n >= 1 => det_cfg.input.lidar_sweeps = n as usize,
                 ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
                 ("replicas", Some(n)) if n >= 1 => cfg.replicas = n as usize,
                 ("sync_batch_norm", _) if v.is_boolean() => cfg.sync_batch_norm = v == true,
@@ -633,7 +634,7 @@ pub fn train(
                     })?
                 }
                 _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, sparse_backward=gather|scatter, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
+                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, lidar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, sparse_backward=gather|scatter, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
                 ),
             }
         }

@@ -151,7 +151,7 @@ enum BenchCommand {
         #[arg(long, default_value_t = 40)]
         steps: usize,
         /// A lever turned off or changed, for a before/after row: `layout=dense`,
-        /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`,
+        /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`, `lidar_sweeps=K`,
         /// `batch=N`, `replicas=N`, `sync_batch_norm=true|false`, `sparse_backward=gather|scatter`,
         /// `head_dilation=N`, `layers=N`,
         /// `blocks=[{"stride":2,"channels":32,"layers":2},...]` (repeatable).

@@ -10,7 +10,7 @@
 
 use crate::error::DatasetError;
 use crate::traffic::{ActorState, Traffic, TrafficConfig};
-use crate::writer::{Annotation, FrameData, RadarSweep, SceneData};
+use crate::writer::{Annotation, FrameData, SceneData, Sweep};
 use glam::Vec3;
 use hilo_core::{Check, Valid};
 use hilo_raycast::{ActorSet, HitTarget, Ray, Scene, World};
@@ -40,6 +40,10 @@ pub struct SimulateConfig {
     /// Radar sweeps per second, key frames included (a multiple of both key-frame rates);
     /// the radar's sweeps between key frames are written as non-key-frame sample_data.
     pub sweep_rate_hz: f64,
+    /// The LiDARs scan at `sweep_rate_hz` too (false: at key frames only), so a detector can
+    /// stack a LiDAR's last sweeps (multi-sweep input, as nuScenes detectors read ten) however
+    /// far apart the key frames are. Each sweep costs a key frame's ray casting.
+    pub lidar_sweeps: bool,
     /// Seed of the traffic and of the sensor noise.
     pub seed: u64,
     /// Road users farther than this from the scene origin are not annotated.
@@ -60,6 +64,7 @@ impl Default for SimulateConfig {
             val_seconds: 20.0,
             val_rate_hz: 2.0,
             sweep_rate_hz: 10.0,
+            lidar_sweeps: false,
             seed: 0,
             annotate_radius_m: 70.0,
             traffic: TrafficConfig::default(),
@@ -340,7 +345,7 @@ pub fn simulate_scene_with(
     for m in 0..=(n_frames.saturating_sub(1) * per_key) {
         let key = m % per_key == 0;
         let f = m / per_key;
-        if key || has_radar {
+        if key || has_radar || cfg.lidar_sweeps {
             let states = traffic.snapshot();
             let set = ActorSet::new(states.iter().map(ActorState::actor).collect())
                 .map_err(|e| DatasetError::Invalid(format!("scene {} sweep {m}: {e}", id.name())))?;
@@ -357,7 +362,7 @@ pub fn simulate_scene_with(
                 let err =
                     |e: hilo_sensor_models::SensorError| DatasetError::Invalid(format!("sensor {}: {e}", s.channel));
                 match &s.spec {
-                    SensorSpec::Lidar(l) if key => {
+                    SensorSpec::Lidar(l) if key || cfg.lidar_sweeps => {
                         let scan = simulate_lidar(l, &s.pose, world, Some(&set), noise).map_err(err)?;
                         for (a, n) in scan.points_per_actor() {
                             *lidar_pts.entry(a).or_default() += n as u32;
@@ -395,7 +400,7 @@ pub fn simulate_scene_with(
                 frames.push(FrameData { timestamp_us, lidar, radar, annotations });
                 on_frame(f + 1);
             } else {
-                sweeps.push(RadarSweep { timestamp_us, radar });
+                sweeps.push(Sweep { timestamp_us, lidar, radar });
             }
         }
         for _ in 0..steps_per_sweep {
@@ -405,11 +410,12 @@ pub fn simulate_scene_with(
     Ok(SceneData {
         name: id.name(),
         description: format!(
-            "hilo traffic, seed {}, {} scene, {} key frames at {} Hz, radar sweeps at {} Hz",
+            "hilo traffic, seed {}, {} scene, {} key frames at {} Hz, {} sweeps at {} Hz",
             cfg.seed,
             id.split.name(),
             n_frames,
             rate,
+            if cfg.lidar_sweeps { "LiDAR and radar" } else { "radar" },
             cfg.sweep_rate_hz
         ),
         frames,
@@ -539,7 +545,8 @@ pub fn write_dataset(
                             + f.radar.iter().map(|c| c.len() as u64 * 28).sum::<u64>()
                     })
                     .sum::<u64>()
-                    + data.sweeps.iter().flat_map(|s| &s.radar).map(|c| c.len() as u64 * 28).sum::<u64>();
+                    + data.sweeps.iter().flat_map(|s| &s.radar).map(|c| c.len() as u64 * 28).sum::<u64>()
+                    + data.sweeps.iter().flat_map(|s| &s.lidar).map(|c| c.len() as u64 * 20).sum::<u64>();
                 let rows = writer.add_scene_rows(&data, &location)?;
                 summary.annotations += rows.sample_annotation.len();
                 let bytes = serde_json::to_vec(&rows)

@@ -69,16 +69,18 @@ pub struct SceneData {
     pub description: String,
     /// Key frames: every sensor, annotated.
     pub frames: Vec<FrameData>,
-    /// Radar sweeps between key frames (nuScenes' non-key-frame sample_data), in time order:
-    /// what a detector stacks to see motion when key frames are far apart.
-    pub sweeps: Vec<RadarSweep>,
+    /// Sweeps between key frames (nuScenes' non-key-frame sample_data), in time order: what a
+    /// detector stacks to see motion when key frames are far apart.
+    pub sweeps: Vec<Sweep>,
 }
 
-/// One radar sweep at a time without a key frame: each radar's points, in the order of the
-/// dataset's radar sensors.
+/// One sweep at a time without a key frame: each radar's points, in the order of the dataset's
+/// radar sensors, and each LiDAR's in the order of its LiDARs (or none: the LiDARs scanned at
+/// key frames only).
 #[derive(Clone, Debug, PartialEq)]
-pub struct RadarSweep {
+pub struct Sweep {
     pub timestamp_us: u64,
+    pub lidar: Vec<Vec<LidarPoint>>,
     pub radar: Vec<Vec<RadarPoint>>,
 }
 
@@ -231,23 +233,25 @@ impl DatasetWriter {
                 scene_token: scene_token.clone(),
             });
         }
-        // Sample data: per channel, its chain in time order (radars: key frames and sweeps);
-        // a sweep belongs to the first key frame at or after it (the one that stacks it).
+        // Sample data: per channel, its chain in time order (key frames and the sweeps that hold
+        // the channel's points); a sweep belongs to the first key frame at or after it (the one
+        // that stacks it).
         let channels = lidar.iter().map(|s| (*s, true)).chain(radar.iter().map(|s| (*s, false)));
         for (ci, (s, is_lidar)) in channels.enumerate() {
             let k = if is_lidar { ci } else { ci - lidar.len() };
             // (timestamp, key frame index or None for a sweep, sweep index)
             let mut chain: Vec<(u64, Option<usize>, usize)> =
                 scene.frames.iter().enumerate().map(|(fi, f)| (f.timestamp_us, Some(fi), 0)).collect();
-            if !is_lidar {
-                chain.extend(scene.sweeps.iter().enumerate().map(|(si, sw)| (sw.timestamp_us, None, si)));
-                chain.sort_by_key(|c| c.0);
-                if chain.windows(2).any(|w| w[0].0 == w[1].0) {
-                    return Err(DatasetError::Invalid(format!(
-                        "scene {:?}: a radar sweep shares a key frame's time",
-                        scene.name
-                    )));
-                }
+            let holds = |sw: &Sweep| if is_lidar { !sw.lidar.is_empty() } else { !sw.radar.is_empty() };
+            chain.extend(
+                scene.sweeps.iter().enumerate().filter(|(_, sw)| holds(sw)).map(|(si, sw)| (sw.timestamp_us, None, si)),
+            );
+            chain.sort_by_key(|c| c.0);
+            if chain.windows(2).any(|w| w[0].0 == w[1].0) {
+                return Err(DatasetError::Invalid(format!(
+                    "scene {:?}: a sweep shares a key frame's time",
+                    scene.name
+                )));
             }
             let sd_token = |c: &(u64, Option<usize>, usize)| match c.1 {
                 Some(fi) => token(&[&ns, "sample_data", &s.channel, &sample_tokens[fi]]),
@@ -257,6 +261,7 @@ impl DatasetWriter {
                 let (bytes, ext) = match c.1 {
                     Some(fi) if is_lidar => (lidar_bin(&scene.frames[fi].lidar[k]), "pcd.bin"),
                     Some(fi) => (to_nuscenes_radar_pcd(&scene.frames[fi].radar[k]), "pcd"),
+                    None if is_lidar => (lidar_bin(&scene.sweeps[c.2].lidar[k]), "pcd.bin"),
                     None => (to_nuscenes_radar_pcd(&scene.sweeps[c.2].radar[k]), "pcd"),
                 };
                 let folder = if c.1.is_some() { "samples" } else { "sweeps" };
@@ -433,12 +438,16 @@ fn check_scene(t: &Tables, scene: &SceneData, lidars: usize, radars: usize) -> R
             )));
         }
     }
-    if let Some(sw) = scene.sweeps.iter().find(|sw| sw.radar.len() != radars) {
+    if let Some(sw) = scene.sweeps.iter().find(|sw| {
+        (!sw.radar.is_empty() && sw.radar.len() != radars) || (!sw.lidar.is_empty() && sw.lidar.len() != lidars)
+    }) {
         return Err(DatasetError::Invalid(format!(
-            "scene {:?}: the sweep at {} µs has {} radar clouds for {} radars",
+            "scene {:?}: the sweep at {} µs has {} LiDAR and {} radar clouds for {} and {} sensors",
             scene.name,
             sw.timestamp_us,
+            sw.lidar.len(),
             sw.radar.len(),
+            lidars,
             radars
         )));
     }

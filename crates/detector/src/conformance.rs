@@ -22,7 +22,13 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
     let mut rp = Vec::new();
     if lidar {
         for _ in 0..500 {
-            lp.push([rng.random_range(-12.5..12.5), rng.random_range(-12.5..12.5), rng.random_range(-0.05..0.05), 0.1]);
+            lp.push([
+                rng.random_range(-12.5..12.5),
+                rng.random_range(-12.5..12.5),
+                rng.random_range(-0.05..0.05),
+                0.1,
+                0.0,
+            ]);
         }
     }
     for b in boxes {
@@ -38,7 +44,7 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
         if lidar {
             for _ in 0..60 {
                 let p = on_box(&mut rng);
-                lp.push([p[0], p[1], p[2], 0.6]);
+                lp.push([p[0], p[1], p[2], 0.6, 0.0]);
             }
         }
         if radar {

@@ -94,8 +94,10 @@ fn quat_rotate(q: [f64; 4], p: [f64; 3]) -> [f64; 3] {
 pub struct LoadOptions<'a> {
     /// LiDAR points this model calls background are left out.
     pub background: Option<&'a BackgroundModel>,
-    /// Radar sweeps per frame (0 or 1: the frame's own) and the largest lag of an older one.
+    /// Radar and LiDAR sweeps per frame (0 or 1: the frame's own) and the largest lag of an
+    /// older one.
     pub radar_sweeps: usize,
+    pub lidar_sweeps: usize,
     pub max_sweep_lag_s: f32,
     /// Radar static clutter is dropped by this rule (against the frame's LiDAR foreground).
     pub radar_clutter: Option<RadarClutterConfig>,
@@ -107,6 +109,7 @@ impl<'a> LoadOptions<'a> {
         LoadOptions {
             background,
             radar_sweeps: input.radar_sweeps,
+            lidar_sweeps: input.lidar_sweeps,
             max_sweep_lag_s: input.max_sweep_lag_s,
             radar_clutter: input.radar_clutter,
         }
@@ -211,17 +214,27 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             };
             match modality {
                 "lidar" => {
-                    let points = ds.lidar_points(sd).map_err(FusionError::dataset)?;
-                    let n = points.len();
-                    let points = match opts.background {
-                        Some(m) => m.foreground(channel, points),
-                        None => points,
-                    };
-                    stats.lidar_points += points.len();
-                    stats.background_points += n - points.len();
-                    for p in points {
-                        let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
-                        lidar.push([q[0], q[1], q[2], p.intensity]);
+                    // The frame's sweep, then older ones by the channel's `prev` links.
+                    let mut sweep = Some(sd);
+                    for k in 0..opts.lidar_sweeps.max(1) {
+                        let Some(cur) = sweep else { break };
+                        let lag = 1e-6 * sd.timestamp.saturating_sub(cur.timestamp) as f32;
+                        if k > 0 && lag > opts.max_sweep_lag_s {
+                            break;
+                        }
+                        let points = ds.lidar_points(cur).map_err(FusionError::dataset)?;
+                        let n = points.len();
+                        let points = match opts.background {
+                            Some(m) => m.foreground(channel, points),
+                            None => points,
+                        };
+                        stats.lidar_points += points.len();
+                        stats.background_points += n - points.len();
+                        for p in points {
+                            let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
+                            lidar.push([q[0], q[1], q[2], p.intensity, lag]);
+                        }
+                        sweep = sd_by_token.get(cur.prev.as_str()).copied().filter(|_| !cur.prev.is_empty());
                     }
                 }
                 "radar" => {
@@ -247,7 +260,9 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             }
         }
         if let Some(c) = &opts.radar_clutter {
-            let dropped = drop_radar_clutter(&lidar, &mut radar, c);
+            // Against the frame's own LiDAR sweep: older sweeps' points lie where road users were.
+            let own: Vec<[f32; LIDAR_FEATURES]> = lidar.iter().filter(|p| p[4] == 0.0).copied().collect();
+            let dropped = drop_radar_clutter(&own, &mut radar, c);
             stats.radar_points -= dropped;
             stats.radar_clutter_points += dropped;
         }
@@ -292,7 +307,7 @@ pub fn augment(aug: &Augmentation, f: &Frame, rng: &mut impl Rng) -> Frame {
     let mut out = f.clone();
     for p in &mut out.lidar {
         let (x, y) = xy(p[0], p[1]);
-        *p = [x * s, y * s, p[2] * s, p[3]];
+        *p = [x * s, y * s, p[2] * s, p[3], p[4]];
     }
     for p in &mut out.radar {
         let (x, y) = xy(p[0], p[1]);
@@ -328,8 +343,8 @@ mod tests {
     fn radar_clutter_rule_matches_a_brute_force_oracle() {
         let cfg = RadarClutterConfig { max_speed_mps: 0.15, lidar_radius_m: 1.0 };
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let mut lidar: Vec<[f32; 4]> =
-            (0..400).map(|_| [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0), 0.5, 0.2]).collect();
+        let mut lidar: Vec<[f32; LIDAR_FEATURES]> =
+            (0..400).map(|_| [rng.random_range(-30.0..30.0), rng.random_range(-30.0..30.0), 0.5, 0.2, 0.0]).collect();
         let mut radar: Vec<[f32; RADAR_FEATURES]> = (0..600)
             .map(|_| {
                 let v = if rng.random::<f32>() < 0.5 { 0.0 } else { rng.random_range(-5.0..5.0) };
@@ -339,7 +354,7 @@ mod tests {
             .collect();
         // Hard cases: LiDAR at (40, -40.5); radar exactly 1 m away (kept), 1.001 m away (dropped),
         // a fast one 10 m from everything (kept), one at exactly the speed limit (static: dropped).
-        lidar.push([40.0, -40.5, 0.0, 0.0]);
+        lidar.push([40.0, -40.5, 0.0, 0.0, 0.0]);
         radar.push(radar_point([40.0, -39.5, 0.0], 0.0, 0.0, [1.0, 0.0], 0.0));
         radar.push(radar_point([41.001, -40.5, 0.0], 0.0, 0.0, [1.0, 0.0], 0.0));
         radar.push(radar_point([60.0, 60.0, 0.0], 0.0, 3.0, [1.0, 0.0], 0.0));

@@ -139,7 +139,7 @@ fn probe(cfg: &DetectorConfig) -> HostBatch {
     let f = Frame {
         sample_token: "probe".into(),
         scene: String::new(),
-        lidar: vec![[0.1, 0.1, 0.5, 0.5]],
+        lidar: vec![[0.1, 0.1, 0.5, 0.5, 0.0]],
         radar: vec![crate::data::radar_point([0.1, 0.1, 0.5], 0.0, 0.0, [1.0, 0.0], 0.0)],
         boxes: Vec::new(),
     };

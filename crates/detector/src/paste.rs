@@ -205,14 +205,14 @@ mod tests {
 
     fn frame_with(boxes: Vec<GtBox>) -> Frame {
         // 20 LiDAR points and 2 radar points in every box, and clutter at the origin.
-        let mut lidar = vec![[0.0, 0.0, 0.5, 1.0]];
+        let mut lidar = vec![[0.0, 0.0, 0.5, 1.0, 0.0]];
         let mut radar = vec![crate::data::radar_point([0.0, 0.0, 0.5], 0.0, 0.0, [1.0, 0.0], 0.0)];
         for (k, b) in boxes.iter().enumerate() {
             for i in 0..20 {
                 let t = i as f32 / 20.0 - 0.5;
                 let (c, s) = (b.yaw.cos(), b.yaw.sin());
                 let (a, x) = (t * b.wlh[1] * 0.9, 0.3 * t * b.wlh[0]);
-                lidar.push([b.center[0] + a * c - x * s, b.center[1] + a * s + x * c, b.center[2], k as f32]);
+                lidar.push([b.center[0] + a * c - x * s, b.center[1] + a * s + x * c, b.center[2], k as f32, 0.0]);
             }
             for _ in 0..2 {
                 radar.push(crate::data::radar_point(
@@ -269,7 +269,7 @@ mod tests {
                 assert_eq!(out.radar.iter().filter(|p| in_box(b, [p[0], p[1], p[2]], 0.5)).count(), 2);
             }
             assert_eq!(out.lidar.len(), target.lidar.len() + 20 * (buses - 1));
-            assert!(out.lidar.contains(&[0.0, 0.0, 0.5, 1.0]));
+            assert!(out.lidar.contains(&[0.0, 0.0, 0.5, 1.0, 0.0]));
         }
         assert!(pasted_any);
         // A class not filled is never pasted, and a frame already full receives nothing.
@@ -283,13 +283,13 @@ mod tests {
         let source = frame_with(vec![bus]);
         let mut target = frame_with(vec![]);
         // Residual points where the bus will stand, at two heights, and one just outside.
-        target.lidar.extend([[20.0, 0.0, 0.2, 0.0], [21.0, 0.5, 5.0, 0.0], [20.0, 1.6, 0.5, 0.0]]);
+        target.lidar.extend([[20.0, 0.0, 0.2, 0.0, 0.0], [21.0, 0.5, 5.0, 0.0, 0.0], [20.0, 1.6, 0.5, 0.0, 0.0]]);
         let cfg = PasteConfig { fill: [("bus".to_string(), 1)].into(), ..PasteConfig::default() };
         let db = PasteDb::build(std::slice::from_ref(&source), &cfg).unwrap();
         let out = db.paste(&target, &mut rand_chacha::ChaCha8Rng::seed_from_u64(0));
         assert_eq!(out.boxes, vec![bus]);
-        assert!(!out.lidar.contains(&[20.0, 0.0, 0.2, 0.0]) && !out.lidar.contains(&[21.0, 0.5, 5.0, 0.0]));
-        assert!(out.lidar.contains(&[20.0, 1.6, 0.5, 0.0]), "0.35 m beyond the side, more than the margin");
+        assert!(!out.lidar.contains(&[20.0, 0.0, 0.2, 0.0, 0.0]) && !out.lidar.contains(&[21.0, 0.5, 5.0, 0.0, 0.0]));
+        assert!(out.lidar.contains(&[20.0, 1.6, 0.5, 0.0, 0.0]), "0.35 m beyond the side, more than the margin");
         assert_eq!(out.lidar.len(), 1 + 1 + 20);
     }
 

@@ -32,7 +32,13 @@ fn frame(seed: u64, boxes: &[GtBox]) -> Frame {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut lidar = Vec::new();
     for _ in 0..600 {
-        lidar.push([rng.random_range(-12.0..12.0), rng.random_range(-12.0..12.0), rng.random_range(-0.05..0.05), 0.1]);
+        lidar.push([
+            rng.random_range(-12.0..12.0),
+            rng.random_range(-12.0..12.0),
+            rng.random_range(-0.05..0.05),
+            0.1,
+            0.0,
+        ]);
     }
     for b in boxes {
         let (c, s) = (b.yaw.cos(), b.yaw.sin());
@@ -47,6 +53,7 @@ fn frame(seed: u64, boxes: &[GtBox]) -> Frame {
                 b.center[1] + s * u + c * v,
                 b.center[2] - 0.5 * b.wlh[2] + h,
                 0.6,
+                0.0,
             ]);
         }
     }
@@ -90,8 +97,9 @@ fn module_shapes() {
         let cfg = dense(name);
         let det = build(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
         let b = HostBatch::new(&cfg, &frames, false, 0);
-        assert_eq!(b.lidar.width, 9);
-        assert_eq!(b.lidar.features.len(), b.lidar.count() * b.lidar.points_per_pillar * 9);
+        // x, y, z, intensity, sweep lag and PointPillars' five decorations.
+        assert_eq!(b.lidar.width, 10);
+        assert_eq!(b.lidar.features.len(), b.lidar.count() * b.lidar.points_per_pillar * 10);
         let (cls, reg) = det.forward(&b, false).unwrap();
         let n = cfg.grid.cells() / cfg.backbone.out_stride;
         assert_eq!(n, if name == "centerpoint" { 32 } else { 16 });

@@ -51,7 +51,7 @@ fn simulate(scene: &Scene, world: &World, seed: u64, n: usize, every: usize, bg:
                 if it.peek().is_some_and(|q| *q == p) {
                     it.next();
                     let q = lp.to_local(glam::Vec3::new(p.x, p.y, p.z));
-                    lidar_pts.push([q.x, q.y, q.z, p.intensity]);
+                    lidar_pts.push([q.x, q.y, q.z, p.intensity, 0.0]);
                     lidar_sources.push(s.actor());
                 }
             }

@@ -69,7 +69,7 @@ fn radar_clutter_rule_against_the_known_sources() {
             .iter()
             .map(|p| {
                 let q = lp.to_local(glam::Vec3::new(p.x, p.y, p.z));
-                [q.x, q.y, q.z, p.intensity]
+                [q.x, q.y, q.z, p.intensity, 0.0]
             })
             .collect();
         let mut kept = f.radar.clone();

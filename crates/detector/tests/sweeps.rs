@@ -1,13 +1,13 @@
-//! Radar sweep stacking in the loader: the key frame's sweep and the ones before it, each point
-//! with its sweep's time lag, newest first; empty sweeps; a gap longer than the lag limit ends
-//! the stack; LiDAR only from key frames.
+//! Sweep stacking in the loader: the key frame's sweep and the ones before it, each point with
+//! its sweep's time lag, newest first; empty sweeps; a gap longer than the lag limit ends the
+//! stack; the LiDAR's sweeps likewise, the sweeps it did not scan left out of its chain.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use glam::{Vec2, Vec3};
 use hilo_core::{Box3, Class, LidarPoint, RadarPoint};
 use hilo_dataset::Dataset;
-use hilo_dataset::writer::{Annotation, DatasetWriter, FrameData, RadarSweep, SceneData, SensorModality, SensorSetup};
+use hilo_dataset::writer::{Annotation, DatasetWriter, FrameData, SceneData, SensorModality, SensorSetup, Sweep};
 use hilo_detector::data::{LoadOptions, load_split, load_split_frame};
 use hilo_sensor_models::SensorPose;
 
@@ -50,7 +50,15 @@ fn radar_sweeps_stack_with_their_time_lags() {
     let t0 = 1_000_000_000u64;
     // Key frames at 0 and 0.5 s; sweeps at 0.1 (empty), 0.2, 0.3 and 0.4 s; then a key frame at
     // 1.5 s after a one-second gap with no sweep.
-    let sweep = |dt: u64, pts: Vec<RadarPoint>| RadarSweep { timestamp_us: t0 + dt, radar: vec![pts] };
+    // The LiDAR scanned at 0.2 and 0.4 s too (its intensity tags the sweep), not at 0.1 and 0.3.
+    let sweep = |dt: u64, pts: Vec<RadarPoint>| {
+        let lidar = if dt.is_multiple_of(200_000) {
+            vec![vec![LidarPoint { x: 5.0, y: 1.0, z: 0.0, intensity: dt as f32 * 1e-6, ring: 0, time_s: 0.0 }]]
+        } else {
+            Vec::new()
+        };
+        Sweep { timestamp_us: t0 + dt, lidar, radar: vec![pts] }
+    };
     let scene = SceneData {
         name: "val-0000".into(),
         description: String::new(),
@@ -66,15 +74,12 @@ fn radar_sweeps_stack_with_their_time_lags() {
     w.write_splits(&std::collections::BTreeMap::from([("val".to_string(), vec!["val-0000".to_string()])])).unwrap();
     w.finish().unwrap();
     let ds = Dataset::open(dir.path(), "v1.0-trainval").unwrap();
-    let load = |k: usize| {
-        let (frames, stats) = load_split(
-            &ds,
-            "val",
-            &LoadOptions { background: None, radar_sweeps: k, max_sweep_lag_s: 0.5, radar_clutter: None },
-        )
-        .unwrap();
-        (frames, stats)
+    let load_with = |radar_sweeps: usize, lidar_sweeps: usize| {
+        let opts =
+            LoadOptions { background: None, radar_sweeps, lidar_sweeps, max_sweep_lag_s: 0.5, radar_clutter: None };
+        load_split(&ds, "val", &opts).unwrap()
     };
+    let load = |k: usize| load_with(k, 1);
     // One sweep: the key frame's own, lag 0; key frames only, with their LiDAR.
     let (f1, s1) = load(1);
     assert_eq!(f1.len(), 3);
@@ -95,10 +100,26 @@ fn radar_sweeps_stack_with_their_time_lags() {
     assert_eq!(f6[2].radar.iter().map(|p| p[3]).collect::<Vec<_>>(), vec![15.0]);
     assert_eq!(s4.older_sweep_points, 4);
     // One frame alone is the split's frame at that index, sweeps and all; past the end, none.
-    let opts = LoadOptions { background: None, radar_sweeps: 4, max_sweep_lag_s: 0.5, radar_clutter: None };
+    let opts =
+        LoadOptions { background: None, radar_sweeps: 4, lidar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None };
     for (i, f) in f4.iter().enumerate() {
         let one = load_split_frame(&ds, "val", &opts, i).unwrap().unwrap();
         assert_eq!((&one.sample_token, &one.lidar, &one.radar), (&f.sample_token, &f.lidar, &f.radar));
     }
     assert!(load_split_frame(&ds, "val", &opts, 3).unwrap().is_none());
+    // LiDAR sweeps the same way, each point with its sweep's lag; the sweeps without LiDAR are
+    // not in its chain. At 0.5 s: its own, 0.4 s, 0.2 s, then the key frame at 0 s (lag 0.5).
+    let lidar_tags = |f: &hilo_detector::data::Frame| -> Vec<(f32, f32)> {
+        f.lidar.iter().map(|p| ((p[3] * 10.0).round() / 10.0, (p[4] * 10.0).round() / 10.0)).collect()
+    };
+    let (l1, _) = load_with(1, 1);
+    assert!(l1.iter().all(|f| f.lidar.len() == 1 && f.lidar[0][4] == 0.0));
+    let (l3, _) = load_with(1, 3);
+    assert_eq!(lidar_tags(&l3[1]), vec![(0.5, 0.0), (0.4, 0.1), (0.2, 0.3)]);
+    let (l9, _) = load_with(1, 9);
+    assert_eq!(lidar_tags(&l9[1]), vec![(0.5, 0.0), (0.4, 0.1), (0.2, 0.3), (0.5, 0.5)]);
+    assert_eq!(l9[0].lidar.len(), 1, "nothing before the first key frame");
+    assert_eq!(l9[2].lidar.len(), 1, "the previous LiDAR sweep is 1 s back, beyond the limit");
+    // The radar is read as before whatever the LiDAR stacks.
+    assert_eq!(l9[1].radar, f1[1].radar);
 }

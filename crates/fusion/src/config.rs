@@ -287,8 +287,9 @@ impl TrainConfig {
 /// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).
 pub const CLASSES: [Class; 6] = Class::ALL;
 
-/// LiDAR point features: x, y, z, intensity (local frame).
-pub const LIDAR_FEATURES: usize = 4;
+/// LiDAR point features: x, y, z, intensity (local frame), and the time lag of the point's
+/// sweep behind the frame (s; 0 for the frame's own sweep, [`InputConfig::lidar_sweeps`]).
+pub const LIDAR_FEATURES: usize = 5;
 /// Radar point features: x, y, z, RCS (dBsm), v_r (m/s), line of sight x, y (unit, from the
 /// sensor: the direction v_r is measured along), the time lag of the point's sweep behind the
 /// frame (s; 0 for the frame's own sweep), and the radial velocity as a vector, v_r times the
@@ -313,6 +314,13 @@ pub struct InputConfig {
     pub background: Option<BackgroundConfig>,
     /// Radar sweeps per frame: the frame's own and the `radar_sweeps − 1` before it.
     pub radar_sweeps: usize,
+    /// LiDAR sweeps per frame, likewise (1: single-frame LiDAR). The sensors are static, so a
+    /// road user's older points trail behind it, each tagged with its sweep's lag: the motion
+    /// cue nuScenes detectors take from ten stacked sweeps. Older sweeps come from the key
+    /// frames before (at the training split's 10 Hz) or from a dataset simulated with
+    /// `lidar_sweeps = true`; a gap over `max_sweep_lag_s` ends the stack.
+    #[serde(default = "one_sweep", skip_serializing_if = "is_one_sweep")]
+    pub lidar_sweeps: usize,
     /// Older sweeps farther than this behind the frame are not used (a gap in the recording).
     pub max_sweep_lag_s: f32,
     /// Drop radar static clutter (needs `background`: the LiDAR foreground tells road users
@@ -322,8 +330,16 @@ pub struct InputConfig {
 
 impl Default for InputConfig {
     fn default() -> Self {
-        InputConfig { background: None, radar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None }
+        InputConfig { background: None, radar_sweeps: 1, lidar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None }
     }
+}
+
+fn one_sweep() -> usize {
+    1
+}
+
+fn is_one_sweep(n: &usize) -> bool {
+    *n == 1
 }
 
 /// Which radar detections are static clutter: those moving at most `max_speed_mps` along the
@@ -363,6 +379,9 @@ impl RadarClutterConfig {
 
 impl InputConfig {
     pub fn validate(&self) -> Result<()> {
+        if self.lidar_sweeps == 0 || self.lidar_sweeps > 20 {
+            return Err(FusionError::Config(format!("input.lidar_sweeps = {}: must be in 1..=20", self.lidar_sweeps)));
+        }
         if self.radar_sweeps == 0 || self.radar_sweeps > 20 {
             return Err(FusionError::Config(format!("input.radar_sweeps = {}: must be in 1..=20", self.radar_sweeps)));
         }

@@ -31,7 +31,7 @@ use hilo_fusion::{DetectorConfig, Fusion, FusionError, FusionInput, FusionOutput
 use serde::{Deserialize, Serialize};
 
 /// Joint point layout: x, y, z, five decorations, intensity, RCS, v_r, line of sight x, y,
-/// sweep lag, radial velocity x, y, modality flag.
+/// sweep lag (either modality's), radial velocity x, y, modality flag.
 const JOINT: usize = 17;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -79,7 +79,7 @@ pub struct EarlyFusion {
 }
 
 /// Column `k` of the joint layout each input feature goes to.
-const LIDAR_TO_JOINT: [usize; 9] = [0, 1, 2, 8, 3, 4, 5, 6, 7];
+const LIDAR_TO_JOINT: [usize; 10] = [0, 1, 2, 8, 13, 3, 4, 5, 6, 7];
 const RADAR_TO_JOINT: [usize; 15] = [0, 1, 2, 9, 10, 11, 12, 13, 14, 15, 3, 4, 5, 6, 7];
 
 fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
@@ -340,9 +340,9 @@ mod tests {
     #[test]
     fn aggregations_match_a_per_cell_oracle() {
         let grid = small_grid();
-        let lidar: Vec<[f32; 4]> = (0..9)
-            .map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3])
-            .chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8]))
+        let lidar: Vec<[f32; LIDAR_FEATURES]> = (0..9)
+            .map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3, 0.0])
+            .chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8, 0.1]))
             .collect();
         let radar: Vec<[f32; hilo_fusion::config::RADAR_FEATURES]> = vec![
             radar_point([1.2, 2.2, 0.9], 8.0, 7.0, [0.1, 0.99], 0.0),
