@@ -15,8 +15,9 @@
 //! min(1, a / τ) / k, or a / (2τ) for the dense term), the limit and one sensor per mount; z
 //! needs no integrality (with β ≥ 0 the optimum sets each z to its cap). f is monotone and submodular
 //! (a non-negative sum of concave functions of modular sums), so greedy is a
-//! (1 − 1/e)-approximation under a count limit; CBC, warm-started from greedy, closes or bounds
-//! the gap.
+//! (1 − 1/e)-approximation under a count limit; swaps improve it ([`search`]), and CBC,
+//! warm-started from them, closes or bounds the gap where the IP is small enough for CBC to
+//! finish its root relaxation; past that size the submodular bound bounds it.
 
 use crate::candidates::Modality;
 use crate::error::PlacementError;
@@ -29,14 +30,14 @@ use good_lp::{
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
-mod search;
+pub mod search;
 pub use search::{greedy, swaps, upper_bound};
 
 /// The largest calibrated IP (non-zeros of its coverage rows) handed to CBC by default
-/// (`[placement] calibrated_cbc_max_nonzeros`). CBC checks its
-/// time limit only between branch-and-bound nodes, so a larger root LP runs unbounded (a
-/// default-scale instance, 3 terms over 4,846 targets, ran 12 min at 13 GB without finishing
-/// its root); beyond this size the solve is greedy and swaps with the submodular bound.
+/// (`[placement] calibrated_cbc_max_nonzeros`). CBC checks its time limit only between
+/// branch-and-bound nodes, so a larger root LP runs unbounded (a default-scale instance, 3
+/// terms over 4,846 targets and 22 million non-zeros, ran 12 min at 13 GB without finishing its
+/// root); beyond this size the solve is greedy and swaps with the submodular bound.
 pub const CBC_MAX_NONZEROS: usize = 1_000_000;
 
 /// The non-zeros of the calibrated IP's coverage rows: per non-zero term, its modality's
