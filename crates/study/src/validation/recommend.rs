@@ -161,9 +161,8 @@ pub fn markdown(r: &Recommendation) -> String {
     ));
     let p = &r.member.placement;
     s.push_str(&format!(
-        "Placed by {} in {:.0} s: {}.\n\n",
+        "Placed by {}: {}.\n\n",
         p.method,
-        p.solve_seconds,
         if p.proven_optimal {
             "proven optimal".to_owned()
         } else {

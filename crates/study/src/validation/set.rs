@@ -208,7 +208,7 @@ pub fn budget_configuration(study: &Study) -> Option<Configuration> {
 /// [`budget_configuration`]; [`calibrated::solve`] from greedy within the study's time limit),
 /// as member number `k` of kind `calibrated` (or `calibrated-best-found` when not proven
 /// optimal), with its predictors; its placement's objective, bound, gap and method are those
-/// of the calibrated solve.
+/// of the calibrated solve (its time is not recorded: the placement is hashed).
 pub fn calibrated_member(
     study: &Study,
     v: &ValidationSettings,
@@ -228,11 +228,12 @@ pub fn calibrated_member(
     let mut ctx = Context::new(study, &prep, &pc)?;
     let kind = if o.proven_optimal { "calibrated" } else { "calibrated-best-found" };
     let mut m = ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)?;
-    // The placement records the solve of the objective it was placed for.
+    // The placement records the solve of the objective it was placed for, but not its time: the
+    // placement names the recommendation's dataset and runs (a content hash), so it must be the
+    // same bytes whenever the same rig is bought.
     m.placement.objective = o.objective;
     m.placement.bound = o.bound;
     m.placement.gap = o.gap;
-    m.placement.solve_seconds = o.solve_seconds;
     m.placement.greedy_objective = g.objective;
     m.placement.method = o.method;
     Ok(m)
