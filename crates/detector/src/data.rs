@@ -20,6 +20,7 @@ use crate::error::{FusionError, Result};
 use hilo_core::Class;
 use hilo_dataset::Dataset;
 use hilo_dataset::background::BackgroundModel;
+use hilo_dataset::tables::SampleData;
 pub use hilo_fusion::config::{
     Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, radar_point,
 };
@@ -161,6 +162,28 @@ pub fn load_split_frame(ds: &Dataset, split: &str, opts: &LoadOptions, index: us
     Ok(load_samples(ds, split, opts, Some(index))?.0.pop())
 }
 
+/// A key frame's sample_data and the `count − 1` sweeps before it on its channel (by `prev`
+/// links), newest first, each with its lag behind the key frame (s); an older sweep more than
+/// `max_lag_s` behind ends the chain.
+fn sweeps<'a>(
+    key: &'a SampleData,
+    count: usize,
+    max_lag_s: f32,
+    by_token: &HashMap<&str, &'a SampleData>,
+) -> Vec<(&'a SampleData, f32)> {
+    let mut chain = Vec::new();
+    let mut sweep = Some(key);
+    while let Some(cur) = sweep.filter(|_| chain.len() < count.max(1)) {
+        let lag = 1e-6 * key.timestamp.saturating_sub(cur.timestamp) as f32;
+        if !chain.is_empty() && lag > max_lag_s {
+            break;
+        }
+        chain.push((cur, lag));
+        sweep = by_token.get(cur.prev.as_str()).copied().filter(|_| !cur.prev.is_empty());
+    }
+    chain
+}
+
 fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usize>) -> Result<(Vec<Frame>, LoadStats)> {
     let scenes: std::collections::HashSet<String> =
         ds.split(split).map_err(FusionError::dataset)?.into_iter().collect();
@@ -171,8 +194,7 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
         t.calibrated_sensor.iter().map(|c| (c.token.as_str(), c)).collect();
     let sensors: HashMap<&str, &hilo_dataset::tables::Sensor> =
         t.sensor.iter().map(|s| (s.token.as_str(), s)).collect();
-    let sd_by_token: HashMap<&str, &hilo_dataset::tables::SampleData> =
-        t.sample_data.iter().map(|s| (s.token.as_str(), s)).collect();
+    let sd_by_token: HashMap<&str, &SampleData> = t.sample_data.iter().map(|s| (s.token.as_str(), s)).collect();
     let category: HashMap<&str, &str> = t.category.iter().map(|c| (c.token.as_str(), c.name.as_str())).collect();
     let instance_class: HashMap<&str, Option<Class>> = t
         .instance
@@ -182,7 +204,7 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             (i.token.as_str(), hilo_dataset::writer::class_of_category(cat))
         })
         .collect();
-    let mut by_sample: HashMap<&str, Vec<&hilo_dataset::tables::SampleData>> = HashMap::new();
+    let mut by_sample: HashMap<&str, Vec<&SampleData>> = HashMap::new();
     for sd in t.sample_data.iter().filter(|sd| sd.is_key_frame) {
         by_sample.entry(sd.sample_token.as_str()).or_default().push(sd);
     }
@@ -214,14 +236,7 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             };
             match modality {
                 "lidar" => {
-                    // The frame's sweep, then older ones by the channel's `prev` links.
-                    let mut sweep = Some(sd);
-                    for k in 0..opts.lidar_sweeps.max(1) {
-                        let Some(cur) = sweep else { break };
-                        let lag = 1e-6 * sd.timestamp.saturating_sub(cur.timestamp) as f32;
-                        if k > 0 && lag > opts.max_sweep_lag_s {
-                            break;
-                        }
+                    for (cur, lag) in sweeps(sd, opts.lidar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
                         let points = ds.lidar_points(cur).map_err(FusionError::dataset)?;
                         let n = points.len();
                         let points = match opts.background {
@@ -234,18 +249,10 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
                             let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
                             lidar.push([q[0], q[1], q[2], p.intensity, lag]);
                         }
-                        sweep = sd_by_token.get(cur.prev.as_str()).copied().filter(|_| !cur.prev.is_empty());
                     }
                 }
                 "radar" => {
-                    // The frame's sweep, then older ones by the channel's `prev` links.
-                    let mut sweep = Some(sd);
-                    for k in 0..opts.radar_sweeps.max(1) {
-                        let Some(cur) = sweep else { break };
-                        let lag = 1e-6 * sd.timestamp.saturating_sub(cur.timestamp) as f32;
-                        if k > 0 && lag > opts.max_sweep_lag_s {
-                            break;
-                        }
+                    for (cur, lag) in sweeps(sd, opts.radar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
                         for p in ds.radar_points(cur).map_err(FusionError::dataset)? {
                             let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
                             let (dx, dy) = (q[0] - c.translation[0] as f32, q[1] - c.translation[1] as f32);
@@ -253,7 +260,6 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
                             radar.push(radar_point([q[0], q[1], q[2]], p.rcs_dbsm, p.v_r_mps, [dx / n, dy / n], lag));
                             stats.radar_points += 1;
                         }
-                        sweep = sd_by_token.get(cur.prev.as_str()).copied().filter(|_| !cur.prev.is_empty());
                     }
                 }
                 _ => {}
