@@ -183,8 +183,9 @@ pub(crate) fn outcome(
 
 /// Solves the calibrated objective: swaps from `warm` (at most `time_limit_s`), then CBC
 /// warm-started from them within `time_limit_s` when the IP has at most `max_nonzeros`
-/// non-zeros (default [`CBC_MAX_NONZEROS`]); otherwise the swaps' selection with the submodular bound ([`upper_bound`]). Never
-/// returns less than the warm start; an unproven result reports the tighter of the two bounds.
+/// non-zeros (default [`CBC_MAX_NONZEROS`]); otherwise the swaps' selection with the
+/// submodular bound ([`upper_bound`]). Never returns less than the warm start; an unproven
+/// result reports the tighter of the two bounds.
 pub fn solve(
     inst: &Instance,
     limit: &Limit,
@@ -238,21 +239,22 @@ fn cbc(
             cols[m][j as usize].push((o, coverage_coef(v as f64) / tau));
         }
     }
-    // (variable, objective coefficient, term, target)
+    // (variable, objective coefficient, term's index, target)
     let terms = w.terms();
-    let mut z: Vec<(Variable, f64, &Term, usize)> = Vec::new();
-    for t in terms.iter().filter(|t| t.weight > 0.0) {
+    let mut z: Vec<(Variable, f64, usize, usize)> = Vec::new();
+    for (ti, t) in terms.iter().enumerate().filter(|(_, t)| t.weight > 0.0) {
         let m = usize::from(t.modality == Modality::Radar);
         for (j, col) in cols[m].iter().enumerate() {
             if !col.is_empty() && inst.weights[j] > 0.0 {
-                z.push((vars.add(variable().min(0.0).max(1.0)), t.weight * inst.weights[j] / total, t, j));
+                z.push((vars.add(variable().min(0.0).max(1.0)), t.weight * inst.weights[j] / total, ti, j));
             }
         }
     }
     let objective: Expression = z.iter().map(|&(v, c, ..)| c * v).sum();
     let mut problem = vars.maximise(objective).using(coin_cbc);
     problem.set_parameter("log", "0");
-    for &(v, _, t, j) in &z {
+    for &(v, _, ti, j) in &z {
+        let t = &terms[ti];
         let m = usize::from(t.modality == Modality::Radar);
         let cover: Expression = cols[m][j].iter().map(|&(o, a)| (t.coef(a) / t.k) * x[o]).sum();
         problem.add_constraint((v - cover).leq(0.0));
@@ -264,8 +266,7 @@ fn cbc(
         x.iter().enumerate().map(|(o, &v)| (v, if chosen.contains(&o) { 1.0 } else { 0.0 })).collect();
     let s: Vec<Vec<f64>> =
         terms.iter().map(|t| if t.weight > 0.0 { sums(inst, &warm.selection, t, tau) } else { Vec::new() }).collect();
-    let index = |t: &Term| terms.iter().position(|u| u == t).unwrap_or(0);
-    init.extend(z.iter().map(|&(v, _, t, j)| (v, (s[index(t)][j] / t.k).min(1.0))));
+    init.extend(z.iter().map(|&(v, _, ti, j)| (v, (s[ti][j] / terms[ti].k).min(1.0))));
     problem = problem.with_initial_solution(init);
     let sol = problem.solve().map_err(|e| PlacementError::Solver(format!("CBC, calibrated objective: {e}")))?;
     let proven = matches!(sol.status(), SolutionStatus::Optimal);
