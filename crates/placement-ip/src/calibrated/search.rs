@@ -213,9 +213,9 @@ pub fn swaps(inst: &Instance, limit: &Limit, w: &Weights, from: &Outcome, deadli
     while let Some((_, o)) = best_addition(&st, limit, false, |_| true) {
         st.add(o);
     }
+    let bound = bound_at(&st, limit);
     let mut sel = st.sel;
     sel.sort_unstable();
-    let bound = upper_bound(inst, limit, w, &sel);
     super::outcome(inst, sel, w, bound, false, start, "greedy and swaps, calibrated objective")
 }
 
@@ -227,6 +227,12 @@ pub fn upper_bound(inst: &Instance, limit: &Limit, w: &Weights, sel: &[usize]) -
     for &o in sel {
         st.add(o);
     }
+    bound_at(&st, limit)
+}
+
+/// [`upper_bound`] at the selection `st` holds.
+fn bound_at(st: &State, limit: &Limit) -> f64 {
+    let (inst, sel) = (st.inst, &st.sel);
     let mut best: HashMap<(u32, usize), f64> = HashMap::new();
     for o in (0..inst.options.len()).filter(|o| !sel.contains(o)) {
         let g = st.gain(o);
