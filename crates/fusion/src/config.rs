@@ -319,7 +319,7 @@ pub struct InputConfig {
     /// cue nuScenes detectors take from ten stacked sweeps. Older sweeps come from the key
     /// frames before (at the training split's 10 Hz) or from a dataset simulated with
     /// `lidar_sweeps = true`; a gap over `max_sweep_lag_s` ends the stack.
-    #[serde(default = "one_sweep", skip_serializing_if = "is_one_sweep")]
+    #[serde(default = "one", skip_serializing_if = "is_one")]
     pub lidar_sweeps: usize,
     /// Older sweeps farther than this behind the frame are not used (a gap in the recording).
     pub max_sweep_lag_s: f32,
@@ -332,14 +332,6 @@ impl Default for InputConfig {
     fn default() -> Self {
         InputConfig { background: None, radar_sweeps: 1, lidar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None }
     }
-}
-
-fn one_sweep() -> usize {
-    1
-}
-
-fn is_one_sweep(n: &usize) -> bool {
-    *n == 1
 }
 
 /// Which radar detections are static clutter: those moving at most `max_speed_mps` along the
