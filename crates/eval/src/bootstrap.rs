@@ -14,7 +14,7 @@
 
 use crate::boxes::{EvalBox, GroundTruth};
 use crate::config::DetectionConfig;
-use crate::nuscenes::{ClassData, Matches, MetricData, NELEM, summarize};
+use crate::nuscenes::{ClassData, DetectionMetrics, Matches, MetricData, NELEM, summarize};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -65,6 +65,25 @@ pub struct PairedSummary {
 /// One replicate: (mAP, NDS, per-class mean AP), or their differences.
 pub type Replicate = (f64, f64, BTreeMap<String, f64>);
 
+/// One replicate's velocity errors in m/s: mAVE (the mean over classes, as NDS takes it) and
+/// each class's AVE (NaN where the devkit exempts the class; 1 where the class has no true
+/// positive up to the minimum recall, as the devkit scores it).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VelocityErrors {
+    pub mean: f64,
+    pub by_class: BTreeMap<String, f64>,
+}
+
+impl VelocityErrors {
+    fn of(m: &DetectionMetrics) -> Self {
+        let vel = |e: &BTreeMap<String, f64>| e.get("vel_err").copied().unwrap_or(f64::NAN);
+        VelocityErrors {
+            mean: vel(&m.tp_errors),
+            by_class: m.label_tp_errors.iter().map(|(c, e)| (c.clone(), vel(e))).collect(),
+        }
+    }
+}
+
 /// Matched tables of one submission.
 struct Tables {
     classes: Vec<String>,
@@ -88,21 +107,22 @@ fn tables(gt: &BTreeMap<String, Vec<EvalBox>>, pred: &[(String, Vec<EvalBox>)], 
     Tables { classes, by_key }
 }
 
-/// (mAP, NDS, per-class mean AP) with sample weights.
-fn score(t: &Tables, cfg: &DetectionConfig, w: Option<&[u32]>) -> Replicate {
+/// (mAP, NDS, per-class mean AP) and the velocity errors, with sample weights.
+fn score(t: &Tables, cfg: &DetectionConfig, w: Option<&[u32]>) -> (Replicate, VelocityErrors) {
     let m = summarize(&t.classes, cfg, |c, th| {
         t.by_key.iter().find(|(kc, kt, _)| kc == c && *kt == th).map(|x| x.2.curves(w))
     });
-    (m.mean_ap, m.nd_score, m.mean_dist_aps)
+    let v = VelocityErrors::of(&m);
+    ((m.mean_ap, m.nd_score, m.mean_dist_aps), v)
 }
 
 /// Replicates scored together: every matched entry is read once for all of them.
 const LANES: usize = 8;
 
-/// (mAP, NDS, per-class mean AP) of `LANES` replicates; `w[s][r]` counts sample s in replicate r.
-/// Thresholds that only feed AP need only the precision, streamed for all lanes in one pass; the
-/// TP threshold needs the full curves, one lane at a time.
-fn score_lanes(t: &Tables, cfg: &DetectionConfig, w: &[[u32; LANES]]) -> Vec<Replicate> {
+/// (mAP, NDS, per-class mean AP) and the velocity errors of `LANES` replicates; `w[s][r]` counts
+/// sample s in replicate r. Thresholds that only feed AP need only the precision, streamed for
+/// all lanes in one pass; the TP threshold needs the full curves, one lane at a time.
+fn score_lanes(t: &Tables, cfg: &DetectionConfig, w: &[[u32; LANES]]) -> Vec<(Replicate, VelocityErrors)> {
     let precision: Vec<Option<[[f64; NELEM]; LANES]>> = t
         .by_key
         .iter()
@@ -128,7 +148,8 @@ fn score_lanes(t: &Tables, cfg: &DetectionConfig, w: &[[u32; LANES]]) -> Vec<Rep
                     None => t.by_key[k].2.curves(Some(&lane)),
                 })
             });
-            (m.mean_ap, m.nd_score, m.mean_dist_aps)
+            let v = VelocityErrors::of(&m);
+            ((m.mean_ap, m.nd_score, m.mean_dist_aps), v)
         })
         .collect()
 }
@@ -147,7 +168,7 @@ fn replicates(
         .map(|chunk| {
             let counts: Vec<Vec<u32>> = (0..LANES).map(|r| scene_counts(n_scenes, seed, chunk * LANES + r)).collect();
             let w: Vec<[u32; LANES]> = sample_scene.iter().map(|&s| std::array::from_fn(|r| counts[r][s])).collect();
-            score_lanes(t, cfg, &w)
+            score_lanes(t, cfg, &w).into_iter().map(|x| x.0).collect::<Vec<_>>()
         })
         .collect();
     chunks.into_iter().flatten().take(resamples).collect()
@@ -195,7 +216,7 @@ pub fn bootstrap(
 ) -> BootstrapSummary {
     let (gt_f, pred_f) = crate::filtered(gt, pred, cfg);
     let t = tables(&gt_f, &pred_f, cfg);
-    let (map0, nds0, cls0) = score(&t, cfg, None);
+    let ((map0, nds0, cls0), _) = score(&t, cfg, None);
     let (sample_scene, n_scenes) = scene_index(gt);
     let reps = replicates(&t, cfg, &sample_scene, n_scenes, resamples, seed);
     let class_ap =
@@ -242,8 +263,8 @@ pub fn paired_between(
     let (ga_f, a_f) = crate::filtered(gt_a, a, cfg);
     let (gb_f, b_f) = crate::filtered(gt_b, b, cfg);
     let (ta, tb) = (tables(&ga_f, &a_f, cfg), tables(&gb_f, &b_f, cfg));
-    let (ma, na, ca) = score(&ta, cfg, None);
-    let (mb, nb, cb) = score(&tb, cfg, None);
+    let ((ma, na, ca), _) = score(&ta, cfg, None);
+    let ((mb, nb, cb), _) = score(&tb, cfg, None);
     let mut ids: BTreeMap<&str, usize> = BTreeMap::new();
     for info in gt_a.samples.values().chain(gt_b.samples.values()) {
         let n = ids.len();
@@ -335,13 +356,23 @@ impl Reweighable {
 
     /// (mAP, NDS, per-class AP) on every scene once.
     pub fn full(&self, cfg: &DetectionConfig) -> Replicate {
+        self.full_with_velocity(cfg).0
+    }
+
+    /// [`Reweighable::full`] and the velocity errors, from the same matches.
+    pub fn full_with_velocity(&self, cfg: &DetectionConfig) -> (Replicate, VelocityErrors) {
         score(&self.tables, cfg, None)
     }
 
     /// (mAP, NDS, per-class AP) under each scene-count vector of `draws` (counts per scene, in
     /// the order given to [`Reweighable::new`]), eight at a time in parallel.
     pub fn under(&self, cfg: &DetectionConfig, draws: &[Vec<u32>]) -> Vec<Replicate> {
-        let chunks: Vec<Vec<Replicate>> = draws
+        self.under_with_velocity(cfg, draws).into_iter().map(|x| x.0).collect()
+    }
+
+    /// [`Reweighable::under`] and each replicate's velocity errors.
+    pub fn under_with_velocity(&self, cfg: &DetectionConfig, draws: &[Vec<u32>]) -> Vec<(Replicate, VelocityErrors)> {
+        let chunks: Vec<Vec<(Replicate, VelocityErrors)>> = draws
             .par_chunks(LANES)
             .map(|chunk| {
                 let w: Vec<[u32; LANES]> = self

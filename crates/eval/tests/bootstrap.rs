@@ -167,7 +167,8 @@ fn paired_between_pairs_scenes_across_token_spaces() {
 }
 
 /// A matched submission scored under scene weights: every scene once (or every scene twice) is
-/// the plain metric; dropping a scene is the metric without it.
+/// the plain metric; dropping a scene is the metric without it. The velocity errors (mAVE and
+/// each class's AVE) reweight the same way.
 #[test]
 fn reweighted_scores_equal_direct_evaluation() {
     use hilo_eval::bootstrap::Reweighable;
@@ -187,7 +188,7 @@ fn reweighted_scores_equal_direct_evaluation() {
                     [5.0 * k as f64, f as f64, 0.8],
                     [1.9, 4.5, 1.6],
                     0.0,
-                    [0.0; 2],
+                    if k % 2 == 0 { [4.0, 0.5] } else { [1.2, 0.0] },
                     1.0,
                 )
             })
@@ -199,6 +200,7 @@ fn reweighted_scores_equal_direct_evaluation() {
             .map(|(k, b)| EvalBox {
                 translation: [b.translation[0] + 0.3 * (k as f64 - 2.0), b.translation[1], 0.8],
                 detection_score: 0.1 + 0.07 * ((k * 7 + f) % 12) as f64,
+                velocity: [b.velocity[0] + 0.25 * ((k + f) % 4) as f64, b.velocity[1] - 0.1 * (f % 3) as f64],
                 num_pts: -1,
                 ..b.clone()
             })
@@ -221,6 +223,18 @@ fn reweighted_scores_equal_direct_evaluation() {
         boxes: gt.boxes.iter().filter(|(k, _)| keep(k)).map(|(k, v)| (k.clone(), v.clone())).collect(),
     };
     let pred3: Vec<_> = pred.iter().filter(|(k, _)| keep(k)).cloned().collect();
-    assert!((under[2].0 - evaluate_files(&gt3, &pred3, &cfg).mean_ap).abs() < 1e-9);
+    let direct3 = evaluate_files(&gt3, &pred3, &cfg);
+    assert!((under[2].0 - direct3.mean_ap).abs() < 1e-9);
+    // Velocity errors: the devkit's mAVE and per-class AVE, in full and under the same draws.
+    let (_, v) = r.full_with_velocity(&cfg);
+    let vel = |m: &hilo_eval::DetectionMetrics, c: &str| m.label_tp_errors[c]["vel_err"];
+    assert!(v.mean > 0.05 && (v.mean - direct.tp_errors["vel_err"]).abs() < 1e-12, "{v:?}");
+    for c in ["car", "pedestrian"] {
+        assert!((v.by_class[c] - vel(&direct, c)).abs() < 1e-12, "{c}: {v:?}");
+    }
+    let vu = r.under_with_velocity(&cfg, &[vec![1; 4], vec![1, 1, 0, 1]]);
+    assert!((vu[0].1.mean - v.mean).abs() < 1e-12 && (vu[0].0.0 - direct.mean_ap).abs() < 1e-12);
+    assert!((vu[1].1.mean - direct3.tp_errors["vel_err"]).abs() < 1e-9, "{:?}", vu[1].1);
+    assert!((vu[1].1.by_class["car"] - vel(&direct3, "car")).abs() < 1e-9);
     assert!(Reweighable::new(&gt, &pred, &cfg, &scenes[..2]).is_err(), "a scene missing from the list");
 }
