@@ -43,6 +43,31 @@ pub fn evaluate_files(gt: &GroundTruth, pred: &[(String, Vec<EvalBox>)], cfg: &D
     evaluate(&gt_f, &pred_f, cfg)
 }
 
+/// One range bin: its label, the metric of the boxes inside it, and the ground-truth boxes of
+/// each evaluated class inside it.
+#[derive(Clone, Debug)]
+pub struct RangeBin {
+    pub label: String,
+    pub metrics: DetectionMetrics,
+    pub gt_boxes: BTreeMap<String, usize>,
+}
+
+impl RangeBin {
+    /// Mean AP over the classes with ground truth in the bin; None when it holds none. A class
+    /// absent from a bin scores AP 0 for every submission there, which says nothing about the
+    /// bin (pedestrians keep to the crosswalks near the centre, for one).
+    pub fn mean_ap_present(&self) -> Option<f64> {
+        let aps: Vec<f64> = self
+            .metrics
+            .mean_dist_aps
+            .iter()
+            .filter(|(c, _)| self.gt_boxes.get(*c).is_some_and(|n| *n > 0))
+            .map(|(_, ap)| *ap)
+            .collect();
+        (!aps.is_empty()).then(|| aps.iter().sum::<f64>() / aps.len() as f64)
+    }
+}
+
 /// The metric per range bin from the sample's origin (e.g. 0–30, 30–50 m): ground truth and
 /// predictions outside a bin are left out of it. A last, open bin beyond the final edge is
 /// added only while it reaches inside the farthest class range (every class is evaluated within
@@ -52,7 +77,7 @@ pub fn evaluate_distance_bins(
     pred: &[(String, Vec<EvalBox>)],
     cfg: &DetectionConfig,
     edges: &[f64],
-) -> Vec<(String, DetectionMetrics)> {
+) -> Vec<RangeBin> {
     let (gt_f, pred_f) = filtered(gt, pred, cfg);
     let ego = |s: &str| gt.samples.get(s).map_or([0.0; 3], |i| i.ego_translation);
     let dist = |b: &EvalBox| {
@@ -70,7 +95,13 @@ pub fn evaluate_distance_bins(
             let g: BTreeMap<String, Vec<EvalBox>> = gt_f.iter().map(|(k, v)| (k.clone(), keep(v))).collect();
             let p: Vec<(String, Vec<EvalBox>)> = pred_f.iter().map(|(k, v)| (k.clone(), keep(v))).collect();
             let label = if hi.is_finite() { format!("{lo:.0}-{hi:.0} m") } else { format!("{lo:.0}+ m") };
-            (label, evaluate(&g, &p, cfg))
+            let mut gt_boxes: BTreeMap<String, usize> = cfg.class_names().into_iter().map(|c| (c, 0)).collect();
+            for b in g.values().flatten() {
+                if let Some(n) = gt_boxes.get_mut(&b.detection_name) {
+                    *n += 1;
+                }
+            }
+            RangeBin { label, metrics: evaluate(&g, &p, cfg), gt_boxes }
         })
         .collect()
 }
@@ -84,6 +115,8 @@ pub struct BinMetrics {
     pub mean_ap: f64,
     pub mean_dist_aps: BTreeMap<String, f64>,
     pub nd_score: f64,
+    /// Ground-truth boxes of each class in the bin (a class with none has AP 0 there).
+    pub gt_boxes: BTreeMap<String, usize>,
 }
 
 /// [`evaluate_distance_bins`] at [`DISTANCE_EDGES_M`], each bin's summary by its label.
@@ -94,8 +127,17 @@ pub fn metrics_by_distance(
 ) -> Vec<(String, BinMetrics)> {
     evaluate_distance_bins(gt, pred, cfg, &DISTANCE_EDGES_M)
         .into_iter()
-        .map(|(label, m)| {
-            (label, BinMetrics { mean_ap: m.mean_ap, mean_dist_aps: m.mean_dist_aps, nd_score: m.nd_score })
+        .map(|b| {
+            let m = b.metrics;
+            (
+                b.label,
+                BinMetrics {
+                    mean_ap: m.mean_ap,
+                    mean_dist_aps: m.mean_dist_aps,
+                    nd_score: m.nd_score,
+                    gt_boxes: b.gt_boxes,
+                },
+            )
         })
         .collect()
 }

@@ -211,3 +211,40 @@ fn bad_results_files_name_the_sample_and_field() {
         assert!(e.contains("abc") && e.contains("detection_name") && e.contains(name) && e.contains("1"), "{e}");
     }
 }
+
+/// Range bins: each holds the boxes within its distances of the sample's origin, counts each
+/// class's ground truth, and its mean AP over the classes present is not dragged down by a class
+/// that has no box there (the devkit's mAP counts that class as 0).
+#[test]
+fn range_bins_count_their_ground_truth_and_average_the_classes_present() {
+    use hilo_eval::boxes::{GroundTruth, SampleInfo};
+    let mut gt = GroundTruth::default();
+    let mut pred = Vec::new();
+    for f in 0..4 {
+        let s = format!("s{f}");
+        gt.samples.insert(s.clone(), SampleInfo { scene: "a".into(), ego_translation: [0.0; 3] });
+        let boxes = vec![
+            EvalBox { num_pts: 5, ..b(&s, "car", 10.0, f as f64, 0.0, 1.0) },
+            EvalBox { num_pts: 5, ..b(&s, "car", 40.0, f as f64, 0.0, 1.0) },
+            EvalBox { num_pts: 5, ..b(&s, "pedestrian", 0.0, 12.0 + f as f64, 0.0, 1.0) },
+        ];
+        pred.push((s.clone(), boxes.iter().map(|x| EvalBox { num_pts: -1, ..x.clone() }).collect::<Vec<_>>()));
+        gt.boxes.insert(s, boxes);
+    }
+    let mut cfg = DetectionConfig::default();
+    cfg.class_range.retain(|k, _| k == "car" || k == "pedestrian");
+    let bins = hilo_eval::evaluate_distance_bins(&gt, &pred, &cfg, &[0.0, 30.0, 50.0]);
+    assert_eq!(bins.iter().map(|b| b.label.as_str()).collect::<Vec<_>>(), ["0-30 m", "30-50 m"]);
+    assert_eq!(bins[0].gt_boxes, BTreeMap::from([("car".to_string(), 4), ("pedestrian".to_string(), 4)]));
+    assert_eq!(bins[1].gt_boxes, BTreeMap::from([("car".to_string(), 4), ("pedestrian".to_string(), 0)]));
+    assert!((bins[0].metrics.mean_ap - 1.0).abs() < 1e-12);
+    assert!(bins[0].mean_ap_present().is_some_and(|m| (m - bins[0].metrics.mean_ap).abs() < 1e-15));
+    // 30–50 m: the car is found (AP 1), the pedestrian class has no box (AP 0 by the devkit).
+    assert!((bins[1].metrics.mean_ap - 0.5).abs() < 1e-12, "{:?}", bins[1].metrics.mean_dist_aps);
+    assert!(bins[1].mean_ap_present().is_some_and(|m| (m - 1.0).abs() < 1e-12), "{:?}", bins[1].mean_ap_present());
+    // A range reaching past the last edge adds an open bin; one holding nothing has no mean.
+    cfg.class_range.insert("car".into(), 60.0);
+    let bins = hilo_eval::evaluate_distance_bins(&gt, &pred, &cfg, &[0.0, 30.0, 45.0]);
+    assert_eq!(bins.last().map(|b| b.label.as_str()), Some("45+ m"));
+    assert_eq!(bins.last().and_then(|b| b.mean_ap_present()), None);
+}
