@@ -137,3 +137,42 @@ fn the_point_cap_keeps_the_strongest_detections() {
     let empty = World::from_triangles(&[], None).unwrap();
     assert!(simulate_radar(&spec, &pose, &empty, None, 1).unwrap().points.is_empty());
 }
+
+/// Reach: the catalog's long-range radar (ARS548 class, 300 m) sees a car 150 m down the
+/// approach, with its Doppler, where the 4D imaging radar (90 m) sees nothing; and its radar
+/// equation puts a car at 150 m far above the detection threshold.
+#[test]
+fn the_long_range_radar_reaches_past_the_imaging_radar() {
+    let world = ground_world();
+    let lr = catalog().radar("radar-lr").unwrap().clone();
+    let imaging = catalog().radar("radar-4d").unwrap().clone();
+    assert!(lr.max_range_m >= 200.0 && imaging.max_range_m < 150.0);
+    assert!(swerling1_detection_probability(&lr, snr_db(&lr, lr.rcs_dbsm.car, 150.0)) > 0.99);
+    // Broadside (4.5 m across the line of sight), closing at 10 m/s.
+    let car = Actor::from_box(
+        1,
+        Class::Car,
+        Box3::new(Vec3::new(150.0, 0.0, 0.8), 4.5, 1.9, 1.6, std::f32::consts::FRAC_PI_2),
+    )
+    .with_velocity(Vec3::new(-10.0, 0.0, 0.0));
+    let actors = ActorSet::new(vec![car]).unwrap();
+    let on_car = |spec: &hilo_sensor_models::RadarSpec, seed: u64| -> Vec<f32> {
+        let scan = simulate_radar(spec, &radar_pose(), &world, Some(&actors), seed).unwrap();
+        scan.points
+            .iter()
+            .zip(&scan.sources)
+            .filter(|(_, s)| **s == PointSource::Actor(1))
+            .map(|(p, _)| p.v_r_mps)
+            .collect()
+    };
+    let mut seen = 0;
+    for seed in 0..10 {
+        let v = on_car(&lr, seed);
+        if !v.is_empty() {
+            seen += 1;
+        }
+        assert!(v.iter().all(|v_r| (v_r + 10.0).abs() < 0.5), "seed {seed}: {v:?}");
+        assert!(on_car(&imaging, seed).is_empty(), "the 4D radar reports a car past its range");
+    }
+    assert!(seen >= 9, "the long-range radar saw the car in {seen} of 10 scans");
+}
