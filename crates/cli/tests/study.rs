@@ -45,7 +45,21 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
             .all(|e| e["class_ap"].as_object().unwrap().len() == 6 && e["visible_only"]["mean_ap"].is_number())
     );
     assert_eq!(json["ground_truth"], "common");
-    assert_eq!(json["claims"].as_array().unwrap().len(), 10);
+    assert_eq!(json["claims"].as_array().unwrap().len(), 12);
+    // Velocity: mAVE and each class's AVE per detector, and the velocity claims tested on them
+    // (the same rig, and the cheapest LiDAR-only rig).
+    assert!(entries.iter().all(|e| e["mean_ave"].as_f64().is_some_and(|v| v >= 0.0)
+        && e["class_ave"].as_object().unwrap().len() == 6));
+    for id in ["fusion_lowers_velocity_error", "radar_adds_velocity"] {
+        let c = json["claims"].as_array().unwrap().iter().find(|c| c["id"] == id).unwrap();
+        let rows = c["rows"].as_array().unwrap();
+        assert!(rows.first().is_some_and(|r| r["metric"] == "mAVE"), "{id}: {c}");
+    }
+    assert!(md.contains("mAVE (m/s)") && md.contains("Velocity error per class"));
+    // mAP per range bin: 0–30 and 30–50 m (no open bin: no class range reaches past 50 m).
+    assert!(entries.iter().all(|e| e["map_by_range"].as_array().unwrap().len() == 2));
+    assert_eq!(json["range_bins"][1][0], "30-50 m");
+    assert!(md.contains("mAP by range"));
     // A/A: one pair of seeds in each of the three groups.
     assert_eq!(json["calibration"]["pairs"].as_u64().unwrap(), 3);
     assert!(json["learning_curves"].as_array().unwrap().iter().all(|c| c["points"].as_array().unwrap().len() == 2));

@@ -12,15 +12,19 @@ use crate::profile::Profile;
 use crate::stages::{DataRecord, JobOutput, Predictions, Progress, ResultMeta};
 use crate::stats::{Scores, scene_draws};
 use crate::study::Study;
-use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, PresetRoles, adjust};
+use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, Margins, PresetRoles, adjust};
 use hilo_core::fs::{limit, read_json};
 use hilo_detector::Registry;
 use hilo_detector::data::{Frame, LoadOptions, load_split_frame};
-use hilo_eval::bootstrap::Reweighable;
+use hilo_eval::bootstrap::{Reweighable, VelocityErrors};
 use hilo_eval::{DetectionConfig, EvalBox, GroundTruth};
 use hilo_placement_ip::Placement;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+
+fn nan() -> f64 {
+    f64::NAN
+}
 
 /// One trained detector's evaluation.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -33,6 +37,16 @@ pub struct Entry {
     pub nd_score: f64,
     /// Every one of the six classes (null where the validation split has none).
     pub class_ap: BTreeMap<String, Option<f64>>,
+    /// Velocity error (m/s, the devkit's mAVE over the classes present) and each class's AVE
+    /// (null where the validation split has none), on the common ground truth.
+    #[serde(default = "nan")]
+    pub mean_ave: f64,
+    #[serde(default)]
+    pub class_ave: BTreeMap<String, Option<f64>>,
+    /// mAP per range bin of the study's `[evaluation] range_bins_m`, by label, over the classes
+    /// with ground truth in the bin (null where it holds none).
+    #[serde(default)]
+    pub map_by_range: Vec<(String, Option<f64>)>,
     /// The nuScenes convention: boxes with at least one point of this rig only.
     pub visible_only: VisibleOnly,
     pub train_s: f64,
@@ -94,6 +108,9 @@ pub struct Report {
     pub validation_scenes: usize,
     pub seeds: usize,
     pub classes: Vec<ClassInfo>,
+    /// The range bins of `map_by_range`: label and validation boxes per class inside.
+    #[serde(default)]
+    pub range_bins: Vec<(String, BTreeMap<String, usize>)>,
     pub configurations: Vec<ConfigSummary>,
     pub entries: Vec<Entry>,
     pub comparisons: Vec<Comparison>,
@@ -101,6 +118,9 @@ pub struct Report {
     /// The equivalence margin of the claims' TOST (the study file's `verdict.equivalence_margin`).
     #[serde(default)]
     pub margin: f64,
+    /// The same for velocity errors, m/s (`verdict.velocity_equivalence_margin_m_s`).
+    #[serde(default)]
+    pub velocity_margin_m_s: f64,
     pub calibration: Calibration,
     pub learning_curves: Vec<Curve>,
     /// Whether every preset ranks the configurations the same at half its training and at the
@@ -152,7 +172,7 @@ pub fn assemble(
     // The ground truth every rig is scored on, and what it evaluates.
     let first = hilo_dataset::Dataset::open(&plan.data[0].dir, "v1.0-trainval")?;
     let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
-    let base_cfg = DetectionConfig::default();
+    let base_cfg = study.file.evaluation.detection_config();
     let class_boxes = class_counts(&common, &base_cfg);
     let classes: Vec<ClassInfo> = class_boxes
         .iter()
@@ -203,27 +223,20 @@ pub fn assemble(
         scenes.len(),
         prof.resamples
     )));
-    let score = |pred: &Predictions| -> Result<(hilo_eval::bootstrap::Replicate, BTreeMap<String, Scores>)> {
-        let r = Reweighable::new(&common, pred, &eval_cfg, &scenes).map_err(StudyError::Invalid)?;
-        let full = r.full(&eval_cfg);
-        let under = r.under(&eval_cfg, &draws);
-        let ped = |x: &hilo_eval::bootstrap::Replicate| x.2.get("pedestrian").copied().unwrap_or(f64::NAN);
-        let scores = BTreeMap::from([
-            ("mAP".to_string(), Scores { full: full.0, replicates: under.iter().map(|x| x.0).collect() }),
-            ("pedestrian AP".to_string(), Scores { full: ped(&full), replicates: under.iter().map(ped).collect() }),
-        ]);
-        Ok((full, scores))
-    };
+    let score = |pred: &Predictions| bootstrap_scores(&common, pred, &eval_cfg, &scenes, &draws);
     let mut entries = Vec::new();
     let mut det_scores = Vec::new();
     let mut planted = Vec::new();
+    let mut range_bins = Vec::new();
     for ((conf, preset, seed), pred) in &results_by {
-        let (full, scores) = score(pred)?;
+        let bins = hilo_eval::evaluate_distance_bins(&common, pred, &eval_cfg, &study.file.evaluation.range_bins_m);
+        if range_bins.is_empty() {
+            range_bins = bins.iter().map(|b| (b.label.clone(), b.gt_boxes.clone())).collect();
+        }
+        let (full, vel, scores) = score(pred)?;
         let meta = &metas[&(conf.clone(), preset.clone(), *seed)];
         let vm = hilo_eval::evaluate_files(&visible[conf], pred, &eval_cfg);
-        let six = |aps: &BTreeMap<String, f64>| -> BTreeMap<String, Option<f64>> {
-            class_boxes.keys().map(|k| (k.clone(), aps.get(k).copied().filter(|_| class_boxes[k] > 0))).collect()
-        };
+        let six = |values: &BTreeMap<String, f64>| per_class(&class_boxes, values);
         entries.push(Entry {
             configuration: conf.clone(),
             preset: preset.clone(),
@@ -231,6 +244,9 @@ pub fn assemble(
             mean_ap: full.0,
             nd_score: full.1,
             class_ap: six(&full.2),
+            mean_ave: vel.mean,
+            class_ave: six(&vel.by_class),
+            map_by_range: bins.iter().map(|b| (b.label.clone(), b.mean_ap_present())).collect(),
             visible_only: VisibleOnly { mean_ap: vm.mean_ap, nd_score: vm.nd_score, class_ap: six(&vm.mean_dist_aps) },
             train_s: meta.train_s,
             ms_per_frame: meta.ms_per_frame,
@@ -240,7 +256,7 @@ pub fn assemble(
         det_scores.push(DetectorScores { configuration: conf.clone(), preset: preset.clone(), seed: *seed, scores });
         // The planted difference: the same detector with a share of its boxes dropped.
         let degraded = drop_share(pred, DROP, *seed);
-        let (_, s) = score(&degraded)?;
+        let (_, _, s) = score(&degraded)?;
         planted.push(DetectorScores { configuration: conf.clone(), preset: preset.clone(), seed: *seed, scores: s });
     }
     entries.sort_by(|a, b| {
@@ -248,9 +264,10 @@ pub fn assemble(
         (pos(&a.configuration), a.preset.as_str(), a.seed).cmp(&(pos(&b.configuration), b.preset.as_str(), b.seed))
     });
     let learning_curves = learning_curves(&results_by, &curve_preds, &metas, &entries, &common, &eval_cfg, &scenes)?;
-    let margin = study.file.verdict.equivalence_margin;
+    let v = &study.file.verdict;
+    let margins = Margins { ap: v.equivalence_margin, velocity_m_s: v.velocity_equivalence_margin_m_s };
     let (comparisons, mut claims, calibration) =
-        verdict(prof, registry, &summaries, &det_scores, &planted, scenes.len(), margin);
+        verdict(prof, registry, &summaries, &det_scores, &planted, scenes.len(), margins);
     crate::verdict::budget_gate(&mut claims, &learning_curves);
     let ranking_changed = ranking_changes(&learning_curves, &prof.presets);
     let cost_reduction = cost_reduction(&summaries);
@@ -262,11 +279,13 @@ pub fn assemble(
         validation_scenes: scenes.len(),
         seeds: prof.seeds,
         classes,
+        range_bins,
         configurations: summaries,
         entries,
         comparisons,
         claims,
-        margin,
+        margin: margins.ap,
+        velocity_margin_m_s: margins.velocity_m_s,
         calibration,
         learning_curves,
         ranking_stable: ranking_changed.is_empty(),
@@ -276,6 +295,37 @@ pub fn assemble(
         seconds: seconds(),
     };
     Ok(Assembled { report, results: results_by, pictures })
+}
+
+/// One detector's (mAP, NDS, class AP) and velocity errors on the common ground truth, and its
+/// scores under every scene draw, by metric: mAP, pedestrian AP, mAVE and car AVE.
+fn bootstrap_scores(
+    common: &GroundTruth,
+    pred: &Predictions,
+    eval_cfg: &DetectionConfig,
+    scenes: &[String],
+    draws: &[Vec<u32>],
+) -> Result<(hilo_eval::bootstrap::Replicate, VelocityErrors, BTreeMap<String, Scores>)> {
+    let r = Reweighable::new(common, pred, eval_cfg, scenes).map_err(StudyError::Invalid)?;
+    let (full, vel) = r.full_with_velocity(eval_cfg);
+    let under = r.under_with_velocity(eval_cfg, draws);
+    let ped = |x: &hilo_eval::bootstrap::Replicate| x.2.get("pedestrian").copied().unwrap_or(f64::NAN);
+    let car = |v: &VelocityErrors| v.by_class.get("car").copied().unwrap_or(f64::NAN);
+    let scores = BTreeMap::from([
+        ("mAP".to_string(), Scores { full: full.0, replicates: under.iter().map(|x| x.0.0).collect() }),
+        (
+            "pedestrian AP".to_string(),
+            Scores { full: ped(&full), replicates: under.iter().map(|x| ped(&x.0)).collect() },
+        ),
+        ("mAVE".to_string(), Scores { full: vel.mean, replicates: under.iter().map(|x| x.1.mean).collect() }),
+        ("car AVE".to_string(), Scores { full: car(&vel), replicates: under.iter().map(|x| car(&x.1)).collect() }),
+    ]);
+    Ok((full, vel, scores))
+}
+
+/// A value per class of `class_boxes` (None where the class has no validation box or no value).
+fn per_class(class_boxes: &BTreeMap<String, usize>, values: &BTreeMap<String, f64>) -> BTreeMap<String, Option<f64>> {
+    class_boxes.iter().map(|(k, n)| (k.clone(), values.get(k).copied().filter(|v| *n > 0 && !v.is_nan()))).collect()
 }
 
 /// Validation boxes per class within the evaluation ranges (every class of the config, 0 where
@@ -381,7 +431,7 @@ fn verdict(
     det_scores: &[DetectorScores],
     planted: &[DetectorScores],
     scenes: usize,
-    margin: f64,
+    margins: crate::verdict::Margins,
 ) -> (Vec<Comparison>, Vec<Claim>, Calibration) {
     let conf_roles: Vec<(String, f64, bool)> =
         summaries.iter().map(|s| (s.name.clone(), s.cost_usd, s.has_radar)).collect();
@@ -400,7 +450,7 @@ fn verdict(
     };
     let mut comparisons = design.comparisons();
     let mut claims = design.claims();
-    adjust(&mut claims, &mut comparisons, 0.05, margin);
+    adjust(&mut claims, &mut comparisons, 0.05, margins);
     let calibration = calibrate(&design, planted, DROP);
     (comparisons, claims, calibration)
 }

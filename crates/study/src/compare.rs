@@ -54,27 +54,30 @@ pub struct RadarWorth {
     pub verdict: Verdict,
 }
 
-/// The `radar_adds` rows of each study, priced by the configurations they compare.
+/// The `radar_adds` rows (accuracy) and `radar_adds_velocity` rows (velocity error) of each
+/// study, priced by the configurations they compare.
 fn radar_worth(reports: &[(ShardRecord, Report)]) -> Vec<RadarWorth> {
     let mut out = Vec::new();
     for (s, r) in reports {
-        let Some(c) = r.claims.iter().find(|c| c.id == "radar_adds" && c.not_tested.is_none()) else { continue };
-        let cost = |side: &[(String, String)]| -> Option<f64> {
-            let name = &side.first()?.0;
-            r.configurations.iter().find(|c| &c.name == name).map(|c| c.cost_usd)
-        };
-        for row in &c.rows {
-            let Some(extra) = cost(&row.b).zip(cost(&row.a)).map(|(b, a)| b - a) else { continue };
-            out.push(RadarWorth {
-                study: s.name.clone(),
-                metric: row.metric.clone(),
-                estimate: row.test.estimate,
-                lo: row.test.lo,
-                hi: row.test.hi,
-                extra_cost_usd: extra,
-                per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
-                verdict: row.verdict,
-            });
+        let priced = ["radar_adds", "radar_adds_velocity"];
+        for c in r.claims.iter().filter(|c| priced.contains(&c.id.as_str()) && c.not_tested.is_none()) {
+            let cost = |side: &[(String, String)]| -> Option<f64> {
+                let name = &side.first()?.0;
+                r.configurations.iter().find(|c| &c.name == name).map(|c| c.cost_usd)
+            };
+            for row in &c.rows {
+                let Some(extra) = cost(&row.b).zip(cost(&row.a)).map(|(b, a)| b - a) else { continue };
+                out.push(RadarWorth {
+                    study: s.name.clone(),
+                    metric: row.metric.clone(),
+                    estimate: row.test.estimate,
+                    lo: row.test.lo,
+                    hi: row.test.hi,
+                    extra_cost_usd: extra,
+                    per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
+                    verdict: row.verdict,
+                });
+            }
         }
     }
     out
@@ -477,7 +480,8 @@ pub fn markdown(c: &Comparison) -> String {
     if !c.radar_worth.is_empty() {
         s.push_str(
             "\n## What the radar is worth, per study\n\nThe rig with the radar (fused) against the cheapest \
-             LiDAR-only rig, each study's own test (95% interval), and per $1,000 the radar rig costs more.\n\n\
+             LiDAR-only rig, each study's own test (95% interval), and per $1,000 the radar rig costs more \
+             (for a velocity error, m/s: below 0 the radar lowers it).\n\n\
              | study | metric | radar adds | per $1,000 | extra cost (USD) | verdict |\n|---|---|---:|---:|---:|---|\n",
         );
         for w in &c.radar_worth {

@@ -410,16 +410,17 @@ fn defining(f: &crate::study::StudyFile) -> String {
 mod tests {
     use super::*;
 
-    /// The fingerprint's text is the study file's own `Debug` without its `[verdict]` and
-    /// `[validation]` sections: a field added to the file and left out here (or the other way
-    /// round) fails.
+    /// The fingerprint's text is the study file's own `Debug` without its `[verdict]`,
+    /// `[validation]` and `[evaluation]` sections (they change no stage, only the report): a
+    /// field added to the file and left out here (or the other way round) fails.
     #[test]
     fn the_fingerprint_reads_every_field_but_the_verdict_settings() {
         let text = include_str!("../../../fixtures/study.toml");
         let file: crate::study::StudyFile = toml::from_str(text).unwrap();
         let whole = format!("{file:?}")
             .replace(&format!(", verdict: {:?}", file.verdict), "")
-            .replace(&format!(", validation: {:?}", file.validation), "");
+            .replace(&format!(", validation: {:?}", file.validation), "")
+            .replace(&format!(", evaluation: {:?}", file.evaluation), "");
         assert_eq!(defining(&file), whole);
     }
 }

@@ -403,8 +403,8 @@ fn md_claims(md: &mut String, r: &Report) {
     let p = &r.profile;
     let _ = writeln!(
         md,
-        "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds, `p` Holm-adjusted over every test of this report. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *equivalent* (not significant, and within ±{:.3} by two one-sided tests), *budget-bound* (its sign changed over the last doubling of training), *undecided*. `vs paper`: where the interval lies against the paper's number; `MDE`: the smallest true difference this design finds with 80% power.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | vs paper | MDE | verdict |\n|---|---|---|---:|---|---:|---|---:|---|",
-        r.margin
+        "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds, `p` Holm-adjusted over every test of this report. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *equivalent* (not significant, and within ±{:.3} by two one-sided tests; ±{:.2} m/s for a velocity error), *budget-bound* (its sign changed over the last doubling of training), *undecided*. `vs paper`: where the interval lies against the paper's number; `MDE`: the smallest true difference this design finds with 80% power. Velocity errors (mAVE, car AVE; m/s) are errors: their claims are supported when B − A is below 0.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | vs paper | MDE | verdict |\n|---|---|---|---:|---|---:|---|---:|---|",
+        r.margin, r.velocity_margin_m_s
     );
     for c in &r.claims {
         if c.rows.is_empty() {
@@ -480,7 +480,7 @@ fn md_configurations(md: &mut String, r: &Report) {
 fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
     let _ = writeln!(
         md,
-        "\n## Accuracy\n\nSeed mean [min, max] over {} seeds; common ground truth unless marked.\n\n| configuration | preset | mAP | pedestrian AP | mAP, visible-only | training | inference |\n|---|---|---|---|---|---:|---:|",
+        "\n## Accuracy\n\nSeed mean [min, max] over {} seeds; common ground truth unless marked.\n\n| configuration | preset | mAP | pedestrian AP | NDS | mAVE (m/s) | mAP, visible-only | training | inference |\n|---|---|---|---|---|---|---|---:|---:|",
         r.seeds
     );
     for c in &r.configurations {
@@ -488,17 +488,21 @@ fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
             let Some(m) = over_seeds(r, &c.name, pr, |e| Some(e.mean_ap)) else { continue };
             let ped = over_seeds(r, &c.name, pr, |e| e.class_ap.get("pedestrian").copied().flatten());
             let vis = over_seeds(r, &c.name, pr, |e| Some(e.visible_only.mean_ap));
+            let nds = over_seeds(r, &c.name, pr, |e| Some(e.nd_score));
+            let mave = over_seeds(r, &c.name, pr, |e| Some(e.mean_ave).filter(|v| v.is_finite()));
             let t = over_seeds(r, &c.name, pr, |e| Some(e.train_s)).map_or(0.0, |x| x.0);
             let ms = over_seeds(r, &c.name, pr, |e| Some(e.ms_per_frame)).map_or(0.0, |x| x.0);
             let samples =
                 r.entries.iter().find(|e| e.configuration == c.name && &e.preset == pr).map_or(0, |e| e.samples);
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} | {} | {:.0} s ({} samples) | {:.1} ms/frame |",
+                "| {} | {} | {} | {} | {} | {} | {} | {:.0} s ({} samples) | {:.1} ms/frame |",
                 c.name,
                 pr,
                 fmt3(Some(m)),
                 fmt3(ped),
+                fmt3(nds),
+                fmt3(mave),
                 fmt3(vis),
                 t,
                 samples,
@@ -523,6 +527,72 @@ fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
                 .map(|k| {
                     over_seeds(r, &c.name, pr, |e| e.class_ap.get(&k.name).copied().flatten())
                         .map_or("–".into(), |v| format!("{:.3}", v.0))
+                })
+                .collect();
+            let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));
+        }
+    }
+    md_velocity(md, r, presets);
+    md_range(md, r, presets);
+}
+
+/// mAP per range bin from the intersection's origin (seed mean), over the classes with ground
+/// truth in each bin.
+fn md_range(md: &mut String, r: &Report, presets: &[String]) {
+    if r.range_bins.is_empty() {
+        return;
+    }
+    let head: Vec<String> =
+        r.range_bins.iter().map(|(label, n)| format!("{label} ({} boxes)", n.values().sum::<usize>())).collect();
+    let _ = writeln!(
+        md,
+        "\nmAP by range from the intersection's origin (seed mean; each bin's mean over the classes with validation boxes in it; ranges and bins: `[evaluation]` in the study file):\n\n| configuration | preset | {} |\n|---|---|{}",
+        head.join(" | "),
+        r.range_bins.iter().map(|_| "---:|").collect::<String>()
+    );
+    for c in &r.configurations {
+        for pr in presets {
+            if over_seeds(r, &c.name, pr, |e| Some(e.mean_ap)).is_none() {
+                continue;
+            }
+            let cells: Vec<String> = r
+                .range_bins
+                .iter()
+                .map(|(label, _)| {
+                    over_seeds(r, &c.name, pr, |e| {
+                        e.map_by_range.iter().find(|(l, _)| l == label).and_then(|(_, v)| *v)
+                    })
+                    .map_or("–".into(), |v| format!("{:.3}", v.0))
+                })
+                .collect();
+            let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));
+        }
+    }
+}
+
+/// AVE per class: the velocity error of the true positives at the devkit's 2 m threshold, in
+/// m/s (1 where a class has no true positive up to 10% recall, as the devkit scores it).
+fn md_velocity(md: &mut String, r: &Report, presets: &[String]) {
+    if !r.entries.iter().any(|e| e.mean_ave.is_finite()) {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "\nVelocity error per class (AVE, m/s, seed mean; lower is better; 1.0 where a class has no true positive up to 10% recall, as the nuScenes devkit scores it):\n\n| configuration | preset | {} |\n|---|---|{}",
+        r.classes.iter().map(|c| c.name.clone()).collect::<Vec<_>>().join(" | "),
+        r.classes.iter().map(|_| "---:|").collect::<String>()
+    );
+    for c in &r.configurations {
+        for pr in presets {
+            if over_seeds(r, &c.name, pr, |e| Some(e.mean_ave).filter(|v| v.is_finite())).is_none() {
+                continue;
+            }
+            let cells: Vec<String> = r
+                .classes
+                .iter()
+                .map(|k| {
+                    over_seeds(r, &c.name, pr, |e| e.class_ave.get(&k.name).copied().flatten())
+                        .map_or("–".into(), |v| format!("{:.2}", v.0))
                 })
                 .collect();
             let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));

@@ -32,7 +32,67 @@ pub struct StudyFile {
     /// The placement set of `hilo validate` (the study's own stages do not read it).
     #[serde(default)]
     pub validation: crate::validation::ValidationSettings,
+    /// Where each class is scored, and the report's range bins.
+    #[serde(default)]
+    pub evaluation: EvaluationSettings,
     pub configurations: Vec<Configuration>,
+}
+
+/// The `[evaluation]` section of a study file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvaluationSettings {
+    /// Evaluation range per class, m from the intersection's origin, over the nuScenes ranges
+    /// (car, truck, bus 50 m; motorcycle, pedestrian, golf cart 40 m). At most the dataset's
+    /// `annotate_radius_m`: past it no road user is annotated, so every detection would count
+    /// as a false positive.
+    pub class_range_m: BTreeMap<String, f64>,
+    /// Edges of the report's range bins, m from the origin; a last, open bin is added while a
+    /// class range reaches past the last edge.
+    pub range_bins_m: Vec<f64>,
+}
+
+impl Default for EvaluationSettings {
+    fn default() -> Self {
+        EvaluationSettings { class_range_m: BTreeMap::new(), range_bins_m: hilo_eval::DISTANCE_EDGES_M.to_vec() }
+    }
+}
+
+impl EvaluationSettings {
+    /// The devkit's settings with this section's class ranges.
+    pub fn detection_config(&self) -> hilo_eval::DetectionConfig {
+        let mut cfg = hilo_eval::DetectionConfig::default();
+        for (class, range) in &self.class_range_m {
+            cfg.class_range.insert(class.clone(), *range);
+        }
+        cfg
+    }
+
+    /// Known classes, ranges in (0, `annotate_radius_m`], bins that start at 0 or beyond and
+    /// increase; the error names the field and value.
+    fn check(&self, annotate_radius_m: f64) -> std::result::Result<(), String> {
+        let known = hilo_eval::DetectionConfig::default().class_names();
+        for (class, range) in &self.class_range_m {
+            if !known.contains(class) {
+                return Err(format!(
+                    "evaluation.class_range_m.{class}: not a class; the classes are {}",
+                    known.join(", ")
+                ));
+            }
+            if !(range.is_finite() && *range > 0.0 && *range <= annotate_radius_m) {
+                return Err(format!(
+                    "evaluation.class_range_m.{class} = {range}: must be in (0, dataset.annotate_radius_m = {annotate_radius_m}] m"
+                ));
+            }
+        }
+        let b = &self.range_bins_m;
+        if b.len() < 2 || !b.iter().all(|e| e.is_finite()) || b[0] < 0.0 || b.windows(2).any(|w| w[1] <= w[0]) {
+            return Err(format!(
+                "evaluation.range_bins_m = {b:?}: needs at least two finite edges, from 0 m or more, increasing"
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The `[verdict]` section of a study file.
@@ -42,11 +102,13 @@ pub struct VerdictSettings {
     /// A difference smaller than this (in the metric's units: 0.02 = 2 points of mAP) is no
     /// difference that matters: a claim whose TOST shows it within ±margin is "equivalent".
     pub equivalence_margin: f64,
+    /// The same for velocity errors (mAVE, car AVE), in m/s.
+    pub velocity_equivalence_margin_m_s: f64,
 }
 
 impl Default for VerdictSettings {
     fn default() -> Self {
-        VerdictSettings { equivalence_margin: 0.02 }
+        VerdictSettings { equivalence_margin: 0.02, velocity_equivalence_margin_m_s: 0.1 }
     }
 }
 
@@ -211,6 +273,11 @@ impl Study {
         if !(m > 0.0 && m < 1.0) {
             return Err(bad(format!("verdict.equivalence_margin = {m}: must be in (0, 1)")));
         }
+        file.evaluation.check(file.dataset.annotate_radius_m as f64).map_err(bad)?;
+        let v = file.verdict.velocity_equivalence_margin_m_s;
+        if !(v > 0.0 && v < 10.0) {
+            return Err(bad(format!("verdict.velocity_equivalence_margin_m_s = {v}: must be in (0, 10) m/s")));
+        }
         let dataset = file.dataset.clone().validate()?;
         let placement = file.placement.clone().validate()?;
         let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
@@ -280,4 +347,37 @@ pub fn scene_hash(scene: &Scene) -> String {
     }
     bits.push_str(&format!("{acc:016x}:{}", scene.mesh.triangles.len()));
     hash(&[&config, &bits])
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    fn parse(extra: &str) -> Result<Study> {
+        let text = format!("{}\n{extra}", include_str!("../../../fixtures/study.toml"));
+        Study::parse(&text, Path::new("."), "s.toml")
+    }
+
+    /// `[evaluation]` ranges override the nuScenes ones class by class; an unknown class, a range
+    /// past the annotated radius, a bad verdict margin or bins that do not increase are refused
+    /// with the field and value.
+    #[test]
+    fn evaluation_and_verdict_settings_are_checked() {
+        let s =
+            parse("[evaluation]\nclass_range_m = { car = 70.0 }\nrange_bins_m = [0.0, 30.0, 50.0, 70.0]\n").unwrap();
+        let cfg = s.file.evaluation.detection_config();
+        assert_eq!((cfg.class_range["car"], cfg.class_range["bus"], cfg.class_range["pedestrian"]), (70.0, 50.0, 40.0));
+        assert_eq!(parse("").unwrap().file.evaluation.range_bins_m, vec![0.0, 30.0, 50.0]);
+        for (extra, needle) in [
+            ("[evaluation]\nclass_range_m = { tram = 30.0 }\n", "class_range_m.tram"),
+            ("[evaluation]\nclass_range_m = { car = 90.0 }\n", "annotate_radius_m = 70"),
+            ("[evaluation]\nrange_bins_m = [0.0, 50.0, 30.0]\n", "range_bins_m = [0.0, 50.0, 30.0]"),
+            ("[evaluation]\nrange_bins_m = [10.0]\n", "range_bins_m"),
+            ("[verdict]\nvelocity_equivalence_margin_m_s = 0.0\n", "velocity_equivalence_margin_m_s = 0"),
+        ] {
+            let e = parse(extra).err().map(|e| e.to_string()).unwrap_or_default();
+            assert!(e.contains(needle) && e.contains("s.toml"), "{extra:?}: {e}");
+        }
+    }
 }

@@ -11,6 +11,31 @@ use std::collections::BTreeMap;
 /// The metrics a verdict compares.
 pub const METRICS: [&str; 2] = ["mAP", "pedestrian AP"];
 
+/// The velocity errors the velocity claims compare (m/s, lower is better): the devkit's mAVE
+/// (over the classes present) and the car AVE (the moving class the radar's Doppler serves
+/// most).
+pub const VELOCITY_METRICS: [&str; 2] = ["mAVE", "car AVE"];
+
+/// Whether a metric is an error, where a smaller value is the better one.
+pub fn lower_is_better(metric: &str) -> bool {
+    VELOCITY_METRICS.contains(&metric)
+}
+
+/// The equivalence margins of the claims' TOST, by kind of metric.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Margins {
+    /// AP and mAP, as a fraction (0.02 = 2 points).
+    pub ap: f64,
+    /// Velocity errors, m/s.
+    pub velocity_m_s: f64,
+}
+
+impl Margins {
+    pub fn of(&self, metric: &str) -> f64 {
+        if lower_is_better(metric) { self.velocity_m_s } else { self.ap }
+    }
+}
+
 /// One trained detector's scores on the common ground truth, per metric.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DetectorScores {
@@ -176,9 +201,27 @@ impl Design<'_> {
         pooled_seed_variance(&groups.into_values().collect::<Vec<_>>())
     }
 
+    /// B − A on `metric`; None when a side has no detector, or a velocity error that is not
+    /// finite (a class without ground truth has none).
     fn cmp(&self, metric: &str, (ca, pa): (&str, &str), (cb, pb): (&str, &str)) -> Option<Test> {
         let (a, b) = (self.seeds(ca, pa, metric), self.seeds(cb, pb, metric));
-        (!a.is_empty() && !b.is_empty()).then(|| compare(&a, &b, self.seed_variance(metric), self.scenes, self.level))
+        let finite = !lower_is_better(metric) || a.iter().chain(&b).all(|s| s.full.is_finite());
+        (!a.is_empty() && !b.is_empty() && finite)
+            .then(|| compare(&a, &b, self.seed_variance(metric), self.scenes, self.level))
+    }
+
+    /// A claim of B − A on each of [`VELOCITY_METRICS`] that both sides have (not tested when
+    /// neither has: detectors scored before velocity errors were).
+    fn velocity_claim(&self, id: &str, statement: &str, a: (&str, &str), b: (&str, &str)) -> Claim {
+        let rows: Vec<ClaimRow> = VELOCITY_METRICS
+            .iter()
+            .filter_map(|m| {
+                self.cmp(m, a, b)
+                    .map(|t| with(row(m, format!("{} on {} − {} on {}", b.1, b.0, a.1, a.0), None, t), &[a], &[b]))
+            })
+            .collect();
+        let missing = rows.is_empty().then(|| "no finite velocity error on both sides".to_string());
+        claim(id, statement, rows, missing)
     }
 
     /// The cheapest configuration with a radar, the dearest with a radar, the dearest without.
@@ -341,12 +384,22 @@ impl Design<'_> {
                 Some("needs a LiDAR-only configuration, one with radar, a fusion and a LiDAR-only preset".into()),
             ),
         };
+        let st1v = "A radar, fused, lowers the velocity error of the cheapest LiDAR-only rig";
+        let c1v = match (cheap, lidar_cheap, fusion, lidar) {
+            (Some(c), Some(l), Some(f), Some(lp)) => self.velocity_claim("radar_adds_velocity", st1v, (l, lp), (c, f)),
+            _ => claim(
+                "radar_adds_velocity",
+                st1v,
+                vec![],
+                Some("needs a LiDAR-only configuration, one with radar, a fusion and a LiDAR-only preset".into()),
+            ),
+        };
         let st2 = "Two viewpoints of cheap LiDARs beat one high-resolution LiDAR, both without radar";
         let c2 = match (lidar_cheap, lidar_dear, lidar) {
             (Some(c), Some(d), Some(lp)) if c != d => claim("second_viewpoint", st2, rows((d, lp), (c, lp)), None),
             _ => claim("second_viewpoint", st2, vec![], Some("needs two LiDAR-only configurations".into())),
         };
-        vec![c1, c2]
+        vec![c1, c1v, c2]
     }
 
     /// Fusion against the LiDAR-only counterpart on the cheap rig, and the early-fusion ablation.
@@ -368,6 +421,18 @@ impl Design<'_> {
             _ => claim("fusion_vs_lidar_only", st3, vec![], Some("needs a fusion and a LiDAR-only preset".into())),
         };
         claims.push(c3);
+        // 3v. Velocity: what the radar's Doppler is bought for, on the same rig.
+        let st3v = "Fusing radar lowers velocity error against the LiDAR-only detector on the same rig";
+        let c3v = match (cheap, fusion, lidar) {
+            (Some(c), Some(f), Some(lp)) => self.velocity_claim("fusion_lowers_velocity_error", st3v, (c, lp), (c, f)),
+            _ => claim(
+                "fusion_lowers_velocity_error",
+                st3v,
+                vec![],
+                Some("needs a fusion and a LiDAR-only preset".into()),
+            ),
+        };
+        claims.push(c3v);
         // 3b. Fused pedestrian AP over CenterPoint's head; 3c. fusion over PointPillars' head.
         let st3b = "Fusing radar raises pedestrian AP over the LiDAR-only CenterPoint on the same rig";
         let c3b = match (cheap, self.fusion_with_head(false)) {
@@ -641,13 +706,14 @@ impl PresetRoles {
 }
 
 /// Holm-adjusts a family of tests (claims' rows and comparisons together) and sets each claim
-/// row's and claim's verdict. A row is supported when it is significant in the paper's favoured
-/// direction (B − A > 0), contradicted when significant against it, equivalent when not
-/// significant and its TOST against ±`margin` is (unadjusted p < α), undecided otherwise. A claim
-/// is contradicted when a row is, supported when every row is (and every preset's own difference
-/// is positive), equivalent when every row is, undecided otherwise. Each row also gets where its
-/// interval lies against the paper's number and its minimum detectable effect (80% power).
-pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64, margin: f64) {
+/// row's and claim's verdict. A row is supported when it is significant in the claim's favoured
+/// direction (B − A > 0; B − A < 0 for an error such as mAVE), contradicted when significant
+/// against it, equivalent when not significant and its TOST against ± its metric's margin is
+/// (unadjusted p < α), undecided otherwise. A claim is contradicted when a row is, supported when
+/// every row is (and every preset's own difference is positive), equivalent when every row is,
+/// undecided otherwise. Each row also gets where its interval lies against the paper's number
+/// and its minimum detectable effect (80% power).
+pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64, margins: Margins) {
     let mut p: Vec<f64> = claims.iter().flat_map(|c| c.rows.iter().map(|r| r.test.p)).collect();
     p.extend(comparisons.iter().map(|c| c.test.p));
     let adj = holm(&p);
@@ -656,11 +722,12 @@ pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64, 
         for r in &mut c.rows {
             r.test.p_adjusted = adj[k];
             k += 1;
-            r.tost_p = tost_p(&r.test, margin);
+            r.tost_p = tost_p(&r.test, margins.of(&r.metric));
             r.mde = if r.test.estimable { mde(r.test.se, r.test.df, alpha, 0.8) } else { f64::NAN };
             r.paper_relation = r.paper.and_then(|x| paper_relation(r.test.lo, r.test.hi, x));
             r.verdict = if r.test.estimable && r.test.p_adjusted < alpha {
-                if r.test.estimate > 0.0 { Verdict::Supported } else { Verdict::Contradicted }
+                let gain = if lower_is_better(&r.metric) { -r.test.estimate } else { r.test.estimate };
+                if gain > 0.0 { Verdict::Supported } else { Verdict::Contradicted }
             } else if r.tost_p < alpha {
                 Verdict::Equivalent
             } else {
@@ -729,6 +796,8 @@ pub fn budget_gate(claims: &mut [Claim], curves: &[Curve]) {
 mod tests {
     use super::*;
 
+    const MARGINS: Margins = Margins { ap: 0.02, velocity_m_s: 0.1 };
+
     fn det(conf: &str, preset: &str, seed: u64, map: f64) -> DetectorScores {
         // 30 replicates that move every detector together (the same scenes drawn), plus a little.
         let reps = (0..30).map(|r| map + 0.01 * ((r % 7) as f64 - 3.0) + 0.001 * seed as f64).collect();
@@ -777,8 +846,8 @@ mod tests {
         };
         let mut claims = d.claims();
         let mut comps = d.comparisons();
-        adjust(&mut claims, &mut comps, 0.05, 0.02);
-        assert_eq!(claims.len(), 10);
+        adjust(&mut claims, &mut comps, 0.05, MARGINS);
+        assert_eq!(claims.len(), 12);
         let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap();
         // The confounds: the one LiDAR-only rig against the fused cheap rig; two viewpoints need
         // two LiDAR-only rigs.
@@ -830,14 +899,14 @@ mod tests {
             level: 0.95,
         };
         let (mut claims, mut comps) = (d.claims(), d.comparisons());
-        adjust(&mut claims, &mut comps, 0.05, 0.02);
+        adjust(&mut claims, &mut comps, 0.05, MARGINS);
         let by = |claims: &[Claim], id: &str| claims.iter().find(|c| c.id == id).unwrap().clone();
         let early = by(&claims, "early_fusion_ablation");
         assert_eq!(early.verdict, Verdict::Equivalent, "{:?}", early.rows[0]);
         assert!(early.rows[0].tost_p < 0.05);
         // A margin below what the design resolves leaves it undecided.
         let (mut tight, mut c2) = (d.claims(), d.comparisons());
-        adjust(&mut tight, &mut c2, 0.05, 0.001);
+        adjust(&mut tight, &mut c2, 0.05, Margins { ap: 0.001, ..MARGINS });
         assert_eq!(by(&tight, "early_fusion_ablation").verdict, Verdict::Undecided);
         // lf − cp on 2x16+R: +0.10 against the paper's +0.031, interval well above it.
         let fusion = by(&claims, "fusion_vs_lidar_only");
@@ -861,8 +930,72 @@ mod tests {
         assert_eq!(by(&claims, "fusion_vs_lidar_only").verdict, Verdict::BudgetBound);
         // The same ranking at half and at the end keeps the verdict.
         let (mut kept, mut c3) = (d.claims(), d.comparisons());
-        adjust(&mut kept, &mut c3, 0.05, 0.02);
+        adjust(&mut kept, &mut c3, 0.05, MARGINS);
         budget_gate(&mut kept, &[curve("2x16+R", "cp", 0.40, 0.70), curve("2x16+R", "lf", 0.45, 0.80)]);
         assert_eq!(by(&kept, "fusion_vs_lidar_only").verdict, Verdict::Supported);
+    }
+
+    /// `det` with velocity errors (m/s): mAVE `mave` and car AVE 1.5 × `mave`.
+    fn det_v(conf: &str, preset: &str, seed: u64, map: f64, mave: f64) -> DetectorScores {
+        let mut d = det(conf, preset, seed, map);
+        for (name, v) in [("mAVE", mave), ("car AVE", 1.5 * mave)] {
+            let reps = (0..30).map(|r| v + 0.02 * ((r % 5) as f64 - 2.0) + 0.002 * seed as f64).collect();
+            d.scores.insert(name.to_string(), Scores { full: v, replicates: reps });
+        }
+        d
+    }
+
+    /// The velocity claims favour the lower error: a fused detector whose mAVE is 0.9 m/s below
+    /// the LiDAR-only one's is supported, one 0.9 above is contradicted, an equal one is
+    /// equivalent within the velocity margin (m/s, not the mAP margin), and a velocity error
+    /// that is not finite leaves its row out.
+    #[test]
+    fn velocity_claims_favour_the_lower_error() {
+        let verdicts = |fused: f64, car_finite: bool| -> (Claim, Claim) {
+            let mut scores = Vec::new();
+            for s in 0..3 {
+                let j = 0.004 * s as f64;
+                scores.push(det_v("2x16+R", "cp", s, 0.70 + j, 1.5 + j));
+                scores.push(det_v("2x16+R", "lf", s, 0.80 + j, fused + j));
+                scores.push(det_v("2x16", "cp", s, 0.65 + j, 1.6 + j));
+            }
+            if !car_finite {
+                scores[0].scores.get_mut("car AVE").unwrap().full = f64::NAN;
+            }
+            let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("2x16".to_string(), 8_000.0, false)];
+            let uses = BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true)]);
+            let presets = vec!["cp".to_string(), "lf".to_string()];
+            let d = Design {
+                scores: &scores,
+                configurations: &configurations,
+                presets: &presets,
+                ablations: &[],
+                ablation_of: &BTreeMap::new(),
+                uses_radar: &uses,
+                counterpart: &BTreeMap::new(),
+                pointpillars_head: &std::collections::BTreeSet::new(),
+                scenes: 20,
+                level: 0.95,
+            };
+            let (mut claims, mut comps) = (d.claims(), d.comparisons());
+            adjust(&mut claims, &mut comps, 0.05, MARGINS);
+            let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap().clone();
+            (by("fusion_lowers_velocity_error"), by("radar_adds_velocity"))
+        };
+        let (same_rig, radar) = verdicts(0.6, true);
+        assert_eq!(same_rig.rows.len(), 2);
+        assert_eq!((same_rig.rows[0].metric.as_str(), same_rig.rows[1].metric.as_str()), ("mAVE", "car AVE"));
+        assert!((same_rig.rows[0].test.estimate + 0.9).abs() < 1e-9, "{:?}", same_rig.rows[0].test);
+        assert_eq!(same_rig.verdict, Verdict::Supported);
+        assert_eq!(same_rig.rows[0].paper, None);
+        assert_eq!(radar.rows[0].a, vec![("2x16".to_string(), "cp".to_string())]);
+        assert!((radar.rows[0].test.estimate + 1.0).abs() < 1e-9);
+        assert_eq!(radar.verdict, Verdict::Supported);
+        assert_eq!(verdicts(2.4, true).0.verdict, Verdict::Contradicted);
+        let (equal, _) = verdicts(1.5, true);
+        assert_eq!(equal.verdict, Verdict::Equivalent, "{:?}", equal.rows[0]);
+        assert!(equal.rows[0].tost_p < 0.05 && equal.rows[0].tost_p.is_finite());
+        let (partial, _) = verdicts(0.6, false);
+        assert_eq!(partial.rows.iter().map(|r| r.metric.as_str()).collect::<Vec<_>>(), ["mAVE"]);
     }
 }

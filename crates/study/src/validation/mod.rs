@@ -469,11 +469,17 @@ pub(crate) struct Scorer {
 }
 
 impl Scorer {
-    /// From any dataset of the validation (they share the traffic).
-    pub(crate) fn new(data: &Path, profile: &Profile, settings: &ValidationSettings) -> Result<Self> {
+    /// From any dataset of the validation (they share the traffic), scored at the study's
+    /// evaluation ranges.
+    pub(crate) fn new(
+        data: &Path,
+        profile: &Profile,
+        settings: &ValidationSettings,
+        evaluation: &crate::study::EvaluationSettings,
+    ) -> Result<Self> {
         let first = hilo_dataset::Dataset::open(data, "v1.0-trainval")?;
         let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
-        let mut cfg = DetectionConfig::default();
+        let mut cfg = evaluation.detection_config();
         let in_gt: std::collections::BTreeSet<&str> =
             common.boxes.values().flatten().map(|b| b.detection_name.as_str()).collect();
         cfg.class_range.retain(|k, _| in_gt.contains(k.as_str()));
@@ -548,7 +554,7 @@ fn score(
     outputs: Outputs,
     t0: std::time::Instant,
 ) -> Result<ValidationReport> {
-    let scorer = Scorer::new(&data[0].dir, profile, settings)?;
+    let scorer = Scorer::new(&data[0].dir, profile, settings, &study.file.evaluation)?;
     let mut trained = Vec::new();
     for ((m, d), outs) in members.iter_mut().zip(data).zip(outputs) {
         let (t, occupancy) = scorer.trained(&d.dir, &outs)?;

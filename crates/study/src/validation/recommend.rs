@@ -89,7 +89,7 @@ pub fn recommend(
     let all = jobs(std::slice::from_ref(&member), std::slice::from_ref(&data), registry, profile, &r.settings, out)?;
     let label = format!("training the recommendation {}", member.slug);
     let outs = train_on(registry, profile, &data.dir, all.iter().collect(), &label, progress)?;
-    let scorer = Scorer::new(&data.dir, profile, &r.settings)?;
+    let scorer = Scorer::new(&data.dir, profile, &r.settings, &study.file.evaluation)?;
     let (trained, occupancy) = scorer.trained(&data.dir, &outs)?;
     let mut member = member;
     member.predictors.extend(occupancy);
