@@ -614,14 +614,15 @@ fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, A
         occupancy::RADAR_SHARE,
     ];
     names.sort_by_key(|n| (order.iter().position(|o| o == n).unwrap_or(order.len()), n.clone()));
+    // Every row under the same resamples (seed 0): rows are paired, and a predictor's interval
+    // does not move when another predictor is added before it.
     let rows = names
         .iter()
-        .enumerate()
-        .map(|(k, name)| {
+        .map(|name| {
             let x: Vec<f64> =
                 members.iter().map(|(m, _)| m.predictors.get(name).copied().flatten().unwrap_or(f64::NAN)).collect();
-            let (spearman_map, kendall_map) = agreement(&x, &acc, &map_t, 0.95, k as u64);
-            let (spearman_pedestrian, kendall_pedestrian) = agreement(&x, &ped, &ped_t, 0.95, k as u64);
+            let (spearman_map, kendall_map) = agreement(&x, &acc, &map_t, 0.95, 0);
+            let (spearman_pedestrian, kendall_pedestrian) = agreement(&x, &ped, &ped_t, 0.95, 0);
             let undefined_for =
                 members.iter().zip(&x).filter(|(_, v)| !v.is_finite()).map(|((m, _), _)| m.slug.clone()).collect();
             PredictorRow {
