@@ -310,20 +310,25 @@ pub struct ValidateArgs {
     /// study's budget and simulate, train and score it as the set was (resumes from --out).
     #[arg(long, conflicts_with = "refit")]
     pub recommend: bool,
+    /// Refit as --refit does, then predict every placement of --out's set with the calibrated
+    /// objective of another finished validation (its `validation.json`), its weights frozen:
+    /// does the fit carry to traffic, rigs and trainings it never saw?
+    #[arg(long, value_name = "VALIDATION_JSON")]
+    pub transfer: Option<PathBuf>,
     /// Draw the placement set, then write the validation as a workflow for this engine
     /// (`snakemake`) into --out instead of running it.
-    #[arg(long, conflicts_with_all = ["refit", "recommend"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "transfer"])]
     pub workflow: Option<String>,
     /// One stage of the validation in --out (as its Snakefile runs it): record this
     /// placement's dataset.
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "train", "resume"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "train", "resume", "transfer"])]
     pub simulate: Option<String>,
     /// One stage of the validation in --out: this training (`<placement>/<preset>-seed<k>`).
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "resume"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "resume", "transfer"])]
     pub train: Option<String>,
     /// Run what remains of the validation in --out with the study, profile and settings it
     /// records (the Snakefile's last step: scores, fit, recommendation).
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "transfer"])]
     pub resume: bool,
 }
 
@@ -357,9 +362,12 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     if args.simulate.is_some() || args.train.is_some() || args.resume {
         return validation_stage(args);
     }
-    if args.refit || args.recommend {
+    if args.refit || args.recommend || args.transfer.is_some() {
         let study = load_study(args.study.as_deref())?;
         let mut report = hilo_study::validation::refit(&study, &args.out)?;
+        if let Some(source) = &args.transfer {
+            report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
+        }
         if args.recommend {
             let registry = crate::train::registry()?;
             let profile = hilo_study::profile(&report.profile, &study, &registry)?;

@@ -273,6 +273,110 @@ pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
     })
 }
 
+/// The calibrated objective of one validation set predicting the placements of another with its
+/// weights frozen: no refitting, so the other set's traffic, random rigs and trainings are
+/// all unseen. Cross-fitting within one set cannot show this: the set's residuals may have
+/// chosen the form of the objective (its features), and its folds share their traffic.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Transfer {
+    /// The fitted set's `validation.json` as it was named, its study, its validation seed and
+    /// the code that ran it.
+    pub source: String,
+    pub source_study: String,
+    pub source_seed: u64,
+    pub source_commit: String,
+    /// The source's fit on every member (feature names in the order of `weights`).
+    pub features: Vec<String>,
+    pub intercept: f64,
+    pub weights: Vec<f64>,
+    /// Every placement of this set, predicted by the source's fit with its 95% prediction
+    /// interval, and measured.
+    pub predicted: Vec<HeldOut>,
+    pub spearman: Agreement,
+    pub kendall: Agreement,
+    /// Measured values inside their prediction interval.
+    pub covered: usize,
+    /// Mean of measured − predicted (the fit's bias on this set) and the root mean square error.
+    pub mean_error: f64,
+    pub rmse: f64,
+}
+
+/// The first of [`FEATURES`] that some member of `r` lacks (a set scored by a build from before
+/// that predictor), with the member: a fit would read it as 0.
+fn missing_feature(r: &ValidationReport) -> Option<(&'static str, String)> {
+    r.members
+        .iter()
+        .find_map(|(m, _)| FEATURES.iter().find(|f| !m.predictors.contains_key(**f)).map(|f| (*f, m.slug.clone())))
+}
+
+/// Predicts every member of `target` by the calibrated fit of `source` on all of its members
+/// (the weights `source` recommends with) and scores the predictions against `target`'s
+/// measured mAP: ρ and τ with intervals from `target`'s scene-bootstrap replicates, interval
+/// coverage, bias and RMSE. `source_name` names the source in the result. An error when
+/// either set lacks one of [`FEATURES`], when `source` is too small to fit, or when its
+/// recorded fit differs from the one its members give (fitted by other code).
+pub fn transfer(source: &ValidationReport, target: &ValidationReport, source_name: &str) -> Result<Transfer, String> {
+    for (r, which) in [(source, "the fitted set"), (target, "this set")] {
+        if let Some((f, slug)) = missing_feature(r) {
+            return Err(format!(
+                "{which} has no predictor {f:?} for placement {slug:?}: run `hilo validate --refit` on it with this build"
+            ));
+        }
+    }
+    if source.members.len() < 10 {
+        return Err(format!("the fitted set has {} placements; a fit needs at least 10", source.members.len()));
+    }
+    let all: Vec<usize> = (0..source.members.len()).collect();
+    let f = fit(source, &all).ok_or("the fitted set's placements give no fit (collinear predictors)")?;
+    let mut weights = vec![0.0; FEATURES.len()];
+    for (&k, b) in f.used.iter().zip(&f.beta[1..]) {
+        weights[k] = *b;
+    }
+    if let Some(c) = &source.calibrated {
+        let same = c.features.len() == FEATURES.len()
+            && c.features.iter().zip(FEATURES).all(|(a, b)| a == b)
+            && (c.intercept - f.beta[0]).abs() < 1e-9
+            && c.weights.iter().zip(&weights).all(|(a, b)| (a - b).abs() < 1e-9);
+        if !same {
+            return Err("the fitted set's recorded objective is not the fit of its placements by this build:                         run `hilo validate --refit` on it first"
+                .into());
+        }
+    }
+    let predicted: Vec<HeldOut> = target
+        .members
+        .iter()
+        .map(|(m, t)| {
+            let x = |name: &str| m.predictors.get(name).copied().flatten().unwrap_or(0.0);
+            let (p, half) = (f.predict(&x), f.half_width(&x));
+            HeldOut { placement: m.slug.clone(), predicted: p, lo: p - half, hi: p + half, measured: t.map_mean }
+        })
+        .collect();
+    let n = target.members.len();
+    let draws = target.members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0);
+    let reps: Vec<Vec<f64>> =
+        (0..draws).map(|k| target.members.iter().map(|(_, t)| t.map_replicates[k]).collect()).collect();
+    let acc: Vec<f64> = predicted.iter().map(|h| h.measured).collect();
+    let pred: Vec<f64> = predicted.iter().map(|h| h.predicted).collect();
+    let (spearman, kendall) = agreement(&pred, &acc, &reps, 0.95, target.settings.seed);
+    let errors: Vec<f64> = predicted.iter().map(|h| h.measured - h.predicted).collect();
+    let denom = n.max(1) as f64;
+    Ok(Transfer {
+        source: source_name.to_owned(),
+        source_study: source.study.clone(),
+        source_seed: source.settings.seed,
+        source_commit: source.provenance.git_commit.clone(),
+        features: FEATURES.iter().map(|f| f.to_string()).collect(),
+        intercept: f.beta[0],
+        weights,
+        covered: predicted.iter().filter(|h| (h.lo..=h.hi).contains(&h.measured)).count(),
+        mean_error: errors.iter().sum::<f64>() / denom,
+        rmse: (errors.iter().map(|e| e * e).sum::<f64>() / denom).sqrt(),
+        predicted,
+        spearman,
+        kendall,
+    })
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]
 mod tests {
@@ -286,7 +390,12 @@ mod tests {
     /// A report of `n` placements whose mAP is `truth(C_L, C_R, C_L by two views)` plus seed noise of
     /// SD 0.01.
     fn synthetic(n: usize, truth: impl Fn(f64, f64, f64) -> f64) -> ValidationReport {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        synthetic_seeded(n, 3, truth)
+    }
+
+    /// [`synthetic`] with the draws of placements and noise seeded by `seed`.
+    fn synthetic_seeded(n: usize, seed: u64, truth: impl Fn(f64, f64, f64) -> f64) -> ValidationReport {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let members = (0..n)
             .map(|i| {
                 let (cl, cr) = (rng.random_range(0.3..0.95), if i % 3 == 0 { 0.0 } else { rng.random_range(0.2..0.9) });
@@ -345,6 +454,7 @@ mod tests {
             seed_spearman: None,
             calibrated: None,
             recommendation: None,
+            transfer: None,
             seconds: 0.0,
         }
     }
@@ -386,6 +496,72 @@ mod tests {
         assert_eq!((w.lidar, w.lidar_two_views), (c.weights[0], c.weights[2]));
         assert!(c.held_out_spearman.value > 0.9, "{:?}", c.held_out_spearman);
         assert!(c.loo_rmse < 0.02, "{c:?}");
+    }
+
+    /// `r` with density predictors that accuracy does not depend on (every feature present, as
+    /// a set scored by this build has them), and its calibrated objective fitted.
+    fn complete(mut r: ValidationReport, seed: u64) -> ValidationReport {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        for (m, _) in &mut r.members {
+            m.predictors.insert(LIDAR_DENSE.to_owned(), Some(rng.random_range(0.0..1.0)));
+            m.predictors.insert(RADAR_DENSE.to_owned(), Some(rng.random_range(0.0..1.0)));
+        }
+        r.calibrated = calibrate(&r, 0);
+        r
+    }
+
+    /// A fit carries to a set drawn apart from it (other placements, other noise) when the
+    /// relation is the same: the frozen weights are the source's, they rank the unseen set
+    /// nearly perfectly, their intervals hold most of it and the bias is near 0.
+    #[test]
+    fn a_fit_carries_to_a_set_it_never_saw() {
+        let truth = |cl: f64, _: f64, cl2: f64| 0.1 + 0.3 * cl + 0.3 * cl2;
+        let source = complete(synthetic_seeded(30, 3, truth), 11);
+        let target = complete(synthetic_seeded(30, 7, truth), 12);
+        let t = transfer(&source, &target, "a/validation.json").unwrap();
+        let c = source.calibrated.as_ref().unwrap();
+        assert_eq!((t.intercept, &t.weights), (c.intercept, &c.weights), "the source's weights, frozen");
+        assert_eq!(t.predicted.len(), 30);
+        assert!(t.spearman.value > 0.9 && t.spearman.lo <= t.spearman.value, "{:?}", t.spearman);
+        assert!(t.covered >= 24, "{} of 30 inside", t.covered);
+        assert!(t.mean_error.abs() < 0.01 && t.rmse < 0.03, "{t:?}");
+        assert_eq!(t.source, "a/validation.json");
+    }
+
+    /// A set whose accuracy is 0.1 higher at the same coverage (other traffic, say) is ranked
+    /// as well, but the transfer reports the bias and the intervals miss: level and order are
+    /// told apart.
+    #[test]
+    fn a_shifted_set_is_ranked_but_its_bias_is_measured() {
+        let truth = |cl: f64, _: f64, _: f64| 0.1 + 0.6 * cl;
+        let source = complete(synthetic_seeded(30, 3, truth), 11);
+        let target = complete(synthetic_seeded(30, 7, |cl, cr, cl2| truth(cl, cr, cl2) + 0.1), 12);
+        let t = transfer(&source, &target, "a").unwrap();
+        assert!((t.mean_error - 0.1).abs() < 0.02, "{t:?}");
+        assert!(t.rmse >= t.mean_error.abs() - 1e-12);
+        assert!(t.spearman.value > 0.9, "{:?}", t.spearman);
+        assert!(t.covered < 10, "{} of 30 inside", t.covered);
+    }
+
+    /// A set scored by a build without one of the features, or a source whose recorded weights
+    /// are not its placements' fit, is refused with what to do, not read as zeros.
+    #[test]
+    fn a_transfer_refuses_sets_it_cannot_fit_alike() {
+        let truth = |cl: f64, _: f64, _: f64| 0.1 + 0.6 * cl;
+        let source = complete(synthetic_seeded(30, 3, truth), 11);
+        let mut target = complete(synthetic_seeded(30, 7, truth), 12);
+        target.members[4].0.predictors.remove(RADAR_DENSE);
+        let e = transfer(&source, &target, "a").unwrap_err();
+        assert!(e.contains(RADAR_DENSE) && e.contains("p4") && e.contains("--refit"), "{e}");
+        let target = complete(synthetic_seeded(30, 7, truth), 12);
+        let mut tampered = source.clone();
+        if let Some(c) = tampered.calibrated.as_mut() {
+            c.weights[0] += 0.05;
+        }
+        let e = transfer(&tampered, &target, "a").unwrap_err();
+        assert!(e.contains("--refit"), "{e}");
+        let small = complete(synthetic_seeded(8, 3, truth), 11);
+        assert!(transfer(&small, &target, "a").unwrap_err().contains("at least 10"));
     }
 
     /// Least squares recovers an exact plane, and its (XᵀX)⁻¹ is the inverse.

@@ -18,7 +18,10 @@
 //! cross-fitting; `[placement] objective = "calibrated"` places with it
 //! ([`hilo_placement_ip::calibrated`]). The rig it buys under the study's budget is then
 //! trained as the members were and set beside its prediction and the best configuration of the
-//! study at equal or lower cost ([`recommend`]). It runs in one process ([`run`]) or as a
+//! study at equal or lower cost ([`recommend`]). Cross-fitting within one set shares that set's
+//! traffic and may have chosen the objective's form from its residuals; `--transfer` predicts
+//! the placements of a second set (other seeds) with the first set's weights frozen
+//! ([`calibrate::transfer`]). It runs in one process ([`run`]) or as a
 //! workflow engine's jobs ([`plan`] draws the set and names the stages, [`simulate`] and
 //! [`train_job`] run one each, `crate::workflow::validation_snakefile` writes them); its stage
 //! folders are named by hashes that include the code, so a run is resumed by the same build
@@ -181,6 +184,10 @@ pub struct ValidationReport {
     /// The rig it buys under the study's budget, trained.
     #[serde(default)]
     pub recommendation: Option<recommend::Recommendation>,
+    /// The calibrated objective of another validation set predicting this one, its weights
+    /// frozen (`hilo validate --transfer`).
+    #[serde(default)]
+    pub transfer: Option<calibrate::Transfer>,
     pub seconds: f64,
 }
 
@@ -577,6 +584,7 @@ fn score(
         seed_spearman,
         calibrated: None,
         recommendation: None,
+        transfer: None,
         seconds: t0.elapsed().as_secs_f64(),
     };
     report.calibrated = calibrate::calibrate(&report, settings.seed);
@@ -652,6 +660,10 @@ pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
     let mut r: ValidationReport = read_json(&out.join("validation.json"), limit::TABLE)?;
     let members: Vec<Member> = r.members.iter().map(|(m, _)| m.clone()).collect();
     let again = set::recompute(study, &r.settings, &members)?;
+    // A transfer scored on other predictors is not this set's.
+    if again != members {
+        r.transfer = None;
+    }
     for ((m, _), a) in r.members.iter_mut().zip(again) {
         *m = a;
     }
@@ -663,6 +675,14 @@ pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
         r.recommendation = None;
     }
     Ok(r)
+}
+
+/// Scores the validation `r` with the calibrated objective of the finished validation in
+/// `source` (a `validation.json`), its weights frozen ([`calibrate::transfer`]).
+pub fn transfer(r: &ValidationReport, source: &Path) -> Result<calibrate::Transfer> {
+    let src: ValidationReport = read_json(source, limit::TABLE)?;
+    calibrate::transfer(&src, r, &source.display().to_string())
+        .map_err(|e| StudyError::Invalid(format!("{}: {e}", source.display())))
 }
 
 /// Writes `validation.json`, `validation.md` and the scatter charts into `out`; returns the
@@ -737,6 +757,9 @@ pub fn markdown(r: &ValidationReport) -> String {
     if let Some(c) = &r.calibrated {
         s.push_str(&calibrated_markdown(c));
     }
+    if let Some(t) = &r.transfer {
+        s.push_str(&transfer_markdown(t));
+    }
     if let Some(rec) = &r.recommendation {
         s.push_str(&recommend::markdown(rec));
     }
@@ -808,6 +831,37 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
     ));
     s.push_str("| placement (predicted out of fold) | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
     for h in &c.held_out {
+        s.push_str(&format!(
+            "| {} | {:.3} [{:.3}, {:.3}] | {:.3} |\n",
+            h.placement, h.predicted, h.lo, h.hi, h.measured
+        ));
+    }
+    s.push('\n');
+    s
+}
+
+fn transfer_markdown(t: &calibrate::Transfer) -> String {
+    let mut s = String::from("## Does the fit carry to another set?\n\n");
+    let terms: Vec<String> =
+        t.features.iter().zip(&t.weights).filter(|(_, w)| **w != 0.0).map(|(f, w)| format!("{w:.3} × {f}")).collect();
+    let commit =
+        if t.source_commit.is_empty() { "unknown code".to_owned() } else { format!("code {}", t.source_commit) };
+    s.push_str(&format!(
+        "The calibrated objective fitted on `{}` (study {}, validation seed {}, {commit}), its weights frozen:          predicted mAP = {:.3} + {}. On this set, which it never saw (its traffic, random rigs and trainings are          this set's own): Spearman ρ {}, Kendall τ {} with measured mAP; {} of {} measured values inside their 95%          prediction interval; measured − predicted {:+.3} on average (RMSE {:.3}). Rank agreement says whether the fit          orders rigs as trained detectors do elsewhere; the mean error, whether its level carries too.\n\n",
+        t.source,
+        t.source_study,
+        t.source_seed,
+        t.intercept,
+        if terms.is_empty() { "0".to_owned() } else { terms.join(" + ") },
+        fmt_agreement(&t.spearman),
+        fmt_agreement(&t.kendall),
+        t.covered,
+        t.predicted.len(),
+        t.mean_error,
+        t.rmse
+    ));
+    s.push_str("| placement | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
+    for h in &t.predicted {
         s.push_str(&format!(
             "| {} | {:.3} [{:.3}, {:.3}] | {:.3} |\n",
             h.placement, h.predicted, h.lo, h.hi, h.measured
