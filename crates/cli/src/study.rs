@@ -310,9 +310,10 @@ pub struct ValidateArgs {
     /// study's budget and simulate, train and score it as the set was (resumes from --out).
     #[arg(long, conflicts_with = "refit")]
     pub recommend: bool,
-    /// Refit as --refit does, then predict every placement of --out's set with the calibrated
-    /// objective of another finished validation (its `validation.json`), its weights frozen:
-    /// does the fit carry to traffic, rigs and trainings it never saw?
+    /// Predict every placement of --out's finished set (its recorded predictors; after --refit or
+    /// --recommend when given) with the calibrated objective of another finished validation (its
+    /// `validation.json`), its weights frozen: does the fit carry to traffic, rigs and trainings
+    /// it never saw?
     #[arg(long, value_name = "VALIDATION_JSON")]
     pub transfer: Option<PathBuf>,
     /// Draw the placement set, then write the validation as a workflow for this engine
@@ -362,7 +363,17 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     if args.simulate.is_some() || args.train.is_some() || args.resume {
         return validation_stage(args);
     }
-    if args.refit || args.recommend || args.transfer.is_some() {
+    if args.transfer.is_some() && !args.refit && !args.recommend {
+        let mut report = hilo_study::validation::read(&args.out)?;
+        if let Some(source) = &args.transfer {
+            report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
+        }
+        for p in hilo_study::validation::write(&args.out, &report)? {
+            eprintln!("wrote {}", p.display());
+        }
+        return Ok(());
+    }
+    if args.refit || args.recommend {
         let study = load_study(args.study.as_deref())?;
         let mut report = hilo_study::validation::refit(&study, &args.out)?;
         if let Some(source) = &args.transfer {

@@ -338,7 +338,8 @@ pub fn transfer(source: &ValidationReport, target: &ValidationReport, source_nam
             && (c.intercept - f.beta[0]).abs() < 1e-9
             && c.weights.iter().zip(&weights).all(|(a, b)| (a - b).abs() < 1e-9);
         if !same {
-            return Err("the fitted set's recorded objective is not the fit of its placements by this build:                         run `hilo validate --refit` on it first"
+            return Err("the fitted set's recorded objective is not the fit of its placements by this build: \
+                        run `hilo validate --refit` on it first"
                 .into());
         }
     }

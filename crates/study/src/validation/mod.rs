@@ -657,7 +657,7 @@ fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, A
 /// validation run by an older build gains the predictors added since) and fits the calibrated
 /// objective again: no simulation, no training.
 pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
-    let mut r: ValidationReport = read_json(&out.join("validation.json"), limit::TABLE)?;
+    let mut r = read(out)?;
     let members: Vec<Member> = r.members.iter().map(|(m, _)| m.clone()).collect();
     let again = set::recompute(study, &r.settings, &members)?;
     // A transfer scored on other predictors is not this set's.
@@ -675,6 +675,11 @@ pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
         r.recommendation = None;
     }
     Ok(r)
+}
+
+/// Reads `<out>/validation.json`, a finished validation's record.
+pub fn read(out: &Path) -> Result<ValidationReport> {
+    Ok(read_json(&out.join("validation.json"), limit::TABLE)?)
 }
 
 /// Scores the validation `r` with the calibrated objective of the finished validation in
@@ -847,7 +852,12 @@ fn transfer_markdown(t: &calibrate::Transfer) -> String {
     let commit =
         if t.source_commit.is_empty() { "unknown code".to_owned() } else { format!("code {}", t.source_commit) };
     s.push_str(&format!(
-        "The calibrated objective fitted on `{}` (study {}, validation seed {}, {commit}), its weights frozen:          predicted mAP = {:.3} + {}. On this set, which it never saw (its traffic, random rigs and trainings are          this set's own): Spearman ρ {}, Kendall τ {} with measured mAP; {} of {} measured values inside their 95%          prediction interval; measured − predicted {:+.3} on average (RMSE {:.3}). Rank agreement says whether the fit          orders rigs as trained detectors do elsewhere; the mean error, whether its level carries too.\n\n",
+        "The calibrated objective fitted on `{}` (study {}, validation seed {}, {commit}), its weights \
+         frozen: predicted mAP = {:.3} + {}. On this set (its own traffic, random and perturbed rigs \
+         and trainings; the configurations' optima may share their poses with the fitted set's): Spearman ρ {}, Kendall τ {} with measured mAP; {} of {} \
+         measured values inside their 95% prediction interval; measured − predicted {:+.3} on average \
+         (RMSE {:.3}). Rank agreement says whether the fit orders rigs as trained detectors do \
+         elsewhere; the mean error, whether its level carries too.\n\n",
         t.source,
         t.source_study,
         t.source_seed,
