@@ -516,22 +516,7 @@ fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
         r.classes.iter().map(|c| c.name.clone()).collect::<Vec<_>>().join(" | "),
         r.classes.iter().map(|_| "---:|").collect::<String>()
     );
-    for c in &r.configurations {
-        for pr in presets {
-            if over_seeds(r, &c.name, pr, |e| Some(e.mean_ap)).is_none() {
-                continue;
-            }
-            let cells: Vec<String> = r
-                .classes
-                .iter()
-                .map(|k| {
-                    over_seeds(r, &c.name, pr, |e| e.class_ap.get(&k.name).copied().flatten())
-                        .map_or("–".into(), |v| format!("{:.3}", v.0))
-                })
-                .collect();
-            let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));
-        }
-    }
+    md_rig_rows(md, r, presets, r.classes.len(), &|e, k| e.class_ap.get(&r.classes[k].name).copied().flatten(), 3);
     md_velocity(md, r, presets);
     md_range(md, r, presets);
 }
@@ -550,19 +535,31 @@ fn md_range(md: &mut String, r: &Report, presets: &[String]) {
         head.join(" | "),
         r.range_bins.iter().map(|_| "---:|").collect::<String>()
     );
+    let value = |e: &Entry, k: usize| {
+        let label = &r.range_bins[k].0;
+        e.map_by_range.iter().find(|(l, _)| l == label).and_then(|(_, v)| *v)
+    };
+    md_rig_rows(md, r, presets, r.range_bins.len(), &value, 3);
+}
+
+/// One row per (configuration, preset) with a detector: the seed mean of `value(entry, k)` for
+/// each of `columns` columns, with `digits` decimals ("–" where no seed has a value).
+fn md_rig_rows(
+    md: &mut String,
+    r: &Report,
+    presets: &[String],
+    columns: usize,
+    value: &dyn Fn(&Entry, usize) -> Option<f64>,
+    digits: usize,
+) {
     for c in &r.configurations {
         for pr in presets {
             if over_seeds(r, &c.name, pr, |e| Some(e.mean_ap)).is_none() {
                 continue;
             }
-            let cells: Vec<String> = r
-                .range_bins
-                .iter()
-                .map(|(label, _)| {
-                    over_seeds(r, &c.name, pr, |e| {
-                        e.map_by_range.iter().find(|(l, _)| l == label).and_then(|(_, v)| *v)
-                    })
-                    .map_or("–".into(), |v| format!("{:.3}", v.0))
+            let cells: Vec<String> = (0..columns)
+                .map(|k| {
+                    over_seeds(r, &c.name, pr, |e| value(e, k)).map_or("–".into(), |v| format!("{:.digits$}", v.0))
                 })
                 .collect();
             let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));
@@ -582,22 +579,7 @@ fn md_velocity(md: &mut String, r: &Report, presets: &[String]) {
         r.classes.iter().map(|c| c.name.clone()).collect::<Vec<_>>().join(" | "),
         r.classes.iter().map(|_| "---:|").collect::<String>()
     );
-    for c in &r.configurations {
-        for pr in presets {
-            if over_seeds(r, &c.name, pr, |e| Some(e.mean_ave).filter(|v| v.is_finite())).is_none() {
-                continue;
-            }
-            let cells: Vec<String> = r
-                .classes
-                .iter()
-                .map(|k| {
-                    over_seeds(r, &c.name, pr, |e| e.class_ave.get(&k.name).copied().flatten())
-                        .map_or("–".into(), |v| format!("{:.2}", v.0))
-                })
-                .collect();
-            let _ = writeln!(md, "| {} | {} | {} |", c.name, pr, cells.join(" | "));
-        }
-    }
+    md_rig_rows(md, r, presets, r.classes.len(), &|e, k| e.class_ave.get(&r.classes[k].name).copied().flatten(), 2);
 }
 
 /// The rig under study against the others, and the calibration of the test.

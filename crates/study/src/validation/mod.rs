@@ -834,8 +834,14 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
          radar = {:.4}, lidar_two_views = {:.4}, radar_two_views = {:.4}, lidar_dense = {:.4}, radar_dense = {:.4} }}`.\n\n",
         c.loo_rmse, w.lidar, w.radar, w.lidar_two_views, w.radar_two_views, w.lidar_dense, w.radar_dense
     ));
-    s.push_str("| placement (predicted out of fold) | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
-    for h in &c.held_out {
+    s.push_str(&predictions_table("placement (predicted out of fold)", &c.held_out));
+    s
+}
+
+/// Predicted mAP with its interval against measured, a row per placement.
+fn predictions_table(first: &str, rows: &[calibrate::HeldOut]) -> String {
+    let mut s = format!("| {first} | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
+    for h in rows {
         s.push_str(&format!(
             "| {} | {:.3} [{:.3}, {:.3}] | {:.3} |\n",
             h.placement, h.predicted, h.lo, h.hi, h.measured
@@ -870,14 +876,7 @@ fn transfer_markdown(t: &calibrate::Transfer) -> String {
         t.mean_error,
         t.rmse
     ));
-    s.push_str("| placement | predicted mAP [95% interval] | measured |\n|---|---:|---:|\n");
-    for h in &t.predicted {
-        s.push_str(&format!(
-            "| {} | {:.3} [{:.3}, {:.3}] | {:.3} |\n",
-            h.placement, h.predicted, h.lo, h.hi, h.measured
-        ));
-    }
-    s.push('\n');
+    s.push_str(&predictions_table("placement", &t.predicted));
     s
 }
 
