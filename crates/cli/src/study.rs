@@ -363,11 +363,9 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     if args.simulate.is_some() || args.train.is_some() || args.resume {
         return validation_stage(args);
     }
-    if args.transfer.is_some() && !args.refit && !args.recommend {
+    if let Some(source) = args.transfer.as_deref().filter(|_| !args.refit && !args.recommend) {
         let mut report = hilo_study::validation::read(&args.out)?;
-        if let Some(source) = &args.transfer {
-            report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
-        }
+        report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
         for p in hilo_study::validation::write(&args.out, &report)? {
             eprintln!("wrote {}", p.display());
         }

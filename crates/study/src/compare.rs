@@ -58,13 +58,13 @@ pub struct RadarWorth {
 /// study, priced by the configurations they compare.
 fn radar_worth(reports: &[(ShardRecord, Report)]) -> Vec<RadarWorth> {
     let mut out = Vec::new();
+    let priced = ["radar_adds", "radar_adds_velocity"];
     for (s, r) in reports {
-        let priced = ["radar_adds", "radar_adds_velocity"];
+        let cost = |side: &[(String, String)]| -> Option<f64> {
+            let name = &side.first()?.0;
+            r.configurations.iter().find(|c| &c.name == name).map(|c| c.cost_usd)
+        };
         for c in r.claims.iter().filter(|c| priced.contains(&c.id.as_str()) && c.not_tested.is_none()) {
-            let cost = |side: &[(String, String)]| -> Option<f64> {
-                let name = &side.first()?.0;
-                r.configurations.iter().find(|c| &c.name == name).map(|c| c.cost_usd)
-            };
             for row in &c.rows {
                 let Some(extra) = cost(&row.b).zip(cost(&row.a)).map(|(b, a)| b - a) else { continue };
                 out.push(RadarWorth {

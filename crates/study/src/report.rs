@@ -510,13 +510,16 @@ fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
             );
         }
     }
-    let _ = writeln!(
+    let classes: Vec<String> = r.classes.iter().map(|c| c.name.clone()).collect();
+    md_rig_table(
         md,
-        "\nAP per class (seed mean; – where the class has no validation box):\n\n| configuration | preset | {} |\n|---|---|{}",
-        r.classes.iter().map(|c| c.name.clone()).collect::<Vec<_>>().join(" | "),
-        r.classes.iter().map(|_| "---:|").collect::<String>()
+        r,
+        presets,
+        "AP per class (seed mean; – where the class has no validation box)",
+        &classes,
+        &|e, k| e.class_ap.get(&classes[k]).copied().flatten(),
+        3,
     );
-    md_rig_rows(md, r, presets, r.classes.len(), &|e, k| e.class_ap.get(&r.classes[k].name).copied().flatten(), 3);
     md_velocity(md, r, presets);
     md_range(md, r, presets);
 }
@@ -529,35 +532,45 @@ fn md_range(md: &mut String, r: &Report, presets: &[String]) {
     }
     let head: Vec<String> =
         r.range_bins.iter().map(|(label, n)| format!("{label} ({} boxes)", n.values().sum::<usize>())).collect();
-    let _ = writeln!(
-        md,
-        "\nmAP by range from the intersection's origin (seed mean; each bin's mean over the classes with validation boxes in it; ranges and bins: `[evaluation]` in the study file):\n\n| configuration | preset | {} |\n|---|---|{}",
-        head.join(" | "),
-        r.range_bins.iter().map(|_| "---:|").collect::<String>()
-    );
     let value = |e: &Entry, k: usize| {
         let label = &r.range_bins[k].0;
         e.map_by_range.iter().find(|(l, _)| l == label).and_then(|(_, v)| *v)
     };
-    md_rig_rows(md, r, presets, r.range_bins.len(), &value, 3);
+    md_rig_table(
+        md,
+        r,
+        presets,
+        "mAP by range from the intersection's origin (seed mean; each bin's mean over the classes with validation boxes in it; ranges and bins: `[evaluation]` in the study file)",
+        &head,
+        &value,
+        3,
+    );
 }
 
-/// One row per (configuration, preset) with a detector: the seed mean of `value(entry, k)` for
-/// each of `columns` columns, with `digits` decimals ("–" where no seed has a value).
-fn md_rig_rows(
+/// A table introduced by `intro`, with a row per (configuration, preset) with a detector: the
+/// seed mean of `value(entry, k)` under each of `columns`, with `digits` decimals ("–" where
+/// no seed has a value).
+fn md_rig_table(
     md: &mut String,
     r: &Report,
     presets: &[String],
-    columns: usize,
+    intro: &str,
+    columns: &[String],
     value: &dyn Fn(&Entry, usize) -> Option<f64>,
     digits: usize,
 ) {
+    let _ = writeln!(
+        md,
+        "\n{intro}:\n\n| configuration | preset | {} |\n|---|---|{}",
+        columns.join(" | "),
+        columns.iter().map(|_| "---:|").collect::<String>()
+    );
     for c in &r.configurations {
         for pr in presets {
             if over_seeds(r, &c.name, pr, |e| Some(e.mean_ap)).is_none() {
                 continue;
             }
-            let cells: Vec<String> = (0..columns)
+            let cells: Vec<String> = (0..columns.len())
                 .map(|k| {
                     over_seeds(r, &c.name, pr, |e| value(e, k)).map_or("–".into(), |v| format!("{:.digits$}", v.0))
                 })
@@ -573,13 +586,16 @@ fn md_velocity(md: &mut String, r: &Report, presets: &[String]) {
     if !r.entries.iter().any(|e| e.mean_ave.is_finite()) {
         return;
     }
-    let _ = writeln!(
+    let classes: Vec<String> = r.classes.iter().map(|c| c.name.clone()).collect();
+    md_rig_table(
         md,
-        "\nVelocity error per class (AVE, m/s, seed mean; lower is better; 1.0 where a class has no true positive up to 10% recall, as the nuScenes devkit scores it):\n\n| configuration | preset | {} |\n|---|---|{}",
-        r.classes.iter().map(|c| c.name.clone()).collect::<Vec<_>>().join(" | "),
-        r.classes.iter().map(|_| "---:|").collect::<String>()
+        r,
+        presets,
+        "Velocity error per class (AVE, m/s, seed mean; lower is better; 1.0 where a class has no true positive up to 10% recall, as the nuScenes devkit scores it)",
+        &classes,
+        &|e, k| e.class_ave.get(&classes[k]).copied().flatten(),
+        2,
     );
-    md_rig_rows(md, r, presets, r.classes.len(), &|e, k| e.class_ave.get(&r.classes[k].name).copied().flatten(), 2);
 }
 
 /// The rig under study against the others, and the calibration of the test.
