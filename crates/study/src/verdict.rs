@@ -798,6 +798,52 @@ mod tests {
 
     const MARGINS: Margins = Margins { ap: 0.02, velocity_m_s: 0.1 };
 
+    /// The presets of these tests: `cp` (LiDAR only), `lf` (fusion) and, with an ablation,
+    /// `lf-no-early` (lf's); no counterparts or PointPillars heads.
+    struct Roles {
+        presets: Vec<String>,
+        ablations: Vec<String>,
+        ablation_of: BTreeMap<String, String>,
+        uses: BTreeMap<String, bool>,
+        counterpart: BTreeMap<String, String>,
+        pointpillars_head: std::collections::BTreeSet<String>,
+    }
+
+    impl Roles {
+        fn new(ablation: bool) -> Self {
+            let mut r = Roles {
+                presets: vec!["cp".to_string(), "lf".to_string()],
+                ablations: Vec::new(),
+                ablation_of: BTreeMap::new(),
+                uses: BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true)]),
+                counterpart: BTreeMap::new(),
+                pointpillars_head: std::collections::BTreeSet::new(),
+            };
+            if ablation {
+                r.uses.insert("lf-no-early".to_string(), true);
+                r.ablations.push("lf-no-early".to_string());
+                r.ablation_of.insert("lf-no-early".to_string(), "lf".to_string());
+            }
+            r
+        }
+
+        /// A design of `scores` over `configurations`, 20 scenes, 95% intervals.
+        fn design<'a>(&'a self, scores: &'a [DetectorScores], configurations: &'a [(String, f64, bool)]) -> Design<'a> {
+            Design {
+                scores,
+                configurations,
+                presets: &self.presets,
+                ablations: &self.ablations,
+                ablation_of: &self.ablation_of,
+                uses_radar: &self.uses,
+                counterpart: &self.counterpart,
+                pointpillars_head: &self.pointpillars_head,
+                scenes: 20,
+                level: 0.95,
+            }
+        }
+    }
+
     fn det(conf: &str, preset: &str, seed: u64, map: f64) -> DetectorScores {
         // 30 replicates that move every detector together (the same scenes drawn), plus a little.
         let reps = (0..30).map(|r| map + 0.01 * ((r % 7) as f64 - 3.0) + 0.001 * seed as f64).collect();
@@ -827,23 +873,8 @@ mod tests {
             ("64".to_string(), 20_750.0, false),
             ("64+R".to_string(), 22_750.0, true),
         ];
-        let uses =
-            BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true), ("lf-no-early".to_string(), true)]);
-        let presets = vec!["cp".to_string(), "lf".to_string()];
-        let ablations = vec!["lf-no-early".to_string()];
-        let ablation_of = BTreeMap::from([("lf-no-early".to_string(), "lf".to_string())]);
-        let d = Design {
-            scores: &scores,
-            configurations: &configurations,
-            presets: &presets,
-            ablations: &ablations,
-            ablation_of: &ablation_of,
-            uses_radar: &uses,
-            counterpart: &BTreeMap::new(),
-            pointpillars_head: &std::collections::BTreeSet::new(),
-            scenes: 20,
-            level: 0.95,
-        };
+        let roles = Roles::new(true);
+        let d = roles.design(&scores, &configurations);
         let mut claims = d.claims();
         let mut comps = d.comparisons();
         adjust(&mut claims, &mut comps, 0.05, MARGINS);
@@ -882,22 +913,8 @@ mod tests {
             scores.push(det("64+R", "lf", s, 0.62 + j));
         }
         let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("64+R".to_string(), 22_750.0, true)];
-        let uses =
-            BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true), ("lf-no-early".to_string(), true)]);
-        let (presets, ablations) = (vec!["cp".to_string(), "lf".to_string()], vec!["lf-no-early".to_string()]);
-        let ablation_of = BTreeMap::from([("lf-no-early".to_string(), "lf".to_string())]);
-        let d = Design {
-            scores: &scores,
-            configurations: &configurations,
-            presets: &presets,
-            ablations: &ablations,
-            ablation_of: &ablation_of,
-            uses_radar: &uses,
-            counterpart: &BTreeMap::new(),
-            pointpillars_head: &std::collections::BTreeSet::new(),
-            scenes: 20,
-            level: 0.95,
-        };
+        let roles = Roles::new(true);
+        let d = roles.design(&scores, &configurations);
         let (mut claims, mut comps) = (d.claims(), d.comparisons());
         adjust(&mut claims, &mut comps, 0.05, MARGINS);
         let by = |claims: &[Claim], id: &str| claims.iter().find(|c| c.id == id).unwrap().clone();
@@ -963,20 +980,8 @@ mod tests {
                 scores[0].scores.get_mut("car AVE").unwrap().full = f64::NAN;
             }
             let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("2x16".to_string(), 8_000.0, false)];
-            let uses = BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true)]);
-            let presets = vec!["cp".to_string(), "lf".to_string()];
-            let d = Design {
-                scores: &scores,
-                configurations: &configurations,
-                presets: &presets,
-                ablations: &[],
-                ablation_of: &BTreeMap::new(),
-                uses_radar: &uses,
-                counterpart: &BTreeMap::new(),
-                pointpillars_head: &std::collections::BTreeSet::new(),
-                scenes: 20,
-                level: 0.95,
-            };
+            let roles = Roles::new(false);
+            let d = roles.design(&scores, &configurations);
             let (mut claims, mut comps) = (d.claims(), d.comparisons());
             adjust(&mut claims, &mut comps, 0.05, MARGINS);
             let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap().clone();
