@@ -131,7 +131,8 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
 }
 
 /// Fixture and training seeds to run: the first `HILO_MOTION_SEEDS` (1 unless set; 5 for the
-/// robustness run `HILO_MOTION_SEEDS=5 cargo test --release -p hilo-cli --test fusion_motion`).
+/// robustness run `HILO_MOTION_SEEDS=5 cargo test --release -p hilo-cli --test fusion_motion`,
+/// with `HILO_MOTION_PRESETS` to pick presets).
 /// Seed k draws the fixture's training frames from 2k + 1, its validation frames from 2k + 2,
 /// and trains every detector with seed k: a CPU whose float path happens to favour one seed
 /// does not pass on it alone.
@@ -139,6 +140,22 @@ fn seeds() -> u64 {
     match std::env::var("HILO_MOTION_SEEDS") {
         Ok(v) => v.parse().unwrap_or_else(|_| panic!("HILO_MOTION_SEEDS={v:?}: a count of seeds (e.g. 5)")),
         Err(_) => 1,
+    }
+}
+
+/// The fusion presets to run: all of them, or those named in `HILO_MOTION_PRESETS`
+/// (comma-separated, e.g. `l4dr-like` to rerun one preset over many seeds).
+fn presets() -> Vec<&'static str> {
+    let all = ["pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "middle-attention", "late"];
+    match std::env::var("HILO_MOTION_PRESETS") {
+        Ok(v) => {
+            let named: Vec<&str> = v.split(',').map(str::trim).collect();
+            if let Some(bad) = named.iter().find(|n| !all.contains(n)) {
+                panic!("HILO_MOTION_PRESETS={v:?}: {bad:?} is not one of {all:?}");
+            }
+            all.into_iter().filter(|p| named.contains(p)).collect()
+        }
+        Err(_) => all.to_vec(),
     }
 }
 
@@ -154,19 +171,22 @@ fn every_fusion_preset_separates_classes_that_differ_only_by_motion() {
         // detector reaches 0.9 only through the radar's Doppler.
         let (tr, val) = (frames(2 * k + 1, 200), frames(2 * k + 2, 12));
         // Each fusion preset against the LiDAR-only preset it extends (same backbone and head).
-        let lidar_only = [
-            ("pointpillars", map_for("pointpillars", &r, &tr, &val, k)),
-            ("centerpoint", map_for("centerpoint", &r, &tr, &val, k)),
-        ];
-        for (lidar, base) in lidar_only {
+        let wanted = presets();
+        // Each LiDAR-only preset that one of the fusion presets to run extends.
+        let lidar_only: Vec<(&str, f64)> = [("pointpillars", true), ("centerpoint", false)]
+            .into_iter()
+            .filter(|&(_, pp)| wanted.iter().any(|n| (*n == "pointpillars-lr") == pp))
+            .map(|(lidar, _)| (lidar, map_for(lidar, &r, &tr, &val, k)))
+            .collect();
+        for &(lidar, base) in &lidar_only {
             assert!(
                 base < 0.6,
                 "seed {k}: {lidar} (LiDAR only) separates the classes: mAP {base:.3}; the fixture leaks the class into LiDAR"
             );
         }
-        for name in ["pointpillars-lr", "l4dr-like", "lirafusion-like", "bi-lrfusion-like", "middle-attention", "late"]
-        {
-            let (base_name, base) = if name == "pointpillars-lr" { lidar_only[0] } else { lidar_only[1] };
+        for name in presets() {
+            let base_name = if name == "pointpillars-lr" { "pointpillars" } else { "centerpoint" };
+            let base = lidar_only.iter().find(|(l, _)| *l == base_name).map(|&(_, m)| m).unwrap();
             let fused = map_for(name, &r, &tr, &val, k);
             eprintln!("seed {k}: {name} {fused:.3} against {base_name} {base:.3} (margin {:+.3})", fused - base);
             if fused < base + 0.25 {
