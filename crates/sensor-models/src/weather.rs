@@ -39,6 +39,20 @@ pub struct Weather {
 /// dB per km to an extinction coefficient per metre (power).
 const DB_PER_KM_TO_PER_M: f32 = std::f32::consts::LN_10 / 10.0 / 1000.0;
 
+impl std::fmt::Display for Weather {
+    /// "clear", or the rain rate and the fog's visibility, e.g. "fog (visibility 60 m)".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut parts = Vec::new();
+        if self.rain_mm_h > 0.0 {
+            parts.push(format!("rain ({} mm/h)", self.rain_mm_h));
+        }
+        if let Some(v) = self.fog_visibility_m {
+            parts.push(format!("fog (visibility {v} m)"));
+        }
+        if parts.is_empty() { f.write_str("clear") } else { f.write_str(&parts.join(" and ")) }
+    }
+}
+
 impl Weather {
     pub fn is_clear(&self) -> bool {
         self.rain_mm_h == 0.0 && self.fog_visibility_m.is_none()

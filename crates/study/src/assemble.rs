@@ -84,6 +84,9 @@ pub struct ConfigSummary {
     /// split) that no sensor of this rig hit; and per class.
     pub unseen_share: f64,
     pub unseen_by_class: BTreeMap<String, f64>,
+    /// The weather condition it was recorded in (`[[conditions]]`); None: the study's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub condition: Option<String>,
 }
 
 /// A class of the verdict's ground truth.
@@ -115,6 +118,13 @@ pub struct Report {
     pub entries: Vec<Entry>,
     pub comparisons: Vec<Comparison>,
     pub claims: Vec<Claim>,
+    /// The weather conditions the study ran (`[[conditions]]`; none when the profile leaves
+    /// them out).
+    #[serde(default)]
+    pub conditions: Vec<crate::study::Condition>,
+    /// What the radar adds and what it costs, in the study's own weather and in each condition.
+    #[serde(default)]
+    pub radar_value: Vec<crate::verdict::RadarValue>,
     /// The equivalence margin of the claims' TOST (the study file's `verdict.equivalence_margin`).
     #[serde(default)]
     pub margin: f64,
@@ -269,6 +279,8 @@ pub fn assemble(
     let (comparisons, mut claims, calibration) =
         verdict(prof, registry, &summaries, &det_scores, &planted, scenes.len(), margins);
     crate::verdict::budget_gate(&mut claims, &learning_curves);
+    let cost = |name: &str| summaries.iter().find(|c| c.name == name).map(|c| c.cost_usd);
+    let radar_value = crate::verdict::radar_value(&claims, &cost);
     let ranking_changed = ranking_changes(&learning_curves, &prof.presets);
     let cost_reduction = cost_reduction(&summaries);
     let report = Report {
@@ -284,6 +296,8 @@ pub fn assemble(
         entries,
         comparisons,
         claims,
+        conditions: if prof.conditions { study.file.conditions.clone() } else { Vec::new() },
+        radar_value,
         margin: margins.ap,
         velocity_margin_m_s: margins.velocity_m_s,
         calibration,
@@ -365,11 +379,12 @@ fn picture(
 /// more).
 fn cost_reduction(summaries: &[ConfigSummary]) -> BTreeMap<String, f64> {
     let mut out = BTreeMap::new();
-    let cheapest = |radar: bool| {
-        summaries.iter().filter(|s| s.has_radar || !radar).min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd))
-    };
+    // In the study's own weather: a condition's copy of a rig costs what the rig does.
+    let own = || summaries.iter().filter(|s| s.condition.is_none());
+    let cheapest =
+        |radar: bool| own().filter(|s| s.has_radar || !radar).min_by(|a, b| a.cost_usd.total_cmp(&b.cost_usd));
     if let Some(cheap) = cheapest(true).or_else(|| cheapest(false)) {
-        for s in summaries.iter().filter(|s| s.name != cheap.name) {
+        for s in own().filter(|s| s.name != cheap.name) {
             out.insert(s.name.clone(), 1.0 - cheap.cost_usd / s.cost_usd);
         }
     }
@@ -417,6 +432,7 @@ fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
             annotations: data.annotations,
             unseen_share: f64::NAN,
             unseen_by_class: BTreeMap::new(),
+            condition: plan.conditions[ci].clone(),
         });
     }
     Ok(summaries)
@@ -435,10 +451,13 @@ fn verdict(
 ) -> (Vec<Comparison>, Vec<Claim>, Calibration) {
     let conf_roles: Vec<(String, f64, bool)> =
         summaries.iter().map(|s| (s.name.clone(), s.cost_usd, s.has_radar)).collect();
+    let conditions: BTreeMap<String, String> =
+        summaries.iter().filter_map(|s| Some((s.name.clone(), s.condition.clone()?))).collect();
     let roles = PresetRoles::of(prof, registry);
     let design = Design {
         scores: det_scores,
         configurations: &conf_roles,
+        conditions: &conditions,
         presets: &prof.presets,
         ablations: &prof.ablations,
         ablation_of: &roles.ablation_of,

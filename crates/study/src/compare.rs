@@ -55,29 +55,26 @@ pub struct RadarWorth {
 }
 
 /// The `radar_adds` rows (accuracy) and `radar_adds_velocity` rows (velocity error) of each
-/// study, priced by the configurations they compare.
+/// study, priced by the configurations they compare ([`crate::verdict::radar_value`]); a study's
+/// weather conditions as "<study> (<condition>)".
 fn radar_worth(reports: &[(ShardRecord, Report)]) -> Vec<RadarWorth> {
     let mut out = Vec::new();
-    let priced = ["radar_adds", "radar_adds_velocity"];
     for (s, r) in reports {
-        let cost = |side: &[(String, String)]| -> Option<f64> {
-            let name = &side.first()?.0;
-            r.configurations.iter().find(|c| &c.name == name).map(|c| c.cost_usd)
-        };
-        for c in r.claims.iter().filter(|c| priced.contains(&c.id.as_str()) && c.not_tested.is_none()) {
-            for row in &c.rows {
-                let Some(extra) = cost(&row.b).zip(cost(&row.a)).map(|(b, a)| b - a) else { continue };
-                out.push(RadarWorth {
-                    study: s.name.clone(),
-                    metric: row.metric.clone(),
-                    estimate: row.test.estimate,
-                    lo: row.test.lo,
-                    hi: row.test.hi,
-                    extra_cost_usd: extra,
-                    per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
-                    verdict: row.verdict,
-                });
-            }
+        let cost = |name: &str| r.configurations.iter().find(|c| c.name == name).map(|c| c.cost_usd);
+        for v in crate::verdict::radar_value(&r.claims, &cost) {
+            out.push(RadarWorth {
+                study: match &v.condition {
+                    Some(c) => format!("{} ({c})", s.name),
+                    None => s.name.clone(),
+                },
+                metric: v.metric,
+                estimate: v.estimate,
+                lo: v.lo,
+                hi: v.hi,
+                extra_cost_usd: v.extra_cost_usd,
+                per_1000_usd: v.per_1000_usd,
+                verdict: v.verdict,
+            });
         }
     }
     out

@@ -1,15 +1,18 @@
 //! The study as a library: what `hilo study` runs, callable (and testable) in-process.
 //!
-//! - [`study`]: the study file (scene, catalog, placement and dataset settings, configurations),
-//!   loaded with its scene and catalog and their content hashes;
+//! - [`study`]: the study file (scene, catalog, placement and dataset settings, configurations,
+//!   weather conditions), loaded with its scene and catalog and their content hashes;
 //! - [`place`]: placement of every configuration over visibility computed once;
 //! - [`rig`]: a placement's sensor rig and its dataset;
 //! - [`gt`]: ground truth (nuScenes' visible-only, or the common one every rig is scored on);
-//! - [`profile`], [`plan`]: a study's scale, and its stages with their content hashes;
+//! - [`profile`], [`plan`]: a study's scale, and its stages with their content hashes (a weather
+//!   condition's configurations are configurations of the plan: the base configuration's
+//!   placement, a dataset in the condition's weather, the same detectors);
 //! - [`stages`]: each stage on its own (place, simulate, train, report), as a workflow engine
 //!   runs them; [`run`]: all of them in one process, with a progress callback;
 //! - [`assemble`], [`stats`], [`verdict`]: the verdict from the stage outputs (common ground
-//!   truth, scene bootstrap with pooled seed variance, Holm, calibration, the paper's claims);
+//!   truth, scene bootstrap with pooled seed variance, Holm, calibration, the paper's claims;
+//!   the radar's claims again per weather condition, and the radar's value per $1,000);
 //! - [`tradeoff`]: placement's speed-against-error sweeps;
 //! - [`validation`] and [`rank`]: does the placement objective predict trained accuracy? A set
 //!   of placements of the study's scene, predictors computed without training, trained accuracy

@@ -6,6 +6,8 @@
 //! ```text
 //! placements/<h>/            every configuration placed        h = code, scene, catalog, study
 //! data/<slug>-<h>/           one configuration's dataset        h = placements, configuration, dataset settings
+//!                            (a configuration in a weather condition: `<slug>_in_<condition>`, the
+//!                            condition's weather in its settings, its base configuration's placement)
 //! runs/<slug>/<preset>-seed<k>-<h>/   one trained detector      h = dataset, detector, schedule
 //! results/<slug>/<preset>-seed<k>-<h>.json   its detections on the validation split (the run's h)
 //! ```
@@ -167,9 +169,18 @@ pub struct Plan {
     pub out: PathBuf,
     /// Hash of the study file, scene, catalog and profile: the folder holds this study only.
     pub fingerprint: String,
+    /// The profile's configurations of the study, then (when the profile runs them) those of
+    /// each weather condition, named "<configuration> in <condition>".
     pub configurations: Vec<Configuration>,
     /// Whether each configuration has a radar (the catalog's sensor kind decides).
     pub radar: Vec<bool>,
+    /// Per configuration, the configuration whose placement it records (itself, or the one a
+    /// weather condition records again).
+    pub placed: Vec<usize>,
+    /// Per configuration, its weather condition's name (None: the study's own weather).
+    pub conditions: Vec<Option<String>>,
+    /// Per configuration, the settings its dataset is recorded with (the condition's weather).
+    pub datasets: Vec<Valid<hilo_dataset::simulate::SimulateConfig>>,
     pub placements: PathBuf,
     pub tradeoffs: PathBuf,
     pub data: Vec<DataStage>,
@@ -190,8 +201,15 @@ impl Plan {
         }
         let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
         let fingerprint = hash(&[&defining(&study.file), &pjson, &study.scene_hash, &study.catalog_hash]);
-        let configurations: Vec<Configuration> =
+        let mut configurations: Vec<Configuration> =
             study.file.configurations.iter().take(profile.configurations.unwrap_or(usize::MAX)).cloned().collect();
+        let mut skipped = Vec::new();
+        let (conditioned, conditions, datasets) = conditioned(study, profile, &configurations, &mut skipped)?;
+        let mut placed: Vec<usize> = (0..configurations.len()).collect();
+        for (base, c) in conditioned {
+            configurations.push(c);
+            placed.push(base);
+        }
         let radar: Vec<bool> = configurations.iter().map(|c| c.has_radar(&study.catalog)).collect();
         let place_hash = stage_hash(
             "placements",
@@ -207,14 +225,14 @@ impl Plan {
             .join(format!("tradeoffs-{}.json", profile.tradeoff_cell_m.map_or("study".into(), |c| c.to_string())));
         let data: Vec<DataStage> = configurations
             .iter()
-            .map(|c| {
-                let h = stage_hash("data", &[&place_hash, &c.name, &format!("{:?}", profile.dataset)]);
+            .zip(&datasets)
+            .map(|(c, dataset)| {
+                let h = stage_hash("data", &[&place_hash, &c.name, &format!("{dataset:?}")]);
                 DataStage { dir: out.join("data").join(format!("{}-{}", c.slug(), short(&h))), hash: h }
             })
             .collect();
         let ablation_rig = radar.iter().position(|&r| r);
         let mut jobs = Vec::new();
-        let mut skipped = Vec::new();
         for (ci, conf) in configurations.iter().enumerate() {
             let ablations = profile.ablations.iter().filter(|_| ablation_rig == Some(ci));
             for preset in profile.presets.iter().chain(ablations) {
@@ -274,6 +292,9 @@ impl Plan {
             fingerprint,
             configurations,
             radar,
+            placed,
+            conditions,
+            datasets,
             placements,
             tradeoffs,
             data,
@@ -284,12 +305,13 @@ impl Plan {
 
     /// Where configuration `ci`'s placement is written.
     pub fn placement(&self, ci: usize) -> PathBuf {
-        self.placements.join(format!("{}.json", self.configurations[ci].slug()))
+        self.placements.join(format!("{}.json", self.configurations[self.placed[ci]].slug()))
     }
 
     /// The place stage's outputs.
     pub fn placement_outputs(&self) -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> = (0..self.configurations.len()).map(|ci| self.placement(ci)).collect();
+        let mut v: Vec<PathBuf> =
+            (0..self.configurations.len()).filter(|&ci| self.placed[ci] == ci).map(|ci| self.placement(ci)).collect();
         v.push(self.tradeoffs.clone());
         v
     }
@@ -354,6 +376,42 @@ impl Plan {
     }
 }
 
+/// The configurations the study's weather conditions record again (each with the index of the
+/// configuration it copies), and every configuration's condition and dataset settings: the
+/// profile's configurations first, in the study's own weather. A condition's configuration the
+/// profile leaves out is skipped, and said so in `skipped`.
+#[allow(clippy::type_complexity)]
+fn conditioned(
+    study: &Study,
+    profile: &Profile,
+    base: &[Configuration],
+    skipped: &mut Vec<String>,
+) -> Result<(Vec<(usize, Configuration)>, Vec<Option<String>>, Vec<Valid<hilo_dataset::simulate::SimulateConfig>>)> {
+    let mut out = Vec::new();
+    let mut conditions = vec![None; base.len()];
+    let mut datasets = vec![profile.dataset.clone(); base.len()];
+    for cond in study.file.conditions.iter().filter(|_| profile.conditions) {
+        let dataset =
+            hilo_dataset::simulate::SimulateConfig { weather: cond.weather, ..profile.dataset.clone().into_inner() }
+                .validate()
+                .map_err(|e| StudyError::Invalid(format!("{}: conditions ({:?}): {e}", study.source, cond.name)))?;
+        for name in &cond.configurations {
+            let Some(bi) = base.iter().position(|c| c.name == *name) else {
+                skipped.push(format!(
+                    "{}: skipped (profile {} leaves the configuration {name:?} out)",
+                    cond.label(name),
+                    profile.name
+                ));
+                continue;
+            };
+            out.push((bi, Configuration { name: cond.label(name), ..base[bi].clone() }));
+            conditions.push(Some(cond.name.clone()));
+            datasets.push(dataset.clone());
+        }
+    }
+    Ok((out, conditions, datasets))
+}
+
 /// Whether a study folder holds a file a stage wrote: anything but the folder's record, the
 /// workflow files and the logs of a workflow engine.
 fn holds_stage_output(out: &Path) -> bool {
@@ -397,10 +455,12 @@ impl FolderRecord {
 /// fingerprint: everything but the `[verdict]` settings, which only change how the report
 /// judges (a new margin rewrites the report, not the trained detectors), and the `[validation]`
 /// settings, which only `hilo validate` reads. Written as the file's
-/// derived `Debug` was before the section existed, so folders made then still open.
+/// derived `Debug` was before the section existed (and without `conditions` when there are
+/// none), so folders made then still open.
 fn defining(f: &crate::study::StudyFile) -> String {
+    let conditions = if f.conditions.is_empty() { String::new() } else { format!(", conditions: {:?}", f.conditions) };
     format!(
-        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?} }}",
+        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions} }}",
         f.scene, f.catalog, f.placement, f.dataset, f.configurations
     )
 }
@@ -422,5 +482,13 @@ mod tests {
             .replace(&format!(", validation: {:?}", file.validation), "")
             .replace(&format!(", evaluation: {:?}", file.evaluation), "");
         assert_eq!(defining(&file), whole);
+        // Without conditions the text is what it was before they existed.
+        let bare = crate::study::StudyFile { conditions: Vec::new(), ..file };
+        let whole = format!("{bare:?}")
+            .replace(&format!(", verdict: {:?}", bare.verdict), "")
+            .replace(&format!(", validation: {:?}", bare.validation), "")
+            .replace(&format!(", evaluation: {:?}", bare.evaluation), "")
+            .replace(", conditions: []", "");
+        assert_eq!(defining(&bare), whole);
     }
 }

@@ -40,6 +40,10 @@ pub struct Profile {
     /// Target cell size of the placement speed-against-error sweeps (the study's when None).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tradeoff_cell_m: Option<f32>,
+    /// Whether the study file's weather conditions (`[[conditions]]`) run: their
+    /// configurations recorded again in each condition and trained like the others.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub conditions: bool,
     /// What this profile leaves out of the paper's design, and which profile adds it.
     pub leaves_out: String,
 }
@@ -73,7 +77,8 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 200,
             trainings_at_once: 2,
             tradeoff_cell_m: Some(2.0),
-            leaves_out: "the study's configurations after its first two, the fusion detectors, a third seed and longer training: the default profile adds them".into(),
+            conditions: false,
+            leaves_out: "the study's configurations after its first two, its weather conditions, the fusion detectors, a third seed and longer training: the default profile adds them".into(),
         },
         "default" => Profile {
             name: name.into(),
@@ -88,6 +93,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 400,
             trainings_at_once: 2,
             tradeoff_cell_m: None,
+            conditions: true,
             leaves_out: "the study's configurations after its first four, the other detector presets (pointpillars, pointpillars-lr, l4dr-like, bi-lrfusion-like, late) and the l4dr-like ablation, and each preset's default schedule (6,000 samples here against 30,000 for centerpoint, 24,000 for lirafusion-like, 12,000 for the others): `--profile paper` adds them; 6,000 samples leave every detector short of its plateau (the learning curves show it)".into(),
         },
         "paper" => Profile {
@@ -103,6 +109,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 1000,
             trainings_at_once: 2,
             tradeoff_cell_m: None,
+            conditions: true,
             leaves_out: "nothing of the paper's design; its 37 scenes at 20 Hz are 30 training scenes at 20 Hz and 20 validation scenes at 2 Hz here".into(),
         },
         "tiny" => Profile {
@@ -118,6 +125,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 40,
             trainings_at_once: 2,
             tradeoff_cell_m: Some(5.0),
+            conditions: false,
             leaves_out: "everything that takes time: a test profile".into(),
         },
         other => return Err(StudyError::Invalid(format!("--profile {other:?}: use quick, default or paper"))),

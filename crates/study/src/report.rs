@@ -205,14 +205,14 @@ fn validation_section(out: &Path, study: &str) -> Result<String> {
 }
 
 fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
-    // mAP against cost, per preset: seed mean with the seeds' range.
-    let max_cost = r.configurations.iter().map(|c| c.cost_usd).fold(0.0, f64::max);
+    // mAP against cost, per preset: seed mean with the seeds' range, in the study's own weather
+    // (a condition's copy of a rig costs the same; its line would fold back on itself).
+    let own = || r.configurations.iter().filter(|c| c.condition.is_none());
+    let max_cost = own().map(|c| c.cost_usd).fold(0.0, f64::max);
     let series: Vec<Series> = presets
         .iter()
         .filter_map(|p| {
-            let mut pts: Vec<(f64, f64, f64, f64)> = r
-                .configurations
-                .iter()
+            let mut pts: Vec<(f64, f64, f64, f64)> = own()
                 .filter_map(|c| over_seeds(r, &c.name, p, |e| Some(e.mean_ap)).map(|m| (c.cost_usd, m.0, m.1, m.2)))
                 .collect();
             pts.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -220,8 +220,7 @@ fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
         })
         .collect();
     let y_max = series.iter().flat_map(|s| s.points.iter().map(|p| p.3)).fold(0.1, f64::max) * 1.15;
-    let notes: Vec<(f64, f64, String)> =
-        r.configurations.iter().map(|c| (c.cost_usd, 0.02 * y_max, c.name.clone())).collect();
+    let notes: Vec<(f64, f64, String)> = own().map(|c| (c.cost_usd, 0.02 * y_max, c.name.clone())).collect();
     save(
         fig,
         "map_vs_cost",
@@ -330,6 +329,7 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
     let mut md = String::new();
     md_header(&mut md, r);
     md_claims(&mut md, r);
+    md_weather(&mut md, r);
     md_configurations(&mut md, r);
     md_accuracy(&mut md, r, presets);
     md_comparisons(&mut md, r);
@@ -441,6 +441,52 @@ fn md_claims(md: &mut String, r: &Report) {
         }
     }
     let _ = writeln!(md, "\nWhat this profile leaves out: {}.\n", p.leaves_out);
+}
+
+/// What the radar adds and costs in the study's own weather and in each condition.
+fn md_weather(md: &mut String, r: &Report) {
+    if r.radar_value.is_empty() {
+        return;
+    }
+    let own = r.profile.dataset.weather;
+    let _ = writeln!(
+        md,
+        "## What the radar is worth, per weather\n\nThe rig under study with its radar (fused) against the LiDAR-only rig (LiDAR-only preset): the `radar_adds` and `radar_adds_velocity` claims above, in the study's own weather ({own}){}. Per $1,000 of what the radar rig costs more; for a velocity error (m/s) below 0 the radar lowers it.\n\n| weather | metric | radar adds [95%] | per $1,000 | extra cost | verdict |\n|---|---|---|---:|---:|---|",
+        if r.conditions.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " and in each condition, where {} were recorded again at the same poses with the same traffic and their detectors trained the same way",
+                r.conditions
+                    .iter()
+                    .map(|c| format!("{} ({})", c.configurations.join(", "), c.name))
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            )
+        }
+    );
+    for v in &r.radar_value {
+        let weather = match &v.condition {
+            None => format!("{own} (the study's)"),
+            Some(name) => match r.conditions.iter().find(|c| &c.name == name) {
+                Some(c) => format!("{name}: {}", c.weather),
+                None => name.clone(),
+            },
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {:+.3} [{:+.3}, {:+.3}] | {} | {} | {} |",
+            esc(&weather),
+            v.metric,
+            v.estimate,
+            v.lo,
+            v.hi,
+            v.per_1000_usd.map_or("–".into(), |x| format!("{x:+.4}")),
+            dollars(&v.extra_cost_usd),
+            verdict_word(v.verdict)
+        );
+    }
+    md.push('\n');
 }
 
 /// Each configuration: cost, coverage, placement, sensors.

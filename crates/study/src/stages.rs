@@ -83,7 +83,7 @@ pub fn simulate(
         )));
     }
     let placement = Placement::load(&ppath)?;
-    record_dataset(study, &placement, &ppath, &plan.profile.dataset, stage, &conf.name, progress)
+    record_dataset(study, &placement, &ppath, &plan.datasets[ci], stage, &conf.name, progress)
 }
 
 /// Records `placement`'s dataset into `stage` (resumable scene by scene) and writes the stage's

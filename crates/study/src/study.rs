@@ -36,6 +36,64 @@ pub struct StudyFile {
     #[serde(default)]
     pub evaluation: EvaluationSettings,
     pub configurations: Vec<Configuration>,
+    /// Adverse conditions: configurations recorded again in another weather (`[[conditions]]`).
+    #[serde(default)]
+    pub conditions: Vec<Condition>,
+}
+
+/// A weather condition of the study (`[[conditions]]`): the named configurations recorded again,
+/// at the same poses and with the same traffic, in this weather, and the study's detectors
+/// trained on them, so that the verdict judges the radar's claims and prices the radar per
+/// condition. The configurations keep the study's own `[dataset.weather]` (clear by default).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Condition {
+    pub name: String,
+    pub weather: hilo_sensor_models::Weather,
+    /// The study's configurations recorded in this weather, by name.
+    pub configurations: Vec<String>,
+}
+
+impl Condition {
+    /// The name of configuration `base` recorded in this condition.
+    pub fn label(&self, base: &str) -> String {
+        format!("{base} in {}", self.name)
+    }
+
+    /// A named weather, configurations that exist, once each, and names that stay apart from
+    /// the configurations' file names; the error names the field and value.
+    fn check(&self, i: usize, file: &StudyFile) -> std::result::Result<(), String> {
+        let at = format!("conditions[{i}] ({:?})", self.name);
+        if slug(&self.name).is_empty() {
+            return Err(format!("conditions[{i}].name = {:?} has no ASCII letter or digit", self.name));
+        }
+        self.weather.check().map_err(|e| format!("{at}: {e}"))?;
+        if self.weather == file.dataset.weather {
+            return Err(format!("{at}: its weather is the study's own `[dataset.weather]`; nothing would change"));
+        }
+        if self.configurations.is_empty() {
+            return Err(format!("{at}: configurations = []: name the configurations to record in this weather"));
+        }
+        for (k, name) in self.configurations.iter().enumerate() {
+            if !file.configurations.iter().any(|c| c.name == *name) {
+                let names: Vec<&str> = file.configurations.iter().map(|c| c.name.as_str()).collect();
+                return Err(format!(
+                    "{at}: configurations[{k}] = {name:?} is not a configuration of the study ({names:?})"
+                ));
+            }
+            if self.configurations[..k].contains(name) {
+                return Err(format!("{at}: configurations[{k}] = {name:?} is named twice"));
+            }
+            let label = slug(&self.label(name));
+            if let Some(c) = file.configurations.iter().find(|c| c.slug() == label) {
+                return Err(format!(
+                    "{at}: {name:?} in this condition becomes the file name {label:?}, as configuration {:?} does; rename one",
+                    c.name
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The `[evaluation]` section of a study file.
@@ -278,6 +336,15 @@ impl Study {
         if !(v > 0.0 && v < 10.0) {
             return Err(bad(format!("verdict.velocity_equivalence_margin_m_s = {v}: must be in (0, 10) m/s")));
         }
+        for (i, c) in file.conditions.iter().enumerate() {
+            c.check(i, &file).map_err(bad)?;
+            if let Some(j) = file.conditions[..i].iter().position(|o| slug(&o.name) == slug(&c.name)) {
+                return Err(bad(format!(
+                    "conditions[{i}].name = {:?}: conditions[{j}] has the same name (as a file name)",
+                    c.name
+                )));
+            }
+        }
         let dataset = file.dataset.clone().validate()?;
         let placement = file.placement.clone().validate()?;
         let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
@@ -377,6 +444,41 @@ mod tests {
             ("[verdict]\nvelocity_equivalence_margin_m_s = 0.0\n", "velocity_equivalence_margin_m_s = 0"),
         ] {
             let e = parse(extra).err().map(|e| e.to_string()).unwrap_or_default();
+            assert!(e.contains(needle) && e.contains("s.toml"), "{extra:?}: {e}");
+        }
+    }
+
+    /// `[[conditions]]` name configurations of the study, once each, in a weather other than
+    /// the study's own; anything else is refused with the field and value.
+    #[test]
+    fn conditions_are_checked() {
+        let fog = |configs: &str, weather: &str| {
+            format!("[[conditions]]\nname = \"dense fog\"\nweather = {{ {weather} }}\nconfigurations = [{configs}]\n")
+        };
+        let s = parse(&fog("\"2x lidar-16\"", "fog_visibility_m = 50.0")).unwrap();
+        let c = &s.file.conditions.iter().find(|c| c.name == "dense fog").unwrap();
+        assert_eq!(c.label("2x lidar-16"), "2x lidar-16 in dense fog");
+        assert_eq!(c.weather.to_string(), "fog (visibility 50 m)");
+        for (extra, needle) in [
+            (
+                fog("\"3x lidar-16\"", "fog_visibility_m = 50.0"),
+                "configurations[0] = \"3x lidar-16\" is not a configuration",
+            ),
+            (fog("\"2x lidar-16\", \"2x lidar-16\"", "fog_visibility_m = 50.0"), "named twice"),
+            (fog("", "fog_visibility_m = 50.0"), "configurations = []"),
+            (fog("\"2x lidar-16\"", ""), "the study's own `[dataset.weather]`"),
+            (fog("\"2x lidar-16\"", "fog_visibility_m = 5.0"), "fog_visibility_m = 5"),
+            (fog("\"2x lidar-16\"", "snow = 1.0"), "snow"),
+            (
+                format!("{}{}", fog("\"2x lidar-16\"", "rain_mm_h = 5.0"), fog("\"1x lidar-64\"", "rain_mm_h = 9.0")),
+                "conditions[2].name = \"dense fog\": conditions[1] has the same name",
+            ),
+            (
+                "[[configurations]]\nname = \"2x lidar-16 in fog\"\nsensors = { \"lidar-16\" = 2 }\n".to_string(),
+                "becomes the file name \"2x_lidar_16_in_fog\"",
+            ),
+        ] {
+            let e = parse(&extra).err().map(|e| e.to_string()).unwrap_or_default();
             assert!(e.contains(needle) && e.contains("s.toml"), "{extra:?}: {e}");
         }
     }

@@ -16,6 +16,59 @@ pub const METRICS: [&str; 2] = ["mAP", "pedestrian AP"];
 /// most).
 pub const VELOCITY_METRICS: [&str; 2] = ["mAVE", "car AVE"];
 
+/// The claims judged again in each weather condition: what the radar adds, in accuracy and in
+/// velocity, to the rig under study and to the cheapest LiDAR-only rig.
+pub const CONDITION_CLAIMS: [&str; 4] =
+    ["radar_adds", "radar_adds_velocity", "fusion_vs_lidar_only", "fusion_lowers_velocity_error"];
+
+/// What the radar adds on one metric in one weather: a row of the `radar_adds` (accuracy) or
+/// `radar_adds_velocity` (velocity error) claim, priced by what the rig with the radar costs
+/// over the LiDAR-only rig it is compared with.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RadarValue {
+    /// The weather condition; None: the study's own weather.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub condition: Option<String>,
+    pub metric: String,
+    /// The rig with the radar, fused, minus the LiDAR-only rig, and its 95% interval.
+    pub estimate: f64,
+    pub lo: f64,
+    pub hi: f64,
+    /// What the rig with the radar costs over the LiDAR-only one (USD).
+    pub extra_cost_usd: f64,
+    /// `estimate` per $1,000 of `extra_cost_usd` (None when it costs nothing more).
+    pub per_1000_usd: Option<f64>,
+    pub verdict: Verdict,
+}
+
+/// The radar's value in every weather the claims were judged in: each tested row of
+/// `radar_adds` and `radar_adds_velocity` (and of their `@<condition>` copies), priced by `cost`
+/// (a configuration's cost by name).
+pub fn radar_value(claims: &[Claim], cost: &dyn Fn(&str) -> Option<f64>) -> Vec<RadarValue> {
+    let priced = ["radar_adds", "radar_adds_velocity"];
+    let side = |v: &[(String, String)]| v.first().and_then(|(c, _)| cost(c));
+    let mut out = Vec::new();
+    for c in claims.iter().filter(|c| c.not_tested.is_none()) {
+        if !priced.contains(&c.id.split('@').next().unwrap_or_default()) {
+            continue;
+        }
+        for row in &c.rows {
+            let Some(extra) = side(&row.b).zip(side(&row.a)).map(|(b, a)| b - a) else { continue };
+            out.push(RadarValue {
+                condition: c.condition.clone(),
+                metric: row.metric.clone(),
+                estimate: row.test.estimate,
+                lo: row.test.lo,
+                hi: row.test.hi,
+                extra_cost_usd: extra,
+                per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
+                verdict: row.verdict,
+            });
+        }
+    }
+    out
+}
+
 /// Whether a metric is an error, where a smaller value is the better one.
 pub fn lower_is_better(metric: &str) -> bool {
     VELOCITY_METRICS.contains(&metric)
@@ -121,6 +174,9 @@ pub struct Claim {
     pub paper_relation: Option<PaperRelation>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mde: Option<f64>,
+    /// The weather condition it is judged in (`[[conditions]]`); None: the study's own weather.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub condition: Option<String>,
 }
 
 /// The test's measured calibration in this study.
@@ -159,11 +215,14 @@ pub struct Curve {
 }
 
 /// Everything the verdict needs about the study's design.
-#[derive(Debug)]
+#[derive(Clone, Copy, Debug)]
 pub struct Design<'a> {
     pub scores: &'a [DetectorScores],
     /// Configurations with cost and whether they have a radar.
     pub configurations: &'a [(String, f64, bool)],
+    /// The weather condition of each configuration recorded in one (`[[conditions]]`), by name;
+    /// the others are in the study's own weather.
+    pub conditions: &'a BTreeMap<String, String>,
     /// Presets trained on every configuration, in order; and ablations (cheapest only).
     pub presets: &'a [String],
     pub ablations: &'a [String],
@@ -266,8 +325,36 @@ impl Design<'_> {
         cheapest(true).or_else(|| cheapest(false))
     }
 
-    /// The rig under study against every other one, per preset and metric.
+    /// The configurations recorded in `condition` (None: the study's own weather).
+    fn in_condition(&self, condition: Option<&str>) -> Vec<(String, f64, bool)> {
+        self.configurations
+            .iter()
+            .filter(|c| self.conditions.get(&c.0).map(String::as_str) == condition)
+            .cloned()
+            .collect()
+    }
+
+    /// The weather conditions of the design, in order of first appearance.
+    fn condition_names(&self) -> Vec<&str> {
+        let mut out: Vec<&str> = Vec::new();
+        for c in self.configurations {
+            if let Some(k) = self.conditions.get(&c.0)
+                && !out.contains(&k.as_str())
+            {
+                out.push(k);
+            }
+        }
+        out
+    }
+
+    /// The rig under study against every other one in the study's own weather, per preset
+    /// and metric.
     pub fn comparisons(&self) -> Vec<Comparison> {
+        let own = self.in_condition(None);
+        Design { configurations: &own, ..*self }.comparisons_here()
+    }
+
+    fn comparisons_here(&self) -> Vec<Comparison> {
         let mut out = Vec::new();
         let Some(cheap) = self.under_study() else { return out };
         for other in self.configurations.iter().filter(|c| c.0 != cheap.0) {
@@ -291,11 +378,28 @@ impl Design<'_> {
     /// each other with the fusion detector, fusion against LiDAR only and the ablation, and
     /// the rigs over every preset; then the confounds: what the radar adds to a rig, and what
     /// two viewpoints add.
+    ///
+    /// Then, per weather condition, the claims about the radar judged on that condition's
+    /// configurations alone ([`CONDITION_CLAIMS`]): their ids end in `@<condition>`.
     pub fn claims(&self) -> Vec<Claim> {
-        let mut claims = self.claims_rigs();
-        claims.extend(self.claims_confounds());
-        claims.extend(self.claims_fusion());
-        claims.extend(self.claims_pooled());
+        let own = self.in_condition(None);
+        let here = Design { configurations: &own, ..*self };
+        let mut claims = here.claims_rigs();
+        claims.extend(here.claims_confounds());
+        claims.extend(here.claims_fusion());
+        claims.extend(here.claims_pooled());
+        for cond in self.condition_names() {
+            let confs = self.in_condition(Some(cond));
+            let there = Design { configurations: &confs, ..*self };
+            let mut found = there.claims_confounds();
+            found.extend(there.claims_fusion());
+            for mut c in found.into_iter().filter(|c| CONDITION_CLAIMS.contains(&c.id.as_str())) {
+                c.id = format!("{}@{cond}", c.id);
+                c.statement = format!("{}, in {cond}", c.statement);
+                c.condition = Some(cond.to_owned());
+                claims.push(c);
+            }
+        }
         claims
     }
 
@@ -643,6 +747,7 @@ fn claim(id: &str, statement: &str, rows: Vec<ClaimRow>, missing: Option<String>
         per_preset: BTreeMap::new(),
         paper_relation: None,
         mde: None,
+        condition: None,
     }
 }
 
@@ -807,6 +912,7 @@ mod tests {
         uses: BTreeMap<String, bool>,
         counterpart: BTreeMap<String, String>,
         pointpillars_head: std::collections::BTreeSet<String>,
+        conditions: BTreeMap<String, String>,
     }
 
     impl Roles {
@@ -818,6 +924,7 @@ mod tests {
                 uses: BTreeMap::from([("cp".to_string(), false), ("lf".to_string(), true)]),
                 counterpart: BTreeMap::new(),
                 pointpillars_head: std::collections::BTreeSet::new(),
+                conditions: BTreeMap::new(),
             };
             if ablation {
                 r.uses.insert("lf-no-early".to_string(), true);
@@ -832,6 +939,7 @@ mod tests {
             Design {
                 scores,
                 configurations,
+                conditions: &self.conditions,
                 presets: &self.presets,
                 ablations: &self.ablations,
                 ablation_of: &self.ablation_of,
@@ -1002,5 +1110,62 @@ mod tests {
         assert!(equal.rows[0].tost_p < 0.05 && equal.rows[0].tost_p.is_finite());
         let (partial, _) = verdicts(0.6, false);
         assert_eq!(partial.rows.iter().map(|r| r.metric.as_str()).collect::<Vec<_>>(), ["mAVE"]);
+    }
+
+    /// A weather condition's configurations are judged apart: the study's claims and
+    /// comparisons read the configurations in its own weather only (a fog copy of the cheap rig
+    /// costs the same and is never taken for it), and each condition gets the radar's claims
+    /// again on its own configurations, ids ending in `@<condition>`.
+    #[test]
+    fn conditions_are_judged_on_their_own_configurations() {
+        let mut scores = Vec::new();
+        for s in 0..3 {
+            let j = 0.004 * s as f64;
+            for (rig, cp, lf) in [("2x16+R", 0.70, 0.72), ("2x16+R in fog", 0.40, 0.60)] {
+                scores.push(det_v(rig, "cp", s, cp + j, 1.5 + j));
+                scores.push(det_v(rig, "lf", s, lf + j, 0.5 + j));
+            }
+            scores.push(det_v("2x16", "cp", s, 0.69 + j, 1.6 + j));
+            scores.push(det_v("2x16 in fog", "cp", s, 0.35 + j, 1.7 + j));
+            scores.push(det_v("64", "cp", s, 0.60 + j, 1.6 + j));
+        }
+        let configurations = vec![
+            ("2x16+R".to_string(), 10_000.0, true),
+            ("64".to_string(), 20_750.0, false),
+            ("2x16".to_string(), 8_000.0, false),
+            ("2x16+R in fog".to_string(), 10_000.0, true),
+            ("2x16 in fog".to_string(), 8_000.0, false),
+        ];
+        let mut roles = Roles::new(false);
+        roles.conditions = BTreeMap::from([
+            ("2x16+R in fog".to_string(), "fog".to_string()),
+            ("2x16 in fog".to_string(), "fog".to_string()),
+        ]);
+        let d = roles.design(&scores, &configurations);
+        let (mut claims, mut comps) = (d.claims(), d.comparisons());
+        adjust(&mut claims, &mut comps, 0.05, MARGINS);
+        let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap();
+        // The study's own claims never name a fog configuration.
+        for c in claims.iter().filter(|c| c.condition.is_none()) {
+            for r in &c.rows {
+                assert!(r.a.iter().chain(&r.b).all(|(conf, _)| !conf.contains("fog")), "{}: {:?}", c.id, r);
+            }
+        }
+        assert!(comps.iter().all(|c| !c.a.contains("fog") && !c.b.contains("fog")));
+        assert!((by("fusion_vs_lidar_only").rows[0].test.estimate - 0.02).abs() < 1e-9);
+        assert!((by("radar_adds").rows[0].test.estimate - 0.03).abs() < 1e-9);
+        // In fog: the condition's claims, on its configurations, with their own estimates.
+        let fog: Vec<&str> =
+            claims.iter().filter(|c| c.condition.as_deref() == Some("fog")).map(|c| c.id.as_str()).collect();
+        assert_eq!(fog, CONDITION_CLAIMS.iter().map(|id| format!("{id}@fog")).collect::<Vec<_>>());
+        let f = by("fusion_vs_lidar_only@fog");
+        assert!(f.statement.ends_with(", in fog"));
+        assert_eq!(f.rows[0].a, vec![("2x16+R in fog".to_string(), "cp".to_string())]);
+        assert!((f.rows[0].test.estimate - 0.20).abs() < 1e-9);
+        assert_eq!(f.verdict, Verdict::Supported);
+        let r = by("radar_adds@fog");
+        assert_eq!(r.rows[0].a, vec![("2x16 in fog".to_string(), "cp".to_string())]);
+        assert!((r.rows[0].test.estimate - 0.25).abs() < 1e-9);
+        assert!((by("radar_adds_velocity@fog").rows[0].test.estimate + 1.2).abs() < 1e-9);
     }
 }

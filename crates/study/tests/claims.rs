@@ -48,9 +48,11 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
             }
         }
     }
+    let no_conditions = BTreeMap::new();
     let design = Design {
         scores: &scores,
         configurations: &rigs,
+        conditions: &no_conditions,
         presets: &prof.presets,
         ablations: &prof.ablations,
         ablation_of: &roles.ablation_of,

@@ -234,6 +234,66 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
     }
 }
 
+/// A weather condition records its configurations again at the same poses (one placement
+/// each), in its own weather (fog leaves more road users unseen by the LiDAR-only rig), trains
+/// them like the others, and the verdict judges the radar's claims and prices the radar in it;
+/// a profile without conditions plans none.
+#[test]
+fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
+    use hilo_study::Plan;
+    let dir = tempfile::tempdir().unwrap();
+    let text = TWO_CONFIGS.replace(
+        "name = \"1x lidar-32 + radar\"\nsensors = { \"lidar-32\" = 1, \"radar-4d\" = 1 }",
+        "name = \"2x lidar-16\"\nsensors = { \"lidar-16\" = 2 }",
+    ) + "\n[[conditions]]\nname = \"fog\"\nweather = { fog_visibility_m = 30.0 }\nconfigurations = [\"2x lidar-16 + radar\", \"2x lidar-16\"]\n";
+    let study = Study::parse(&text, dir.path(), "fog.toml").unwrap();
+    let mut registry = Registry::with_builtin();
+    hilo_fusion_raw::register(&mut registry).unwrap();
+    let mut profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+    assert!(!profile.conditions, "the tiny profile leaves conditions out");
+    let out = dir.path().join("study");
+    assert_eq!(Plan::new(&study, &registry, &profile, &out).unwrap().configurations.len(), 2);
+    profile.conditions = true;
+    profile.train_samples = Some(4);
+    let plan = Plan::new(&study, &registry, &profile, &out).unwrap();
+    let names: Vec<&str> = plan.configurations.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["2x lidar-16 + radar", "2x lidar-16", "2x lidar-16 + radar in fog", "2x lidar-16 in fog"]);
+    assert_eq!(plan.placed, [0, 1, 0, 1]);
+    assert_eq!(plan.placement(2), plan.placement(0));
+    assert_eq!(plan.placement_outputs().len(), 3, "two placements and the trade-offs");
+    assert_eq!(plan.datasets[3].weather.fog_visibility_m, Some(30.0));
+    assert!(plan.datasets[1].weather.is_clear());
+    assert_ne!(plan.data[1].dir, plan.data[3].dir);
+    // centerpoint on four rigs, pointpillars-lr on the two with a radar; two seeds.
+    assert_eq!(plan.jobs.len(), (4 + 2) * 2);
+    let opts = RunOptions { profile, out: out.clone() };
+    let report = hilo_study::run(&study, &registry, &opts, &mut |_| {}).unwrap();
+    let conf = |n: &str| report.configurations.iter().find(|c| c.name == n).unwrap();
+    assert_eq!(conf("2x lidar-16 in fog").sensors, conf("2x lidar-16").sensors, "the same poses");
+    assert_eq!(conf("2x lidar-16 in fog").condition.as_deref(), Some("fog"));
+    assert!(
+        conf("2x lidar-16 in fog").unseen_share > conf("2x lidar-16").unseen_share,
+        "fog hides road users from the LiDARs: {} against {}",
+        conf("2x lidar-16 in fog").unseen_share,
+        conf("2x lidar-16").unseen_share
+    );
+    let claim = |id: &str| report.claims.iter().find(|c| c.id == id).unwrap();
+    let fog = claim("radar_adds@fog");
+    assert_eq!(fog.condition.as_deref(), Some("fog"));
+    assert_eq!(fog.rows[0].a, [("2x lidar-16 in fog".to_string(), "centerpoint".to_string())]);
+    assert_eq!(fog.rows[0].b, [("2x lidar-16 + radar in fog".to_string(), "pointpillars-lr".to_string())]);
+    assert!(claim("radar_adds").rows[0].a.iter().all(|(c, _)| c == "2x lidar-16"));
+    let worth: Vec<(Option<&str>, &str)> =
+        report.radar_value.iter().map(|v| (v.condition.as_deref(), v.metric.as_str())).collect();
+    assert!(worth.contains(&(None, "mAP")) && worth.contains(&(Some("fog"), "mAP")), "{worth:?}");
+    assert!(report.radar_value.iter().all(|v| v.extra_cost_usd > 0.0));
+    assert!(report.comparisons.iter().all(|c| !c.a.contains("fog") && !c.b.contains("fog")));
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        md.contains("## What the radar is worth, per weather") && md.contains("| fog: fog (visibility 30 m) | mAP |")
+    );
+}
+
 #[test]
 fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     use hilo_study::compare::Across;

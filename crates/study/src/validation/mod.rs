@@ -292,7 +292,10 @@ pub fn plan(
 ) -> Result<ValidationPlan> {
     settings.check(registry, &study.source)?;
     let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
-    let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
+    // The study's weather conditions are no part of the validation (its placements are recorded
+    // in the study's own weather), so a profile that runs them defines the same validation.
+    let pjson = serde_json::to_string(&Profile { conditions: false, ..profile.clone() })
+        .map_err(|e| StudyError::Invalid(e.to_string()))?;
     let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, study.file.configurations);
     let fingerprint = hash(&[&defining, &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
     claim(out, &fingerprint, study, profile, settings)?;
