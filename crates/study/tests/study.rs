@@ -292,6 +292,25 @@ fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
     assert!(
         md.contains("## What the radar is worth, per weather") && md.contains("| fog: fog (visibility 30 m) | mAP |")
     );
+    // Stage by stage, as a workflow engine runs them (the datasets in reverse): the same report.
+    let by_stage = dir.path().join("stages");
+    let plan = Plan::new(&study, &registry, &opts.profile, &by_stage).unwrap();
+    plan.claim_folder(&study).unwrap();
+    hilo_study::stages::place(&study, &plan, &mut |_| {}).unwrap();
+    for ci in (0..plan.configurations.len()).rev() {
+        hilo_study::stages::simulate(&study, &plan, ci, &mut |_| {}).unwrap();
+    }
+    for job in &plan.jobs {
+        hilo_study::stages::train_one(&plan, job, &registry, &|_| {}).unwrap();
+    }
+    hilo_study::run::report(&study, &plan, &registry, &mut |_| {}).unwrap();
+    let read = |d: &Path| {
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("report.json")).unwrap()).unwrap();
+        without_timings(&mut v);
+        v
+    };
+    assert_eq!(read(&out), read(&by_stage));
 }
 
 #[test]
