@@ -118,8 +118,7 @@ pub struct Report {
     pub entries: Vec<Entry>,
     pub comparisons: Vec<Comparison>,
     pub claims: Vec<Claim>,
-    /// The weather conditions the study ran (`[[conditions]]`; none when the profile leaves
-    /// them out).
+    /// The weather conditions the study ran (the first `[[conditions]]` the profile runs).
     #[serde(default)]
     pub conditions: Vec<crate::study::Condition>,
     /// What the radar adds and what it costs, in the study's own weather and in each condition.
@@ -296,7 +295,7 @@ pub fn assemble(
         entries,
         comparisons,
         claims,
-        conditions: if prof.conditions { study.file.conditions.clone() } else { Vec::new() },
+        conditions: study.file.conditions.iter().take(prof.conditions.unwrap_or(usize::MAX)).cloned().collect(),
         radar_value,
         margin: margins.ap,
         velocity_margin_m_s: margins.velocity_m_s,

@@ -535,8 +535,9 @@ mod tests {
         assert_eq!(Across::of(&[s]), Across::SupportedEverywhere);
     }
 
-    /// The radar's worth is the `radar_adds` claim's rows priced by the configurations they
-    /// compare: on the committed default-study report, the radar rig's extra cost is the
+    /// The radar's worth is the `radar_adds` and `radar_adds_velocity` claims' rows, in the
+    /// study's weather and in each condition, priced by the configurations they compare: on the
+    /// committed default-study report (clear and fog), the radar rig's extra cost is the
     /// radar's price, and each metric's value per $1,000 is its estimate scaled by it.
     #[test]
     fn the_radar_is_priced_by_what_its_rig_costs_more() {
@@ -545,20 +546,28 @@ mod tests {
         let shard = ShardRecord { name: "clear".into(), scene: None, catalog: None, fingerprint: String::new() };
         let record = SweepRecord { source: "s.toml".into(), profile: "default".into(), shards: vec![shard.clone()] };
         let c = build(&record, &[(shard, r.clone())]);
-        let claim = r.claims.iter().find(|c| c.id == "radar_adds").unwrap();
-        assert_eq!(c.radar_worth.len(), claim.rows.len());
-        assert!(
-            c.radar_worth.iter().any(|w| w.metric == "mAP")
-                && c.radar_worth.iter().any(|w| w.metric == "pedestrian AP")
-        );
+        let priced = ["radar_adds", "radar_adds_velocity", "radar_adds@fog", "radar_adds_velocity@fog"];
+        let rows: Vec<(&str, &crate::verdict::ClaimRow)> = r
+            .claims
+            .iter()
+            .filter(|c| priced.contains(&c.id.as_str()))
+            .flat_map(|c| c.rows.iter().map(move |row| (c.id.as_str(), row)))
+            .collect();
+        assert_eq!(rows.len(), 8, "mAP, pedestrian AP, mAVE and car AVE in clear weather and in fog");
+        assert_eq!(c.radar_worth.len(), rows.len());
         let cost = |name: &str| r.configurations.iter().find(|x| x.name == name).unwrap().cost_usd;
-        for (w, row) in c.radar_worth.iter().zip(&claim.rows) {
+        for (w, (id, row)) in c.radar_worth.iter().zip(&rows) {
+            assert_eq!(w.study, if id.ends_with("@fog") { "clear (fog)" } else { "clear" });
+            assert_eq!(w.metric, row.metric);
             let extra = cost(&row.b[0].0) - cost(&row.a[0].0);
             assert!(extra > 0.0 && (w.extra_cost_usd - extra).abs() < 1e-9, "{w:?}");
             assert!((w.per_1000_usd.unwrap() - 1000.0 * row.test.estimate / extra).abs() < 1e-12);
             assert_eq!((w.estimate, w.lo, w.hi, w.verdict), (row.test.estimate, row.test.lo, row.test.hi, row.verdict));
         }
         assert!(markdown(&c).contains("## What the radar is worth, per study"));
+        // The report's own table is the same rows.
+        assert_eq!(r.radar_value.len(), rows.len());
+        assert!(r.radar_value.iter().zip(&c.radar_worth).all(|(v, w)| v.estimate == w.estimate));
     }
 
     #[test]

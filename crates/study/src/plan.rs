@@ -390,7 +390,7 @@ fn conditioned(
     let mut out = Vec::new();
     let mut conditions = vec![None; base.len()];
     let mut datasets = vec![profile.dataset.clone(); base.len()];
-    for cond in study.file.conditions.iter().filter(|_| profile.conditions) {
+    for cond in study.file.conditions.iter().take(profile.conditions.unwrap_or(usize::MAX)) {
         let dataset =
             hilo_dataset::simulate::SimulateConfig { weather: cond.weather, ..profile.dataset.clone().into_inner() }
                 .validate()

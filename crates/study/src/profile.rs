@@ -40,12 +40,36 @@ pub struct Profile {
     /// Target cell size of the placement speed-against-error sweeps (the study's when None).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tradeoff_cell_m: Option<f32>,
-    /// Whether the study file's weather conditions (`[[conditions]]`) run: their
-    /// configurations recorded again in each condition and trained like the others.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub conditions: bool,
+    /// How many of the study file's weather conditions (`[[conditions]]`, in order) run, all
+    /// when None: their configurations recorded again in each and trained like the others.
+    #[serde(default = "no_conditions", skip_serializing_if = "runs_no_condition", deserialize_with = "conditions_run")]
+    pub conditions: Option<usize>,
     /// What this profile leaves out of the paper's design, and which profile adds it.
     pub leaves_out: String,
+}
+
+/// A profile written before weather conditions existed ran none.
+fn no_conditions() -> Option<usize> {
+    Some(0)
+}
+
+fn runs_no_condition(n: &Option<usize>) -> bool {
+    *n == Some(0)
+}
+
+/// A count of conditions, null for all, or (as the first builds with conditions wrote it) a
+/// flag: true for all, false for none.
+fn conditions_run<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<usize>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Run {
+        Flag(bool),
+        Count(Option<usize>),
+    }
+    Ok(match Run::deserialize(d)? {
+        Run::Flag(all) => (!all).then_some(0),
+        Run::Count(n) => n,
+    })
 }
 
 /// The presets of the default profile: the LiDAR-only detector and the fusion detector under
@@ -77,7 +101,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 200,
             trainings_at_once: 2,
             tradeoff_cell_m: Some(2.0),
-            conditions: false,
+            conditions: Some(0),
             leaves_out: "the study's configurations after its first two, its weather conditions, the fusion detectors, a third seed and longer training: the default profile adds them".into(),
         },
         "default" => Profile {
@@ -93,8 +117,8 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 400,
             trainings_at_once: 2,
             tradeoff_cell_m: None,
-            conditions: true,
-            leaves_out: "the study's configurations after its first four, the other detector presets (pointpillars, pointpillars-lr, l4dr-like, bi-lrfusion-like, late) and the l4dr-like ablation, and each preset's default schedule (6,000 samples here against 30,000 for centerpoint, 24,000 for lirafusion-like, 12,000 for the others): `--profile paper` adds them; 6,000 samples leave every detector short of its plateau (the learning curves show it)".into(),
+            conditions: Some(1),
+            leaves_out: "the study's configurations after its first four, its weather conditions after the first, the other detector presets (pointpillars, pointpillars-lr, l4dr-like, bi-lrfusion-like, late) and the l4dr-like ablation, and each preset's default schedule (6,000 samples here against 30,000 for centerpoint, 24,000 for lirafusion-like, 12,000 for the others): `--profile paper` adds them; 6,000 samples leave every detector short of its plateau (the learning curves show it)".into(),
         },
         "paper" => Profile {
             name: name.into(),
@@ -109,7 +133,7 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 1000,
             trainings_at_once: 2,
             tradeoff_cell_m: None,
-            conditions: true,
+            conditions: None,
             leaves_out: "nothing of the paper's design; its 37 scenes at 20 Hz are 30 training scenes at 20 Hz and 20 validation scenes at 2 Hz here".into(),
         },
         "tiny" => Profile {
@@ -125,10 +149,43 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             resamples: 40,
             trainings_at_once: 2,
             tradeoff_cell_m: Some(5.0),
-            conditions: false,
+            conditions: Some(0),
             leaves_out: "everything that takes time: a test profile".into(),
         },
         other => return Err(StudyError::Invalid(format!("--profile {other:?}: use quick, default or paper"))),
     };
     Ok(p)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// A profile reads how many conditions it runs from a count, null (all), the flag the first
+    /// builds wrote, or nothing (a profile from before conditions: none); it writes no field
+    /// when it runs none, so such a profile's JSON (and a folder's fingerprint) is unchanged.
+    #[test]
+    fn the_conditions_field_reads_every_form_it_was_written_in() {
+        let study =
+            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
+        let registry = Registry::with_builtin();
+        let quick = profile("quick", &study, &registry).unwrap();
+        let json = serde_json::to_value(&quick).unwrap();
+        assert!(json.get("conditions").is_none());
+        let with = |v: serde_json::Value| {
+            let mut j = json.clone();
+            j["conditions"] = v;
+            serde_json::from_value::<Profile>(j).unwrap().conditions
+        };
+        assert_eq!(serde_json::from_value::<Profile>(json.clone()).unwrap().conditions, Some(0));
+        assert_eq!(with(serde_json::json!(true)), None);
+        assert_eq!(with(serde_json::json!(false)), Some(0));
+        assert_eq!(with(serde_json::json!(1)), Some(1));
+        assert_eq!(with(serde_json::Value::Null), None);
+        let default = profile("default", &study, &registry).unwrap();
+        assert_eq!(default.conditions, Some(1));
+        let back: Profile = serde_json::from_str(&serde_json::to_string(&default).unwrap()).unwrap();
+        assert_eq!(back, default);
+    }
 }

@@ -471,7 +471,7 @@ mod tests {
             (fog("\"2x lidar-16\"", "snow = 1.0"), "snow"),
             (
                 format!("{}{}", fog("\"2x lidar-16\"", "rain_mm_h = 5.0"), fog("\"1x lidar-64\"", "rain_mm_h = 9.0")),
-                "conditions[2].name = \"dense fog\": conditions[1] has the same name",
+                "name = \"dense fog\": conditions[2] has the same name",
             ),
             (
                 "[[configurations]]\nname = \"2x lidar-16 in fog\"\nsensors = { \"lidar-16\" = 2 }\n".to_string(),

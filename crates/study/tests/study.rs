@@ -250,10 +250,10 @@ fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
     let mut registry = Registry::with_builtin();
     hilo_fusion_raw::register(&mut registry).unwrap();
     let mut profile = hilo_study::profile("tiny", &study, &registry).unwrap();
-    assert!(!profile.conditions, "the tiny profile leaves conditions out");
+    assert_eq!(profile.conditions, Some(0), "the tiny profile leaves conditions out");
     let out = dir.path().join("study");
     assert_eq!(Plan::new(&study, &registry, &profile, &out).unwrap().configurations.len(), 2);
-    profile.conditions = true;
+    profile.conditions = None;
     profile.train_samples = Some(4);
     let plan = Plan::new(&study, &registry, &profile, &out).unwrap();
     let names: Vec<&str> = plan.configurations.iter().map(|c| c.name.as_str()).collect();

@@ -294,7 +294,7 @@ pub fn plan(
     let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
     // The study's weather conditions are no part of the validation (its placements are recorded
     // in the study's own weather), so a profile that runs them defines the same validation.
-    let pjson = serde_json::to_string(&Profile { conditions: false, ..profile.clone() })
+    let pjson = serde_json::to_string(&Profile { conditions: Some(0), ..profile.clone() })
         .map_err(|e| StudyError::Invalid(e.to_string()))?;
     let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, study.file.configurations);
     let fingerprint = hash(&[&defining, &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
