@@ -38,44 +38,27 @@ pub struct Comparison {
     pub radar_worth: Vec<RadarWorth>,
 }
 
-/// What a radar adds in one study, for one metric.
+/// What a radar adds in one study (in its own weather or one of its conditions), for one
+/// metric: the study's name beside its report's [`crate::verdict::RadarValue`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RadarWorth {
     pub study: String,
-    pub metric: String,
-    /// The rig with the radar, fused, minus the LiDAR-only rig, and its 95% interval.
-    pub estimate: f64,
-    pub lo: f64,
-    pub hi: f64,
-    /// What the rig with the radar costs over the LiDAR-only one (USD).
-    pub extra_cost_usd: f64,
-    /// `estimate` per $1,000 of `extra_cost_usd` (None when it costs nothing more).
-    pub per_1000_usd: Option<f64>,
-    pub verdict: Verdict,
+    #[serde(flatten)]
+    pub value: crate::verdict::RadarValue,
 }
 
 /// The `radar_adds` rows (accuracy) and `radar_adds_velocity` rows (velocity error) of each
-/// study, priced by the configurations they compare ([`crate::verdict::radar_value`]); a study's
-/// weather conditions as "<study> (<condition>)".
+/// study and each of its weather conditions, priced by the configurations they compare
+/// ([`crate::verdict::radar_value`]).
 fn radar_worth(reports: &[(ShardRecord, Report)]) -> Vec<RadarWorth> {
     let mut out = Vec::new();
     for (s, r) in reports {
         let cost = |name: &str| r.configurations.iter().find(|c| c.name == name).map(|c| c.cost_usd);
-        for v in crate::verdict::radar_value(&r.claims, &cost) {
-            out.push(RadarWorth {
-                study: match &v.condition {
-                    Some(c) => format!("{} ({c})", s.name),
-                    None => s.name.clone(),
-                },
-                metric: v.metric,
-                estimate: v.estimate,
-                lo: v.lo,
-                hi: v.hi,
-                extra_cost_usd: v.extra_cost_usd,
-                per_1000_usd: v.per_1000_usd,
-                verdict: v.verdict,
-            });
-        }
+        out.extend(
+            crate::verdict::radar_value(&r.claims, &cost)
+                .into_iter()
+                .map(|value| RadarWorth { study: s.name.clone(), value }),
+        );
     }
     out
 }
@@ -481,11 +464,15 @@ pub fn markdown(c: &Comparison) -> String {
              (for a velocity error, m/s: below 0 the radar lowers it).\n\n\
              | study | metric | radar adds | per $1,000 | extra cost (USD) | verdict |\n|---|---|---:|---:|---:|---|\n",
         );
-        for w in &c.radar_worth {
+        for RadarWorth { study, value: w } in &c.radar_worth {
+            let study = match &w.condition {
+                Some(cond) => format!("{study} ({cond})"),
+                None => study.clone(),
+            };
             let _ = writeln!(
                 s,
                 "| {} | {} | {:+.3} [{:+.3}, {:+.3}] | {} | {:.0} | {} |",
-                esc(&w.study),
+                esc(&study),
                 w.metric,
                 w.estimate,
                 w.lo,
@@ -556,8 +543,9 @@ mod tests {
         assert_eq!(rows.len(), 8, "mAP, pedestrian AP, mAVE and car AVE in clear weather and in fog");
         assert_eq!(c.radar_worth.len(), rows.len());
         let cost = |name: &str| r.configurations.iter().find(|x| x.name == name).unwrap().cost_usd;
-        for (w, (id, row)) in c.radar_worth.iter().zip(&rows) {
-            assert_eq!(w.study, if id.ends_with("@fog") { "clear (fog)" } else { "clear" });
+        for (RadarWorth { study, value: w }, (id, row)) in c.radar_worth.iter().zip(&rows) {
+            assert_eq!(study, "clear");
+            assert_eq!(w.condition.as_deref(), id.strip_suffix("@fog").map(|_| "fog"));
             assert_eq!(w.metric, row.metric);
             let extra = cost(&row.b[0].0) - cost(&row.a[0].0);
             assert!(extra > 0.0 && (w.extra_cost_usd - extra).abs() < 1e-9, "{w:?}");
@@ -567,7 +555,8 @@ mod tests {
         assert!(markdown(&c).contains("## What the radar is worth, per study"));
         // The report's own table is the same rows.
         assert_eq!(r.radar_value.len(), rows.len());
-        assert!(r.radar_value.iter().zip(&c.radar_worth).all(|(v, w)| v.estimate == w.estimate));
+        assert!(r.radar_value.iter().zip(&c.radar_worth).all(|(v, w)| *v == w.value));
+        assert!(markdown(&c).contains("| clear (fog) | mAP |"));
     }
 
     #[test]
