@@ -177,6 +177,14 @@ fn without_timings(v: &mut serde_json::Value) {
     }
 }
 
+/// The `report.json` in study folder `d`, without what measures time.
+fn report_without_timings(d: &Path) -> serde_json::Value {
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("report.json")).unwrap()).unwrap();
+    without_timings(&mut v);
+    v
+}
+
 #[test]
 fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
     use hilo_study::{Plan, stages};
@@ -203,13 +211,7 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
         stages::train_one(&plan, job, &registry, &|_| {}).unwrap();
     }
     hilo_study::run::report(&study, &plan, &registry, &mut |_| {}).unwrap();
-    let read = |d: &Path| {
-        let mut v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(d.join("report.json")).unwrap()).unwrap();
-        without_timings(&mut v);
-        v
-    };
-    assert_eq!(read(&whole), read(&by_stage));
+    assert_eq!(report_without_timings(&whole), report_without_timings(&by_stage));
     // Everything is done: a stage run again writes nothing.
     let stamp = |p: &Path| std::fs::metadata(p).unwrap().modified().unwrap();
     let before: Vec<_> = plan.jobs.iter().map(|j| stamp(&j.meta())).collect();
@@ -304,13 +306,7 @@ fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
         hilo_study::stages::train_one(&plan, job, &registry, &|_| {}).unwrap();
     }
     hilo_study::run::report(&study, &plan, &registry, &mut |_| {}).unwrap();
-    let read = |d: &Path| {
-        let mut v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(d.join("report.json")).unwrap()).unwrap();
-        without_timings(&mut v);
-        v
-    };
-    assert_eq!(read(&out), read(&by_stage));
+    assert_eq!(report_without_timings(&out), report_without_timings(&by_stage));
 }
 
 #[test]
@@ -355,13 +351,7 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     let dear = &sweep.shards[1].study;
     hilo_study::run(dear, &registry, &RunOptions { profile: profile(dear).unwrap(), out: alone.clone() }, &mut |_| {})
         .unwrap();
-    let read = |d: &Path| {
-        let mut v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(d.join("report.json")).unwrap()).unwrap();
-        without_timings(&mut v);
-        v
-    };
-    assert_eq!(read(&alone), read(&Sweep::shard_out(&out, "dear")));
+    assert_eq!(report_without_timings(&alone), report_without_timings(&Sweep::shard_out(&out, "dear")));
     // Rerun: everything is done, the comparison is the same; the folder refuses another sweep.
     let again = hilo_study::run_sweep(&sweep, &registry, &profile, &out, &mut |_| {}).unwrap();
     assert_eq!(serde_json::to_value(&again).unwrap(), serde_json::to_value(&c).unwrap());
