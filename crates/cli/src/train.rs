@@ -26,6 +26,11 @@ pub struct TrainArgs {
     /// backbone, head, fusion plugin and its config); replaces --detector.
     #[arg(long, conflicts_with = "detector")]
     pub detector_config: Option<PathBuf>,
+    /// Changes to the preset: a JSON merge patch (RFC 7386) over its detector config, e.g.
+    /// `{"input": {"lidar_sweeps": 10}, "velocity_weight": 1.0}`; the preset's training schedule
+    /// is kept. run.json records the patched config.
+    #[arg(long, conflicts_with = "detector_config")]
+    pub detector_patch: Option<PathBuf>,
     /// A training schedule: a JSON file with any fields of run.json's "train" (the rest keep
     /// the preset's default schedule); --samples, --batch and --seed override it.
     #[arg(long)]
@@ -54,6 +59,20 @@ pub fn detector(registry: &Registry, name: &str) -> Result<(hilo_detector::Detec
     Ok((p.detector.clone(), p.train.clone()))
 }
 
+/// `det` with the JSON merge patch (RFC 7386) in `path` applied; an unknown field or a wrong
+/// type is an error naming the file and the field.
+pub fn patched(det: &hilo_detector::DetectorConfig, path: &std::path::Path) -> Result<hilo_detector::DetectorConfig> {
+    let patch = hilo_core::fs::read_json::<serde_json::Value>(path, hilo_core::fs::limit::CONFIG)?;
+    if !patch.is_object() {
+        bail!("{}: a detector patch is a JSON object of the fields it changes, not {patch}", path.display());
+    }
+    let mut doc = serde_json::to_value(det)?;
+    json_patch::merge(&mut doc, &patch);
+    serde_path_to_error::deserialize(doc).map_err(|e| {
+        anyhow::anyhow!("{}: the patched detector config, field {}: {}", path.display(), e.path(), e.inner())
+    })
+}
+
 pub fn run_train(args: &TrainArgs) -> Result<()> {
     let registry = registry()?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
@@ -63,7 +82,13 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
             hilo_core::fs::read_json::<hilo_detector::DetectorConfig>(path, hilo_core::fs::limit::CONFIG)?,
             TrainConfig::default(),
         ),
-        None => detector(&registry, &args.detector)?,
+        None => {
+            let (det, schedule) = detector(&registry, &args.detector)?;
+            match &args.detector_patch {
+                Some(path) => (patched(&det, path)?, schedule),
+                None => (det, schedule),
+            }
+        }
     };
     let mut cfg = match &args.train_config {
         Some(path) => base

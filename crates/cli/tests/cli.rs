@@ -340,6 +340,11 @@ fn eval_writes_a_devkit_shaped_summary_and_refuses_mismatched_samples() {
 
 /// A two-scene dataset written with hilo-dataset, with a split.
 fn small_dataset(root: &std::path::Path) -> Vec<String> {
+    small_dataset_spaced(root, [50_000, 50_000])
+}
+
+/// [`small_dataset`] with its two scenes' frames `spacing_us` apart.
+fn small_dataset_spaced(root: &std::path::Path, spacing_us: [u64; 2]) -> Vec<String> {
     use hilo_dataset::{Annotation, DatasetWriter, FrameData, SceneData, SensorModality, SensorSetup};
     let sensors = vec![SensorSetup {
         channel: "LIDAR_0".into(),
@@ -351,7 +356,7 @@ fn small_dataset(root: &std::path::Path) -> Vec<String> {
     for (k, name) in ["scene-a", "scene-b"].iter().enumerate() {
         let frames: Vec<FrameData> = (0..3)
             .map(|f| FrameData {
-                timestamp_us: 10_000_000 * (k as u64 + 1) + 50_000 * f,
+                timestamp_us: 10_000_000 * (k as u64 + 1) + spacing_us[k] * f,
                 lidar: vec![
                     (0..20)
                         .map(|i| hilo_core::LidarPoint {
@@ -460,4 +465,60 @@ fn dataset_stats_and_eval_against_a_dataset() {
     // Without the split: a clear error.
     let o = eval(&["--split", "train"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("no split \"train\""));
+}
+
+/// A preset changed by a JSON merge patch keeps its schedule and records the patched config; a
+/// misspelled or mistyped field is refused by file and field, before any run folder exists.
+/// Stacking LiDAR sweeps on a dataset whose validation scene has LiDAR only at key frames
+/// farther apart than the training scene's sweeps is refused: the splits would see different
+/// motion.
+#[test]
+fn a_detector_patch_changes_a_preset_and_sweeps_need_recorded_sweeps() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("data");
+    small_dataset(&root);
+    let patch = dir.path().join("patch.json");
+    let train = |patch_text: &str, data: &std::path::Path, out: &str| {
+        std::fs::write(&patch, patch_text).unwrap();
+        hilo()
+            .args(["train", "--detector", "centerpoint", "--samples", "2", "--split", "val", "--detector-patch"])
+            .arg(&patch)
+            .arg("--data")
+            .arg(data)
+            .arg("--out")
+            .arg(dir.path().join(out))
+            .output()
+            .unwrap()
+    };
+    let o = train(r#"{"velocity_weight": 1.0, "grid": {"max_points_per_pillar": 20}}"#, &root, "run");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let run: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("run/run.json")).unwrap()).unwrap();
+    assert_eq!(run["detector"]["velocity_weight"], 1.0);
+    assert_eq!(run["detector"]["grid"]["max_points_per_pillar"], 20);
+    // The fields the patch leaves alone, and the preset's schedule (replicas and all).
+    assert_eq!(run["detector"]["grid"]["cell_m"], 0.8);
+    assert_eq!(run["detector"]["name"], "centerpoint");
+    assert_eq!(run["train"]["samples"], 2);
+    assert_eq!(run["train"]["replicas"], 2);
+    for (text, field) in [
+        (r#"{"velocty_weight": 1.0}"#, "velocty_weight"),
+        (r#"{"input": {"lidar_sweeps": "ten"}}"#, "input.lidar_sweeps"),
+    ] {
+        let o = train(text, &root, "bad");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains("patch.json") && err.contains(field), "{err}");
+        assert!(!dir.path().join("bad").exists());
+    }
+    let o = train("[1]", &root, "bad");
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("JSON object"));
+    // Key frames 0.5 s apart in the validation scene, 0.05 s in the training one.
+    let spaced = dir.path().join("spaced");
+    small_dataset_spaced(&spaced, [50_000, 500_000]);
+    let o = train(r#"{"input": {"lidar_sweeps": 3, "max_sweep_lag_s": 1.0}}"#, &spaced, "sweeps");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("lidar_sweeps = true") && err.contains("\"val\""), "{err}");
+    // The same dataset evenly recorded stacks its sweeps.
+    let o = train(r#"{"input": {"lidar_sweeps": 3, "max_sweep_lag_s": 1.0}}"#, &root, "even");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

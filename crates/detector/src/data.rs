@@ -184,6 +184,34 @@ fn sweeps<'a>(
     chain
 }
 
+/// The dataset's LiDAR sweep period: the shortest gap between a LiDAR sample_data and the one
+/// before it on its channel (µs); None without two in a row. Stacking sweeps where the records
+/// lie farther apart than this (key frames only) would feed one split older points than another.
+fn lidar_period_us(
+    t: &hilo_dataset::tables::Tables,
+    calib: &HashMap<&str, &hilo_dataset::tables::CalibratedSensor>,
+    sensors: &HashMap<&str, &hilo_dataset::tables::Sensor>,
+    by_token: &HashMap<&str, &SampleData>,
+) -> Option<u64> {
+    t.sample_data
+        .iter()
+        .filter(|sd| !sd.prev.is_empty() && is_lidar(calib, sensors, sd))
+        .filter_map(|sd| by_token.get(sd.prev.as_str()).map(|p| sd.timestamp.saturating_sub(p.timestamp)))
+        .filter(|&gap| gap > 0)
+        .min()
+}
+
+fn is_lidar(
+    calib: &HashMap<&str, &hilo_dataset::tables::CalibratedSensor>,
+    sensors: &HashMap<&str, &hilo_dataset::tables::Sensor>,
+    sd: &SampleData,
+) -> bool {
+    calib
+        .get(sd.calibrated_sensor_token.as_str())
+        .and_then(|c| sensors.get(c.sensor_token.as_str()))
+        .is_some_and(|s| s.modality == "lidar")
+}
+
 fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usize>) -> Result<(Vec<Frame>, LoadStats)> {
     let scenes: std::collections::HashSet<String> =
         ds.split(split).map_err(FusionError::dataset)?.into_iter().collect();
@@ -218,6 +246,33 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
     if let Some(i) = only {
         samples = samples.get(i).copied().into_iter().collect();
     }
+    if opts.lidar_sweeps > 1
+        && let Some(period) = lidar_period_us(t, &calib, &sensors, &sd_by_token)
+    {
+        // The median gap behind the split's key-frame LiDAR records, of those a stack would
+        // bridge (a longer gap ends the stack anyway): an occasional dropped sweep is no matter,
+        // key frames only throughout are.
+        let max_lag_us = 1e6 * opts.max_sweep_lag_s as f64;
+        let mut gaps: Vec<u64> = samples
+            .iter()
+            .flat_map(|s| by_sample.get(s.token.as_str()).into_iter().flatten())
+            .filter(|sd| is_lidar(&calib, &sensors, sd) && !sd.prev.is_empty())
+            .filter_map(|sd| sd_by_token.get(sd.prev.as_str()).map(|p| sd.timestamp.saturating_sub(p.timestamp)))
+            .filter(|&gap| gap as f64 <= max_lag_us)
+            .collect();
+        gaps.sort_unstable();
+        if let Some(&median) = gaps.get(gaps.len() / 2)
+            && median as f64 > 1.5 * period as f64
+        {
+            return Err(FusionError::Config(format!(
+                "input.lidar_sweeps = {} stacks LiDAR sweeps, but the dataset {} has LiDAR only at the key frames of split {split:?} (a median {:.2} s apart, against sweeps every {:.2} s elsewhere): record it with `[dataset] lidar_sweeps = true`",
+                opts.lidar_sweeps,
+                ds.root.display(),
+                1e-6 * median as f64,
+                1e-6 * period as f64
+            )));
+        }
+    }
     let mut stats = LoadStats { frames: samples.len(), ..LoadStats::default() };
     let mut frames = Vec::with_capacity(samples.len());
     for s in samples {
@@ -236,7 +291,8 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             };
             match modality {
                 "lidar" => {
-                    for (cur, lag) in sweeps(sd, opts.lidar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
+                    let chain = sweeps(sd, opts.lidar_sweeps, opts.max_sweep_lag_s, &sd_by_token);
+                    for (cur, lag) in chain {
                         let points = ds.lidar_points(cur).map_err(FusionError::dataset)?;
                         let n = points.len();
                         let points = match opts.background {
