@@ -1,7 +1,7 @@
 //! The shared conformance suite on every preset of each fusion plugin, dense and sparse. The
 //! plugins depend on `hilo-fusion` alone; the suite lives in `hilo-detector`, so it runs here.
 
-#![allow(clippy::unwrap_used)]
+#![allow(clippy::unwrap_used, clippy::panic)]
 
 fn check(plugin: &str, register: fn(&mut hilo_fusion::Registry) -> hilo_fusion::Result<()>) {
     let mut r = hilo_fusion::Registry::with_builtin();
@@ -27,4 +27,26 @@ fn middle_plugin_conforms() {
 #[test]
 fn late_plugin_conforms() {
     check("late", hilo_fusion_late::register);
+}
+
+/// Every patch the project ships (`fixtures/patches/`) applies to every registered preset and
+/// gives a detector config that validates, so a preset's change cannot leave a patch behind.
+#[test]
+fn every_shipped_patch_applies_to_every_preset() {
+    let registry = hilo::registry().unwrap();
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/patches");
+    let mut patches = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let patch: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        for name in registry.preset_names() {
+            let preset = registry.preset(&name).unwrap();
+            let patched =
+                preset.detector.with_patch(&patch).unwrap_or_else(|e| panic!("{}: {name}: {e}", path.display()));
+            assert_ne!(patched, preset.detector, "{}: changes nothing of {name}", path.display());
+            patched.validate().unwrap_or_else(|e| panic!("{}: {name}: {e}", path.display()));
+        }
+        patches += 1;
+    }
+    assert!(patches >= 1, "no patch in {}", dir.display());
 }

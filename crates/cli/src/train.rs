@@ -59,18 +59,11 @@ pub fn detector(registry: &Registry, name: &str) -> Result<(hilo_detector::Detec
     Ok((p.detector.clone(), p.train.clone()))
 }
 
-/// `det` with the JSON merge patch (RFC 7386) in `path` applied; an unknown field or a wrong
-/// type is an error naming the file and the field.
+/// `det` with the JSON merge patch (RFC 7386) in `path` applied
+/// ([`hilo_detector::DetectorConfig::with_patch`]); errors name the file and the field.
 pub fn patched(det: &hilo_detector::DetectorConfig, path: &std::path::Path) -> Result<hilo_detector::DetectorConfig> {
     let patch = hilo_core::fs::read_json::<serde_json::Value>(path, hilo_core::fs::limit::CONFIG)?;
-    if !patch.is_object() {
-        bail!("{}: a detector patch is a JSON object of the fields it changes, not {patch}", path.display());
-    }
-    let mut doc = serde_json::to_value(det)?;
-    json_patch::merge(&mut doc, &patch);
-    serde_path_to_error::deserialize(doc).map_err(|e| {
-        anyhow::anyhow!("{}: the patched detector config, field {}: {}", path.display(), e.path(), e.inner())
-    })
+    det.with_patch(&patch).with_context(|| format!("{}: not a patch of the preset", path.display()))
 }
 
 pub fn run_train(args: &TrainArgs) -> Result<()> {

@@ -126,7 +126,22 @@ impl Check for DetectorConfig {
     }
 }
 
-impl DetectorConfig {}
+impl DetectorConfig {
+    /// This config with a JSON merge patch (RFC 7386) applied: the patch names only the fields it
+    /// changes (`{"input": {"lidar_sweeps": 10}}`), `null` removes an optional one. An unknown
+    /// field or a wrong type is an error naming its path (`input.lidar_sweeps`).
+    pub fn with_patch(&self, patch: &serde_json::Value) -> Result<DetectorConfig> {
+        if !patch.is_object() {
+            return Err(FusionError::Config(format!(
+                "a detector patch is a JSON object of the fields it changes, not {patch}"
+            )));
+        }
+        let mut doc = serde_json::to_value(self).map_err(|e| FusionError::Config(e.to_string()))?;
+        json_patch::merge(&mut doc, patch);
+        serde_path_to_error::deserialize(doc)
+            .map_err(|e| FusionError::Config(format!("detector patch, field {}: {}", e.path(), e.inner())))
+    }
+}
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -539,5 +554,29 @@ mod tests {
         let bad = preset.with_fields(&serde_json::json!({ "sampels": 10 })).unwrap_err();
         assert!(bad.to_string().contains("sampels"), "{bad}");
         assert!(preset.with_fields(&serde_json::json!([1, 2])).is_err());
+    }
+
+    #[test]
+    fn a_detector_patch_changes_only_the_fields_it_names_at_any_depth() {
+        let base = crate::presets::centerpoint();
+        assert!(base.input.background.is_some());
+        let patch = serde_json::json!({ "input": { "lidar_sweeps": 10, "background": null }, "velocity_weight": 1.5 });
+        let c = base.with_patch(&patch).unwrap();
+        assert_eq!((c.input.lidar_sweeps, c.input.background.is_none(), c.velocity_weight), (10, true, 1.5));
+        // Unlike a schedule file's fields, a nested object merges: its siblings stay.
+        assert_eq!(
+            (c.input.radar_sweeps, &c.input.radar_clutter),
+            (base.input.radar_sweeps, &base.input.radar_clutter)
+        );
+        assert_eq!((&c.grid, &c.backbone, &c.name), (&base.grid, &base.backbone, &base.name));
+        assert_eq!(base.with_patch(&serde_json::json!({})).unwrap(), base);
+        for (bad, path) in [
+            (serde_json::json!({ "input": { "lidar_sweps": 3 } }), "input.lidar_sweps"),
+            (serde_json::json!({ "grid": { "cell_m": "fine" } }), "grid.cell_m"),
+        ] {
+            let e = base.with_patch(&bad).unwrap_err().to_string();
+            assert!(e.contains(path), "{e}");
+        }
+        assert!(base.with_patch(&serde_json::json!("lidar_sweeps")).unwrap_err().to_string().contains("JSON object"));
     }
 }
