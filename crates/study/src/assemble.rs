@@ -130,6 +130,10 @@ pub struct Report {
     /// The same for velocity errors, m/s (`verdict.velocity_equivalence_margin_m_s`).
     #[serde(default)]
     pub velocity_margin_m_s: f64,
+    /// The study file's `[detector_patch]`: what every detector changed of its preset (None:
+    /// the presets as they are).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector_patch: Option<serde_json::Value>,
     pub calibration: Calibration,
     pub learning_curves: Vec<Curve>,
     /// Whether every preset ranks the configurations the same at half its training and at the
@@ -287,6 +291,7 @@ pub fn assemble(
         profile: prof.clone(),
         provenance: Provenance::here(prof.trainings_at_once),
         ground_truth: "common".into(),
+        detector_patch: study.file.detector_patch.clone(),
         validation_scenes: scenes.len(),
         seeds: prof.seeds,
         classes,

@@ -237,6 +237,7 @@ impl Plan {
             let ablations = profile.ablations.iter().filter(|_| ablation_rig == Some(ci));
             for preset in profile.presets.iter().chain(ablations) {
                 let p = registry.preset(preset)?;
+                let detector_cfg = patched_detector(study, preset, &p.detector, &profile.dataset)?;
                 if registry.uses_radar(&p.detector) && !radar[ci] {
                     skipped.push(format!("{preset} on {}: skipped (the configuration has no radar)", conf.name));
                     continue;
@@ -268,7 +269,7 @@ impl Plan {
                     curve.dedup();
                     tc.keep = curve.clone();
                     let detector =
-                        serde_json::to_string(&p.detector).map_err(|e| StudyError::Invalid(e.to_string()))?;
+                        serde_json::to_string(&detector_cfg).map_err(|e| StudyError::Invalid(e.to_string()))?;
                     let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
                     let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule]);
                     let name = format!("{preset}-seed{seed}-{}", short(&h));
@@ -279,7 +280,7 @@ impl Plan {
                         seed,
                         run: out.join("runs").join(conf.slug()).join(&name),
                         results: out.join("results").join(conf.slug()).join(format!("{name}.json")),
-                        detector: p.detector.clone().validate()?,
+                        detector: detector_cfg.clone().validate()?,
                         train: tc.validate()?,
                         curve,
                     });
@@ -457,10 +458,38 @@ impl FolderRecord {
 /// settings, which only `hilo validate` reads. Written as the file's
 /// derived `Debug` was before the section existed (and without `conditions` when there are
 /// none), so folders made then still open.
+/// A preset's detector config with the study's `[detector_patch]` applied (the preset's own
+/// without one). The patch may not rename the preset or change its fusion plugin (the verdict
+/// reads both), and stacked LiDAR sweeps need datasets that record them.
+fn patched_detector(
+    study: &Study,
+    preset: &str,
+    det: &DetectorConfig,
+    dataset: &hilo_dataset::simulate::SimulateConfig,
+) -> Result<DetectorConfig> {
+    let Some(patch) = &study.file.detector_patch else { return Ok(det.clone()) };
+    let bad = |m: String| StudyError::Invalid(format!("[detector_patch] on preset {preset}: {m}"));
+    let p = det.with_patch(patch).map_err(|e| bad(e.to_string()))?;
+    if p.name != det.name || p.fusion != det.fusion {
+        return Err(bad(format!(
+            "changes the preset's name or fusion plugin ({:?}, {:?} from {:?}, {:?}); patch a preset's settings, not what it is",
+            p.name, p.fusion, det.name, det.fusion
+        )));
+    }
+    if p.input.lidar_sweeps > 1 && !dataset.lidar_sweeps {
+        return Err(bad(format!(
+            "input.lidar_sweeps = {} stacks LiDAR sweeps, but [dataset] lidar_sweeps = false records LiDAR only at key frames (0.5 s apart in validation); set `lidar_sweeps = true` under [dataset]",
+            p.input.lidar_sweeps
+        )));
+    }
+    Ok(p)
+}
+
 fn defining(f: &crate::study::StudyFile) -> String {
     let conditions = if f.conditions.is_empty() { String::new() } else { format!(", conditions: {:?}", f.conditions) };
+    let patch = f.detector_patch.as_ref().map_or(String::new(), |p| format!(", detector_patch: Some({p:?})"));
     format!(
-        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions} }}",
+        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions}{patch} }}",
         f.scene, f.catalog, f.placement, f.dataset, f.configurations
     )
 }
@@ -480,15 +509,27 @@ mod tests {
         let whole = format!("{file:?}")
             .replace(&format!(", verdict: {:?}", file.verdict), "")
             .replace(&format!(", validation: {:?}", file.validation), "")
-            .replace(&format!(", evaluation: {:?}", file.evaluation), "");
+            .replace(&format!(", evaluation: {:?}", file.evaluation), "")
+            .replace(", detector_patch: None", "");
         assert_eq!(defining(&file), whole);
+        // A detector patch is part of it.
+        let patched = crate::study::StudyFile {
+            detector_patch: Some(serde_json::json!({ "velocity_weight": 2.0 })),
+            ..file.clone()
+        };
+        let whole = format!("{patched:?}")
+            .replace(&format!(", verdict: {:?}", file.verdict), "")
+            .replace(&format!(", validation: {:?}", file.validation), "")
+            .replace(&format!(", evaluation: {:?}", file.evaluation), "");
+        assert_eq!(defining(&patched), whole);
         // Without conditions the text is what it was before they existed.
         let bare = crate::study::StudyFile { conditions: Vec::new(), ..file };
         let whole = format!("{bare:?}")
             .replace(&format!(", verdict: {:?}", bare.verdict), "")
             .replace(&format!(", validation: {:?}", bare.validation), "")
             .replace(&format!(", evaluation: {:?}", bare.evaluation), "")
-            .replace(", conditions: []", "");
+            .replace(", conditions: []", "")
+            .replace(", detector_patch: None", "");
         assert_eq!(defining(&bare), whole);
     }
 }

@@ -441,6 +441,9 @@ fn md_claims(md: &mut String, r: &Report) {
         }
     }
     let _ = writeln!(md, "\nWhat this profile leaves out: {}.\n", p.leaves_out);
+    if let Some(patch) = &r.detector_patch {
+        let _ = writeln!(md, "Every detector is its preset with the study's `[detector_patch]`: `{patch}`.\n");
+    }
 }
 
 /// What the radar adds and costs in the study's own weather and in each condition.

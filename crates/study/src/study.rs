@@ -39,6 +39,12 @@ pub struct StudyFile {
     /// Adverse conditions: configurations recorded again in another weather (`[[conditions]]`).
     #[serde(default)]
     pub conditions: Vec<Condition>,
+    /// Changes to every detector the study trains (`[detector_patch]`): a JSON merge patch over
+    /// each preset's detector config, as `hilo train --detector-patch` applies it (e.g. ten LiDAR
+    /// sweeps and a heavier velocity loss, on datasets recorded with `[dataset] lidar_sweeps =
+    /// true`). It may not change a preset's name or fusion plugin. None: the presets as they are.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector_patch: Option<serde_json::Value>,
 }
 
 /// A weather condition of the study (`[[conditions]]`): the named configurations recorded again,

@@ -362,3 +362,39 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     let md = std::fs::read_to_string(out.join("comparison.md")).unwrap();
     assert!(md.contains("| [dear](dear/report.md) |") && md.contains("$14,000"), "{md}");
 }
+
+/// `[detector_patch]` reaches every detector the study trains (and their stage hashes, so a
+/// patched study never reuses an unpatched run); a patch that stacks LiDAR sweeps on datasets
+/// recorded without them, renames a preset or names an unknown field is refused by section,
+/// preset and field.
+#[test]
+fn a_detector_patch_reaches_every_job_and_is_checked() {
+    use hilo_study::Plan;
+    let dir = tempfile::tempdir().unwrap();
+    let mut registry = Registry::with_builtin();
+    hilo_fusion_raw::register(&mut registry).unwrap();
+    let plan = |text: &str| {
+        let study = Study::parse(text, dir.path(), "patched.toml")?;
+        let profile = hilo_study::profile("tiny", &study, &registry)?;
+        Plan::new(&study, &registry, &profile, &dir.path().join("study"))
+    };
+    let plain = plan(TWO_CONFIGS).unwrap();
+    let sweeps = TWO_CONFIGS.replacen("[dataset]\n", "[dataset]\nlidar_sweeps = true\n", 1);
+    let patch = "\n[detector_patch]\nvelocity_weight = 2.0\ninput = { lidar_sweeps = 10, max_sweep_lag_s = 1.0 }\n";
+    let patched = plan(&format!("{sweeps}{patch}")).unwrap();
+    assert_eq!(patched.jobs.len(), plain.jobs.len());
+    assert!(!patched.jobs.is_empty());
+    for (p, q) in patched.jobs.iter().zip(&plain.jobs) {
+        assert_eq!((p.detector.velocity_weight, p.detector.input.lidar_sweeps), (2.0, 10), "{}", p.id);
+        assert_eq!((&p.detector.grid, &p.detector.name), (&q.detector.grid, &q.detector.name));
+        assert_ne!(p.run, q.run, "{}: a patched run has a folder of its own", p.id);
+    }
+    for (text, words) in [
+        (format!("{TWO_CONFIGS}{patch}"), vec!["[detector_patch]", "lidar_sweeps = true", "[dataset]"]),
+        (format!("{sweeps}\n[detector_patch]\nname = \"mine\"\n"), vec!["[detector_patch]", "name or fusion"]),
+        (format!("{sweeps}\n[detector_patch]\ninput = {{ lidar_sweps = 3 }}\n"), vec!["input.lidar_sweps"]),
+    ] {
+        let e = plan(&text).unwrap_err().to_string();
+        assert!(words.iter().all(|w| e.contains(w)), "{e}");
+    }
+}
