@@ -291,8 +291,7 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             };
             match modality {
                 "lidar" => {
-                    let chain = sweeps(sd, opts.lidar_sweeps, opts.max_sweep_lag_s, &sd_by_token);
-                    for (cur, lag) in chain {
+                    for (cur, lag) in sweeps(sd, opts.lidar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
                         let points = ds.lidar_points(cur).map_err(FusionError::dataset)?;
                         let n = points.len();
                         let points = match opts.background {

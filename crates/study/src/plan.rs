@@ -452,12 +452,6 @@ impl FolderRecord {
     }
 }
 
-/// The parts of a study file that define what its stages compute, as text for the folder's
-/// fingerprint: everything but the `[verdict]` settings, which only change how the report
-/// judges (a new margin rewrites the report, not the trained detectors), and the `[validation]`
-/// settings, which only `hilo validate` reads. Written as the file's
-/// derived `Debug` was before the section existed (and without `conditions` when there are
-/// none), so folders made then still open.
 /// A preset's detector config with the study's `[detector_patch]` applied (the preset's own
 /// without one). The patch may not rename the preset or change its fusion plugin (the verdict
 /// reads both), and stacked LiDAR sweeps need datasets that record them.
@@ -478,13 +472,19 @@ fn patched_detector(
     }
     if p.input.lidar_sweeps > 1 && !dataset.lidar_sweeps {
         return Err(bad(format!(
-            "input.lidar_sweeps = {} stacks LiDAR sweeps, but [dataset] lidar_sweeps = false records LiDAR only at key frames (0.5 s apart in validation); set `lidar_sweeps = true` under [dataset]",
+            "input.lidar_sweeps = {} stacks LiDAR sweeps, but [dataset] lidar_sweeps = false records LiDAR only at key frames (the validation split's are 1 / val_rate_hz apart); set `lidar_sweeps = true` under [dataset]",
             p.input.lidar_sweeps
         )));
     }
     Ok(p)
 }
 
+/// The parts of a study file that define what its stages compute, as text for the folder's
+/// fingerprint: everything but the `[verdict]` settings, which only change how the report
+/// judges (a new margin rewrites the report, not the trained detectors), and the `[validation]`
+/// settings, which only `hilo validate` reads. Written as the file's
+/// derived `Debug` was before the section existed (and without `conditions` or
+/// `detector_patch` when there are none), so folders made then still open.
 fn defining(f: &crate::study::StudyFile) -> String {
     let conditions = if f.conditions.is_empty() { String::new() } else { format!(", conditions: {:?}", f.conditions) };
     let patch = f.detector_patch.as_ref().map_or(String::new(), |p| format!(", detector_patch: Some({p:?})"));
