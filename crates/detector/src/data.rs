@@ -184,32 +184,44 @@ fn sweeps<'a>(
     chain
 }
 
-/// The dataset's LiDAR sweep period: the shortest gap between a LiDAR sample_data and the one
-/// before it on its channel (µs); None without two in a row. Stacking sweeps where the records
-/// lie farther apart than this (key frames only) would feed one split older points than another.
-fn lidar_period_us(
-    t: &hilo_dataset::tables::Tables,
-    calib: &HashMap<&str, &hilo_dataset::tables::CalibratedSensor>,
-    sensors: &HashMap<&str, &hilo_dataset::tables::Sensor>,
-    by_token: &HashMap<&str, &SampleData>,
-) -> Option<u64> {
-    t.sample_data
+/// Over the whole split (one frame loaded alone is refused alike): the dataset's LiDAR sweep
+/// period is the shortest gap between a LiDAR record and the one before it on its channel;
+/// stacking where the split's key-frame records lie farther apart (key frames only) would feed
+/// one split older points than another. Of the gaps behind the key frames, those a stack would
+/// bridge count (a longer one ends the stack anyway), and their median: an occasional dropped
+/// sweep is no matter.
+fn check_lidar_sweeps(
+    ds: &Dataset,
+    split: &str,
+    opts: &LoadOptions,
+    samples: &[&hilo_dataset::tables::Sample],
+    by_sample: &HashMap<&str, Vec<&SampleData>>,
+    sd_by_token: &HashMap<&str, &SampleData>,
+    is_lidar: &dyn Fn(&SampleData) -> bool,
+) -> Result<()> {
+    let gap_behind =
+        |sd: &SampleData| sd_by_token.get(sd.prev.as_str()).map(|p| sd.timestamp.saturating_sub(p.timestamp));
+    let period = ds.tables.sample_data.iter().filter(|sd| is_lidar(sd)).filter_map(gap_behind).filter(|&g| g > 0).min();
+    let Some(period) = period else { return Ok(()) };
+    let max_lag_us = 1e6 * opts.max_sweep_lag_s as f64;
+    let mut gaps: Vec<u64> = samples
         .iter()
-        .filter(|sd| !sd.prev.is_empty() && is_lidar(calib, sensors, sd))
-        .filter_map(|sd| by_token.get(sd.prev.as_str()).map(|p| sd.timestamp.saturating_sub(p.timestamp)))
-        .filter(|&gap| gap > 0)
-        .min()
-}
-
-fn is_lidar(
-    calib: &HashMap<&str, &hilo_dataset::tables::CalibratedSensor>,
-    sensors: &HashMap<&str, &hilo_dataset::tables::Sensor>,
-    sd: &SampleData,
-) -> bool {
-    calib
-        .get(sd.calibrated_sensor_token.as_str())
-        .and_then(|c| sensors.get(c.sensor_token.as_str()))
-        .is_some_and(|s| s.modality == "lidar")
+        .flat_map(|s| by_sample.get(s.token.as_str()).into_iter().flatten())
+        .filter(|sd| is_lidar(sd))
+        .filter_map(|sd| gap_behind(sd))
+        .filter(|&gap| gap as f64 <= max_lag_us)
+        .collect();
+    gaps.sort_unstable();
+    match gaps.get(gaps.len() / 2) {
+        Some(&median) if median as f64 > 1.5 * period as f64 => Err(FusionError::Config(format!(
+            "input.lidar_sweeps = {} stacks LiDAR sweeps, but the dataset {} has LiDAR only at the key frames of split {split:?} (a median {:.2} s apart, against sweeps every {:.2} s elsewhere): record it with `[dataset] lidar_sweeps = true`",
+            opts.lidar_sweeps,
+            ds.root.display(),
+            1e-6 * median as f64,
+            1e-6 * period as f64
+        ))),
+        _ => Ok(()),
+    }
 }
 
 fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usize>) -> Result<(Vec<Frame>, LoadStats)> {
@@ -243,35 +255,17 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
     let mut samples: Vec<&hilo_dataset::tables::Sample> =
         t.sample.iter().filter(|s| scene_name.contains_key(s.scene_token.as_str())).collect();
     samples.sort_by(|a, b| (a.scene_token.as_str(), a.timestamp).cmp(&(b.scene_token.as_str(), b.timestamp)));
+    if opts.lidar_sweeps > 1 {
+        let is_lidar = |sd: &SampleData| {
+            calib
+                .get(sd.calibrated_sensor_token.as_str())
+                .and_then(|c| sensors.get(c.sensor_token.as_str()))
+                .is_some_and(|x| x.modality == "lidar")
+        };
+        check_lidar_sweeps(ds, split, opts, &samples, &by_sample, &sd_by_token, &is_lidar)?;
+    }
     if let Some(i) = only {
         samples = samples.get(i).copied().into_iter().collect();
-    }
-    if opts.lidar_sweeps > 1
-        && let Some(period) = lidar_period_us(t, &calib, &sensors, &sd_by_token)
-    {
-        // The median gap behind the split's key-frame LiDAR records, of those a stack would
-        // bridge (a longer gap ends the stack anyway): an occasional dropped sweep is no matter,
-        // key frames only throughout are.
-        let max_lag_us = 1e6 * opts.max_sweep_lag_s as f64;
-        let mut gaps: Vec<u64> = samples
-            .iter()
-            .flat_map(|s| by_sample.get(s.token.as_str()).into_iter().flatten())
-            .filter(|sd| is_lidar(&calib, &sensors, sd) && !sd.prev.is_empty())
-            .filter_map(|sd| sd_by_token.get(sd.prev.as_str()).map(|p| sd.timestamp.saturating_sub(p.timestamp)))
-            .filter(|&gap| gap as f64 <= max_lag_us)
-            .collect();
-        gaps.sort_unstable();
-        if let Some(&median) = gaps.get(gaps.len() / 2)
-            && median as f64 > 1.5 * period as f64
-        {
-            return Err(FusionError::Config(format!(
-                "input.lidar_sweeps = {} stacks LiDAR sweeps, but the dataset {} has LiDAR only at the key frames of split {split:?} (a median {:.2} s apart, against sweeps every {:.2} s elsewhere): record it with `[dataset] lidar_sweeps = true`",
-                opts.lidar_sweeps,
-                ds.root.display(),
-                1e-6 * median as f64,
-                1e-6 * period as f64
-            )));
-        }
     }
     let mut stats = LoadStats { frames: samples.len(), ..LoadStats::default() };
     let mut frames = Vec::with_capacity(samples.len());
