@@ -205,7 +205,7 @@ fn fusion(c: &mut Criterion) {
         let (n, cells, ci) = (h.sites[0].len(), cfg.grid.cells(), 8usize);
         let x = Tensor::randn(0f32, 1.0, (n, ci), &Device::Cpu).expect("x");
         let w = Tensor::randn(0f32, 1.0, (8, ci, 3, 3), &Device::Cpu).expect("w");
-        let rules = Tensor::from_slice(&h.subm[0], h.subm[0].len(), &Device::Cpu).expect("rules");
+        let rules = hilo::fusion::layout::Rules::new(&h.subm[0], h.sites[0].len(), &Device::Cpu).expect("rules");
         let ys = hilo::fusion::layout::gather_conv(&x, &w, &rules).expect("sparse").to_vec2::<f32>().expect("ys");
         let xv = x.to_vec2::<f32>().expect("xv");
         let mut dense = vec![0f32; 2 * ci * cells * cells];

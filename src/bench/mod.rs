@@ -600,7 +600,7 @@ pub fn train(
         let preset = registry.preset(name)?;
         let mut det_cfg = preset.detector.clone();
         let mut cfg = preset.train.clone();
-        let mut backward = hilo_fusion::layout::Backward::Scatter;
+        let mut backward = None;
         // Variants for the levers' rows.
         for (k, v) in overrides {
             match (k.as_str(), v.as_u64()) {
@@ -618,8 +618,8 @@ pub fn train(
                 ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
                 ("replicas", Some(n)) if n >= 1 => cfg.replicas = n as usize,
                 ("sync_batch_norm", _) if v.is_boolean() => cfg.sync_batch_norm = v == true,
-                ("sparse_backward", _) if v == "scatter" => backward = hilo_fusion::layout::Backward::Scatter,
-                ("sparse_backward", _) if v == "gather" => backward = hilo_fusion::layout::Backward::Gather,
+                ("sparse_backward", _) if v == "scatter" => backward = Some(hilo_fusion::layout::Backward::Scatter),
+                ("sparse_backward", _) if v == "gather" => backward = Some(hilo_fusion::layout::Backward::Gather),
                 ("head_dilation", Some(n)) => {
                     if let Some(sp) = det_cfg.sparse.as_mut() {
                         sp.head_dilation = n as usize;
@@ -699,7 +699,7 @@ pub fn train(
             replicas: cfg.replicas,
             replicas_at_once,
             sync_batch_norm: cfg.sync_batch_norm,
-            sparse_backward: format!("{backward:?}").to_lowercase(),
+            sparse_backward: format!("{:?}", hilo_fusion::layout::Backward::default_on(&device)).to_lowercase(),
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
             ms,
@@ -711,7 +711,7 @@ pub fn train(
             head_sites_per_batch: occupancy.2,
         });
     }
-    hilo_fusion::layout::Backward::set_default(hilo_fusion::layout::Backward::Scatter);
+    hilo_fusion::layout::Backward::set_default(None);
     Ok(TrainReport {
         data: data.display().to_string(),
         device: device_name(&device),

@@ -219,7 +219,7 @@ impl Conv {
     }
 
     /// Sparse rows `(N_in, C)` along a rulebook (`N_out · k²`): `(N_out, C_out)`.
-    pub fn forward_rules(&self, x: &Tensor, rules: &Tensor) -> Result<Tensor> {
+    pub fn forward_rules(&self, x: &Tensor, rules: &crate::layout::Rules) -> Result<Tensor> {
         self.add_bias(crate::layout::gather_conv(x, &self.weight, rules)?)
     }
 

@@ -13,9 +13,12 @@
 //! the kernel, and their gradient flows back through the gather as a scatter-add. On the CPU the
 //! convolution is one autograd node ([`GatherConv`]: the gathered matrix is a buffer, not a
 //! tensor of the graph, whose zeroed gradient candle's backward pass would otherwise allocate,
-//! add into and scatter); on other devices it is candle's own `index_select`, `matmul` and
-//! `index_add` ([`gather_conv_composite`], the reference the fused node is tested against), so
-//! the sparse path runs unchanged on any device. Submanifold convolutions (stride 1) keep their
+//! add into and scatter); on other devices it is candle's own `index_select` and `matmul`
+//! ([`gather_conv_composite`], the reference the fused node is tested against), so the sparse
+//! path runs unchanged on any device. There the gather's backward pass is itself a gather
+//! ([`RowGather`]) through the inverted rulebook (each input row's readers, built on the host
+//! with the rulebook: [`Rules`]), rather than candle's `index_add`, whose CUDA kernel runs one
+//! thread per channel looping over every gathered row. Submanifold convolutions (stride 1) keep their
 //! sites; BatchNorm normalises over the sites only, so empty cells stay exactly empty, unlike a
 //! dense network where BatchNorm and its bias make every empty cell a value.
 //!
@@ -234,7 +237,7 @@ impl SparseHost {
 pub struct Plane {
     pub sites: usize,
     /// 3×3 stride-1 rulebook over the plane's sites, (N · 9).
-    pub subm: Tensor,
+    pub subm: Rules,
     /// Batch index per site (N,) and sites per batch element (B, 1), for per-frame means.
     pub batch_of: Tensor,
     pub counts: Tensor,
@@ -246,11 +249,13 @@ pub struct Sparse {
     pub batch: usize,
     pub levels: Vec<Plane>,
     /// `down[l]`: the stride-2 rulebook into level l (none at level 0).
-    pub down: Vec<Option<Tensor>>,
+    pub down: Vec<Option<Rules>>,
     pub head: Plane,
-    pub head_from: Vec<Tensor>,
+    /// Per level, [`SparseHost::head_from`]: a rulebook into the head sites for levels finer
+    /// than the head, each head site's parent row (one tap) for the others.
+    pub head_from: Vec<Rules>,
     /// Per level, [`SparseHost::head_taps`].
-    pub head_taps: Vec<Tensor>,
+    pub head_taps: Vec<Rules>,
 }
 
 /// Where a batch's BEV features live.
@@ -273,7 +278,7 @@ fn plane(sites: usize, subm: &[u32], batch_of: Vec<u32>, batch: usize, device: &
     }
     Ok(Plane {
         sites,
-        subm: u32s(subm, device)?,
+        subm: Rules::new(subm, sites, device)?,
         batch_of: u32s(&batch_of, device)?,
         counts: Tensor::from_vec(counts.into_iter().map(|c| c.max(1.0)).collect::<Vec<_>>(), (batch, 1), device)?,
     })
@@ -286,14 +291,23 @@ impl Layout {
         let levels = (0..h.sites.len())
             .map(|l| plane(h.sites[l].len(), &h.subm[l], h.batch_of(Some(l)), batch, device))
             .collect::<Result<Vec<_>>>()?;
-        let down = h
-            .down
-            .iter()
-            .map(|d| if d.is_empty() { Ok(None) } else { u32s(d, device).map(Some) })
+        let down = (0..h.down.len())
+            .map(|l| match &h.down[l] {
+                d if d.is_empty() || l == 0 => Ok(None),
+                d => Rules::new(d, h.sites[l - 1].len(), device).map(Some),
+            })
             .collect::<Result<_>>()?;
         let head = plane(h.head_sites.len(), &h.head_subm, h.batch_of(None), batch, device)?;
-        let head_from = h.head_from.iter().map(|f| u32s(f, device)).collect::<Result<_>>()?;
-        let head_taps = h.head_taps.iter().map(|f| u32s(f, device)).collect::<Result<_>>()?;
+        let head_from = (0..h.head_from.len())
+            .map(|l| Rules::new(&h.head_from[l], h.sites[l].len(), device))
+            .collect::<Result<_>>()?;
+        // Tap products are rows of the level's sites (of the head sites for finer levels).
+        let head_taps = (0..h.head_taps.len())
+            .map(|l| {
+                let n = if l < h.head_level { h.head_sites.len() } else { h.sites[l].len() };
+                Rules::new(&h.head_taps[l], n * 9, device)
+            })
+            .collect::<Result<_>>()?;
         Ok(Layout::Sparse(Box::new(Sparse { batch, levels, down, head, head_from, head_taps })))
     }
 
@@ -364,15 +378,69 @@ impl At<'_> {
 ///
 /// On the CPU the whole convolution is one autograd node ([`GatherConv`]); elsewhere it is
 /// candle's `index_select` and `matmul` ([`gather_conv_composite`]).
-pub fn gather_conv(x: &Tensor, w: &Tensor, rules: &Tensor) -> Result<Tensor> {
-    gather_conv_with(x, w, rules, Backward::default_now())
+pub fn gather_conv(x: &Tensor, w: &Tensor, rules: &Rules) -> Result<Tensor> {
+    gather_conv_with(x, w, rules, Backward::default_on(x.device()))
 }
 
-/// How [`GatherConv`]'s backward pass forms the input's gradient. The default is
-/// [`Backward::Scatter`]: on a 2-core AVX-512 EPYC, idle, `hilo bench train --variant
+/// An index map on the device: a rulebook (`N_out · taps` input rows) or any other list of
+/// rows to gather ([`NONE`]: zeros), and, where the sparse path runs from candle's operations
+/// (off the CPU, with [`Backward::Gather`]), its inverse for [`RowGather`]'s backward pass: for
+/// each input row, the positions of the list that read it, padded with [`NONE`] to the most
+/// any row is read (`reads`), `N_in · reads` entries.
+#[derive(Debug, Clone)]
+pub struct Rules {
+    pub rows: Tensor,
+    pub inverse: Option<Tensor>,
+    pub reads: usize,
+}
+
+impl Rules {
+    /// The list `rules` over `n_in` input rows on `device`, inverted where
+    /// [`Backward::default_on`] `device` gathers.
+    pub fn new(rules: &[u32], n_in: usize, device: &Device) -> Result<Rules> {
+        let invert = !device.is_cpu() && Backward::default_on(device) == Backward::Gather;
+        Self::with_inverse(rules, n_in, device, invert)
+    }
+
+    /// [`Rules::new`] with the inverse built or not as `invert` says (tests take both paths on
+    /// the CPU).
+    pub fn with_inverse(rules: &[u32], n_in: usize, device: &Device, invert: bool) -> Result<Rules> {
+        let rows = u32s(rules, device)?;
+        if !invert {
+            return Ok(Rules { rows, inverse: None, reads: 0 });
+        }
+        let (inverse, reads) = padded_inverse(rules, n_in)?;
+        Ok(Rules { rows, inverse: Some(u32s(&inverse, device)?), reads })
+    }
+}
+
+/// For each of `n_in` input rows the positions of `rules` that read it, padded with [`NONE`] to
+/// the most any row is read: `(N_in · reads, reads)`, `reads` ≥ 1.
+fn padded_inverse(rules: &[u32], n_in: usize) -> Result<(Vec<u32>, usize)> {
+    let mut count = vec![0usize; n_in];
+    for &r in rules.iter().filter(|&&r| r != NONE) {
+        let c = count
+            .get_mut(r as usize)
+            .ok_or_else(|| crate::error::FusionError::Config(format!("a rulebook reads row {r} of {n_in}")))?;
+        *c += 1;
+    }
+    let reads = count.iter().copied().max().unwrap_or(0).max(1);
+    let mut inverse = vec![NONE; n_in * reads];
+    count.iter_mut().for_each(|c| *c = 0);
+    for (p, &r) in rules.iter().enumerate().filter(|(_, r)| **r != NONE) {
+        inverse[r as usize * reads + count[r as usize]] = p as u32;
+        count[r as usize] += 1;
+    }
+    Ok((inverse, reads))
+}
+
+/// How a sparse convolution's backward pass forms the input's gradient. On the CPU the default
+/// is [`Backward::Scatter`]: on a 2-core AVX-512 EPYC, idle, `hilo bench train --variant
 /// sparse_backward=gather|scatter` (alternating, two rounds) gave `centerpoint` 180–195 samples/s
 /// gathering against 210–218 scattering, and `lirafusion-like` 174–179 against 194–196 (the
 /// gather of the output gradient is nine rows per input row, the scatter's adds stay in cache).
+/// Elsewhere it is [`Backward::Gather`] ([`RowGather`]): candle's `index_add` on CUDA runs one
+/// thread per channel, each looping over every gathered row.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Backward {
     /// Through the inverted rulebook: per tap a rulebook reads each input row at most once, so
@@ -386,26 +454,42 @@ pub enum Backward {
     Scatter,
 }
 
-static GATHER_BACKWARD: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+/// The process's choice: 0 each device's own default, 1 [`Backward::Gather`], 2
+/// [`Backward::Scatter`].
+static BACKWARD: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(0);
 
 impl Backward {
-    /// The process's choice for [`gather_conv`]: [`Backward::Scatter`] unless
-    /// [`Backward::set_default`] chose otherwise (a benchmark's before/after lever).
-    pub fn default_now() -> Self {
-        if GATHER_BACKWARD.load(std::sync::atomic::Ordering::Relaxed) { Backward::Gather } else { Backward::Scatter }
+    /// The process's choice on `device`: what [`Backward::set_default`] chose (a benchmark's
+    /// before/after lever), else [`Backward::Scatter`] on the CPU and [`Backward::Gather`]
+    /// elsewhere.
+    pub fn default_on(device: &Device) -> Self {
+        match BACKWARD.load(std::sync::atomic::Ordering::Relaxed) {
+            1 => Backward::Gather,
+            2 => Backward::Scatter,
+            _ if device.is_cpu() => Backward::Scatter,
+            _ => Backward::Gather,
+        }
     }
 
-    pub fn set_default(b: Backward) {
-        GATHER_BACKWARD.store(b == Backward::Gather, std::sync::atomic::Ordering::Relaxed);
+    /// Chooses the backward pass for every device, or (None) each device's own default. A
+    /// layout built before the choice keeps its rulebooks' inverses (or their absence).
+    pub fn set_default(b: Option<Backward>) {
+        let v = match b {
+            None => 0,
+            Some(Backward::Gather) => 1,
+            Some(Backward::Scatter) => 2,
+        };
+        BACKWARD.store(v, std::sync::atomic::Ordering::Relaxed);
     }
 }
 
-/// [`gather_conv`] with the backward pass `backward`.
-pub fn gather_conv_with(x: &Tensor, w: &Tensor, rules: &Tensor, backward: Backward) -> Result<Tensor> {
+/// [`gather_conv`] with the backward pass `backward` (on the CPU; elsewhere the rulebook's
+/// inverse, present or not, decides).
+pub fn gather_conv_with(x: &Tensor, w: &Tensor, rules: &Rules, backward: Backward) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     let taps = kh * kw;
-    crate::cpu::count_matmul(rules.dim(0)? / taps, taps * ci, co);
-    fused_on_cpu(x, w, GatherConv { rules: rules.clone(), kernel: std::sync::OnceLock::new(), backward }, || {
+    crate::cpu::count_matmul(rules.rows.dim(0)? / taps, taps * ci, co);
+    fused_on_cpu(x, w, GatherConv { rules: rules.rows.clone(), kernel: std::sync::OnceLock::new(), backward }, || {
         gather_conv_composite(x, w, rules)
     })
 }
@@ -458,12 +542,81 @@ fn fused_on_cpu(
 
 /// [`gather_conv`] from candle's own operations (gather, reshape, matrix product), each an
 /// autograd node: the reference [`GatherConv`] is tested against, and the path on other devices.
-pub fn gather_conv_composite(x: &Tensor, w: &Tensor, rules: &Tensor) -> Result<Tensor> {
+/// The gather is [`RowGather`] where the rulebook carries its inverse, else `index_select`
+/// (whose backward pass is candle's `index_add`).
+pub fn gather_conv_composite(x: &Tensor, w: &Tensor, rules: &Rules) -> Result<Tensor> {
     let (_, ci, kh, kw) = w.dims4()?;
     let taps = kh * kw;
-    let n_out = rules.dim(0)? / taps;
-    let cols = x.contiguous()?.index_select(rules, 0)?.reshape((n_out, taps * ci))?;
-    Ok(cols.matmul(&kernel_matrix(w)?)?)
+    let n_out = rules.rows.dim(0)? / taps;
+    let x = x.contiguous()?;
+    Ok(gather(&x, rules)?.reshape((n_out, taps * ci))?.matmul(&kernel_matrix(w)?)?)
+}
+
+/// The rows of `x` that `rules` names (zeros for [`NONE`]): [`RowGather`] where the list
+/// carries its inverse, else `index_select` (whose backward pass is candle's `index_add`).
+pub fn gather(x: &Tensor, rules: &Rules) -> Result<Tensor> {
+    Ok(match &rules.inverse {
+        Some(inverse) => x.contiguous()?.apply_op1(RowGather {
+            rules: rules.rows.clone(),
+            inverse: inverse.clone(),
+            reads: rules.reads,
+        })?,
+        None => x.index_select(&rules.rows, 0)?,
+    })
+}
+
+/// The rows of `x` `(N_in, C)` a list names (zeros for [`NONE`]) as one autograd node whose
+/// backward pass is a gather, not a scatter-add: the input's gradient at row `i` is the sum of
+/// the output gradient's rows at the positions that read `i` ([`Rules::inverse`], padded to
+/// `reads` per row): a gather of `N_in · reads` rows and a sum, one thread per element on a
+/// GPU, where candle's `index_add` runs one thread per channel looping over every row. A
+/// rulebook reads a row at most once per tap (`reads` ≤ 9); a head site's parent is read by
+/// the head sites below it. Forward: candle's own gather on the device.
+#[derive(Debug, Clone)]
+pub struct RowGather {
+    rules: Tensor,
+    inverse: Tensor,
+    reads: usize,
+}
+
+const ROW_GATHER: &str = "hilo-row-gather";
+
+impl candle_core::CustomOp1 for RowGather {
+    fn name(&self) -> &'static str {
+        ROW_GATHER
+    }
+
+    fn cpu_fwd(
+        &self,
+        s: &CpuStorage,
+        l: &candle_core::Layout,
+    ) -> candle_core::Result<(CpuStorage, candle_core::Shape)> {
+        let x = f32_slice(s, l, ROW_GATHER)?;
+        let (_, ci) = l.shape().dims2()?;
+        let cols = with_cpu::<u32, _>(&self.rules, ROW_GATHER, |rules| Ok(gather_rows(x, ci, rules)))?;
+        Ok((CpuStorage::F32(cols), candle_core::Shape::from((self.rules.dim(0)?, ci))))
+    }
+
+    #[cfg(feature = "cuda")]
+    fn cuda_fwd(
+        &self,
+        s: &candle_core::CudaStorage,
+        l: &candle_core::Layout,
+    ) -> candle_core::Result<(candle_core::CudaStorage, candle_core::Shape)> {
+        use candle_core::backend::BackendStorage;
+        let (_, ci) = l.shape().dims2()?;
+        let (rules, rl) = self.rules.storage_and_layout();
+        let candle_core::Storage::Cuda(rules) = &*rules else {
+            candle_core::bail!("{ROW_GATHER}: the rulebook is not on the input's device")
+        };
+        Ok((s.index_select(rules, l, rl, 0)?, candle_core::Shape::from((self.rules.dim(0)?, ci))))
+    }
+
+    fn bwd(&self, x: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        let (n_in, ci) = x.dims2()?;
+        let g = grad.detach().contiguous()?.index_select(&self.inverse, 0)?;
+        Ok(Some(g.reshape((n_in, self.reads, ci))?.sum(1)?))
+    }
 }
 
 /// (C_out, C_in, kh, kw) → (taps · C_in, C_out), taps major as the gather lays them out.
@@ -706,10 +859,10 @@ impl CustomOp2 for GatherConv {
 ///
 /// On the CPU it is one autograd node ([`ParentConv`]); elsewhere candle's `matmul`,
 /// `index_select` and `sum` ([`parent_conv_composite`]).
-pub fn parent_conv(v: &Tensor, w: &Tensor, taps: &Tensor) -> Result<Tensor> {
+pub fn parent_conv(v: &Tensor, w: &Tensor, taps: &Rules) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     crate::cpu::count_matmul(v.dim(0)?, ci, kh * kw * co);
-    fused_on_cpu(v, w, ParentConv { taps: taps.clone(), kernel: std::sync::OnceLock::new() }, || {
+    fused_on_cpu(v, w, ParentConv { taps: taps.rows.clone(), kernel: std::sync::OnceLock::new() }, || {
         parent_conv_composite(v, w, taps)
     })
 }
@@ -717,13 +870,13 @@ pub fn parent_conv(v: &Tensor, w: &Tensor, taps: &Tensor) -> Result<Tensor> {
 /// [`parent_conv`] from candle's own operations: the tap products `(N_v · 9, C_out)`, the rows
 /// the head sites read, summed over the taps. The reference [`ParentConv`] is tested against,
 /// and the path on other devices.
-pub fn parent_conv_composite(v: &Tensor, w: &Tensor, taps: &Tensor) -> Result<Tensor> {
+pub fn parent_conv_composite(v: &Tensor, w: &Tensor, taps: &Rules) -> Result<Tensor> {
     let (co, ci, kh, kw) = w.dims4()?;
     let t = kh * kw;
-    let n_head = taps.dim(0)? / t;
+    let n_head = taps.rows.dim(0)? / t;
     let wm = w.reshape((co, ci, t))?.permute((1, 2, 0))?.reshape((ci, t * co))?;
     let products = v.contiguous()?.matmul(&wm)?.reshape((v.dim(0)? * t, co))?;
-    Ok(products.index_select(taps, 0)?.reshape((n_head, t, co))?.sum(1)?)
+    Ok(gather(&products, taps)?.reshape((n_head, t, co))?.sum(1)?)
 }
 
 /// A kernel `(C_out, C_in, taps)` as the `(C_in, taps · C_out)` matrix of [`ParentConv`]'s tap
@@ -892,7 +1045,8 @@ mod tests {
         for (stride, rules, out_sites, n) in
             [(1usize, &h.subm[0], &h.sites[0], cells), (2, &h.down[1], &h.sites[1], cells / 2)]
         {
-            let ys = gather_conv(&xs, &w, &u32s(rules, &dev).unwrap()).unwrap().to_vec2::<f32>().unwrap();
+            let n_in = if stride == 1 { n0 } else { h.sites[0].len() };
+            let ys = gather_conv(&xs, &w, &Rules::new(rules, n_in, &dev).unwrap()).unwrap().to_vec2::<f32>().unwrap();
             let yd = xd.conv2d(&w, 1, stride, 1, 1).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
             for (i, &s) in out_sites.iter().enumerate() {
                 let (bb, rc) = (s as usize / (n * n), s as usize % (n * n));
@@ -935,6 +1089,11 @@ mod tests {
         assert_eq!(inv, vec![NONE, 0, 1, NONE, 0, NONE]);
         assert!(inverse_rules(&[1, 0, 1, NONE], 3, 2).is_none(), "row 1 read twice through tap 0");
         assert!(inverse_rules(&[1, 0, 2, 0], 3, 2).is_none(), "row 0 read twice through tap 1");
+        // The padded inverse takes any list: row 0 read at 1 and 3, row 1 at 0 and 2, row 2
+        // by none; out of range is an error, not a panic.
+        assert_eq!(padded_inverse(&[1, 0, 1, 0, NONE], 3).unwrap(), (vec![1, 3, 0, 2, NONE, NONE], 2));
+        assert_eq!(padded_inverse(&[NONE], 2).unwrap(), (vec![NONE, NONE], 1));
+        assert!(padded_inverse(&[3], 3).is_err());
     }
 
     #[test]
@@ -946,17 +1105,24 @@ mod tests {
         let n0 = h.sites[0].len();
         for rules in [&h.subm[0], &h.down[1]] {
             assert!(rules.contains(&NONE) && rules.iter().any(|&r| r != NONE));
-            let r = u32s(rules, &dev).unwrap();
+            let r = Rules::with_inverse(rules, n0, &dev, false).unwrap();
+            let inverted = Rules::with_inverse(rules, n0, &dev, true).unwrap();
+            assert!((1..=9).contains(&inverted.reads), "a rulebook reads a row at most once per tap");
             let n_out = rules.len() / 9;
             let mut uniform = |len: usize| -> Vec<f32> { (0..len).map(|_| rng.random_range(-1.0..1.0)).collect() };
             let up = Tensor::from_vec(uniform(n_out * co), (n_out, co), &dev).unwrap();
             let w0 = Tensor::from_vec(uniform(co * ci * 9), (co, ci, 3, 3), &dev).unwrap();
-            let run = |fused: Option<Backward>| {
+            // Fused with either backward pass, or the composite with `index_add` (None, false)
+            // or with the gather through the inverse (None, true).
+            let run = |fused: Option<Backward>, inverse: bool| {
                 let xv = candle_core::Var::from_vec(x.clone(), (n0, ci), &dev).unwrap();
                 let wv = candle_core::Var::from_tensor(&w0.copy().unwrap()).unwrap();
                 let y = match fused {
                     Some(b) => gather_conv_with(xv.as_tensor(), wv.as_tensor(), &r, b).unwrap(),
-                    None => gather_conv_composite(xv.as_tensor(), wv.as_tensor(), &r).unwrap(),
+                    None => {
+                        let rr = if inverse { &inverted } else { &r };
+                        gather_conv_composite(xv.as_tensor(), wv.as_tensor(), rr).unwrap()
+                    }
                 };
                 let g = (&y * &up).unwrap().sum_all().unwrap().backward().unwrap();
                 let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
@@ -965,9 +1131,9 @@ mod tests {
             // Both backward passes; the rulebooks read each row at most once per tap, so the
             // gather-only one does not fall back.
             assert!(inverse_rules(rules, n0, 9).is_some());
-            let reference = run(None);
-            for b in [Backward::Gather, Backward::Scatter] {
-                let fused = run(Some(b));
+            let reference = run(None, false);
+            for (b, inverse) in [(Some(Backward::Gather), false), (Some(Backward::Scatter), false), (None, true)] {
+                let fused = run(b, inverse);
                 for (what, a, c) in
                     [("y", &fused.0, &reference.0), ("dx", &fused.1, &reference.1), ("dw", &fused.2, &reference.2)]
                 {
@@ -1019,31 +1185,38 @@ mod tests {
                 }
             })
             .collect();
-        let t = u32s(&taps, &dev).unwrap();
+        let t = Rules::with_inverse(&taps, n_v * 9, &dev, false).unwrap();
+        let inverted = Rules::with_inverse(&taps, n_v * 9, &dev, true).unwrap();
+        assert!(inverted.reads > 1, "a tap product read by several head sites");
         let mut uniform = |len: usize| -> Vec<f32> { (0..len).map(|_| rng.random_range(-1.0..1.0)).collect() };
         let (v0, w0, up) = (uniform(n_v * ci), uniform(co * ci * 9), uniform(n_head * co));
         let up = Tensor::from_vec(up, (n_head, co), &dev).unwrap();
-        let run = |fused: bool| {
+        // The fused node (0), the composite with `index_add` (1) and with the gather through
+        // the inverse (2).
+        let run = |path: usize| {
             let vv = candle_core::Var::from_vec(v0.clone(), (n_v, ci), &dev).unwrap();
             let wv = candle_core::Var::from_vec(w0.clone(), (co, ci, 3, 3), &dev).unwrap();
-            let y = if fused {
-                parent_conv(vv.as_tensor(), wv.as_tensor(), &t).unwrap()
-            } else {
-                parent_conv_composite(vv.as_tensor(), wv.as_tensor(), &t).unwrap()
+            let y = match path {
+                0 => parent_conv(vv.as_tensor(), wv.as_tensor(), &t).unwrap(),
+                1 => parent_conv_composite(vv.as_tensor(), wv.as_tensor(), &t).unwrap(),
+                _ => parent_conv_composite(vv.as_tensor(), wv.as_tensor(), &inverted).unwrap(),
             };
             let g = (&y * &up).unwrap().sum_all().unwrap().backward().unwrap();
             let flat = |t: &Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
             (flat(&y), flat(g.get(vv.as_tensor()).unwrap()), flat(g.get(wv.as_tensor()).unwrap()))
         };
-        let (fused, reference) = (run(true), run(false));
-        assert!(fused.1[(n_v - 1) * ci..].iter().all(|&g| g == 0.0), "an unread row has no gradient");
-        for (what, a, b) in
-            [("y", &fused.0, &reference.0), ("dv", &fused.1, &reference.1), ("dw", &fused.2, &reference.2)]
-        {
-            assert_eq!(a.len(), b.len());
-            assert!(b.iter().any(|v| v.abs() > 1e-3), "{what} is not all zeros");
-            for (i, (p, q)) in a.iter().zip(b.iter()).enumerate() {
-                assert!((p - q).abs() <= 1e-4 * (1.0 + q.abs()), "{what}[{i}]: {p} vs {q}");
+        let reference = run(1);
+        for path in [0, 2] {
+            let other = run(path);
+            assert!(other.1[(n_v - 1) * ci..].iter().all(|&g| g == 0.0), "an unread row has no gradient");
+            for (what, a, b) in
+                [("y", &other.0, &reference.0), ("dv", &other.1, &reference.1), ("dw", &other.2, &reference.2)]
+            {
+                assert_eq!(a.len(), b.len());
+                assert!(b.iter().any(|v| v.abs() > 1e-3), "{what} is not all zeros");
+                for (i, (p, q)) in a.iter().zip(b.iter()).enumerate() {
+                    assert!((p - q).abs() <= 1e-4 * (1.0 + q.abs()), "path {path} {what}[{i}]: {p} vs {q}");
+                }
             }
         }
     }

@@ -178,7 +178,7 @@ impl ConvBn {
     }
 
     /// Sparse rows along a rulebook (any stride).
-    pub fn forward_rules(&self, x: &Tensor, rules: &Tensor, train: bool) -> Result<Tensor> {
+    pub fn forward_rules(&self, x: &Tensor, rules: &crate::layout::Rules, train: bool) -> Result<Tensor> {
         crate::bnrelu::bn_relu(&self.bn, &self.conv.forward_rules(x, rules)?, train)
     }
 
@@ -251,9 +251,9 @@ pub struct NeckPart {
     pub values: Tensor,
     /// Each head site's row of `values` (its parent; [`crate::layout::NONE`]: zeros), or `None`
     /// where `values` is at the head sites already.
-    pub from: Option<Tensor>,
+    pub from: Option<crate::layout::Rules>,
     /// The head's 3×3 rulebook through those rows ([`crate::layout::SparseHost::head_taps`]).
-    pub taps: Tensor,
+    pub taps: crate::layout::Rules,
 }
 
 /// The neck's output as the head reads it.
@@ -277,7 +277,7 @@ impl Neck {
                 let outs = parts
                     .iter()
                     .map(|p| match &p.from {
-                        Some(f) => Ok(p.values.index_select(f, 0)?),
+                        Some(f) => crate::layout::gather(&p.values, f),
                         None => Ok(p.values.clone()),
                     })
                     .collect::<Result<Vec<_>>>()?;
