@@ -50,3 +50,24 @@ fn every_shipped_patch_applies_to_every_preset() {
     }
     assert!(patches >= 1, "no patch in {}", dir.display());
 }
+
+/// Every schedule the project ships (`fixtures/schedules/`) applies to every registered preset's
+/// schedule, changes it and validates: a schedule file cannot name a field that does not exist.
+#[test]
+fn every_shipped_schedule_applies_to_every_preset() {
+    let registry = hilo::registry().unwrap();
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/schedules");
+    let mut schedules = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let fields: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        for name in registry.preset_names() {
+            let preset = registry.preset(&name).unwrap();
+            let train = preset.train.with_fields(&fields).unwrap_or_else(|e| panic!("{}: {name}: {e}", path.display()));
+            assert_ne!(train, preset.train, "{}: changes nothing of {name}", path.display());
+            train.validate().unwrap_or_else(|e| panic!("{}: {name}: {e}", path.display()));
+        }
+        schedules += 1;
+    }
+    assert!(schedules >= 1, "no schedule in {}", dir.display());
+}
