@@ -134,6 +134,10 @@ pub struct Report {
     /// the presets as they are).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector_patch: Option<serde_json::Value>,
+    /// The study file's `[train_schedule]`: what every training changed of its preset's
+    /// schedule (None: the presets' schedules).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_schedule: Option<serde_json::Value>,
     pub calibration: Calibration,
     pub learning_curves: Vec<Curve>,
     /// Whether every preset ranks the configurations the same at half its training and at the
@@ -292,6 +296,7 @@ pub fn assemble(
         provenance: Provenance::here(prof.trainings_at_once),
         ground_truth: "common".into(),
         detector_patch: study.file.detector_patch.clone(),
+        train_schedule: study.file.train_schedule.clone(),
         validation_scenes: scenes.len(),
         seeds: prof.seeds,
         classes,

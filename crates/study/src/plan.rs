@@ -238,6 +238,7 @@ impl Plan {
             for preset in profile.presets.iter().chain(ablations) {
                 let p = registry.preset(preset)?;
                 let detector_cfg = patched_detector(study, preset, &p.detector, &profile.dataset)?;
+                let schedule = scheduled(study, preset, &p.train)?;
                 if registry.uses_radar(&p.detector) && !radar[ci] {
                     skipped.push(format!("{preset} on {}: skipped (the configuration has no radar)", conf.name));
                     continue;
@@ -247,11 +248,12 @@ impl Plan {
                     // (`stages::train_all`), so a schedule's data-parallel replicas would run one
                     // after the other on that core, no faster (and synchronised BatchNorm, which
                     // needs them at once, could not run).
-                    let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..p.train.clone() };
-                    if let Some(n) = profile.train_samples {
+                    let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..schedule.clone() };
+                    let named = |f: &str| study.file.train_schedule.as_ref().is_some_and(|s| s.get(f).is_some());
+                    if let Some(n) = profile.train_samples.filter(|_| !named("samples")) {
                         tc.samples = n;
                     }
-                    if let Some(s) = profile.sampling {
+                    if let Some(s) = profile.sampling.filter(|_| !named("sampling")) {
                         tc.sampling = s;
                     }
                     let steps = tc.steps();
@@ -479,6 +481,27 @@ fn patched_detector(
     Ok(p)
 }
 
+/// A preset's training schedule with the study's `[train_schedule]` fields over it (the
+/// preset's own without the section). Fields the study sets itself per job (the seed, the kept
+/// checkpoints, one replica per training) are refused rather than silently replaced.
+fn scheduled(study: &Study, preset: &str, train: &TrainConfig) -> Result<TrainConfig> {
+    let Some(fields) = &study.file.train_schedule else { return Ok(train.clone()) };
+    let bad = |m: String| StudyError::Invalid(format!("[train_schedule] on preset {preset}: {m}"));
+    for own in ["seed", "keep", "replicas", "sync_batch_norm"] {
+        if let Some(v) = fields.get(own) {
+            return Err(bad(format!(
+                "{own} = {v}: the study sets it for each training (seeds from the profile, the learning curve's checkpoints, one replica per training)"
+            )));
+        }
+    }
+    train
+        .with_fields(fields)
+        .map_err(|e| bad(e.to_string()))?
+        .validate()
+        .map(|v| v.into_inner())
+        .map_err(|e| bad(e.to_string()))
+}
+
 /// The parts of a study file that define what its stages compute, as text for the folder's
 /// fingerprint: everything but the `[verdict]` settings, which only change how the report
 /// judges (a new margin rewrites the report, not the trained detectors), and the `[validation]`
@@ -488,8 +511,9 @@ fn patched_detector(
 fn defining(f: &crate::study::StudyFile) -> String {
     let conditions = if f.conditions.is_empty() { String::new() } else { format!(", conditions: {:?}", f.conditions) };
     let patch = f.detector_patch.as_ref().map_or(String::new(), |p| format!(", detector_patch: Some({p:?})"));
+    let schedule = f.train_schedule.as_ref().map_or(String::new(), |s| format!(", train_schedule: Some({s:?})"));
     format!(
-        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions}{patch} }}",
+        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions}{patch}{schedule} }}",
         f.scene, f.catalog, f.placement, f.dataset, f.configurations
     )
 }
@@ -510,7 +534,8 @@ mod tests {
             .replace(&format!(", verdict: {:?}", file.verdict), "")
             .replace(&format!(", validation: {:?}", file.validation), "")
             .replace(&format!(", evaluation: {:?}", file.evaluation), "")
-            .replace(", detector_patch: None", "");
+            .replace(", detector_patch: None", "")
+            .replace(", train_schedule: None", "");
         assert_eq!(defining(&file), whole);
         // A detector patch is part of it.
         let patched = crate::study::StudyFile {
@@ -520,8 +545,18 @@ mod tests {
         let whole = format!("{patched:?}")
             .replace(&format!(", verdict: {:?}", file.verdict), "")
             .replace(&format!(", validation: {:?}", file.validation), "")
-            .replace(&format!(", evaluation: {:?}", file.evaluation), "");
+            .replace(&format!(", evaluation: {:?}", file.evaluation), "")
+            .replace(", train_schedule: None", "");
         assert_eq!(defining(&patched), whole);
+        // So is a training schedule.
+        let scheduled =
+            crate::study::StudyFile { train_schedule: Some(serde_json::json!({ "batch": 16 })), ..file.clone() };
+        let whole = format!("{scheduled:?}")
+            .replace(&format!(", verdict: {:?}", file.verdict), "")
+            .replace(&format!(", validation: {:?}", file.validation), "")
+            .replace(&format!(", evaluation: {:?}", file.evaluation), "")
+            .replace(", detector_patch: None", "");
+        assert_eq!(defining(&scheduled), whole);
         // Without conditions the text is what it was before they existed.
         let bare = crate::study::StudyFile { conditions: Vec::new(), ..file };
         let whole = format!("{bare:?}")
@@ -529,7 +564,8 @@ mod tests {
             .replace(&format!(", validation: {:?}", bare.validation), "")
             .replace(&format!(", evaluation: {:?}", bare.evaluation), "")
             .replace(", conditions: []", "")
-            .replace(", detector_patch: None", "");
+            .replace(", detector_patch: None", "")
+            .replace(", train_schedule: None", "");
         assert_eq!(defining(&bare), whole);
     }
 }

@@ -444,6 +444,12 @@ fn md_claims(md: &mut String, r: &Report) {
     if let Some(patch) = &r.detector_patch {
         let _ = writeln!(md, "Every detector is its preset with the study's `[detector_patch]`: `{patch}`.\n");
     }
+    if let Some(schedule) = &r.train_schedule {
+        let _ = writeln!(
+            md,
+            "Every training is its preset's schedule with the study's `[train_schedule]`: `{schedule}`.\n"
+        );
+    }
 }
 
 /// What the radar adds and costs in the study's own weather and in each condition.

@@ -45,6 +45,14 @@ pub struct StudyFile {
     /// true`). It may not change a preset's name or fusion plugin. None: the presets as they are.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector_patch: Option<serde_json::Value>,
+    /// Changes to every detector's training schedule (`[train_schedule]`): fields of `run.json`'s
+    /// `train` over each preset's schedule, as `hilo train --train-config` takes them (a GPU's
+    /// `batch = 16` and `lr_max = 0.012`, say). Fields named here win over the profile's sample
+    /// count and sampling; the study sets the seeds, the kept checkpoints and one replica per
+    /// training itself, so `seed`, `keep`, `replicas` and `sync_batch_norm` are refused. None:
+    /// the presets' schedules.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train_schedule: Option<serde_json::Value>,
 }
 
 /// A weather condition of the study (`[[conditions]]`): the named configurations recorded again,

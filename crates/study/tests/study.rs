@@ -398,3 +398,41 @@ fn a_detector_patch_reaches_every_job_and_is_checked() {
         assert!(words.iter().all(|w| e.contains(w)), "{e}");
     }
 }
+
+/// `[train_schedule]` reaches every training the study runs (and its stage hash, so a study
+/// with its own schedule never reuses a preset-schedule run), its sample count wins over the
+/// profile's, and the fields the study sets itself, an unknown field and a bad value are refused
+/// by section, preset and field.
+#[test]
+fn a_train_schedule_reaches_every_job_and_is_checked() {
+    use hilo_study::Plan;
+    let dir = tempfile::tempdir().unwrap();
+    let mut registry = Registry::with_builtin();
+    hilo_fusion_raw::register(&mut registry).unwrap();
+    let plan = |text: &str| {
+        let study = Study::parse(text, dir.path(), "scheduled.toml")?;
+        let profile = hilo_study::profile("tiny", &study, &registry)?;
+        Plan::new(&study, &registry, &profile, &dir.path().join("study"))
+    };
+    let plain = plan(TWO_CONFIGS).unwrap();
+    let schedule = "\n[train_schedule]\nbatch = 4\nlr_max = 0.012\nsamples = 12\n";
+    let scheduled = plan(&format!("{TWO_CONFIGS}{schedule}")).unwrap();
+    assert_eq!(scheduled.jobs.len(), plain.jobs.len());
+    assert!(!scheduled.jobs.is_empty());
+    for (p, q) in scheduled.jobs.iter().zip(&plain.jobs) {
+        assert_eq!((p.train.batch, p.train.lr_max, p.train.samples), (4, 0.012, 12), "{}", p.id);
+        assert_ne!(q.train.samples, 12, "the tiny profile's own sample count differs");
+        assert_eq!((p.train.seed, p.train.replicas, p.train.sync_batch_norm), (q.train.seed, 1, false));
+        assert_eq!(p.detector, q.detector);
+        assert_ne!(p.run, q.run, "{}: a rescheduled run has a folder of its own", p.id);
+    }
+    for (text, words) in [
+        ("\n[train_schedule]\nseed = 3\n", vec!["[train_schedule]", "seed = 3"]),
+        ("\n[train_schedule]\nreplicas = 2\n", vec!["[train_schedule]", "replicas = 2"]),
+        ("\n[train_schedule]\nbatchsize = 16\n", vec!["[train_schedule]", "batchsize"]),
+        ("\n[train_schedule]\nbatch = 0\n", vec!["[train_schedule]", "batch = 0"]),
+    ] {
+        let e = plan(&format!("{TWO_CONFIGS}{text}")).unwrap_err().to_string();
+        assert!(words.iter().all(|w| e.contains(w)), "{e}");
+    }
+}
