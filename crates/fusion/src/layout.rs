@@ -291,21 +291,29 @@ impl Layout {
         let levels = (0..h.sites.len())
             .map(|l| plane(h.sites[l].len(), &h.subm[l], h.batch_of(Some(l)), batch, device))
             .collect::<Result<Vec<_>>>()?;
-        let down = (0..h.down.len())
-            .map(|l| match &h.down[l] {
-                d if d.is_empty() || l == 0 => Ok(None),
-                d => Rules::new(d, h.sites[l - 1].len(), device).map(Some),
-            })
-            .collect::<Result<_>>()?;
+        let down =
+            h.down
+                .iter()
+                .enumerate()
+                .map(|(l, d)| {
+                    if d.is_empty() || l == 0 {
+                        Ok(None)
+                    } else {
+                        Rules::new(d, h.sites[l - 1].len(), device).map(Some)
+                    }
+                })
+                .collect::<Result<_>>()?;
         let head = plane(h.head_sites.len(), &h.head_subm, h.batch_of(None), batch, device)?;
-        let head_from = (0..h.head_from.len())
-            .map(|l| Rules::new(&h.head_from[l], h.sites[l].len(), device))
-            .collect::<Result<_>>()?;
+        let head_from =
+            h.head_from.iter().zip(&h.sites).map(|(f, s)| Rules::new(f, s.len(), device)).collect::<Result<_>>()?;
         // Tap products are rows of the level's sites (of the head sites for finer levels).
-        let head_taps = (0..h.head_taps.len())
-            .map(|l| {
+        let head_taps = h
+            .head_taps
+            .iter()
+            .enumerate()
+            .map(|(l, t)| {
                 let n = if l < h.head_level { h.head_sites.len() } else { h.sites[l].len() };
-                Rules::new(&h.head_taps[l], n * 9, device)
+                Rules::new(t, n * 9, device)
             })
             .collect::<Result<_>>()?;
         Ok(Layout::Sparse(Box::new(Sparse { batch, levels, down, head, head_from, head_taps })))
@@ -548,19 +556,17 @@ pub fn gather_conv_composite(x: &Tensor, w: &Tensor, rules: &Rules) -> Result<Te
     let (_, ci, kh, kw) = w.dims4()?;
     let taps = kh * kw;
     let n_out = rules.rows.dim(0)? / taps;
-    let x = x.contiguous()?;
-    Ok(gather(&x, rules)?.reshape((n_out, taps * ci))?.matmul(&kernel_matrix(w)?)?)
+    Ok(gather(x, rules)?.reshape((n_out, taps * ci))?.matmul(&kernel_matrix(w)?)?)
 }
 
 /// The rows of `x` that `rules` names (zeros for [`NONE`]): [`RowGather`] where the list
 /// carries its inverse, else `index_select` (whose backward pass is candle's `index_add`).
 pub fn gather(x: &Tensor, rules: &Rules) -> Result<Tensor> {
+    let x = x.contiguous()?;
     Ok(match &rules.inverse {
-        Some(inverse) => x.contiguous()?.apply_op1(RowGather {
-            rules: rules.rows.clone(),
-            inverse: inverse.clone(),
-            reads: rules.reads,
-        })?,
+        Some(inverse) => {
+            x.apply_op1(RowGather { rules: rules.rows.clone(), inverse: inverse.clone(), reads: rules.reads })?
+        }
         None => x.index_select(&rules.rows, 0)?,
     })
 }

@@ -239,6 +239,12 @@ impl Plan {
                 let p = registry.preset(preset)?;
                 let detector_cfg = patched_detector(study, preset, &p.detector, &profile.dataset)?;
                 let schedule = scheduled(study, preset, &p.train)?;
+                // Fields the study's `[train_schedule]` names win over the profile's.
+                let named = |f: &str| study.file.train_schedule.as_ref().is_some_and(|s| s.get(f).is_some());
+                let (samples, sampling) = (
+                    profile.train_samples.filter(|_| !named("samples")),
+                    profile.sampling.filter(|_| !named("sampling")),
+                );
                 if registry.uses_radar(&p.detector) && !radar[ci] {
                     skipped.push(format!("{preset} on {}: skipped (the configuration has no radar)", conf.name));
                     continue;
@@ -249,11 +255,10 @@ impl Plan {
                     // after the other on that core, no faster (and synchronised BatchNorm, which
                     // needs them at once, could not run).
                     let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..schedule.clone() };
-                    let named = |f: &str| study.file.train_schedule.as_ref().is_some_and(|s| s.get(f).is_some());
-                    if let Some(n) = profile.train_samples.filter(|_| !named("samples")) {
+                    if let Some(n) = samples {
                         tc.samples = n;
                     }
-                    if let Some(s) = profile.sampling.filter(|_| !named("sampling")) {
+                    if let Some(s) = sampling {
                         tc.sampling = s;
                     }
                     let steps = tc.steps();
@@ -530,42 +535,32 @@ mod tests {
     fn the_fingerprint_reads_every_field_but_the_verdict_settings() {
         let text = include_str!("../../../fixtures/study.toml");
         let file: crate::study::StudyFile = toml::from_str(text).unwrap();
-        let whole = format!("{file:?}")
-            .replace(&format!(", verdict: {:?}", file.verdict), "")
-            .replace(&format!(", validation: {:?}", file.validation), "")
-            .replace(&format!(", evaluation: {:?}", file.evaluation), "")
-            .replace(", detector_patch: None", "")
-            .replace(", train_schedule: None", "");
+        // The file's `Debug` without the report-only sections and the given absent fields.
+        let shown = |f: &crate::study::StudyFile, absent: &[&str]| {
+            let mut t = format!("{f:?}")
+                .replace(&format!(", verdict: {:?}", f.verdict), "")
+                .replace(&format!(", validation: {:?}", f.validation), "")
+                .replace(&format!(", evaluation: {:?}", f.evaluation), "");
+            for a in absent {
+                t = t.replace(a, "");
+            }
+            t
+        };
+        let whole = shown(&file, &[", detector_patch: None", ", train_schedule: None"]);
         assert_eq!(defining(&file), whole);
         // A detector patch is part of it.
         let patched = crate::study::StudyFile {
             detector_patch: Some(serde_json::json!({ "velocity_weight": 2.0 })),
             ..file.clone()
         };
-        let whole = format!("{patched:?}")
-            .replace(&format!(", verdict: {:?}", file.verdict), "")
-            .replace(&format!(", validation: {:?}", file.validation), "")
-            .replace(&format!(", evaluation: {:?}", file.evaluation), "")
-            .replace(", train_schedule: None", "");
-        assert_eq!(defining(&patched), whole);
+        assert_eq!(defining(&patched), shown(&patched, &[", train_schedule: None"]));
         // So is a training schedule.
         let scheduled =
             crate::study::StudyFile { train_schedule: Some(serde_json::json!({ "batch": 16 })), ..file.clone() };
-        let whole = format!("{scheduled:?}")
-            .replace(&format!(", verdict: {:?}", file.verdict), "")
-            .replace(&format!(", validation: {:?}", file.validation), "")
-            .replace(&format!(", evaluation: {:?}", file.evaluation), "")
-            .replace(", detector_patch: None", "");
-        assert_eq!(defining(&scheduled), whole);
+        assert_eq!(defining(&scheduled), shown(&scheduled, &[", detector_patch: None"]));
         // Without conditions the text is what it was before they existed.
         let bare = crate::study::StudyFile { conditions: Vec::new(), ..file };
-        let whole = format!("{bare:?}")
-            .replace(&format!(", verdict: {:?}", bare.verdict), "")
-            .replace(&format!(", validation: {:?}", bare.validation), "")
-            .replace(&format!(", evaluation: {:?}", bare.evaluation), "")
-            .replace(", conditions: []", "")
-            .replace(", detector_patch: None", "")
-            .replace(", train_schedule: None", "");
+        let whole = shown(&bare, &[", conditions: []", ", detector_patch: None", ", train_schedule: None"]);
         assert_eq!(defining(&bare), whole);
     }
 }

@@ -363,21 +363,24 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     assert!(md.contains("| [dear](dear/report.md) |") && md.contains("$14,000"), "{md}");
 }
 
+/// The tiny profile's plan of the study file `text` (in `dir`), with the raw fusion plugin's
+/// presets registered beside the built-in ones.
+fn tiny_plan(dir: &std::path::Path, text: &str) -> hilo_study::Result<hilo_study::Plan> {
+    let mut registry = Registry::with_builtin();
+    hilo_fusion_raw::register(&mut registry).unwrap();
+    let study = Study::parse(text, dir, "study.toml")?;
+    let profile = hilo_study::profile("tiny", &study, &registry)?;
+    hilo_study::Plan::new(&study, &registry, &profile, &dir.join("study"))
+}
+
 /// `[detector_patch]` reaches every detector the study trains (and their stage hashes, so a
 /// patched study never reuses an unpatched run); a patch that stacks LiDAR sweeps on datasets
 /// recorded without them, renames a preset or names an unknown field is refused by section,
 /// preset and field.
 #[test]
 fn a_detector_patch_reaches_every_job_and_is_checked() {
-    use hilo_study::Plan;
     let dir = tempfile::tempdir().unwrap();
-    let mut registry = Registry::with_builtin();
-    hilo_fusion_raw::register(&mut registry).unwrap();
-    let plan = |text: &str| {
-        let study = Study::parse(text, dir.path(), "patched.toml")?;
-        let profile = hilo_study::profile("tiny", &study, &registry)?;
-        Plan::new(&study, &registry, &profile, &dir.path().join("study"))
-    };
+    let plan = |text: &str| tiny_plan(dir.path(), text);
     let plain = plan(TWO_CONFIGS).unwrap();
     let sweeps = TWO_CONFIGS.replacen("[dataset]\n", "[dataset]\nlidar_sweeps = true\n", 1);
     let patch = "\n[detector_patch]\nvelocity_weight = 2.0\ninput = { lidar_sweeps = 10, max_sweep_lag_s = 1.0 }\n";
@@ -405,15 +408,8 @@ fn a_detector_patch_reaches_every_job_and_is_checked() {
 /// by section, preset and field.
 #[test]
 fn a_train_schedule_reaches_every_job_and_is_checked() {
-    use hilo_study::Plan;
     let dir = tempfile::tempdir().unwrap();
-    let mut registry = Registry::with_builtin();
-    hilo_fusion_raw::register(&mut registry).unwrap();
-    let plan = |text: &str| {
-        let study = Study::parse(text, dir.path(), "scheduled.toml")?;
-        let profile = hilo_study::profile("tiny", &study, &registry)?;
-        Plan::new(&study, &registry, &profile, &dir.path().join("study"))
-    };
+    let plan = |text: &str| tiny_plan(dir.path(), text);
     let plain = plan(TWO_CONFIGS).unwrap();
     let schedule = "\n[train_schedule]\nbatch = 4\nlr_max = 0.012\nsamples = 12\n";
     let scheduled = plan(&format!("{TWO_CONFIGS}{schedule}")).unwrap();
