@@ -94,7 +94,7 @@ fn placement(c: &mut Criterion) {
         }
     }
     let weights = (0..n_t).map(|_| if rng.random_bool(0.3) { 3.0 } else { 1.0 }).collect();
-    let inst = Instance { weights, types, options, p_min: 1.0 - (-1.0f64).exp() };
+    let inst = Instance { weights, types, options, p_min: 1.0 - (-1.0f64).exp(), road_users: Vec::new() };
     let limit = Limit::Counts(vec![2, 1]);
     let exact = hilo::placement::pipeline::solve(&inst, &limit, 60.0).expect("exact");
     let cbc = solve(&inst, &limit, Formulation::Plain, 60.0, None).expect("cbc");

@@ -328,12 +328,7 @@ pub fn simulate_scene_with(
         .collect();
     let rig = &weathered[..];
     let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, stream]))?;
-    let rate = match id.split {
-        Split::Train => cfg.rate_hz,
-        Split::Val => cfg.val_rate_hz,
-    };
-    let per_key = (cfg.sweep_rate_hz / rate).round() as usize;
-    let steps_per_sweep = (1.0 / (cfg.sweep_rate_hz * cfg.traffic.step_s)).round() as usize;
+    let (per_key, steps_per_sweep) = cadence(cfg, id);
     let start = scene_start_us(id);
     let sweep_us = (1e6 / cfg.sweep_rate_hz).round() as u64;
     let n_frames = cfg.frames_of(id);
@@ -414,13 +409,54 @@ pub fn simulate_scene_with(
             cfg.seed,
             id.split.name(),
             n_frames,
-            rate,
+            key_rate_hz(cfg, id),
             if cfg.lidar_sweeps { "LiDAR and radar" } else { "radar" },
             cfg.sweep_rate_hz
         ),
         frames,
         sweeps,
     })
+}
+
+/// Key frames per second of scene `id`.
+fn key_rate_hz(cfg: &SimulateConfig, id: &SceneId) -> f64 {
+    match id.split {
+        Split::Train => cfg.rate_hz,
+        Split::Val => cfg.val_rate_hz,
+    }
+}
+
+/// Sweeps per key frame and traffic steps per sweep of scene `id`.
+fn cadence(cfg: &SimulateConfig, id: &SceneId) -> (usize, usize) {
+    let per_key = (cfg.sweep_rate_hz / key_rate_hz(cfg, id)).round() as usize;
+    (per_key, (1.0 / (cfg.sweep_rate_hz * cfg.traffic.step_s)).round() as usize)
+}
+
+/// The road users of scene `id`'s key frames within the annotation radius, moved as
+/// [`simulate_scene`] moves them but with no sensor simulated: the states it annotates (the
+/// traffic does not depend on the rig, so every rig's dataset holds these road users).
+pub fn key_frame_states(
+    scene: &Scene,
+    cfg: &Valid<SimulateConfig>,
+    id: &SceneId,
+) -> Result<Vec<Vec<ActorState>>, DatasetError> {
+    let mut traffic =
+        Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, id.stream()]))?;
+    let (per_key, steps_per_sweep) = cadence(cfg, id);
+    let n_frames = cfg.frames_of(id);
+    let mut frames = Vec::with_capacity(n_frames);
+    for m in 0..=(n_frames.saturating_sub(1) * per_key) {
+        if m % per_key == 0 {
+            let states = traffic.snapshot();
+            frames.push(
+                states.into_iter().filter(|a| a.box3.center.truncate().length() <= cfg.annotate_radius_m).collect(),
+            );
+        }
+        for _ in 0..steps_per_sweep {
+            traffic.step();
+        }
+    }
+    Ok(frames)
 }
 
 /// What [`write_dataset`] did.

@@ -319,3 +319,27 @@ fn fog_and_rain_thin_the_scans_of_the_same_traffic() {
     let e = SimulateConfig { weather: Weather { rain_mm_h: f32::NAN, ..Weather::default() }, ..cfg() }.check();
     assert!(e.unwrap_err().to_string().contains("dataset.weather.rain_mm_h"));
 }
+
+/// The traffic alone, stepped without sensors, holds exactly the road users a rig's dataset
+/// annotates at every key frame (same instances, classes and boxes), in both splits and with
+/// radar sweeps between key frames: the rig does not move the traffic.
+#[test]
+fn key_frame_states_are_the_annotated_road_users() {
+    let scene = Scene::default_fixture().unwrap();
+    let w = world(&scene);
+    let r = rig(&scene);
+    let c = cfg().validate().unwrap();
+    for id in [train(0), SceneId { split: Split::Val, index: 1 }] {
+        let data = simulate_scene(&scene, &w, &r, &c, &id).unwrap();
+        let states = hilo_dataset::simulate::key_frame_states(&scene, &c, &id).unwrap();
+        assert_eq!(states.len(), data.frames.len(), "{}", id.name());
+        let mut seen = 0;
+        for (frame, st) in data.frames.iter().zip(&states) {
+            let a: Vec<_> = frame.annotations.iter().map(|a| (a.instance, a.class, a.box3)).collect();
+            let b: Vec<_> = st.iter().map(|s| (s.id, s.class, s.box3)).collect();
+            assert_eq!(a, b, "{}", id.name());
+            seen += a.len();
+        }
+        assert!(seen > 0, "{}: no road user in any key frame", id.name());
+    }
+}

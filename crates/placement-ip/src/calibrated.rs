@@ -18,6 +18,14 @@
 //! (1 − 1/e)-approximation under a count limit; swaps improve it ([`search`]), and CBC,
 //! warm-started from them, closes or bounds the gap where the IP is small enough for CBC to
 //! finish its root relaxation; past that size the submodular bound bounds it.
+//!
+//! Each term exists twice: over the regions of interest (w_j, the scene's target weights) and
+//! over the road users of the simulated traffic (w_j = u_j, [`Instance::road_users`]: per
+//! target, the class-balanced share of road users found there, so a cell where pedestrians
+//! cross weighs what the pedestrians are worth to mAP, and a lane no one drives weighs
+//! nothing). The second family is the occupancy predictor "share of road users seen" made
+//! linear: it weighs where road users are, but not the occlusion by other road users that the
+//! simulated scans count (that depends on the traffic at each instant, not on the cell).
 
 use crate::candidates::Modality;
 use crate::error::PlacementError;
@@ -47,9 +55,12 @@ pub fn nonzeros(inst: &Instance, w: &Weights) -> usize {
         .iter()
         .filter(|t| t.weight > 0.0)
         .map(|t| {
+            let wt = t.targets(inst);
             (0..inst.options.len())
                 .filter(|&o| inst.modality(o) == t.modality)
-                .map(|o| inst.options[o].row.iter().filter(|&&(j, _)| inst.weights[j as usize] > 0.0).count())
+                .map(|o| {
+                    inst.options[o].row.iter().filter(|&&(j, _)| wt.get(j as usize).is_some_and(|&w| w > 0.0)).count()
+                })
                 .sum::<usize>()
         })
         .sum()
@@ -57,7 +68,8 @@ pub fn nonzeros(inst: &Instance, w: &Weights) -> usize {
 
 /// The weights (mAP per unit of saturated coverage): per modality, of the coverage term, of
 /// the two-view term (`lidar_two_views`, `radar_two_views`) and of the dense term
-/// (`lidar_dense`, `radar_dense`); 0 when absent.
+/// (`lidar_dense`, `radar_dense`), over the regions of interest, and the same six over the
+/// road users of the simulated traffic (`…_road_users`); 0 when absent.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Weights {
@@ -71,20 +83,48 @@ pub struct Weights {
     pub lidar_dense: f64,
     #[serde(default)]
     pub radar_dense: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lidar_road_users: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub radar_road_users: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lidar_two_views_road_users: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub radar_two_views_road_users: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lidar_dense_road_users: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub radar_dense_road_users: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// One term of the objective: its modality, the multiple k of its coefficient sum that counts a
 /// target fully, whether each sensor's coefficient is capped at 1 (min(1, a / τ)) or not
-/// (a / τ, the dense term), and its weight.
+/// (a / τ, the dense term), whether its targets are weighted by the road users found there
+/// rather than by their region of interest, and its weight.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Term {
     pub modality: Modality,
     pub k: f64,
     pub capped: bool,
+    pub road_users: bool,
     pub weight: f64,
 }
 
 impl Term {
+    /// The target weights this term sums over.
+    pub fn targets<'a>(&self, inst: &'a Instance) -> &'a [f64] {
+        if self.road_users { &inst.road_users } else { &inst.weights }
+    }
+
+    /// Their sum (the term's normaliser W).
+    pub fn total(&self, inst: &Instance) -> f64 {
+        self.targets(inst).iter().sum::<f64>().max(1e-12)
+    }
+
     /// A sensor's contribution to this term's sum for a target it sees with a / τ = `r`.
     pub fn coef(&self, r: f64) -> f64 {
         if self.capped { r.min(1.0) } else { r }
@@ -98,28 +138,69 @@ impl Weights {
     }
 
     /// The terms, zero weights included.
-    pub(crate) fn terms(&self) -> [Term; 6] {
-        let t = |modality, k, capped, weight| Term { modality, k, capped, weight };
+    pub(crate) fn terms(&self) -> [Term; 12] {
+        let t = |modality, k, capped, road_users, weight| Term { modality, k, capped, road_users, weight };
         [
-            t(Modality::Lidar, 1.0, true, self.lidar),
-            t(Modality::Radar, 1.0, true, self.radar),
-            t(Modality::Lidar, 2.0, true, self.lidar_two_views),
-            t(Modality::Radar, 2.0, true, self.radar_two_views),
-            t(Modality::Lidar, 2.0, false, self.lidar_dense),
-            t(Modality::Radar, 2.0, false, self.radar_dense),
+            t(Modality::Lidar, 1.0, true, false, self.lidar),
+            t(Modality::Radar, 1.0, true, false, self.radar),
+            t(Modality::Lidar, 2.0, true, false, self.lidar_two_views),
+            t(Modality::Radar, 2.0, true, false, self.radar_two_views),
+            t(Modality::Lidar, 2.0, false, false, self.lidar_dense),
+            t(Modality::Radar, 2.0, false, false, self.radar_dense),
+            t(Modality::Lidar, 1.0, true, true, self.lidar_road_users),
+            t(Modality::Radar, 1.0, true, true, self.radar_road_users),
+            t(Modality::Lidar, 2.0, true, true, self.lidar_two_views_road_users),
+            t(Modality::Radar, 2.0, true, true, self.radar_two_views_road_users),
+            t(Modality::Lidar, 2.0, false, true, self.lidar_dense_road_users),
+            t(Modality::Radar, 2.0, false, true, self.radar_dense_road_users),
         ]
     }
 
-    /// Refuses weights that would not keep the objective an IP with capped terms.
-    pub fn check(&self) -> Result<(), PlacementError> {
-        for (name, v) in [
+    /// Whether a term over the road users has a weight (the instance then needs
+    /// [`Instance::road_users`]).
+    pub fn reads_road_users(&self) -> bool {
+        self.terms().iter().any(|t| t.road_users && t.weight > 0.0)
+    }
+
+    /// The weights by their names in a study file, in the order of [`Weights::terms`].
+    pub fn named(&self) -> [(&'static str, f64); 12] {
+        [
             ("lidar", self.lidar),
             ("radar", self.radar),
             ("lidar_two_views", self.lidar_two_views),
             ("radar_two_views", self.radar_two_views),
             ("lidar_dense", self.lidar_dense),
             ("radar_dense", self.radar_dense),
-        ] {
+            ("lidar_road_users", self.lidar_road_users),
+            ("radar_road_users", self.radar_road_users),
+            ("lidar_two_views_road_users", self.lidar_two_views_road_users),
+            ("radar_two_views_road_users", self.radar_two_views_road_users),
+            ("lidar_dense_road_users", self.lidar_dense_road_users),
+            ("radar_dense_road_users", self.radar_dense_road_users),
+        ]
+    }
+
+    /// Weights from their values in the order of [`Weights::named`].
+    pub fn from_array(v: [f64; 12]) -> Self {
+        Weights {
+            lidar: v[0],
+            radar: v[1],
+            lidar_two_views: v[2],
+            radar_two_views: v[3],
+            lidar_dense: v[4],
+            radar_dense: v[5],
+            lidar_road_users: v[6],
+            radar_road_users: v[7],
+            lidar_two_views_road_users: v[8],
+            radar_two_views_road_users: v[9],
+            lidar_dense_road_users: v[10],
+            radar_dense_road_users: v[11],
+        }
+    }
+
+    /// Refuses weights that would not keep the objective an IP with capped terms.
+    pub fn check(&self) -> Result<(), PlacementError> {
+        for (name, v) in self.named() {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(PlacementError::Invalid(format!(
                     "placement.calibration.{name} = {v}: a weight must be finite and ≥ 0"
@@ -135,14 +216,28 @@ impl Weights {
     }
 }
 
-/// The calibrated objective of a selection.
+/// Refuses weights over road users for an instance that holds none (or holds them for other
+/// targets).
+pub fn check_instance(inst: &Instance, w: &Weights) -> Result<(), PlacementError> {
+    if w.reads_road_users() && inst.road_users.len() != inst.n_targets() {
+        return Err(PlacementError::Invalid(format!(
+            "placement.calibration weighs road users, but the instance has road-user weights for {} of its {} targets",
+            inst.road_users.len(),
+            inst.n_targets()
+        )));
+    }
+    Ok(())
+}
+
+/// The calibrated objective of a selection (a term over road users counts 0 on an instance
+/// without them: [`check_instance`]).
 pub fn evaluate(inst: &Instance, sel: &[usize], w: &Weights) -> f64 {
     let tau = inst.tau();
-    let total: f64 = inst.weights.iter().sum::<f64>().max(1e-12);
     let mut f = 0.0;
     for t in w.terms().iter().filter(|t| t.weight > 0.0) {
         let s = sums(inst, sel, t, tau);
-        f += t.weight * s.iter().zip(&inst.weights).map(|(s, wj)| wj * (s / t.k).min(1.0)).sum::<f64>() / total;
+        let covered: f64 = s.iter().zip(t.targets(inst)).map(|(s, wj)| wj * (s / t.k).min(1.0)).sum();
+        f += t.weight * covered / t.total(inst);
     }
     f
 }
@@ -196,6 +291,7 @@ pub fn solve(
 ) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
     w.check()?;
+    check_instance(inst, w)?;
     let local = swaps(inst, limit, w, warm, time_limit_s).no_worse_than(warm, 1e-12);
     let nz = nonzeros(inst, w);
     if nz > max_nonzeros {
@@ -229,7 +325,6 @@ fn cbc(
 ) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
     let tau = inst.tau();
-    let total: f64 = inst.weights.iter().sum::<f64>().max(1e-12);
     let mut vars = ProblemVariables::new();
     let x: Vec<Variable> = (0..inst.options.len()).map(|_| vars.add(variable().binary())).collect();
     let mut cols: Vec<Vec<Vec<(usize, f64)>>> = vec![vec![Vec::new(); inst.n_targets()]; 2];
@@ -244,9 +339,10 @@ fn cbc(
     let mut z: Vec<(Variable, f64, usize, usize)> = Vec::new();
     for (ti, t) in terms.iter().enumerate().filter(|(_, t)| t.weight > 0.0) {
         let m = usize::from(t.modality == Modality::Radar);
+        let (wt, total) = (t.targets(inst), t.total(inst));
         for (j, col) in cols[m].iter().enumerate() {
-            if !col.is_empty() && inst.weights[j] > 0.0 {
-                z.push((vars.add(variable().min(0.0).max(1.0)), t.weight * inst.weights[j] / total, ti, j));
+            if !col.is_empty() && wt[j] > 0.0 {
+                z.push((vars.add(variable().min(0.0).max(1.0)), t.weight * wt[j] / total, ti, j));
             }
         }
     }
@@ -313,6 +409,10 @@ mod tests {
             types,
             options,
             p_min: 1.0 - (-1.0f64).exp(),
+            // Road users on some targets only (lanes no one drives weigh 0).
+            road_users: (0..25)
+                .map(|_| if rng.random::<f32>() < 0.4 { 0.0 } else { rng.random_range(0.0..0.1) })
+                .collect(),
         }
     }
 
@@ -331,11 +431,19 @@ mod tests {
     /// greedy is never above it.
     #[test]
     fn the_calibrated_ip_equals_brute_force() {
-        for seed in 0..6 {
+        for seed in 0..8 {
             let inst = random_instance(seed);
-            let w = match seed % 3 {
+            let w = match seed % 4 {
                 0 => Weights::once(0.6, 0.2),
                 1 => Weights::once(0.5, 0.0),
+                3 => Weights {
+                    lidar: 0.2,
+                    lidar_road_users: 0.5,
+                    radar_road_users: 0.1,
+                    lidar_two_views_road_users: 0.3,
+                    radar_dense_road_users: 0.05,
+                    ..Weights::default()
+                },
                 _ => Weights {
                     lidar: 0.3,
                     radar: 0.1,
@@ -343,6 +451,7 @@ mod tests {
                     radar_two_views: 0.05,
                     lidar_dense: 0.2,
                     radar_dense: 0.0,
+                    ..Weights::default()
                 },
             };
             for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
@@ -363,9 +472,15 @@ mod tests {
     fn swaps_and_the_submodular_bound_bracket_the_optimum() {
         for seed in 0..12 {
             let inst = random_instance(100 + seed);
-            let w = match seed % 3 {
+            let w = match seed % 4 {
                 0 => Weights::once(0.6, 0.2),
                 1 => Weights { radar: 0.3, lidar_two_views: 0.5, radar_dense: 0.2, ..Weights::default() },
+                3 => Weights {
+                    lidar_road_users: 0.4,
+                    radar_two_views_road_users: 0.2,
+                    lidar_dense_road_users: 0.3,
+                    ..Weights::default()
+                },
                 _ => Weights {
                     lidar: 0.3,
                     radar: 0.1,
@@ -373,6 +488,7 @@ mod tests {
                     radar_two_views: 0.05,
                     lidar_dense: 0.3,
                     radar_dense: 0.0,
+                    ..Weights::default()
                 },
             };
             for limit in [
@@ -393,6 +509,29 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A term over road users weighs each target by its road users: hand-computed on two
+    /// targets, and refused on an instance that holds no road-user weights.
+    #[test]
+    fn road_user_terms_weigh_targets_by_their_road_users() {
+        let mut inst = Instance {
+            weights: vec![1.0, 1.0],
+            types: vec![SensorType { name: "l".into(), modality: Modality::Lidar, price_usd: 1.0 }],
+            options: vec![SensorOption { ty: 0, candidate: 0, mount: 0, row: vec![(0, 0.99)] }],
+            p_min: 1.0 - (-1.0f64).exp(),
+            road_users: vec![0.3, 0.1],
+        };
+        let w = Weights { lidar_road_users: 1.0, ..Weights::default() };
+        // Target 0 seen fully holds 0.3 of the 0.4 road users on targets; by region, 1 of 2.
+        assert!((evaluate(&inst, &[0], &w) - 0.75).abs() < 1e-9);
+        assert!((evaluate(&inst, &[0], &Weights::once(1.0, 0.0)) - 0.5).abs() < 1e-9);
+        assert!(w.reads_road_users() && !Weights::once(1.0, 1.0).reads_road_users());
+        assert!(Weights { radar_dense_road_users: -1.0, ..w }.check().is_err());
+        inst.road_users.clear();
+        let limit = Limit::Counts(vec![1]);
+        let e = solve(&inst, &limit, &w, 5.0, CBC_MAX_NONZEROS, &greedy(&inst, &limit, &w)).unwrap_err();
+        assert!(e.to_string().contains("road-user weights for 0 of its 2 targets"), "{e}");
     }
 
     /// An instance past the size CBC is given is solved by swaps with a finite bound, and says so.
@@ -432,6 +571,7 @@ mod tests {
                 row: vec![(0, 0.99), (1, (1.0 - (-0.5f64).exp()) as f32)],
             }],
             p_min: 1.0 - (-1.0f64).exp(),
+            road_users: Vec::new(),
         };
         let f = evaluate(&inst, &[0], &Weights::once(1.0, 0.0));
         assert!((f - (1.0 + 0.5) / 2.0).abs() < 1e-6, "{f}");

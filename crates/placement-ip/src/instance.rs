@@ -54,6 +54,11 @@ pub struct Instance {
     pub options: Vec<SensorOption>,
     /// Detection threshold p_min; the coverage right-hand side is τ = −ln(1 − p_min).
     pub p_min: f64,
+    /// Per target, the class-balanced share of the simulated traffic's road users found there
+    /// (empty unless computed): the target weights of the calibrated objective's terms over
+    /// road users ([`crate::calibrated`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub road_users: Vec<f64>,
 }
 
 /// V is clamped to this before taking logs, so that V = 1 gives a finite coefficient.

@@ -160,6 +160,7 @@ pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64
         types: Vec::new(),
         options: Vec::new(),
         p_min,
+        road_users: Vec::new(),
     };
     for (ty, name) in types.iter().enumerate() {
         let spec = catalog.get(name)?;

@@ -43,7 +43,7 @@ fn random_instance(seed: u64) -> Instance {
             });
         }
     }
-    Instance { weights, types: types(), options, p_min: 1.0 - (-1.0f64).exp() }
+    Instance { weights, types: types(), options, p_min: 1.0 - (-1.0f64).exp(), road_users: Vec::new() }
 }
 
 #[test]
@@ -101,6 +101,7 @@ fn greedy_is_strictly_worse_on_a_constructed_instance() {
             opt(0, 3, vec![(0, 0.99), (2, 0.99)]),
         ],
         p_min: 1.0 - (-1.0f64).exp(),
+        road_users: Vec::new(),
     };
     let limit = Limit::Counts(vec![2, 0, 1]);
     let g = greedy(&inst, &limit);
@@ -130,6 +131,7 @@ fn coefficients_are_finite_at_v_one_zero_and_tiny() {
             SensorOption { ty: 2, candidate: 1, mount: 1, row: vec![(0, 1.0), (1, 1.0)] },
         ],
         p_min: 1.0 - (-1.0f64).exp(),
+        road_users: Vec::new(),
     };
     let o = solve(&inst, &Limit::Counts(vec![1, 0, 1]), Formulation::Plain, 10.0, None).unwrap();
     assert!((o.objective - 2.0).abs() < 1e-9, "{}", o.objective);
@@ -146,6 +148,7 @@ fn a_target_seen_by_one_modality_never_counts() {
             SensorOption { ty: 2, candidate: 1, mount: 1, row: vec![(1, 1.0), (2, 0.9)] },
         ],
         p_min: 0.5,
+        road_users: Vec::new(),
     };
     let sel = [0usize, 1];
     assert!((evaluate(&inst, &sel) - 1.8).abs() < 1e-6);
@@ -274,6 +277,7 @@ fn the_budget_bound_on_sensors_is_a_sum_over_types() {
         ],
         options: vec![opt(0, 0), opt(0, 1), opt(0, 2), opt(1, 3), opt(1, 4), opt(1, 5)],
         p_min: 1.0 - (-1.0f64).exp(),
+        road_users: Vec::new(),
     };
     let limit = Limit::Budget { usd: 300.0, min: vec![], max: vec![u32::MAX, 2] };
     let oracle = exhaustive(&inst, &limit, 1000).unwrap();

@@ -38,6 +38,7 @@ pub mod rank;
 pub mod render;
 pub mod report;
 pub mod rig;
+pub mod road_users;
 pub mod run;
 pub mod stages;
 pub mod stats;

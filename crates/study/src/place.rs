@@ -89,15 +89,24 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         radar_covered: Vec<HashSet<usize>>,
     }
     let mut out = Out { placements: Vec::new(), lidar_hits: Vec::new(), radar_covered: Vec::new() };
+    // The road users of the study's traffic on each target, counted once when the calibrated
+    // objective weighs them.
+    let mut road_users: Option<Vec<f64>> = None;
     for conf in &study.file.configurations {
         // A configuration of one modality is placed for that modality's coverage
         // (`Instance::requires`): the paper's both-modality objective would be zero for it.
         let types = conf.type_names();
-        let inst = instance(&prep, catalog, &types, cfg.p_min)?;
+        let mut inst = instance(&prep, catalog, &types, cfg.p_min)?;
         let limit = limit_for(conf, &types);
         check_limit(study, conf, &inst, &limit, &prep)?;
         let (g, o) = match (cfg.objective, &cfg.calibration) {
             (ObjectiveKind::Calibrated, Some(w)) => {
+                if w.reads_road_users() {
+                    if road_users.is_none() {
+                        road_users = Some(crate::road_users::road_users(study, &prep.targets, cfg.cell_m)?.weights);
+                    }
+                    inst.road_users = road_users.clone().unwrap_or_default();
+                }
                 let g = hilo_placement_ip::calibrated::greedy(&inst, &limit, w);
                 let o = hilo_placement_ip::calibrated::solve(
                     &inst,

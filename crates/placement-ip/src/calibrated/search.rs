@@ -21,7 +21,7 @@ use std::time::Instant;
 /// A selection with its per-target sums s_tj (one per non-zero term t) and its objective.
 pub(super) struct State<'a> {
     inst: &'a Instance,
-    /// The non-zero terms, with their weight divided by W = Σ_j w_j.
+    /// The non-zero terms, with their weight divided by their W = Σ_j w_j.
     terms: Vec<Term>,
     tau: f64,
     s: Vec<Vec<f64>>,
@@ -31,9 +31,12 @@ pub(super) struct State<'a> {
 
 impl<'a> State<'a> {
     pub fn new(inst: &'a Instance, w: &Weights) -> Self {
-        let total: f64 = inst.weights.iter().sum::<f64>().max(1e-12);
-        let terms: Vec<Term> =
-            w.terms().into_iter().filter(|t| t.weight > 0.0).map(|t| Term { weight: t.weight / total, ..t }).collect();
+        let terms: Vec<Term> = w
+            .terms()
+            .into_iter()
+            .filter(|t| t.weight > 0.0)
+            .map(|t| Term { weight: t.weight / t.total(inst), ..t })
+            .collect();
         let s = vec![vec![0.0; inst.n_targets()]; terms.len()];
         State { inst, terms, tau: inst.tau(), s, sel: Vec::new(), f: 0.0 }
     }
@@ -44,11 +47,13 @@ impl<'a> State<'a> {
         let m = self.inst.modality(o);
         let mut total = 0.0;
         for (t, s) in self.terms.iter().zip(&self.s).filter(|(t, _)| t.modality == m) {
+            let wt = t.targets(self.inst);
             for &(j, v) in &self.inst.options[o].row {
                 let j = j as usize;
+                let Some(&wj) = wt.get(j) else { continue };
                 let c = t.coef(coverage_coef(v as f64) / self.tau);
                 let (now, then) = (s[j].max(0.0), (s[j] + sign * c).max(0.0));
-                total += t.weight * self.inst.weights[j] * ((then / t.k).min(1.0) - (now / t.k).min(1.0));
+                total += t.weight * wj * ((then / t.k).min(1.0) - (now / t.k).min(1.0));
             }
         }
         total

@@ -470,7 +470,13 @@ mod tests {
                 });
             }
         }
-        let inst = Instance { weights: (0..n).map(|j| 1.0 + (j % 3) as f64).collect(), types, options, p_min: 0.5 };
+        let inst = Instance {
+            weights: (0..n).map(|j| 1.0 + (j % 3) as f64).collect(),
+            types,
+            options,
+            p_min: 0.5,
+            road_users: Vec::new(),
+        };
         let tau = inst.tau() * (1.0 - 1e-9);
         let lidars: Vec<usize> = (0..12).collect();
         let radars: Vec<usize> = (12..18).collect();

@@ -185,6 +185,7 @@ mod tests {
             types,
             options,
             p_min: 1.0 - (-1.0f64).exp(),
+            road_users: Vec::new(),
         }
     }
 
@@ -221,6 +222,7 @@ mod tests {
                 SensorOption { ty: 0, candidate: 1, mount: 1, row: vec![(1, 0.5)] },
             ],
             p_min: 1.0 - (-1.0f64).exp(),
+            road_users: Vec::new(),
         };
         // Option 0 alone covers target 0 (−ln 0.1 ≥ 1), not target 1 (−ln 0.7 < 1).
         assert!((crate::instance::evaluate(&inst, &[0]) - 0.9).abs() < 1e-6);

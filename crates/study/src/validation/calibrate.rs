@@ -5,7 +5,9 @@
 //! s_mj = Σ_o min(1, a_oj / τ), for each modality m and views k ∈ {1, 2} ([`super::set::LIDAR_SATURATED`],
 //! [`super::set::RADAR_SATURATED`], [`super::set::LIDAR_TWO_VIEWS`], [`super::set::RADAR_TWO_VIEWS`]),
 //! and D_m = Σ_j w_j min(1, Σ_o a_oj / 2τ) / Σ_j w_j, coverage that pays for density
-//! ([`super::set::LIDAR_DENSE`], [`super::set::RADAR_DENSE`]).
+//! ([`super::set::LIDAR_DENSE`], [`super::set::RADAR_DENSE`]); and the same six with w_j the
+//! road users of the study's traffic on target j ([`crate::road_users`], [`super::set::TERMS`]):
+//! coverage of where road users are, class-balanced, rather than of the regions of interest.
 //! The weights are fitted by least squares with every β ≥ 0: a non-negative weight on a capped
 //! sum keeps the objective an integer program ([`hilo_placement_ip::calibrated`]), and the radar
 //! weights are the measured marginal accuracy of radar coverage — zero when the trained
@@ -18,9 +20,7 @@
 //! of [`crate::rank`]) and a 95% prediction interval per placement.
 
 use super::ValidationReport;
-use super::set::{
-    LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, PAPER_OBJECTIVE, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS,
-};
+use super::set::{PAPER_OBJECTIVE, TERMS};
 use crate::rank::{Agreement, agreement};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -111,21 +111,15 @@ fn least_squares(x: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)>
     Some((beta, inv))
 }
 
-/// The features the calibrated objective may use, in the order of [`Calibrated::weights`].
-pub const FEATURES: [&str; 6] =
-    [LIDAR_SATURATED, RADAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_TWO_VIEWS, LIDAR_DENSE, RADAR_DENSE];
+/// The features the calibrated objective may use, in the order of [`Calibrated::weights`]:
+/// its terms ([`TERMS`]).
+pub const FEATURES: [&str; 12] = TERMS;
 
-/// The placement's weights for the calibrated IP, from a fit over [`FEATURES`].
+/// The placement's weights for the calibrated IP, from a fit over [`FEATURES`] (a feature the
+/// fit does not name weighs 0).
 pub fn weights(c: &Calibrated) -> hilo_placement_ip::calibrated::Weights {
     let w = |name: &str| c.features.iter().position(|f| f == name).map_or(0.0, |k| c.weights[k]);
-    hilo_placement_ip::calibrated::Weights {
-        lidar: w(LIDAR_SATURATED),
-        radar: w(RADAR_SATURATED),
-        lidar_two_views: w(LIDAR_TWO_VIEWS),
-        radar_two_views: w(RADAR_TWO_VIEWS),
-        lidar_dense: w(LIDAR_DENSE),
-        radar_dense: w(RADAR_DENSE),
-    }
+    hilo_placement_ip::calibrated::Weights::from_array(TERMS.map(w))
 }
 
 /// xᵀ (XᵀX)⁻¹ x: a row's leverage.
@@ -208,16 +202,10 @@ pub fn predict(r: &ValidationReport, m: &super::set::Member) -> Option<(f64, f64
 /// Folds of the cross-fitting.
 pub const FOLDS: usize = 5;
 
-/// Fits the calibrated objective and scores it on placements it did not see: the members are
-/// dealt into [`FOLDS`] folds by a seeded shuffle, each fold is predicted by a fit on the
-/// others (ρ, τ and the 95% prediction intervals are over these out-of-fold predictions), and
-/// the weights an optimiser uses are those of the fit on every member. None with fewer than
-/// ten placements.
-pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
+/// Every member predicted by the fit on the [`FOLDS`] − 1 folds it is not in, the members
+/// dealt into folds by a shuffle seeded with `seed`; None when a fold's fit fails.
+fn cross_fit(r: &ValidationReport, seed: u64) -> Option<Vec<HeldOut>> {
     let n = r.members.len();
-    if n < 10 {
-        return None;
-    }
     let value = |i: usize, f: &str| r.members[i].0.predictors.get(f).copied().flatten().unwrap_or(0.0);
     let mut order: Vec<usize> = (0..n).collect();
     order.shuffle(&mut rand_chacha::ChaCha8Rng::seed_from_u64(seed));
@@ -237,7 +225,20 @@ pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
             });
         }
     }
-    let held_out: Vec<HeldOut> = held_out.into_iter().collect::<Option<_>>()?;
+    held_out.into_iter().collect()
+}
+
+/// Fits the calibrated objective and scores it on placements it did not see: the members are
+/// dealt into [`FOLDS`] folds by a seeded shuffle, each fold is predicted by a fit on the
+/// others (ρ, τ and the 95% prediction intervals are over these out-of-fold predictions), and
+/// the weights an optimiser uses are those of the fit on every member. None with fewer than
+/// ten placements.
+pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
+    let n = r.members.len();
+    if n < 10 {
+        return None;
+    }
+    let held_out = cross_fit(r, seed)?;
     let all: Vec<usize> = (0..n).collect();
     let whole = fit(r, &all)?;
     let mut weights = vec![0.0; FEATURES.len()];
@@ -383,7 +384,9 @@ pub fn transfer(source: &ValidationReport, target: &ValidationReport, source_nam
 mod tests {
     use super::*;
 
-    use crate::validation::set::Member;
+    use crate::validation::set::{
+        LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, Member, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS,
+    };
     use crate::validation::{Trained, ValidationSettings};
     use rand::Rng;
     use std::collections::BTreeMap;
@@ -504,8 +507,9 @@ mod tests {
     fn complete(mut r: ValidationReport, seed: u64) -> ValidationReport {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         for (m, _) in &mut r.members {
-            m.predictors.insert(LIDAR_DENSE.to_owned(), Some(rng.random_range(0.0..1.0)));
-            m.predictors.insert(RADAR_DENSE.to_owned(), Some(rng.random_range(0.0..1.0)));
+            for f in [LIDAR_DENSE, RADAR_DENSE].iter().chain(&TERMS[6..]) {
+                m.predictors.insert(f.to_string(), Some(rng.random_range(0.0..1.0)));
+            }
         }
         r.calibrated = calibrate(&r, 0);
         r

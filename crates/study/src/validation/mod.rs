@@ -831,11 +831,20 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
         );
         return s;
     }
+    // The weights a study file takes: the region terms always (they name the objective's form),
+    // the road-user terms where the fit uses them.
+    let named: Vec<String> = w
+        .named()
+        .iter()
+        .enumerate()
+        .filter(|(k, (_, v))| *k < 6 || *v > 0.0)
+        .map(|(_, (name, v))| format!("{name} = {v:.4}"))
+        .collect();
     s.push_str(&format!(
         "The features were chosen by leave-one-out error of the fit on every placement (RMSE {:.3} mAP). To place with it, \
-         in the study file: `[placement]` `objective = \"calibrated\"` and `calibration = {{ lidar = {:.4}, \
-         radar = {:.4}, lidar_two_views = {:.4}, radar_two_views = {:.4}, lidar_dense = {:.4}, radar_dense = {:.4} }}`.\n\n",
-        c.loo_rmse, w.lidar, w.radar, w.lidar_two_views, w.radar_two_views, w.lidar_dense, w.radar_dense
+         in the study file: `[placement]` `objective = \"calibrated\"` and `calibration = {{ {} }}`.\n\n",
+        c.loo_rmse,
+        named.join(", ")
     ));
     s.push_str(&predictions_table("placement (predicted out of fold)", &c.held_out));
     s

@@ -59,6 +59,39 @@ pub const RADAR_TWO_VIEWS: &str = "radar coverage by two views";
 /// several (density, which the capped terms ignore).
 pub const LIDAR_DENSE: &str = "LiDAR coverage at twice the threshold";
 pub const RADAR_DENSE: &str = "radar coverage at twice the threshold";
+/// The same three per modality with each target weighted by the road users of the study's
+/// traffic found on it, class-balanced ([`crate::road_users`]) instead of by its region of
+/// interest: the occupancy of the traffic made linear.
+pub const LIDAR_SATURATED_USERS: &str = "LiDAR coverage of road users (saturated)";
+pub const RADAR_SATURATED_USERS: &str = "radar coverage of road users (saturated)";
+pub const LIDAR_TWO_VIEWS_USERS: &str = "LiDAR coverage of road users by two views";
+pub const RADAR_TWO_VIEWS_USERS: &str = "radar coverage of road users by two views";
+pub const LIDAR_DENSE_USERS: &str = "LiDAR coverage of road users at twice the threshold";
+pub const RADAR_DENSE_USERS: &str = "radar coverage of road users at twice the threshold";
+
+/// The calibrated objective's terms as predictors, in the order of
+/// [`calibrated::Weights::named`] (each is the objective with that term's weight 1, the others 0).
+pub const TERMS: [&str; 12] = [
+    LIDAR_SATURATED,
+    RADAR_SATURATED,
+    LIDAR_TWO_VIEWS,
+    RADAR_TWO_VIEWS,
+    LIDAR_DENSE,
+    RADAR_DENSE,
+    LIDAR_SATURATED_USERS,
+    RADAR_SATURATED_USERS,
+    LIDAR_TWO_VIEWS_USERS,
+    RADAR_TWO_VIEWS_USERS,
+    LIDAR_DENSE_USERS,
+    RADAR_DENSE_USERS,
+];
+
+/// The calibrated objective with weight 1 on term `k` of [`TERMS`].
+pub fn unit_term(k: usize) -> calibrated::Weights {
+    let mut v = [0.0; 12];
+    v[k] = 1.0;
+    calibrated::Weights::from_array(v)
+}
 
 /// The configurations the set is drawn from: the study's, then the rigs a buyer compares them
 /// with, once each (by sensor counts).
@@ -220,12 +253,13 @@ pub fn calibrated_member(
     let pc = settings_with_tilts(study, v)?;
     let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
     let types = conf.type_names();
-    let inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
+    let mut ctx = Context::new(study, &prep, &pc)?;
+    let mut inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
+    inst.road_users = ctx.all.road_users.clone();
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
     let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, pc.calibrated_cbc_max_nonzeros, &g)?;
     let sensors = placed(&inst, &prep, &o.selection);
-    let mut ctx = Context::new(study, &prep, &pc)?;
     let kind = if o.proven_optimal { "calibrated" } else { "calibrated-best-found" };
     let mut m = ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)?;
     // The placement records the solve of the objective it was placed for, but not its time: the
@@ -337,10 +371,12 @@ struct Context<'a> {
 
 impl<'a> Context<'a> {
     fn new(study: &'a Study, prep: &'a Prepared, pc: &hilo_placement_ip::pipeline::PlacementConfig) -> Result<Self> {
+        let mut all = instance(prep, &study.catalog, &study.type_names(), pc.p_min)?;
+        all.road_users = crate::road_users::road_users(study, &prep.targets, pc.cell_m)?.weights;
         Ok(Context {
             study,
             world: World::build(&study.scene, &QueryRegion::everything())?,
-            all: instance(prep, &study.catalog, &study.type_names(), pc.p_min)?,
+            all,
             central: central_targets(study, prep),
             own: BTreeMap::new(),
             prep,
@@ -366,11 +402,10 @@ impl<'a> Context<'a> {
         let share =
             |m: Modality| covered_targets(all, &sel_all, m).iter().map(|&j| all.weights[j]).sum::<f64>() / weight;
         // The calibrated objective's terms, one modality at a time.
-        let saturated = |w: calibrated::Weights| calibrated::evaluate(all, &sel_all, &w);
         let hits = lidar_hits(study, &self.world, prep, self.cell_m, &sensors)?;
         let central = &self.central;
         let own_objective = evaluate(own, &sel_own);
-        let predictors = BTreeMap::from([
+        let mut predictors = BTreeMap::from([
             // The paper's objective reads literally: targets seen by both modalities; undefined
             // (zero whatever the poses) for a rig of one modality.
             (
@@ -381,19 +416,11 @@ impl<'a> Context<'a> {
             (LIDAR_COVERAGE.to_owned(), Some(share(Modality::Lidar))),
             (RADAR_COVERAGE.to_owned(), Some(share(Modality::Radar))),
             (CENTRAL_COVERAGE.to_owned(), Some(hilo_placement_ip::coverage::share(central, &hits))),
-            (LIDAR_SATURATED.to_owned(), Some(saturated(calibrated::Weights::once(1.0, 0.0)))),
-            (RADAR_SATURATED.to_owned(), Some(saturated(calibrated::Weights::once(0.0, 1.0)))),
-            (
-                LIDAR_TWO_VIEWS.to_owned(),
-                Some(saturated(calibrated::Weights { lidar_two_views: 1.0, ..Default::default() })),
-            ),
-            (
-                RADAR_TWO_VIEWS.to_owned(),
-                Some(saturated(calibrated::Weights { radar_two_views: 1.0, ..Default::default() })),
-            ),
-            (LIDAR_DENSE.to_owned(), Some(saturated(calibrated::Weights { lidar_dense: 1.0, ..Default::default() }))),
-            (RADAR_DENSE.to_owned(), Some(saturated(calibrated::Weights { radar_dense: 1.0, ..Default::default() }))),
         ]);
+        // The calibrated objective's terms, one at a time.
+        for (k, name) in TERMS.iter().enumerate() {
+            predictors.insert(name.to_string(), Some(calibrated::evaluate(all, &sel_all, &unit_term(k))));
+        }
         let cost_usd = sensors
             .iter()
             .map(|s| study.catalog.get(&s.ty).map(|c| c.price_usd()))
