@@ -137,7 +137,9 @@ fn occupancy_agrees_with_a_brute_force_count_of_points_in_boxes() {
 #[test]
 fn predictors_recompute_to_the_same_values_and_two_views_need_two_sensors() {
     use hilo_study::validation::set::{
-        LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS, recompute,
+        LIDAR_DENSE, LIDAR_DENSE_USERS, LIDAR_SATURATED, LIDAR_SATURATED_USERS, LIDAR_TWO_VIEWS, LIDAR_TWO_VIEWS_USERS,
+        RADAR_DENSE, RADAR_DENSE_USERS, RADAR_SATURATED, RADAR_SATURATED_USERS, RADAR_TWO_VIEWS, RADAR_TWO_VIEWS_USERS,
+        recompute,
     };
     let dir = tempfile::tempdir().unwrap();
     let study = Study::parse(COARSE, dir.path(), "coarse.toml").unwrap();
@@ -145,9 +147,12 @@ fn predictors_recompute_to_the_same_values_and_two_views_need_two_sensors() {
     let again = recompute(&study, &settings(), &set).unwrap();
     assert_eq!(serde_json::to_string(&set).unwrap(), serde_json::to_string(&again).unwrap());
     for m in &set {
+        // The same relations hold over the regions of interest and over the traffic's road users.
         for (one, two, dense, modality) in [
             (LIDAR_SATURATED, LIDAR_TWO_VIEWS, LIDAR_DENSE, hilo_placement_ip::Modality::Lidar),
             (RADAR_SATURATED, RADAR_TWO_VIEWS, RADAR_DENSE, hilo_placement_ip::Modality::Radar),
+            (LIDAR_SATURATED_USERS, LIDAR_TWO_VIEWS_USERS, LIDAR_DENSE_USERS, hilo_placement_ip::Modality::Lidar),
+            (RADAR_SATURATED_USERS, RADAR_TWO_VIEWS_USERS, RADAR_DENSE_USERS, hilo_placement_ip::Modality::Radar),
         ] {
             let (c1, c2, d) = (m.predictors[one].unwrap(), m.predictors[two].unwrap(), m.predictors[dense].unwrap());
             assert!(c2 <= c1 + 1e-12 && c2 >= c1 / 2.0 - 1e-12, "{}: {c1} {c2}", m.slug);
@@ -166,9 +171,48 @@ fn predictors_recompute_to_the_same_values_and_two_views_need_two_sensors() {
         set.iter().any(|m| m.predictors[LIDAR_DENSE].unwrap() > m.predictors[LIDAR_TWO_VIEWS].unwrap() + 0.01),
         "some rig sees targets densely with fewer views"
     );
+    // Weighting by road users changes the figures (lanes and crossings are not the regions'
+    // weights), and a rig sees some road users.
+    assert!(
+        set.iter()
+            .any(|m| (m.predictors[LIDAR_SATURATED_USERS].unwrap() - m.predictors[LIDAR_SATURATED].unwrap()).abs()
+                > 0.01)
+    );
+    assert!(set.iter().all(|m| m.predictors[LIDAR_SATURATED_USERS].unwrap() > 0.0));
     // A placement drawn on another scene is refused by name.
     let mut moved = set.clone();
     moved[0].placement.scene_hash = "other".into();
     let e = recompute(&study, &settings(), &moved).unwrap_err().to_string();
     assert!(e.contains(&set[0].slug), "{e}");
+}
+
+/// The validation trains as the study would: `[detector_patch]` and `[train_schedule]` reach
+/// every training (and its run folder, so a patched validation never reuses a plain run),
+/// except the sample count, which stays the validation's budget 2b; the placement set is the
+/// same one.
+#[test]
+fn the_validation_trains_with_the_studys_patch_and_schedule() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut registry = hilo_detector::Registry::with_builtin();
+    hilo_fusion_early::register(&mut registry).unwrap();
+    let plan = |text: &str, out: &str| {
+        let study = Study::parse(text, dir.path(), "coarse.toml").unwrap();
+        let profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+        hilo_study::validation::plan(&study, &registry, &profile, &settings(), &dir.path().join(out), &mut |_| {})
+            .unwrap()
+    };
+    let plain = plan(COARSE, "plain");
+    let extra =
+        "\n[detector_patch]\nvelocity_weight = 2.0\n\n[train_schedule]\nbatch = 4\nlr_max = 0.012\nsamples = 99\n";
+    let patched = plan(&format!("{COARSE}{extra}"), "patched");
+    assert_eq!(serde_json::to_string(&plain.members).unwrap(), serde_json::to_string(&patched.members).unwrap());
+    assert_eq!(patched.jobs.len(), plain.jobs.len());
+    assert!(!patched.jobs.is_empty());
+    for (p, q) in patched.jobs.iter().zip(&plain.jobs) {
+        assert_eq!((p.detector.velocity_weight, p.train.batch, p.train.lr_max), (2.0, 4, 0.012), "{}", p.id);
+        assert_eq!(p.train.samples, 2 * settings().samples, "{}: the validation's budget, not the schedule's", p.id);
+        assert_eq!(p.train.keep, vec![(settings().samples / 4) * 4]);
+        assert_ne!(q.detector.velocity_weight, 2.0);
+        assert_ne!(p.run.file_name(), q.run.file_name(), "{}", p.id);
+    }
 }

@@ -297,7 +297,16 @@ pub fn plan(
     let pjson = serde_json::to_string(&Profile { conditions: Some(0), ..profile.clone() })
         .map_err(|e| StudyError::Invalid(e.to_string()))?;
     let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, study.file.configurations);
-    let fingerprint = hash(&[&defining, &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
+    // What changes the trainings (not the set) joins the fingerprint only when present, so
+    // folders made before the validation read these sections still open.
+    let mut trains = String::new();
+    if let Some(p) = &study.file.detector_patch {
+        trains.push_str(&format!(" detector_patch: {p:?}"));
+    }
+    if let Some(t) = &study.file.train_schedule {
+        trains.push_str(&format!(" train_schedule: {t:?}"));
+    }
+    let fingerprint = hash(&[&format!("{defining}{trains}"), &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
     claim(out, &fingerprint, study, profile, settings)?;
     // 1. The set.
     let set_hash = stage_hash("validation-set", &[&defining, &sjson, &study.scene_hash, &study.catalog_hash]);
@@ -326,7 +335,7 @@ pub fn plan(
             DataStage { dir: out.join("data").join(format!("{}-{}", m.slug, short(&h))), hash: h }
         })
         .collect();
-    let jobs = jobs(&members, &data, registry, profile, settings, out)?;
+    let jobs = jobs(study, &members, &data, registry, profile, settings, out)?;
     Ok(ValidationPlan { out: out.to_owned(), members, set_dir, data, jobs })
 }
 
@@ -425,7 +434,11 @@ pub fn run(
     Ok(report)
 }
 
+/// The trainings of `members`: the preset for each rig, the study's `[detector_patch]` and
+/// `[train_schedule]` over it as the study applies them, except the sample count, which is the
+/// validation's budget (2b, keeping the weights at b) whatever the schedule names.
 fn jobs(
+    study: &Study,
     members: &[Member],
     data: &[DataStage],
     registry: &Registry,
@@ -434,19 +447,22 @@ fn jobs(
     out: &Path,
 ) -> Result<Vec<Job>> {
     let mut jobs = Vec::new();
+    let named_sampling = study.file.train_schedule.as_ref().is_some_and(|s| s.get("sampling").is_some());
     for (mi, m) in members.iter().enumerate() {
         let radar = m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar);
         let preset = if radar { &settings.fusion_preset } else { &settings.lidar_preset };
         let p = registry.preset(preset)?;
+        let detector_cfg = crate::plan::patched_detector(study, preset, &p.detector, &profile.dataset)?;
+        let schedule = crate::plan::scheduled(study, preset, &p.train)?;
         for seed in 0..settings.seeds as u64 {
-            let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..p.train.clone() };
+            let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..schedule.clone() };
             tc.samples = 2 * settings.samples;
-            if let Some(s) = profile.sampling {
+            if let Some(s) = profile.sampling.filter(|_| !named_sampling) {
                 tc.sampling = s;
             }
             let at_b = (settings.samples / tc.batch).max(1) * tc.batch;
             tc.keep = vec![at_b];
-            let detector = serde_json::to_string(&p.detector).map_err(|e| StudyError::Invalid(e.to_string()))?;
+            let detector = serde_json::to_string(&detector_cfg).map_err(|e| StudyError::Invalid(e.to_string()))?;
             let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
             let h = stage_hash("run", &[&data[mi].hash, &detector, &schedule]);
             let name = format!("{preset}-seed{seed}-{}", short(&h));
@@ -457,7 +473,7 @@ fn jobs(
                 seed,
                 run: out.join("runs").join(&m.slug).join(&name),
                 results: out.join("results").join(&m.slug).join(format!("{name}.json")),
-                detector: p.detector.clone().validate()?,
+                detector: detector_cfg.clone().validate()?,
                 train: tc.validate()?,
                 curve: vec![at_b],
             });

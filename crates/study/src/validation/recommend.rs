@@ -86,7 +86,8 @@ pub fn recommend(
             progress,
         )?;
     }
-    let all = jobs(std::slice::from_ref(&member), std::slice::from_ref(&data), registry, profile, &r.settings, out)?;
+    let all =
+        jobs(study, std::slice::from_ref(&member), std::slice::from_ref(&data), registry, profile, &r.settings, out)?;
     let label = format!("training the recommendation {}", member.slug);
     let outs = train_on(registry, profile, &data.dir, all.iter().collect(), &label, progress)?;
     let scorer = Scorer::new(&data.dir, profile, &r.settings, &study.file.evaluation)?;
