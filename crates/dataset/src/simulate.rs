@@ -106,7 +106,7 @@ impl SceneId {
     }
 
     /// The stream its seeds derive from: validation scenes never share a training scene's.
-    fn stream(&self) -> u64 {
+    pub fn stream(&self) -> u64 {
         match self.split {
             Split::Train => self.index as u64,
             Split::Val => 1_000_000 + self.index as u64,

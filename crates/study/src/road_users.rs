@@ -94,6 +94,115 @@ pub fn road_users(study: &Study, targets: &[Target], cell_m: f32) -> Result<Road
     Ok(RoadUsers { weights, per_class, off_targets, scenes: ids.len(), key_frames })
 }
 
+/// Sampled frames of the study's training traffic with the LiDAR points a rig puts on each road
+/// user: the occupancy predictor computed from the placement alone (no dataset), on traffic the
+/// validation split does not hold.
+///
+/// Every `every`-th key frame of each training scene is kept; each LiDAR of the rig is simulated
+/// on it as the dataset simulates it (the same scan, seeds and occlusion by buildings and by the
+/// other road users: a rig's dataset of the training scenes holds these counts), and each road
+/// user within its class's evaluation range gets the points of all LiDARs summed, as the
+/// dataset's `num_lidar_pts` sums them. Per class the mean over (frame, road user) of
+/// min(1, n / k) (points capped at k: linear in per-sensor terms, the form an IP can hold) and
+/// of [n ≥ k] (the share hit by k points); each averaged over classes, as mAP averages them.
+pub struct TrafficPoints {
+    /// Per frame: the road users as the ray engine sees them, (scene stream, key frame index)
+    /// for the seeds, and the road users that count with their class's index.
+    frames: Vec<Frame>,
+    classes: usize,
+    seed: u64,
+}
+
+struct Frame {
+    actors: hilo_raycast::ActorSet,
+    stream: u64,
+    index: usize,
+    users: Vec<(u32, usize)>,
+}
+
+impl std::fmt::Debug for TrafficPoints {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "TrafficPoints {{ frames: {}, classes: {} }}", self.frames.len(), self.classes)
+    }
+}
+
+/// A LiDAR of a rig: its index among the rig's sensors (the dataset's seeds follow it), spec
+/// and pose.
+pub type RigLidar = (usize, hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose);
+
+impl TrafficPoints {
+    /// The frames of `study`'s training scenes, every `every`-th key frame.
+    pub fn new(study: &Study, every: usize) -> Result<TrafficPoints> {
+        let ranges = study.file.evaluation.detection_config().class_range;
+        let names: Vec<&str> =
+            hilo_core::Class::ALL.iter().map(|c| c.name()).filter(|n| ranges.contains_key(*n)).collect();
+        let mut frames = Vec::new();
+        for id in study.dataset.scene_ids().into_iter().filter(|id| id.split == Split::Train) {
+            let states = key_frame_states(&study.scene, &study.dataset, &id)?;
+            for (index, states) in states.into_iter().enumerate().step_by(every.max(1)) {
+                let users: Vec<(u32, usize)> = states
+                    .iter()
+                    .filter_map(|a| {
+                        let c = names.iter().position(|n| *n == a.class.name())?;
+                        (f64::from(a.box3.center.truncate().length()) < ranges[names[c]]).then_some((a.id, c))
+                    })
+                    .collect();
+                let actors = hilo_raycast::ActorSet::new(states.iter().map(|a| a.actor()).collect())
+                    .map_err(|e| crate::error::StudyError::Invalid(format!("training traffic, {}: {e}", id.name())))?;
+                frames.push(Frame { actors, stream: id.stream(), index, users });
+            }
+        }
+        Ok(TrafficPoints { frames, classes: names.len(), seed: study.dataset.seed })
+    }
+
+    /// Frames held.
+    pub fn frames(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Per frame, the LiDAR points of `lidars` on each road user (by id; every road user of the
+    /// frame, in range or not).
+    pub fn points(&self, world: &hilo_raycast::World, lidars: &[RigLidar]) -> Result<Vec<BTreeMap<u32, usize>>> {
+        self.frames
+            .iter()
+            .map(|fr| {
+                let mut points: BTreeMap<u32, usize> = BTreeMap::new();
+                for (k, spec, pose) in lidars {
+                    let seed =
+                        hilo_dataset::simulate::derive_seed(self.seed, &[2, fr.stream, fr.index as u64, *k as u64]);
+                    let scan =
+                        hilo_sensor_models::simulate_lidar(spec, pose, world, Some(&fr.actors), seed).map_err(|e| {
+                            crate::error::StudyError::Invalid(format!("LiDAR {k} on a training key frame: {e}"))
+                        })?;
+                    for (a, n) in scan.points_per_actor() {
+                        *points.entry(a).or_default() += n;
+                    }
+                }
+                Ok(points)
+            })
+            .collect()
+    }
+
+    /// (mean of min(1, n / k), share with n ≥ k), class-balanced, for the LiDARs `lidars`.
+    pub fn shares(&self, world: &hilo_raycast::World, lidars: &[RigLidar], k: u32) -> Result<(f64, f64)> {
+        let mut sum = vec![(0.0, 0.0, 0usize); self.classes];
+        for (fr, points) in self.frames.iter().zip(self.points(world, lidars)?) {
+            for &(a, c) in &fr.users {
+                let n = points.get(&a).copied().unwrap_or(0) as f64;
+                sum[c].0 += (n / f64::from(k.max(1))).min(1.0);
+                sum[c].1 += if n >= f64::from(k) { 1.0 } else { 0.0 };
+                sum[c].2 += 1;
+            }
+        }
+        let seen: Vec<_> = sum.iter().filter(|s| s.2 > 0).collect();
+        let n = seen.len().max(1) as f64;
+        Ok((
+            seen.iter().map(|s| s.0 / s.2 as f64).sum::<f64>() / n,
+            seen.iter().map(|s| s.1 / s.2 as f64).sum::<f64>() / n,
+        ))
+    }
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 mod tests {
@@ -158,5 +267,67 @@ mod tests {
         let on_share: f64 = count.values().map(|c| 1.0 - c[targets.len()] / c.iter().sum::<f64>()).sum::<f64>() / k;
         assert!((got.weights.iter().sum::<f64>() - on_share).abs() < 1e-9);
         assert!(on_share > 0.5, "most road users should stand on a target: {on_share}");
+    }
+
+    /// The points the predictor counts are the dataset's: a rig's dataset of the same training
+    /// scenes annotates every road user of the sampled key frames with exactly these LiDAR
+    /// points (same scans, seeds and occlusion), a radar among the sensors changing nothing.
+    #[test]
+    fn traffic_points_are_the_datasets_lidar_points() {
+        use hilo_dataset::simulate::{RigSensor, simulate_scene};
+        use hilo_sensor_models::{Catalog, SensorPose, SensorSpec};
+        let study =
+            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
+        let study = Study {
+            dataset: hilo_dataset::simulate::SimulateConfig {
+                scenes: 1,
+                seconds: 2.0,
+                val_scenes: 1,
+                ..study.dataset.clone().into_inner()
+            }
+            .validate()
+            .unwrap(),
+            ..study
+        };
+        let catalog = Catalog::default_catalog().unwrap();
+        let pose = |m: usize, z: f32| {
+            let m = &study.scene.mounts[m];
+            let p = m.base + m.arm_dir * (0.5 * m.arm_length_m);
+            SensorPose::new(p.extend(study.scene.ground.z_m + m.arm_height_m + z), (-p.y).atan2(-p.x), 0.17, 0.0)
+        };
+        let rig: Vec<RigSensor> = [("lidar-16", 0, 0.4), ("radar-4d", 0, 0.1), ("lidar-32", 1, 0.4)]
+            .iter()
+            .enumerate()
+            .map(|(k, &(ty, m, z))| RigSensor {
+                channel: format!("S{k}"),
+                spec: catalog.get(ty).unwrap().clone(),
+                pose: pose(m, z),
+            })
+            .collect();
+        let lidars: Vec<RigLidar> = rig
+            .iter()
+            .enumerate()
+            .filter_map(|(k, s)| match &s.spec {
+                SensorSpec::Lidar(l) => Some((k, l.clone(), s.pose)),
+                SensorSpec::Radar(_) => None,
+            })
+            .collect();
+        let world = hilo_raycast::World::build(&study.scene, &hilo_raycast::QueryRegion::everything()).unwrap();
+        let every = 7;
+        let tp = TrafficPoints::new(&study, every).unwrap();
+        assert_eq!(tp.frames(), 3, "key frames 0, 7 and 14 of one 20-frame scene");
+        let counted = tp.points(&world, &lidars).unwrap();
+        let id = SceneId { split: Split::Train, index: 0 };
+        let data = simulate_scene(&study.scene, &world, &rig, &study.dataset, &id).unwrap();
+        let mut hit = 0;
+        for (f, points) in counted.iter().enumerate() {
+            for a in &data.frames[f * every].annotations {
+                assert_eq!(points.get(&a.instance).copied().unwrap_or(0) as u32, a.num_lidar_pts, "frame {f}");
+                hit += usize::from(a.num_lidar_pts > 0);
+            }
+        }
+        assert!(hit > 3, "the rig sees road users: {hit}");
+        let (capped, share) = tp.shares(&world, &lidars, 5).unwrap();
+        assert!(capped >= share && capped > 0.0 && share <= 1.0, "{capped} {share}");
     }
 }

@@ -717,7 +717,7 @@ pub fn write(out: &Path, r: &ValidationReport) -> Result<Vec<PathBuf>> {
     let md = out.join("validation.md");
     hilo_core::fs::write_atomic(&md, markdown(r).as_bytes())?;
     let mut files = vec![json, md];
-    for name in [set::PAPER_OBJECTIVE, set::OWN_OBJECTIVE, occupancy::HIT_SHARE] {
+    for name in [set::PAPER_OBJECTIVE, set::OWN_OBJECTIVE, occupancy::HIT_SHARE, set::LIDAR_POINTS_CAPPED] {
         let stem = format!("validation-{}", crate::study::slug(name));
         if scatter(out, &stem, r, name)? {
             files.push(out.join(format!("{stem}.png")));

@@ -69,6 +69,15 @@ pub const RADAR_TWO_VIEWS_USERS: &str = "radar coverage of road users by two vie
 pub const LIDAR_DENSE_USERS: &str = "LiDAR coverage of road users at twice the threshold";
 pub const RADAR_DENSE_USERS: &str = "radar coverage of road users at twice the threshold";
 
+/// The occupancy of the study's training traffic from the placement alone
+/// ([`crate::road_users::TrafficPoints`]): the class-balanced mean of min(1, n / k) over road
+/// users with n LiDAR points (capped-linear, the form an IP could hold) and the share with
+/// n ≥ k, on every [`TRAFFIC_EVERY`]-th key frame of the training scenes.
+pub const LIDAR_POINTS_CAPPED: &str = "LiDAR points on road users, capped at k (training traffic)";
+pub const HIT_SHARE_TRAINING: &str = "road users hit by k LiDAR points (training traffic)";
+/// Key frames of the training traffic between two the occupancy predictors read.
+pub const TRAFFIC_EVERY: usize = 20;
+
 /// The calibrated objective's terms as predictors, in the order of
 /// [`calibrated::Weights::named`] (each is the objective with that term's weight 1, the others 0).
 pub const TERMS: [&str; 12] = [
@@ -222,7 +231,7 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
             v.placements
         )));
     }
-    let mut ctx = Context::new(study, &prep, &pc)?;
+    let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
     drawn
         .into_iter()
         .enumerate()
@@ -253,7 +262,7 @@ pub fn calibrated_member(
     let pc = settings_with_tilts(study, v)?;
     let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
     let types = conf.type_names();
-    let mut ctx = Context::new(study, &prep, &pc)?;
+    let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
     let mut inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
     inst.road_users = ctx.all.road_users.clone();
     let limit = limit_for(conf, &types);
@@ -278,7 +287,7 @@ pub fn calibrated_member(
 pub fn recompute(study: &Study, v: &ValidationSettings, members: &[Member]) -> Result<Vec<Member>> {
     let pc = settings_with_tilts(study, v)?;
     let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
-    let mut ctx = Context::new(study, &prep, &pc)?;
+    let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
     members
         .iter()
         .enumerate()
@@ -367,10 +376,17 @@ struct Context<'a> {
     own: BTreeMap<Vec<String>, Instance>,
     cell_m: f32,
     p_min: f64,
+    traffic: crate::road_users::TrafficPoints,
+    min_points: u32,
 }
 
 impl<'a> Context<'a> {
-    fn new(study: &'a Study, prep: &'a Prepared, pc: &hilo_placement_ip::pipeline::PlacementConfig) -> Result<Self> {
+    fn new(
+        study: &'a Study,
+        prep: &'a Prepared,
+        pc: &hilo_placement_ip::pipeline::PlacementConfig,
+        min_points: u32,
+    ) -> Result<Self> {
         let mut all = instance(prep, &study.catalog, &study.type_names(), pc.p_min)?;
         all.road_users = crate::road_users::road_users(study, &prep.targets, pc.cell_m)?.weights;
         Ok(Context {
@@ -382,6 +398,8 @@ impl<'a> Context<'a> {
             prep,
             cell_m: pc.cell_m,
             p_min: pc.p_min,
+            traffic: crate::road_users::TrafficPoints::new(study, TRAFFIC_EVERY)?,
+            min_points,
         })
     }
 
@@ -417,6 +435,16 @@ impl<'a> Context<'a> {
             (RADAR_COVERAGE.to_owned(), Some(share(Modality::Radar))),
             (CENTRAL_COVERAGE.to_owned(), Some(hilo_placement_ip::coverage::share(central, &hits))),
         ]);
+        // The sensors' order is the rig's (the dataset's seeds follow it).
+        let lidars = sensors
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| s.modality == Modality::Lidar)
+            .map(|(k, s)| Ok((k, study.catalog.lidar(&s.ty)?.clone(), s.pose)))
+            .collect::<Result<Vec<_>>>()?;
+        let (capped, hit) = self.traffic.shares(&self.world, &lidars, self.min_points)?;
+        predictors.insert(LIDAR_POINTS_CAPPED.to_owned(), Some(capped));
+        predictors.insert(HIT_SHARE_TRAINING.to_owned(), Some(hit));
         // The calibrated objective's terms, one at a time.
         for (k, name) in TERMS.iter().enumerate() {
             predictors.insert(name.to_string(), Some(calibrated::evaluate(all, &sel_all, &unit_term(k))));
