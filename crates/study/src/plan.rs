@@ -211,12 +211,20 @@ impl Plan {
             placed.push(base);
         }
         let radar: Vec<bool> = configurations.iter().map(|c| c.has_radar(&study.catalog)).collect();
+        // A calibrated objective over road users places for the study's traffic: the traffic's
+        // settings then decide the placements too (and only then, so other hashes stay).
+        let traffic = match (study.placement.objective, &study.placement.calibration) {
+            (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_road_users() => {
+                format!("{:?}", study.dataset)
+            }
+            _ => String::new(),
+        };
         let place_hash = stage_hash(
             "placements",
             &[
                 &study.scene_hash,
                 &study.catalog_hash,
-                &format!("{:?}", study.placement),
+                &format!("{:?}{traffic}", study.placement),
                 &format!("{:?}", study.file.configurations),
             ],
         );

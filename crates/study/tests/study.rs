@@ -432,3 +432,25 @@ fn a_train_schedule_reaches_every_job_and_is_checked() {
         assert!(words.iter().all(|w| e.contains(w)), "{e}");
     }
 }
+
+/// The placements of a calibrated objective over road users depend on the study's traffic, so
+/// their stage hash does; with the paper's objective, or calibrated weights over the regions
+/// only, the traffic decides nothing there and the hash ignores it.
+#[test]
+fn placements_for_road_users_are_hashed_with_the_traffic() {
+    let dir = tempfile::tempdir().unwrap();
+    let placements = |placement: &str, seed: u64| {
+        let text = TWO_CONFIGS.replacen("[dataset]\n", &format!("{placement}\n[dataset]\nseed = {seed}\n"), 1);
+        let sub = dir.path().join(format!("{}-{seed}", placement.len()));
+        std::fs::create_dir_all(&sub).unwrap();
+        tiny_plan(&sub, &text).unwrap().placements.file_name().unwrap().to_owned()
+    };
+    let users =
+        "[placement]\nobjective = \"calibrated\"\ncalibration = { lidar = 0.2, radar = 0.0, lidar_road_users = 0.5 }\n";
+    let regions =
+        "[placement]\nobjective = \"calibrated\"\ncalibration = { lidar = 0.2, radar = 0.0, lidar_two_views = 0.5 }\n";
+    assert_ne!(placements(users, 0), placements(users, 1));
+    assert_eq!(placements(regions, 0), placements(regions, 1));
+    assert_eq!(placements("", 0), placements("", 1));
+    assert_ne!(placements(users, 0), placements(regions, 0));
+}
