@@ -208,24 +208,25 @@ impl TrafficPoints {
 mod tests {
     use super::*;
 
+    /// The default study with `scenes` training scenes of 2 s (20 key frames each).
+    fn small_study(scenes: usize) -> Study {
+        let study =
+            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
+        let dataset = hilo_dataset::simulate::SimulateConfig {
+            scenes,
+            seconds: 2.0,
+            val_scenes: 1,
+            ..study.dataset.clone().into_inner()
+        };
+        Study { dataset: dataset.validate().unwrap(), ..study }
+    }
+
     /// Against a brute-force count: every counted road user found on the one target whose cell
     /// holds its centre (a linear search over all targets), class-balanced by hand; the weights
     /// sum to the share of road users on targets, averaged over classes.
     #[test]
     fn road_user_weights_equal_a_brute_force_count() {
-        let study =
-            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
-        let study = Study {
-            dataset: hilo_dataset::simulate::SimulateConfig {
-                scenes: 2,
-                seconds: 2.0,
-                val_scenes: 1,
-                ..study.dataset.clone().into_inner()
-            }
-            .validate()
-            .unwrap(),
-            ..study
-        };
+        let study = small_study(2);
         let cell_m = 2.0;
         let targets = hilo_placement_ip::targets::roi_targets(&study.scene, cell_m).unwrap();
         let got = road_users(&study, &targets, cell_m).unwrap();
@@ -276,19 +277,7 @@ mod tests {
     fn traffic_points_are_the_datasets_lidar_points() {
         use hilo_dataset::simulate::{RigSensor, simulate_scene};
         use hilo_sensor_models::{Catalog, SensorPose, SensorSpec};
-        let study =
-            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
-        let study = Study {
-            dataset: hilo_dataset::simulate::SimulateConfig {
-                scenes: 1,
-                seconds: 2.0,
-                val_scenes: 1,
-                ..study.dataset.clone().into_inner()
-            }
-            .validate()
-            .unwrap(),
-            ..study
-        };
+        let study = small_study(1);
         let catalog = Catalog::default_catalog().unwrap();
         let pose = |m: usize, z: f32| {
             let m = &study.scene.mounts[m];
