@@ -103,7 +103,8 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
             (ObjectiveKind::Calibrated, Some(w)) => {
                 if w.reads_road_users() {
                     if road_users.is_none() {
-                        road_users = Some(crate::road_users::road_users(study, &prep.targets, cfg.cell_m)?.weights);
+                        let traffic = crate::road_users::TrainingTraffic::new(study)?;
+                        road_users = Some(crate::road_users::road_users(&traffic, &prep.targets, cfg.cell_m)?.weights);
                     }
                     inst.road_users = road_users.clone().unwrap_or_default();
                 }

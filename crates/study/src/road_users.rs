@@ -19,6 +19,7 @@
 use crate::error::Result;
 use crate::study::Study;
 use hilo_dataset::simulate::{SceneId, Split, key_frame_states};
+use hilo_dataset::traffic::ActorState;
 use hilo_placement_ip::targets::Target;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
@@ -38,10 +39,43 @@ pub struct RoadUsers {
     pub key_frames: usize,
 }
 
-/// Counts the road users of `study`'s training scenes on `targets`, a grid of `cell_m` squares.
-pub fn road_users(study: &Study, targets: &[Target], cell_m: f32) -> Result<RoadUsers> {
-    let cfg = &study.dataset;
-    let ranges = study.file.evaluation.detection_config().class_range;
+/// The key frames of a study's training scenes, its traffic stepped once without sensors, and
+/// which road users count: what [`road_users`] and [`TrafficPoints`] both read.
+#[derive(Clone, Debug)]
+pub struct TrainingTraffic {
+    /// Per training scene, its key frames' road users.
+    scenes: Vec<(SceneId, Vec<Vec<ActorState>>)>,
+    /// The evaluated classes (in the order of [`hilo_core::Class::ALL`]) and their ranges.
+    classes: Vec<&'static str>,
+    ranges: BTreeMap<String, f64>,
+    seed: u64,
+}
+
+impl TrainingTraffic {
+    /// Steps the traffic of `study`'s training scenes.
+    pub fn new(study: &Study) -> Result<TrainingTraffic> {
+        let ranges = study.file.evaluation.detection_config().class_range;
+        let classes = hilo_core::Class::ALL.iter().map(|c| c.name()).filter(|n| ranges.contains_key(*n)).collect();
+        let scenes = study
+            .dataset
+            .scene_ids()
+            .into_iter()
+            .filter(|id| id.split == Split::Train)
+            .map(|id| Ok((id, key_frame_states(&study.scene, &study.dataset, &id)?)))
+            .collect::<Result<_>>()?;
+        Ok(TrainingTraffic { scenes, classes, ranges, seed: study.dataset.seed })
+    }
+
+    /// The index in `classes` of road user `a`'s class when it counts: the class is evaluated
+    /// and the centre lies within its range of the origin.
+    fn counted(&self, a: &ActorState) -> Option<usize> {
+        let c = self.classes.iter().position(|n| *n == a.class.name())?;
+        (f64::from(a.box3.center.truncate().length()) < self.ranges[self.classes[c]]).then_some(c)
+    }
+}
+
+/// Counts the road users of the training traffic on `targets`, a grid of `cell_m` squares.
+pub fn road_users(traffic: &TrainingTraffic, targets: &[Target], cell_m: f32) -> Result<RoadUsers> {
     let Some(origin) = targets.first().map(|t| t.center) else {
         return Ok(RoadUsers {
             weights: Vec::new(),
@@ -56,20 +90,15 @@ pub fn road_users(study: &Study, targets: &[Target], cell_m: f32) -> Result<Road
         (d.x.round() as i64, d.y.round() as i64)
     };
     let cell: HashMap<(i64, i64), usize> = targets.iter().enumerate().map(|(j, t)| (key(t.center), j)).collect();
-    let ids: Vec<SceneId> = cfg.scene_ids().into_iter().filter(|id| id.split == Split::Train).collect();
     let mut on: BTreeMap<String, Vec<usize>> = BTreeMap::new();
     let mut per_class: BTreeMap<String, usize> = BTreeMap::new();
     let (mut off_targets, mut key_frames) = (0, 0);
-    for id in &ids {
-        for frame in key_frame_states(&study.scene, cfg, id)? {
+    for (_, frames) in &traffic.scenes {
+        for frame in frames {
             key_frames += 1;
             for a in frame {
-                let name = a.class.name();
-                let Some(&range) = ranges.get(name) else { continue };
-                let p = a.box3.center.truncate();
-                if f64::from(p.length()) >= range {
-                    continue;
-                }
+                let Some(c) = traffic.counted(a) else { continue };
+                let (name, p) = (traffic.classes[c], a.box3.center.truncate());
                 *per_class.entry(name.to_owned()).or_default() += 1;
                 // A centre on a cell's edge rounds to one of the two cells; either holds it.
                 let inside = |j: usize| {
@@ -91,7 +120,7 @@ pub fn road_users(study: &Study, targets: &[Target], cell_m: f32) -> Result<Road
             weights[j] += 1.0 / (n * classes);
         }
     }
-    Ok(RoadUsers { weights, per_class, off_targets, scenes: ids.len(), key_frames })
+    Ok(RoadUsers { weights, per_class, off_targets, scenes: traffic.scenes.len(), key_frames })
 }
 
 /// Sampled frames of the study's training traffic with the LiDAR points a rig puts on each road
@@ -131,28 +160,19 @@ impl std::fmt::Debug for TrafficPoints {
 pub type RigLidar = (usize, hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose);
 
 impl TrafficPoints {
-    /// The frames of `study`'s training scenes, every `every`-th key frame.
-    pub fn new(study: &Study, every: usize) -> Result<TrafficPoints> {
-        let ranges = study.file.evaluation.detection_config().class_range;
-        let names: Vec<&str> =
-            hilo_core::Class::ALL.iter().map(|c| c.name()).filter(|n| ranges.contains_key(*n)).collect();
+    /// Every `every`-th key frame of each training scene of `traffic`.
+    pub fn new(traffic: &TrainingTraffic, every: usize) -> Result<TrafficPoints> {
         let mut frames = Vec::new();
-        for id in study.dataset.scene_ids().into_iter().filter(|id| id.split == Split::Train) {
-            let states = key_frame_states(&study.scene, &study.dataset, &id)?;
-            for (index, states) in states.into_iter().enumerate().step_by(every.max(1)) {
-                let users: Vec<(u32, usize)> = states
-                    .iter()
-                    .filter_map(|a| {
-                        let c = names.iter().position(|n| *n == a.class.name())?;
-                        (f64::from(a.box3.center.truncate().length()) < ranges[names[c]]).then_some((a.id, c))
-                    })
-                    .collect();
+        for (id, states) in &traffic.scenes {
+            for (index, states) in states.iter().enumerate().step_by(every.max(1)) {
+                let users: Vec<(u32, usize)> =
+                    states.iter().filter_map(|a| traffic.counted(a).map(|c| (a.id, c))).collect();
                 let actors = hilo_raycast::ActorSet::new(states.iter().map(|a| a.actor()).collect())
                     .map_err(|e| crate::error::StudyError::Invalid(format!("training traffic, {}: {e}", id.name())))?;
                 frames.push(Frame { actors, stream: id.stream(), index, users });
             }
         }
-        Ok(TrafficPoints { frames, classes: names.len(), seed: study.dataset.seed })
+        Ok(TrafficPoints { frames, classes: traffic.classes.len(), seed: traffic.seed })
     }
 
     /// Frames held.
@@ -229,7 +249,7 @@ mod tests {
         let study = small_study(2);
         let cell_m = 2.0;
         let targets = hilo_placement_ip::targets::roi_targets(&study.scene, cell_m).unwrap();
-        let got = road_users(&study, &targets, cell_m).unwrap();
+        let got = road_users(&TrainingTraffic::new(&study).unwrap(), &targets, cell_m).unwrap();
         assert_eq!((got.scenes, got.key_frames), (2, 40));
         let ranges = study.file.evaluation.detection_config().class_range;
         let mut count: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -303,7 +323,7 @@ mod tests {
             .collect();
         let world = hilo_raycast::World::build(&study.scene, &hilo_raycast::QueryRegion::everything()).unwrap();
         let every = 7;
-        let tp = TrafficPoints::new(&study, every).unwrap();
+        let tp = TrafficPoints::new(&TrainingTraffic::new(&study).unwrap(), every).unwrap();
         assert_eq!(tp.frames(), 3, "key frames 0, 7 and 14 of one 20-frame scene");
         let counted = tp.points(&world, &lidars).unwrap();
         let id = SceneId { split: Split::Train, index: 0 };

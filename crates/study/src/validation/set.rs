@@ -387,8 +387,11 @@ impl<'a> Context<'a> {
         pc: &hilo_placement_ip::pipeline::PlacementConfig,
         min_points: u32,
     ) -> Result<Self> {
+        // The training traffic, stepped once for the road users on each target and the points
+        // on them.
+        let traffic = crate::road_users::TrainingTraffic::new(study)?;
         let mut all = instance(prep, &study.catalog, &study.type_names(), pc.p_min)?;
-        all.road_users = crate::road_users::road_users(study, &prep.targets, pc.cell_m)?.weights;
+        all.road_users = crate::road_users::road_users(&traffic, &prep.targets, pc.cell_m)?.weights;
         Ok(Context {
             study,
             world: World::build(&study.scene, &QueryRegion::everything())?,
@@ -398,7 +401,7 @@ impl<'a> Context<'a> {
             prep,
             cell_m: pc.cell_m,
             p_min: pc.p_min,
-            traffic: crate::road_users::TrafficPoints::new(study, TRAFFIC_EVERY)?,
+            traffic: crate::road_users::TrafficPoints::new(&traffic, TRAFFIC_EVERY)?,
             min_points,
         })
     }
