@@ -97,6 +97,27 @@ pub struct Weights {
     pub radar_dense_road_users: f64,
 }
 
+/// How many terms the calibrated objective has ([`Weights::named`]).
+pub const N_TERMS: usize = 12;
+
+/// Each term's name in a study file and its shape: modality, the multiple k of the threshold
+/// that counts a target fully, whether each sensor's coefficient is capped at 1, whether the
+/// targets are weighted by road users; in the order of [`Weights::values`].
+const SHAPES: [(&str, Modality, f64, bool, bool); N_TERMS] = [
+    ("lidar", Modality::Lidar, 1.0, true, false),
+    ("radar", Modality::Radar, 1.0, true, false),
+    ("lidar_two_views", Modality::Lidar, 2.0, true, false),
+    ("radar_two_views", Modality::Radar, 2.0, true, false),
+    ("lidar_dense", Modality::Lidar, 2.0, false, false),
+    ("radar_dense", Modality::Radar, 2.0, false, false),
+    ("lidar_road_users", Modality::Lidar, 1.0, true, true),
+    ("radar_road_users", Modality::Radar, 1.0, true, true),
+    ("lidar_two_views_road_users", Modality::Lidar, 2.0, true, true),
+    ("radar_two_views_road_users", Modality::Radar, 2.0, true, true),
+    ("lidar_dense_road_users", Modality::Lidar, 2.0, false, true),
+    ("radar_dense_road_users", Modality::Radar, 2.0, false, true),
+];
+
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
 }
@@ -138,22 +159,12 @@ impl Weights {
     }
 
     /// The terms, zero weights included.
-    pub(crate) fn terms(&self) -> [Term; 12] {
-        let t = |modality, k, capped, road_users, weight| Term { modality, k, capped, road_users, weight };
-        [
-            t(Modality::Lidar, 1.0, true, false, self.lidar),
-            t(Modality::Radar, 1.0, true, false, self.radar),
-            t(Modality::Lidar, 2.0, true, false, self.lidar_two_views),
-            t(Modality::Radar, 2.0, true, false, self.radar_two_views),
-            t(Modality::Lidar, 2.0, false, false, self.lidar_dense),
-            t(Modality::Radar, 2.0, false, false, self.radar_dense),
-            t(Modality::Lidar, 1.0, true, true, self.lidar_road_users),
-            t(Modality::Radar, 1.0, true, true, self.radar_road_users),
-            t(Modality::Lidar, 2.0, true, true, self.lidar_two_views_road_users),
-            t(Modality::Radar, 2.0, true, true, self.radar_two_views_road_users),
-            t(Modality::Lidar, 2.0, false, true, self.lidar_dense_road_users),
-            t(Modality::Radar, 2.0, false, true, self.radar_dense_road_users),
-        ]
+    pub(crate) fn terms(&self) -> [Term; N_TERMS] {
+        let v = self.values();
+        std::array::from_fn(|i| {
+            let (_, modality, k, capped, road_users) = SHAPES[i];
+            Term { modality, k, capped, road_users, weight: v[i] }
+        })
     }
 
     /// Whether a term over the road users has a weight (the instance then needs
@@ -163,38 +174,58 @@ impl Weights {
     }
 
     /// The weights by their names in a study file, in the order of [`Weights::terms`].
-    pub fn named(&self) -> [(&'static str, f64); 12] {
+    pub fn named(&self) -> [(&'static str, f64); N_TERMS] {
+        let v = self.values();
+        std::array::from_fn(|i| (SHAPES[i].0, v[i]))
+    }
+
+    /// The weights in the order of [`Weights::named`].
+    pub fn values(&self) -> [f64; N_TERMS] {
         [
-            ("lidar", self.lidar),
-            ("radar", self.radar),
-            ("lidar_two_views", self.lidar_two_views),
-            ("radar_two_views", self.radar_two_views),
-            ("lidar_dense", self.lidar_dense),
-            ("radar_dense", self.radar_dense),
-            ("lidar_road_users", self.lidar_road_users),
-            ("radar_road_users", self.radar_road_users),
-            ("lidar_two_views_road_users", self.lidar_two_views_road_users),
-            ("radar_two_views_road_users", self.radar_two_views_road_users),
-            ("lidar_dense_road_users", self.lidar_dense_road_users),
-            ("radar_dense_road_users", self.radar_dense_road_users),
+            self.lidar,
+            self.radar,
+            self.lidar_two_views,
+            self.radar_two_views,
+            self.lidar_dense,
+            self.radar_dense,
+            self.lidar_road_users,
+            self.radar_road_users,
+            self.lidar_two_views_road_users,
+            self.radar_two_views_road_users,
+            self.lidar_dense_road_users,
+            self.radar_dense_road_users,
         ]
     }
 
     /// Weights from their values in the order of [`Weights::named`].
-    pub fn from_array(v: [f64; 12]) -> Self {
+    pub fn from_array(v: [f64; N_TERMS]) -> Self {
+        let [
+            lidar,
+            radar,
+            lidar_two_views,
+            radar_two_views,
+            lidar_dense,
+            radar_dense,
+            lidar_road_users,
+            radar_road_users,
+            lidar_two_views_road_users,
+            radar_two_views_road_users,
+            lidar_dense_road_users,
+            radar_dense_road_users,
+        ] = v;
         Weights {
-            lidar: v[0],
-            radar: v[1],
-            lidar_two_views: v[2],
-            radar_two_views: v[3],
-            lidar_dense: v[4],
-            radar_dense: v[5],
-            lidar_road_users: v[6],
-            radar_road_users: v[7],
-            lidar_two_views_road_users: v[8],
-            radar_two_views_road_users: v[9],
-            lidar_dense_road_users: v[10],
-            radar_dense_road_users: v[11],
+            lidar,
+            radar,
+            lidar_two_views,
+            radar_two_views,
+            lidar_dense,
+            radar_dense,
+            lidar_road_users,
+            radar_road_users,
+            lidar_two_views_road_users,
+            radar_two_views_road_users,
+            lidar_dense_road_users,
+            radar_dense_road_users,
         }
     }
 
@@ -585,5 +616,26 @@ mod tests {
         assert!(Weights { radar_two_views: -0.1, ..Weights::once(1.0, 0.0) }.check().is_err());
         assert!(Weights { lidar_dense: f64::NAN, ..Weights::once(1.0, 0.0) }.check().is_err());
         assert!(Weights::default().check().is_err());
+    }
+
+    /// The names a study file uses, the values and the terms line up: each field set alone
+    /// is the one non-zero entry of `values` and `named` at the same place, `from_array`
+    /// inverts `values`, and the weights read back from their names.
+    #[test]
+    fn names_values_and_terms_line_up() {
+        for k in 0..N_TERMS {
+            let mut v = [0.0; N_TERMS];
+            v[k] = 0.5 + k as f64;
+            let w = Weights::from_array(v);
+            assert_eq!(w.values(), v);
+            assert_eq!(w.terms().iter().map(|t| t.weight).collect::<Vec<_>>(), v.to_vec());
+            let (name, value) = w.named()[k];
+            assert_eq!(value, v[k]);
+            let text = serde_json::json!({ "lidar": 0.0, "radar": 0.0, name: value }).to_string();
+            let back: Weights = serde_json::from_str(&text).unwrap();
+            assert_eq!(back, w, "{name}");
+        }
+        let names: std::collections::HashSet<&str> = Weights::default().named().iter().map(|(n, _)| *n).collect();
+        assert_eq!(names.len(), N_TERMS);
     }
 }

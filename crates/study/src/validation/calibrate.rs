@@ -119,7 +119,7 @@ fn least_squares(x: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)>
 
 /// The features the calibrated objective may use, in the order of [`Calibrated::weights`]:
 /// its terms ([`TERMS`]).
-pub const FEATURES: [&str; 12] = TERMS;
+pub const FEATURES: [&str; hilo_placement_ip::calibrated::N_TERMS] = TERMS;
 
 /// The placement's weights for the calibrated IP, from a fit over [`FEATURES`] (a feature the
 /// fit does not name weighs 0).

@@ -80,7 +80,7 @@ pub const TRAFFIC_EVERY: usize = 20;
 
 /// The calibrated objective's terms as predictors, in the order of
 /// [`calibrated::Weights::named`] (each is the objective with that term's weight 1, the others 0).
-pub const TERMS: [&str; 12] = [
+pub const TERMS: [&str; calibrated::N_TERMS] = [
     LIDAR_SATURATED,
     RADAR_SATURATED,
     LIDAR_TWO_VIEWS,
@@ -97,7 +97,7 @@ pub const TERMS: [&str; 12] = [
 
 /// The calibrated objective with weight 1 on term `k` of [`TERMS`].
 pub fn unit_term(k: usize) -> calibrated::Weights {
-    let mut v = [0.0; 12];
+    let mut v = [0.0; calibrated::N_TERMS];
     v[k] = 1.0;
     calibrated::Weights::from_array(v)
 }
