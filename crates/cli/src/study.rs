@@ -310,6 +310,10 @@ pub struct ValidateArgs {
     /// study's budget and simulate, train and score it as the set was (resumes from --out).
     #[arg(long, conflicts_with = "refit")]
     pub recommend: bool,
+    /// Add --out's trained recommendation to the placement set and fit again; with
+    /// --recommend, then place and train the rig the new fit buys (one more turn of the loop).
+    #[arg(long, conflicts_with = "refit")]
+    pub absorb: bool,
     /// Predict every placement of --out's finished set (its recorded predictors; after --refit or
     /// --recommend when given) with the calibrated objective of another finished validation (its
     /// `validation.json`), its weights frozen: does the fit carry to traffic, rigs and trainings
@@ -318,18 +322,18 @@ pub struct ValidateArgs {
     pub transfer: Option<PathBuf>,
     /// Draw the placement set, then write the validation as a workflow for this engine
     /// (`snakemake`) into --out instead of running it.
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "transfer"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "transfer"])]
     pub workflow: Option<String>,
     /// One stage of the validation in --out (as its Snakefile runs it): record this
     /// placement's dataset.
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "train", "resume", "transfer"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "train", "resume", "transfer"])]
     pub simulate: Option<String>,
     /// One stage of the validation in --out: this training (`<placement>/<preset>-seed<k>`).
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "resume", "transfer"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "resume", "transfer"])]
     pub train: Option<String>,
     /// Run what remains of the validation in --out with the study, profile and settings it
     /// records (the Snakefile's last step: scores, fit, recommendation).
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "workflow", "transfer"])]
+    #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "transfer"])]
     pub resume: bool,
 }
 
@@ -363,7 +367,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     if args.simulate.is_some() || args.train.is_some() || args.resume {
         return validation_stage(args);
     }
-    if let Some(source) = args.transfer.as_deref().filter(|_| !args.refit && !args.recommend) {
+    if let Some(source) = args.transfer.as_deref().filter(|_| !args.refit && !args.recommend && !args.absorb) {
         let mut report = hilo_study::validation::read(&args.out)?;
         report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
         for p in hilo_study::validation::write(&args.out, &report)? {
@@ -371,9 +375,13 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
         }
         return Ok(());
     }
-    if args.refit || args.recommend {
+    if args.refit || args.recommend || args.absorb {
         let study = load_study(args.study.as_deref())?;
-        let mut report = hilo_study::validation::refit(&study, &args.out)?;
+        let mut report = if args.absorb {
+            hilo_study::validation::absorb(&study, &args.out)?
+        } else {
+            hilo_study::validation::refit(&study, &args.out)?
+        };
         if let Some(source) = &args.transfer {
             report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
         }

@@ -1,6 +1,6 @@
 //! `hilo validate` end to end on a coarse scene at the tiny profile: the set is trained and
 //! scored, the calibrated objective is fitted and its budgeted recommendation trained; a rerun
-//! resumes to the same numbers; `--refit` and `--recommend` work from the folder.
+//! resumes to the same numbers; `--refit`, `--recommend` and `--absorb` work from the folder.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -94,6 +94,28 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     assert_eq!(json(&out.join("validation.json"))["recommendation"], r["recommendation"]);
     run(&["--recommend"]);
     assert_eq!(json(&out.join("validation.json"))["recommendation"], r["recommendation"]);
+    // --absorb: the trained recommendation joins the set as its last member, fitted and
+    // predicted out of fold like the others, and no recommendation is left to absorb.
+    let n = members.len();
+    run(&["--absorb"]);
+    let a = json(&out.join("validation.json"));
+    let grown = a["members"].as_array().unwrap();
+    assert_eq!(grown.len(), n + 1);
+    assert_eq!(grown[n][0]["slug"], rec["member"]["slug"]);
+    assert_eq!(grown[n][1], rec["trained"]);
+    assert!(a["recommendation"].is_null(), "{}", a["recommendation"]);
+    assert_eq!(a["calibrated"]["held_out"].as_array().unwrap().len(), n + 1);
+    let md = std::fs::read_to_string(out.join("validation.md")).unwrap();
+    assert!(md.contains(&format!("Over the {n} drawn placements alone")), "{md}");
+    let o = hilo().arg("validate").arg(&study).arg("--out").arg(&out).arg("--absorb").output().unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no trained recommendation"), "{o:?}");
+    // A rerun of the validation scores the set again and keeps the absorbed rig.
+    run(&[]);
+    let again = json(&out.join("validation.json"));
+    let kept = again["members"].as_array().unwrap();
+    assert_eq!(kept.len(), n + 1);
+    assert_eq!((&kept[n][0]["slug"], &kept[n][1]), (&grown[n][0]["slug"], &grown[n][1]));
 }
 
 /// Drops what measures time (`seconds`, `*_s`, `*_seconds`): it differs between any two runs.

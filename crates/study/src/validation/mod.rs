@@ -427,7 +427,16 @@ pub fn run(
     }
     // 4. Scores on the common ground truth, predictors of the traffic, agreement.
     progress(Progress::Stage("validation: scoring"));
+    let drawn = plan.members.len();
     let mut report = score(study, profile, settings, plan.members, &plan.data, outputs, t0)?;
+    // Recommendations an earlier run added to the set stay in it.
+    let extra = absorbed(study, out, settings, drawn)?;
+    if !extra.is_empty() {
+        report.members.extend(extra);
+        (report.predictors, report.budget_spearman, report.budget_kendall, report.seed_spearman) =
+            agreements(&report.members);
+        report.calibrated = calibrate::calibrate(&report, settings.seed);
+    }
     // 5. The rig the calibrated objective buys, trained as the members were.
     report.recommendation = recommend::recommend(study, registry, profile, &report, out, progress)?;
     report.seconds = t0.elapsed().as_secs_f64();
@@ -676,7 +685,11 @@ fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, A
 /// validation run by an older build gains the predictors added since) and fits the calibrated
 /// objective again: no simulation, no training.
 pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
-    let mut r = read(out)?;
+    refit_report(study, read(out)?)
+}
+
+/// [`refit`] on a report in hand.
+fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationReport> {
     let members: Vec<Member> = r.members.iter().map(|(m, _)| m.clone()).collect();
     let again = set::recompute(study, &r.settings, &members)?;
     // A transfer scored on other predictors is not this set's.
@@ -694,6 +707,44 @@ pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
         r.recommendation = None;
     }
     Ok(r)
+}
+
+/// Adds the trained recommendation of `out`'s validation to its set, a placement like the
+/// others (the one the fit chose, trained as they were), and fits again ([`refit`]): the
+/// calibrated objective then knows how the rig it bought trained, and the next recommendation
+/// is placed by that fit — the loop closed once more. The set's placements span one to four
+/// sensors and the fit's saturating terms extrapolate past them to the seven or eight a budget
+/// buys; each rig added is evidence where the optimiser goes. It stays in `validation.json`
+/// (its placement, dataset and trainings in `recommendation/`, `data/`, `runs/`), and a rerun of
+/// the validation keeps it ([`absorbed`]). An error when no recommendation was trained.
+pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {
+    let mut r = read(out)?;
+    let Some(rec) = r.recommendation.take() else {
+        return Err(StudyError::Invalid(format!(
+            "{}: no trained recommendation to add to the set (run --recommend first)",
+            out.join("validation.json").display()
+        )));
+    };
+    r.members.push((rec.member, rec.trained));
+    r.transfer = None;
+    let mut r = refit_report(study, r)?;
+    r.recommendation = None;
+    Ok(r)
+}
+
+/// The recommendations an earlier run of the validation in `out` added to its set
+/// ([`absorb`]): the members of its `validation.json` after the `drawn` placements of the
+/// set, with their predictors computed again by this build. None without an earlier record.
+fn absorbed(study: &Study, out: &Path, settings: &ValidationSettings, drawn: usize) -> Result<Vec<(Member, Trained)>> {
+    let path = out.join("validation.json");
+    if !path.exists() {
+        return Ok(Vec::new());
+    }
+    let prev = read(out)?;
+    let extra: Vec<(Member, Trained)> = prev.members.into_iter().skip(drawn).collect();
+    let members: Vec<Member> = extra.iter().map(|(m, _)| m.clone()).collect();
+    let again = set::recompute_from(study, settings, &members, drawn)?;
+    Ok(again.into_iter().zip(extra).map(|(m, (_, t))| (m, t)).collect())
 }
 
 /// Reads `<out>/validation.json`, a finished validation's record.
@@ -779,7 +830,7 @@ pub fn markdown(r: &ValidationReport) -> String {
         ));
     }
     if let Some(c) = &r.calibrated {
-        s.push_str(&calibrated_markdown(c));
+        s.push_str(&calibrated_markdown(r, c));
     }
     if let Some(t) = &r.transfer {
         s.push_str(&transfer_markdown(t));
@@ -815,7 +866,36 @@ pub fn markdown(r: &ValidationReport) -> String {
     s
 }
 
-fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
+/// Whether a member is a recommendation added to the set ([`absorb`]) rather than drawn.
+fn is_absorbed(m: &Member) -> bool {
+    m.kind.starts_with("calibrated")
+}
+
+/// The recommendations in the set, and the held-out ρ over the drawn placements alone (an
+/// added rig is chosen by a fit, at the top of the range, and could carry ρ on its own).
+fn absorbed_markdown(r: &ValidationReport, c: &calibrate::Calibrated) -> String {
+    let added: Vec<&str> = r.members.iter().filter(|(m, _)| is_absorbed(m)).map(|(m, _)| m.slug.as_str()).collect();
+    if added.is_empty() || c.held_out.len() != r.members.len() {
+        return String::new();
+    }
+    let (p, m): (Vec<f64>, Vec<f64>) = r
+        .members
+        .iter()
+        .zip(&c.held_out)
+        .filter(|((m, _), _)| !is_absorbed(m))
+        .map(|(_, h)| (h.predicted, h.measured))
+        .unzip();
+    format!(
+        "{} of these placements are recommendations of earlier fits, trained and added to the set (`--absorb`): {}. \
+         Over the {} drawn placements alone, the same out-of-fold predictions rank at Spearman ρ {:+.2}.\n\n",
+        added.len(),
+        added.join(", "),
+        p.len(),
+        crate::rank::spearman(&p, &m)
+    )
+}
+
+fn calibrated_markdown(r: &ValidationReport, c: &calibrate::Calibrated) -> String {
     let mut s = String::from("## A calibrated objective\n\n");
     let terms: Vec<String> = c.features.iter().zip(&c.weights).map(|(f, w)| format!("{w:.3} × {f}")).collect();
     let held = if c.folds > 0 {
@@ -852,6 +932,7 @@ fn calibrated_markdown(c: &calibrate::Calibrated) -> String {
             median
         ));
     }
+    s.push_str(&absorbed_markdown(r, c));
     let w = calibrate::weights(c);
     if c.weights.iter().all(|v| *v == 0.0) {
         s.push_str(

@@ -285,6 +285,11 @@ pub fn calibrated_member(
 /// The members' placement predictors computed again by this build (a set drawn by an older one
 /// gains the predictors added since); the predictors of the traffic are kept as they were.
 pub fn recompute(study: &Study, v: &ValidationSettings, members: &[Member]) -> Result<Vec<Member>> {
+    recompute_from(study, v, members, 0)
+}
+
+/// [`recompute`] for members that stand at `first`, `first` + 1, … of their set.
+pub fn recompute_from(study: &Study, v: &ValidationSettings, members: &[Member], first: usize) -> Result<Vec<Member>> {
     let pc = settings_with_tilts(study, v)?;
     let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
     let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
@@ -298,8 +303,13 @@ pub fn recompute(study: &Study, v: &ValidationSettings, members: &[Member]) -> R
                     m.slug, study.source
                 )));
             }
-            let mut again =
-                ctx.member(k, &m.kind, &m.configuration, m.placement.sensors.clone(), m.placement.proven_optimal)?;
+            let mut again = ctx.member(
+                first + k,
+                &m.kind,
+                &m.configuration,
+                m.placement.sensors.clone(),
+                m.placement.proven_optimal,
+            )?;
             if again.slug != m.slug {
                 return Err(StudyError::Invalid(format!("placement {} reads back as {}", m.slug, again.slug)));
             }
