@@ -18,14 +18,17 @@
 //! cross-fitting; `[placement] objective = "calibrated"` places with it
 //! ([`hilo_placement_ip::calibrated`]). The rig it buys under the study's budget is then
 //! trained as the members were and set beside its prediction and the best configuration of the
-//! study at equal or lower cost ([`recommend`]). Cross-fitting within one set shares that set's
+//! study at equal or lower cost ([`recommend`]); [`absorb`] adds that trained rig to the set and
+//! fits again, so the next recommendation is placed by a fit that knows how the last one
+//! trained (the set's rigs have one to four sensors, a budget buys more). Cross-fitting within one set shares that set's
 //! traffic and may have chosen the objective's form from its residuals; `--transfer` predicts
 //! the placements of a second set (other seeds) with the first set's weights frozen
 //! ([`calibrate::transfer`]). It runs in one process ([`run`]) or as a
 //! workflow engine's jobs ([`plan`] draws the set and names the stages, [`simulate`] and
 //! [`train_job`] run one each, `crate::workflow::validation_snakefile` writes them); its stage
 //! folders are named by hashes that include the code, so a run is resumed by the same build
-//! (`--refit` and `--recommend` read a finished run's `validation.json` with any later build).
+//! (`--refit`, `--recommend` and `--absorb` read a finished run's `validation.json` with any
+//! later build).
 //!
 //! Layout of its folder (every stage resumable; a stage's folder is named by the hash of
 //! what decides it):
@@ -716,7 +719,7 @@ fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationRepo
 /// sensors and the fit's saturating terms extrapolate past them to the seven or eight a budget
 /// buys; each rig added is evidence where the optimiser goes. It stays in `validation.json`
 /// (its placement, dataset and trainings in `recommendation/`, `data/`, `runs/`), and a rerun of
-/// the validation keeps it ([`absorbed`]). An error when no recommendation was trained.
+/// the validation keeps it. An error when no recommendation was trained.
 pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {
     let mut r = read(out)?;
     let Some(rec) = r.recommendation.take() else {
