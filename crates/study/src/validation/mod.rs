@@ -20,8 +20,8 @@
 //! trained as the members were and set beside its prediction and the best configuration of the
 //! study at equal or lower cost ([`recommend`]); [`absorb`] adds that trained rig to the set and
 //! fits again, so the next recommendation is placed by a fit that knows how the last one
-//! trained (the set's rigs have one to four sensors, a budget buys more). Cross-fitting within one set shares that set's
-//! traffic and may have chosen the objective's form from its residuals; `--transfer` predicts
+//! trained (the set's rigs have one to four sensors, a budget buys more). Cross-fitting within
+//! one set shares that set's traffic and may have chosen the objective's form from its residuals; `--transfer` predicts
 //! the placements of a second set (other seeds) with the first set's weights frozen
 //! ([`calibrate::transfer`]). It runs in one process ([`run`]) or as a
 //! workflow engine's jobs ([`plan`] draws the set and names the stages, [`simulate`] and
@@ -430,16 +430,9 @@ pub fn run(
     }
     // 4. Scores on the common ground truth, predictors of the traffic, agreement.
     progress(Progress::Stage("validation: scoring"));
-    let drawn = plan.members.len();
-    let mut report = score(study, profile, settings, plan.members, &plan.data, outputs, t0)?;
     // Recommendations an earlier run added to the set stay in it.
-    let extra = absorbed(study, out, settings, drawn)?;
-    if !extra.is_empty() {
-        report.members.extend(extra);
-        (report.predictors, report.budget_spearman, report.budget_kendall, report.seed_spearman) =
-            agreements(&report.members);
-        report.calibrated = calibrate::calibrate(&report, settings.seed);
-    }
+    let added = absorbed(study, out, settings, plan.members.len())?;
+    let mut report = score(study, profile, settings, plan.members, added, &plan.data, outputs)?;
     // 5. The rig the calibrated objective buys, trained as the members were.
     report.recommendation = recommend::recommend(study, registry, profile, &report, out, progress)?;
     report.seconds = t0.elapsed().as_secs_f64();
@@ -588,9 +581,9 @@ fn score(
     profile: &Profile,
     settings: &ValidationSettings,
     mut members: Vec<Member>,
+    added: Vec<(Member, Trained)>,
     data: &[DataStage],
     outputs: Outputs,
-    t0: std::time::Instant,
 ) -> Result<ValidationReport> {
     let scorer = Scorer::new(&data[0].dir, profile, settings, &study.file.evaluation)?;
     let mut trained = Vec::new();
@@ -599,7 +592,7 @@ fn score(
         m.predictors.extend(occupancy);
         trained.push(t);
     }
-    let members: Vec<(Member, Trained)> = members.into_iter().zip(trained).collect();
+    let members: Vec<(Member, Trained)> = members.into_iter().zip(trained).chain(added).collect();
     let (predictors, budget_spearman, budget_kendall, seed_spearman) = agreements(&members);
     let mut report = ValidationReport {
         study: study.source.clone(),
@@ -616,7 +609,8 @@ fn score(
         calibrated: None,
         recommendation: None,
         transfer: None,
-        seconds: t0.elapsed().as_secs_f64(),
+        // Set by the caller, who knows when the run began.
+        seconds: 0.0,
     };
     report.calibrated = calibrate::calibrate(&report, settings.seed);
     Ok(report)
@@ -730,14 +724,12 @@ pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {
     };
     r.members.push((rec.member, rec.trained));
     r.transfer = None;
-    let mut r = refit_report(study, r)?;
-    r.recommendation = None;
-    Ok(r)
+    refit_report(study, r)
 }
 
 /// The recommendations an earlier run of the validation in `out` added to its set
 /// ([`absorb`]): the members of its `validation.json` after the `drawn` placements of the
-/// set, with their predictors computed again by this build. None without an earlier record.
+/// set, with their predictors computed again by this build; none without an earlier record.
 fn absorbed(study: &Study, out: &Path, settings: &ValidationSettings, drawn: usize) -> Result<Vec<(Member, Trained)>> {
     let path = out.join("validation.json");
     if !path.exists() {
