@@ -181,52 +181,35 @@ impl Weights {
 
     /// The weights in the order of [`Weights::named`].
     pub fn values(&self) -> [f64; N_TERMS] {
-        [
-            self.lidar,
-            self.radar,
-            self.lidar_two_views,
-            self.radar_two_views,
-            self.lidar_dense,
-            self.radar_dense,
-            self.lidar_road_users,
-            self.radar_road_users,
-            self.lidar_two_views_road_users,
-            self.radar_two_views_road_users,
-            self.lidar_dense_road_users,
-            self.radar_dense_road_users,
-        ]
+        let mut w = *self;
+        w.fields_mut().map(|f| *f)
     }
 
     /// Weights from their values in the order of [`Weights::named`].
     pub fn from_array(v: [f64; N_TERMS]) -> Self {
-        let [
-            lidar,
-            radar,
-            lidar_two_views,
-            radar_two_views,
-            lidar_dense,
-            radar_dense,
-            lidar_road_users,
-            radar_road_users,
-            lidar_two_views_road_users,
-            radar_two_views_road_users,
-            lidar_dense_road_users,
-            radar_dense_road_users,
-        ] = v;
-        Weights {
-            lidar,
-            radar,
-            lidar_two_views,
-            radar_two_views,
-            lidar_dense,
-            radar_dense,
-            lidar_road_users,
-            radar_road_users,
-            lidar_two_views_road_users,
-            radar_two_views_road_users,
-            lidar_dense_road_users,
-            radar_dense_road_users,
+        let mut w = Weights::default();
+        for (f, x) in w.fields_mut().into_iter().zip(v) {
+            *f = x;
         }
+        w
+    }
+
+    /// The fields in the order of [`SHAPES`]: the one place that order is written.
+    fn fields_mut(&mut self) -> [&mut f64; N_TERMS] {
+        [
+            &mut self.lidar,
+            &mut self.radar,
+            &mut self.lidar_two_views,
+            &mut self.radar_two_views,
+            &mut self.lidar_dense,
+            &mut self.radar_dense,
+            &mut self.lidar_road_users,
+            &mut self.radar_road_users,
+            &mut self.lidar_two_views_road_users,
+            &mut self.radar_two_views_road_users,
+            &mut self.lidar_dense_road_users,
+            &mut self.radar_dense_road_users,
+        ]
     }
 
     /// Refuses weights that would not keep the objective an IP with capped terms.
