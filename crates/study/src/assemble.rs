@@ -483,8 +483,9 @@ fn verdict(
     (comparisons, claims, calibration)
 }
 
-/// The learning curve of seed 0 of every group: mAP at each kept point of its training and at
-/// the end, and what the last doubling added.
+/// The learning curve of seed 0 of every group: mAP of the training at each of the curve's
+/// budgets (each a training of its own, [`crate::plan::CurveKind::Budget`]) and of the full
+/// schedule, and what the last doubling added.
 fn learning_curves(
     results_by: &ResultsBy,
     curve_preds: &BTreeMap<(String, String, usize), Predictions>,
@@ -518,6 +519,7 @@ fn learning_curves(
             preset: preset.clone(),
             points,
             gain_last_doubling: last - half,
+            own_schedules: true,
         });
     }
     Ok(learning_curves)

@@ -105,9 +105,23 @@ impl DataStage {
     }
 }
 
+/// How the points of a learning curve below the end are trained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CurveKind {
+    /// Each point is a training of its own over that many samples, warmed up and annealed by
+    /// the same one-cycle schedule shape: what that budget reaches. The study's learning curves,
+    /// on which the plateau and the budget gate are read.
+    Budget,
+    /// Each point is the weights kept at that many samples of the one training
+    /// (`TrainConfig::keep`): free, but mid-run, at a one-cycle learning rate still near its
+    /// peak (0.81 of it halfway through a schedule warmed up over 0.3), so it understates what
+    /// a training of that budget reaches. `hilo validate`'s rank check at b of 2b.
+    Snapshot,
+}
+
 /// One detector: trained, then run on the validation split (a train stage). Its outputs are the
-/// result file, the metadata beside it and, for the learning curve, one result file per kept
-/// point; its run folder holds checkpoints, so an interrupted training resumes.
+/// result file, the metadata beside it and, for the learning curve, one result file per
+/// point; its run folders hold checkpoints, so an interrupted training resumes.
 #[derive(Clone, Debug)]
 pub struct Job {
     /// `<configuration slug>/<preset>-seed<k>`: how a person or a workflow names it.
@@ -120,9 +134,10 @@ pub struct Job {
     pub results: PathBuf,
     pub detector: Valid<DetectorConfig>,
     pub train: Valid<TrainConfig>,
-    /// Samples at which weights are kept and evaluated for the learning curve (the end
-    /// excluded; seed 0 only).
+    /// Samples of the learning curve's points (the end excluded; seed 0 only), each trained
+    /// as `curve_kind` says.
     pub curve: Vec<usize>,
+    pub curve_kind: CurveKind,
 }
 
 impl Job {
@@ -136,6 +151,36 @@ impl Job {
     pub fn curve_results(&self, samples: usize) -> PathBuf {
         let stem = self.results.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         self.results.with_file_name(format!("{stem}-at{samples}.json"))
+    }
+
+    /// The run folder of the learning curve's own training at `samples` (a [`CurveKind::Budget`]
+    /// point): beside the job's, named after it.
+    pub fn curve_run(&self, samples: usize) -> PathBuf {
+        let name = self.run.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        self.run.with_file_name(format!("{name}-at{samples}"))
+    }
+
+    /// The schedule of the learning curve's own training at `samples`: the job's, over
+    /// `samples` (so warmed up and annealed over them), keeping no weights on the way.
+    pub fn curve_train(&self, samples: usize) -> Result<Valid<TrainConfig>> {
+        TrainConfig { samples, keep: Vec::new(), ..(*self.train).clone() }
+            .validate()
+            .map_err(|e| StudyError::Invalid(format!("{}: learning-curve point at {samples} samples: {e}", self.id)))
+    }
+
+    /// Training steps the stage takes: its training's and, for [`CurveKind::Budget`], those of
+    /// the learning curve's own trainings.
+    pub fn steps(&self) -> usize {
+        let own = match self.curve_kind {
+            CurveKind::Budget => self.curve.iter().map(|s| s.div_ceil(self.train.batch.max(1))).sum::<usize>(),
+            CurveKind::Snapshot => 0,
+        };
+        self.train.steps() + own
+    }
+
+    /// Training samples the stage sees, its learning curve's own trainings included.
+    pub fn samples(&self) -> usize {
+        self.steps() * self.train.batch.max(1)
     }
 
     /// Every file the stage writes, the metadata last.
@@ -282,11 +327,12 @@ impl Plan {
                     };
                     curve.sort_unstable();
                     curve.dedup();
-                    tc.keep = curve.clone();
                     let detector =
                         serde_json::to_string(&detector_cfg).map_err(|e| StudyError::Invalid(e.to_string()))?;
                     let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
-                    let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule]);
+                    // The curve's points are trainings of this stage (`CurveKind::Budget`).
+                    let points = format!("budget curve {curve:?}");
+                    let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule, &points]);
                     let name = format!("{preset}-seed{seed}-{}", short(&h));
                     jobs.push(Job {
                         id: format!("{}/{preset}-seed{seed}", conf.slug()),
@@ -298,6 +344,7 @@ impl Plan {
                         detector: detector_cfg.clone().validate()?,
                         train: tc.validate()?,
                         curve,
+                        curve_kind: CurveKind::Budget,
                     });
                 }
             }

@@ -31,7 +31,8 @@ pub struct Profile {
     /// How training frames are drawn (None: each preset's default).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sampling: Option<Sampling>,
-    /// Points of the learning curve, as shares of the schedule (seed 0 of every group).
+    /// Points of the learning curve, as shares of the schedule (seed 0 of every group); each
+    /// below 1 is a training of its own over that share of the samples.
     pub curve: Vec<f64>,
     /// Scene-bootstrap replicates.
     pub resamples: usize,

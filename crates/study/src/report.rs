@@ -313,8 +313,8 @@ fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
         fig,
         "learning_curves",
         &XY {
-            title: "mAP against training samples (seed 0)",
-            x_label: "training samples seen",
+            title: "mAP against training budget (seed 0)",
+            x_label: "training samples (each a schedule of its own)",
             y_label: "mAP (validation, common ground truth)",
             x: (0.0, x_max),
             y: (0.0, y_max),
@@ -702,7 +702,7 @@ fn md_comparisons(md: &mut String, r: &Report) {
 fn md_learning_curves(md: &mut String, r: &Report) {
     let _ = writeln!(
         md,
-        "## Learning curves\n\nmAP (common ground truth) of seed 0 at points of its training, and what the last doubling of training added. {}\n\n| configuration | preset | mAP at samples | gain over the last doubling |\n|---|---|---|---:|",
+        "## Learning curves\n\nmAP (common ground truth) of seed 0 trained on shares of its schedule, each a training of its own (warmed up and annealed over its samples, so a point is what that budget reaches, not weights taken mid-run), and what the last doubling of the budget added. {}\n\n| configuration | preset | mAP at samples | gain over the last doubling |\n|---|---|---|---:|",
         if r.ranking_stable {
             "Every preset ranks the configurations the same at half its training as at the end.".to_owned()
         } else {

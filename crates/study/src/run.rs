@@ -92,7 +92,7 @@ fn run_plan(
     for ci in 0..plan.configurations.len() {
         stages::simulate(study, plan, ci, progress)?;
     }
-    let total_steps: usize = plan.jobs.iter().map(|j| j.train.steps()).sum();
+    let total_steps: usize = plan.jobs.iter().map(|j| j.steps()).sum();
     let label = format!("training {} detectors, {} at a time", plan.jobs.len(), plan.profile.trainings_at_once);
     let steps_done: Mutex<BTreeMap<String, usize>> = Mutex::new(BTreeMap::new());
     let mut outputs: BTreeMap<String, JobOutput> = BTreeMap::new();
@@ -100,7 +100,7 @@ fn run_plan(
         let shared = Mutex::new(&mut *progress);
         let tick = |job: &crate::plan::Job, f: f64| {
             let Ok(mut s) = steps_done.lock() else { return };
-            s.insert(job.id.clone(), (f * job.train.steps() as f64).round() as usize);
+            s.insert(job.id.clone(), (f * job.steps() as f64).round() as usize);
             let done: usize = s.values().sum();
             drop(s);
             if let Ok(mut p) = shared.lock() {
@@ -115,7 +115,7 @@ fn run_plan(
                 job.preset, job.seed, plan.configurations[ci].name, out.meta.samples, out.meta.train_s
             )));
             if let Ok(mut s) = steps_done.lock() {
-                s.insert(job.id.clone(), job.train.steps());
+                s.insert(job.id.clone(), job.steps());
             }
             outputs.insert(job.id.clone(), out);
         }

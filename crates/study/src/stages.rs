@@ -6,13 +6,13 @@
 
 use crate::error::{Result, StudyError};
 use crate::place::{Placed, place_all, prepare_study, write_placements};
-use crate::plan::{Job, Plan};
+use crate::plan::{CurveKind, Job, Plan};
 use crate::study::Study;
 use hilo_core::fs::{limit, read_json, write_json};
 use hilo_dataset::background::BackgroundModel;
 use hilo_detector::Registry;
 use hilo_detector::data::{Frame, LoadOptions, load_split};
-use hilo_detector::train::{learn_background, load_run_at, train};
+use hilo_detector::train::{TrainConfig, learn_background, load_run_at, train};
 use hilo_eval::EvalBox;
 use hilo_placement_ip::Placement;
 use serde::{Deserialize, Serialize};
@@ -171,8 +171,9 @@ pub struct JobOutput {
 }
 
 /// Stage 3: trains (or resumes) one detector, detects the validation split with it (and with
-/// the learning curve's kept weights), writes the result files (the metadata last) and returns
-/// the predictions. `tick` hears the training's progress as a share in [0, 1].
+/// each point of its learning curve: a training of its own for [`CurveKind::Budget`], the kept
+/// weights for [`CurveKind::Snapshot`]), writes the result files (the metadata last) and returns
+/// the predictions. `tick` hears the stage's progress (its trainings' steps) as a share in [0, 1].
 pub fn train_job(job: &Job, loaded: &Loaded, registry: &Registry, tick: &(dyn Fn(f64) + Sync)) -> Result<JobOutput> {
     let read = |path: &std::path::Path| -> Result<Predictions> { Ok(hilo_eval::read_submission(path, 500)?) };
     if job.done() {
@@ -180,37 +181,54 @@ pub fn train_job(job: &Job, loaded: &Loaded, registry: &Registry, tick: &(dyn Fn
         let curve = job.curve.iter().map(|&s| Ok((s, read(&job.curve_results(s))?))).collect::<Result<Vec<_>>>()?;
         return Ok(JobOutput { predictions: read(&job.results)?, meta, curve });
     }
-    let steps = job.train.steps();
-    let info = train(
-        &job.run,
-        &job.detector,
-        &job.train,
-        &loaded.train,
-        loaded.background.as_ref(),
-        registry,
-        &hilo_detector::default_device(),
-        &mut |r| {
-            if r.step % 25 == 0 || r.step == steps {
-                tick(r.step as f64 / steps.max(1) as f64);
-            }
-            true
-        },
-    )
-    .map_err(|e| {
-        StudyError::Invalid(format!("training {} (seed {}) in {}: {e}", job.preset, job.seed, job.run.display()))
-    })?;
-    let detect = |samples: Option<usize>, path: &std::path::Path| -> Result<(Predictions, f64, usize)> {
-        let (det, _, _) = load_run_at(&job.run, registry, &hilo_detector::default_device(), samples)?;
+    let total = job.steps().max(1) as f64;
+    let run_training = |run: &std::path::Path, cfg: &hilo_core::Valid<TrainConfig>, before: usize| {
+        let steps = cfg.steps();
+        train(
+            run,
+            &job.detector,
+            cfg,
+            &loaded.train,
+            loaded.background.as_ref(),
+            registry,
+            &hilo_detector::default_device(),
+            &mut |r| {
+                if r.step % 25 == 0 || r.step == steps {
+                    tick((before + r.step) as f64 / total);
+                }
+                true
+            },
+        )
+        .map_err(|e| {
+            StudyError::Invalid(format!("training {} (seed {}) in {}: {e}", job.preset, job.seed, run.display()))
+        })
+    };
+    let info = run_training(&job.run, &job.train, 0)?;
+    let detect = |run: &std::path::Path,
+                  samples: Option<usize>,
+                  path: &std::path::Path|
+     -> Result<(Predictions, f64, usize)> {
+        let (det, _, _) = load_run_at(run, registry, &hilo_detector::default_device(), samples)?;
         let (dets, per_frame) = hilo_detector::infer::detect_frames(&det, &loaded.val, 4, &mut |_| {})?;
         let mut pred = hilo_eval::boxes::from_detections(&dets);
         pred.sort_by(|a, b| a.0.cmp(&b.0));
         write_json(path, &hilo_eval::boxes::submission_json(&pred, serde_json::json!({ "detector": det.cfg.name })))?;
         Ok((pred, per_frame, det.parameters()))
     };
-    let (predictions, per_frame, parameters) = detect(None, &job.results)?;
+    let (predictions, per_frame, parameters) = detect(&job.run, None, &job.results)?;
     let mut curve = Vec::new();
+    let mut before = job.train.steps();
     for &s in &job.curve {
-        curve.push((s, detect(Some(s), &job.curve_results(s))?.0));
+        let pred = match job.curve_kind {
+            CurveKind::Snapshot => detect(&job.run, Some(s), &job.curve_results(s))?.0,
+            CurveKind::Budget => {
+                let cfg = job.curve_train(s)?;
+                run_training(&job.curve_run(s), &cfg, before)?;
+                before += cfg.steps();
+                detect(&job.curve_run(s), None, &job.curve_results(s))?.0
+            }
+        };
+        curve.push((s, pred));
     }
     let meta =
         ResultMeta { ms_per_frame: per_frame * 1e3, parameters, train_s: info.seconds, samples: info.samples_seen };

@@ -243,7 +243,7 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             name: name("train", &[&slug, &j.preset, &format!("seed{}", j.seed)]),
             inputs: vec![data[j.configuration].clone()],
             outputs: j.outputs().iter().map(|p| path(p)).collect::<Result<_>>()?,
-            resources: train(all_frames, j.train.samples),
+            resources: train(all_frames, j.samples()),
             gpu: wf.gpu,
             log: log(format!("train-{}", j.id.replace('/', "-"))),
             cmd: format!("study train --job {}", shell_word(&j.id)?),
@@ -327,7 +327,7 @@ pub fn validation_snakefile(plan: &ValidationPlan, profile: &Profile, wf: &Workf
     let (all_frames, val_frames) = frames_of(profile);
     let set = rel_to(base, &plan.set_file())?;
     let data: Vec<String> = plan.data.iter().map(|d| rel_to(base, &d.done())).collect::<Result<_>>()?;
-    let samples = plan.jobs.iter().map(|j| j.train.samples).max().unwrap_or(0);
+    let samples = plan.jobs.iter().map(|j| j.samples()).max().unwrap_or(0);
     let trainer = train(all_frames, samples);
     let mut last_inputs = data.clone();
     let mut rules = Vec::new();

@@ -100,6 +100,46 @@ fn a_plugin_written_here_joins_the_conformance_suite_and_a_study_by_one_line() {
     common_ground_truth_is_the_same_for_every_rig(&dir.path().join("study"));
 }
 
+/// A learning curve's point is a training of that budget of its own, not the longer training's
+/// weights taken halfway (at a one-cycle learning rate still near its peak): the point at 4 of 8
+/// samples holds, byte for byte, the detections of the same study trained on 4 samples.
+#[test]
+fn a_learning_curve_point_is_a_training_of_its_budget() {
+    let registry = Registry::with_builtin();
+    let dir = tempfile::tempdir().unwrap();
+    let study = Study::parse(TWO_CONFIGS, dir.path(), "two-configs.toml").unwrap();
+    let run = |samples: usize| {
+        let mut profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+        profile.presets = vec!["centerpoint".into()];
+        profile.configurations = Some(1);
+        profile.train_samples = Some(samples);
+        profile.seeds = 1;
+        profile.curve = vec![0.5, 1.0];
+        let out = dir.path().join(format!("at{samples}"));
+        let plan = hilo_study::Plan::new(&study, &registry, &profile, &out).unwrap();
+        let report = hilo_study::run(&study, &registry, &RunOptions { profile, out }, &mut |_| {}).unwrap();
+        (plan, report)
+    };
+    let (long, long_report) = run(8);
+    let (short, short_report) = run(4);
+    let (l, s) = (&long.jobs[0], &short.jobs[0]);
+    assert_eq!((l.curve.as_slice(), l.train.samples, s.train.samples), (&[4][..], 8, 4));
+    assert!(l.train.keep.is_empty(), "no weights kept mid-run");
+    assert_eq!(l.steps(), 4 + 2, "the stage trains its 4 steps and the point's 2");
+    let bytes = |p: &Path| std::fs::read(p).unwrap();
+    assert_eq!(bytes(&l.curve_results(4)), bytes(&s.results), "the point is the 4-sample training");
+    let schedule = |run: &Path| {
+        serde_json::from_slice::<serde_json::Value>(&bytes(&run.join("run.json"))).unwrap()["train"].clone()
+    };
+    assert_eq!(schedule(&l.curve_run(4)), schedule(&s.run));
+    assert_eq!(schedule(&l.curve_run(4))["samples"], 4);
+    let curve = &long_report.learning_curves[0];
+    assert!(curve.own_schedules);
+    assert_eq!(curve.points.iter().map(|p| p.0).collect::<Vec<_>>(), [4, 8]);
+    let entry = short_report.entries.iter().find(|e| e.seed == 0).unwrap();
+    assert!((curve.points[0].1 - entry.mean_ap).abs() < 1e-12, "{curve:?} against {}", entry.mean_ap);
+}
+
 /// The two rigs' datasets (same traffic): the common ground truth is the same boxes, the
 /// visible-only one is not (each rig sees other road users).
 fn common_ground_truth_is_the_same_for_every_rig(study: &Path) {
