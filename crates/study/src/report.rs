@@ -735,11 +735,15 @@ fn md_figures(md: &mut String, r: &Report, results: &ResultsBy, configs: &[Confi
             let _ = writeln!(md, "![AP per class, {pr}](figures/class_ap_{pr}.svg)\n");
         }
     }
+    // A weather condition's configuration keeps the poses of its clear-weather rig: it has no
+    // placement (and no coverage map) of its own.
+    let conditioned = |c: &Configuration| r.configurations.iter().any(|rc| rc.name == c.name && rc.condition.is_some());
     let _ = writeln!(
         md,
-        "Coverage maps (green: LiDAR-hit cells, red: radar-covered, yellow: both): {}\n",
+        "Coverage maps (green: LiDAR-hit cells, red: radar-covered, yellow: both; placed in the study's own weather, whose poses each weather condition keeps): {}\n",
         configs
             .iter()
+            .filter(|c| !conditioned(c))
             .map(|c| format!("[{}](figures/coverage_{}.png)", c.name, c.slug()))
             .collect::<Vec<_>>()
             .join(", ")

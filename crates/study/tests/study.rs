@@ -334,6 +334,12 @@ fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
     assert!(
         md.contains("## What the radar is worth, per weather") && md.contains("| fog: fog (visibility 30 m) | mAP |")
     );
+    // Every figure the report links is there (a weather condition's rig has no map of its own).
+    let links: Vec<&str> = md.split("](figures/").skip(1).filter_map(|s| s.split(')').next()).collect();
+    assert!(links.iter().any(|l| l.starts_with("coverage_")) && links.iter().any(|l| l.contains("in_fog")));
+    for l in links {
+        assert!(out.join("figures").join(l).is_file(), "report.md links figures/{l}, which is not there");
+    }
     // Stage by stage, as a workflow engine runs them (the datasets in reverse): the same report.
     let by_stage = dir.path().join("stages");
     let plan = Plan::new(&study, &registry, &opts.profile, &by_stage).unwrap();
