@@ -148,12 +148,15 @@ pub fn write(
     let mut presets: Vec<String> = r.profile.presets.clone();
     presets.extend(r.profile.ablations.iter().cloned());
     figures(&fig, r, &presets)?;
-    // Coverage maps and detection pictures (seed 0).
+    // Coverage maps (of the configurations placed for themselves: a weather condition's keeps
+    // its clear-weather rig's poses and has none) and detection pictures (seed 0).
+    let mut mapped: Vec<&Configuration> = Vec::new();
     for c in configs {
         let src = placements.join(format!("{}.png", c.slug()));
         if src.exists() {
             std::fs::copy(&src, fig.join(format!("coverage_{}.png", c.slug())))
                 .map_err(|e| hilo_core::fs::FileError::io(&src, e))?;
+            mapped.push(c);
         }
         for p in &presets {
             if let (Some(pred), Some((frame, key, gboxes))) =
@@ -169,7 +172,7 @@ pub fn write(
             }
         }
     }
-    let mut md = markdown(r, results, configs, &presets);
+    let mut md = markdown(r, results, configs, &mapped, &presets);
     md.push_str(&validation_section(out, &r.study)?);
     Ok(write_atomic(&out.join("report.md"), md.as_bytes())?)
 }
@@ -325,7 +328,13 @@ fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
     )
 }
 
-fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets: &[String]) -> String {
+fn markdown(
+    r: &Report,
+    results: &ResultsBy,
+    configs: &[Configuration],
+    mapped: &[&Configuration],
+    presets: &[String],
+) -> String {
     let mut md = String::new();
     md_header(&mut md, r);
     md_claims(&mut md, r);
@@ -334,7 +343,7 @@ fn markdown(r: &Report, results: &ResultsBy, configs: &[Configuration], presets:
     md_accuracy(&mut md, r, presets);
     md_comparisons(&mut md, r);
     md_learning_curves(&mut md, r);
-    md_figures(&mut md, r, results, configs, presets);
+    md_figures(&mut md, r, results, configs, mapped, presets);
     md_speed(&mut md, r);
     md
 }
@@ -725,7 +734,15 @@ fn md_learning_curves(md: &mut String, r: &Report) {
 }
 
 /// The figures: charts, coverage maps, the detection grid.
-fn md_figures(md: &mut String, r: &Report, results: &ResultsBy, configs: &[Configuration], presets: &[String]) {
+/// The figures section; `mapped` are the configurations whose coverage map was written.
+fn md_figures(
+    md: &mut String,
+    r: &Report,
+    results: &ResultsBy,
+    configs: &[Configuration],
+    mapped: &[&Configuration],
+    presets: &[String],
+) {
     let _ = writeln!(
         md,
         "\n## Figures\n\n![mAP against cost](figures/map_vs_cost.svg)\n\n![pedestrian AP](figures/pedestrian_ap.svg)\n\n![learning curves](figures/learning_curves.svg)\n"
@@ -735,15 +752,11 @@ fn md_figures(md: &mut String, r: &Report, results: &ResultsBy, configs: &[Confi
             let _ = writeln!(md, "![AP per class, {pr}](figures/class_ap_{pr}.svg)\n");
         }
     }
-    // A weather condition's configuration keeps the poses of its clear-weather rig: it has no
-    // placement (and no coverage map) of its own.
-    let conditioned = |c: &Configuration| r.configurations.iter().any(|rc| rc.name == c.name && rc.condition.is_some());
     let _ = writeln!(
         md,
         "Coverage maps (green: LiDAR-hit cells, red: radar-covered, yellow: both; placed in the study's own weather, whose poses each weather condition keeps): {}\n",
-        configs
+        mapped
             .iter()
-            .filter(|c| !conditioned(c))
             .map(|c| format!("[{}](figures/coverage_{}.png)", c.name, c.slug()))
             .collect::<Vec<_>>()
             .join(", ")
