@@ -67,13 +67,32 @@ pub struct AdamW {
     v: Vec<Tensor>,
     pub step: usize,
     weight_decay: f64,
+    /// Update each f32 CPU variable and its moments in place ([`fused`]) rather than through
+    /// candle's element-wise operations; the same values either way.
+    fused: bool,
 }
+
+/// Whether new optimizers update in place ([`AdamW::with_fused`]); a benchmark's before/after
+/// lever (`hilo bench train --variant optimizer=composite`).
+static FUSED_DEFAULT: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(true);
 
 impl AdamW {
     pub fn new(vars: Vec<(String, Var)>, weight_decay: f64) -> Result<Self> {
         let m = vars.iter().map(|(_, v)| v.zeros_like()).collect::<candle_core::Result<Vec<_>>>()?;
         let v2 = vars.iter().map(|(_, v)| v.zeros_like()).collect::<candle_core::Result<Vec<_>>>()?;
-        Ok(AdamW { vars, m, v: v2, step: 0, weight_decay })
+        let fused = FUSED_DEFAULT.load(std::sync::atomic::Ordering::Relaxed);
+        Ok(AdamW { vars, m, v: v2, step: 0, weight_decay, fused })
+    }
+
+    /// The update in place (true) or through candle's operations (false), for this optimizer.
+    pub fn with_fused(mut self, fused: bool) -> Self {
+        self.fused = fused;
+        self
+    }
+
+    /// Whether optimizers created from now on update in place (the default) or not.
+    pub fn set_fused_default(fused: bool) {
+        FUSED_DEFAULT.store(fused, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// One update; returns the gradient norm before clipping.
@@ -108,10 +127,18 @@ impl AdamW {
         let (c1, c2) = (1.0 - b1.powi(t), 1.0 - b2.powi(t));
         for (k, g) in gs.iter().enumerate() {
             let Some(g) = g else { continue };
+            let var = &self.vars[k].1;
+            if self.fused && fused::applies(var.as_tensor(), &self.m[k], &self.v[k], g) {
+                let (c1, c2) = (1.0 / c1, 1.0 / c2);
+                self.m[k].inplace_op2(g, &fused::FirstMoment { scale, b1 })?;
+                self.v[k].inplace_op2(g, &fused::SecondMoment { scale, b2 })?;
+                let update = fused::Update { c1, c2, eps, lr, weight_decay: self.weight_decay };
+                var.as_tensor().inplace_op3(&self.m[k], &self.v[k], &update)?;
+                continue;
+            }
             let g = (g * scale)?;
             self.m[k] = ((&self.m[k] * b1)? + (&g * (1.0 - b1))?)?.detach();
             self.v[k] = ((&self.v[k] * b2)? + (g.sqr()? * (1.0 - b2))?)?.detach();
-            let var = &self.vars[k].1;
             let update = ((&self.m[k] / c1)? / ((&self.v[k] / c2)?.sqrt()? + eps)?)?;
             let next = ((var.as_tensor().detach() * (1.0 - lr * self.weight_decay))? - (update * lr)?)?;
             var.set(&next)?;
@@ -151,6 +178,132 @@ impl AdamW {
         }
         self.step = get("step")?.to_vec1::<u32>()?.first().copied().unwrap_or(0) as usize;
         Ok(())
+    }
+}
+
+/// [`AdamW`]'s update as three passes over each variable that write in place, for f32
+/// variables on the CPU: candle's composite update allocates a tensor for each of its eleven
+/// element-wise operations per variable. Each pass does the composite's f32 operations in its
+/// order (a scalar `s` applied as candle's `affine` does: `x · f32(s) + 0`), so the weights and
+/// moments are bit for bit the same (tested), and with them every result downstream.
+mod fused {
+    use candle_core::{CpuStorage, InplaceOp2, InplaceOp3, Layout, Tensor};
+
+    /// Whether the in-place passes apply: every operand f32, contiguous and on the CPU.
+    pub fn applies(var: &Tensor, m: &Tensor, v: &Tensor, g: &Tensor) -> bool {
+        [var, m, v, g].iter().all(|t| t.device().is_cpu() && t.dtype() == candle_core::DType::F32 && t.is_contiguous())
+            && g.shape() == var.shape()
+    }
+
+    fn values<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
+        match (s, l.contiguous_offsets()) {
+            (CpuStorage::F32(d), Some((a, b))) => Ok(&d[a..b]),
+            _ => candle_core::bail!("{op}: a contiguous f32 tensor expected"),
+        }
+    }
+
+    fn values_mut<'a>(s: &'a mut CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a mut [f32]> {
+        match (s, l.contiguous_offsets()) {
+            (CpuStorage::F32(d), Some((a, b))) => Ok(&mut d[a..b]),
+            _ => candle_core::bail!("{op}: a contiguous f32 tensor expected"),
+        }
+    }
+
+    /// candle's `x * s` for a scalar `s`: `affine(s, 0)`.
+    #[inline(always)]
+    fn scaled(x: f32, s: f32) -> f32 {
+        x * s + 0.0
+    }
+
+    /// `m ← m·β₁ + (g·scale)·(1 − β₁)`.
+    pub struct FirstMoment {
+        pub scale: f64,
+        pub b1: f64,
+    }
+
+    impl InplaceOp2 for FirstMoment {
+        fn name(&self) -> &'static str {
+            "adamw-first-moment"
+        }
+
+        fn cpu_fwd(&self, s1: &mut CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<()> {
+            let (scale, b1, rest) = (self.scale as f32, self.b1 as f32, (1.0 - self.b1) as f32);
+            let g = values(s2, l2, self.name())?;
+            let m = values_mut(s1, l1, self.name())?;
+            if m.len() != g.len() {
+                candle_core::bail!("{}: {} moments for {} gradients", self.name(), m.len(), g.len());
+            }
+            for (m, &g) in m.iter_mut().zip(g) {
+                *m = scaled(*m, b1) + scaled(scaled(g, scale), rest);
+            }
+            Ok(())
+        }
+    }
+
+    /// `v ← v·β₂ + (g·scale)²·(1 − β₂)`.
+    pub struct SecondMoment {
+        pub scale: f64,
+        pub b2: f64,
+    }
+
+    impl InplaceOp2 for SecondMoment {
+        fn name(&self) -> &'static str {
+            "adamw-second-moment"
+        }
+
+        fn cpu_fwd(&self, s1: &mut CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<()> {
+            let (scale, b2, rest) = (self.scale as f32, self.b2 as f32, (1.0 - self.b2) as f32);
+            let g = values(s2, l2, self.name())?;
+            let v = values_mut(s1, l1, self.name())?;
+            if v.len() != g.len() {
+                candle_core::bail!("{}: {} moments for {} gradients", self.name(), v.len(), g.len());
+            }
+            for (v, &g) in v.iter_mut().zip(g) {
+                let g = scaled(g, scale);
+                *v = scaled(*v, b2) + scaled(g * g, rest);
+            }
+            Ok(())
+        }
+    }
+
+    /// `p ← p·(1 − lr·λ) − lr · (m·c1) / (√(v·c2) + ε)`, with `c1`, `c2` the reciprocals of the
+    /// bias corrections.
+    pub struct Update {
+        pub c1: f64,
+        pub c2: f64,
+        pub eps: f64,
+        pub lr: f64,
+        pub weight_decay: f64,
+    }
+
+    impl InplaceOp3 for Update {
+        fn name(&self) -> &'static str {
+            "adamw-update"
+        }
+
+        fn cpu_fwd(
+            &self,
+            s1: &mut CpuStorage,
+            l1: &Layout,
+            s2: &CpuStorage,
+            l2: &Layout,
+            s3: &CpuStorage,
+            l3: &Layout,
+        ) -> candle_core::Result<()> {
+            let (c1, c2, eps, lr) = (self.c1 as f32, self.c2 as f32, self.eps as f32, self.lr as f32);
+            let decay = (1.0 - self.lr * self.weight_decay) as f32;
+            let (m, v) = (values(s2, l2, self.name())?, values(s3, l3, self.name())?);
+            let p = values_mut(s1, l1, self.name())?;
+            if p.len() != m.len() || p.len() != v.len() {
+                candle_core::bail!("{}: {} weights, {} and {} moments", self.name(), p.len(), m.len(), v.len());
+            }
+            for ((p, &m), &v) in p.iter_mut().zip(m).zip(v) {
+                // `+ eps` is candle's affine(1, eps).
+                let update = scaled(m, c1) / (scaled(v, c2).sqrt() * 1.0 + eps);
+                *p = scaled(*p, decay) - scaled(update, lr);
+            }
+            Ok(())
+        }
     }
 }
 
@@ -785,6 +938,78 @@ mod tests {
             .map(|&c| GtBox { class: c, center: [0.0; 3], wlh: [1.0; 3], yaw: 0.0, velocity: [0.0; 2] })
             .collect();
         Frame { sample_token: String::new(), scene: String::new(), lidar: vec![], radar: vec![], boxes }
+    }
+
+    fn bits(t: &Tensor) -> Vec<u32> {
+        t.flatten_all().unwrap().to_vec1::<f32>().unwrap().iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// The in-place update is the composite one bit for bit: weights and both moments after
+    /// every step, over steps whose gradients are clipped (scale < 1) and not, with weight
+    /// decay, signed zeros, tiny and large values, a variable without a gradient and one whose
+    /// gradient is not contiguous (the composite path within a fused optimizer).
+    #[test]
+    fn the_in_place_adamw_update_equals_the_composite_bit_for_bit() {
+        use rand::Rng;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let shapes: [&[usize]; 5] = [&[7, 3], &[64], &[2, 3, 4], &[1], &[5, 4]];
+        let init: Vec<Vec<f32>> = shapes
+            .iter()
+            .map(|s| {
+                let n: usize = s.iter().product();
+                (0..n)
+                    .map(|i| match i % 6 {
+                        0 => 0.0,
+                        1 => -0.0,
+                        2 => rng.random_range(-1e-30f32..1e-30),
+                        3 => rng.random_range(-1e3f32..1e3),
+                        _ => rng.random_range(-1f32..1.0),
+                    })
+                    .collect()
+            })
+            .collect();
+        let vars = || -> Vec<(String, Var)> {
+            shapes
+                .iter()
+                .zip(&init)
+                .enumerate()
+                .map(|(k, (s, v))| (format!("w{k}"), Var::from_vec(v.clone(), *s, &Device::Cpu).unwrap()))
+                .collect()
+        };
+        let mut fused = AdamW::new(vars(), 0.01).unwrap().with_fused(true);
+        let mut composite = AdamW::new(vars(), 0.01).unwrap().with_fused(false);
+        for step in 0..6 {
+            // Large gradients on even steps (clipped at 1.0), small ones on odd steps.
+            let size = if step % 2 == 0 { 50.0f32 } else { 1e-3 };
+            let gs: Vec<Option<Tensor>> = shapes
+                .iter()
+                .enumerate()
+                .map(|(k, s)| {
+                    let n: usize = s.iter().product();
+                    let g: Vec<f32> =
+                        (0..n).map(|i| if i % 5 == 0 { -0.0 } else { size * rng.random_range(-1f32..1.0) }).collect();
+                    match k {
+                        3 => None,
+                        // A transposed view: not contiguous.
+                        4 => Some(Tensor::from_vec(g, (4, 5), &Device::Cpu).unwrap().t().unwrap()),
+                        _ => Some(Tensor::from_vec(g, *s, &Device::Cpu).unwrap()),
+                    }
+                })
+                .collect();
+            let lr = 0.003 * (step + 1) as f64;
+            let a = fused.step_with(&gs, lr, 1.0).unwrap();
+            let b = composite.step_with(&gs, lr, 1.0).unwrap();
+            assert_eq!(a.to_bits(), b.to_bits());
+            for k in 0..shapes.len() {
+                let (x, y) = (fused.vars[k].1.as_tensor(), composite.vars[k].1.as_tensor());
+                assert_eq!(bits(x), bits(y), "weights {k} after step {step}");
+                assert_eq!(bits(&fused.m[k]), bits(&composite.m[k]), "first moment {k} after step {step}");
+                assert_eq!(bits(&fused.v[k]), bits(&composite.v[k]), "second moment {k} after step {step}");
+            }
+        }
+        // The weights moved, and the variable without gradients did not.
+        assert_ne!(bits(fused.vars[0].1.as_tensor()), init[0].iter().map(|x| x.to_bits()).collect::<Vec<_>>());
+        assert_eq!(bits(fused.vars[3].1.as_tensor()), init[3].iter().map(|x| x.to_bits()).collect::<Vec<_>>());
     }
 
     /// CBGS: every class present contributes the same number of frames; a rare class's frames
