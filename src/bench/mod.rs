@@ -501,8 +501,11 @@ pub struct TrainReport {
     /// Where the steps ran: "cpu" or "cuda:0".
     pub device: String,
     pub threads: usize,
-    /// candle's f32 matrix product on the same device ([`matmul_peak`]).
+    /// candle's f32 matrix product on the same device ([`matmul_peak`]): the highest of
+    /// `matmul_peak_samples_gflops`, measured before the first preset and after each one (a
+    /// shared machine's rate drifts within a run; the ratios below are to the highest).
     pub matmul_peak_gflops: f64,
+    pub matmul_peak_samples_gflops: Vec<f64>,
     pub presets: Vec<TrainRow>,
 }
 
@@ -525,6 +528,9 @@ pub struct TrainRow {
     /// the inverted rulebook) or `scatter`.
     #[serde(default)]
     pub sparse_backward: String,
+    /// The optimizer's update: `fused` (in place) or `composite` (candle's operations).
+    #[serde(default)]
+    pub optimizer: String,
     pub steps: usize,
     /// From the wall time of the steps as training runs them (replicas side by side where
     /// there are threads for them; data prepared on another thread, so not counted unless it
@@ -538,10 +544,131 @@ pub struct TrainRow {
     pub forward_gflop_per_step: f64,
     pub achieved_gflops: f64,
     pub ratio_to_peak: f64,
+    /// candle's matrix product alone at the sizes this row's products have: every forward
+    /// product of the timed steps and the two products of its backward pass, replayed on random
+    /// matrices of the same shapes, each thread of the pool replaying all of them at once (as
+    /// [`matmul_peak`] measures the peak); GFLOP/s summed over the threads.
+    pub products_gflops: f64,
+    /// `products_gflops` over the peak: what the products' sizes alone leave of it.
+    pub products_ratio_to_peak: f64,
+    /// The products' time at `products_gflops` over the step's wall time; the rest of the step
+    /// is everything else (gathers, normalisation, element-wise layers, loss, optimizer, memory).
+    /// `ratio_to_peak` = `products_share_of_step` × `products_ratio_to_peak`.
+    pub products_share_of_step: f64,
+    /// The replay by product family (inner dimension k, output columns n), most time first.
+    pub product_families: Vec<ProductFamily>,
     /// Mean pillars per frame (LiDAR + radar) and sites of the sparse layout per batch.
     pub pillars_per_frame: f64,
     pub level0_sites_per_batch: f64,
     pub head_sites_per_batch: f64,
+}
+
+/// One family of a step's matrix products in [`replay_products`]: forward `(m × k) · (k × n)`
+/// products of any row count `m` with the same `k` and `n`, and their backward products.
+#[derive(Serialize, Debug, Clone, PartialEq)]
+pub struct ProductFamily {
+    pub k: usize,
+    pub n: usize,
+    /// Forward products per step, and their mean row count.
+    pub products_per_step: f64,
+    pub mean_rows: f64,
+    /// Forward and backward FLOPs per step (three times the forward products').
+    pub gflop_per_step: f64,
+    /// The rate candle's product reaches on this family, on the first thread, and the family's
+    /// share of the replay's time.
+    pub gflops: f64,
+    pub share_of_time: f64,
+}
+
+/// What candle's matrix product reaches at the shapes a step uses: each forward product
+/// `(m, k, n)` of `shapes` as `A · B` on random matrices of its shape, with the two products of
+/// its backward pass (`G · Bᵀ` and `Aᵀ · G`, `G` the output's gradient), timed one by one. On
+/// the CPU every thread of rayon's pool replays all of them at once (candle itself on one thread
+/// each, as training's replicas run) and the rates add up; elsewhere one replay. Returns the
+/// summed GFLOP/s and the first thread's families. The layouts are plain (a step's kernels are
+/// sometimes stored transposed), and a step's products meet caches that its other layers have
+/// filled, so the replay measures the sizes, not the surroundings.
+pub fn replay_products(
+    shapes: &[[usize; 3]],
+    steps: usize,
+    device: &candle_core::Device,
+) -> candle_core::Result<(f64, Vec<ProductFamily>)> {
+    use candle_core::Tensor;
+    let mut rows: BTreeMap<(usize, usize), usize> = BTreeMap::new();
+    for &[m, k, n] in shapes {
+        let r = rows.entry((k, n)).or_default();
+        *r = (*r).max(m);
+    }
+    // One set of operands per family, as large as its largest product; a product reads the
+    // first `m` rows (still contiguous).
+    let mut operands = BTreeMap::new();
+    for (&(k, n), &m) in &rows {
+        let a = Tensor::randn(0f32, 1.0, (m.max(1), k.max(1)), device)?;
+        let b = Tensor::randn(0f32, 1.0, (k.max(1), n.max(1)), device)?;
+        let g = Tensor::randn(0f32, 1.0, (m.max(1), n.max(1)), device)?;
+        operands.insert((k, n), (a, b, g));
+    }
+    // Per family: seconds, FLOPs, products and rows.
+    type Families = BTreeMap<(usize, usize), (f64, f64, usize, usize)>;
+    let replay = || -> candle_core::Result<Families> {
+        let run = |&[m, k, n]: &[usize; 3]| -> candle_core::Result<f64> {
+            let Some((a, b, g)) = operands.get(&(k, n)) else { return Ok(0.0) };
+            let (a, g) = (a.narrow(0, 0, m)?, g.narrow(0, 0, m)?);
+            let s = Instant::now();
+            let y = a.matmul(b)?;
+            let ga = g.matmul(&b.t()?)?;
+            let gb = a.t()?.matmul(&g)?;
+            device.synchronize()?;
+            let t = s.elapsed().as_secs_f64();
+            drop((y, ga, gb));
+            Ok(t)
+        };
+        // Warm-up: the allocator and the first products' caches.
+        for s in shapes.iter().take(20) {
+            run(s)?;
+        }
+        let mut fam = Families::new();
+        for s in shapes {
+            if s.contains(&0) {
+                continue;
+            }
+            let t = run(s)?;
+            let e = fam.entry((s[1], s[2])).or_default();
+            e.0 += t;
+            e.1 += 6.0 * (s[0] * s[1] * s[2]) as f64;
+            e.2 += 1;
+            e.3 += s[0];
+        }
+        Ok(fam)
+    };
+    let threads: Vec<_> = if device.is_cpu() {
+        rayon::broadcast(|_| replay()).into_iter().collect::<candle_core::Result<_>>()?
+    } else {
+        vec![replay()?]
+    };
+    let rate = threads
+        .iter()
+        .map(|fam| {
+            let (t, f) = fam.values().fold((0.0, 0.0), |(t, f), e| (t + e.0, f + e.1));
+            if t > 0.0 { f / t / 1e9 } else { 0.0 }
+        })
+        .sum();
+    let first = threads.into_iter().next().unwrap_or_default();
+    let total: f64 = first.values().map(|e| e.0).sum();
+    let mut families: Vec<ProductFamily> = first
+        .into_iter()
+        .map(|((k, n), (t, f, count, m))| ProductFamily {
+            k,
+            n,
+            products_per_step: count as f64 / steps.max(1) as f64,
+            mean_rows: m as f64 / count.max(1) as f64,
+            gflop_per_step: f / 1e9 / steps.max(1) as f64,
+            gflops: if t > 0.0 { f / t / 1e9 } else { 0.0 },
+            share_of_time: if total > 0.0 { t / total } else { 0.0 },
+        })
+        .collect();
+    families.sort_by(|a, b| b.share_of_time.total_cmp(&a.share_of_time));
+    Ok((rate, families))
 }
 
 fn device_name(device: &candle_core::Device) -> String {
@@ -580,6 +707,56 @@ fn product_rate(device: &candle_core::Device, n: usize) -> candle_core::Result<f
     Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9)
 }
 
+/// `hilo bench train`'s `--variant` levers applied to a preset's detector config and schedule;
+/// returns the sparse convolutions' backward pass (None: the device's default) and whether the
+/// optimizer updates in place.
+fn apply_variants(
+    overrides: &[(String, serde_json::Value)],
+    det_cfg: &mut hilo_detector::detector::DetectorConfig,
+    cfg: &mut hilo_detector::train::TrainConfig,
+) -> Result<(Option<hilo_fusion::layout::Backward>, bool)> {
+    let mut backward = None;
+    let mut fused_optimizer = true;
+    // Variants for the levers' rows.
+    for (k, v) in overrides {
+        match (k.as_str(), v.as_u64()) {
+            ("layout", _) if v == "dense" => det_cfg.sparse = None,
+            ("background", _) if v == false => {
+                // The clutter rule reads the LiDAR foreground, so it goes with the background.
+                det_cfg.input.background = None;
+                det_cfg.input.radar_clutter = None;
+            }
+            ("radar_clutter", _) if v == false => det_cfg.input.radar_clutter = None,
+            ("paste", _) if v == false => cfg.paste = None,
+            ("paste", _) if v == true => cfg.paste = Some(Default::default()),
+            ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
+            ("lidar_sweeps", Some(n)) if n >= 1 => det_cfg.input.lidar_sweeps = n as usize,
+            ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
+            ("replicas", Some(n)) if n >= 1 => cfg.replicas = n as usize,
+            ("sync_batch_norm", _) if v.is_boolean() => cfg.sync_batch_norm = v == true,
+            ("sparse_backward", _) if v == "scatter" => backward = Some(hilo_fusion::layout::Backward::Scatter),
+            ("sparse_backward", _) if v == "gather" => backward = Some(hilo_fusion::layout::Backward::Gather),
+            ("optimizer", _) if v == "composite" => fused_optimizer = false,
+            ("optimizer", _) if v == "fused" => fused_optimizer = true,
+            ("head_dilation", Some(n)) => {
+                if let Some(sp) = det_cfg.sparse.as_mut() {
+                    sp.head_dilation = n as usize;
+                }
+            }
+            ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
+            ("blocks", _) => {
+                det_cfg.backbone.blocks = serde_json::from_value(v.clone()).with_context(|| {
+                    format!("variant blocks = {v}: expected [{{\"stride\": 2, \"channels\": 32, \"layers\": 2}}, ...]")
+                })?
+            }
+            _ => anyhow::bail!(
+                "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, lidar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, sparse_backward=gather|scatter, optimizer=fused|composite, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
+            ),
+        }
+    }
+    Ok((backward, fused_optimizer))
+}
+
 pub fn train(
     data: &std::path::Path,
     presets: &[String],
@@ -594,50 +771,13 @@ pub fn train(
         .with_context(|| format!("opening dataset {}", data.display()))?;
     // The device training runs on: the first GPU when built with `cuda`, else the CPU.
     let device = hilo_detector::default_device();
-    let peak = matmul_peak(&device)?;
+    let mut peaks = vec![matmul_peak(&device)?];
     let mut rows = Vec::new();
     for name in presets {
         let preset = registry.preset(name)?;
         let mut det_cfg = preset.detector.clone();
         let mut cfg = preset.train.clone();
-        let mut backward = None;
-        // Variants for the levers' rows.
-        for (k, v) in overrides {
-            match (k.as_str(), v.as_u64()) {
-                ("layout", _) if v == "dense" => det_cfg.sparse = None,
-                ("background", _) if v == false => {
-                    // The clutter rule reads the LiDAR foreground, so it goes with the background.
-                    det_cfg.input.background = None;
-                    det_cfg.input.radar_clutter = None;
-                }
-                ("radar_clutter", _) if v == false => det_cfg.input.radar_clutter = None,
-                ("paste", _) if v == false => cfg.paste = None,
-                ("paste", _) if v == true => cfg.paste = Some(Default::default()),
-                ("radar_sweeps", Some(n)) if n >= 1 => det_cfg.input.radar_sweeps = n as usize,
-                ("lidar_sweeps", Some(n)) if n >= 1 => det_cfg.input.lidar_sweeps = n as usize,
-                ("batch", Some(n)) if n >= 1 => cfg.batch = n as usize,
-                ("replicas", Some(n)) if n >= 1 => cfg.replicas = n as usize,
-                ("sync_batch_norm", _) if v.is_boolean() => cfg.sync_batch_norm = v == true,
-                ("sparse_backward", _) if v == "scatter" => backward = Some(hilo_fusion::layout::Backward::Scatter),
-                ("sparse_backward", _) if v == "gather" => backward = Some(hilo_fusion::layout::Backward::Gather),
-                ("head_dilation", Some(n)) => {
-                    if let Some(sp) = det_cfg.sparse.as_mut() {
-                        sp.head_dilation = n as usize;
-                    }
-                }
-                ("layers", Some(n)) => det_cfg.backbone.blocks.iter_mut().for_each(|b| b.layers = n as usize),
-                ("blocks", _) => {
-                    det_cfg.backbone.blocks = serde_json::from_value(v.clone()).with_context(|| {
-                        format!(
-                            "variant blocks = {v}: expected [{{\"stride\": 2, \"channels\": 32, \"layers\": 2}}, ...]"
-                        )
-                    })?
-                }
-                _ => anyhow::bail!(
-                    "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, lidar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, sparse_backward=gather|scatter, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
-                ),
-            }
-        }
+        let (backward, fused_optimizer) = apply_variants(overrides, &mut det_cfg, &mut cfg)?;
         // A plugin that builds its own branches (`late`) carries the backbone in its config too.
         if let Some(b) = det_cfg.fusion_config.get_mut("backbone") {
             *b = serde_json::to_value(&det_cfg.backbone)?;
@@ -648,11 +788,17 @@ pub fn train(
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
         let det = Detector::new(&det_cfg, &registry, &device, 0)?;
         hilo_fusion::layout::Backward::set_default(backward);
+        hilo_detector::train::AdamW::set_fused_default(fused_optimizer);
         // Warm-up steps (allocator, caches), then the timed ones.
         hilo_detector::train::time_steps(&det, &frames, &cfg, 3)?;
         hilo_detector::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
-        let t = hilo_detector::train::time_steps(&det, &frames, &cfg, steps)?;
+        let _ = hilo_detector::cpu::take_matmul_shapes();
+        hilo_detector::cpu::record_matmul_shapes(true);
+        let t = hilo_detector::train::time_steps(&det, &frames, &cfg, steps);
+        hilo_detector::cpu::record_matmul_shapes(false);
+        let t = t?;
         let flops = hilo_detector::conv::FORWARD_FLOPS.load(Ordering::Relaxed) as f64 / steps as f64;
+        let shapes = hilo_detector::cpu::take_matmul_shapes();
         let (wall_s, replicas_at_once) = hilo_detector::train::time_replicated_steps(&det, &frames, &cfg, steps)?;
         let per = |s: f64| 1e3 * s / steps as f64;
         let ms = BTreeMap::from([
@@ -669,6 +815,9 @@ pub fn train(
         // side) is the rest.
         let step_s = wall_s.max(t.data_s) / steps as f64;
         let achieved = 3.0 * flops / step_s / 1e9;
+        let (products_gflops, product_families) = replay_products(&shapes, steps, &device)?;
+        drop(shapes);
+        let products_s = if products_gflops > 0.0 { 3.0 * flops / products_gflops / 1e9 } else { 0.0 };
         let occupancy = {
             let mut pillars = 0usize;
             let (mut l0, mut head) = (0usize, 0usize);
@@ -700,23 +849,37 @@ pub fn train(
             replicas_at_once,
             sync_batch_norm: cfg.sync_batch_norm,
             sparse_backward: format!("{:?}", hilo_fusion::layout::Backward::default_on(&device)).to_lowercase(),
+            optimizer: if fused_optimizer { "fused" } else { "composite" }.into(),
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
             ms,
             forward_gflop_per_step: flops / 1e9,
             achieved_gflops: achieved,
-            ratio_to_peak: achieved / peak,
+            // Set below, against the run's highest peak.
+            ratio_to_peak: 0.0,
+            products_gflops,
+            products_ratio_to_peak: 0.0,
+            products_share_of_step: products_s / step_s,
+            product_families,
             pillars_per_frame: occupancy.0,
             level0_sites_per_batch: occupancy.1,
             head_sites_per_batch: occupancy.2,
         });
+        peaks.push(matmul_peak(&device)?);
     }
     hilo_fusion::layout::Backward::set_default(None);
+    hilo_detector::train::AdamW::set_fused_default(true);
+    let peak = peaks.iter().copied().fold(f64::MIN, f64::max);
+    for r in &mut rows {
+        r.ratio_to_peak = r.achieved_gflops / peak;
+        r.products_ratio_to_peak = r.products_gflops / peak;
+    }
     Ok(TrainReport {
         data: data.display().to_string(),
         device: device_name(&device),
         threads: rayon::current_num_threads(),
         matmul_peak_gflops: peak,
+        matmul_peak_samples_gflops: peaks,
         presets: rows,
     })
 }
@@ -724,15 +887,20 @@ pub fn train(
 impl TrainReport {
     pub fn print_table(&self) {
         println!(
-            "device {}: matrix-product peak {:.1} GFLOP/s ({} host threads); data {}",
-            self.device, self.matmul_peak_gflops, self.threads, self.data
+            "device {}: matrix-product peak {:.1} GFLOP/s (highest of {}; {} host threads); data {}",
+            self.device,
+            self.matmul_peak_gflops,
+            self.matmul_peak_samples_gflops.iter().map(|p| format!("{p:.1}")).collect::<Vec<_>>().join(", "),
+            self.threads,
+            self.data
         );
         for r in &self.presets {
             println!(
-                "{} ({}, {} backward, background {}{}{}, batch {} in {} replicas, {} at once): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
+                "{} ({}, {} backward, {} optimizer, background {}{}{}, batch {} in {} replicas, {} at once): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
                 r.preset,
                 r.layout,
                 r.sparse_backward,
+                r.optimizer,
                 if r.background_removed { "removed" } else { "kept" },
                 if r.radar_clutter_removed { ", radar clutter removed" } else { "" },
                 if r.ground_truth_paste { ", ground-truth paste" } else { "" },
@@ -749,6 +917,24 @@ impl TrainReport {
             );
             for (k, v) in &r.ms {
                 println!("    {k:<52} {v:>8.2} ms/step");
+            }
+            println!(
+                "    matrix products alone at their sizes: {:.1} GFLOP/s = {:.1}% of peak, {:.1}% of the step's time",
+                r.products_gflops,
+                100.0 * r.products_ratio_to_peak,
+                100.0 * r.products_share_of_step
+            );
+            for f in r.product_families.iter().take(6) {
+                println!(
+                    "      k {:>4} n {:>4}: {:>5.1} products/step of {:>7.0} rows, {:>6.2} GFLOP/step at {:>6.1} GFLOP/s, {:>4.1}% of the products' time",
+                    f.k,
+                    f.n,
+                    f.products_per_step,
+                    f.mean_rows,
+                    f.gflop_per_step,
+                    f.gflops,
+                    100.0 * f.share_of_time
+                );
             }
         }
     }

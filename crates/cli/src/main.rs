@@ -139,7 +139,8 @@ enum BenchCommand {
     },
     /// Where a training step's time goes (pillarisation, pillar net, backbone, head, loss,
     /// backward, optimizer, data) for each preset, and its GFLOP/s against the machine's
-    /// matrix-product peak measured in the same run.
+    /// matrix-product peak measured in the same run; the step's matrix products replayed alone
+    /// at their sizes split that share into their own rate and their share of the step's time.
     Train {
         /// A dataset written by `hilo simulate` (its training split is used).
         #[arg(long)]
@@ -153,7 +154,7 @@ enum BenchCommand {
         /// A lever turned off or changed, for a before/after row: `layout=dense`,
         /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`, `lidar_sweeps=K`,
         /// `batch=N`, `replicas=N`, `sync_batch_norm=true|false`, `sparse_backward=gather|scatter`,
-        /// `head_dilation=N`, `layers=N`,
+        /// `optimizer=fused|composite`, `head_dilation=N`, `layers=N`,
         /// `blocks=[{"stride":2,"channels":32,"layers":2},...]` (repeatable).
         #[arg(long = "variant", value_parser = parse_variant)]
         variants: Vec<(String, serde_json::Value)>,

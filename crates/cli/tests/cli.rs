@@ -395,6 +395,42 @@ fn small_dataset_spaced(root: &std::path::Path, spacing_us: [u64; 2]) -> Vec<Str
 }
 
 #[test]
+fn bench_train_json_splits_the_step_into_matrix_products_and_the_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("data");
+    small_dataset(&root);
+    // Scene a trains.
+    let splits = root.join("v1.0-trainval/splits.json");
+    std::fs::write(&splits, r#"{"train": ["scene-a"], "val": ["scene-b"]}"#).unwrap();
+    let o = hilo()
+        .args(["bench", "train", "--json", "--steps", "2", "--presets", "centerpoint", "--data"])
+        .arg(&root)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let r = &v["presets"][0];
+    let f = |k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} missing in {r}"));
+    // Every product the step counted was replayed: the families' FLOPs are the forward
+    // products' and the two of each one's backward pass.
+    let families = r["product_families"].as_array().unwrap();
+    assert!(!families.is_empty());
+    let replayed: f64 = families.iter().map(|x| x["gflop_per_step"].as_f64().unwrap()).sum();
+    let forward = f("forward_gflop_per_step");
+    assert!(forward > 0.0);
+    assert!(
+        (replayed - 3.0 * forward).abs() <= 1e-9 * forward.max(1.0),
+        "replayed {replayed} GFLOP, forward {forward}"
+    );
+    let shares: f64 = families.iter().map(|x| x["share_of_time"].as_f64().unwrap()).sum();
+    assert!((shares - 1.0).abs() < 1e-9, "family shares sum to {shares}");
+    // The step's share of the peak is the products' share of its time times their own rate.
+    assert!(f("products_gflops") > 0.0 && f("products_share_of_step") > 0.0);
+    let split = f("products_share_of_step") * f("products_ratio_to_peak");
+    assert!((f("ratio_to_peak") - split).abs() <= 1e-9 * split, "{} vs {split}", f("ratio_to_peak"));
+}
+
+#[test]
 fn dataset_stats_and_eval_against_a_dataset() {
     let dir = tempfile::tempdir().unwrap();
     let root = dir.path().join("data");

@@ -3,15 +3,36 @@
 //! benchmarks report.
 
 use candle_core::{CpuStorage, Layout, Tensor};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 /// Multiply-add FLOPs (2 per multiply-add) of every convolution and pillar linear layer run in
 /// this process's forward passes. Benchmarks read it to express a step's speed as GFLOP/s.
 pub static FORWARD_FLOPS: AtomicU64 = AtomicU64::new(0);
 
-/// Counts the forward FLOPs of an `(m × k) · (k × n)` matrix product.
+/// Whether [`count_matmul`] also logs each product's shape (for `hilo bench train`).
+static RECORDING: AtomicBool = AtomicBool::new(false);
+static SHAPES: Mutex<Vec<[usize; 3]>> = Mutex::new(Vec::new());
+
+/// Counts the forward FLOPs of an `(m × k) · (k × n)` matrix product, and logs its shape while
+/// [`record_matmul_shapes`] is on.
 pub fn count_matmul(m: usize, k: usize, n: usize) {
     FORWARD_FLOPS.fetch_add(2 * (m * k * n) as u64, Ordering::Relaxed);
+    if RECORDING.load(Ordering::Relaxed) {
+        SHAPES.lock().unwrap_or_else(|e| e.into_inner()).push([m, k, n]);
+    }
+}
+
+/// Starts (true) or stops logging the shapes `(m, k, n)` of the forward products that
+/// [`count_matmul`] counts, process-wide like [`FORWARD_FLOPS`]: a benchmark replays them to
+/// learn what candle's matrix product reaches at the sizes a step uses.
+pub fn record_matmul_shapes(on: bool) {
+    RECORDING.store(on, Ordering::Relaxed);
+}
+
+/// The shapes logged since the last call, in the order counted, and an empty log.
+pub fn take_matmul_shapes() -> Vec<[usize; 3]> {
+    std::mem::take(&mut *SHAPES.lock().unwrap_or_else(|e| e.into_inner()))
 }
 
 /// The f32 values of a contiguous CPU storage, as a custom op's `cpu_fwd` receives it.
