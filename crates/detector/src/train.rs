@@ -130,8 +130,8 @@ impl AdamW {
             let var = &self.vars[k].1;
             if self.fused && fused::applies(var.as_tensor(), &self.m[k], &self.v[k], g) {
                 let (c1, c2) = (1.0 / c1, 1.0 / c2);
-                self.m[k].inplace_op2(g, &fused::FirstMoment { scale, b1 })?;
-                self.v[k].inplace_op2(g, &fused::SecondMoment { scale, b2 })?;
+                self.m[k].inplace_op2(g, &fused::Moment { scale, beta: b1, squared: false })?;
+                self.v[k].inplace_op2(g, &fused::Moment { scale, beta: b2, squared: true })?;
                 let update = fused::Update { c1, c2, eps, lr, weight_decay: self.weight_decay };
                 var.as_tensor().inplace_op3(&self.m[k], &self.v[k], &update)?;
                 continue;
@@ -215,52 +215,28 @@ mod fused {
         x * s + 0.0
     }
 
-    /// `m ← m·β₁ + (g·scale)·(1 − β₁)`.
-    pub struct FirstMoment {
+    /// A moment: `m ← m·β + (g·scale)·(1 − β)`, or with `squared` `v ← v·β + (g·scale)²·(1 − β)`.
+    pub struct Moment {
         pub scale: f64,
-        pub b1: f64,
+        pub beta: f64,
+        pub squared: bool,
     }
 
-    impl InplaceOp2 for FirstMoment {
+    impl InplaceOp2 for Moment {
         fn name(&self) -> &'static str {
-            "adamw-first-moment"
+            if self.squared { "adamw-second-moment" } else { "adamw-first-moment" }
         }
 
         fn cpu_fwd(&self, s1: &mut CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<()> {
-            let (scale, b1, rest) = (self.scale as f32, self.b1 as f32, (1.0 - self.b1) as f32);
+            let (scale, beta, rest) = (self.scale as f32, self.beta as f32, (1.0 - self.beta) as f32);
             let g = values(s2, l2, self.name())?;
             let m = values_mut(s1, l1, self.name())?;
             if m.len() != g.len() {
                 candle_core::bail!("{}: {} moments for {} gradients", self.name(), m.len(), g.len());
             }
             for (m, &g) in m.iter_mut().zip(g) {
-                *m = scaled(*m, b1) + scaled(scaled(g, scale), rest);
-            }
-            Ok(())
-        }
-    }
-
-    /// `v ← v·β₂ + (g·scale)²·(1 − β₂)`.
-    pub struct SecondMoment {
-        pub scale: f64,
-        pub b2: f64,
-    }
-
-    impl InplaceOp2 for SecondMoment {
-        fn name(&self) -> &'static str {
-            "adamw-second-moment"
-        }
-
-        fn cpu_fwd(&self, s1: &mut CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<()> {
-            let (scale, b2, rest) = (self.scale as f32, self.b2 as f32, (1.0 - self.b2) as f32);
-            let g = values(s2, l2, self.name())?;
-            let v = values_mut(s1, l1, self.name())?;
-            if v.len() != g.len() {
-                candle_core::bail!("{}: {} moments for {} gradients", self.name(), v.len(), g.len());
-            }
-            for (v, &g) in v.iter_mut().zip(g) {
                 let g = scaled(g, scale);
-                *v = scaled(*v, b2) + scaled(g * g, rest);
+                *m = scaled(*m, beta) + scaled(if self.squared { g * g } else { g }, rest);
             }
             Ok(())
         }
