@@ -187,26 +187,13 @@ impl AdamW {
 /// order (a scalar `s` applied as candle's `affine` does: `x · f32(s) + 0`), so the weights and
 /// moments are bit for bit the same (tested), and with them every result downstream.
 mod fused {
+    use crate::cpu::{f32_slice, f32_slice_mut};
     use candle_core::{CpuStorage, InplaceOp2, InplaceOp3, Layout, Tensor};
 
     /// Whether the in-place passes apply: every operand f32, contiguous and on the CPU.
     pub fn applies(var: &Tensor, m: &Tensor, v: &Tensor, g: &Tensor) -> bool {
         [var, m, v, g].iter().all(|t| t.device().is_cpu() && t.dtype() == candle_core::DType::F32 && t.is_contiguous())
             && g.shape() == var.shape()
-    }
-
-    fn values<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
-        match (s, l.contiguous_offsets()) {
-            (CpuStorage::F32(d), Some((a, b))) => Ok(&d[a..b]),
-            _ => candle_core::bail!("{op}: a contiguous f32 tensor expected"),
-        }
-    }
-
-    fn values_mut<'a>(s: &'a mut CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a mut [f32]> {
-        match (s, l.contiguous_offsets()) {
-            (CpuStorage::F32(d), Some((a, b))) => Ok(&mut d[a..b]),
-            _ => candle_core::bail!("{op}: a contiguous f32 tensor expected"),
-        }
     }
 
     /// candle's `x * s` for a scalar `s`: `affine(s, 0)`.
@@ -229,8 +216,8 @@ mod fused {
 
         fn cpu_fwd(&self, s1: &mut CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> candle_core::Result<()> {
             let (scale, beta, rest) = (self.scale as f32, self.beta as f32, (1.0 - self.beta) as f32);
-            let g = values(s2, l2, self.name())?;
-            let m = values_mut(s1, l1, self.name())?;
+            let g = f32_slice(s2, l2, self.name())?;
+            let m = f32_slice_mut(s1, l1, self.name())?;
             if m.len() != g.len() {
                 candle_core::bail!("{}: {} moments for {} gradients", self.name(), m.len(), g.len());
             }
@@ -268,8 +255,8 @@ mod fused {
         ) -> candle_core::Result<()> {
             let (c1, c2, eps, lr) = (self.c1 as f32, self.c2 as f32, self.eps as f32, self.lr as f32);
             let decay = (1.0 - self.lr * self.weight_decay) as f32;
-            let (m, v) = (values(s2, l2, self.name())?, values(s3, l3, self.name())?);
-            let p = values_mut(s1, l1, self.name())?;
+            let (m, v) = (f32_slice(s2, l2, self.name())?, f32_slice(s3, l3, self.name())?);
+            let p = f32_slice_mut(s1, l1, self.name())?;
             if p.len() != m.len() || p.len() != v.len() {
                 candle_core::bail!("{}: {} weights, {} and {} moments", self.name(), p.len(), m.len(), v.len());
             }

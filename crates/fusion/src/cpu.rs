@@ -36,10 +36,19 @@ pub fn take_matmul_shapes() -> Vec<[usize; 3]> {
 }
 
 /// The f32 values of a contiguous CPU storage, as a custom op's `cpu_fwd` receives it.
-pub(crate) fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
+pub fn f32_slice<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a [f32]> {
     let CpuStorage::F32(data) = s else { candle_core::bail!("{op}: f32 tensors only") };
     match l.contiguous_offsets() {
         Some((a, b)) => Ok(&data[a..b]),
+        None => candle_core::bail!("{op}: contiguous input only"),
+    }
+}
+
+/// [`f32_slice`] for the storage an in-place op writes.
+pub fn f32_slice_mut<'a>(s: &'a mut CpuStorage, l: &Layout, op: &str) -> candle_core::Result<&'a mut [f32]> {
+    let CpuStorage::F32(data) = s else { candle_core::bail!("{op}: f32 tensors only") };
+    match l.contiguous_offsets() {
+        Some((a, b)) => Ok(&mut data[a..b]),
         None => candle_core::bail!("{op}: contiguous input only"),
     }
 }

@@ -733,8 +733,8 @@ fn md_learning_curves(md: &mut String, r: &Report) {
     }
 }
 
-/// The figures: charts, coverage maps, the detection grid.
-/// The figures section; `mapped` are the configurations whose coverage map was written.
+/// The figures: charts, coverage maps (of `mapped`, the configurations whose map was written),
+/// the detection grid.
 fn md_figures(
     md: &mut String,
     r: &Report,
