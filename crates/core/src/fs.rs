@@ -100,14 +100,21 @@ pub mod limit {
 /// Reads a whole regular file of at most `max` bytes. A path that is not a regular file (a
 /// device such as `/dev/zero`, a FIFO, a folder) or a file larger than `max` is an
 /// [`std::io::ErrorKind::InvalidData`] error that says which, before anything large is read.
+/// The file type is checked before the file is opened (a FIFO would block `open` until a writer
+/// came), and again on the opened file, which is opened non-blocking in case it was swapped
+/// for a FIFO between the two.
 pub fn read_bounded(path: &Path, max: u64) -> std::io::Result<Vec<u8>> {
     use std::io::Read as _;
-    let file = std::fs::File::open(path)?;
-    let meta = file.metadata()?;
+    use std::os::unix::fs::OpenOptionsExt as _;
     let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidData, m);
-    if !meta.is_file() {
-        return Err(invalid("not a regular file".into()));
-    }
+    let regular = |meta: &std::fs::Metadata| match kind_of(&meta.file_type()) {
+        "a regular file" => Ok(()),
+        other => Err(invalid(format!("not a regular file ({other})"))),
+    };
+    regular(&std::fs::metadata(path)?)?;
+    let file = std::fs::OpenOptions::new().read(true).custom_flags(libc::O_NONBLOCK).open(path)?;
+    let meta = file.metadata()?;
+    regular(&meta)?;
     if meta.len() > max {
         return Err(invalid(format!("{} bytes, more than the {max} a file of this kind may have", meta.len())));
     }
@@ -118,6 +125,26 @@ pub fn read_bounded(path: &Path, max: u64) -> std::io::Result<Vec<u8>> {
         return Err(invalid(format!("more than the {max} bytes a file of this kind may have")));
     }
     Ok(bytes)
+}
+
+/// What a file type is, in words, for an error message.
+fn kind_of(t: &std::fs::FileType) -> &'static str {
+    use std::os::unix::fs::FileTypeExt as _;
+    if t.is_file() {
+        "a regular file"
+    } else if t.is_dir() {
+        "a folder"
+    } else if t.is_symlink() {
+        "a symbolic link"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_char_device() || t.is_block_device() {
+        "a device"
+    } else {
+        "not a file"
+    }
 }
 
 /// [`read_bounded`] as UTF-8 text; a leading byte-order mark is dropped (editors on Windows
@@ -223,6 +250,26 @@ mod tests {
         assert_eq!(read_text_bounded(&f, 100).unwrap(), "a = 1");
         std::fs::write(&f, [0xff, 0xfe, 0x00]).unwrap();
         assert!(read_text_bounded(&f, 100).unwrap_err().to_string().contains("UTF-8"));
+        // A link to a regular file reads through; a link to a device does not.
+        std::os::unix::fs::symlink(&f, d.join("link.toml")).unwrap();
+        assert_eq!(read_bounded(&d.join("link.toml"), 100).unwrap().len(), 3);
+        std::os::unix::fs::symlink("/dev/zero", d.join("zero.obj")).unwrap();
+        let e = read_bounded(&d.join("zero.obj"), 1 << 20).unwrap_err();
+        assert!(e.to_string().contains("a device"), "{e}");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_fifo_is_refused_at_once_instead_of_blocking_on_open() {
+        let d = dir();
+        let fifo = d.join("study.toml");
+        let status = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+        assert!(status.success());
+        // No writer ever opens the FIFO: an `open` before the type check would block for good.
+        let t = std::time::Instant::now();
+        let e = read_bounded(&fifo, 1 << 20).unwrap_err();
+        assert!(e.to_string().contains("a FIFO"), "{e}");
+        assert!(t.elapsed() < std::time::Duration::from_secs(1));
         std::fs::remove_dir_all(&d).unwrap();
     }
 

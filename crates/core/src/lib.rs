@@ -11,6 +11,7 @@
 pub mod background;
 mod boxes;
 mod class;
+pub mod folder;
 mod frame;
 pub mod fs;
 pub mod iou;
