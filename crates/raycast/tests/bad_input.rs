@@ -126,3 +126,74 @@ fn impossible_geometry_is_refused_naming_the_field() {
     let skew = format!("name = \"x\"\n{}{}{}", arm("a", 0.0, ""), arm("b", 60.0, ""), arm("c", 180.0, ""));
     load_text(d.path(), &skew).unwrap();
 }
+
+/// The default intersection with `edit` applied to its text.
+fn default_with(edit: impl Fn(String) -> String) -> String {
+    edit(
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/intersection.toml"))
+            .unwrap(),
+    )
+}
+
+/// Values that are each a number but make no junction: a pole on the carriageway, in the
+/// junction box or inside a building, a building in the junction box, a heading of 1e30°, two
+/// arms pointing the same way.
+#[test]
+fn implausible_scenes_are_refused_by_field() {
+    let d = tempfile::tempdir().unwrap();
+    let pole = "[[signal_poles]]\nname = \"X\"\nheight_m = 7.5\nradius_m = 0.18\narm_heading_deg = 0.0\narm_length_m = 5.0\n\
+                arm_height_m = 6.0\nhead_offsets_m = [3.0]\nposition = ";
+    // 40 m out along the east arm, in its outbound lanes (south of the median).
+    let text = default_with(|t| format!("{t}\n{pole}[40.0, -6.0]\n"));
+    expect_err(d.path(), &text, &["signal_poles[4].position", "carriageway of arm \"east\""]);
+    let text = default_with(|t| format!("{t}\n{pole}[0.0, 0.0]\n"));
+    expect_err(d.path(), &text, &["signal_poles[4].position", "junction box"]);
+    // On the east arm's median, 60 m out: where median poles stand.
+    load_text(d.path(), &default_with(|t| format!("{t}\n{pole}[60.0, 0.0]\n"))).unwrap();
+    let building = "[[buildings]]\nheight_m = 8.0\nfootprint = ";
+    let text = default_with(|t| {
+        format!("{t}\n{building}[[50.0, 50.0], [60.0, 50.0], [60.0, 60.0], [50.0, 60.0]]\n{pole}[55.0, 55.0]\n")
+    });
+    expect_err(d.path(), &text, &["signal_poles[4].position", "inside buildings["]);
+    let text = default_with(|t| format!("{t}\n{building}[[-3.0, -3.0], [3.0, -3.0], [3.0, 3.0], [-3.0, 3.0]]\n"));
+    expect_err(d.path(), &text, &["footprint", "junction box"]);
+    // A box larger than the junction box, around it: no corner of it inside, every corner of the box inside it.
+    let text =
+        default_with(|t| format!("{t}\n{building}[[-60.0, -60.0], [60.0, -60.0], [60.0, 60.0], [-60.0, 60.0]]\n"));
+    expect_err(d.path(), &text, &["footprint", "junction box"]);
+    let text = default_with(|t| t.replacen("heading_deg = 90.0", "heading_deg = 1e30", 1));
+    expect_err(d.path(), &text, &["arms[1].heading_deg", "[-360, 360]"]);
+    let text = default_with(|t| t.replacen("heading_deg = 90.0", "heading_deg = 0.0", 1));
+    expect_err(d.path(), &text, &["heading_deg", "point the same way"]);
+}
+
+/// glTF documents that gltf's own reader panics on (found by fuzzing): a POSITION accessor
+/// index past the accessors, and accessors of another shape than the reader assumes (indices
+/// stored as floats, an empty accessor). Each is an error naming the file and the primitive.
+#[test]
+fn gltf_accessors_the_reader_would_panic_on_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let doc = |position: &str, accessor: &str| {
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+"meshes":[{{"primitives":[{{"attributes":{{"POSITION":{position}}},"indices":1}}]}}],
+"buffers":[{{"byteLength":42,"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAABAAIA"}}],
+"bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":36}},{{"buffer":0,"byteOffset":36,"byteLength":6}}],
+"accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0.0,0.0,0.0],"max":[1.0,1.0,0.0]}},
+{accessor}]}}"#
+        )
+    };
+    let indices = r#"{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}"#;
+    let scene = "name = \"x\"\n[[meshes]]\npath = \"t.gltf\"";
+    std::fs::write(d.path().join("t.gltf"), doc("0", indices)).unwrap();
+    load_text(d.path(), scene).unwrap();
+    for (position, accessor, needle) in [
+        ("7", indices, "POSITION is accessor 7, but the file has 2 accessors"),
+        ("0", &indices.replace("5123", "5126"), "the indices accessor"),
+        ("0", &indices.replace("\"count\":3", "\"count\":0"), "the indices accessor"),
+        ("1", indices, "POSITION"),
+    ] {
+        std::fs::write(d.path().join("t.gltf"), doc(position, accessor)).unwrap();
+        expect_err(d.path(), scene, &["t.gltf", needle]);
+    }
+}

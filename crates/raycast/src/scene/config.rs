@@ -310,9 +310,28 @@ impl Check<'_> {
         if v.is_finite() { Ok(()) } else { Err(self.err(field, v, "must be finite")) }
     }
 
+    /// A heading or yaw in degrees, within one turn either way (past that, f32 degrees lose the
+    /// angle: 1e30° is no direction).
+    fn heading(&self, field: &str, v: f32) -> Result<(), RaycastError> {
+        if v.is_finite() && v.abs() <= 360.0 {
+            Ok(())
+        } else {
+            Err(self.err(field, v, "must be an angle in [-360, 360] degrees"))
+        }
+    }
+
     fn polygon(&self, field: &str, poly: &[[f32; 2]]) -> Result<(), RaycastError> {
         if poly.len() < 3 {
             return Err(self.err(field, poly, "a polygon needs at least 3 points"));
+        }
+        if poly.len() > MAX_POLYGON_POINTS {
+            // Checked before the O(n²) self-intersection test, and printed by count: the
+            // polygon itself would be megabytes of message.
+            return Err(self.err(
+                field,
+                poly.len(),
+                &format!("a polygon may have at most {MAX_POLYGON_POINTS} points (this count); simplify it"),
+            ));
         }
         if poly.iter().flatten().any(|v| !v.is_finite()) {
             return Err(self.err(field, poly, "coordinates must be finite"));
@@ -338,6 +357,11 @@ impl Check<'_> {
         Ok(())
     }
 }
+
+/// The most points a scene polygon (footprint, ROI, sidewalk, median) may have: far more than a
+/// surveyed footprint needs, and few enough that the pairwise self-intersection check stays
+/// well under a second.
+pub const MAX_POLYGON_POINTS: usize = 4096;
 
 /// The first pair of non-adjacent edges of a closed polygon that touch or cross, if any.
 pub fn self_intersection(poly: &[[f32; 2]]) -> Option<(usize, usize)> {
@@ -418,7 +442,7 @@ impl SceneConfig {
             if !names.insert(a.name.as_str()) {
                 return Err(c.err(&f("name"), &a.name, "duplicate arm name"));
             }
-            c.finite(&f("heading_deg"), a.heading_deg)?;
+            c.heading(&f("heading_deg"), a.heading_deg)?;
             c.positive(&f("length_m"), a.length_m)?;
             c.positive(&f("lane_width_m"), a.lane_width_m)?;
             c.non_negative(&f("median_width_m"), a.median_width_m)?;
@@ -449,13 +473,22 @@ impl SceneConfig {
             }
         }
         if let Some((i, j, along)) = overlapping_arms(&self.arms) {
+            let (a, b) = (&self.arms[i], &self.arms[j]);
+            let gap = (b.heading_deg - a.heading_deg).rem_euclid(360.0);
+            let how = if gap.min(360.0 - gap) < 1.0 {
+                format!(
+                    "arms {:?} and {:?} point the same way ({}° and {}°)",
+                    a.name, b.name, a.heading_deg, b.heading_deg
+                )
+            } else if along >= a.length_m.min(b.length_m) {
+                format!("the roadways of arms {:?} and {:?} overlap along their whole length", a.name, b.name)
+            } else {
+                format!("the roadways of arms {:?} and {:?} overlap for {along:.0} m from the centre", a.name, b.name)
+            };
             return Err(c.err(
                 &format!("arms[{j}].heading_deg"),
-                self.arms[j].heading_deg,
-                &format!(
-                    "the roadways of arms {:?} and {:?} overlap for {along:.0} m from the centre: arms need more angle between them",
-                    self.arms[i].name, self.arms[j].name
-                ),
+                b.heading_deg,
+                &format!("{how}: arms need more angle between them"),
             ));
         }
         for (i, b) in self.buildings.iter().enumerate() {
@@ -482,7 +515,7 @@ impl SceneConfig {
             c.finite(&f("position"), p.position[1])?;
             c.positive(&f("height_m"), p.height_m)?;
             c.positive(&f("radius_m"), p.radius_m)?;
-            c.finite(&f("arm_heading_deg"), p.arm_heading_deg)?;
+            c.heading(&f("arm_heading_deg"), p.arm_heading_deg)?;
             c.non_negative(&f("arm_length_m"), p.arm_length_m)?;
             c.positive(&f("arm_height_m"), p.arm_height_m)?;
             if p.arm_height_m > p.height_m {
@@ -504,7 +537,7 @@ impl SceneConfig {
             c.finite(&f("position"), s.position[0])?;
             c.finite(&f("position"), s.position[1])?;
             c.positive(&f("height_m"), s.height_m)?;
-            c.finite(&f("arm_heading_deg"), s.arm_heading_deg)?;
+            c.heading(&f("arm_heading_deg"), s.arm_heading_deg)?;
             c.non_negative(&f("arm_length_m"), s.arm_length_m)?;
         }
         for (i, r) in self.roi.iter().enumerate() {
@@ -533,8 +566,8 @@ impl SceneConfig {
             if !m.translation_m.iter().all(|v| v.is_finite()) {
                 return Err(c.err(&f("translation_m"), m.translation_m, "must be finite"));
             }
-            if !m.yaw_deg.is_finite() {
-                return Err(c.err(&f("yaw_deg"), m.yaw_deg, "must be finite"));
+            if !(m.yaw_deg.is_finite() && m.yaw_deg.abs() <= 360.0) {
+                return Err(c.err(&f("yaw_deg"), m.yaw_deg, "must be an angle in [-360, 360] degrees"));
             }
             if !(m.scale.is_finite() && m.scale > 0.0) {
                 return Err(c.err(&f("scale"), m.scale, "must be a finite number > 0"));

@@ -35,15 +35,24 @@ fn check_indices(path: &Path, mesh: &RawMesh) -> Result<(), RaycastError> {
     Ok(())
 }
 
-/// Reads an OBJ file (polygons are triangulated by tobj).
+/// Reads an OBJ file (polygons are triangulated by tobj). The file is read bounded, as every
+/// input is ([`hilo_core::fs::read_bounded`]: a regular file of at most
+/// [`hilo_core::fs::limit::MESH`] bytes), and parsed from memory; the material libraries it
+/// names are never opened (materials are ignored), so no path inside the file is followed.
 pub fn read_obj(path: &Path) -> Result<RawMesh, RaycastError> {
+    let bytes = hilo_core::fs::read_bounded(path, hilo_core::fs::limit::MESH)
+        .map_err(|e| RaycastError::from(hilo_core::fs::FileError::io(path, e)))?;
+    parse_obj(&bytes, path)
+}
+
+/// [`read_obj`] of bytes already read; `path` names them in errors.
+pub fn parse_obj(bytes: &[u8], path: &Path) -> Result<RawMesh, RaycastError> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ignore_points: true, ignore_lines: true };
-    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| match e {
-        tobj::LoadError::OpenFileFailed | tobj::LoadError::ReadError => {
-            RaycastError::from(hilo_core::fs::FileError::io(path, std::io::Error::other(e.to_string())))
-        }
-        other => mesh_err(path, format!("malformed OBJ: {other}")),
-    })?;
+    let (models, _) =
+        tobj::load_obj_buf(&mut &bytes[..], &opts, |_| Err(tobj::LoadError::OpenFileFailed)).map_err(|e| match e {
+            tobj::LoadError::ReadError => mesh_err(path, "not OBJ text (a read error while parsing)"),
+            other => mesh_err(path, format!("malformed OBJ: {other}")),
+        })?;
     let mut mesh = RawMesh::default();
     for m in models {
         let base = mesh.vertices.len() as u32;
@@ -69,7 +78,34 @@ pub fn read_obj(path: &Path) -> Result<RawMesh, RaycastError> {
 pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
     let bytes = hilo_core::fs::read_bounded(path, hilo_core::fs::limit::MESH)
         .map_err(|e| RaycastError::from(hilo_core::fs::FileError::io(path, e)))?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| mesh_err(path, format!("malformed glTF: {e}")))?;
+    parse_gltf(&bytes, path)
+}
+
+/// [`read_gltf`] of bytes already read; `path` names them in errors, and external buffers are
+/// read (bounded) from its folder.
+pub fn parse_gltf(bytes: &[u8], path: &Path) -> Result<RawMesh, RaycastError> {
+    let malformed = |e: gltf::Error| mesh_err(path, format!("malformed glTF: {e}"));
+    // gltf's validation indexes the accessors by each primitive's POSITION without a bounds
+    // check (it panics on an index past them), so that index is checked first, then the rest
+    // of the document is validated.
+    let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(malformed)?;
+    let json = raw.document.into_json();
+    for (mi, m) in json.meshes.iter().enumerate() {
+        for (pi, p) in m.primitives.iter().enumerate() {
+            let position = gltf::json::validation::Checked::Valid(gltf::Semantic::Positions);
+            if let Some(a) = p.attributes.get(&position).filter(|a| a.value() >= json.accessors.len()) {
+                return Err(mesh_err(
+                    path,
+                    format!(
+                        "mesh {mi} primitive {pi}: POSITION is accessor {}, but the file has {} accessors",
+                        a.value(),
+                        json.accessors.len()
+                    ),
+                ));
+            }
+        }
+    }
+    let gltf = gltf::Gltf { document: gltf::Document::from_json(json).map_err(malformed)?, blob: raw.blob };
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut buffers: Vec<Vec<u8>> = Vec::new();
     for (i, b) in gltf.document.buffers().enumerate() {
@@ -114,6 +150,14 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
                 if prim.mode() != gltf::mesh::Mode::Triangles {
                     continue;
                 }
+                let at = format!("mesh {} primitive {pi}", gm.index());
+                if let Some(a) = prim.get(&gltf::Semantic::Positions) {
+                    check_accessor(path, &at, "POSITION", &a, &[(gltf::accessor::DataType::F32, 12)])?;
+                }
+                if let Some(a) = prim.indices() {
+                    use gltf::accessor::DataType::{U8, U16, U32};
+                    check_accessor(path, &at, "indices", &a, &[(U8, 1), (U16, 2), (U32, 4)])?;
+                }
                 let reader = prim.reader(|b| buffers.get(b.index()).map(|d| d.as_slice()));
                 let positions: Vec<DVec3> = reader
                     .read_positions()
@@ -145,6 +189,37 @@ pub fn read_gltf(path: &Path) -> Result<RawMesh, RaycastError> {
     }
     check_indices(path, &mesh)?;
     Ok(mesh)
+}
+
+/// Checks what gltf's accessor reader assumes (it asserts, or underflows, otherwise): a
+/// component type and element size it reads as (`ok`: data type and bytes per element, with
+/// vectors of three for POSITION and scalars for indices), at least one element, a stride no
+/// smaller than the element, and no sparse storage (which hilo does not read).
+fn check_accessor(
+    path: &Path,
+    at: &str,
+    what: &str,
+    a: &gltf::Accessor,
+    ok: &[(gltf::accessor::DataType, usize)],
+) -> Result<(), RaycastError> {
+    let fits = ok.iter().any(|&(t, size)| a.data_type() == t && a.size() == size);
+    let stride_ok = a.view().is_some_and(|v| v.stride().is_none_or(|s| s >= a.size()));
+    if !fits || a.count() == 0 || !stride_ok || a.sparse().is_some() {
+        return Err(mesh_err(
+            path,
+            format!(
+                "{at}: the {what} accessor ({} × {:?} {:?}, stride {:?}{}) is not one hilo reads: {what} need {}, at \
+                 least one, stored densely in a buffer view",
+                a.count(),
+                a.dimensions(),
+                a.data_type(),
+                a.view().and_then(|v| v.stride()),
+                if a.sparse().is_some() { ", sparse" } else { "" },
+                if what == "POSITION" { "three 32-bit floats each" } else { "one unsigned integer each" }
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Loads the mesh a scene names and places it in the local frame: up-axis conversion, scale,

@@ -70,6 +70,57 @@ pub struct Scene {
     pub mounts: Vec<MountStructure>,
 }
 
+/// What the field would refuse in a scene whose numbers are each valid: a pole or street light
+/// standing on the carriageway (on a median is fine) or in the junction box, or inside a
+/// building; a building reaching into the junction box. Poles count by their centre; a
+/// building meets the box when a corner of either lies inside the other (a thin building laid
+/// across the box corner to corner without either is not caught).
+fn plausible(cfg: &SceneConfig, layout: &Layout, file: &Path) -> Result<(), RaycastError> {
+    use layout::point_in_polygon as inside;
+    let err = |field: String, value: String, reason: String| RaycastError::Invalid {
+        path: file.to_path_buf(),
+        field,
+        value,
+        reason,
+    };
+    let footprints: Vec<Vec<Vec2>> =
+        cfg.buildings.iter().map(|b| b.footprint.iter().map(|p| Vec2::from(*p)).collect()).collect();
+    if layout.central.len() >= 3 {
+        for (k, f) in footprints.iter().enumerate() {
+            if f.iter().any(|&v| inside(v, &layout.central)) || layout.central.iter().any(|&v| inside(v, f)) {
+                return Err(err(
+                    format!("buildings[{k}].footprint"),
+                    format!("{} corners", f.len()),
+                    "reaches into the junction box, where the arms' traffic crosses".into(),
+                ));
+            }
+        }
+    }
+    let standing =
+        cfg.signal_poles.iter().enumerate().map(|(i, p)| (format!("signal_poles[{i}].position"), p.position)).chain(
+            cfg.street_lights.iter().enumerate().map(|(i, s)| (format!("street_lights[{i}].position"), s.position)),
+        );
+    for (field, pos) in standing {
+        let p = Vec2::from(pos);
+        let on_road = layout
+            .arms
+            .iter()
+            .find(|a| inside(p, &a.road) && !a.median.as_ref().is_some_and(|m| inside(p, m)))
+            .map(|a| format!("stands on the carriageway of arm {:?}", a.name));
+        let in_box =
+            (layout.central.len() >= 3 && inside(p, &layout.central)).then(|| "stands in the junction box".into());
+        let in_building = footprints.iter().position(|f| inside(p, f)).map(|k| format!("stands inside buildings[{k}]"));
+        if let Some(why) = in_box.or(on_road).or(in_building) {
+            return Err(err(
+                field,
+                format!("{pos:?}"),
+                format!("{why}; a pole stands on a sidewalk, a median or the verge"),
+            ));
+        }
+    }
+    Ok(())
+}
+
 impl Scene {
     /// Loads and builds a scene file (meshes are resolved against its folder).
     pub fn load(path: &Path) -> Result<Self, RaycastError> {
@@ -92,6 +143,7 @@ impl Scene {
         cfg.validate(file)?;
         let frame = LocalFrame::new(DVec3::new(cfg.origin.x_m, cfg.origin.y_m, cfg.origin.z_m));
         let layout = layout::build_layout(&cfg);
+        plausible(&cfg, &layout, file)?;
         let rois = layout::resolve_rois(&cfg.roi, &layout);
         let h = cfg.ground.half_size_m;
         let gz = cfg.ground.z_m;
