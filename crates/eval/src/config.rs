@@ -46,9 +46,83 @@ impl Default for DetectionConfig {
 }
 
 impl DetectionConfig {
+    /// Refuses a configuration the metric has no meaning for, naming the field: an empty
+    /// threshold list (mAP would be the mean of nothing), `min_recall` or `min_precision`
+    /// outside [0, 1) (AP divides by 1 − min_precision and averages the recalls above
+    /// min_recall), ranges, thresholds and the TP threshold not positive and finite (a class
+    /// with range ≤ 0 would silently score 0), a distance function other than the centre
+    /// distance (the only one hilo computes), no box allowed per sample.
+    pub fn check(&self) -> Result<(), String> {
+        if self.class_range.is_empty() {
+            return Err("class_range is empty: name at least one class and its range".into());
+        }
+        if let Some((c, r)) = self.class_range.iter().find(|(_, r)| !(r.is_finite() && **r > 0.0)) {
+            return Err(format!("class_range.{c} = {r}: a range is a distance in metres, finite and > 0"));
+        }
+        if self.dist_fcn != "center_distance" {
+            return Err(format!("dist_fcn = {:?}: hilo computes \"center_distance\" only", self.dist_fcn));
+        }
+        if self.dist_ths.is_empty() {
+            return Err("dist_ths = []: give the matching thresholds (the devkit's [0.5, 1.0, 2.0, 4.0])".into());
+        }
+        let positive = |t: f64| t.is_finite() && t > 0.0;
+        if let Some(t) = self.dist_ths.iter().find(|t| !positive(**t)) {
+            return Err(format!("dist_ths holds {t}: a threshold is a distance in metres, finite and > 0"));
+        }
+        if !positive(self.dist_th_tp) {
+            return Err(format!("dist_th_tp = {}: must be finite and > 0", self.dist_th_tp));
+        }
+        for (field, v) in [("min_recall", self.min_recall), ("min_precision", self.min_precision)] {
+            if !(0.0..1.0).contains(&v) {
+                return Err(format!("{field} = {v}: must be in [0, 1)"));
+            }
+        }
+        if self.max_boxes_per_sample == 0 {
+            return Err("max_boxes_per_sample = 0: must be at least 1".into());
+        }
+        if !(self.mean_ap_weight.is_finite() && self.mean_ap_weight >= 0.0) {
+            return Err(format!("mean_ap_weight = {}: must be finite and ≥ 0", self.mean_ap_weight));
+        }
+        Ok(())
+    }
+
     /// Class names in the order the devkit iterates them (the order of `class_range`; serde keeps
     /// keys sorted here, and every per-class result is keyed by name, so order does not matter).
     pub fn class_names(&self) -> Vec<String> {
         self.class_range.keys().cloned().collect()
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::expect_used)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn configs_without_a_meaning_are_refused_by_field() {
+        assert_eq!(DetectionConfig::default().check(), Ok(()));
+        type Change = fn(&mut DetectionConfig);
+        let cases: [(Change, &str); 9] = [
+            (|c| c.dist_ths.clear(), "dist_ths = []"),
+            (|c| c.dist_ths.push(f64::NAN), "dist_ths holds NaN"),
+            (|c| c.min_recall = 1.0, "min_recall = 1"),
+            (|c| c.min_precision = -0.1, "min_precision = -0.1"),
+            (
+                |c| {
+                    c.class_range.insert("car".into(), -5.0);
+                },
+                "class_range.car = -5",
+            ),
+            (|c| c.class_range.clear(), "class_range is empty"),
+            (|c| c.dist_th_tp = 0.0, "dist_th_tp = 0"),
+            (|c| c.max_boxes_per_sample = 0, "max_boxes_per_sample = 0"),
+            (|c| c.dist_fcn = "iou".into(), "dist_fcn"),
+        ];
+        for (change, needle) in cases {
+            let mut c = DetectionConfig::default();
+            change(&mut c);
+            let e = c.check().expect_err(needle);
+            assert!(e.contains(needle), "{e} lacks {needle}");
+        }
     }
 }

@@ -11,6 +11,9 @@ use hilo_core::{Check, Class, Valid};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
+/// The stated limits on values that size a training's allocations ([`crate::limits`]).
+pub use crate::limits;
+
 /// Everything that defines a detector's architecture and what it reads.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -101,6 +104,27 @@ impl Check for DetectorConfig {
             )));
         }
         let b = &self.backbone;
+        let wide = |c: usize| c == 0 || c > limits::CHANNELS;
+        if b.blocks.len() > limits::BLOCKS
+            || wide(b.neck_channels)
+            || self.head_channels > limits::CHANNELS
+            || b.blocks.iter().any(|x| wide(x.channels) || x.layers > limits::LAYERS)
+        {
+            return Err(FusionError::Config(format!(
+                "detector {}: the backbone may have at most {} blocks of 1 to {} channels and at most {} layers each, \
+                 and neck_channels (1 to {}) and head_channels (at most {}) are bounded the same way; this one has \
+                 blocks {:?}, neck_channels {}, head_channels {}",
+                self.name,
+                limits::BLOCKS,
+                limits::CHANNELS,
+                limits::LAYERS,
+                limits::CHANNELS,
+                limits::CHANNELS,
+                b.blocks.iter().map(|x| (x.channels, x.layers)).collect::<Vec<_>>(),
+                b.neck_channels,
+                self.head_channels
+            )));
+        }
         if b.blocks.is_empty() || !b.out_stride.is_power_of_two() {
             return Err(FusionError::Config(format!(
                 "detector {}: the backbone needs blocks and a power-of-two out_stride",
@@ -127,6 +151,48 @@ impl Check for DetectorConfig {
 }
 
 impl DetectorConfig {
+    /// An upper estimate of the memory one training step of `batch` samples takes, bytes: the
+    /// pillar net's point tensors, every dense map of the backbone, neck and head (output,
+    /// normalised, activated, and the gradient of each), and the weights with their gradient and
+    /// two moments. Sparse layouts take less; the estimate is for refusing a configuration that
+    /// cannot fit before any stage runs, not for planning to the byte.
+    pub fn step_memory_bytes(&self, batch: usize) -> f64 {
+        let b = &self.backbone;
+        let side = self.grid.cells() as f64;
+        let f32s = 4.0 * 4.0;
+        let points = (self.grid.max_pillars * self.grid.max_points_per_pillar) as f64 * 64.0 * f32s;
+        let (mut maps, mut weights, mut stride, mut cin) = (0.0, 0.0, 1.0, 64.0);
+        for x in &b.blocks {
+            stride *= x.stride as f64;
+            let c = x.channels as f64;
+            maps += (side / stride).powi(2) * c * (x.layers + 1) as f64 * f32s;
+            weights += 9.0 * c * (cin + c * x.layers as f64);
+            cin = c;
+        }
+        let out = (side / b.out_stride as f64).powi(2);
+        let neck = b.neck_channels as f64 * b.blocks.len() as f64;
+        maps += out * (neck + self.head_channels as f64 * CLASSES.len() as f64 + 64.0) * f32s;
+        weights += 9.0 * neck * self.head_channels as f64 * CLASSES.len() as f64;
+        batch as f64 * (points + maps) + weights * f32s
+    }
+
+    /// Refuses a training whose step would not fit in `available` bytes by
+    /// [`DetectorConfig::step_memory_bytes`]; `available` is the machine's memory
+    /// ([`machine_memory_bytes`]) where the system tells it.
+    pub fn check_memory(&self, batch: usize, available: Option<u64>) -> Result<()> {
+        let need = self.step_memory_bytes(batch);
+        match available {
+            Some(have) if need > have as f64 => Err(FusionError::Config(format!(
+                "detector {}: a training step of batch {batch} needs about {:.1} GB, more than this machine's {:.1} \
+                 GB; make the grid coarser, the backbone narrower or the batch smaller",
+                self.name,
+                need / 1e9,
+                have as f64 / 1e9
+            ))),
+            _ => Ok(()),
+        }
+    }
+
     /// This config with a JSON merge patch (RFC 7386) applied: the patch names only the fields it
     /// changes (`{"input": {"lidar_sweeps": 10}}`), `null` removes an optional one. An unknown
     /// field or a wrong type is an error naming its path (`input.lidar_sweeps`).
@@ -244,11 +310,27 @@ impl Check for TrainConfig {
 
     /// The settings' own consistency (what the detector crate's training and the benchmarks refuse).
     fn check(&self) -> Result<()> {
-        if self.batch == 0 || self.samples == 0 {
+        if self.batch == 0 || self.samples == 0 || self.batch > limits::BATCH || self.samples > limits::SAMPLES {
             return Err(FusionError::Config(format!(
-                "train: batch = {} and samples = {} must be positive",
-                self.batch, self.samples
+                "train: batch = {} (1 to {}) and samples = {} (1 to {}) are out of range",
+                self.batch,
+                limits::BATCH,
+                self.samples,
+                limits::SAMPLES
             )));
+        }
+        // A negative rate climbs the loss; one over 1 diverges at the first step.
+        let rates = [
+            ("lr_max", self.lr_max, self.lr_max > 0.0 && self.lr_max <= 1.0, "in (0, 1]"),
+            ("weight_decay", self.weight_decay, (0.0..1.0).contains(&self.weight_decay), "in [0, 1)"),
+            ("clip_norm", self.clip_norm, self.clip_norm > 0.0 && self.clip_norm.is_finite(), "finite and > 0"),
+            ("warmup", self.warmup, (0.0..=1.0).contains(&self.warmup), "a share in [0, 1]"),
+        ];
+        if let Some((field, v, _, want)) = rates.iter().find(|r| !r.2) {
+            return Err(FusionError::Config(format!("train: {field} = {v} must be {want}")));
+        }
+        if self.checkpoint_steps == 0 {
+            return Err(FusionError::Config("train: checkpoint_steps = 0 must be positive".into()));
         }
         if self.replicas == 0 || !self.batch.is_multiple_of(self.replicas) {
             return Err(FusionError::Config(format!(
@@ -297,6 +379,15 @@ impl TrainConfig {
             cos(self.lr_max, self.lr_max / 1e4, (t - up) / (total - up).max(1.0))
         }
     }
+}
+
+/// The machine's memory (Linux: `MemTotal` of `/proc/meminfo`), bytes; `None` where the
+/// system does not say.
+pub fn machine_memory_bytes() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kb: u64 =
+        text.lines().find_map(|l| l.strip_prefix("MemTotal:"))?.trim().trim_end_matches("kB").trim().parse().ok()?;
+    Some(kb * 1024)
 }
 
 /// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).
@@ -534,6 +625,28 @@ pub struct Preset {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+
+    /// The presets fit in a few GB a step even at a GPU's batch of 16 (an upper estimate: every
+    /// pillar full); the estimate grows with the batch and the width; a backbone far too wide is
+    /// refused before it is built.
+    #[test]
+    fn the_step_memory_estimate_admits_the_presets_and_refuses_what_cannot_fit() {
+        for det in [crate::presets::centerpoint(), crate::presets::pointpillars()] {
+            let need = det.step_memory_bytes(16);
+            assert!(need > 1e8 && need < 4e9, "{}: {need}", det.name);
+            assert!((det.step_memory_bytes(32) - det.step_memory_bytes(16)) > 0.9 * (need - det.step_memory_bytes(0)));
+            det.check_memory(16, Some(4 << 30)).unwrap();
+            let mut wide = det.clone();
+            wide.backbone.blocks.iter_mut().for_each(|b| b.channels *= 16);
+            assert!(wide.step_memory_bytes(16) > 2.0 * need);
+            let e = wide.check_memory(16, Some(4 << 30)).unwrap_err().to_string();
+            assert!(e.contains(&det.name) && e.contains("batch 16") && e.contains("GB"), "{e}");
+            assert!(det.check_memory(16, None).is_ok(), "no figure from the system: no refusal");
+        }
+        let mut det = crate::presets::centerpoint();
+        det.backbone.blocks[0].channels = 1_000_000_000;
+        assert!(det.validate().unwrap_err().to_string().contains("1000000000"));
+    }
 
     #[test]
     fn a_schedule_file_overrides_only_its_fields_of_the_preset_schedule() {

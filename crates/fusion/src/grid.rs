@@ -50,7 +50,34 @@ impl BevGrid {
     }
 
     pub fn validate(&self) -> Result<(), String> {
+        use crate::limits;
+        if !(self.cell_m.is_finite() && self.cell_m >= limits::CELL_M_MIN) {
+            return Err(format!("grid: cell_m = {} must be at least {} m", self.cell_m, limits::CELL_M_MIN));
+        }
         let n = 2.0 * self.half_extent_m / self.cell_m;
+        if !(n.is_finite() && n <= limits::GRID_CELLS as f32) {
+            return Err(format!(
+                "grid: half_extent_m = {} and cell_m = {} give {n} cells a side, more than the {} allowed (a \
+                 {}-cell grid needs gigabytes per map)",
+                self.half_extent_m,
+                self.cell_m,
+                limits::GRID_CELLS,
+                limits::GRID_CELLS
+            ));
+        }
+        if !(self.z_min_m.is_finite() && self.z_max_m.is_finite()) {
+            return Err(format!("grid: z_min_m = {} and z_max_m = {} must be finite", self.z_min_m, self.z_max_m));
+        }
+        if self.max_points_per_pillar > limits::POINTS_PER_PILLAR || self.max_pillars > limits::PILLARS {
+            return Err(format!(
+                "grid: max_points_per_pillar = {} (at most {}) and max_pillars = {} (at most {}) size every batch's \
+                 point tensor",
+                self.max_points_per_pillar,
+                limits::POINTS_PER_PILLAR,
+                self.max_pillars,
+                limits::PILLARS
+            ));
+        }
         if !(self.half_extent_m > 0.0 && self.cell_m > 0.0)
             || (n - n.round()).abs() > 1e-3
             || !(n.round() as usize).is_multiple_of(4)

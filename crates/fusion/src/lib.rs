@@ -30,6 +30,7 @@ pub mod fuse;
 pub mod fusion;
 pub mod grid;
 pub mod layout;
+pub mod limits;
 pub mod modules;
 pub mod pillars;
 pub mod presets;

@@ -97,6 +97,13 @@ pub struct Weights {
     pub radar_dense_road_users: f64,
 }
 
+/// The largest weight [`Weights::check`] admits: the objective sums weight × coverage over
+/// thousands of targets in f64 and hands the coefficients to CBC, which aborts past 1e25.
+pub const MAX_WEIGHT: f64 = 1e6;
+
+/// The smallest positive weight, as a share of the largest, that [`Weights::check`] admits.
+pub const MIN_WEIGHT_RATIO: f64 = 1e-9;
+
 /// How many terms the calibrated objective has ([`Weights::named`]).
 pub const N_TERMS: usize = 12;
 
@@ -215,9 +222,10 @@ impl Weights {
     /// Refuses weights that would not keep the objective an IP with capped terms.
     pub fn check(&self) -> Result<(), PlacementError> {
         for (name, v) in self.named() {
-            if !(v.is_finite() && v >= 0.0) {
+            if !(v.is_finite() && (0.0..=MAX_WEIGHT).contains(&v)) {
                 return Err(PlacementError::Invalid(format!(
-                    "placement.calibration.{name} = {v}: a weight must be finite and ≥ 0"
+                    "placement.calibration.{name} = {v:e}: a weight must be in [0, {MAX_WEIGHT:e}] (only the weights' \
+                     ratios matter; fitted ones are mAP per unit of coverage, well below 1)"
                 )));
             }
         }
@@ -226,7 +234,21 @@ impl Weights {
                 "placement.calibration: every weight is 0; nothing to maximise".into(),
             ));
         }
+        // One IP weighs every term against the largest: a term below this share of it is
+        // within the solver's tolerances of nothing, and would be dropped without a word.
+        let largest = self.largest();
+        if let Some((name, v)) = self.named().into_iter().find(|&(_, v)| v > 0.0 && v < largest * MIN_WEIGHT_RATIO) {
+            return Err(PlacementError::Invalid(format!(
+                "placement.calibration.{name} = {v:e} is less than {MIN_WEIGHT_RATIO:e} of the largest weight \
+                 ({largest:e}); the solver cannot tell it from 0: set it to 0, or bring the weights closer"
+            )));
+        }
         Ok(())
+    }
+
+    /// The largest weight (the scale the IP divides every weight by).
+    pub fn largest(&self) -> f64 {
+        self.named().into_iter().map(|(_, v)| v).fold(0.0, f64::max)
     }
 }
 
@@ -348,15 +370,18 @@ fn cbc(
             cols[m][j as usize].push((o, coverage_coef(v as f64) / tau));
         }
     }
-    // (variable, objective coefficient, term's index, target)
+    // (variable, objective coefficient, term's index, target). The weights enter divided by
+    // the largest: the argmax is the same, and CBC's coefficients stay in its range however
+    // large the weights are (CBC aborts past 1e25 and loses the smaller terms long before).
     let terms = w.terms();
+    let scale = w.largest();
     let mut z: Vec<(Variable, f64, usize, usize)> = Vec::new();
     for (ti, t) in terms.iter().enumerate().filter(|(_, t)| t.weight > 0.0) {
         let m = usize::from(t.modality == Modality::Radar);
         let (wt, total) = (t.targets(inst), t.total(inst));
         for (j, col) in cols[m].iter().enumerate() {
             if !col.is_empty() && wt[j] > 0.0 {
-                z.push((vars.add(variable().min(0.0).max(1.0)), t.weight * wt[j] / total, ti, j));
+                z.push((vars.add(variable().min(0.0).max(1.0)), t.weight / scale * wt[j] / total, ti, j));
             }
         }
     }
@@ -386,7 +411,7 @@ fn cbc(
         inst,
         selection,
         w,
-        if bound.is_finite() { bound } else { f64::INFINITY },
+        if bound.is_finite() { bound * scale } else { f64::INFINITY },
         proven,
         start,
         "CBC, calibrated objective",
@@ -599,6 +624,14 @@ mod tests {
         assert!(Weights { radar_two_views: -0.1, ..Weights::once(1.0, 0.0) }.check().is_err());
         assert!(Weights { lidar_dense: f64::NAN, ..Weights::once(1.0, 0.0) }.check().is_err());
         assert!(Weights::default().check().is_err());
+        // Magnitudes CBC cannot take (it aborts past 1e25), and terms it cannot tell from 0.
+        for big in [1e20, 1e308, f64::INFINITY] {
+            let e = Weights::once(big, 1.0).check().unwrap_err().to_string();
+            assert!(e.contains("placement.calibration.lidar") && e.contains("1e6"), "{e}");
+        }
+        let e = Weights::once(1.0, 1e-12).check().unwrap_err().to_string();
+        assert!(e.contains("placement.calibration.radar") && e.contains("1e-9"), "{e}");
+        Weights::once(MAX_WEIGHT, MAX_WEIGHT * MIN_WEIGHT_RATIO).check().unwrap();
     }
 
     /// The names a study file uses, the values and the terms line up: each field set alone
