@@ -1,5 +1,6 @@
 //! No panic on any input: every reader of a user's file (study, scene and catalog TOML,
-//! placement, results and ground-truth JSON, point files) gets 10,000 mutations of a valid
+//! placement, results and ground-truth JSON, point files, OBJ and glTF meshes, a validation's
+//! `validation.json`) gets 10,000 mutations of a valid
 //! document (characters replaced, inserted and deleted, among them quotes, brackets, a byte-order
 //! mark, typographic quotes and multi-byte letters) and must return a value or an error.
 
@@ -91,6 +92,68 @@ fn placement() -> String {
     .unwrap()
 }
 
+const CUBE_OBJ: &str = "o cube\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\nmtllib cube.mtl\nusemtl a\n";
+
+/// One triangle, (0,0,0), (1,0,0), (0,1,0), indexed, its buffer embedded as base64.
+const TRIANGLE_GLTF: &str = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],
+"nodes":[{"mesh":0,"translation":[10.0,0.0,0.0]}],
+"meshes":[{"primitives":[{"attributes":{"POSITION":0},"indices":1}]}],
+"buffers":[{"byteLength":42,"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAABAAIA"}],
+"bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":36},{"buffer":0,"byteOffset":36,"byteLength":6}],
+"accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0.0,0.0,0.0],"max":[1.0,1.0,0.0]},
+{"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}]}"#;
+
+/// A finished validation's record of three placements, as `hilo validate` writes it.
+fn validation_json() -> String {
+    use hilo::study::validation::{Trained, ValidationReport, ValidationSettings, set::Member};
+    let placement: hilo::placement::Placement = serde_json::from_str(&placement()).unwrap();
+    let agreement = hilo::study::rank::Agreement { value: 0.5, lo: 0.1, hi: 0.9, n: 3 };
+    let members = (0..3)
+        .map(|i| {
+            let map = 0.2 + 0.1 * i as f64;
+            let m = Member {
+                slug: format!("m{i}-random-a"),
+                kind: "random".into(),
+                configuration: "a".into(),
+                placement: placement.clone(),
+                predictors: [("LiDAR coverage (saturated)".to_owned(), Some(map))].into(),
+            };
+            let t = Trained {
+                preset: "centerpoint".into(),
+                map: vec![map],
+                map_mean: map,
+                map_at_b: vec![map],
+                map_at_b_mean: map,
+                pedestrian_ap_mean: map,
+                class_ap: [("car".to_owned(), map)].into(),
+                map_replicates: vec![map; 4],
+                pedestrian_replicates: vec![map; 4],
+                train_s: 1.0,
+            };
+            (m, t)
+        })
+        .collect();
+    serde_json::to_string(&ValidationReport {
+        study: "s.toml".into(),
+        profile: "tiny".into(),
+        settings: ValidationSettings::default(),
+        provenance: hilo::study::plan::Provenance::here(1),
+        validation_scenes: 2,
+        resamples: 4,
+        members,
+        predictors: Vec::new(),
+        budget_spearman: agreement,
+        budget_kendall: agreement,
+        seed_spearman: None,
+        calibrated: None,
+        recommendation: None,
+        transfer: None,
+        seconds: 1.0,
+    })
+    .unwrap()
+}
+
 fn config() -> ProptestConfig {
     ProptestConfig { cases: CASES, failure_persistence: None, ..ProptestConfig::default() }
 }
@@ -130,6 +193,20 @@ proptest! {
     }
 
     #[test]
+    fn obj_and_gltf_meshes_never_panic(e in edits()) {
+        let p = Path::new("fuzz-mesh");
+        let _ = hilo::raycast::scene::import::parse_obj(mutate(CUBE_OBJ, &e).as_bytes(), p);
+        let _ = hilo::raycast::scene::import::parse_gltf(mutate(TRIANGLE_GLTF, &e).as_bytes(), p);
+    }
+
+    #[test]
+    fn validation_json_never_panics(e in edits()) {
+        thread_local!(static DOC: String = validation_json());
+        let text = DOC.with(|d| mutate(d, &e));
+        let _ = hilo::study::validation::parse_report(&text, Path::new("validation.json"));
+    }
+
+    #[test]
     fn point_files_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..64), at in any::<usize>(), cut in any::<bool>()) {
         use hilo::core::RadarPoint;
         use hilo::sensors::export::{from_nuscenes_radar_pcd, from_pcd, to_nuscenes_radar_pcd, to_pcd};
@@ -142,4 +219,13 @@ proptest! {
             let _ = from_pcd::<RadarPoint>(&doc, Path::new("fuzz.pcd"));
         }
     }
+}
+
+/// The documents the fuzzing starts from are valid: the mutations explore near real input.
+#[test]
+fn the_fuzzed_documents_parse_unmutated() {
+    let p = Path::new("seed");
+    assert_eq!(hilo::raycast::scene::import::parse_obj(CUBE_OBJ.as_bytes(), p).unwrap().triangles.len(), 12);
+    assert_eq!(hilo::raycast::scene::import::parse_gltf(TRIANGLE_GLTF.as_bytes(), p).unwrap().triangles.len(), 1);
+    assert_eq!(hilo::study::validation::parse_report(&validation_json(), p).unwrap().members.len(), 3);
 }

@@ -1,6 +1,6 @@
 //! `hilo eval`: nuScenes detection metrics of a submission against ground truth.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use hilo_eval::{DetectionConfig, check_sample_set, evaluate_files, read_ground_truth, read_submission};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -41,7 +41,11 @@ pub struct EvalArgs {
 
 pub fn run(args: &EvalArgs) -> Result<()> {
     let cfg: DetectionConfig = match &args.config {
-        Some(p) => hilo_core::fs::read_json(p, hilo_core::fs::limit::CONFIG)?,
+        Some(p) => {
+            let cfg: DetectionConfig = hilo_core::fs::read_json(p, hilo_core::fs::limit::CONFIG)?;
+            cfg.check().map_err(|m| anyhow::anyhow!("{}: {m}", p.display()))?;
+            cfg
+        }
         None => DetectionConfig::default(),
     };
     let gt = match (&args.data, &args.gt) {
@@ -73,7 +77,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         None => None,
     };
     let m = evaluate_files(&gt, &pred, &cfg);
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let _claim = hilo_core::folder::claim(&args.out, hilo_core::folder::Mode::Exclusive)?;
     hilo_core::fs::write_json(&args.out.join("metrics_summary.json"), &m)?;
     let bins = hilo_eval::metrics_by_distance(&gt, &pred, &cfg);
     let by_distance: BTreeMap<&str, &hilo_eval::BinMetrics> = bins.iter().map(|(l, m)| (l.as_str(), m)).collect();

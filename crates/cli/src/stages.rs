@@ -46,6 +46,8 @@ pub struct PlaceArgs {
 
 pub fn place(args: &PlaceArgs) -> Result<Vec<Placement>> {
     let study = load_study(args.study.as_deref())?;
+    // Held from before the visibility work, so a second run on the folder is refused at once.
+    let _claim = hilo_core::folder::claim(&args.out, hilo_core::folder::Mode::Exclusive)?;
     eprintln!(
         "placement: computing visibility of {} sensor types on {}",
         study.type_names().len(),
@@ -60,6 +62,7 @@ pub fn place(args: &PlaceArgs) -> Result<Vec<Placement>> {
         prep.seconds_visibility
     );
     if let Some(dir) = &args.export {
+        let _claim = hilo_core::folder::claim(dir, hilo_core::folder::Mode::Exclusive)?;
         hilo_study::place::export(&study, &prep, dir)?;
     }
     let placed = place_all(&study, prep, &mut |line| eprintln!("  {line}"))?;
@@ -132,11 +135,13 @@ pub fn simulate(args: &SimulateArgs) -> Result<()> {
     if let Some(s) = args.seed {
         cfg.seed = s;
     }
+    let cfg = cfg.validate()?;
+    let _claim = hilo_core::folder::claim(&args.out, hilo_core::folder::Mode::Exclusive)?;
     let summary = write_dataset(
         &study,
         &placement,
         &args.placement,
-        &cfg.validate()?,
+        &cfg,
         &args.out,
         &args.version,
         &format!("simulating {}", placement.name),

@@ -161,11 +161,34 @@ fn one_study(
     }
 }
 
+/// Claims a study's or validation's folder for this process (see `hilo_core::folder`): a whole
+/// run holds it alone; a stage, as a workflow engine runs several side by side, shares it (the
+/// dataset, training run or placements a stage writes are claimed alone below it). A command
+/// that only reads the folder claims nothing.
+fn claim(out: &Path, whole: bool) -> Result<hilo_core::folder::Claim> {
+    use hilo_core::folder::Mode;
+    Ok(hilo_core::folder::claim(out, if whole { Mode::Exclusive } else { Mode::Shared })?)
+}
+
 pub fn study(args: &StudyArgs) -> Result<()> {
     let registry = crate::train::registry()?;
     let mut reporter = Reporter::new();
+    // A stage works in a study folder that exists (one that does not is named by the stage's
+    // own error, with nothing created).
+    let _claim = match &args.stage {
+        None | Some(StageCommand::Plan(_)) => None,
+        Some(
+            StageCommand::Place(a)
+            | StageCommand::Simulate { args: a, .. }
+            | StageCommand::Train { args: a, .. }
+            | StageCommand::Report(a)
+            | StageCommand::Compare(a),
+        ) => a.out.exists().then(|| claim(&a.out, false)).transpose()?,
+    };
     let Some(stage) = &args.stage else {
-        let sweep = match load(args.study.as_deref())? {
+        let loaded = load(args.study.as_deref())?;
+        let _claim = claim(&args.out, true)?;
+        let sweep = match loaded {
             Loaded::Study(study) => return one_study(args, &study, &registry, &mut reporter),
             Loaded::Sweep(sweep) => sweep,
         };
@@ -364,7 +387,12 @@ fn validation_stage(args: &ValidateArgs) -> Result<()> {
 
 /// `hilo validate`: does the placement objective predict trained accuracy?
 pub fn validate(args: &ValidateArgs) -> Result<()> {
-    if args.simulate.is_some() || args.train.is_some() || args.resume {
+    let stage = args.simulate.is_some() || args.train.is_some();
+    let in_folder = stage || args.resume || args.transfer.is_some() || args.refit || args.recommend || args.absorb;
+    // What works in a finished (or started) validation claims it when it exists; a new
+    // validation claims its folder once the study has loaded.
+    let _claim = if in_folder { args.out.exists().then(|| claim(&args.out, !stage)).transpose()? } else { None };
+    if stage || args.resume {
         return validation_stage(args);
     }
     if let Some(source) = args.transfer.as_deref().filter(|_| !args.refit && !args.recommend && !args.absorb) {
@@ -416,6 +444,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     if let Some(n) = args.samples {
         settings.samples = n;
     }
+    let _claim = claim(&args.out, true)?;
     let mut reporter = Reporter::new();
     match args.workflow.as_deref() {
         None => {}

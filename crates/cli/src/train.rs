@@ -100,6 +100,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     }
     let cfg = cfg.validate().context("--batch, --samples or the training schedule")?;
     let det = det.validate()?;
+    det.check_memory(cfg.batch, hilo_detector::config::machine_memory_bytes())?;
+    // Held from before the data is loaded, so a second training of the folder is refused at once.
+    let _claim = hilo_core::folder::claim(&args.out, hilo_core::folder::Mode::Exclusive)?;
     hilo_detector::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;
     let background = hilo_detector::train::learn_background(&ds, &args.split, &det.input).with_context(|| {
         format!("{}: learning the static background of split {:?}", args.data.display(), args.split)
@@ -137,18 +140,25 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
             cfg.replicas
         );
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut bar = crate::progress::Reporter::new();
     let label = format!("train {}", det.name);
     let steps = cfg.steps();
     let log_path = args.out.join("loss.jsonl");
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(&log_path)
-        .with_context(|| format!("opening {}", log_path.display()))?;
+    // Opened at the first step, once the training holds the run folder (one writer, no links in
+    // it: see hilo_core::folder), so a refused run appends nothing.
+    let mut log: Option<std::fs::File> = None;
+    let mut log_error: Option<anyhow::Error> = None;
     let mut warned = false;
     let mut on_step = |r: &StepReport| {
+        if log.is_none() {
+            match std::fs::OpenOptions::new().create(true).append(true).open(&log_path) {
+                Ok(f) => log = Some(f),
+                Err(e) => {
+                    log_error = Some(anyhow::Error::new(e).context(format!("opening {}", log_path.display())));
+                    return false;
+                }
+            }
+        }
         bar.task(&label, r.step, steps, "steps");
         bar.message(format!(
             "{} loss {:.3} (cls {:.3}, reg {:.3}) {:.1} samples/s",
@@ -161,6 +171,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
                 r.step, r.dropped_pillars
             ));
         }
+        let Some(log) = log.as_mut() else { return false };
         let _ = writeln!(
             log,
             "{}",
@@ -179,6 +190,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         &mut on_step,
     )
     .with_context(|| format!("training {} in {}", det.name, args.out.display()))?;
+    if let Some(e) = log_error {
+        return Err(e);
+    }
     bar.finish();
     eprintln!(
         "trained {} on {} frames: {} steps, {} samples in {:.1} s ({} points over the pillar cap left out); weights in {}",

@@ -116,6 +116,37 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     let kept = again["members"].as_array().unwrap();
     assert_eq!(kept.len(), n + 1);
     assert_eq!((&kept[n][0]["slug"], &kept[n][1]), (&grown[n][0]["slug"], &grown[n][1]));
+    refuses_what_would_fit_the_wrong_thing(&study, &out);
+}
+
+/// On a finished validation: a transfer from the folder's own file (or a copy) would be scored
+/// in-sample, a refit with another study's traffic would fit predictors the trainings never
+/// saw, and an accuracy edited past 1 would be fitted as if trained. Each is refused with the
+/// file and field named, and nothing in the folder changes.
+fn refuses_what_would_fit_the_wrong_thing(study: &std::path::Path, out: &std::path::Path) {
+    let before = std::fs::read(out.join("validation.json")).unwrap();
+    let refused = |extra: &[&std::ffi::OsStr], study: &std::path::Path, want: &[&str]| {
+        let o = hilo().arg("validate").arg(study).arg("--out").arg(out).args(extra).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "accepted: {err}");
+        for w in want {
+            assert!(err.contains(w), "{err:?} lacks {w:?}");
+        }
+        assert_eq!(std::fs::read(out.join("validation.json")).unwrap(), before, "validation.json unchanged");
+    };
+    let own = out.join("validation.json");
+    let copy = out.parent().unwrap().join("copy.json");
+    std::fs::copy(&own, &copy).unwrap();
+    for source in [&own, &copy] {
+        refused(&["--transfer".as_ref(), source.as_os_str()], study, &["same placements and trainings"]);
+    }
+    let other = out.parent().unwrap().join("other-traffic.toml");
+    std::fs::write(&other, format!("{COARSE}\n[dataset]\nseed = 99\n")).unwrap();
+    refused(&["--refit".as_ref()], &other, &["other-traffic.toml", "is not the one validated there"]);
+    let mut edited = json(&own);
+    edited["members"][3][1]["map_mean"] = 7.5.into();
+    std::fs::write(&copy, serde_json::to_vec(&edited).unwrap()).unwrap();
+    refused(&["--transfer".as_ref(), copy.as_os_str()], study, &["copy.json", "map_mean = 7.5", "[0, 1]"]);
 }
 
 /// Drops what measures time (`seconds`, `*_s`, `*_seconds`): it differs between any two runs.

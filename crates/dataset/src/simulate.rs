@@ -481,7 +481,9 @@ fn parts_dir(root: &std::path::Path) -> std::path::PathBuf {
 /// Simulates every scene of `cfg` for `rig` and writes the dataset under `root` in the nuScenes
 /// layout (`version` folder for the tables). Resumable: each finished scene's rows are kept in
 /// `<root>/.hilo/parts/`, so a rerun after an interruption simulates only the missing scenes
-/// (bit-identical, as the seeds are per scene). A folder made with other settings is refused.
+/// (bit-identical, as the seeds are per scene). A folder made with other settings is refused, and
+/// so is one that another run is writing or that holds a symbolic link
+/// ([`hilo_core::folder::claim`]).
 /// `progress` is called with the frames finished so far (resumed ones included).
 #[allow(clippy::too_many_arguments)]
 pub fn write_dataset(
@@ -497,11 +499,13 @@ pub fn write_dataset(
     use crate::writer::{DatasetWriter, SensorModality, SensorSetup, token};
     use hilo_core::fs::write_atomic;
     let t0 = std::time::Instant::now();
+    crate::reader::check_version(version)?;
+    // One writer, and no link inside that would send the tables or points elsewhere.
+    let _claim = hilo_core::folder::claim(root, hilo_core::folder::Mode::Exclusive)?;
     let fingerprint =
         token(&[&format!("{cfg:?}"), &format!("{rig:?}"), &format!("{:?}", scene.config), version, namespace]);
     let run_path = root.join(RUN_FILE);
     let run = serde_json::json!({ "fingerprint": fingerprint, "namespace": namespace, "version": version, "scenes": cfg.scenes });
-    crate::reader::check_version(version)?;
     match hilo_core::fs::read_bounded(&run_path, hilo_core::fs::limit::CONFIG) {
         Ok(bytes) => {
             let old: serde_json::Value = serde_json::from_slice(&bytes)

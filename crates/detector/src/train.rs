@@ -654,7 +654,8 @@ pub fn train(
     }
     let paste = paste_db(frames, cfg)?;
     let mut det = Detector::new(det_cfg, registry, device, cfg.seed)?;
-    std::fs::create_dir_all(run).map_err(|e| hilo_core::fs::FileError::io(run, e))?;
+    // One training per run folder, and no link inside it (the checkpoints would land elsewhere).
+    let _claim = hilo_core::folder::claim(run, hilo_core::folder::Mode::Exclusive)?;
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let mut info = RunInfo {
         detector: (**det_cfg).clone(),

@@ -253,12 +253,48 @@ pub fn coverage_png(
 }
 
 /// Writes `<dir>/<slug>.json` and `<slug>.png` for every placement.
+///
+/// The folder is claimed for the write ([`hilo_core::folder::claim`]: one writer, no links
+/// inside), and a file of the same name that hilo did not write (a JSON that is not a placement,
+/// a PNG whose placement is not beside it) is refused before anything is written.
 pub fn write_placements(study: &Study, placed: &Placed, dir: &std::path::Path) -> Result<()> {
+    let _claim = hilo_core::folder::claim(dir, hilo_core::folder::Mode::Exclusive)?;
+    for p in &placed.placements {
+        let slug = crate::study::slug(&p.name);
+        refuse_foreign(&dir.join(format!("{slug}.json")), &dir.join(format!("{slug}.png")))?;
+    }
     for (i, p) in placed.placements.iter().enumerate() {
         let slug = crate::study::slug(&p.name);
         hilo_core::fs::write_atomic(&dir.join(format!("{slug}.json")), p.to_json()?.as_bytes())?;
         let png = coverage_png(study, &placed.prepared, p, &placed.lidar_hits[i], &placed.radar_covered[i])?;
         hilo_core::fs::write_atomic(&dir.join(format!("{slug}.png")), &png)?;
+    }
+    Ok(())
+}
+
+/// Refuses to replace `json` or `png` unless hilo wrote them: the JSON must read as a
+/// placement, and the PNG must be a PNG beside such a JSON.
+fn refuse_foreign(json: &std::path::Path, png: &std::path::Path) -> Result<()> {
+    let foreign = |path: &std::path::Path, what: &str| {
+        StudyError::Invalid(format!(
+            "{} exists and is not {what} hilo wrote; hilo does not replace another program's files: move it, or \
+             choose another output folder",
+            path.display()
+        ))
+    };
+    let ours = match std::fs::symlink_metadata(json) {
+        Err(_) => false,
+        Ok(_) => match Placement::load(json) {
+            Ok(_) => true,
+            Err(_) => return Err(foreign(json, "a placement")),
+        },
+    };
+    if std::fs::symlink_metadata(png).is_ok() {
+        let magic = hilo_core::fs::read_bounded(png, hilo_core::fs::limit::TABLE)
+            .is_ok_and(|b| b.starts_with(b"\x89PNG\r\n\x1a\n"));
+        if !(ours && magic) {
+            return Err(foreign(png, "a coverage map"));
+        }
     }
     Ok(())
 }

@@ -334,6 +334,8 @@ impl Plan {
                     let points = format!("budget curve {curve:?}");
                     let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule, &points]);
                     let name = format!("{preset}-seed{seed}-{}", short(&h));
+                    let detector = detector_cfg.clone().validate()?;
+                    detector.check_memory(tc.batch, hilo_detector::config::machine_memory_bytes())?;
                     jobs.push(Job {
                         id: format!("{}/{preset}-seed{seed}", conf.slug()),
                         configuration: ci,
@@ -341,7 +343,7 @@ impl Plan {
                         seed,
                         run: out.join("runs").join(conf.slug()).join(&name),
                         results: out.join("results").join(conf.slug()).join(format!("{name}.json")),
-                        detector: detector_cfg.clone().validate()?,
+                        detector,
                         train: tc.validate()?,
                         curve,
                         curve_kind: CurveKind::Budget,

@@ -158,6 +158,13 @@ impl EvaluationSettings {
             }
         }
         let b = &self.range_bins_m;
+        if b.len() > MAX_RANGE_BINS + 1 {
+            return Err(format!(
+                "evaluation.range_bins_m has {} edges: at most {} (each bin is scored for every detector and seed)",
+                b.len(),
+                MAX_RANGE_BINS + 1
+            ));
+        }
         if b.len() < 2 || !b.iter().all(|e| e.is_finite()) || b[0] < 0.0 || b.windows(2).any(|w| w[1] <= w[0]) {
             return Err(format!(
                 "evaluation.range_bins_m = {b:?}: needs at least two finite edges, from 0 m or more, increasing"
@@ -166,6 +173,9 @@ impl EvaluationSettings {
         Ok(())
     }
 }
+
+/// The most range bins a study's `[evaluation]` may ask for.
+pub const MAX_RANGE_BINS: usize = 64;
 
 /// The `[verdict]` section of a study file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -260,6 +270,16 @@ pub struct Study {
     pub shard: Option<String>,
 }
 
+/// The first float in `v` that is NaN or infinite, with its dotted path under `at`.
+fn non_finite(v: &toml::Value, at: &str) -> Option<(String, f64)> {
+    match v {
+        toml::Value::Float(x) if !x.is_finite() => Some((at.to_string(), *x)),
+        toml::Value::Table(t) => t.iter().find_map(|(k, v)| non_finite(v, &format!("{at}.{k}"))),
+        toml::Value::Array(a) => a.iter().enumerate().find_map(|(i, v)| non_finite(v, &format!("{at}[{i}]"))),
+        _ => None,
+    }
+}
+
 impl Study {
     /// Reads a study file.
     pub fn load(path: &Path) -> Result<Study> {
@@ -280,6 +300,18 @@ impl Study {
                     "`{key}` lists several; this file is a sweep of studies: load it with `hilo study` (hilo_study::sweep::load)"
                 ),
             }));
+        }
+        // JSON has no NaN or infinity: serde would turn one into `null`, which a merge patch
+        // reads as "remove the field", so the preset's value would be used without a word.
+        if let Ok(table) = toml::from_str::<toml::Table>(text) {
+            for key in ["detector_patch", "train_schedule"] {
+                if let Some((field, v)) = table.get(key).and_then(|v| non_finite(v, key)) {
+                    return Err(StudyError::from(hilo_core::fs::FileError::Content {
+                        path: PathBuf::from(source),
+                        message: format!("{field} = {v}: must be a finite number"),
+                    }));
+                }
+            }
         }
         let file: StudyFile = toml::from_str(text).map_err(|e| {
             StudyError::from(hilo_core::fs::FileError::Content {

@@ -56,7 +56,7 @@ use crate::rank::{Agreement, agreement};
 use crate::stages::{Predictions, Progress};
 use crate::stats::scene_draws;
 use crate::study::Study;
-use hilo_core::fs::{limit, read_json, write_json};
+use hilo_core::fs::{FileError, limit, read_json, write_json};
 use hilo_detector::Registry;
 use hilo_detector::train::TrainConfig;
 use hilo_eval::DetectionConfig;
@@ -115,8 +115,10 @@ impl ValidationSettings {
         if !(1..=20).contains(&self.seeds) {
             return Err(bad(format!("seeds = {}: give 1 to 20", self.seeds)));
         }
-        if self.samples < 2 {
-            return Err(bad(format!("samples = {}: give at least 2", self.samples)));
+        // Detectors train to 2b: b is bounded so that 2b is a schedule (and cannot overflow).
+        let most = hilo_detector::config::limits::SAMPLES / 2;
+        if !(2..=most).contains(&self.samples) {
+            return Err(bad(format!("samples = {}: give 2 to {most}", self.samples)));
         }
         if self.min_points == 0 {
             return Err(bad("min_points = 0: give at least 1".into()));
@@ -126,6 +128,14 @@ impl ValidationSettings {
         }
         if registry.uses_radar(&registry.preset(&self.lidar_preset)?.detector) {
             return Err(bad(format!("lidar_preset = {:?} needs a radar", self.lidar_preset)));
+        }
+        // The fusion preset is what rigs with a radar train: one that reads no radar would score
+        // them without it.
+        if !registry.uses_radar(&registry.preset(&self.fusion_preset)?.detector) {
+            return Err(bad(format!(
+                "fusion_preset = {:?} reads no radar; give a preset that fuses LiDAR and radar (e.g. \"lirafusion-like\")",
+                self.fusion_preset
+            )));
         }
         Ok(())
     }
@@ -283,17 +293,10 @@ impl ValidationPlan {
     }
 }
 
-/// Claims `out` for the validation of `study` at the scale of `profile`, draws (or reads) its
-/// placement set and names every stage.
-pub fn plan(
-    study: &Study,
-    registry: &Registry,
-    profile: &Profile,
-    settings: &ValidationSettings,
-    out: &Path,
-    progress: &mut (dyn FnMut(Progress) + Send),
-) -> Result<ValidationPlan> {
-    settings.check(registry, &study.source)?;
+/// What defines the validation of `study` at `profile` with `settings`: the study's defining
+/// sections as text (what the placement set depends on), and the fingerprint of all of it
+/// with the scene and catalog.
+fn fingerprint(study: &Study, profile: &Profile, settings: &ValidationSettings) -> Result<(String, String)> {
     let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
     // The study's weather conditions are no part of the validation (its placements are recorded
     // in the study's own weather), so a profile that runs them defines the same validation.
@@ -310,6 +313,42 @@ pub fn plan(
         trains.push_str(&format!(" train_schedule: {t:?}"));
     }
     let fingerprint = hash(&[&format!("{defining}{trains}"), &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
+    Ok((defining, fingerprint))
+}
+
+/// Refuses `study` for work on the finished validation in `out` (`--refit`, `--absorb`) unless
+/// it is the study validated there: its scene, catalog, placement, traffic, configurations and
+/// training sections, under the recorded profile and settings. Another study's predictors
+/// would be fitted against trainings they did not produce.
+fn check_same_study(study: &Study, out: &Path) -> Result<()> {
+    let r: FolderRecord = read_json(&out.join("validation-folder.json"), limit::TABLE)?;
+    let (Some(profile), Some(settings)) = (&r.profile, &r.settings) else { return Ok(()) };
+    if fingerprint(study, profile, settings)?.1 != r.fingerprint {
+        return Err(StudyError::Invalid(format!(
+            "{}: the study given ({}) is not the one validated there ({}): its scene, catalog, placement, \
+             [dataset] traffic, configurations or training sections differ; give the validated study, or \
+             validate this one in another folder",
+            out.display(),
+            study.source,
+            r.study
+        )));
+    }
+    Ok(())
+}
+
+/// Claims `out` for the validation of `study` at the scale of `profile`, draws (or reads) its
+/// placement set and names every stage.
+pub fn plan(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    settings: &ValidationSettings,
+    out: &Path,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<ValidationPlan> {
+    settings.check(registry, &study.source)?;
+    let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
+    let (defining, fingerprint) = fingerprint(study, profile, settings)?;
     claim(out, &fingerprint, study, profile, settings)?;
     // 1. The set.
     let set_hash = stage_hash("validation-set", &[&defining, &sjson, &study.scene_hash, &study.catalog_hash]);
@@ -471,6 +510,8 @@ fn jobs(
             let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
             let h = stage_hash("run", &[&data[mi].hash, &detector, &schedule]);
             let name = format!("{preset}-seed{seed}-{}", short(&h));
+            let detector = detector_cfg.clone().validate()?;
+            detector.check_memory(tc.batch, hilo_detector::config::machine_memory_bytes())?;
             jobs.push(Job {
                 id: format!("{}/{preset}-seed{seed}", m.slug),
                 configuration: mi,
@@ -478,7 +519,7 @@ fn jobs(
                 seed,
                 run: out.join("runs").join(&m.slug).join(&name),
                 results: out.join("results").join(&m.slug).join(format!("{name}.json")),
-                detector: detector_cfg.clone().validate()?,
+                detector,
                 train: tc.validate()?,
                 // A snapshot, not a training of b samples of its own: the rank check at b is
                 // free, and is read as "does the ranking hold on from mid-run" (see `CurveKind`).
@@ -685,6 +726,7 @@ fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, A
 /// validation run by an older build gains the predictors added since) and fits the calibrated
 /// objective again: no simulation, no training.
 pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
+    check_same_study(study, out)?;
     refit_report(study, read(out)?)
 }
 
@@ -718,6 +760,7 @@ fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationRepo
 /// (its placement, dataset and trainings in `recommendation/`, `data/`, `runs/`), and a rerun of
 /// the validation keeps it. An error when no recommendation was trained.
 pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {
+    check_same_study(study, out)?;
     let mut r = read(out)?;
     let Some(rec) = r.recommendation.take() else {
         return Err(StudyError::Invalid(format!(
@@ -747,13 +790,52 @@ fn absorbed(study: &Study, out: &Path, settings: &ValidationSettings, drawn: usi
 
 /// Reads `<out>/validation.json`, a finished validation's record.
 pub fn read(out: &Path) -> Result<ValidationReport> {
-    Ok(read_json(&out.join("validation.json"), limit::TABLE)?)
+    read_report(&out.join("validation.json"))
+}
+
+/// Reads a `validation.json` and refuses accuracies no detector can have (a share outside
+/// [0, 1], or not a number), naming the member and the field: a fit on them would be fitted to
+/// an edit, not to a training.
+fn read_report(path: &Path) -> Result<ValidationReport> {
+    let text = hilo_core::fs::read_text_bounded(path, limit::TABLE).map_err(|e| FileError::io(path, e))?;
+    parse_report(&text, path)
+}
+
+/// [`read_report`] of text already read; `path` names it in errors.
+pub fn parse_report(text: &str, path: &Path) -> Result<ValidationReport> {
+    let r: ValidationReport = serde_json::from_str(text).map_err(|e| FileError::content(path, e))?;
+    for (m, t) in &r.members {
+        let shares = t.map.iter().chain(&t.map_at_b).map(|v| ("map", *v)).chain([
+            ("map_mean", t.map_mean),
+            ("map_at_b_mean", t.map_at_b_mean),
+            ("pedestrian_ap_mean", t.pedestrian_ap_mean),
+        ]);
+        let classes = t.class_ap.iter().map(|(c, v)| (c.as_str(), *v));
+        if let Some((field, v)) = shares.chain(classes).find(|(_, v)| !(0.0..=1.0).contains(v)) {
+            return Err(StudyError::from(FileError::content(
+                path,
+                format!("member {:?}: {field} = {v} is not an accuracy in [0, 1]", m.slug),
+            )));
+        }
+    }
+    Ok(r)
 }
 
 /// Scores the validation `r` with the calibrated objective of the finished validation in
-/// `source` (a `validation.json`), its weights frozen ([`calibrate::transfer`]).
+/// `source` (a `validation.json`), its weights frozen ([`calibrate::transfer`]). A source that
+/// is the same set (this folder's own file, or a copy of it) is refused: its fit has seen
+/// every placement, so the score would be in-sample, not a transfer.
 pub fn transfer(r: &ValidationReport, source: &Path) -> Result<calibrate::Transfer> {
-    let src: ValidationReport = read_json(source, limit::TABLE)?;
+    let src = read_report(source)?;
+    let same_members = src.members.len() == r.members.len()
+        && src.members.iter().zip(&r.members).all(|((a, ta), (b, tb))| a.slug == b.slug && ta == tb);
+    if same_members {
+        return Err(StudyError::Invalid(format!(
+            "{}: holds the same placements and trainings as this validation; a transfer scores a fit on a set it \
+             never saw, so give another validation's validation.json",
+            source.display()
+        )));
+    }
     calibrate::transfer(&src, r, &source.display().to_string())
         .map_err(|e| StudyError::Invalid(format!("{}: {e}", source.display())))
 }
