@@ -115,7 +115,13 @@ pub fn refuse_links(dir: &Path) -> Result<(), FileError> {
         };
         for entry in entries {
             let entry = entry.map_err(|e| FileError::io(&d, e))?;
-            let t = entry.file_type().map_err(|e| FileError::io(&entry.path(), e))?;
+            // Stages of one study write beside each other while one claims: an entry renamed
+            // away between the listing and its look-up is no link.
+            let t = match entry.file_type() {
+                Ok(t) => t,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+                Err(e) => return Err(FileError::io(&entry.path(), e)),
+            };
             if t.is_symlink() {
                 return Err(FileError::content(
                     &entry.path(),

@@ -270,6 +270,21 @@ pub struct Study {
     pub shard: Option<String>,
 }
 
+/// Refuses a NaN or infinity in a study file's `[detector_patch]` or `[train_schedule]`. JSON
+/// has none: serde would turn one into `null`, which a merge patch reads as "remove the field",
+/// so the preset's value would be used without a word.
+pub(crate) fn refuse_non_finite(table: &toml::Table, source: &str) -> Result<()> {
+    for key in ["detector_patch", "train_schedule"] {
+        if let Some((field, v)) = table.get(key).and_then(|v| non_finite(v, key)) {
+            return Err(StudyError::from(hilo_core::fs::FileError::Content {
+                path: PathBuf::from(source),
+                message: format!("{field} = {v}: must be a finite number"),
+            }));
+        }
+    }
+    Ok(())
+}
+
 /// The first float in `v` that is NaN or infinite, with its dotted path under `at`.
 fn non_finite(v: &toml::Value, at: &str) -> Option<(String, f64)> {
     match v {
@@ -291,27 +306,16 @@ impl Study {
     /// A study from TOML text whose relative paths resolve against `dir` (the embedded default
     /// study passes its text and `.`).
     pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Study> {
-        if let Ok(table) = toml::from_str::<toml::Table>(text)
-            && let Some(key) = LIST_KEYS.iter().chain(&[WEATHERS_KEY]).find(|k| table.contains_key(**k))
-        {
-            return Err(StudyError::from(hilo_core::fs::FileError::Content {
-                path: PathBuf::from(source),
-                message: format!(
-                    "`{key}` lists several; this file is a sweep of studies: load it with `hilo study` (hilo_study::sweep::load)"
-                ),
-            }));
-        }
-        // JSON has no NaN or infinity: serde would turn one into `null`, which a merge patch
-        // reads as "remove the field", so the preset's value would be used without a word.
         if let Ok(table) = toml::from_str::<toml::Table>(text) {
-            for key in ["detector_patch", "train_schedule"] {
-                if let Some((field, v)) = table.get(key).and_then(|v| non_finite(v, key)) {
-                    return Err(StudyError::from(hilo_core::fs::FileError::Content {
-                        path: PathBuf::from(source),
-                        message: format!("{field} = {v}: must be a finite number"),
-                    }));
-                }
+            if let Some(key) = LIST_KEYS.iter().chain(&[WEATHERS_KEY]).find(|k| table.contains_key(**k)) {
+                return Err(StudyError::from(hilo_core::fs::FileError::Content {
+                    path: PathBuf::from(source),
+                    message: format!(
+                        "`{key}` lists several; this file is a sweep of studies: load it with `hilo study` (hilo_study::sweep::load)"
+                    ),
+                }));
             }
+            refuse_non_finite(&table, source)?;
         }
         let file: StudyFile = toml::from_str(text).map_err(|e| {
             StudyError::from(hilo_core::fs::FileError::Content {

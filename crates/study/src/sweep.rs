@@ -62,6 +62,7 @@ pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
     let bad =
         |m: String| StudyError::from(hilo_core::fs::FileError::Content { path: PathBuf::from(source), message: m });
     let mut table: toml::Table = toml::from_str(text).map_err(|e| bad(format!("invalid study: {e}")))?;
+    crate::study::refuse_non_finite(&table, source)?;
     let mut lists = Vec::new();
     for key in LIST_KEYS {
         let single = key.trim_end_matches('s');
@@ -405,6 +406,20 @@ mod tests {
         assert!(s.shards.iter().all(|s| s.study.file.catalog.as_deref() == Some(Path::new("sale.toml"))));
         // Without lists: one study, as before.
         assert!(matches!(parse(CONFIG, d.path(), "study.toml").unwrap(), Loaded::Study(_)));
+    }
+
+    #[test]
+    fn a_non_finite_patch_is_refused_in_a_sweep_as_in_a_study() {
+        let d = folder();
+        for text in [
+            format!("catalogs = [\"a.toml\", \"b.toml\"]\n{CONFIG}[detector_patch]\nvelocity_weight = nan\n"),
+            format!("{CONFIG}[train_schedule]\nlr_max = -inf\n"),
+        ] {
+            let Err(e) = parse(&text, d.path(), "s.toml") else { panic!("accepted: {text}") };
+            let e = e.to_string();
+            assert!(e.contains("s.toml") && e.contains("must be a finite number"), "{e}");
+            assert!(e.contains("detector_patch.velocity_weight = NaN") || e.contains("train_schedule.lr_max = -inf"));
+        }
     }
 
     #[test]
