@@ -1,7 +1,8 @@
 //! Modules inside a crate do not import each other in circles: for every folder of modules
 //! (`src/` of each crate and plugin, and their subfolders), the `crate::` paths of each module's
-//! code (comments and `#[cfg(test)]` modules left out) are its edges, and every strongly
-//! connected component of more than one module is a circle, and fails the test.
+//! code (comments and `#[cfg(test)]` modules left out) are its edges, a folder module counting
+//! the paths of every file inside it, and every strongly connected component of more than one
+//! module is a circle, and fails the test.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -40,22 +41,37 @@ fn edges_of(code: &str) -> BTreeSet<String> {
     out
 }
 
-/// Module name → the modules of the same folder it reaches.
+/// Module name → the modules of the same folder it reaches. A folder module (a subfolder with a
+/// `mod.rs`) is one node whose edges are those of every file inside it, at any depth: a file
+/// deep in `validation/` that reaches `crate::study` is an edge of `validation`.
 fn graph(dir: &Path) -> BTreeMap<String, BTreeSet<String>> {
-    let files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|x| x == "rs"))
-        .collect();
-    let names: BTreeSet<String> = files.iter().map(|p| p.file_stem().unwrap().to_string_lossy().into_owned()).collect();
-    files
-        .iter()
-        .map(|p| {
+    fn edges_below(d: &Path) -> BTreeSet<String> {
+        let mut out = BTreeSet::new();
+        for e in std::fs::read_dir(d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                out.extend(edges_below(&p));
+            } else if p.extension().is_some_and(|x| x == "rs") {
+                out.extend(edges_of(&std::fs::read_to_string(&p).unwrap()));
+            }
+        }
+        out
+    }
+    let mut nodes: Vec<(String, BTreeSet<String>)> = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "rs") {
             let name = p.file_stem().unwrap().to_string_lossy().into_owned();
-            let e = edges_of(&std::fs::read_to_string(p).unwrap())
-                .into_iter()
-                .filter(|m| names.contains(m) && *m != name)
-                .collect();
+            nodes.push((name, edges_of(&std::fs::read_to_string(&p).unwrap())));
+        } else if p.is_dir() && p.join("mod.rs").is_file() {
+            nodes.push((p.file_name().unwrap().to_string_lossy().into_owned(), edges_below(&p)));
+        }
+    }
+    let names: BTreeSet<String> = nodes.iter().map(|(n, _)| n.clone()).collect();
+    nodes
+        .into_iter()
+        .map(|(name, edges)| {
+            let e = edges.into_iter().filter(|m| names.contains(m) && *m != name).collect();
             (name, e)
         })
         .collect()
@@ -179,6 +195,18 @@ fn a_planted_circle_is_found() {
     assert_eq!(circles(&g), BTreeSet::from([vec!["a".to_owned(), "b".to_owned(), "c".to_owned()]]));
     // Cut one edge: no circle.
     std::fs::write(d.path().join("c.rs"), "pub fn f() {}\n").unwrap();
+    assert!(circles(&graph(d.path())).is_empty());
+    // Through a folder module: a file deep inside `v/` reaches `a`, and `a` reaches `v`.
+    std::fs::create_dir_all(d.path().join("v/deep")).unwrap();
+    std::fs::write(d.path().join("v/mod.rs"), "pub mod deep;\npub struct X;\n").unwrap();
+    std::fs::write(d.path().join("v/deep/mod.rs"), "pub fn g() -> crate::a::A { crate::a::A }\n").unwrap();
+    std::fs::write(d.path().join("c.rs"), "pub fn f() -> crate::v::X { crate::v::X }\n").unwrap();
+    assert_eq!(
+        circles(&graph(d.path())),
+        BTreeSet::from([vec!["a".to_owned(), "b".to_owned(), "c".to_owned(), "v".to_owned()]])
+    );
+    // A folder's own paths to itself are no edge.
+    std::fs::write(d.path().join("v/deep/mod.rs"), "pub fn g() -> crate::v::X { crate::v::X }\n").unwrap();
     assert!(circles(&graph(d.path())).is_empty());
 }
 

@@ -66,80 +66,8 @@ use set::Member;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// The `[validation]` section of a study file.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ValidationSettings {
-    /// Placements in the set (at least 10; 30 by default).
-    pub placements: usize,
-    /// Seed of the random and perturbed placements.
-    pub seed: u64,
-    /// Tilts offered to LiDARs and radars (degrees down): tilt is a decision variable here.
-    pub lidar_tilts_deg: Vec<f32>,
-    pub radar_tilts_deg: Vec<f32>,
-    /// The detector trained on rigs without a radar, and the one on rigs with one (they should
-    /// share head and assignment, so the rig is what differs).
-    pub lidar_preset: String,
-    pub fusion_preset: String,
-    /// Trainings per placement.
-    pub seeds: usize,
-    /// The budget b: detectors train to 2b samples and are scored at b and at 2b.
-    pub samples: usize,
-    /// k of the occupancy predictor: a road user counts when hit by at least k LiDAR points.
-    pub min_points: u32,
-}
-
-impl Default for ValidationSettings {
-    fn default() -> Self {
-        ValidationSettings {
-            placements: 30,
-            seed: 0,
-            lidar_tilts_deg: vec![6.0, 10.0, 14.0],
-            radar_tilts_deg: vec![4.0, 8.0, 12.0],
-            lidar_preset: "centerpoint".into(),
-            fusion_preset: "lirafusion-like".into(),
-            seeds: 2,
-            samples: 6_000,
-            min_points: 5,
-        }
-    }
-}
-
-impl ValidationSettings {
-    /// Checks the values a study file may get wrong; `source` names the file.
-    pub fn check(&self, registry: &Registry, source: &str) -> Result<()> {
-        let bad = |m: String| StudyError::Invalid(format!("{source}: validation.{m}"));
-        if !(10..=500).contains(&self.placements) {
-            return Err(bad(format!("placements = {}: give 10 to 500", self.placements)));
-        }
-        if !(1..=20).contains(&self.seeds) {
-            return Err(bad(format!("seeds = {}: give 1 to 20", self.seeds)));
-        }
-        // Detectors train to 2b: b is bounded so that 2b is a schedule (and cannot overflow).
-        let most = hilo_detector::config::limits::SAMPLES / 2;
-        if !(2..=most).contains(&self.samples) {
-            return Err(bad(format!("samples = {}: give 2 to {most}", self.samples)));
-        }
-        if self.min_points == 0 {
-            return Err(bad("min_points = 0: give at least 1".into()));
-        }
-        for (key, p) in [("lidar_preset", &self.lidar_preset), ("fusion_preset", &self.fusion_preset)] {
-            registry.preset(p).map_err(|e| bad(format!("{key} = {p:?}: {e}")))?;
-        }
-        if registry.uses_radar(&registry.preset(&self.lidar_preset)?.detector) {
-            return Err(bad(format!("lidar_preset = {:?} needs a radar", self.lidar_preset)));
-        }
-        // The fusion preset is what rigs with a radar train: one that reads no radar would score
-        // them without it.
-        if !registry.uses_radar(&registry.preset(&self.fusion_preset)?.detector) {
-            return Err(bad(format!(
-                "fusion_preset = {:?} reads no radar; give a preset that fuses LiDAR and radar (e.g. \"lirafusion-like\")",
-                self.fusion_preset
-            )));
-        }
-        Ok(())
-    }
-}
+/// The `[validation]` section of a study file (a section of the study file, defined with it).
+pub use crate::study::ValidationSettings;
 
 /// One member's trained accuracy: per seed, at b and at 2b.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
