@@ -19,7 +19,7 @@
 //! The lock is advisory: it keeps hilo runs apart, not other programs.
 
 use crate::fs::FileError;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex, Weak};
 
 /// How a folder is claimed.
@@ -37,7 +37,6 @@ pub enum Mode {
 #[derive(Debug)]
 pub struct Claim {
     _lock: Arc<std::fs::File>,
-    path: PathBuf,
 }
 
 /// A folder's (device, inode): the same folder under any of its paths.
@@ -45,13 +44,6 @@ type FolderId = (u64, u64);
 
 /// The folders this process holds, for nested claims.
 static HELD: Mutex<Vec<(FolderId, Weak<std::fs::File>)>> = Mutex::new(Vec::new());
-
-impl Claim {
-    /// The claimed folder.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-}
 
 /// Creates `dir` (and its parents) if missing, refuses it when another hilo run holds it (see
 /// [`Mode`]) or when a symbolic link lies anywhere inside it, and holds it until the returned
@@ -78,7 +70,7 @@ pub fn claim(dir: &Path, mode: Mode) -> Result<Claim, FileError> {
     if let Some(lock) = held.iter().find(|(k, _)| *k == id).and_then(|(_, w)| w.upgrade()) {
         drop(held);
         refuse_links(dir)?;
-        return Ok(Claim { _lock: lock, path: dir.to_path_buf() });
+        return Ok(Claim { _lock: lock });
     }
     let taken = match mode {
         Mode::Exclusive => lock.try_lock(),
@@ -101,11 +93,11 @@ pub fn claim(dir: &Path, mode: Mode) -> Result<Claim, FileError> {
     held.push((id, Arc::downgrade(&lock)));
     drop(held);
     refuse_links(dir)?;
-    Ok(Claim { _lock: lock, path: dir.to_path_buf() })
+    Ok(Claim { _lock: lock })
 }
 
 /// Refuses the first symbolic link found at any depth inside `dir` (not `dir` itself).
-pub fn refuse_links(dir: &Path) -> Result<(), FileError> {
+fn refuse_links(dir: &Path) -> Result<(), FileError> {
     let mut todo = vec![dir.to_path_buf()];
     while let Some(d) = todo.pop() {
         let entries = match std::fs::read_dir(&d) {
@@ -167,6 +159,7 @@ fn holder_in(locks: &str, want: &str) -> Option<u32> {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
 
     #[test]
     fn a_second_claim_is_refused_with_the_holder_and_a_shared_one_admits_shared_ones() {

@@ -286,6 +286,8 @@ impl Plan {
             .collect();
         let ablation_rig = radar.iter().position(|&r| r);
         let mut jobs = Vec::new();
+        // What each training step may use, read once for every job below.
+        let memory = hilo_detector::config::machine_memory_bytes();
         for (ci, conf) in configurations.iter().enumerate() {
             let ablations = profile.ablations.iter().filter(|_| ablation_rig == Some(ci));
             for preset in profile.presets.iter().chain(ablations) {
@@ -335,7 +337,7 @@ impl Plan {
                     let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule, &points]);
                     let name = format!("{preset}-seed{seed}-{}", short(&h));
                     let detector = detector_cfg.clone().validate()?;
-                    detector.check_memory(tc.batch, hilo_detector::config::machine_memory_bytes())?;
+                    detector.check_memory(tc.batch, memory)?;
                     jobs.push(Job {
                         id: format!("{}/{preset}-seed{seed}", conf.slug()),
                         configuration: ci,

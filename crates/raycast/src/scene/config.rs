@@ -312,8 +312,9 @@ impl Check<'_> {
 
     /// A heading or yaw in degrees, within one turn either way (past that, f32 degrees lose the
     /// angle: 1e30° is no direction).
-    fn heading(&self, field: &str, v: f32) -> Result<(), RaycastError> {
-        if v.is_finite() && v.abs() <= 360.0 {
+    fn heading<T: Into<f64> + Copy + std::fmt::Debug>(&self, field: &str, v: T) -> Result<(), RaycastError> {
+        let x: f64 = v.into();
+        if x.is_finite() && x.abs() <= 360.0 {
             Ok(())
         } else {
             Err(self.err(field, v, "must be an angle in [-360, 360] degrees"))
@@ -566,9 +567,7 @@ impl SceneConfig {
             if !m.translation_m.iter().all(|v| v.is_finite()) {
                 return Err(c.err(&f("translation_m"), m.translation_m, "must be finite"));
             }
-            if !(m.yaw_deg.is_finite() && m.yaw_deg.abs() <= 360.0) {
-                return Err(c.err(&f("yaw_deg"), m.yaw_deg, "must be an angle in [-360, 360] degrees"));
-            }
+            c.heading(&f("yaw_deg"), m.yaw_deg)?;
             if !(m.scale.is_finite() && m.scale > 0.0) {
                 return Err(c.err(&f("scale"), m.scale, "must be a finite number > 0"));
             }

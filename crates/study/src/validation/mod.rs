@@ -420,6 +420,8 @@ fn jobs(
 ) -> Result<Vec<Job>> {
     let mut jobs = Vec::new();
     let named_sampling = study.file.train_schedule.as_ref().is_some_and(|s| s.get("sampling").is_some());
+    // What each training step may use, read once for every job below.
+    let memory = hilo_detector::config::machine_memory_bytes();
     for (mi, m) in members.iter().enumerate() {
         let radar = m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar);
         let preset = if radar { &settings.fusion_preset } else { &settings.lidar_preset };
@@ -439,7 +441,7 @@ fn jobs(
             let h = stage_hash("run", &[&data[mi].hash, &detector, &schedule]);
             let name = format!("{preset}-seed{seed}-{}", short(&h));
             let detector = detector_cfg.clone().validate()?;
-            detector.check_memory(tc.batch, hilo_detector::config::machine_memory_bytes())?;
+            detector.check_memory(tc.batch, memory)?;
             jobs.push(Job {
                 id: format!("{}/{preset}-seed{seed}", m.slug),
                 configuration: mi,
