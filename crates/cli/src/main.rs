@@ -194,10 +194,9 @@ pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
 const GLOBAL_THREADS: &str = "HILO_GLOBAL_THREADS";
 
 /// mimalloc hands memory it has not reused for a second back to the kernel, and a training
-/// step then faults the pages of its next buffers in again (the kernel's page clearing was 4% of
-/// a `lirafusion-like` step's profile). `-1` keeps what the process once held: 18,000 samples
-/// of `lirafusion-like` took 289.5 s instead of 303.0 s, idle, to the same weights; the price is a
-/// resident size that stays at its peak (the frames held in memory dominate it anyway).
+/// step then faults the pages of its next buffers in again. `-1` keeps what the process once
+/// held (the same weights, sooner; docs/measurements.md); the price is a resident size that
+/// stays at its peak (the frames held in memory dominate it anyway).
 const PURGE_DELAY: (&str, &str) = ("MIMALLOC_PURGE_DELAY", "-1");
 
 /// The environment candle and the allocator read once, set before they start. A running
@@ -205,15 +204,12 @@ const PURGE_DELAY: (&str, &str) = ("MIMALLOC_PURGE_DELAY", "-1");
 /// detects and finds a variable unset starts itself once more with it (a value the user set is
 /// kept) and exits with its status:
 /// - `RAYON_NUM_THREADS`: candle sizes its parallelism from it, and without it works the number
-///   out again from `/proc/cpuinfo` and `/sys` on every matrix product: about 50 files opened
-///   per training step, 8% of a `centerpoint` step on two cores (2,000 samples: 33–35 s with the
-///   variable, 37 s without, idle). `hilo detect`: every core. candle's matrix product sizes
-///   its parallelism from the variable, not from the pool it runs in, and splitting a product
-///   for threads a one-thread pool does not have is slow: `hilo study` trains several detectors
-///   at once, each on a one-thread pool (two trainings ran about 3× slower per step without the
-///   setting: 29 against 89 steps/s on two cores, default profile), and `hilo train` and `hilo
-///   bench train` run a schedule's data-parallel replicas each on a one-thread pool (two
-///   `centerpoint` replicas: 54 samples/s with candle on two threads, 106 with one). These get
+///   out again from `/proc/cpuinfo` and `/sys` on every matrix product (about 50 files opened
+///   per training step). `hilo detect`: every core. candle's matrix product sizes its
+///   parallelism from the variable, not from the pool it runs in, and splitting a product for
+///   threads a one-thread pool does not have is slow: `hilo study` trains several detectors at
+///   once, each on a one-thread pool, and `hilo train` and `hilo bench train` run a schedule's
+///   data-parallel replicas each on a one-thread pool. These get
 ///   `RAYON_NUM_THREADS=1` (for candle) and [`GLOBAL_THREADS`] = every core (for rayon's global
 ///   pool: the replicas, the custom kernels of a one-replica schedule, placement and
 ///   simulation). Not for a single stage or a workflow file, whose engine sets its own.

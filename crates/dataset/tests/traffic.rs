@@ -1,7 +1,7 @@
 //! Physical sanity of the traffic simulation on the default intersection.
 //!
 //! `HILO_TRAFFIC_SEEDS=0,1,2 HILO_TRAFFIC_SECONDS=345` runs the sanity test on more seeds and
-//! longer (the numbers in the closing note come from seeds 0–45 at 345 s);
+//! longer;
 //! `HILO_TRAFFIC_WARMUP=0` starts from an empty junction so that every step is checked.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]

@@ -422,9 +422,8 @@ pub struct ReplicaPools(Vec<rayon::ThreadPool>);
 impl ReplicaPools {
     /// Pools for `replicas` replicas within the current rayon pool's threads. None when candle
     /// splits its matrix products across threads itself (`RAYON_NUM_THREADS` unset or above 1):
-    /// a product split for threads a one-thread pool does not have runs about half as fast
-    /// (two `centerpoint` replicas: 54 samples/s so, 106 with `RAYON_NUM_THREADS=1`), slower
-    /// than the replicas one after the other.
+    /// a product split for threads a one-thread pool does not have runs slower than the replicas
+    /// one after the other.
     pub fn new(replicas: usize) -> Result<Self> {
         let workers = replicas.min(rayon::current_num_threads());
         if workers < 2 || candle_core::utils::get_num_threads() > 1 {

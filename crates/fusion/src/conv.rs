@@ -2,9 +2,9 @@
 //! extraction ([`Im2Col`]) and its adjoint ([`Col2Im`]) as candle custom ops. Candle's own CPU
 //! convolution gathers patches one scalar at a time and computes the input gradient with a
 //! direct transposed convolution; here rows of patches are copied as slices and both gradients
-//! are matrix products (candle's autograd of `matmul`), which trains our BEV networks about 1.5×
-//! faster on two cores (the oracle test below compares values and both gradients with candle's
-//! `conv2d`). On other devices [`Conv`] calls candle's `conv2d`, so CUDA needs no change.
+//! are matrix products (candle's autograd of `matmul`), which keep the cores busy where the
+//! scalar gathers do not (the oracle test below compares values and both gradients with
+//! candle's `conv2d`; docs/measurements.md has the speed). On other devices [`Conv`] calls candle's `conv2d`, so CUDA needs no change.
 
 use crate::cpu::f32_slice;
 pub use crate::cpu::{FORWARD_FLOPS, count_matmul};

@@ -443,10 +443,9 @@ fn padded_inverse(rules: &[u32], n_in: usize) -> Result<(Vec<u32>, usize)> {
 }
 
 /// How a sparse convolution's backward pass forms the input's gradient. On the CPU the default
-/// is [`Backward::Scatter`]: on a 2-core AVX-512 EPYC, idle, `hilo bench train --variant
-/// sparse_backward=gather|scatter` (alternating, two rounds) gave `centerpoint` 180–195 samples/s
-/// gathering against 210–218 scattering, and `lirafusion-like` 174–179 against 194–196 (the
-/// gather of the output gradient is nine rows per input row, the scatter's adds stay in cache).
+/// is [`Backward::Scatter`], the faster there (`hilo bench train --variant
+/// sparse_backward=gather|scatter` compares them; docs/measurements.md has the runs): the gather
+/// of the output gradient reads nine rows per input row, the scatter's adds stay in cache.
 /// Elsewhere it is [`Backward::Gather`] ([`RowGather`]): candle's `index_add` on CUDA runs one
 /// thread per channel, each looping over every gathered row.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -655,9 +654,8 @@ const OP: &str = "hilo-gather-conv";
 /// A kernel `(C_out, C_in, taps)` on the host as the `(C_out, taps · C_in)` matrix whose
 /// transpose the gather multiplies (taps major within a row, as [`gather_rows`] lays out a
 /// site's inputs). Each output channel's `C_in × taps` block is transposed on its own, so the
-/// loop reads and writes within a few kilobytes: a transpose of the whole kernel to
-/// `(taps · C_in, C_out)` strided across it and cost 3.7% of a training step on a
-/// 75 GFLOP/s machine.
+/// loop reads and writes within a few kilobytes, where a transpose of the whole kernel to
+/// `(taps · C_in, C_out)` strides across it.
 fn kernel_rows(w: &[f32], ci: usize, taps: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(w.len());
     for block in w.chunks_exact((ci * taps).max(1)) {

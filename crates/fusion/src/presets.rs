@@ -32,10 +32,9 @@ pub fn default_input() -> InputConfig {
 /// losses normalised by the positives of all classes ([`LossNorm::All`]; CenterPoint's per-task
 /// normalisation, [`LossNorm::PerClass`], was measured and not adopted: docs/measurements.md has why).
 /// Left out: the voxel (sparse 3-D) encoder of CenterPoint-Voxel, the second refinement stage,
-/// multi-group heads, circular NMS, and the stride-8 block's two further 3×3 layers: at 128
-/// channels they were 46% of a step's multiply-adds, and without them the default schedule
-/// trains 1.4× faster to the same mAP (0.813 against 0.805, seed 0; "Level 3" in docs/measurements.md has
-/// the runs). The fusion presets share this backbone.
+/// multi-group heads, circular NMS, and the stride-8 block's two further 3×3 layers (at 128
+/// channels, about half a step's multiply-adds for no measured gain in mAP: "Level 3" in
+/// docs/measurements.md). The fusion presets share this backbone.
 pub fn centerpoint() -> DetectorConfig {
     DetectorConfig {
         name: "centerpoint".into(),
@@ -83,28 +82,18 @@ pub fn pointpillars() -> DetectorConfig {
 /// `centerpoint` over more samples, [`centerpoint_schedule`]): the shared one's shape over
 /// 24,000 samples, each batch of two run as two data-parallel replicas of one sample (one per
 /// core on two cores: with one replica training leaves the second core idle) with BatchNorm
-/// synchronised across them, so the step normalises as a batch of two does. That fits five
-/// minutes of the fused preset on two-core machines of ~200 GFLOP/s matrix-product peak
-/// (262.4 s and 272.5 s on two seeds, mAP 0.829 and 0.827); one of 75 GFLOP/s measured later
-/// took about twice as long (the schedule is fixed in samples, not seconds); since the head
-/// reads the neck's parents and the stride-8 block lost its two further layers, 344.7 s there,
-/// and since the pillar encoders run on the real points and the batch thread on idle cores,
-/// 268.5 s, 266.7 s and 263.8 s (seeds 0–2, mAP 0.819, 0.828 and 0.814).
-/// Without the synchronisation the replicas ran up to 12% faster (256.0 s and 244.3 s) to 0.795
-/// and 0.791: BatchNorm over one sample cost more than the samples it bought. The learning
-/// curve in docs/measurements.md has the gains of four times this.
+/// synchronised across them, so the step normalises as a batch of two does (BatchNorm over one
+/// sample costs more accuracy than the speed it buys). The schedule is fixed in samples, sized
+/// to train the fused preset in about five minutes on two cores; docs/measurements.md has the
+/// trainings, their times and the gains of four times this schedule.
 pub fn plateau_schedule() -> TrainConfig {
     TrainConfig { samples: 24_000, replicas: 2, sync_batch_norm: true, ..TrainConfig::default() }
 }
 
 /// `centerpoint`'s schedule: [`plateau_schedule`] over 30,000 samples, what its speed allows
-/// within five minutes on two cores with synchronised replicas (282.2 s, mAP 0.806, seed 0, on
-/// a ~200 GFLOP/s machine before the stride-8 block lost its two 3×3 layers; since then 338.9 s
-/// and 336.2 s, mAP 0.813 and 0.816, seeds 0 and 1, on one of ~70 GFLOP/s, and there 292.4 s,
-/// 292.7 s and 288.9 s, mAP 0.814, 0.820 and 0.820, seeds 0–2, with the pillar encoders on the
-/// real points and the batch thread on idle cores).
-/// Ground-truth paste raised what it can reach (0.825 mAP at 48,000 samples with one replica)
-/// more than what it learns in 18,000 (0.778), so it takes every sample the budget buys.
+/// within about five minutes on two cores with synchronised replicas (docs/measurements.md has
+/// the trainings). Ground-truth paste raises what it can reach more than what it learns in a
+/// short schedule, so it takes every sample the budget buys.
 pub fn centerpoint_schedule() -> TrainConfig {
     TrainConfig { samples: 30_000, ..plateau_schedule() }
 }

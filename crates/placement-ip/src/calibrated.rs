@@ -43,9 +43,9 @@ pub use search::{greedy, swaps, upper_bound};
 
 /// The largest calibrated IP (non-zeros of its coverage rows) handed to CBC by default
 /// (`[placement] calibrated_cbc_max_nonzeros`). CBC checks its time limit only between
-/// branch-and-bound nodes, so a larger root LP runs unbounded (a default-scale instance, 3
-/// terms over 4,846 targets and 22 million non-zeros, ran 12 min at 13 GB without finishing its
-/// root); beyond this size the solve is greedy and swaps with the submodular bound.
+/// branch-and-bound nodes, so the root LP of a larger one runs without a time bound (docs/
+/// measurements.md has a default-scale instance that never finished it); beyond this size the
+/// solve is greedy and swaps with the submodular bound.
 pub const CBC_MAX_NONZEROS: usize = 1_000_000;
 
 /// The non-zeros of the calibrated IP's coverage rows: per non-zero term, its modality's

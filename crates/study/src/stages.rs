@@ -257,8 +257,7 @@ pub fn train_one(plan: &Plan, job: &Job, registry: &Registry, tick: &(dyn Fn(f64
 
 /// Stage 3 for every job of configuration `ci`, in one process: frames loaded once per input,
 /// `workers` detectors at a time, each on a one-thread pool (on two cores one training gains
-/// nothing from the second thread: 71 samples/s on one thread and on two, measured; two at once
-/// double the throughput). Outputs in the order of `jobs`.
+/// little from a second thread, and two at once use both). Outputs in the order of `jobs`.
 pub fn train_all(
     plan: &Plan,
     ci: usize,

@@ -34,31 +34,31 @@ fn minutes(seconds: f64, headroom: f64) -> usize {
 // The stage models: lines through two measured runs of the workflow on a 2-core machine
 // (release build, idle; `scripts/stage-resources.py` on the quick profile, 520 frames per
 // configuration and 4 trainings, and the default one, 2,800 frames and 18 trainings): each
-// stage's peak memory (its log's `peak memory`) and seconds, against what the stage handles.
+// stage's peak memory (its log's `peak memory`) and seconds, against what the stage handles;
+// docs/measurements.md ("A study's resources on a cluster") has the runs.
 // Beyond the default profile they are extrapolations, hence the headroom.
 
-/// Placement: 11–20 s and 144–203 MB at both scales (it depends on the scene, not the profile).
+/// Placement: the same at both scales (it depends on the scene, not the profile).
 pub const PLACE: Resources = Resources { threads: 2, mem_mb: 1_000, runtime_min: 10 };
 
-/// Simulating one configuration of `frames` frames (training and validation): 132 → 247 MB and
-/// 5 → 41 s from 520 to 2,800 frames (the 64-beam rig is the slowest).
+/// Simulating one configuration of `frames` frames (training and validation): memory and time
+/// linear in the frames (the 64-beam rig's, the slowest).
 pub fn simulate(frames: usize) -> Resources {
     let f = frames as f64;
     Resources { threads: 2, mem_mb: mem(106.0 + 0.0505 * f), runtime_min: minutes(0.015 * f, 2.0) }
 }
 
 /// Training one detector on `frames` frames (all held in memory) for `samples` samples, one
-/// thread: 222 → 885 MB from 520 to 2,800 frames; 6,000 samples in 65–137 s (`centerpoint`
-/// to the two-branch `lirafusion-like`, two jobs side by side). Runtime allows for presets three
-/// times slower than the slowest measured.
+/// thread: memory linear in the frames, time in the samples (the two-branch `lirafusion-like`'s,
+/// two jobs side by side). Runtime allows for presets three times slower than the slowest
+/// measured.
 pub fn train(frames: usize, samples: usize) -> Resources {
     let (f, n) = (frames as f64, samples as f64);
     Resources { threads: 1, mem_mb: mem(71.0 + 0.291 * f), runtime_min: minutes(0.023 * n + 0.005 * f, 3.0) }
 }
 
 /// The report over `results` result sets (every training's detections, learning-curve points
-/// included) of `val_frames` validation frames each: 194 MB and 1 s for 6 × 120, 1,212 MB and
-/// 20 s for 30 × 800.
+/// included) of `val_frames` validation frames each: linear in the frames scored.
 pub fn report(results: usize, val_frames: usize) -> Resources {
     let units = (results * val_frames) as f64;
     Resources { threads: 2, mem_mb: mem(163.0 + 0.0437 * units), runtime_min: minutes(0.001 * units, 3.0) }

@@ -11,8 +11,8 @@
 //! per modality (offsets from the modality's own pillar mean), a simplification of a joint pillar
 //! mean. The encoder runs on the real points alone (a pillar fills about three of its 10 slots on a
 //! roadside frame), its BatchNorm counting the padding slots as the zero rows they are in the
-//! padded form, so the function is that of the padded pillars (1.2× the fused preset's training
-//! samples/s; docs/measurements.md has the bench).
+//! padded form, so the function is that of the padded pillars (docs/measurements.md has what it
+//! saves).
 //!
 //! Optionally (`middle`), a LiDAR-only pillar branch is fused with the joint map by φ
 //! (LiRaFusion's joint voxel encoder + adaptive gating; L4DR's early radar–LiDAR fusion +
@@ -159,11 +159,9 @@ pub fn lirafusion_like() -> DetectorConfig {
 }
 
 /// `lirafusion-like`'s default schedule: [`hilo_fusion::presets::plateau_schedule`] (24,000
-/// samples, batches of two as two data-parallel replicas with synchronised BatchNorm). With
-/// radar clutter removed and ground-truth paste it trains at about 90 samples/s on two cores of
-/// ~70 GFLOP/s matrix-product peak (checkpoints included; 94–101 in the bench), so 24,000
-/// samples take about 4.5 minutes there (268.5 s, seed 0). The learning curve in
-/// docs/measurements.md has the gains of four times this.
+/// samples, batches of two as two data-parallel replicas with synchronised BatchNorm), about
+/// five minutes on two cores. docs/measurements.md has the trainings and the gains of four
+/// times this schedule.
 pub fn lirafusion_like_schedule() -> TrainConfig {
     hilo_fusion::presets::plateau_schedule()
 }
