@@ -5,8 +5,7 @@
 //! end, and `benches/`, criterion, are ordinary Cargo targets) and holds the one list of fusion
 //! plugins hilo ships, [`registry`], which the command line, the tests and the benchmarks share.
 
-pub mod bench;
-
+pub use hilo_bench as bench;
 pub use hilo_core as core;
 pub use hilo_dataset as dataset;
 pub use hilo_detector as detector;
@@ -17,13 +16,16 @@ pub use hilo_raycast as raycast;
 pub use hilo_sensor_models as sensors;
 pub use hilo_study as study;
 
-/// Every fusion plugin hilo ships, with its presets, and the LiDAR-only ones. Adding a plugin is
-/// one crate and one line here.
+/// Every fusion plugin hilo ships, with its presets, and the LiDAR-only ones; `lirafusion-like`
+/// (LiRaFusion's design, the paper's fusion network) is the fusion preset a study tests by
+/// default, against its LiDAR-only counterpart, `centerpoint`. Adding a plugin is one crate
+/// and one line here.
 pub fn registry() -> hilo_detector::Result<hilo_detector::Registry> {
     let mut r = hilo_detector::Registry::with_builtin();
     hilo_fusion_raw::register(&mut r)?;
     hilo_fusion_early::register(&mut r)?;
     hilo_fusion_middle::register(&mut r)?;
     hilo_fusion_late::register(&mut r)?;
+    r.set_primary("lirafusion-like")?;
     Ok(r)
 }

@@ -1,32 +1,61 @@
-//! The shared conformance suite on every preset of each fusion plugin, dense and sparse. The
-//! plugins depend on `hilo-fusion` alone; the suite lives in `hilo-detector`, so it runs here.
+//! The shared conformance suite on every preset of every registered fusion plugin, dense and
+//! sparse. The plugins depend on `hilo-fusion` alone; the suite lives in `hilo-detector`, so it
+//! runs here, over the one list of plugins, `hilo::registry()`.
 
 #![allow(clippy::unwrap_used, clippy::panic)]
 
-fn check(plugin: &str, register: fn(&mut hilo_fusion::Registry) -> hilo_fusion::Result<()>) {
-    let mut r = hilo_fusion::Registry::with_builtin();
-    register(&mut r).unwrap();
-    hilo_detector::conformance::check_plugin(&r, plugin).unwrap();
+/// Every plugin of the registry hilo ships, the LiDAR-only one included, each on a thread of
+/// its own: a plugin added to `hilo::registry()` is checked with no line here.
+#[test]
+fn every_registered_plugin_conforms() {
+    let registry = hilo::registry().unwrap();
+    let plugins = registry.names();
+    for shipped in ["lidar", "raw", "early", "middle", "late"] {
+        assert!(plugins.iter().any(|p| p == shipped), "{shipped} is not registered: {plugins:?}");
+    }
+    std::thread::scope(|s| {
+        let checks: Vec<_> = plugins
+            .iter()
+            .map(|plugin| (plugin, s.spawn(|| hilo_detector::conformance::check_plugin(&registry, plugin))))
+            .collect();
+        for (plugin, check) in checks {
+            match check.join() {
+                Ok(result) => result.unwrap_or_else(|e| panic!("plugin {plugin}: {e}")),
+                Err(_) => panic!("plugin {plugin}: the conformance check panicked"),
+            }
+        }
+    });
 }
 
+/// The registry answers which presets a study compares: each fusion preset's LiDAR-only
+/// counterpart is the one with its head, and the study's fusion preset is the one named, else
+/// the first registered fusion preset that has a counterpart.
 #[test]
-fn raw_plugin_conforms() {
-    check("raw", hilo_fusion_raw::register);
-}
-
-#[test]
-fn early_plugin_conforms() {
-    check("early", hilo_fusion_early::register);
-}
-
-#[test]
-fn middle_plugin_conforms() {
-    check("middle", hilo_fusion_middle::register);
-}
-
-#[test]
-fn late_plugin_conforms() {
-    check("late", hilo_fusion_late::register);
+fn the_registry_names_each_fusion_presets_counterpart_and_the_studys_pair() {
+    let registry = hilo::registry().unwrap();
+    assert_eq!(registry.primary(), Some(("lirafusion-like", "centerpoint")));
+    for (fusion, lidar) in [
+        ("pointpillars-lr", "pointpillars"),
+        ("l4dr-like", "centerpoint"),
+        ("lirafusion-like", "centerpoint"),
+        ("lirafusion-like-no-early", "centerpoint"),
+    ] {
+        assert_eq!(registry.lidar_counterpart(fusion), Some(lidar), "{fusion}");
+    }
+    for lidar_only_or_unknown in ["centerpoint", "pointpillars", "no-such-preset"] {
+        assert_eq!(registry.lidar_counterpart(lidar_only_or_unknown), None);
+    }
+    let mut r = hilo::registry().unwrap();
+    for refused in ["centerpoint", "lirafusion-like-no-early", "no-such-preset"] {
+        let e = r.set_primary(refused).unwrap_err().to_string();
+        assert!(e.contains(refused) && e.contains("counterpart"), "{e}");
+    }
+    // Unnamed: the first registered fusion preset with a counterpart (raw registers first).
+    let mut unnamed = hilo_fusion::Registry::with_builtin();
+    hilo_fusion_raw::register(&mut unnamed).unwrap();
+    hilo_fusion_early::register(&mut unnamed).unwrap();
+    assert_eq!(unnamed.primary(), Some(("pointpillars-lr", "pointpillars")));
+    assert_eq!(hilo_fusion::Registry::with_builtin().primary(), None);
 }
 
 /// The JSON files the project ships in `fixtures/<folder>/` (at least one), parsed, and the

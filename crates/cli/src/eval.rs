@@ -83,60 +83,16 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let by_distance: BTreeMap<&str, &hilo_eval::BinMetrics> = bins.iter().map(|(l, m)| (l.as_str(), m)).collect();
     hilo_core::fs::write_json(&args.out.join("metrics_by_distance.json"), &by_distance)?;
     hilo_core::fs::write_json(&args.out.join("metrics_iou.json"), &hilo_eval::iou_aps(&gt, &pred, &cfg))?;
-    println!("mAP {:.4}  NDS {:.4}  ({} samples, {:.2} s)", m.mean_ap, m.nd_score, gt.samples.len(), m.eval_time);
-    println!("{:<12} {:>7} {:>7} {:>7} {:>7} {:>7} {:>7}", "class", "AP", "ATE", "ASE", "AOE", "AVE", "AAE");
-    for (c, ap) in &m.mean_dist_aps {
-        let e = &m.label_tp_errors[c];
-        println!(
-            "{:<12} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3} {:>7.3}",
-            c, ap, e["trans_err"], e["scale_err"], e["orient_err"], e["vel_err"], e["attr_err"]
-        );
-    }
-    for (label, bm) in &bins {
-        println!("range {label:<10} mAP {:.4}", bm.mean_ap);
-    }
+    print!("{}", hilo_eval::text::metrics_table(&m, &bins, gt.samples.len()));
     if args.bootstrap > 0 {
         let b = hilo_eval::bootstrap::bootstrap(&gt, &pred, &cfg, args.bootstrap as usize, 0.95, args.seed);
         hilo_core::fs::write_json(&args.out.join("bootstrap.json"), &b)?;
-        if b.estimable {
-            println!(
-                "95% intervals over {} scenes ({} resamples): mAP [{:.4}, {:.4}], NDS [{:.4}, {:.4}]",
-                b.scenes, b.resamples, b.mean_ap.lo, b.mean_ap.hi, b.nd_score.lo, b.nd_score.hi
-            );
-        } else {
-            println!(
-                "intervals not estimable: {} scene(s); a scene bootstrap needs at least {}",
-                b.scenes,
-                hilo_eval::bootstrap::MIN_SCENES
-            );
-        }
+        println!("{}", hilo_eval::text::bootstrap_line(&b));
         if let Some((other, pred_b)) = &compare {
             let p = hilo_eval::bootstrap::paired(&gt, &pred, pred_b, &cfg, args.bootstrap as usize, 0.95, args.seed);
             hilo_core::fs::write_json(&args.out.join("paired.json"), &p)?;
-            if p.estimable {
-                println!(
-                    "{} − {}: mAP {:+.4} [{:+.4}, {:+.4}] (P[not better] = {:.3}), NDS {:+.4} [{:+.4}, {:+.4}]",
-                    other.display(),
-                    args.results.display(),
-                    p.mean_ap_diff.estimate,
-                    p.mean_ap_diff.lo,
-                    p.mean_ap_diff.hi,
-                    p.p_mean_ap_not_better,
-                    p.nd_score_diff.estimate,
-                    p.nd_score_diff.lo,
-                    p.nd_score_diff.hi
-                );
-            } else {
-                println!(
-                    "{} − {}: mAP {:+.4}, NDS {:+.4}; interval and P not estimable ({} scene(s); at least {} needed)",
-                    other.display(),
-                    args.results.display(),
-                    p.mean_ap_diff.estimate,
-                    p.nd_score_diff.estimate,
-                    p.scenes,
-                    hilo_eval::bootstrap::MIN_SCENES
-                );
-            }
+            let names = (other.display().to_string(), args.results.display().to_string());
+            println!("{}", hilo_eval::text::paired_line(&p, &names.0, &names.1));
         }
     }
     Ok(())

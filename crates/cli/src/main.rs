@@ -288,11 +288,27 @@ fn main() -> Result<()> {
             stages::place(&args)?;
         }
         Command::Validate(args) => study::validate(&args)?,
-        Command::Bench { command: BenchCommand::Eval { frames, max_pred, repeats, json } } => {
-            let report = hilo::bench::eval(frames as usize, max_pred, repeats.max(1))?;
-            println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
+        Command::Bench { command } => bench(command)?,
+    }
+    Ok(())
+}
+
+/// A bench's report: one JSON line with `--json`, else its table (or indented JSON).
+fn emit<R: serde::Serialize>(report: &R, json: bool, table: Option<fn(&R)>) -> Result<()> {
+    match (json, table) {
+        (false, Some(table)) => table(report),
+        (false, None) => println!("{}", serde_json::to_string_pretty(report)?),
+        (true, _) => println!("{}", serde_json::to_string(report)?),
+    }
+    Ok(())
+}
+
+fn bench(command: BenchCommand) -> Result<()> {
+    match command {
+        BenchCommand::Eval { frames, max_pred, repeats, json } => {
+            emit(&hilo::bench::eval(frames as usize, max_pred, repeats.max(1))?, json, None)
         }
-        Command::Bench { command: BenchCommand::Simulate { scenes, seconds, rate_hz, keep, json } } => {
+        BenchCommand::Simulate { scenes, seconds, rate_hz, keep, json } => {
             let study = stages::load_study(None)?;
             let cfg = hilo_dataset::simulate::SimulateConfig {
                 scenes,
@@ -308,41 +324,20 @@ fn main() -> Result<()> {
                     r.task("bench simulate", done, total, "frames");
                 }
             })?;
-            println!("{}", if json { serde_json::to_string(&report)? } else { serde_json::to_string_pretty(&report)? });
+            emit(&report, json, None)
         }
-        Command::Bench { command: BenchCommand::Placement { cbc_seconds, json } } => {
-            let report = hilo::bench::placement(cbc_seconds)?;
-            if json {
-                println!("{}", serde_json::to_string(&report)?);
-            } else {
-                println!("{}", serde_json::to_string_pretty(&report)?);
-            }
+        BenchCommand::Placement { cbc_seconds, json } => emit(&hilo::bench::placement(cbc_seconds)?, json, None),
+        BenchCommand::Train { data, presets, steps, variants, json } => {
+            let report = hilo::bench::train(&train::registry()?, &data, &presets, steps.max(1), &variants)?;
+            emit(&report, json, Some(hilo::bench::TrainReport::print_table))
         }
-        Command::Bench { command: BenchCommand::Train { data, presets, steps, variants, json } } => {
-            let report = hilo::bench::train(&data, &presets, steps.max(1), &variants)?;
-            if json {
-                println!("{}", serde_json::to_string(&report)?);
-            } else {
-                report.print_table();
-            }
+        BenchCommand::Sensors { actors, frames, json } => {
+            emit(&hilo::bench::sensors(actors, frames.max(1))?, json, Some(hilo::bench::SensorsReport::print_table))
         }
-        Command::Bench { command: BenchCommand::Sensors { actors, frames, json } } => {
-            let report = hilo::bench::sensors(actors, frames.max(1))?;
-            if json {
-                println!("{}", serde_json::to_string(&report)?);
-            } else {
-                report.print_table();
-            }
-        }
-        Command::Bench { command: BenchCommand::Raycast { scene, azimuth_steps, repeats, json } } => {
+        BenchCommand::Raycast { scene, azimuth_steps, repeats, json } => {
             let scene = load_scene(scene.as_deref())?;
             let report = hilo::bench::raycast(&scene, azimuth_steps, repeats.max(1))?;
-            if json {
-                println!("{}", serde_json::to_string(&report)?);
-            } else {
-                report.print_table();
-            }
+            emit(&report, json, Some(hilo::bench::RaycastReport::print_table))
         }
     }
-    Ok(())
 }

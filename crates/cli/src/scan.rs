@@ -2,17 +2,13 @@
 
 use crate::load_scene;
 use anyhow::{Context, Result, bail};
-use glam::Vec2;
 use hilo_core::fs::write_atomic;
 use hilo_raycast::{ActorSet, QueryRegion, World};
 use hilo_sensor_models::export::{to_pcd, to_ply};
 use hilo_sensor_models::{Catalog, SensorPose, SensorSpec, simulate_lidar, simulate_radar};
 use hilo_study::demo::{actor_box, demo_actors};
-use hilo_study::render::scene_canvas;
+use hilo_study::render::{ScanPoints, scan_png};
 use std::path::PathBuf;
-
-/// A dot to draw: local-frame position and RGB colour.
-type Dot = (Vec2, (u8, u8, u8));
 
 #[derive(clap::Args, Debug)]
 pub struct ScanArgs {
@@ -76,63 +72,28 @@ pub fn run(args: &ScanArgs) -> Result<()> {
         SensorSpec::Radar(r) => r.max_range_m,
     };
     let world = World::build(&scene, &QueryRegion::spheres([(pose.position, range)]))?;
-    let (bytes, local, count): (Vec<u8>, Vec<Dot>, usize) = match spec {
+    let (lidar, radar);
+    let (bytes, points) = match spec {
         SensorSpec::Lidar(l) => {
             let s = simulate_lidar(l, &pose, &world, Some(&set), args.seed)?;
-            let dots = s
-                .points_local()
-                .iter()
-                .map(|p| {
-                    let h = ((p.z - scene.ground.z_m) / 4.0).clamp(0.0, 1.0);
-                    (
-                        Vec2::new(p.x, p.y),
-                        ((40.0 + 215.0 * h) as u8, (200.0 - 120.0 * h) as u8, (255.0 - 200.0 * h) as u8),
-                    )
-                })
-                .collect();
-            let b = if ext == "pcd" { to_pcd(&s.points) } else { to_ply(&s.points) };
-            (b, dots, s.points.len())
+            lidar = s.points_local();
+            (if ext == "pcd" { to_pcd(&s.points) } else { to_ply(&s.points) }, ScanPoints::Lidar(&lidar))
         }
         SensorSpec::Radar(r) => {
             let s = simulate_radar(r, &pose, &world, Some(&set), args.seed)?;
-            let dots = s
-                .points_local()
-                .iter()
-                .map(|p| {
-                    // Approaching red, receding blue, static white.
-                    let k = (p.v_r_mps / 10.0).clamp(-1.0, 1.0);
-                    let c = if k < 0.0 {
-                        (255, (255.0 * (1.0 + k)) as u8, (255.0 * (1.0 + k)) as u8)
-                    } else {
-                        ((255.0 * (1.0 - k)) as u8, (255.0 * (1.0 - k)) as u8, 255)
-                    };
-                    (Vec2::new(p.x, p.y), c)
-                })
-                .collect();
-            let b = if ext == "pcd" { to_pcd(&s.points) } else { to_ply(&s.points) };
-            (b, dots, s.points.len())
+            radar = s.points_local();
+            (if ext == "pcd" { to_pcd(&s.points) } else { to_ply(&s.points) }, ScanPoints::Radar(&radar))
         }
     };
     write_atomic(&args.out, &bytes)?;
-    eprintln!("wrote {} points to {}", count, args.out.display());
+    let count = match points {
+        ScanPoints::Lidar(p) => p.len(),
+        ScanPoints::Radar(p) => p.len(),
+    };
+    eprintln!("wrote {count} points to {}", args.out.display());
     if let Some(png) = &args.png {
-        let mut canvas = scene_canvas(&scene, 4.0)?;
-        canvas.boxes(&boxes, (255, 230, 0));
-        let radius = if matches!(spec, SensorSpec::Radar(_)) { 2.5 } else { 1.0 };
-        canvas.dots(&local, radius);
-        canvas.dots(&[(pose.position.truncate(), (255, 0, 255))], 5.0);
-        let points: &[((u8, u8, u8), &str)] = match spec {
-            SensorSpec::Lidar(_) => &[((40, 200, 255), "LiDAR point at the ground"), ((255, 80, 55), "4 m above it")],
-            SensorSpec::Radar(_) => &[
-                ((255, 0, 0), "radar point approaching (10 m/s)"),
-                ((255, 255, 255), "radar point static"),
-                ((0, 0, 255), "radar point receding (10 m/s)"),
-            ],
-        };
-        let mut keys = vec![((255, 0, 255), "sensor"), ((255, 230, 0), "road user (tick: heading)")];
-        keys.extend_from_slice(points);
-        canvas.legend(&keys);
-        write_atomic(png, &canvas.png().context("drawing the scan")?)?;
+        let picture = scan_png(&scene, points, pose.position.truncate(), &boxes).context("drawing the scan")?;
+        write_atomic(png, &picture)?;
         eprintln!("wrote {}", png.display());
     }
     Ok(())

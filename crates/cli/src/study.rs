@@ -5,7 +5,7 @@
 
 use crate::progress::Reporter;
 use crate::stages::{EMBEDDED_STUDY, load_study};
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use hilo_study::sweep::{Loaded, Sweep, SweepRecord};
 use hilo_study::{Plan, RunOptions, Study};
 use std::path::{Path, PathBuf};
@@ -24,7 +24,7 @@ pub struct StudyArgs {
     pub out: PathBuf,
     /// quick (≤ 5 min), default (≤ 30 min) or paper (the paper's scale; hours here).
     #[arg(long, default_value = "default")]
-    pub profile: String,
+    pub profile: hilo_study::ProfileName,
     /// Seeds per detector, 1 to 100 (overrides the profile's: 3 for default and paper).
     #[arg(long, value_parser = seeds)]
     pub seeds: Option<usize>,
@@ -35,8 +35,8 @@ pub struct StudyArgs {
     pub presets: Option<Vec<String>>,
     /// Write the study as a workflow for this engine (`snakemake`) into --out instead of
     /// running it.
-    #[arg(long)]
-    pub workflow: Option<String>,
+    #[arg(long, value_enum)]
+    pub workflow: Option<Engine>,
 }
 
 /// One stage of a study whose folder exists (made by `hilo study --workflow` or a run).
@@ -91,7 +91,7 @@ fn shell_quoted(p: &Path) -> String {
 }
 
 fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_detector::Registry) -> Result<hilo_study::Profile> {
-    let mut profile = hilo_study::profile(&args.profile, study, registry)?;
+    let mut profile = hilo_study::profile(args.profile, study, registry)?;
     if let Some(p) = &args.presets {
         let (ablations, presets) = p.iter().cloned().partition(|x| registry.ablation_of(x).is_some());
         (profile.presets, profile.ablations) = (presets, ablations);
@@ -121,13 +121,10 @@ fn workflow() -> Result<hilo_study::workflow::Workflow> {
     Ok(hilo_study::workflow::Workflow { hilo, gpu: cfg!(feature = "cuda") })
 }
 
-/// Whether `--workflow` asks for a Snakefile (the one engine supported).
-fn snakemake(args: &StudyArgs) -> Result<bool> {
-    match args.workflow.as_deref() {
-        None => Ok(false),
-        Some("snakemake") => Ok(true),
-        Some(other) => bail!("--workflow {other:?}: the supported engine is snakemake"),
-    }
+/// The workflow engines `--workflow` writes for.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Engine {
+    Snakemake,
 }
 
 /// A study of one scene and catalog: run in-process, or written as a workflow.
@@ -138,13 +135,13 @@ fn one_study(
     reporter: &mut Reporter,
 ) -> Result<()> {
     let profile = profile_of(args, study, registry)?;
-    match snakemake(args)? {
-        false => {
+    match args.workflow {
+        None => {
             let opts = RunOptions { profile, out: args.out.clone() };
             hilo_study::run(study, registry, &opts, &mut |p| reporter.study(p))?;
             Ok(())
         }
-        true => {
+        Some(Engine::Snakemake) => {
             let plan = Plan::new(study, registry, &profile, &args.out)?;
             plan.claim_folder(study)?;
             for p in hilo_study::workflow::write(&plan, &workflow()?)? {
@@ -152,7 +149,7 @@ fn one_study(
             }
             eprintln!(
                 "{} stages ({} trainings); run them with: cd {} && snakemake --cores 2",
-                plan.jobs.len() + plan.configurations.len() + 2,
+                plan.stage_count(),
                 plan.jobs.len(),
                 shell_quoted(&args.out)
             );
@@ -194,19 +191,19 @@ pub fn study(args: &StudyArgs) -> Result<()> {
         };
         let profile =
             |s: &Study| profile_of(args, s, &registry).map_err(|e| hilo_study::StudyError::Invalid(format!("{e:#}")));
-        return match snakemake(args)? {
-            false => {
+        return match args.workflow {
+            None => {
                 let c = hilo_study::run_sweep(&sweep, &registry, &profile, &args.out, &mut |p| reporter.study(p))?;
                 eprintln!("{} studies compared: {}", c.shards.len(), args.out.join("comparison.md").display());
                 Ok(())
             }
-            true => {
+            Some(Engine::Snakemake) => {
                 let plans = hilo_study::run::sweep_plans(&sweep, &registry, &profile, &args.out)?;
                 sweep.claim_folder(&args.out, &plans)?;
                 for p in hilo_study::workflow::write_sweep(&sweep, &plans, &args.out, &workflow()?)? {
                     eprintln!("wrote {}", p.display());
                 }
-                let stages: usize = plans.iter().map(|p| p.jobs.len() + p.configurations.len() + 2).sum();
+                let stages: usize = plans.iter().map(Plan::stage_count).sum();
                 let jobs: usize = plans.iter().map(|p| p.jobs.len()).sum();
                 eprintln!(
                     "{} studies, {} stages ({jobs} trainings) and the comparison; run them with: cd {} && snakemake --cores 2",
@@ -261,7 +258,7 @@ pub fn study(args: &StudyArgs) -> Result<()> {
             let record = SweepRecord::read(&a.out)?;
             for s in &record.shards {
                 println!("== study {}", s.name);
-                print_plan(&open_folder(&Sweep::shard_out(&a.out, &s.name), &registry)?.1);
+                println!("{}", open_folder(&Sweep::shard_out(&a.out, &s.name), &registry)?.1.status());
             }
             let done = a.out.join("comparison.json").exists();
             println!(
@@ -270,40 +267,13 @@ pub fn study(args: &StudyArgs) -> Result<()> {
                 a.out.join("comparison.json").display()
             );
         }
-        StageCommand::Plan(a) => print_plan(&open_folder(&a.out, &registry)?.1),
+        StageCommand::Plan(a) => println!("{}", open_folder(&a.out, &registry)?.1.status()),
     }
-    if let Some(mb) = peak_memory_mb() {
+    if let Some(mb) = hilo_core::machine::peak_resident_mb() {
         // For the stage's log: what a workflow engine should reserve for it.
         eprintln!("peak memory: {mb:.0} MB");
     }
     Ok(())
-}
-
-/// This process's peak resident memory (Linux: `VmHWM` in /proc/self/status), in MB; None
-/// where the system does not say.
-fn peak_memory_mb() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
-}
-
-/// `hilo study plan`: each stage, whether it is done, and its output.
-fn print_plan(plan: &Plan) {
-    let mark = |done: bool| if done { "done" } else { "to do" };
-    let placed = plan.placement_outputs().iter().all(|p| p.exists());
-    println!("place                     {}  {}", mark(placed), plan.placements.display());
-    for (ci, c) in plan.configurations.iter().enumerate() {
-        println!("simulate {:<16} {}  {}", c.slug(), mark(plan.data[ci].done().exists()), plan.data[ci].dir.display());
-    }
-    for j in &plan.jobs {
-        println!("train {:<40} {}  {}", j.id, mark(j.done()), j.results.display());
-    }
-    println!(
-        "report                    {}  {}",
-        mark(plan.out.join("report.json").exists()),
-        plan.out.join("report.json").display()
-    );
 }
 
 #[derive(clap::Args, Debug)]
@@ -315,7 +285,7 @@ pub struct ValidateArgs {
     pub out: PathBuf,
     /// The scale of the datasets and the scene bootstrap: quick, default or paper.
     #[arg(long, default_value = "default")]
-    pub profile: String,
+    pub profile: hilo_study::ProfileName,
     /// Placements in the set (overrides `validation.placements`).
     #[arg(long)]
     pub placements: Option<usize>,
@@ -345,8 +315,8 @@ pub struct ValidateArgs {
     pub transfer: Option<PathBuf>,
     /// Draw the placement set, then write the validation as a workflow for this engine
     /// (`snakemake`) into --out instead of running it.
-    #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "transfer"])]
-    pub workflow: Option<String>,
+    #[arg(long, value_enum, conflicts_with_all = ["refit", "recommend", "absorb", "transfer"])]
+    pub workflow: Option<Engine>,
     /// One stage of the validation in --out (as its Snakefile runs it): record this
     /// placement's dataset.
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "train", "resume", "transfer"])]
@@ -415,7 +385,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
         }
         if args.recommend {
             let registry = crate::train::registry()?;
-            let profile = hilo_study::profile(&report.profile, &study, &registry)?;
+            let profile = hilo_study::profile(report.profile.parse()?, &study, &registry)?;
             let mut reporter = Reporter::new();
             report.recommendation = hilo_study::validation::recommend::recommend(
                 &study,
@@ -433,7 +403,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     }
     let registry = crate::train::registry()?;
     let study = load_study(args.study.as_deref())?;
-    let profile = hilo_study::profile(&args.profile, &study, &registry)?;
+    let profile = hilo_study::profile(args.profile, &study, &registry)?;
     let mut settings = study.file.validation.clone();
     if let Some(n) = args.placements {
         settings.placements = n;
@@ -446,9 +416,9 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     }
     let _claim = claim(&args.out, true)?;
     let mut reporter = Reporter::new();
-    match args.workflow.as_deref() {
+    match args.workflow {
         None => {}
-        Some("snakemake") => {
+        Some(Engine::Snakemake) => {
             let plan = hilo_study::validation::plan(&study, &registry, &profile, &settings, &args.out, &mut |p| {
                 reporter.study(p)
             })?;
@@ -463,7 +433,6 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
             );
             return Ok(());
         }
-        Some(other) => bail!("--workflow {other:?}: the supported engine is snakemake"),
     }
     let report =
         hilo_study::validation::run(&study, &registry, &profile, &settings, &args.out, &mut |p| reporter.study(p))?;

@@ -3,7 +3,7 @@
 use anyhow::{Context, Result, bail};
 use hilo_detector::Registry;
 use hilo_detector::data::LoadOptions;
-use hilo_detector::train::{StepReport, TrainConfig};
+use hilo_detector::train::StepReport;
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -53,42 +53,17 @@ pub fn registry() -> Result<Registry> {
     Ok(hilo::registry()?)
 }
 
-/// A preset (or ablation) by name, and its default training schedule.
-pub fn detector(registry: &Registry, name: &str) -> Result<(hilo_detector::DetectorConfig, TrainConfig)> {
-    let p = registry.preset(name)?;
-    Ok((p.detector.clone(), p.train.clone()))
-}
-
-/// `det` with the JSON merge patch (RFC 7386) in `path` applied
-/// ([`hilo_detector::DetectorConfig::with_patch`]); errors name the file and the field.
-pub fn patched(det: &hilo_detector::DetectorConfig, path: &std::path::Path) -> Result<hilo_detector::DetectorConfig> {
-    let patch = hilo_core::fs::read_json::<serde_json::Value>(path, hilo_core::fs::limit::CONFIG)?;
-    det.with_patch(&patch).with_context(|| format!("{}: not a patch of the preset", path.display()))
-}
-
 pub fn run_train(args: &TrainArgs) -> Result<()> {
     let registry = registry()?;
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
-    let (det, base) = match &args.detector_config {
-        Some(path) => (
-            hilo_core::fs::read_json::<hilo_detector::DetectorConfig>(path, hilo_core::fs::limit::CONFIG)?,
-            TrainConfig::default(),
-        ),
-        None => {
-            let (det, schedule) = detector(&registry, &args.detector)?;
-            match &args.detector_patch {
-                Some(path) => (patched(&det, path)?, schedule),
-                None => (det, schedule),
-            }
-        }
-    };
-    let mut cfg = match &args.train_config {
-        Some(path) => base
-            .with_fields(&hilo_core::fs::read_json::<serde_json::Value>(path, hilo_core::fs::limit::CONFIG)?)
-            .with_context(|| format!("{}: not a valid training schedule", path.display()))?,
-        None => base,
-    };
+    let (det, mut cfg) = hilo_detector::train::recipe(
+        &registry,
+        &args.detector,
+        args.detector_config.as_deref(),
+        args.detector_patch.as_deref(),
+        args.train_config.as_deref(),
+    )?;
     if let Some(s) = args.samples {
         cfg.samples = s;
     }
@@ -110,26 +85,11 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     let (frames, stats) =
         hilo_detector::data::load_split(&ds, &args.split, &LoadOptions::new(&det.input, background.as_ref()))
             .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
-    if background.is_some() {
-        eprintln!(
-            "static background removed: {} of {} LiDAR points ({:.1}%)",
-            stats.background_points,
-            stats.background_points + stats.lidar_points,
-            100.0 * stats.background_points as f64 / (stats.background_points + stats.lidar_points).max(1) as f64
-        );
-    }
-    if det.input.radar_clutter.is_some() && stats.radar_points + stats.radar_clutter_points > 0 {
-        eprintln!(
-            "radar static clutter removed: {} of {} radar points ({:.1}%)",
-            stats.radar_clutter_points,
-            stats.radar_clutter_points + stats.radar_points,
-            100.0 * stats.radar_clutter_points as f64 / (stats.radar_clutter_points + stats.radar_points) as f64
-        );
+    for note in stats.notes(background.is_some(), det.input.radar_clutter.is_some()) {
+        eprintln!("{note}");
     }
     if let Some(db) = hilo_detector::train::paste_db(&frames, &cfg).context("train.paste")? {
-        let held: Vec<String> =
-            db.counts().iter().map(|(c, n)| format!("{} {n}", hilo_detector::data::CLASSES[*c].name())).collect();
-        eprintln!("ground-truth paste: instances to paste from the training frames: {}", held.join(", "));
+        eprintln!("ground-truth paste: instances to paste from the training frames: {}", db.describe());
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     if cfg.sync_batch_norm && cfg.replicas > cores {

@@ -15,6 +15,7 @@ pub mod folder;
 mod frame;
 pub mod fs;
 pub mod iou;
+pub mod machine;
 mod points;
 pub mod valid;
 

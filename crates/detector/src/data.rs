@@ -131,6 +131,33 @@ pub struct LoadStats {
     pub radar_clutter_points: usize,
 }
 
+impl LoadStats {
+    /// What the input rules removed, one line each, as `hilo train` reports them: the LiDAR
+    /// points of the static background (when a model was learned) and the radar's static
+    /// clutter (when the rule is on and there were radar points).
+    pub fn notes(&self, background: bool, radar_clutter: bool) -> Vec<String> {
+        let share = |part: usize, of: usize| 100.0 * part as f64 / of.max(1) as f64;
+        let mut notes = Vec::new();
+        if background {
+            let of = self.background_points + self.lidar_points;
+            notes.push(format!(
+                "static background removed: {} of {of} LiDAR points ({:.1}%)",
+                self.background_points,
+                share(self.background_points, of)
+            ));
+        }
+        let of = self.radar_points + self.radar_clutter_points;
+        if radar_clutter && of > 0 {
+            notes.push(format!(
+                "radar static clutter removed: {} of {of} radar points ({:.1}%)",
+                self.radar_clutter_points,
+                share(self.radar_clutter_points, of)
+            ));
+        }
+        notes
+    }
+}
+
 /// Refuses a detector that fuses radar (`uses_radar`) on a dataset with no radar channel: its
 /// radar branch would train and run on empty input, and its scores read as a fusion result.
 pub fn check_modalities(ds: &Dataset, detector: &str, uses_radar: bool) -> Result<()> {

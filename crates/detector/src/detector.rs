@@ -150,7 +150,7 @@ impl Detector {
     pub fn new(cfg: &Valid<DetectorConfig>, registry: &Registry, device: &Device, seed: u64) -> Result<Self> {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
-        let fusion = registry.build(&cfg.fusion, &cfg.fusion_config, &cfg.grid, vb.pp("fusion"))?;
+        let fusion = registry.build(&cfg.fusion, &cfg.fusion_config, vb.pp("fusion"))?;
         let mut det =
             Detector { cfg: (**cfg).clone(), varmap, fusion, backbone: None, head: None, device: device.clone() };
         // The plugin's output, on a probe batch, decides the rest: a map of C channels gets the

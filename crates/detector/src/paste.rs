@@ -91,6 +91,13 @@ impl PasteDb {
         self.fill.iter().zip(&self.by_class).map(|((c, _), v)| (*c, v.len())).collect()
     }
 
+    /// The instances held, per class by name: `car 120, pedestrian 45`.
+    pub fn describe(&self) -> String {
+        let held: Vec<String> =
+            self.counts().iter().map(|(c, n)| format!("{} {n}", crate::data::CLASSES[*c].name())).collect();
+        held.join(", ")
+    }
+
     /// Every instance held, class by class.
     pub fn instances(&self) -> impl Iterator<Item = &Instance> {
         self.by_class.iter().flatten()

@@ -814,6 +814,42 @@ pub fn learn_background(
     }
 }
 
+/// The detector and schedule a training runs, as `hilo train` names them: a registered preset
+/// (or ablation) with its default schedule, changed by the JSON merge patch (RFC 7386) in
+/// `patch` when given; or the detector config in `config` with the default schedule. The
+/// schedule then takes the fields of the file `schedule` (the rest keep their values). Errors
+/// name the file.
+pub fn recipe(
+    registry: &Registry,
+    preset: &str,
+    config: Option<&Path>,
+    patch: Option<&Path>,
+    schedule: Option<&Path>,
+) -> Result<(DetectorConfig, TrainConfig)> {
+    use hilo_core::fs::{limit, read_json};
+    let (det, base) = match config {
+        Some(path) => (read_json::<DetectorConfig>(path, limit::CONFIG)?, TrainConfig::default()),
+        None => {
+            let p = registry.preset(preset)?;
+            let det = match patch {
+                Some(path) => p
+                    .detector
+                    .with_patch(&read_json::<serde_json::Value>(path, limit::CONFIG)?)
+                    .map_err(|e| FusionError::Config(format!("{}: not a patch of the preset: {e}", path.display())))?,
+                None => p.detector.clone(),
+            };
+            (det, p.train.clone())
+        }
+    };
+    let train = match schedule {
+        Some(path) => base
+            .with_fields(&read_json::<serde_json::Value>(path, limit::CONFIG)?)
+            .map_err(|e| FusionError::Config(format!("{}: not a valid training schedule: {e}", path.display())))?,
+        None => base,
+    };
+    Ok((det, train))
+}
+
 /// Time of each part of a training step, seconds, summed over the steps timed.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct StepTimes {

@@ -535,8 +535,7 @@ fn bad_input_is_a_clear_error() {
     assert!(e.contains("pointrcnn") && e.contains("centerpoint") && e.contains("pointpillars"), "{e}");
     let mut r = Registry::with_builtin();
     fn builder(
-        _: &serde_json::Value,
-        _: &BevGrid,
+        _: serde_json::Value,
         _: candle_nn::VarBuilder,
     ) -> hilo_detector::Result<Box<dyn hilo_detector::Fusion>> {
         Err(hilo_detector::FusionError::Config("unused".into()))

@@ -11,6 +11,7 @@ pub mod config;
 pub mod error;
 pub mod iou;
 pub mod nuscenes;
+pub mod text;
 
 pub use boxes::{
     EvalBox, GroundTruth, check_sample_set, filter_boxes, parse_ground_truth, parse_submission, read_ground_truth,

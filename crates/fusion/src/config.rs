@@ -384,10 +384,7 @@ impl TrainConfig {
 /// The machine's memory (Linux: `MemTotal` of `/proc/meminfo`), bytes; `None` where the
 /// system does not say.
 pub fn machine_memory_bytes() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let kb: u64 =
-        text.lines().find_map(|l| l.strip_prefix("MemTotal:"))?.trim().trim_end_matches("kB").trim().parse().ok()?;
-    Some(kb * 1024)
+    hilo_core::machine::memory_bytes()
 }
 
 /// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).
@@ -405,6 +402,13 @@ pub const LIDAR_FEATURES: usize = 5;
 /// and the line of sight alone `lirafusion-like`'s car velocity error stayed at 3.3–3.5 m/s,
 /// the error of a constant. Build points with [`radar_point`].
 pub const RADAR_FEATURES: usize = 10;
+
+pub use crate::pillars::PILLAR_DECORATIONS;
+/// A LiDAR point's width in a pillar, what a LiDAR pillar encoder takes: its features, then
+/// the decorations.
+pub const LIDAR_PILLAR_WIDTH: usize = LIDAR_FEATURES + PILLAR_DECORATIONS;
+/// A radar point's width in a pillar, what a radar pillar encoder takes.
+pub const RADAR_PILLAR_WIDTH: usize = RADAR_FEATURES + PILLAR_DECORATIONS;
 
 /// A radar point's features ([`RADAR_FEATURES`]) from its position, RCS, radial velocity, unit
 /// line of sight and sweep lag.

@@ -7,7 +7,7 @@
 //! map, by one forward pass on a probe batch when the detector is built) or has a default.
 //!
 //! A plugin crate exports one registration function that adds its plugin (a name, its stage,
-//! and a builder from a JSON config, a grid and a `VarBuilder`) and the presets that use it
+//! and a builder from its typed config and a `VarBuilder`) and the presets that use it
 //! (a preset names the plugin, its config and the rest of the detector, and its training
 //! schedule). Registering a name twice is an error; asking for an unknown name lists the known.
 
@@ -107,14 +107,25 @@ pub fn parse_config<T: serde::de::DeserializeOwned>(plugin: &str, cfg: &serde_js
         .map_err(|e| FusionError::Config(format!("fusion plugin {plugin:?}: {e} in {cfg}")))
 }
 
-/// Builds a plugin from its JSON config on a grid.
-pub type Builder = fn(&serde_json::Value, &BevGrid, VarBuilder) -> Result<Box<dyn Fusion>>;
+/// Builds a plugin from its config `C` (read from a detector config's `fusion_config` by serde,
+/// a missing or unknown field named in the error) and the variables its weights live in. The
+/// grid arrives with every batch ([`FusionInput::grid`]).
+pub type Builder<C> = fn(C, VarBuilder) -> Result<Box<dyn Fusion>>;
+
+/// A builder with its config's type erased: it parses the JSON itself.
+type AnyBuilder = std::sync::Arc<dyn Fn(&serde_json::Value, VarBuilder) -> Result<Box<dyn Fusion>> + Send + Sync>;
 
 /// A registered plugin.
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct Plugin {
     pub stage: Stage,
-    pub build: Builder,
+    build: AnyBuilder,
+}
+
+impl std::fmt::Debug for Plugin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Plugin").field("stage", &self.stage).finish_non_exhaustive()
+    }
 }
 
 /// Plugins and presets by name.
@@ -125,6 +136,8 @@ pub struct Registry {
     presets: Vec<Preset>,
     /// Ablation preset → the preset it ablates.
     ablations: BTreeMap<String, String>,
+    /// The fusion preset a study tests by default ([`Registry::set_primary`]).
+    primary: Option<String>,
 }
 
 impl Registry {
@@ -144,11 +157,20 @@ impl Registry {
         r
     }
 
-    /// Adds a plugin.
-    pub fn register(&mut self, name: &str, stage: Stage, build: Builder) -> Result<()> {
+    /// Adds a plugin: its name, its stage and its builder, which takes the plugin's own config
+    /// type `C`.
+    pub fn register<C: serde::de::DeserializeOwned + 'static>(
+        &mut self,
+        name: &str,
+        stage: Stage,
+        build: Builder<C>,
+    ) -> Result<()> {
         if self.plugins.contains_key(name) {
             return Err(FusionError::Config(format!("fusion plugin {name:?} is registered twice")));
         }
+        let plugin = name.to_owned();
+        let build: AnyBuilder =
+            std::sync::Arc::new(move |cfg: &serde_json::Value, vb: VarBuilder| build(parse_config(&plugin, cfg)?, vb));
         self.plugins.insert(name.to_owned(), Plugin { stage, build });
         Ok(())
     }
@@ -211,6 +233,52 @@ impl Registry {
         self.presets.iter().map(|p| p.detector.name.clone()).collect()
     }
 
+    /// A preset's LiDAR-only counterpart: the first registered LiDAR-only preset (not an
+    /// ablation) with the same head (target assignment and channels) at the same output stride,
+    /// so that the two differ by the radar and its fusion alone. `None` for a LiDAR-only preset,
+    /// an unknown name, or a head no LiDAR-only preset shares.
+    pub fn lidar_counterpart(&self, preset: &str) -> Option<&str> {
+        let f = &self.preset(preset).ok()?.detector;
+        if !self.uses_radar(f) {
+            return None;
+        }
+        self.presets
+            .iter()
+            .map(|p| &p.detector)
+            .filter(|l| !self.uses_radar(l) && !self.ablations.contains_key(&l.name))
+            .find(|l| {
+                l.assignment == f.assignment
+                    && l.head_channels == f.head_channels
+                    && l.backbone.out_stride == f.backbone.out_stride
+            })
+            .map(|l| l.name.as_str())
+    }
+
+    /// Names the fusion preset a study tests by default (its "fusion detector"): a registered
+    /// preset, not an ablation, that reads radar and has a LiDAR-only counterpart.
+    pub fn set_primary(&mut self, preset: &str) -> Result<()> {
+        if self.ablations.contains_key(preset) || self.lidar_counterpart(preset).is_none() {
+            return Err(FusionError::Config(format!(
+                "primary preset {preset:?}: give a registered fusion preset (not an ablation) with a LiDAR-only \
+                 counterpart; known: {}",
+                self.preset_names().join(", ")
+            )));
+        }
+        self.primary = Some(preset.to_owned());
+        Ok(())
+    }
+
+    /// The fusion preset a study tests by default and its LiDAR-only counterpart: the one
+    /// [`Registry::set_primary`] named, else the first registered fusion preset that has a
+    /// counterpart. `None` where no fusion preset has one.
+    pub fn primary(&self) -> Option<(&str, &str)> {
+        let named = self.primary.as_deref().into_iter();
+        let fusion = named
+            .chain(self.presets.iter().map(|p| p.detector.name.as_str()))
+            .find(|p| !self.ablations.contains_key(*p) && self.lidar_counterpart(p).is_some())?;
+        Some((fusion, self.lidar_counterpart(fusion)?))
+    }
+
     /// A preset by name.
     pub fn preset(&self, name: &str) -> Result<&Preset> {
         self.presets.iter().find(|p| p.detector.name == name).ok_or_else(|| {
@@ -228,15 +296,10 @@ impl Registry {
         self.stage(&cfg.fusion).is_some_and(|s| s != Stage::None)
     }
 
-    pub fn build(
-        &self,
-        name: &str,
-        cfg: &serde_json::Value,
-        grid: &BevGrid,
-        vb: VarBuilder,
-    ) -> Result<Box<dyn Fusion>> {
+    /// Builds the plugin `name` from its JSON config (a detector config's `fusion_config`).
+    pub fn build(&self, name: &str, cfg: &serde_json::Value, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
         match self.plugins.get(name) {
-            Some(p) => (p.build)(cfg, grid, vb),
+            Some(p) => (p.build)(cfg, vb),
             None => {
                 Err(FusionError::Config(format!("unknown fusion plugin {name:?}; known: {}", self.names().join(", "))))
             }
@@ -262,9 +325,8 @@ pub struct LidarOnly {
     net: PillarNet,
 }
 
-fn build_lidar_only(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: LidarOnlyConfig = parse_config("lidar", cfg)?;
-    let net = PillarNet::new(crate::config::LIDAR_FEATURES + 5, c.channels, vb.pp("lidar_pfn"))?;
+fn build_lidar_only(c: LidarOnlyConfig, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
+    let net = PillarNet::new(crate::config::LIDAR_PILLAR_WIDTH, c.channels, vb.pp("lidar_pfn"))?;
     Ok(Box::new(LidarOnly { net }))
 }
 

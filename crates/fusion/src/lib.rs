@@ -16,8 +16,9 @@
 //!
 //! # Start here
 //!
-//! A plugin implements [`Fusion`] (one required method, `forward`), is built from its JSON
-//! config and a `VarBuilder` ([`fusion::parse_config`]), and registers itself, its presets and
+//! A plugin implements [`Fusion`] (one required method, `forward`), is built from its own
+//! config type (read by serde from the detector config) and a `VarBuilder`
+//! ([`fusion::Builder`]), and registers itself, its presets and
 //! its ablations with [`Registry::register`], [`Registry::add_preset`] and
 //! [`Registry::add_ablation`].
 

@@ -26,6 +26,10 @@ impl Pillars {
     }
 }
 
+/// What pillarisation adds to every point: its offsets from its pillar's mean (x, y, z) and
+/// from its pillar's centre (x, y), as PointPillars decorates.
+pub const PILLAR_DECORATIONS: usize = 5;
+
 /// Groups points into pillars and decorates each point with its offsets from the pillar's mean
 /// and from the pillar's centre (PointPillars). `raw` features come first.
 ///
@@ -37,7 +41,7 @@ impl Pillars {
 pub fn pillarize<const F: usize>(grid: &BevGrid, frames: &[&[[f32; F]]], seed: u64) -> Pillars {
     let n = grid.cells();
     let npp = grid.max_points_per_pillar;
-    let width = F + 5;
+    let width = F + PILLAR_DECORATIONS;
     let mut out = Pillars { width, points_per_pillar: npp, ..Pillars::default() };
     for (b, pts) in frames.iter().enumerate() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ (b as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15));

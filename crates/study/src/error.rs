@@ -6,6 +6,8 @@ pub enum StudyError {
     File(#[from] hilo_core::fs::FileError),
     #[error("{0}")]
     Invalid(String),
+    #[error("--profile {name:?}: use quick, default or paper")]
+    UnknownProfile { name: String },
     #[error(transparent)]
     Raycast(#[from] hilo_raycast::RaycastError),
     #[error(transparent)]

@@ -52,7 +52,7 @@ pub mod workflow;
 pub use assemble::Report;
 pub use error::{Result, StudyError};
 pub use plan::Plan;
-pub use profile::{Profile, profile};
+pub use profile::{Profile, ProfileName, profile};
 pub use run::{RunOptions, run, run_sweep};
 pub use stages::Progress;
 pub use study::{Configuration, Study};

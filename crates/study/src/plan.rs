@@ -383,6 +383,29 @@ impl Plan {
         v
     }
 
+    /// Every stage (place, simulate per configuration, train per job, report), whether its
+    /// output exists, and that output's path: one line each, as `hilo study plan` prints them.
+    pub fn status(&self) -> String {
+        let mark = |done: bool| if done { "done" } else { "to do" };
+        let placed = self.placement_outputs().iter().all(|p| p.exists());
+        let mut lines = vec![format!("place                     {}  {}", mark(placed), self.placements.display())];
+        for (c, d) in self.configurations.iter().zip(&self.data) {
+            lines.push(format!("simulate {:<16} {}  {}", c.slug(), mark(d.done().exists()), d.dir.display()));
+        }
+        for j in &self.jobs {
+            lines.push(format!("train {:<40} {}  {}", j.id, mark(j.done()), j.results.display()));
+        }
+        let report = self.out.join("report.json");
+        lines.push(format!("report                    {}  {}", mark(report.exists()), report.display()));
+        lines.join("\n")
+    }
+
+    /// The number of stages a workflow file holds for this plan (place, one simulate per
+    /// configuration, one train per job, report).
+    pub fn stage_count(&self) -> usize {
+        self.jobs.len() + self.configurations.len() + 2
+    }
+
     /// A configuration by name or slug.
     pub fn configuration(&self, name: &str) -> Result<usize> {
         self.configurations.iter().position(|c| c.name == name || c.slug() == name).ok_or_else(|| {

@@ -10,10 +10,48 @@ use hilo_detector::Registry;
 use hilo_detector::train::Sampling;
 use serde::{Deserialize, Serialize};
 
+/// The profiles a study can run at, by name (`quick`, `default`, `paper`; `tiny` for tests).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ProfileName {
+    Tiny,
+    Quick,
+    Default,
+    Paper,
+}
+
+impl ProfileName {
+    /// Every profile, smallest first.
+    pub const ALL: [ProfileName; 4] = [ProfileName::Tiny, ProfileName::Quick, ProfileName::Default, ProfileName::Paper];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ProfileName::Tiny => "tiny",
+            ProfileName::Quick => "quick",
+            ProfileName::Default => "default",
+            ProfileName::Paper => "paper",
+        }
+    }
+}
+
+impl std::fmt::Display for ProfileName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for ProfileName {
+    type Err = StudyError;
+
+    fn from_str(s: &str) -> Result<Self> {
+        Self::ALL.into_iter().find(|p| p.as_str() == s).ok_or_else(|| StudyError::UnknownProfile { name: s.to_owned() })
+    }
+}
+
 /// The scale of a study.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Profile {
-    pub name: String,
+    pub name: ProfileName,
     /// The datasets' settings, checked when the profile is made.
     pub dataset: Valid<SimulateConfig>,
     /// Presets trained on every configuration they can run on (fusion presets need a radar).
@@ -73,26 +111,37 @@ fn conditions_run<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result
     })
 }
 
-/// The presets of the default profile: the LiDAR-only detector and the fusion detector under
-/// study, which share their head.
-pub const DEFAULT_PRESETS: [&str; 2] = ["centerpoint", "lirafusion-like"];
+/// The presets of the default profile, as the registry names them ([`Registry::primary`]): the
+/// LiDAR-only counterpart and the fusion preset under study, which share their head; the first
+/// LiDAR-only preset alone where no fusion preset has a counterpart.
+pub fn default_presets(registry: &Registry) -> Vec<String> {
+    match registry.primary() {
+        Some((fusion, lidar)) => vec![lidar.to_owned(), fusion.to_owned()],
+        None => registry
+            .detector_names()
+            .into_iter()
+            .filter(|p| registry.preset(p).is_ok_and(|x| !registry.uses_radar(&x.detector)))
+            .take(1)
+            .collect(),
+    }
+}
 
 /// The profiles: `quick` (≤ 5 min), `default` (≤ 30 min), `paper` (the paper's scale), and
 /// `tiny` (seconds; for tests).
-pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile> {
+pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<Profile> {
     let base = study.dataset.clone().into_inner();
     // Every detector and every ablation the plugins register, for the paper profile: the
     // default profile's presets first (the verdict takes the first fusion preset as the one
     // under study), then the others in registration order.
-    let mut detectors: Vec<String> =
-        DEFAULT_PRESETS.iter().filter(|p| registry.preset(p).is_ok()).map(|p| p.to_string()).collect();
-    detectors.extend(registry.detector_names().into_iter().filter(|p| !DEFAULT_PRESETS.contains(&p.as_str())));
+    let default = default_presets(registry);
+    let mut detectors = default.clone();
+    detectors.extend(registry.detector_names().into_iter().filter(|p| !default.contains(p)));
     let ablations = registry.ablation_names();
     let p = match name {
-        "quick" => Profile {
-            name: name.into(),
+        ProfileName::Quick => Profile {
+            name,
             dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..base }.validate()?,
-            presets: vec!["centerpoint".into()],
+            presets: default.iter().take(1).cloned().collect(),
             ablations: vec![],
             configurations: Some(2),
             seeds: 2,
@@ -105,11 +154,11 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             conditions: Some(0),
             leaves_out: "the study's configurations after its first two, its weather conditions, the fusion detectors, a third seed and longer training: the default profile adds them".into(),
         },
-        "default" => Profile {
-            name: name.into(),
+        ProfileName::Default => Profile {
+            name,
             dataset: study.dataset.clone(),
-            presets: DEFAULT_PRESETS.iter().map(|p| p.to_string()).collect(),
-            ablations: registry.ablations_of("lirafusion-like"),
+            presets: default.clone(),
+            ablations: registry.primary().map(|(fusion, _)| registry.ablations_of(fusion)).unwrap_or_default(),
             configurations: Some(4),
             seeds: 3,
             train_samples: Some(6_000),
@@ -121,8 +170,8 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             conditions: Some(1),
             leaves_out: "the study's configurations after its first four, its weather conditions after the first, the other detector presets (pointpillars, pointpillars-lr, l4dr-like, bi-lrfusion-like, late) and the l4dr-like ablation, and each preset's default schedule (6,000 samples here against 30,000 for centerpoint, 24,000 for lirafusion-like, 12,000 for the others): `--profile paper` adds them; 6,000 samples leave every detector short of its plateau (the learning curves show it)".into(),
         },
-        "paper" => Profile {
-            name: name.into(),
+        ProfileName::Paper => Profile {
+            name,
             dataset: SimulateConfig { scenes: 30, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, val_scenes: 20, ..base }.validate()?,
             presets: detectors,
             ablations,
@@ -137,8 +186,8 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             conditions: None,
             leaves_out: "nothing of the paper's design; its 37 scenes at 20 Hz are 30 training scenes at 20 Hz and 20 validation scenes at 2 Hz here".into(),
         },
-        "tiny" => Profile {
-            name: name.into(),
+        ProfileName::Tiny => Profile {
+            name,
             dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..base }.validate()?,
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             ablations: vec![],
@@ -153,7 +202,6 @@ pub fn profile(name: &str, study: &Study, registry: &Registry) -> Result<Profile
             conditions: Some(0),
             leaves_out: "everything that takes time: a test profile".into(),
         },
-        other => return Err(StudyError::Invalid(format!("--profile {other:?}: use quick, default or paper"))),
     };
     Ok(p)
 }
@@ -171,7 +219,7 @@ mod tests {
         let study =
             Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
         let registry = Registry::with_builtin();
-        let quick = profile("quick", &study, &registry).unwrap();
+        let quick = profile(ProfileName::Quick, &study, &registry).unwrap();
         let json = serde_json::to_value(&quick).unwrap();
         assert!(json.get("conditions").is_none());
         let with = |v: serde_json::Value| {
@@ -184,9 +232,19 @@ mod tests {
         assert_eq!(with(serde_json::json!(false)), Some(0));
         assert_eq!(with(serde_json::json!(1)), Some(1));
         assert_eq!(with(serde_json::Value::Null), None);
-        let default = profile("default", &study, &registry).unwrap();
+        let default = profile(ProfileName::Default, &study, &registry).unwrap();
         assert_eq!(default.conditions, Some(1));
         let back: Profile = serde_json::from_str(&serde_json::to_string(&default).unwrap()).unwrap();
         assert_eq!(back, default);
+    }
+
+    #[test]
+    fn profile_names_round_trip_and_unknown_ones_are_named() {
+        for p in ProfileName::ALL {
+            assert_eq!(p.to_string().parse::<ProfileName>().unwrap(), p);
+            assert_eq!(serde_json::to_value(p).unwrap(), serde_json::json!(p.as_str()));
+        }
+        let e = "huge".parse::<ProfileName>().unwrap_err().to_string();
+        assert!(e.contains("\"huge\"") && e.contains("quick, default or paper"), "{e}");
     }
 }

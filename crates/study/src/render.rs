@@ -272,6 +272,57 @@ pub fn blank_canvas(min: Vec2, max: Vec2, px_per_m: f32) -> Result<Canvas> {
 }
 
 /// The scene drawn top-down, ready for more layers.
+/// The points of one scan, in the scene's local frame, as `hilo scan` draws them.
+#[derive(Clone, Copy, Debug)]
+pub enum ScanPoints<'a> {
+    /// Coloured by height above the ground (cyan at it, red 4 m above).
+    Lidar(&'a [hilo_core::LidarPoint]),
+    /// Coloured by radial velocity: red approaching, white static, blue receding (±10 m/s).
+    Radar(&'a [hilo_core::RadarPoint]),
+}
+
+/// A scan drawn over the scene, top-down: its points, the road users' boxes, the sensor, and a
+/// colour key. PNG bytes.
+pub fn scan_png(scene: &Scene, points: ScanPoints, sensor: Vec2, road_users: &[Box3]) -> Result<Vec<u8>> {
+    type Rgb = (u8, u8, u8);
+    type Key = &'static [(Rgb, &'static str)];
+    let (dots, radius, key): (Vec<(Vec2, Rgb)>, f32, Key) = match points {
+        ScanPoints::Lidar(points) => {
+            let colour = |z: f32| {
+                let h = ((z - scene.ground.z_m) / 4.0).clamp(0.0, 1.0);
+                ((40.0 + 215.0 * h) as u8, (200.0 - 120.0 * h) as u8, (255.0 - 200.0 * h) as u8)
+            };
+            let dots = points.iter().map(|p| (Vec2::new(p.x, p.y), colour(p.z))).collect();
+            (dots, 1.0, &[((40, 200, 255), "LiDAR point at the ground"), ((255, 80, 55), "4 m above it")])
+        }
+        ScanPoints::Radar(points) => {
+            let colour = |v: f32| {
+                let k = (v / 10.0).clamp(-1.0, 1.0);
+                if k < 0.0 {
+                    (255, (255.0 * (1.0 + k)) as u8, (255.0 * (1.0 + k)) as u8)
+                } else {
+                    ((255.0 * (1.0 - k)) as u8, (255.0 * (1.0 - k)) as u8, 255)
+                }
+            };
+            let dots = points.iter().map(|p| (Vec2::new(p.x, p.y), colour(p.v_r_mps))).collect();
+            let key: Key = &[
+                ((255, 0, 0), "radar point approaching (10 m/s)"),
+                ((255, 255, 255), "radar point static"),
+                ((0, 0, 255), "radar point receding (10 m/s)"),
+            ];
+            (dots, 2.5, key)
+        }
+    };
+    let mut canvas = scene_canvas(scene, 4.0)?;
+    canvas.boxes(road_users, (255, 230, 0));
+    canvas.dots(&dots, radius);
+    canvas.dots(&[(sensor, (255, 0, 255))], 5.0);
+    let mut keys = vec![((255, 0, 255), "sensor"), ((255, 230, 0), "road user (tick: heading)")];
+    keys.extend_from_slice(key);
+    canvas.legend(&keys);
+    canvas.png()
+}
+
 pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
     let g = scene.ground;
     let view = View { min: g.min, max: g.max, scale: px_per_m };

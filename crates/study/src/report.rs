@@ -361,7 +361,7 @@ fn md_header(md: &mut String, r: &Report) {
         r.validation_scenes,
         p.resamples,
         if r.study.starts_with("<embedded>") { String::new() } else { format!(" {}", r.study) },
-        if p.name == "default" { String::new() } else { format!(" --profile {}", p.name) },
+        if p.name == crate::profile::ProfileName::Default { String::new() } else { format!(" --profile {}", p.name) },
         pv.hilo_version,
         if pv.git_commit.is_empty() {
             "not built from a checkout".to_owned()

@@ -264,7 +264,7 @@ impl Sweep {
     pub fn claim_folder(&self, out: &Path, plans: &[Plan]) -> Result<()> {
         let record = SweepRecord {
             source: self.source.clone(),
-            profile: plans.first().map(|p| p.profile.name.clone()).unwrap_or_default(),
+            profile: plans.first().map(|p| p.profile.name.to_string()).unwrap_or_default(),
             shards: self
                 .shards
                 .iter()

@@ -786,7 +786,8 @@ impl PresetRoles {
             .iter()
             .filter_map(|a| registry.ablation_of(a).map(|of| (a.clone(), of.to_owned())))
             .collect();
-        // Each fusion preset's LiDAR-only counterpart: same head and target assignment.
+        // Each fusion preset's LiDAR-only counterpart (the registry's: same head and target
+        // assignment), where the profile trains it.
         let cfg_of = |p: &str| registry.preset(p).ok().map(|x| &x.detector);
         let lidar_only: Vec<&String> =
             prof.presets.iter().filter(|p| !uses_radar.get(*p).copied().unwrap_or(true)).collect();
@@ -794,17 +795,9 @@ impl PresetRoles {
             .presets
             .iter()
             .chain(&prof.ablations)
-            .filter(|p| uses_radar.get(*p).copied().unwrap_or(false))
             .filter_map(|f| {
-                let fc = cfg_of(f)?;
-                let l = lidar_only.iter().find(|l| {
-                    cfg_of(l).is_some_and(|lc| {
-                        lc.assignment == fc.assignment
-                            && lc.head_channels == fc.head_channels
-                            && lc.backbone.out_stride == fc.backbone.out_stride
-                    })
-                })?;
-                Some((f.clone(), (*l).clone()))
+                let l = registry.lidar_counterpart(f).filter(|l| prof.presets.iter().any(|p| p == l))?;
+                Some((f.clone(), l.to_owned()))
             })
             .collect();
         let pointpillars_head: std::collections::BTreeSet<String> = lidar_only

@@ -261,7 +261,7 @@ pub fn snakefile(plan: &Plan, wf: &Workflow) -> Result<String> {
         "# The study in {} as a Snakemake workflow, written by `hilo study --workflow snakemake`.\n{HOW_TO_RUN}\n\
          # Profile {}: {} configurations, {} trainings.",
         comment(&plan.out.display().to_string()),
-        comment(&plan.profile.name),
+        comment(plan.profile.name.as_str()),
         plan.configurations.len(),
         plan.jobs.len()
     );
@@ -388,7 +388,7 @@ pub fn validation_snakefile(plan: &ValidationPlan, profile: &Profile, wf: &Workf
          # Profile {}: {} placements, {} trainings; the placement set is drawn (set/), the last rule scores\n\
          # them, fits the calibrated objective and trains its recommendation.",
         comment(&base.display().to_string()),
-        comment(&profile.name),
+        comment(profile.name.as_str()),
         plan.members.len(),
         plan.jobs.len()
     );

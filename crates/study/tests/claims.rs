@@ -14,9 +14,10 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
     let mut registry = hilo_detector::Registry::with_builtin();
     hilo_fusion_raw::register(&mut registry).unwrap();
     hilo_fusion_early::register(&mut registry).unwrap();
+    registry.set_primary("lirafusion-like").unwrap();
     let text = include_str!("../../../fixtures/study.toml");
     let study = Study::parse(text, std::path::Path::new("."), "<embedded>/fixtures/study.toml").unwrap();
-    let prof = profile("paper", &study, &registry).unwrap();
+    let prof = profile(hilo_study::ProfileName::Paper, &study, &registry).unwrap();
     assert_eq!(&prof.presets[..2], &["centerpoint".to_string(), "lirafusion-like".to_string()]);
     assert!(prof.ablations.contains(&"lirafusion-like-no-early".to_string()));
     let roles = PresetRoles::of(&prof, &registry);

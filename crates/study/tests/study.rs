@@ -17,15 +17,18 @@ struct Sum {
     r: PillarNet,
 }
 
-fn build(
-    _: &serde_json::Value,
-    _: &hilo_detector::grid::BevGrid,
-    vb: candle_nn::VarBuilder,
-) -> hilo_detector::Result<Box<dyn Fusion>> {
-    use hilo_detector::data::{LIDAR_FEATURES, RADAR_FEATURES};
+/// The plugin's config, read from the preset's `fusion_config` (an unknown field is an error).
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SumConfig {
+    channels: usize,
+}
+
+fn build(c: SumConfig, vb: candle_nn::VarBuilder) -> hilo_detector::Result<Box<dyn Fusion>> {
+    use hilo_detector::config::{LIDAR_PILLAR_WIDTH, RADAR_PILLAR_WIDTH};
     Ok(Box::new(Sum {
-        l: PillarNet::new(LIDAR_FEATURES + 5, 16, vb.pp("l"))?,
-        r: PillarNet::new(RADAR_FEATURES + 5, 16, vb.pp("r"))?,
+        l: PillarNet::new(LIDAR_PILLAR_WIDTH, c.channels, vb.pp("l"))?,
+        r: PillarNet::new(RADAR_PILLAR_WIDTH, c.channels, vb.pp("r"))?,
     }))
 }
 
@@ -43,7 +46,7 @@ fn register(r: &mut Registry) -> hilo_detector::Result<()> {
     let detector = DetectorConfig {
         name: "sum-net".into(),
         fusion: "sum".into(),
-        fusion_config: serde_json::json!({}),
+        fusion_config: serde_json::json!({ "channels": 16 }),
         ..hilo_detector::presets::centerpoint()
     };
     r.add_preset(Preset { detector, train: TrainConfig::default() })
@@ -52,7 +55,7 @@ fn register(r: &mut Registry) -> hilo_detector::Result<()> {
 // ---- The tests. ----
 
 fn tiny(study: &Study, registry: &Registry, presets: &[&str], out: &Path) -> hilo_study::Report {
-    let mut profile = hilo_study::profile("tiny", study, registry).unwrap();
+    let mut profile = hilo_study::profile(hilo_study::ProfileName::Tiny, study, registry).unwrap();
     profile.presets = presets.iter().map(|p| p.to_string()).collect();
     // Two training steps (batches of 2).
     profile.train_samples = Some(4);
@@ -109,7 +112,7 @@ fn a_learning_curve_point_is_a_training_of_its_budget() {
     let dir = tempfile::tempdir().unwrap();
     let study = Study::parse(TWO_CONFIGS, dir.path(), "two-configs.toml").unwrap();
     let run = |samples: usize| {
-        let mut profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+        let mut profile = hilo_study::profile(hilo_study::ProfileName::Tiny, &study, &registry).unwrap();
         profile.presets = vec!["centerpoint".into()];
         profile.configurations = Some(1);
         profile.train_samples = Some(samples);
@@ -232,7 +235,7 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
     let study = Study::parse(TWO_CONFIGS, dir.path(), "two-configs.toml").unwrap();
     let mut registry = Registry::with_builtin();
     hilo_fusion_raw::register(&mut registry).unwrap();
-    let mut profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+    let mut profile = hilo_study::profile(hilo_study::ProfileName::Tiny, &study, &registry).unwrap();
     profile.presets = vec!["centerpoint".into()];
     profile.train_samples = Some(4);
     let whole = dir.path().join("whole");
@@ -291,7 +294,7 @@ fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
     let study = Study::parse(&text, dir.path(), "fog.toml").unwrap();
     let mut registry = Registry::with_builtin();
     hilo_fusion_raw::register(&mut registry).unwrap();
-    let mut profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+    let mut profile = hilo_study::profile(hilo_study::ProfileName::Tiny, &study, &registry).unwrap();
     assert_eq!(profile.conditions, Some(0), "the tiny profile leaves conditions out");
     let out = dir.path().join("study");
     assert_eq!(Plan::new(&study, &registry, &profile, &out).unwrap().configurations.len(), 2);
@@ -372,7 +375,7 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     let mut registry = Registry::with_builtin();
     hilo_fusion_raw::register(&mut registry).unwrap();
     let profile = |s: &Study| {
-        let mut p = hilo_study::profile("tiny", s, &registry)?;
+        let mut p = hilo_study::profile(hilo_study::ProfileName::Tiny, s, &registry)?;
         p.presets = vec!["centerpoint".into()];
         p.train_samples = Some(4);
         Ok(p)
@@ -415,7 +418,7 @@ fn tiny_plan(dir: &std::path::Path, text: &str) -> hilo_study::Result<hilo_study
     let mut registry = Registry::with_builtin();
     hilo_fusion_raw::register(&mut registry).unwrap();
     let study = Study::parse(text, dir, "study.toml")?;
-    let profile = hilo_study::profile("tiny", &study, &registry)?;
+    let profile = hilo_study::profile(hilo_study::ProfileName::Tiny, &study, &registry)?;
     hilo_study::Plan::new(&study, &registry, &profile, &dir.join("study"))
 }
 

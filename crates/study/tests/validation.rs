@@ -197,7 +197,7 @@ fn the_validation_trains_with_the_studys_patch_and_schedule() {
     hilo_fusion_early::register(&mut registry).unwrap();
     let plan = |text: &str, out: &str| {
         let study = Study::parse(text, dir.path(), "coarse.toml").unwrap();
-        let profile = hilo_study::profile("tiny", &study, &registry).unwrap();
+        let profile = hilo_study::profile(hilo_study::ProfileName::Tiny, &study, &registry).unwrap();
         hilo_study::validation::plan(&study, &registry, &profile, &settings(), &dir.path().join(out), &mut |_| {})
             .unwrap()
     };

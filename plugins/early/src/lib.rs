@@ -21,10 +21,9 @@
 
 use candle_core::{DType, Tensor};
 use candle_nn::{BatchNorm, Linear, Module, VarBuilder};
-use hilo_fusion::config::LIDAR_FEATURES;
+use hilo_fusion::config::LIDAR_PILLAR_WIDTH;
 use hilo_fusion::config::TrainConfig;
 use hilo_fusion::fuse::{BevFuse, FuseOp};
-use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{PillarNet, PillarTensors};
 use hilo_fusion::presets::centerpoint;
 use hilo_fusion::{DetectorConfig, Fusion, FusionError, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
@@ -83,8 +82,9 @@ pub struct EarlyFusion {
 }
 
 /// Column `k` of the joint layout each input feature goes to.
-const LIDAR_TO_JOINT: [usize; 10] = [0, 1, 2, 8, 13, 3, 4, 5, 6, 7];
-const RADAR_TO_JOINT: [usize; 15] = [0, 1, 2, 9, 10, 11, 12, 13, 14, 15, 3, 4, 5, 6, 7];
+const LIDAR_TO_JOINT: [usize; LIDAR_PILLAR_WIDTH] = [0, 1, 2, 8, 13, 3, 4, 5, 6, 7];
+const RADAR_TO_JOINT: [usize; hilo_fusion::config::RADAR_PILLAR_WIDTH] =
+    [0, 1, 2, 9, 10, 11, 12, 13, 14, 15, 3, 4, 5, 6, 7];
 
 fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
     let mut m = vec![0f32; map.len() * JOINT];
@@ -94,8 +94,7 @@ fn selection(map: &[usize], dev: &candle_core::Device) -> Result<Tensor> {
     Ok(Tensor::from_vec(m, (map.len(), JOINT), dev)?)
 }
 
-pub fn build(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: EarlyConfig = hilo_fusion::fusion::parse_config("early", cfg)?;
+pub fn build(c: EarlyConfig, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     Ok(Box::new(EarlyFusion::new(c, vb)?))
 }
 
@@ -108,7 +107,7 @@ impl EarlyFusion {
         )?;
         let (lidar, fuse) = match &c.middle {
             Some(m) => (
-                Some(PillarNet::new(LIDAR_FEATURES + 5, m.lidar_channels, vb.pp("lidar"))?),
+                Some(PillarNet::new(LIDAR_PILLAR_WIDTH, m.lidar_channels, vb.pp("lidar"))?),
                 Some(BevFuse::new(m.lidar_channels, c.channels, m.out_channels, m.op, vb.pp("fuse"))?),
             ),
             None => (None, None),
@@ -349,7 +348,7 @@ mod tests {
     #[test]
     fn aggregations_match_a_per_cell_oracle() {
         let grid = small_grid();
-        let lidar: Vec<[f32; LIDAR_FEATURES]> = (0..9)
+        let lidar: Vec<[f32; hilo_fusion::config::LIDAR_FEATURES]> = (0..9)
             .map(|k| [1.1 + 0.05 * k as f32, 2.1 + 0.03 * k as f32, 0.2 * k as f32, 0.3, 0.0])
             .chain((0..3).map(|k| [-4.3, 5.2 + 0.1 * k as f32, 0.5, 0.8, 0.1]))
             .collect();

@@ -8,8 +8,7 @@ use candle_nn::VarBuilder;
 use glam::Vec3;
 use hilo_core::{Box3, Detection};
 use hilo_fusion::config::TrainConfig;
-use hilo_fusion::config::{CLASSES, LIDAR_FEATURES, RADAR_FEATURES};
-use hilo_fusion::grid::BevGrid;
+use hilo_fusion::config::{CLASSES, LIDAR_PILLAR_WIDTH, RADAR_PILLAR_WIDTH};
 use hilo_fusion::layout::{At, Layout};
 use hilo_fusion::modules::{Backbone, BackboneConfig, Head, PillarNet};
 use hilo_fusion::presets::centerpoint;
@@ -55,11 +54,10 @@ fn branch(features: usize, channels: usize, c: &LateConfig, vb: VarBuilder) -> R
     Ok(Branch { pfn, backbone, head })
 }
 
-pub fn build(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: LateConfig = hilo_fusion::fusion::parse_config("late", cfg)?;
+pub fn build(c: LateConfig, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     Ok(Box::new(LateFusion {
-        lidar: branch(LIDAR_FEATURES + 5, c.lidar_channels, &c, vb.pp("lidar"))?,
-        radar: branch(RADAR_FEATURES + 5, c.radar_channels, &c, vb.pp("radar"))?,
+        lidar: branch(LIDAR_PILLAR_WIDTH, c.lidar_channels, &c, vb.pp("lidar"))?,
+        radar: branch(RADAR_PILLAR_WIDTH, c.radar_channels, &c, vb.pp("radar"))?,
         out_stride: c.backbone.out_stride,
     }))
 }

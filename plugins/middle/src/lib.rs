@@ -8,9 +8,8 @@
 
 use candle_nn::VarBuilder;
 use hilo_fusion::config::TrainConfig;
-use hilo_fusion::config::{LIDAR_FEATURES, RADAR_FEATURES};
+use hilo_fusion::config::{LIDAR_PILLAR_WIDTH, RADAR_PILLAR_WIDTH};
 use hilo_fusion::fuse::{BevFuse, FuseOp};
-use hilo_fusion::grid::BevGrid;
 use hilo_fusion::modules::{ConvBn, PillarNet};
 use hilo_fusion::presets::centerpoint;
 use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
@@ -39,11 +38,10 @@ pub struct MiddleFusion {
     fuse: BevFuse,
 }
 
-pub fn build(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: MiddleConfig = hilo_fusion::fusion::parse_config("middle", cfg)?;
+pub fn build(c: MiddleConfig, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     Ok(Box::new(MiddleFusion {
-        lidar: PillarNet::new(LIDAR_FEATURES + 5, c.lidar_channels, vb.pp("lidar"))?,
-        radar: PillarNet::new(RADAR_FEATURES + 5, c.radar_channels, vb.pp("radar"))?,
+        lidar: PillarNet::new(LIDAR_PILLAR_WIDTH, c.lidar_channels, vb.pp("lidar"))?,
+        radar: PillarNet::new(RADAR_PILLAR_WIDTH, c.radar_channels, vb.pp("radar"))?,
         widen: ConvBn::new(c.radar_channels, c.radar_channels, 3, 1, vb.pp("widen"))?,
         fuse: BevFuse::new(c.lidar_channels, c.radar_channels, c.out_channels, c.op, vb.pp("fuse"))?,
     }))

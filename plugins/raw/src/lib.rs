@@ -9,8 +9,7 @@
 
 use candle_nn::VarBuilder;
 use hilo_fusion::config::TrainConfig;
-use hilo_fusion::config::{LIDAR_FEATURES, RADAR_FEATURES};
-use hilo_fusion::grid::BevGrid;
+use hilo_fusion::config::{LIDAR_PILLAR_WIDTH, RADAR_PILLAR_WIDTH};
 use hilo_fusion::modules::PillarNet;
 use hilo_fusion::presets::pointpillars;
 use hilo_fusion::{DetectorConfig, Fusion, FusionInput, FusionOutput, Preset, Registry, Result, Stage};
@@ -35,11 +34,10 @@ pub struct RawFusion {
     f_r: PillarNet,
 }
 
-pub fn build(cfg: &serde_json::Value, _grid: &BevGrid, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
-    let c: RawConfig = hilo_fusion::fusion::parse_config("raw", cfg)?;
+pub fn build(c: RawConfig, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
     Ok(Box::new(RawFusion {
-        f_l: PillarNet::new(LIDAR_FEATURES + 5, c.channels, vb.pp("f_l"))?,
-        f_r: PillarNet::new(RADAR_FEATURES + 5, c.channels, vb.pp("f_r"))?,
+        f_l: PillarNet::new(LIDAR_PILLAR_WIDTH, c.channels, vb.pp("f_l"))?,
+        f_r: PillarNet::new(RADAR_PILLAR_WIDTH, c.channels, vb.pp("f_r"))?,
     }))
 }
 

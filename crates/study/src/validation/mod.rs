@@ -570,7 +570,7 @@ fn score(
     let (predictors, budget_spearman, budget_kendall, seed_spearman) = agreements(&members);
     let mut report = ValidationReport {
         study: study.source.clone(),
-        profile: profile.name.clone(),
+        profile: profile.name.to_string(),
         settings: settings.clone(),
         provenance: Provenance::here(profile.trainings_at_once),
         validation_scenes: scorer.scenes.len(),

@@ -757,7 +757,10 @@ fn apply_variants(
     Ok((backward, fused_optimizer))
 }
 
+/// `hilo bench train`: the presets of `registry` named in `presets`, each with `overrides`
+/// applied, timed over `steps` steps on the training split of the dataset at `data`.
 pub fn train(
+    registry: &hilo_detector::Registry,
     data: &std::path::Path,
     presets: &[String],
     steps: usize,
@@ -766,7 +769,6 @@ pub fn train(
     use hilo_detector::data::{LoadOptions, load_split};
     use hilo_detector::detector::Detector;
     use std::sync::atomic::Ordering;
-    let registry = crate::registry()?;
     let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")
         .with_context(|| format!("opening dataset {}", data.display()))?;
     // The device training runs on: the first GPU when built with `cuda`, else the CPU.
@@ -786,7 +788,7 @@ pub fn train(
         let det_cfg = det_cfg.validate().with_context(|| format!("bench train {name}: detector"))?;
         let background = hilo_detector::train::learn_background(&ds, "train", &det_cfg.input)?;
         let (frames, _) = load_split(&ds, "train", &LoadOptions::new(&det_cfg.input, background.as_ref()))?;
-        let det = Detector::new(&det_cfg, &registry, &device, 0)?;
+        let det = Detector::new(&det_cfg, registry, &device, 0)?;
         hilo_fusion::layout::Backward::set_default(backward);
         hilo_detector::train::AdamW::set_fused_default(fused_optimizer);
         // Warm-up steps (allocator, caches), then the timed ones.
