@@ -316,10 +316,21 @@ fn values_that_size_allocations_are_refused_by_field_before_any_stage_runs() {
         .output()
         .unwrap();
     refused(&o, &["validation.samples = 18446744073709551615"]);
-    // [validation] is read by `hilo validate`.
+    // [validation] is read by `hilo validate`, and checked by `hilo study` too, before any stage.
     study("[validation]\nfusion_preset = \"centerpoint\"\n");
     let o = hilo().arg("validate").arg(d.join("study.toml")).arg("--out").arg(d.join("v2")).output().unwrap();
     refused(&o, &["fusion_preset = \"centerpoint\"", "reads no radar"]);
+    for (section, needle) in [
+        ("fusion_preset = \"centerpoint\"", "reads no radar"),
+        ("placements = 3", "validation.placements = 3"),
+        ("lidar_tilts_deg = []", "validation.lidar_tilts_deg holds 0 tilts"),
+        ("radar_tilts_deg = [400.0]", "validation.radar_tilts_deg holds 400"),
+        ("lidar_preset = \"lirafusion-like\"", "needs a radar"),
+    ] {
+        let o = run_study(&study(&format!("[validation]\n{section}\n")));
+        refused(&o, &[needle]);
+        assert!(!d.join("s/placements").exists(), "{section}: refused before placement");
+    }
     // Weights CBC cannot take, and range bins by the hundred thousand.
     let o = hilo()
         .arg("place")

@@ -244,6 +244,7 @@ impl Plan {
                 .preset(p)
                 .map_err(|e| StudyError::Invalid(format!("--presets / profile {}: preset {p:?}: {e}", profile.name)))?;
         }
+        study.file.validation.check(registry, &study.source)?;
         let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
         let fingerprint = hash(&[&defining(&study.file), &pjson, &study.scene_hash, &study.catalog_hash]);
         let mut configurations: Vec<Configuration> =

@@ -186,9 +186,13 @@ pub struct ValidationSettings {
     pub lidar_tilts_deg: Vec<f32>,
     pub radar_tilts_deg: Vec<f32>,
     /// The detector trained on rigs without a radar, and the one on rigs with one (they should
-    /// share head and assignment, so the rig is what differs).
-    pub lidar_preset: String,
-    pub fusion_preset: String,
+    /// share head and assignment, so the rig is what differs). When not given, the registry's
+    /// ([`hilo_detector::Registry::primary`]: `centerpoint` and `lirafusion-like` in hilo's);
+    /// a validation records the names it used.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lidar_preset: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fusion_preset: Option<String>,
     /// Trainings per placement.
     pub seeds: usize,
     /// The budget b: detectors train to 2b samples and are scored at b and at 2b.
@@ -204,8 +208,8 @@ impl Default for ValidationSettings {
             seed: 0,
             lidar_tilts_deg: vec![6.0, 10.0, 14.0],
             radar_tilts_deg: vec![4.0, 8.0, 12.0],
-            lidar_preset: "centerpoint".into(),
-            fusion_preset: "lirafusion-like".into(),
+            lidar_preset: None,
+            fusion_preset: None,
             seeds: 2,
             samples: 6_000,
             min_points: 5,
@@ -214,7 +218,38 @@ impl Default for ValidationSettings {
 }
 
 impl ValidationSettings {
-    /// Checks the values a study file may get wrong; `source` names the file.
+    /// The settings with both presets named: those not given are the registry's fusion preset
+    /// and its LiDAR-only counterpart. Checked ([`ValidationSettings::check`]); `source` names
+    /// the study file.
+    pub fn resolved(&self, registry: &hilo_detector::Registry, source: &str) -> Result<ValidationSettings> {
+        let primary = registry.primary();
+        let pick = |given: &Option<String>, key: &str, fusion: bool| match (given, primary) {
+            (Some(p), _) => Ok(p.clone()),
+            (None, Some((f, l))) => Ok(if fusion { f } else { l }.to_owned()),
+            (None, None) => Err(StudyError::Invalid(format!(
+                "{source}: validation.{key}: not given, and no registered fusion preset has a LiDAR-only counterpart \
+                 to default to; name one"
+            ))),
+        };
+        let resolved = ValidationSettings {
+            lidar_preset: Some(pick(&self.lidar_preset, "lidar_preset", false)?),
+            fusion_preset: Some(pick(&self.fusion_preset, "fusion_preset", true)?),
+            ..self.clone()
+        };
+        resolved.check(registry, source)?;
+        Ok(resolved)
+    }
+
+    /// The preset trained on a rig with a radar (`radar`) or without one.
+    pub fn preset_for(&self, radar: bool) -> Result<&str> {
+        let (key, given) =
+            if radar { ("fusion_preset", &self.fusion_preset) } else { ("lidar_preset", &self.lidar_preset) };
+        given.as_deref().ok_or_else(|| StudyError::Invalid(format!("validation.{key}: not resolved")))
+    }
+
+    /// Checks the values a study file may get wrong (the presets where given); `source` names
+    /// the file. Every study plan checks its `[validation]` section, so `hilo study` refuses a
+    /// section `hilo validate` would.
     pub fn check(&self, registry: &hilo_detector::Registry, source: &str) -> Result<()> {
         let bad = |m: String| StudyError::Invalid(format!("{source}: validation.{m}"));
         if !(10..=500).contains(&self.placements) {
@@ -231,19 +266,31 @@ impl ValidationSettings {
         if self.min_points == 0 {
             return Err(bad("min_points = 0: give at least 1".into()));
         }
-        for (key, p) in [("lidar_preset", &self.lidar_preset), ("fusion_preset", &self.fusion_preset)] {
-            registry.preset(p).map_err(|e| bad(format!("{key} = {p:?}: {e}")))?;
+        for (key, tilts) in [("lidar_tilts_deg", &self.lidar_tilts_deg), ("radar_tilts_deg", &self.radar_tilts_deg)] {
+            if tilts.is_empty() || tilts.len() > 16 {
+                return Err(bad(format!("{key} holds {} tilts: give 1 to 16", tilts.len())));
+            }
+            if let Some(a) = tilts.iter().find(|a| !(a.is_finite() && a.abs() <= 90.0)) {
+                return Err(bad(format!("{key} holds {a}: tilts are degrees within ±90")));
+            }
         }
-        if registry.uses_radar(&registry.preset(&self.lidar_preset)?.detector) {
-            return Err(bad(format!("lidar_preset = {:?} needs a radar", self.lidar_preset)));
-        }
-        // The fusion preset is what rigs with a radar train: one that reads no radar would score
-        // them without it.
-        if !registry.uses_radar(&registry.preset(&self.fusion_preset)?.detector) {
-            return Err(bad(format!(
-                "fusion_preset = {:?} reads no radar; give a preset that fuses LiDAR and radar (e.g. \"lirafusion-like\")",
-                self.fusion_preset
-            )));
+        for (key, given, radar) in
+            [("lidar_preset", &self.lidar_preset, false), ("fusion_preset", &self.fusion_preset, true)]
+        {
+            let Some(p) = given else { continue };
+            let preset = registry.preset(p).map_err(|e| bad(format!("{key} = {p:?}: {e}")))?;
+            // The fusion preset is what rigs with a radar train: one that reads no radar would
+            // score them without it.
+            match (radar, registry.uses_radar(&preset.detector)) {
+                (false, true) => return Err(bad(format!("{key} = {p:?} needs a radar"))),
+                (true, false) => {
+                    return Err(bad(format!(
+                        "{key} = {p:?} reads no radar; give a preset that fuses LiDAR and radar{}",
+                        registry.primary().map_or(String::new(), |(f, _)| format!(" (e.g. {f:?})"))
+                    )));
+                }
+                _ => {}
+            }
         }
         Ok(())
     }

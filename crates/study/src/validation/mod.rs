@@ -274,7 +274,7 @@ pub fn plan(
     out: &Path,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<ValidationPlan> {
-    settings.check(registry, &study.source)?;
+    let settings = &settings.resolved(registry, &study.source)?;
     let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
     let (defining, fingerprint) = fingerprint(study, profile, settings)?;
     claim(out, &fingerprint, study, profile, settings)?;
@@ -387,6 +387,8 @@ pub fn run(
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<ValidationReport> {
     let t0 = std::time::Instant::now();
+    // The presets by name (the registry's where the study file gives none), as the report records them.
+    let settings = &settings.resolved(registry, &study.source)?;
     let plan = plan(study, registry, profile, settings, out, progress)?;
     for m in &plan.members {
         simulate(study, profile, &plan, &m.slug, progress)?;
@@ -424,7 +426,7 @@ fn jobs(
     let memory = hilo_detector::config::machine_memory_bytes();
     for (mi, m) in members.iter().enumerate() {
         let radar = m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar);
-        let preset = if radar { &settings.fusion_preset } else { &settings.lidar_preset };
+        let preset = settings.preset_for(radar)?;
         let p = registry.preset(preset)?;
         let detector_cfg = crate::plan::patched_detector(study, preset, &p.detector, &profile.dataset)?;
         let schedule = crate::plan::scheduled(study, preset, &p.train)?;
@@ -445,7 +447,7 @@ fn jobs(
             jobs.push(Job {
                 id: format!("{}/{preset}-seed{seed}", m.slug),
                 configuration: mi,
-                preset: preset.clone(),
+                preset: preset.to_owned(),
                 seed,
                 run: out.join("runs").join(&m.slug).join(&name),
                 results: out.join("results").join(&m.slug).join(format!("{name}.json")),
