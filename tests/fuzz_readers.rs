@@ -108,7 +108,7 @@ const TRIANGLE_GLTF: &str = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"
 fn validation_json() -> String {
     use hilo::study::validation::{Trained, ValidationReport, ValidationSettings, set::Member};
     let placement: hilo::placement::Placement = serde_json::from_str(&placement()).unwrap();
-    let agreement = hilo::study::rank::Agreement { value: 0.5, lo: 0.1, hi: 0.9, n: 3 };
+    let agreement = hilo::study::validation::rank::Agreement { value: 0.5, lo: 0.1, hi: 0.9, n: 3 };
     let members = (0..3)
         .map(|i| {
             let map = 0.2 + 0.1 * i as f64;

@@ -5,13 +5,7 @@
 //! ran in this process (the two give the same report: results are kept in sample order and JSON
 //! numbers round-trip exactly).
 
-use crate::error::{Result, StudyError};
-use crate::gt::{GtKind, SampleKey, ground_truth, rekey};
-use crate::plan::{Job, Plan, Provenance};
-use crate::profile::Profile;
-use crate::stages::{DataRecord, JobOutput, Predictions, Progress, ResultMeta};
 use crate::stats::{Scores, scene_draws};
-use crate::study::Study;
 use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, Margins, PresetRoles, adjust};
 use hilo_core::fs::{limit, read_json};
 use hilo_detector::Registry;
@@ -19,6 +13,12 @@ use hilo_detector::data::{Frame, LoadOptions, load_split_frame};
 use hilo_eval::bootstrap::{Reweighable, VelocityErrors};
 use hilo_eval::{DetectionConfig, EvalBox, GroundTruth};
 use hilo_placement_ip::Placement;
+use hilo_plan::error::{Result, StudyError};
+use hilo_plan::gt::{GtKind, SampleKey, ground_truth, rekey};
+use hilo_plan::plan::{Job, Plan, Provenance};
+use hilo_plan::profile::Profile;
+use hilo_plan::stages::{DataRecord, JobOutput, Predictions, Progress, ResultMeta};
+use hilo_plan::study::Study;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -120,7 +120,7 @@ pub struct Report {
     pub claims: Vec<Claim>,
     /// The weather conditions the study ran (the first `[[conditions]]` the profile runs).
     #[serde(default)]
-    pub conditions: Vec<crate::study::Condition>,
+    pub conditions: Vec<hilo_plan::study::Condition>,
     /// What the radar adds and what it costs, in the study's own weather and in each condition.
     #[serde(default)]
     pub radar_value: Vec<crate::verdict::RadarValue>,
@@ -146,7 +146,7 @@ pub struct Report {
     pub ranking_changed: Vec<String>,
     pub cost_reduction: BTreeMap<String, f64>,
     /// Placement's speed against error: line-of-sight samples and solver time limits.
-    pub tradeoffs: crate::tradeoff::Tradeoffs,
+    pub tradeoffs: hilo_plan::tradeoff::Tradeoffs,
     /// Wall time of the process that wrote the report: the whole study when `hilo study` ran
     /// it, the report stage alone when a workflow engine did.
     pub seconds: f64,
@@ -184,7 +184,7 @@ pub fn assemble(
             return Err(StudyError::Invalid(format!("{}: missing; run the place stage first", p.display())));
         }
     }
-    let tradeoffs: crate::tradeoff::Tradeoffs = read_json(&plan.tradeoffs, limit::TABLE)?;
+    let tradeoffs: hilo_plan::tradeoff::Tradeoffs = read_json(&plan.tradeoffs, limit::TABLE)?;
     let mut summaries = config_summaries(plan)?;
     // The ground truth every rig is scored on, and what it evaluates.
     let first = hilo_dataset::Dataset::open(&plan.data[0].dir, "v1.0-trainval")?;
@@ -209,7 +209,7 @@ pub fn assemble(
     let mut pictures: Pictures = BTreeMap::new();
     for (ci, conf) in configs.iter().enumerate() {
         let ds = hilo_dataset::Dataset::open(&plan.data[ci].dir, "v1.0-trainval")?;
-        let (share, by_class) = crate::gt::unseen_share(&ds, "val", &base_cfg)?;
+        let (share, by_class) = hilo_plan::gt::unseen_share(&ds, "val", &base_cfg)?;
         summaries[ci].unseen_share = share;
         summaries[ci].unseen_by_class = by_class;
         let (vis, keys) = ground_truth(&ds, "val", GtKind::VisibleOnly, SampleKey::SceneTime)?;
@@ -484,7 +484,7 @@ fn verdict(
 }
 
 /// The learning curve of seed 0 of every group: mAP of the training at each of the curve's
-/// budgets (each a training of its own, [`crate::plan::CurveKind::Budget`]) and of the full
+/// budgets (each a training of its own, [`hilo_plan::plan::CurveKind::Budget`]) and of the full
 /// schedule, and what the last doubling added.
 fn learning_curves(
     results_by: &ResultsBy,

@@ -1,4 +1,4 @@
-//! One comparison across a sweep's studies ([`crate::sweep`]): `comparison.md` and
+//! One comparison across a sweep's studies ([`hilo_plan::sweep`]): `comparison.md` and
 //! `comparison.json` beside the studies' folders, made from their `report.json` files only.
 //!
 //! Each study keeps its own verdict (its own traffic, validation scenes, seeds, calibration).
@@ -9,13 +9,13 @@
 //! catalogs differ on purpose, so an average over them answers no one's question.
 
 use crate::assemble::Report;
-use crate::charts::dollars;
-use crate::error::{Result, StudyError};
-use crate::plan::FolderRecord;
 use crate::report::{esc, verdict_word};
-use crate::sweep::{ShardRecord, Sweep, SweepRecord};
 use crate::verdict::Verdict;
 use hilo_core::fs::{limit, read_json, write_atomic, write_json};
+use hilo_plan::charts::dollars;
+use hilo_plan::error::{Result, StudyError};
+use hilo_plan::plan::FolderRecord;
+use hilo_plan::sweep::{ShardRecord, Sweep, SweepRecord};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

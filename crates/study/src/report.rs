@@ -2,14 +2,14 @@
 //! same text; pictures as PNG).
 
 use crate::assemble::{Entry, Pictures, Report, ResultsBy};
-use crate::charts::{Bars, Series, XY, dollars, save};
-use crate::error::Result;
-use crate::study::Configuration;
 use crate::verdict::Verdict;
 use glam::{Vec2, Vec3};
 use hilo_core::Box3;
 use hilo_core::fs::{write_atomic, write_json};
 use hilo_eval::EvalBox;
+use hilo_plan::charts::{Bars, Series, XY, dollars, save};
+use hilo_plan::error::Result;
+use hilo_plan::study::Configuration;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -66,7 +66,7 @@ fn detection_png(
         .find(|p| p.0 == key)
         .map(|p| p.1.iter().filter(|b| b.detection_score >= 0.3).cloned().collect())
         .unwrap_or_default();
-    let mut canvas = crate::render::blank_canvas(Vec2::splat(-55.0), Vec2::splat(55.0), 7.0)?;
+    let mut canvas = hilo_plan::render::blank_canvas(Vec2::splat(-55.0), Vec2::splat(55.0), 7.0)?;
     let dots: Vec<(Vec2, (u8, u8, u8))> = frame
         .lidar
         .iter()
@@ -189,7 +189,7 @@ fn validation_section(out: &Path, study: &str) -> Result<String> {
     if !path.exists() {
         return Ok(String::new());
     }
-    let v: crate::validation::ValidationReport = hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE)?;
+    let v: hilo_validate::ValidationReport = hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE)?;
     if v.study != study {
         return Ok(format!(
             "\n## Does the objective predict accuracy?\n\n{} holds a validation of {}, not of this study; it is not \
@@ -198,7 +198,7 @@ fn validation_section(out: &Path, study: &str) -> Result<String> {
             v.study
         ));
     }
-    let body = crate::validation::markdown(&v);
+    let body = hilo_validate::markdown(&v);
     let demoted: String =
         body.lines().map(|l| if l.starts_with('#') { format!("#{l}\n") } else { format!("{l}\n") }).collect();
     Ok(format!(
@@ -240,7 +240,7 @@ fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
     )?;
     // Pedestrian AP per configuration and preset.
     let cats: Vec<String> = r.configurations.iter().map(|c| c.name.clone()).collect();
-    let bars: Vec<crate::charts::BarSeries> = presets
+    let bars: Vec<hilo_plan::charts::BarSeries> = presets
         .iter()
         .map(|p| {
             (
@@ -269,7 +269,7 @@ fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
     let classes: Vec<String> =
         r.classes.iter().map(|c| if c.few_boxes { format!("{}*", c.name) } else { c.name.clone() }).collect();
     for p in presets {
-        let bars: Vec<crate::charts::BarSeries> = r
+        let bars: Vec<hilo_plan::charts::BarSeries> = r
             .configurations
             .iter()
             .map(|c| {
@@ -281,7 +281,7 @@ fn figures(fig: &Path, r: &Report, presets: &[String]) -> Result<()> {
                         .collect(),
                 )
             })
-            .filter(|(_, v): &crate::charts::BarSeries| v.iter().any(Option::is_some))
+            .filter(|(_, v): &hilo_plan::charts::BarSeries| v.iter().any(Option::is_some))
             .collect();
         if bars.is_empty() {
             continue;
@@ -361,7 +361,11 @@ fn md_header(md: &mut String, r: &Report) {
         r.validation_scenes,
         p.resamples,
         if r.study.starts_with("<embedded>") { String::new() } else { format!(" {}", r.study) },
-        if p.name == crate::profile::ProfileName::Default { String::new() } else { format!(" --profile {}", p.name) },
+        if p.name == hilo_plan::profile::ProfileName::Default {
+            String::new()
+        } else {
+            format!(" --profile {}", p.name)
+        },
         pv.hilo_version,
         if pv.git_commit.is_empty() {
             "not built from a checkout".to_owned()

@@ -1,7 +1,7 @@
 //! A whole study in one process: the [`Plan`]'s stages in order (placement → a dataset per
 //! configuration, same traffic → training and detection per configuration × preset × seed,
 //! two detectors at a time → the verdict → report). Every stage is the one a workflow engine
-//! runs on its own ([`crate::stages`]), with the same hashes and files, so the two paths give
+//! runs on its own ([`hilo_plan::stages`]), with the same hashes and files, so the two paths give
 //! the same report; here values pass between stages in memory.
 //!
 //! A stage whose outputs exist is skipped, so an interrupted study resumes and a stage made by
@@ -11,13 +11,13 @@
 
 use crate::assemble::{Assembled, Report, assemble};
 use crate::compare::{self, Comparison};
-use crate::error::Result;
-use crate::plan::Plan;
-use crate::profile::Profile;
-use crate::stages::{self, JobOutput, Progress};
-use crate::study::Study;
-use crate::sweep::Sweep;
 use hilo_detector::Registry;
+use hilo_plan::error::Result;
+use hilo_plan::plan::Plan;
+use hilo_plan::profile::Profile;
+use hilo_plan::stages::{self, JobOutput, Progress};
+use hilo_plan::study::Study;
+use hilo_plan::sweep::Sweep;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -98,7 +98,7 @@ fn run_plan(
     let mut outputs: BTreeMap<String, JobOutput> = BTreeMap::new();
     for ci in 0..plan.configurations.len() {
         let shared = Mutex::new(&mut *progress);
-        let tick = |job: &crate::plan::Job, f: f64| {
+        let tick = |job: &hilo_plan::plan::Job, f: f64| {
             let Ok(mut s) = steps_done.lock() else { return };
             s.insert(job.id.clone(), (f * job.steps() as f64).round() as usize);
             let done: usize = s.values().sum();
@@ -108,7 +108,7 @@ fn run_plan(
             }
         };
         let outs = stages::train_all(plan, ci, registry, plan.profile.trainings_at_once, &tick)?;
-        let jobs: Vec<&crate::plan::Job> = plan.jobs.iter().filter(|j| j.configuration == ci).collect();
+        let jobs: Vec<&hilo_plan::plan::Job> = plan.jobs.iter().filter(|j| j.configuration == ci).collect();
         for (job, out) in jobs.into_iter().zip(outs) {
             progress(Progress::Stage(&format!(
                 "{} (seed {}) on {}: {} samples in {:.0} s",

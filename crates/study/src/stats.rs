@@ -285,22 +285,8 @@ pub fn holm(p: &[f64]) -> Vec<f64> {
     }
     out
 }
-
-/// Scene-count vectors of the study's bootstrap: replicate `r` draws `n` scenes with
-/// replacement, the same for every detector (seeded by `seed` and `r`).
-pub fn scene_draws(n: usize, replicates: usize, seed: u64) -> Vec<Vec<u32>> {
-    use rand::{Rng, SeedableRng};
-    (0..replicates)
-        .map(|r| {
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ (r as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-            let mut c = vec![0u32; n];
-            for _ in 0..n {
-                c[rng.random_range(0..n)] += 1;
-            }
-            c
-        })
-        .collect()
-}
+/// The scene bootstrap's draws, shared with the validation ([`hilo_plan::gt::scene_draws`]).
+pub use hilo_plan::gt::scene_draws;
 
 #[cfg(test)]
 #[allow(clippy::unwrap_used)]

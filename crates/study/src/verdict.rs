@@ -774,7 +774,7 @@ pub struct PresetRoles {
 }
 
 impl PresetRoles {
-    pub fn of(prof: &crate::profile::Profile, registry: &hilo_detector::Registry) -> PresetRoles {
+    pub fn of(prof: &hilo_plan::profile::Profile, registry: &hilo_detector::Registry) -> PresetRoles {
         let uses_radar: BTreeMap<String, bool> = prof
             .presets
             .iter()

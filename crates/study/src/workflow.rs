@@ -4,11 +4,11 @@
 //! schedules it locally, on Slurm or on Kubernetes without change; hilo runs no scheduler of
 //! its own, and the stages are the same code and hashes as `hilo study` in one process.
 
-use crate::error::{Result, StudyError};
-use crate::plan::Plan;
-use crate::profile::Profile;
-use crate::sweep::Sweep;
-use crate::validation::ValidationPlan;
+use hilo_plan::error::{Result, StudyError};
+use hilo_plan::plan::Plan;
+use hilo_plan::profile::Profile;
+use hilo_plan::sweep::Sweep;
+use hilo_validate::ValidationPlan;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

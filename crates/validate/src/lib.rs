@@ -1,6 +1,6 @@
 //! Does the placement objective predict trained accuracy? (`hilo validate`)
 //!
-//! The placement IP proves its answer optimal for its objective; this module asks whether the
+//! The placement IP proves its answer optimal for its objective; this crate asks whether the
 //! objective orders placements as trained detectors do. It draws a set of placements of the
 //! study's scene ([`set`]), computes predictors without training (the paper's objective, the
 //! objective over the modalities a rig offers, LiDAR, radar and central coverage, and the
@@ -10,7 +10,7 @@
 //! rig has a radar, its LiDAR-only counterpart with the same head otherwise) to 2b samples,
 //! keeping the weights at b, scores both on the common ground truth under the study's scene
 //! bootstrap, and reports Spearman's ρ and Kendall's τ of every predictor with mAP and
-//! pedestrian AP, with intervals from a bootstrap over placements and scenes ([`crate::rank`]),
+//! pedestrian AP, with intervals from a bootstrap over placements and scenes ([`rank`]),
 //! and τ between the accuracies at b and 2b (does the budget rank placements as longer
 //! training would?).
 //!
@@ -25,7 +25,7 @@
 //! the placements of a second set (other seeds) with the first set's weights frozen
 //! ([`calibrate::transfer`]). It runs in one process ([`run`]) or as a
 //! workflow engine's jobs ([`plan`] draws the set and names the stages, [`simulate`] and
-//! [`train_job`] run one each, `crate::workflow::validation_snakefile` writes them); its stage
+//! [`train_job`] run one each, `hilo_study::workflow::validation_snakefile` writes them); its stage
 //! folders are named by hashes that include the code, so a run is resumed by the same build
 //! (`--refit`, `--recommend` and `--absorb` read a finished run's `validation.json` with any
 //! later build).
@@ -44,30 +44,31 @@
 
 pub mod calibrate;
 pub mod occupancy;
+pub mod rank;
 pub mod recommend;
 pub mod set;
 
-use crate::error::{Result, StudyError};
-use crate::files::hash;
-use crate::gt::{GtKind, SampleKey, ground_truth, rekey};
-use crate::plan::{CurveKind, DataStage, Job, Provenance, short, stage_hash};
-use crate::profile::Profile;
 use crate::rank::{Agreement, agreement};
-use crate::stages::{Predictions, Progress};
-use crate::stats::scene_draws;
-use crate::study::Study;
 use hilo_core::fs::{FileError, limit, read_json, write_json};
 use hilo_detector::Registry;
 use hilo_detector::train::TrainConfig;
 use hilo_eval::DetectionConfig;
 use hilo_eval::bootstrap::Reweighable;
+use hilo_plan::error::{Result, StudyError};
+use hilo_plan::files::hash;
+use hilo_plan::gt::scene_draws;
+use hilo_plan::gt::{GtKind, SampleKey, ground_truth, rekey};
+use hilo_plan::plan::{CurveKind, DataStage, Job, Provenance, short, stage_hash};
+use hilo_plan::profile::Profile;
+use hilo_plan::stages::{Predictions, Progress};
+use hilo_plan::study::Study;
 use serde::{Deserialize, Serialize};
 use set::Member;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 /// The `[validation]` section of a study file (a section of the study file, defined with it).
-pub use crate::study::ValidationSettings;
+pub use hilo_plan::study::ValidationSettings;
 
 /// One member's trained accuracy: per seed, at b and at 2b.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -323,7 +324,7 @@ pub fn simulate(
         return Ok(());
     }
     let ppath = plan.set_dir.join(format!("{}.json", m.slug));
-    crate::stages::record_dataset(study, &m.placement, &ppath, &profile.dataset, d, &m.slug, progress).map(|_| ())
+    hilo_plan::stages::record_dataset(study, &m.placement, &ppath, &profile.dataset, d, &m.slug, progress).map(|_| ())
 }
 
 /// Trains the jobs of one member (all of them, or the one named `only`), skipping those done.
@@ -334,7 +335,7 @@ pub fn train(
     member: usize,
     only: Option<&str>,
     progress: &mut (dyn FnMut(Progress) + Send),
-) -> Result<Vec<(Job, crate::stages::JobOutput)>> {
+) -> Result<Vec<(Job, hilo_plan::stages::JobOutput)>> {
     let mine: Vec<&Job> =
         plan.jobs.iter().filter(|j| j.configuration == member && only.is_none_or(|id| j.id == id)).collect();
     let label = format!("training on {} ({} of {})", plan.members[member].slug, member + 1, plan.members.len());
@@ -350,14 +351,14 @@ pub(crate) fn train_on(
     jobs: Vec<&Job>,
     label: &str,
     progress: &mut (dyn FnMut(Progress) + Send),
-) -> Result<Vec<(Job, crate::stages::JobOutput)>> {
+) -> Result<Vec<(Job, hilo_plan::stages::JobOutput)>> {
     let shared = std::sync::Mutex::new(&mut *progress);
     let tick = |_: &Job, f: f64| {
         if let Ok(mut p) = shared.lock() {
             p(Progress::Task { label, done: (f * 1000.0) as usize, total: 1000, unit: "‰" });
         }
     };
-    let outs = crate::stages::train_jobs(data, &jobs, registry, profile.trainings_at_once, &tick)?;
+    let outs = hilo_plan::stages::train_jobs(data, &jobs, registry, profile.trainings_at_once, &tick)?;
     progress(Progress::TaskDone);
     Ok(jobs.into_iter().cloned().zip(outs).collect())
 }
@@ -428,8 +429,8 @@ fn jobs(
         let radar = m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar);
         let preset = settings.preset_for(radar)?;
         let p = registry.preset(preset)?;
-        let detector_cfg = crate::plan::patched_detector(study, preset, &p.detector, &profile.dataset)?;
-        let schedule = crate::plan::scheduled(study, preset, &p.train)?;
+        let detector_cfg = hilo_plan::plan::patched_detector(study, preset, &p.detector, &profile.dataset)?;
+        let schedule = hilo_plan::plan::scheduled(study, preset, &p.train)?;
         for seed in 0..settings.seeds as u64 {
             let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..schedule.clone() };
             tc.samples = 2 * settings.samples;
@@ -463,7 +464,7 @@ fn jobs(
     Ok(jobs)
 }
 
-type Outputs = Vec<Vec<(Job, crate::stages::JobOutput)>>;
+type Outputs = Vec<Vec<(Job, hilo_plan::stages::JobOutput)>>;
 
 /// What every placement is scored against: the common ground truth of the validation traffic
 /// (every road user in range, the same whatever the rig), under the study's scene bootstrap.
@@ -482,7 +483,7 @@ impl Scorer {
         data: &Path,
         profile: &Profile,
         settings: &ValidationSettings,
-        evaluation: &crate::study::EvaluationSettings,
+        evaluation: &hilo_plan::study::EvaluationSettings,
     ) -> Result<Self> {
         let first = hilo_dataset::Dataset::open(data, "v1.0-trainval")?;
         let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
@@ -502,7 +503,7 @@ impl Scorer {
     pub(crate) fn trained(
         &self,
         data: &Path,
-        outs: &[(Job, crate::stages::JobOutput)],
+        outs: &[(Job, hilo_plan::stages::JobOutput)],
     ) -> Result<(Trained, BTreeMap<String, Option<f64>>)> {
         let (cfg, draws) = (&self.cfg, &self.draws);
         let ds = hilo_dataset::Dataset::open(data, "v1.0-trainval")?;
@@ -781,7 +782,7 @@ pub fn write(out: &Path, r: &ValidationReport) -> Result<Vec<PathBuf>> {
     hilo_core::fs::write_atomic(&md, markdown(r).as_bytes())?;
     let mut files = vec![json, md];
     for name in [set::PAPER_OBJECTIVE, set::OWN_OBJECTIVE, occupancy::HIT_SHARE, set::LIDAR_POINTS_CAPPED] {
-        let stem = format!("validation-{}", crate::study::slug(name));
+        let stem = format!("validation-{}", hilo_plan::study::slug(name));
         if scatter(out, &stem, r, name)? {
             files.push(out.join(format!("{stem}.png")));
         }
@@ -1019,7 +1020,7 @@ fn transfer_markdown(t: &calibrate::Transfer) -> String {
 /// A scatter of one predictor against mAP (rigs with and without radar apart, seed range as
 /// error bars) with its least-squares line; false when the predictor has too few values.
 fn scatter(out: &Path, stem: &str, r: &ValidationReport, name: &str) -> Result<bool> {
-    use crate::charts::{Series, XY, save};
+    use hilo_plan::charts::{Series, XY, save};
     let mut with = Vec::new();
     let mut without = Vec::new();
     for (m, t) in &r.members {

@@ -12,12 +12,12 @@
 
 use super::set::{Member, calibrated_member};
 use super::{Scorer, Trained, ValidationReport, calibrate, jobs, train_on};
-use crate::error::Result;
-use crate::plan::{DataStage, short, stage_hash};
-use crate::profile::Profile;
-use crate::stages::Progress;
-use crate::study::Study;
 use hilo_detector::Registry;
+use hilo_plan::error::Result;
+use hilo_plan::plan::{DataStage, short, stage_hash};
+use hilo_plan::profile::Profile;
+use hilo_plan::stages::Progress;
+use hilo_plan::study::Study;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -76,7 +76,7 @@ pub fn recommend(
     let h = stage_hash("data", &[&pjson, &member.slug, &format!("{:?}", profile.dataset)]);
     let data = DataStage { dir: out.join("data").join(format!("{}-{}", member.slug, short(&h))), hash: h };
     if !data.done().exists() {
-        crate::stages::record_dataset(
+        hilo_plan::stages::record_dataset(
             study,
             &member.placement,
             &ppath,

@@ -1,6 +1,6 @@
 //! The stages of a study's [`Plan`], each runnable on its own (by `hilo study place`,
 //! `simulate`, `train`, `report`, or a workflow engine's job) or all in one process by
-//! [`crate::run`]. A stage whose outputs exist is skipped; every output is written atomically,
+//! `hilo_study::run`. A stage whose outputs exist is skipped; every output is written atomically,
 //! its completion marker last, so a stage killed part-way is redone (a dataset and a training
 //! resume from what they kept) and a stage run twice writes the same bytes.
 

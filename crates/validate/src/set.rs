@@ -10,14 +10,14 @@
 //! Same seed, same set.
 
 use super::ValidationSettings;
-use crate::error::{Result, StudyError};
-use crate::place::{central_targets, lidar_hits, limit_for, placed};
-use crate::study::{Configuration, Study};
 use hilo_placement_ip::calibrated;
 use hilo_placement_ip::greedy::greedy;
 use hilo_placement_ip::instance::{covered_targets, evaluate};
 use hilo_placement_ip::pipeline::{Prepared, instance, prepare, solve_from};
 use hilo_placement_ip::{Instance, Limit, Modality, PlacedSensor, Placement};
+use hilo_plan::error::{Result, StudyError};
+use hilo_plan::place::{central_targets, lidar_hits, limit_for, placed};
+use hilo_plan::study::{Configuration, Study};
 use hilo_raycast::{QueryRegion, World};
 use hilo_sensor_models::SensorSpec;
 use rand::{Rng, SeedableRng};
@@ -60,7 +60,7 @@ pub const RADAR_TWO_VIEWS: &str = "radar coverage by two views";
 pub const LIDAR_DENSE: &str = "LiDAR coverage at twice the threshold";
 pub const RADAR_DENSE: &str = "radar coverage at twice the threshold";
 /// The same three per modality with each target weighted by the road users of the study's
-/// traffic found on it, class-balanced ([`crate::road_users`]) instead of by its region of
+/// traffic found on it, class-balanced ([`hilo_plan::road_users`]) instead of by its region of
 /// interest: the occupancy of the traffic made linear.
 pub const LIDAR_SATURATED_USERS: &str = "LiDAR coverage of road users (saturated)";
 pub const RADAR_SATURATED_USERS: &str = "radar coverage of road users (saturated)";
@@ -70,7 +70,7 @@ pub const LIDAR_DENSE_USERS: &str = "LiDAR coverage of road users at twice the t
 pub const RADAR_DENSE_USERS: &str = "radar coverage of road users at twice the threshold";
 
 /// The occupancy of the study's training traffic from the placement alone
-/// ([`crate::road_users::TrafficPoints`]): the class-balanced mean of min(1, n / k) over road
+/// ([`hilo_plan::road_users::TrafficPoints`]): the class-balanced mean of min(1, n / k) over road
 /// users with n LiDAR points (capped-linear, the form an IP could hold) and the share with
 /// n ≥ k, on every [`TRAFFIC_EVERY`]-th key frame of the training scenes.
 pub const LIDAR_POINTS_CAPPED: &str = "LiDAR points on road users, capped at k (training traffic)";
@@ -386,7 +386,7 @@ struct Context<'a> {
     own: BTreeMap<Vec<String>, Instance>,
     cell_m: f32,
     p_min: f64,
-    traffic: crate::road_users::TrafficPoints,
+    traffic: hilo_plan::road_users::TrafficPoints,
     min_points: u32,
 }
 
@@ -399,9 +399,9 @@ impl<'a> Context<'a> {
     ) -> Result<Self> {
         // The training traffic, stepped once for the road users on each target and the points
         // on them.
-        let traffic = crate::road_users::TrainingTraffic::new(study)?;
+        let traffic = hilo_plan::road_users::TrainingTraffic::new(study)?;
         let mut all = instance(prep, &study.catalog, &study.type_names(), pc.p_min)?;
-        all.road_users = crate::road_users::road_users(&traffic, &prep.targets, pc.cell_m)?.weights;
+        all.road_users = hilo_plan::road_users::road_users(&traffic, &prep.targets, pc.cell_m)?.weights;
         Ok(Context {
             study,
             world: World::build(&study.scene, &QueryRegion::everything())?,
@@ -411,7 +411,7 @@ impl<'a> Context<'a> {
             prep,
             cell_m: pc.cell_m,
             p_min: pc.p_min,
-            traffic: crate::road_users::TrafficPoints::new(&traffic, TRAFFIC_EVERY)?,
+            traffic: hilo_plan::road_users::TrafficPoints::new(&traffic, TRAFFIC_EVERY)?,
             min_points,
         })
     }
@@ -466,7 +466,7 @@ impl<'a> Context<'a> {
             .iter()
             .map(|s| study.catalog.get(&s.ty).map(|c| c.price_usd()))
             .sum::<std::result::Result<f64, _>>()?;
-        let slug = format!("m{k:02}-{kind}-{}", crate::study::slug(conf));
+        let slug = format!("m{k:02}-{kind}-{}", hilo_plan::study::slug(conf));
         let placement = Placement {
             name: slug.clone(),
             sensors,

@@ -6,7 +6,7 @@
 //! [`super::set::RADAR_SATURATED`], [`super::set::LIDAR_TWO_VIEWS`], [`super::set::RADAR_TWO_VIEWS`]),
 //! and D_m = Σ_j w_j min(1, Σ_o a_oj / 2τ) / Σ_j w_j, coverage that pays for density
 //! ([`super::set::LIDAR_DENSE`], [`super::set::RADAR_DENSE`]); and the same six with w_j the
-//! road users of the study's traffic on target j ([`crate::road_users`], [`super::set::TERMS`]):
+//! road users of the study's traffic on target j ([`hilo_plan::road_users`], [`super::set::TERMS`]):
 //! coverage of where road users are, class-balanced, rather than of the regions of interest.
 //! The weights are fitted by least squares with every β ≥ 0: a non-negative weight on a capped
 //! sum keeps the objective an integer program ([`hilo_placement_ip::calibrated`]), and the radar
@@ -400,10 +400,10 @@ pub fn transfer(source: &ValidationReport, target: &ValidationReport, source_nam
 mod tests {
     use super::*;
 
-    use crate::validation::set::{
+    use crate::set::{
         LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, Member, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS,
     };
-    use crate::validation::{Trained, ValidationSettings};
+    use crate::{Trained, ValidationSettings};
     use rand::Rng;
     use std::collections::BTreeMap;
 
@@ -464,7 +464,7 @@ mod tests {
             study: String::new(),
             profile: String::new(),
             settings: ValidationSettings::default(),
-            provenance: crate::plan::Provenance::here(1),
+            provenance: hilo_plan::plan::Provenance::here(1),
             validation_scenes: 0,
             resamples: 50,
             members,

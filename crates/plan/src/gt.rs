@@ -155,3 +155,19 @@ pub fn rekey(results: Vec<(String, Vec<EvalBox>)>, keys: &BTreeMap<String, Strin
         })
         .collect()
 }
+
+/// Scene-count vectors of the study's bootstrap: replicate `r` draws `n` scenes with
+/// replacement, the same for every detector (seeded by `seed` and `r`).
+pub fn scene_draws(n: usize, replicates: usize, seed: u64) -> Vec<Vec<u32>> {
+    use rand::{Rng, SeedableRng};
+    (0..replicates)
+        .map(|r| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ (r as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            let mut c = vec![0u32; n];
+            for _ in 0..n {
+                c[rng.random_range(0..n)] += 1;
+            }
+            c
+        })
+        .collect()
+}

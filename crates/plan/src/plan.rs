@@ -545,7 +545,7 @@ impl FolderRecord {
 /// A preset's detector config with the study's `[detector_patch]` applied (the preset's own
 /// without one). The patch may not rename the preset or change its fusion plugin (the verdict
 /// reads both), and stacked LiDAR sweeps need datasets that record them.
-pub(crate) fn patched_detector(
+pub fn patched_detector(
     study: &Study,
     preset: &str,
     det: &DetectorConfig,
@@ -572,7 +572,7 @@ pub(crate) fn patched_detector(
 /// A preset's training schedule with the study's `[train_schedule]` fields over it (the
 /// preset's own without the section). Fields the study sets itself per job (the seed, the kept
 /// checkpoints, one replica per training) are refused rather than silently replaced.
-pub(crate) fn scheduled(study: &Study, preset: &str, train: &TrainConfig) -> Result<TrainConfig> {
+pub fn scheduled(study: &Study, preset: &str, train: &TrainConfig) -> Result<TrainConfig> {
     let Some(fields) = &study.file.train_schedule else { return Ok(train.clone()) };
     let bad = |m: String| StudyError::Invalid(format!("[train_schedule] on preset {preset}: {m}"));
     for own in ["seed", "keep", "replicas", "sync_batch_norm"] {

@@ -37,7 +37,7 @@ pub fn limit_for(cfg: &Configuration, types: &[String]) -> Limit {
 }
 
 /// The sensors an instance's selection places (type, candidate, structure, pose).
-pub(crate) fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
+pub fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
     sel.iter()
         .map(|&o| {
             let opt = &inst.options[o];
@@ -48,14 +48,14 @@ pub(crate) fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<Pla
 }
 
 /// The targets in the scene's central ROIs (where the paper's central coverage is measured).
-pub(crate) fn central_targets(study: &Study, prep: &Prepared) -> Vec<usize> {
+pub fn central_targets(study: &Study, prep: &Prepared) -> Vec<usize> {
     let central_roi: Vec<usize> =
         study.scene.config.roi.iter().enumerate().filter(|(_, r)| r.kind == RoiKind::Central).map(|(i, _)| i).collect();
     (0..prep.targets.len()).filter(|&j| central_roi.contains(&(prep.targets[j].roi as usize))).collect()
 }
 
 /// The targets the placed LiDARs hit with a ray (ideal scans of the static `world`).
-pub(crate) fn lidar_hits(
+pub fn lidar_hits(
     study: &Study,
     world: &World,
     prep: &Prepared,

@@ -1,5 +1,5 @@
 //! A sweep: one study over several scenes and/or sensor catalogs, or a directory of studies,
-//! run as one set of stages with one comparison across them ([`crate::compare`]).
+//! run as one set of stages with one comparison across them (`hilo_study::compare`).
 //!
 //! Two ways to write one:
 //! - a study file with `scenes = [...]` and/or `catalogs = [...]` instead of `scene` /

@@ -7,9 +7,9 @@
 //! LiDAR points and the share with a radar point; over classes (each class weighted equally, as
 //! mAP weighs them): the same shares, and the mean LiDAR points per road user.
 
-use crate::error::Result;
 use hilo_dataset::Dataset;
 use hilo_eval::DetectionConfig;
+use hilo_plan::error::Result;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashSet};
 
