@@ -230,24 +230,10 @@ fn pin_training_env(cli: &Cli) -> Result<Option<std::process::ExitStatus>> {
         Command::Study(args) if args.stage.is_some() => Vec::new(),
         _ => return Ok(None),
     };
-    let mut env = Vec::new();
-    if std::env::var_os("RAYON_NUM_THREADS").is_none() {
-        env.extend(threads);
-    }
-    if std::env::var_os(PURGE_DELAY.0).is_none() {
-        env.push(PURGE_DELAY);
-    }
-    if env.is_empty() {
-        return Ok(None);
-    }
-    let exe = std::env::current_exe().context("finding the hilo binary to run the command")?;
-    let names: Vec<&str> = env.iter().map(|(k, _)| *k).collect();
-    let status = std::process::Command::new(exe)
-        .args(std::env::args_os().skip(1))
-        .envs(env.iter().copied())
-        .status()
-        .with_context(|| format!("starting hilo with {} set", names.join(", ")))?;
-    Ok(Some(status))
+    // The thread settings go together: a user's RAYON_NUM_THREADS keeps ours out.
+    let mut env = if std::env::var_os("RAYON_NUM_THREADS").is_none() { threads } else { Vec::new() };
+    env.push(PURGE_DELAY);
+    hilo_core::machine::rerun_with(&env).context("starting hilo again with its thread and allocator settings")
 }
 
 fn main() -> Result<()> {

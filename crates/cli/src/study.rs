@@ -6,7 +6,7 @@
 use crate::progress::Reporter;
 use crate::stages::{EMBEDDED_STUDY, load_study};
 use anyhow::{Context, Result};
-use hilo_study::sweep::{Loaded, Sweep, SweepRecord};
+use hilo_study::sweep::{Loaded, SweepRecord};
 use hilo_study::{Plan, RunOptions, Study};
 use std::path::{Path, PathBuf};
 
@@ -110,10 +110,14 @@ fn load(path: Option<&Path>) -> Result<Loaded> {
     hilo_study::sweep::load(&abs).with_context(|| format!("loading study {}", p.display()))
 }
 
+/// The embedded default study, as a folder that recorded it reopens it.
+fn default_study() -> hilo_study::Result<Study> {
+    Study::parse(crate::stages::DEFAULT_STUDY_TOML, Path::new("."), EMBEDDED_STUDY)
+}
+
 /// The study and plan a folder records, checked against the study file as it is now.
 fn open_folder(out: &Path, registry: &hilo_detector::Registry) -> Result<(Study, Plan)> {
-    let default = || Study::parse(crate::stages::DEFAULT_STUDY_TOML, Path::new("."), EMBEDDED_STUDY);
-    Ok(hilo_study::sweep::reopen(out, registry, default)?)
+    Ok(hilo_study::sweep::reopen(out, registry, default_study)?)
 }
 
 fn workflow() -> Result<hilo_study::workflow::Workflow> {
@@ -189,8 +193,9 @@ pub fn study(args: &StudyArgs) -> Result<()> {
             Loaded::Study(study) => return one_study(args, &study, &registry, &mut reporter),
             Loaded::Sweep(sweep) => sweep,
         };
-        let profile =
-            |s: &Study| profile_of(args, s, &registry).map_err(|e| hilo_study::StudyError::Invalid(format!("{e:#}")));
+        let profile = |s: &Study| {
+            profile_of(args, s, &registry).map_err(|e| hilo_study::StudyError::step(s.source.clone(), format!("{e:#}")))
+        };
         return match args.workflow {
             None => {
                 let c = hilo_study::run_sweep(&sweep, &registry, &profile, &args.out, &mut |p| reporter.study(p))?;
@@ -255,17 +260,7 @@ pub fn study(args: &StudyArgs) -> Result<()> {
             }
         }
         StageCommand::Plan(a) if SweepRecord::path(&a.out).exists() => {
-            let record = SweepRecord::read(&a.out)?;
-            for s in &record.shards {
-                println!("== study {}", s.name);
-                println!("{}", open_folder(&Sweep::shard_out(&a.out, &s.name), &registry)?.1.status());
-            }
-            let done = a.out.join("comparison.json").exists();
-            println!(
-                "compare                   {}  {}",
-                if done { "done" } else { "to do" },
-                a.out.join("comparison.json").display()
-            );
+            println!("{}", hilo_study::sweep::status(&a.out, &registry, default_study)?);
         }
         StageCommand::Plan(a) => println!("{}", open_folder(&a.out, &registry)?.1.status()),
     }

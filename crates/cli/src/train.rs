@@ -4,7 +4,6 @@ use anyhow::{Context, Result, bail};
 use hilo_detector::Registry;
 use hilo_detector::data::LoadOptions;
 use hilo_detector::train::StepReport;
-use std::io::Write;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -103,21 +102,13 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     let mut bar = crate::progress::Reporter::new();
     let label = format!("train {}", det.name);
     let steps = cfg.steps();
-    let log_path = args.out.join("loss.jsonl");
-    // Opened at the first step, once the training holds the run folder (one writer, no links in
-    // it: see hilo_core::folder), so a refused run appends nothing.
-    let mut log: Option<std::fs::File> = None;
+    let mut log = hilo_detector::train::LossLog::new(&args.out);
     let mut log_error: Option<anyhow::Error> = None;
     let mut warned = false;
     let mut on_step = |r: &StepReport| {
-        if log.is_none() {
-            match std::fs::OpenOptions::new().create(true).append(true).open(&log_path) {
-                Ok(f) => log = Some(f),
-                Err(e) => {
-                    log_error = Some(anyhow::Error::new(e).context(format!("opening {}", log_path.display())));
-                    return false;
-                }
-            }
+        if let Err(e) = log.append(r) {
+            log_error = Some(anyhow::Error::new(e).context(format!("writing {}", log.path().display())));
+            return false;
         }
         bar.task(&label, r.step, steps, "steps");
         bar.message(format!(
@@ -131,12 +122,6 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
                 r.step, r.dropped_pillars
             ));
         }
-        let Some(log) = log.as_mut() else { return false };
-        let _ = writeln!(
-            log,
-            "{}",
-            serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s, "dropped_points": r.dropped_points, "dropped_pillars": r.dropped_pillars })
-        );
         true
     };
     let info = hilo_detector::train::train(

@@ -323,8 +323,8 @@ fn values_that_size_allocations_are_refused_by_field_before_any_stage_runs() {
     for (section, needle) in [
         ("fusion_preset = \"centerpoint\"", "reads no radar"),
         ("placements = 3", "validation.placements = 3"),
-        ("lidar_tilts_deg = []", "validation.lidar_tilts_deg holds 0 tilts"),
-        ("radar_tilts_deg = [400.0]", "validation.radar_tilts_deg holds 400"),
+        ("lidar_tilts_deg = []", "validation.lidar_tilts_deg = []: 0 tilts"),
+        ("radar_tilts_deg = [400.0]", "validation.radar_tilts_deg = [400.0]: holds 400"),
         ("lidar_preset = \"lirafusion-like\"", "needs a radar"),
     ] {
         let o = run_study(&study(&format!("[validation]\n{section}\n")));

@@ -197,7 +197,7 @@ fn a_study_written_as_a_workflow_names_its_stages() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && err.contains("no train stage"), "{err}");
+    assert!(!o.status.success() && err.contains("train stage") && err.contains("is not in this study's plan"), "{err}");
     let o = hilo().args(["study", "report", "--out"]).arg(&out).output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("run the place stage first"), "{err}");

@@ -13,6 +13,19 @@ pub fn peak_resident_mb() -> Option<f64> {
     Some(kib_field(&text, "VmHWM:")? as f64 / 1024.0)
 }
 
+/// Runs this program again with the same arguments and the variables of `env` that are unset
+/// here, and returns its status; `None` (nothing run) when every one is set already. For what a
+/// library reads from the environment once, at its start, which a running process cannot set
+/// for itself without `unsafe`.
+pub fn rerun_with(env: &[(&str, &str)]) -> std::io::Result<Option<std::process::ExitStatus>> {
+    let unset: Vec<(&str, &str)> = env.iter().copied().filter(|(k, _)| std::env::var_os(k).is_none()).collect();
+    if unset.is_empty() {
+        return Ok(None);
+    }
+    let exe = std::env::current_exe()?;
+    std::process::Command::new(exe).args(std::env::args_os().skip(1)).envs(unset).status().map(Some)
+}
+
 /// The value of a `Name:   1234 kB` line.
 fn kib_field(text: &str, name: &str) -> Option<u64> {
     text.lines().find_map(|l| l.strip_prefix(name))?.trim().trim_end_matches("kB").trim().parse().ok()

@@ -344,6 +344,37 @@ pub struct StepReport {
     pub dropped_pillars: usize,
 }
 
+/// A run folder's `loss.jsonl`: one JSON line per step (step, loss and its parts, learning
+/// rate, samples/s, what the caps left out). Opened at the first line, once the training holds
+/// the run folder (one writer, no links in it: `hilo_core::folder`), so a refused run appends
+/// nothing; appended to, so a resumed run continues it.
+#[derive(Debug)]
+pub struct LossLog {
+    path: PathBuf,
+    file: Option<std::fs::File>,
+}
+
+impl LossLog {
+    pub fn new(run: &Path) -> Self {
+        LossLog { path: run.join("loss.jsonl"), file: None }
+    }
+
+    /// Appends `r`'s line.
+    pub fn append(&mut self, r: &StepReport) -> std::io::Result<()> {
+        use std::io::Write as _;
+        let file = match &mut self.file {
+            Some(f) => f,
+            None => self.file.insert(std::fs::OpenOptions::new().create(true).append(true).open(&self.path)?),
+        };
+        let line = serde_json::json!({ "step": r.step, "loss": r.loss, "cls": r.cls, "reg": r.reg, "lr": r.lr, "samples_per_s": r.samples_per_s, "dropped_points": r.dropped_points, "dropped_pillars": r.dropped_pillars });
+        writeln!(file, "{line}")
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
 /// The frames of step `step`: a deterministic shuffle per epoch of `epoch` (frame indices, see
 /// [`epoch_frames`]), augmented with a per-sample seed, so that resuming at any step sees
 /// exactly what an uninterrupted run sees.

@@ -66,11 +66,13 @@ pub fn ground_truth(
         }
     }
     if gt.samples.is_empty() {
-        return Err(crate::error::StudyError::Invalid(format!(
-            "{}: split {split:?} has no samples ({} scenes listed); an evaluation over nothing would print mAP 0",
-            ds.root.join(&ds.version).display(),
-            scenes.len()
-        )));
+        return Err(crate::error::StudyError::folder(
+            ds.root.join(&ds.version),
+            format!(
+                "split {split:?} has no samples ({} scenes listed); an evaluation over nothing would print mAP 0",
+                scenes.len()
+            ),
+        ));
     }
     let category: BTreeMap<&str, &str> = t
         .instance

@@ -175,10 +175,12 @@ fn check_limit(study: &Study, conf: &Configuration, inst: &Instance, limit: &Lim
         Limit::Budget { usd, .. } => {
             let cheapest = inst.types.iter().map(|t| t.price_usd).fold(f64::INFINITY, f64::min);
             if cheapest > *usd {
-                return Err(StudyError::Invalid(format!(
-                    "{}: configuration {:?}: the budget of {usd} USD buys no sensor (cheapest {cheapest} USD)",
-                    study.source, conf.name
-                )));
+                return Err(StudyError::setting(
+                    &study.source,
+                    format!("configuration {:?}: budget", conf.name),
+                    format!("{usd} USD"),
+                    format!("buys no sensor (cheapest {cheapest} USD)"),
+                ));
             }
         }
         Limit::Total(_) => {}
@@ -194,13 +196,15 @@ fn check_limit(study: &Study, conf: &Configuration, inst: &Instance, limit: &Lim
                     .collect::<HashSet<_>>()
                     .len();
                 if n as usize > available {
-                    return Err(StudyError::Invalid(format!(
-                        "{}: configuration {:?} asks for {n} x {} but the scene offers {available} mount points for it ({} candidate mounts of its modality; one sensor per mount point)",
-                        study.source,
-                        conf.name,
-                        t.name,
-                        mounts.len()
-                    )));
+                    return Err(StudyError::setting(
+                        &study.source,
+                        format!("configuration {:?}", conf.name),
+                        format!("{n} x {}", t.name),
+                        format!(
+                            "the scene offers {available} mount points for it ({} candidate mounts of its modality; one sensor per mount point)",
+                            mounts.len()
+                        ),
+                    ));
                 }
             }
         }
@@ -276,11 +280,13 @@ pub fn write_placements(study: &Study, placed: &Placed, dir: &std::path::Path) -
 /// placement, and the PNG must be a PNG beside such a JSON.
 fn refuse_foreign(json: &std::path::Path, png: &std::path::Path) -> Result<()> {
     let foreign = |path: &std::path::Path, what: &str| {
-        StudyError::Invalid(format!(
-            "{} exists and is not {what} hilo wrote; hilo does not replace another program's files: move it, or \
-             choose another output folder",
-            path.display()
-        ))
+        StudyError::folder(
+            path,
+            format!(
+                "exists and is not {what} hilo wrote; hilo does not replace another program's files: move it, or \
+                 choose another output folder"
+            ),
+        )
     };
     let ours = match std::fs::symlink_metadata(json) {
         Err(_) => false,

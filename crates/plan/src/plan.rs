@@ -165,7 +165,7 @@ impl Job {
     pub fn curve_train(&self, samples: usize) -> Result<Valid<TrainConfig>> {
         TrainConfig { samples, keep: Vec::new(), ..(*self.train).clone() }
             .validate()
-            .map_err(|e| StudyError::Invalid(format!("{}: learning-curve point at {samples} samples: {e}", self.id)))
+            .map_err(|e| StudyError::step(format!("{}: learning-curve point at {samples} samples", self.id), e))
     }
 
     /// Training steps the stage takes: its training's and, for [`CurveKind::Budget`], those of
@@ -237,15 +237,17 @@ pub struct Plan {
 impl Plan {
     pub fn new(study: &Study, registry: &Registry, profile: &Profile, out: &Path) -> Result<Plan> {
         if profile.seeds == 0 {
-            return Err(StudyError::Invalid("--seeds must be at least 1".into()));
+            return Err(StudyError::Argument { flag: "--seeds", value: "0".into(), reason: "give at least 1".into() });
         }
         for p in profile.presets.iter().chain(&profile.ablations) {
-            registry
-                .preset(p)
-                .map_err(|e| StudyError::Invalid(format!("--presets / profile {}: preset {p:?}: {e}", profile.name)))?;
+            registry.preset(p).map_err(|e| StudyError::Argument {
+                flag: "--presets",
+                value: format!("{p:?}"),
+                reason: format!("(or profile {}'s preset): {e}", profile.name),
+            })?;
         }
         study.file.validation.check(registry, &study.source)?;
-        let pjson = serde_json::to_string(profile).map_err(|e| StudyError::Invalid(e.to_string()))?;
+        let pjson = serde_json::to_string(profile)?;
         let fingerprint = hash(&[&defining(&study.file), &pjson, &study.scene_hash, &study.catalog_hash]);
         let mut configurations: Vec<Configuration> =
             study.file.configurations.iter().take(profile.configurations.unwrap_or(usize::MAX)).cloned().collect();
@@ -330,9 +332,8 @@ impl Plan {
                     };
                     curve.sort_unstable();
                     curve.dedup();
-                    let detector =
-                        serde_json::to_string(&detector_cfg).map_err(|e| StudyError::Invalid(e.to_string()))?;
-                    let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
+                    let detector = serde_json::to_string(&detector_cfg)?;
+                    let schedule = serde_json::to_string(&tc)?;
                     // The curve's points are trainings of this stage (`CurveKind::Budget`).
                     let points = format!("budget curve {curve:?}");
                     let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule, &points]);
@@ -411,17 +412,22 @@ impl Plan {
     pub fn configuration(&self, name: &str) -> Result<usize> {
         self.configurations.iter().position(|c| c.name == name || c.slug() == name).ok_or_else(|| {
             let names: Vec<&str> = self.configurations.iter().map(|c| c.name.as_str()).collect();
-            StudyError::Invalid(format!("configuration {name:?} is not in this study's plan (it has {names:?})"))
+            StudyError::Unknown {
+                what: "configuration",
+                name: name.to_owned(),
+                place: "this study's plan".into(),
+                known: format!("it has {names:?}"),
+            }
         })
     }
 
     /// A train stage by its id (`<configuration slug>/<preset>-seed<k>`).
     pub fn job(&self, id: &str) -> Result<&Job> {
-        self.jobs.iter().find(|j| j.id == id).ok_or_else(|| {
-            StudyError::Invalid(format!(
-                "no train stage {id:?} in this study's plan (ids look like {:?})",
-                self.jobs.first().map_or("<slug>/<preset>-seed0", |j| j.id.as_str())
-            ))
+        self.jobs.iter().find(|j| j.id == id).ok_or_else(|| StudyError::Unknown {
+            what: "train stage",
+            name: id.to_owned(),
+            place: "this study's plan".into(),
+            known: format!("ids look like {:?}", self.jobs.first().map_or("<slug>/<preset>-seed0", |j| j.id.as_str())),
         })
     }
 
@@ -440,21 +446,19 @@ impl Plan {
             // workflow files and logs): taking the folder over loses nothing, and the
             // corrected rerun must not be blocked by it.
             if old.fingerprint != self.fingerprint && holds_stage_output(&self.out) {
-                return Err(StudyError::Invalid(format!(
-                    "{} holds another study (study file, profile or seeds differ: fingerprint {} there, {} now); choose another --out",
-                    self.out.display(),
-                    old.fingerprint,
-                    self.fingerprint
-                )));
+                return Err(StudyError::folder(
+                    &self.out,
+                    format!(
+                        "holds another study (study file, profile or seeds differ: fingerprint {} there, {} now); choose another --out",
+                        old.fingerprint, self.fingerprint
+                    ),
+                ));
             }
             if old.fingerprint == self.fingerprint {
                 return Ok(());
             }
         } else if self.out.exists() && std::fs::read_dir(&self.out).map(|mut d| d.next().is_some()).unwrap_or(false) {
-            return Err(StudyError::Invalid(format!(
-                "{} exists and is not a study folder; choose another --out",
-                self.out.display()
-            )));
+            return Err(StudyError::folder(&self.out, "exists and is not a study folder; choose another --out"));
         }
         std::fs::create_dir_all(&self.out).map_err(|e| hilo_core::fs::FileError::io(&self.out, e))?;
         let record = FolderRecord {
@@ -485,7 +489,7 @@ fn conditioned(
         let dataset =
             hilo_dataset::simulate::SimulateConfig { weather: cond.weather, ..profile.dataset.clone().into_inner() }
                 .validate()
-                .map_err(|e| StudyError::Invalid(format!("{}: conditions ({:?}): {e}", study.source, cond.name)))?;
+                .map_err(|e| StudyError::step(format!("{}: conditions ({:?})", study.source, cond.name), e))?;
         for name in &cond.configurations {
             let Some(bi) = base.iter().position(|c| c.name == *name) else {
                 skipped.push(format!(
@@ -532,11 +536,11 @@ impl FolderRecord {
     pub fn read(out: &Path) -> Result<FolderRecord> {
         let p = out.join("study.json");
         if !p.exists() {
-            return Err(StudyError::Invalid(format!(
-                "{} is not a study folder (no study.json): run `hilo study --out {}` or `--workflow snakemake` first",
-                out.display(),
-                out.display()
-            )));
+            return Err(StudyError::NotReady {
+                path: out.to_path_buf(),
+                what: "not a study folder (no study.json)".into(),
+                remedy: format!("run `hilo study --out {}` or `--workflow snakemake` first", out.display()),
+            });
         }
         Ok(read_json(&p, limit::TABLE)?)
     }
@@ -552,7 +556,8 @@ pub fn patched_detector(
     dataset: &hilo_dataset::simulate::SimulateConfig,
 ) -> Result<DetectorConfig> {
     let Some(patch) = &study.file.detector_patch else { return Ok(det.clone()) };
-    let bad = |m: String| StudyError::Invalid(format!("[detector_patch] on preset {preset}: {m}"));
+    let bad =
+        |reason: String| StudyError::PresetChange { section: "detector_patch", preset: preset.to_owned(), reason };
     let p = det.with_patch(patch).map_err(|e| bad(e.to_string()))?;
     if p.name != det.name || p.fusion != det.fusion {
         return Err(bad(format!(
@@ -574,7 +579,8 @@ pub fn patched_detector(
 /// checkpoints, one replica per training) are refused rather than silently replaced.
 pub fn scheduled(study: &Study, preset: &str, train: &TrainConfig) -> Result<TrainConfig> {
     let Some(fields) = &study.file.train_schedule else { return Ok(train.clone()) };
-    let bad = |m: String| StudyError::Invalid(format!("[train_schedule] on preset {preset}: {m}"));
+    let bad =
+        |reason: String| StudyError::PresetChange { section: "train_schedule", preset: preset.to_owned(), reason };
     for own in ["seed", "keep", "replicas", "sync_batch_norm"] {
         if let Some(v) = fields.get(own) {
             return Err(bad(format!(

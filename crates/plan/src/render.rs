@@ -503,18 +503,22 @@ pub struct FramePicture {
 pub fn dataset_frame(ds: &hilo_dataset::Dataset, frame: usize) -> Result<FramePicture> {
     let t = &ds.tables;
     let class_of = ds.instance_classes();
-    let sample = t
-        .sample
-        .get(frame)
-        .ok_or_else(|| StudyError::Invalid(format!("--frame {frame}: the dataset has {} frames", t.sample.len())))?;
+    let sample = t.sample.get(frame).ok_or_else(|| StudyError::Argument {
+        flag: "--frame",
+        value: frame.to_string(),
+        reason: format!("the dataset has {} frames", t.sample.len()),
+    })?;
     let mut dots = Vec::new();
     let mut keys: Vec<((u8, u8, u8), String)> = Vec::new();
     for (k, sd) in t.sample_data.iter().filter(|s| s.sample_token == sample.token).enumerate() {
-        let cs = t
-            .calibrated_sensor
-            .iter()
-            .find(|c| c.token == sd.calibrated_sensor_token)
-            .ok_or_else(|| StudyError::Invalid(format!("sample_data {}: no calibrated sensor", sd.token)))?;
+        let cs = t.calibrated_sensor.iter().find(|c| c.token == sd.calibrated_sensor_token).ok_or_else(|| {
+            StudyError::Unknown {
+                what: "calibrated sensor",
+                name: sd.calibrated_sensor_token.clone(),
+                place: format!("the dataset (sample_data {})", sd.token),
+                known: "a dangling token".into(),
+            }
+        })?;
         let q = glam::Quat::from_xyzw(
             cs.rotation[1] as f32,
             cs.rotation[2] as f32,

@@ -168,7 +168,7 @@ impl TrafficPoints {
                 let users: Vec<(u32, usize)> =
                     states.iter().filter_map(|a| traffic.counted(a).map(|c| (a.id, c))).collect();
                 let actors = hilo_raycast::ActorSet::new(states.iter().map(|a| a.actor()).collect())
-                    .map_err(|e| crate::error::StudyError::Invalid(format!("training traffic, {}: {e}", id.name())))?;
+                    .map_err(|e| crate::error::StudyError::step(format!("training traffic, {}", id.name()), e))?;
                 frames.push(Frame { actors, stream: id.stream(), index, users });
             }
         }
@@ -190,10 +190,8 @@ impl TrafficPoints {
                 for (k, spec, pose) in lidars {
                     let seed =
                         hilo_dataset::simulate::derive_seed(self.seed, &[2, fr.stream, fr.index as u64, *k as u64]);
-                    let scan =
-                        hilo_sensor_models::simulate_lidar(spec, pose, world, Some(&fr.actors), seed).map_err(|e| {
-                            crate::error::StudyError::Invalid(format!("LiDAR {k} on a training key frame: {e}"))
-                        })?;
+                    let scan = hilo_sensor_models::simulate_lidar(spec, pose, world, Some(&fr.actors), seed)
+                        .map_err(|e| crate::error::StudyError::step(format!("LiDAR {k} on a training key frame"), e))?;
                     for (a, n) in scan.points_per_actor() {
                         *points.entry(a).or_default() += n;
                     }

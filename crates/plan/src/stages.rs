@@ -76,11 +76,11 @@ pub fn simulate(
     let conf = &plan.configurations[ci];
     let ppath = plan.placement(ci);
     if !ppath.exists() {
-        return Err(StudyError::Invalid(format!(
-            "{}: no placement for {:?}; run the place stage first",
-            ppath.display(),
-            conf.name
-        )));
+        return Err(StudyError::NotReady {
+            path: ppath,
+            what: format!("no placement for {:?}", conf.name),
+            remedy: "run the place stage first".into(),
+        });
     }
     let placement = Placement::load(&ppath)?;
     record_dataset(study, &placement, &ppath, &plan.datasets[ci], stage, &conf.name, progress)
@@ -199,9 +199,7 @@ pub fn train_job(job: &Job, loaded: &Loaded, registry: &Registry, tick: &(dyn Fn
                 true
             },
         )
-        .map_err(|e| {
-            StudyError::Invalid(format!("training {} (seed {}) in {}: {e}", job.preset, job.seed, run.display()))
-        })
+        .map_err(|e| StudyError::step(format!("training {} (seed {}) in {}", job.preset, job.seed, run.display()), e))
     };
     let info = run_training(&job.run, &job.train, 0)?;
     let detect = |run: &std::path::Path,
@@ -244,14 +242,14 @@ pub fn train_one(plan: &Plan, job: &Job, registry: &Registry, tick: &(dyn Fn(f64
         return train_job(job, &empty, registry, tick);
     }
     if !plan.data[job.configuration].done().exists() {
-        return Err(StudyError::Invalid(format!(
-            "{}: the dataset of {:?} is not complete; run its simulate stage first",
-            plan.data[job.configuration].dir.display(),
-            plan.configurations[job.configuration].name
-        )));
+        return Err(StudyError::NotReady {
+            path: plan.data[job.configuration].dir.clone(),
+            what: format!("the dataset of {:?} is not complete", plan.configurations[job.configuration].name),
+            remedy: "run its simulate stage first".into(),
+        });
     }
     let inputs = load_inputs(plan, job.configuration, &[job])?;
-    let loaded = inputs.get(&input_key(job)).ok_or_else(|| StudyError::Invalid("no frames loaded".into()))?;
+    let loaded = inputs.get(&input_key(job)).ok_or(StudyError::Internal("a training's frames were not loaded"))?;
     train_job(job, loaded, registry, tick)
 }
 
@@ -302,6 +300,6 @@ pub fn train_jobs(
             });
         }
     });
-    let outcomes = outcomes.into_inner().map_err(|_| StudyError::Invalid("a training worker panicked".into()))?;
+    let outcomes = outcomes.into_inner().map_err(|_| StudyError::Panicked("training"))?;
     outcomes.into_values().collect()
 }

@@ -226,10 +226,12 @@ impl ValidationSettings {
         let pick = |given: &Option<String>, key: &str, fusion: bool| match (given, primary) {
             (Some(p), _) => Ok(p.clone()),
             (None, Some((f, l))) => Ok(if fusion { f } else { l }.to_owned()),
-            (None, None) => Err(StudyError::Invalid(format!(
-                "{source}: validation.{key}: not given, and no registered fusion preset has a LiDAR-only counterpart \
-                 to default to; name one"
-            ))),
+            (None, None) => Err(StudyError::setting(
+                source,
+                format!("validation.{key}"),
+                "(not given)",
+                "no registered fusion preset has a LiDAR-only counterpart to default to; name one",
+            )),
         };
         let resolved = ValidationSettings {
             lidar_preset: Some(pick(&self.lidar_preset, "lidar_preset", false)?),
@@ -242,52 +244,59 @@ impl ValidationSettings {
 
     /// The preset trained on a rig with a radar (`radar`) or without one.
     pub fn preset_for(&self, radar: bool) -> Result<&str> {
-        let (key, given) =
-            if radar { ("fusion_preset", &self.fusion_preset) } else { ("lidar_preset", &self.lidar_preset) };
-        given.as_deref().ok_or_else(|| StudyError::Invalid(format!("validation.{key}: not resolved")))
+        let given = if radar { &self.fusion_preset } else { &self.lidar_preset };
+        given.as_deref().ok_or(StudyError::Internal(if radar {
+            "validation.fusion_preset used before the settings were resolved"
+        } else {
+            "validation.lidar_preset used before the settings were resolved"
+        }))
     }
 
     /// Checks the values a study file may get wrong (the presets where given); `source` names
     /// the file. Every study plan checks its `[validation]` section, so `hilo study` refuses a
     /// section `hilo validate` would.
     pub fn check(&self, registry: &hilo_detector::Registry, source: &str) -> Result<()> {
-        let bad = |m: String| StudyError::Invalid(format!("{source}: validation.{m}"));
+        let bad = |field: &str, value: String, reason: String| {
+            StudyError::setting(source, format!("validation.{field}"), value, reason)
+        };
         if !(10..=500).contains(&self.placements) {
-            return Err(bad(format!("placements = {}: give 10 to 500", self.placements)));
+            return Err(bad("placements", self.placements.to_string(), "give 10 to 500".into()));
         }
         if !(1..=20).contains(&self.seeds) {
-            return Err(bad(format!("seeds = {}: give 1 to 20", self.seeds)));
+            return Err(bad("seeds", self.seeds.to_string(), "give 1 to 20".into()));
         }
         // Detectors train to 2b: b is bounded so that 2b is a schedule (and cannot overflow).
         let most = hilo_detector::config::limits::SAMPLES / 2;
         if !(2..=most).contains(&self.samples) {
-            return Err(bad(format!("samples = {}: give 2 to {most}", self.samples)));
+            return Err(bad("samples", self.samples.to_string(), format!("give 2 to {most}")));
         }
         if self.min_points == 0 {
-            return Err(bad("min_points = 0: give at least 1".into()));
+            return Err(bad("min_points", "0".into(), "give at least 1".into()));
         }
         for (key, tilts) in [("lidar_tilts_deg", &self.lidar_tilts_deg), ("radar_tilts_deg", &self.radar_tilts_deg)] {
             if tilts.is_empty() || tilts.len() > 16 {
-                return Err(bad(format!("{key} holds {} tilts: give 1 to 16", tilts.len())));
+                return Err(bad(key, format!("{tilts:?}"), format!("{} tilts; give 1 to 16", tilts.len())));
             }
             if let Some(a) = tilts.iter().find(|a| !(a.is_finite() && a.abs() <= 90.0)) {
-                return Err(bad(format!("{key} holds {a}: tilts are degrees within ±90")));
+                return Err(bad(key, format!("{tilts:?}"), format!("holds {a}: tilts are degrees within ±90")));
             }
         }
         for (key, given, radar) in
             [("lidar_preset", &self.lidar_preset, false), ("fusion_preset", &self.fusion_preset, true)]
         {
             let Some(p) = given else { continue };
-            let preset = registry.preset(p).map_err(|e| bad(format!("{key} = {p:?}: {e}")))?;
+            let preset = registry.preset(p).map_err(|e| bad(key, format!("{p:?}"), e.to_string()))?;
             // The fusion preset is what rigs with a radar train: one that reads no radar would
             // score them without it.
             match (radar, registry.uses_radar(&preset.detector)) {
-                (false, true) => return Err(bad(format!("{key} = {p:?} needs a radar"))),
+                (false, true) => return Err(bad(key, format!("{p:?}"), "needs a radar".into())),
                 (true, false) => {
-                    return Err(bad(format!(
-                        "{key} = {p:?} reads no radar; give a preset that fuses LiDAR and radar{}",
-                        registry.primary().map_or(String::new(), |(f, _)| format!(" (e.g. {f:?})"))
-                    )));
+                    let example = registry.primary().map_or(String::new(), |(f, _)| format!(" (e.g. {f:?})"));
+                    return Err(bad(
+                        key,
+                        format!("{p:?}"),
+                        format!("reads no radar; give a preset that fuses LiDAR and radar{example}"),
+                    ));
                 }
                 _ => {}
             }
@@ -562,11 +571,15 @@ impl Study {
     /// A configuration by name.
     pub fn configuration(&self, name: &str) -> Result<&Configuration> {
         self.file.configurations.iter().find(|c| c.name == name || c.slug() == name).ok_or_else(|| {
-            StudyError::Invalid(format!(
-                "{}: no configuration {name:?}; configurations: {}",
-                self.source,
-                self.file.configurations.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
-            ))
+            StudyError::Unknown {
+                what: "configuration",
+                name: name.to_owned(),
+                place: self.source.clone(),
+                known: format!(
+                    "configurations: {}",
+                    self.file.configurations.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
+                ),
+            }
         })
     }
 }

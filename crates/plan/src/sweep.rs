@@ -160,7 +160,7 @@ fn directory(dir: &Path) -> Result<Sweep> {
         .collect();
     files.sort();
     if files.is_empty() {
-        return Err(StudyError::Invalid(format!("{}: a directory of studies holds no *.toml file", dir.display())));
+        return Err(StudyError::folder(dir, "a directory of studies holds no *.toml file"));
     }
     let mut shards = Vec::new();
     for f in files {
@@ -242,11 +242,11 @@ impl SweepRecord {
     pub fn read(out: &Path) -> Result<SweepRecord> {
         let p = SweepRecord::path(out);
         if !p.exists() {
-            return Err(StudyError::Invalid(format!(
-                "{} is not a sweep folder (no sweep.json): run `hilo study <sweep> --out {}` first",
-                out.display(),
-                out.display()
-            )));
+            return Err(StudyError::NotReady {
+                path: out.to_path_buf(),
+                what: "not a sweep folder (no sweep.json)".into(),
+                remedy: format!("run `hilo study <sweep> --out {}` first", out.display()),
+            });
         }
         Ok(read_json(&p, limit::TABLE)?)
     }
@@ -281,18 +281,17 @@ impl Sweep {
         if marker.exists() {
             let old: SweepRecord = read_json(&marker, limit::TABLE)?;
             if old != record {
-                return Err(StudyError::Invalid(format!(
-                    "{} holds another sweep (its studies, their files or the profile differ from {}); choose another --out",
-                    out.display(),
-                    self.source
-                )));
+                return Err(StudyError::folder(
+                    out,
+                    format!(
+                        "holds another sweep (its studies, their files or the profile differ from {}); choose another --out",
+                        self.source
+                    ),
+                ));
             }
         } else {
             if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(false) {
-                return Err(StudyError::Invalid(format!(
-                    "{} exists and is not a sweep folder; choose another --out",
-                    out.display()
-                )));
+                return Err(StudyError::folder(out, "exists and is not a sweep folder; choose another --out"));
             }
             std::fs::create_dir_all(out).map_err(|e| hilo_core::fs::FileError::io(out, e))?;
             write_json(&marker, &record)?;
@@ -302,6 +301,21 @@ impl Sweep {
         }
         Ok(())
     }
+}
+
+/// `hilo study plan` on a sweep's folder `out`: each study's stages ([`Plan::status`]), then
+/// the comparison, done or not. `default` gives the embedded study, as for [`reopen`].
+pub fn status(out: &Path, registry: &hilo_detector::Registry, default: impl Fn() -> Result<Study>) -> Result<String> {
+    let record = SweepRecord::read(out)?;
+    let mut lines = Vec::new();
+    for s in &record.shards {
+        lines.push(format!("== study {}", s.name));
+        lines.push(reopen(&Sweep::shard_out(out, &s.name), registry, &default)?.1.status());
+    }
+    let comparison = out.join("comparison.json");
+    let done = if comparison.exists() { "done" } else { "to do" };
+    lines.push(format!("compare                   {done}  {}", comparison.display()));
+    Ok(lines.join("\n"))
 }
 
 /// The study and plan a study folder records, checked against the study file as it is now: the
@@ -314,8 +328,7 @@ pub fn reopen(
 ) -> Result<(Study, Plan)> {
     let record = crate::plan::FolderRecord::read(out)?;
     let marker = out.join("study.json");
-    let refuse =
-        |why: String| Err(StudyError::Invalid(format!("{}: {why}; run it into a new folder", marker.display())));
+    let refuse = |why: String| Err(StudyError::folder(&marker, format!("{why}; run it into a new folder")));
     let study = if record.study.starts_with("<embedded>") {
         default()?
     } else {

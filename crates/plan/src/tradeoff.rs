@@ -194,7 +194,7 @@ fn los_rows(
         runs.push((k, seconds, prep, inst, o));
     }
     let (_, _, reference, ref_inst, ref_out) =
-        runs.last().ok_or_else(|| StudyError::Invalid("no line-of-sight run".into()))?;
+        runs.last().ok_or(StudyError::Internal("the trade-off sweep made no line-of-sight run"))?;
     let ref_opt = ref_out.objective;
     let mut los = Vec::new();
     for (k, seconds, prep, _, o) in &runs {

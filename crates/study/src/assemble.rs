@@ -181,7 +181,7 @@ pub fn assemble(
     let configs = &plan.configurations;
     for p in plan.placement_outputs() {
         if !p.exists() {
-            return Err(StudyError::Invalid(format!("{}: missing; run the place stage first", p.display())));
+            return Err(StudyError::not_ready(p, "missing", "run the place stage first"));
         }
     }
     let tradeoffs: hilo_plan::tradeoff::Tradeoffs = read_json(&plan.tradeoffs, limit::TABLE)?;
@@ -329,7 +329,7 @@ fn bootstrap_scores(
     scenes: &[String],
     draws: &[Vec<u32>],
 ) -> Result<(hilo_eval::bootstrap::Replicate, VelocityErrors, BTreeMap<String, Scores>)> {
-    let r = Reweighable::new(common, pred, eval_cfg, scenes).map_err(StudyError::Invalid)?;
+    let r = Reweighable::new(common, pred, eval_cfg, scenes).map_err(|e| StudyError::step("scoring detections", e))?;
     let (full, vel) = r.full_with_velocity(eval_cfg);
     let under = r.under_with_velocity(eval_cfg, draws);
     let ped = |x: &hilo_eval::bootstrap::Replicate| x.2.get("pedestrian").copied().unwrap_or(f64::NAN);
@@ -410,12 +410,10 @@ fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
     let mut summaries = Vec::new();
     for (ci, conf) in configs.iter().enumerate() {
         let placement = Placement::load(&plan.placement(ci))?;
-        let data: DataRecord = read_json(&plan.data[ci].done(), limit::TABLE).map_err(|_| {
-            StudyError::Invalid(format!(
-                "{}: the dataset of {:?} is not complete; run its simulate stage first",
-                plan.data[ci].dir.display(),
-                conf.name
-            ))
+        let data: DataRecord = read_json(&plan.data[ci].done(), limit::TABLE).map_err(|_| StudyError::NotReady {
+            path: plan.data[ci].dir.clone(),
+            what: format!("the dataset of {:?} is not complete", conf.name),
+            remedy: "run its simulate stage first".into(),
         })?;
         summaries.push(ConfigSummary {
             name: conf.name.clone(),
@@ -533,11 +531,11 @@ fn sorted(mut p: Predictions) -> Predictions {
 /// A train stage's outputs read back from its files.
 fn read_outputs(job: &Job) -> Result<JobOutput> {
     if !job.done() {
-        return Err(StudyError::Invalid(format!(
-            "{}: missing; run the train stage {} first",
-            job.meta().display(),
-            job.id
-        )));
+        return Err(StudyError::NotReady {
+            path: job.meta(),
+            what: "missing".into(),
+            remedy: format!("run the train stage {} first", job.id),
+        });
     }
     let read = |p: &std::path::Path| -> Result<Predictions> { Ok(hilo_eval::read_submission(p, 500)?) };
     let curve = job.curve.iter().map(|&s| Ok((s, read(&job.curve_results(s))?))).collect::<Result<Vec<_>>>()?;
@@ -545,7 +543,7 @@ fn read_outputs(job: &Job) -> Result<JobOutput> {
 }
 
 fn score_full(gt: &GroundTruth, pred: &Predictions, cfg: &DetectionConfig, scenes: &[String]) -> Result<f64> {
-    Ok(Reweighable::new(gt, pred, cfg, scenes).map_err(StudyError::Invalid)?.full(cfg).0)
+    Ok(Reweighable::new(gt, pred, cfg, scenes).map_err(|e| StudyError::step("scoring detections", e))?.full(cfg).0)
 }
 
 /// The predictions with a share of every sample's boxes dropped (seeded): a known degradation.

@@ -198,20 +198,21 @@ pub fn compare(out: &Path) -> Result<Comparison> {
         let dir = Sweep::shard_out(out, &s.name);
         let folder = FolderRecord::read(&dir)?;
         if folder.fingerprint != s.fingerprint {
-            return Err(StudyError::Invalid(format!(
-                "{}: holds study fingerprint {}, the sweep recorded {}; rerun the sweep into a new folder",
-                dir.join("study.json").display(),
-                folder.fingerprint,
-                s.fingerprint
-            )));
+            return Err(StudyError::folder(
+                dir.join("study.json"),
+                format!(
+                    "holds study fingerprint {}, the sweep recorded {}; rerun the sweep into a new folder",
+                    folder.fingerprint, s.fingerprint
+                ),
+            ));
         }
         let path = dir.join("report.json");
         if !path.exists() {
-            return Err(StudyError::Invalid(format!(
-                "{}: missing; run the study's report stage first (`hilo study report --out {}`)",
-                path.display(),
-                dir.display()
-            )));
+            return Err(StudyError::NotReady {
+                path,
+                what: "missing".into(),
+                remedy: format!("run the study's report stage first (`hilo study report --out {}`)", dir.display()),
+            });
         }
         reports.push((s.clone(), read_json::<Report>(&path, limit::TABLE)?));
     }

@@ -88,9 +88,10 @@ fn rel(plan: &Plan, p: &Path) -> Result<String> {
 }
 
 fn rel_to(base: &Path, p: &Path) -> Result<String> {
-    let r = p
-        .strip_prefix(base)
-        .map_err(|_| StudyError::Invalid(format!("{} is outside the study folder {}", p.display(), base.display())))?;
+    let r = p.strip_prefix(base).map_err(|_| StudyError::Workflow {
+        what: p.display().to_string(),
+        reason: format!("outside the study folder {}", base.display()),
+    })?;
     let s = r.to_string_lossy().into_owned();
     shell_word(&s)?;
     Ok(s)
@@ -115,9 +116,10 @@ fn shell_word(s: &str) -> Result<&str> {
     if !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c)) {
         Ok(s)
     } else {
-        Err(StudyError::Invalid(format!(
-            "{s:?}: a stage path or name in a workflow must be ASCII letters, digits, '_', '-', '.' and '/'"
-        )))
+        Err(StudyError::Workflow {
+            what: format!("{s:?}"),
+            reason: "a stage path or name in a workflow must be ASCII letters, digits, '_', '-', '.' and '/'".into(),
+        })
     }
 }
 
@@ -280,10 +282,10 @@ fn emit(s: &mut String, target: &str, rules: &[Rule], what: &str) -> Result<()> 
     let mut names = std::collections::BTreeSet::new();
     for r in rules {
         if !names.insert(r.name.as_str()) {
-            return Err(StudyError::Invalid(format!(
-                "two stages of {what} would share the Snakemake rule name {}: rename a study file or configuration",
-                r.name
-            )));
+            return Err(StudyError::Workflow {
+                what: format!("rule {}", r.name),
+                reason: format!("two stages of {what} would share it: rename a study file or configuration"),
+            });
         }
         r.write(s);
     }
@@ -403,8 +405,9 @@ pub fn write_validation(plan: &ValidationPlan, profile: &Profile, wf: &Workflow)
 
 /// `config.yaml`: the hilo executable the rules call.
 pub fn config_yaml(wf: &Workflow) -> Result<String> {
-    let exe = wf.hilo.to_str().ok_or_else(|| {
-        StudyError::Invalid(format!("{}: the hilo executable's path is not UTF-8", wf.hilo.display()))
+    let exe = wf.hilo.to_str().ok_or_else(|| StudyError::Workflow {
+        what: wf.hilo.display().to_string(),
+        reason: "the hilo executable's path is not UTF-8".into(),
     })?;
     // A JSON string is a YAML double-quoted scalar: quotes, backslashes and newlines escaped.
     Ok(format!(

@@ -152,10 +152,10 @@ pub fn record(out: &Path) -> Result<(String, Profile, ValidationSettings)> {
     let r: FolderRecord = read_json(&out.join("validation-folder.json"), limit::TABLE)?;
     match (r.profile, r.settings) {
         (Some(profile), Some(settings)) => Ok((r.study, profile, settings)),
-        _ => Err(StudyError::Invalid(format!(
-            "{}: written by an older hilo that did not record the profile and settings; run the validation again in one process",
-            out.display()
-        ))),
+        _ => Err(StudyError::folder(
+            out,
+            "written by an older hilo that did not record the profile and settings; run the validation again in one process",
+        )),
     }
 }
 
@@ -171,10 +171,10 @@ fn claim(out: &Path, fingerprint: &str, study: &Study, profile: &Profile, settin
     if record.exists() {
         let old: FolderRecord = read_json(&record, limit::TABLE)?;
         if old.fingerprint != fingerprint {
-            return Err(StudyError::Invalid(format!(
-                "{} holds another validation (study, settings or profile differ); choose another --out",
-                out.display()
-            )));
+            return Err(StudyError::folder(
+                out,
+                "holds another validation (study, settings or profile differ); choose another --out",
+            ));
         }
         if old.profile.is_none() {
             write_json(&record, &mine)?;
@@ -182,10 +182,7 @@ fn claim(out: &Path, fingerprint: &str, study: &Study, profile: &Profile, settin
         return Ok(());
     }
     if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(false) {
-        return Err(StudyError::Invalid(format!(
-            "{} exists and is not a validation folder; choose another --out",
-            out.display()
-        )));
+        return Err(StudyError::folder(out, "exists and is not a validation folder; choose another --out"));
     }
     std::fs::create_dir_all(out).map_err(|e| hilo_core::fs::FileError::io(out, e))?;
     Ok(write_json(&record, &mine)?)
@@ -212,12 +209,11 @@ impl ValidationPlan {
     }
 
     fn member(&self, slug: &str) -> Result<usize> {
-        self.members.iter().position(|m| m.slug == slug).ok_or_else(|| {
-            StudyError::Invalid(format!(
-                "no placement {slug:?} in the validation in {}; it has {}",
-                self.out.display(),
-                self.members.iter().map(|m| m.slug.as_str()).collect::<Vec<_>>().join(", ")
-            ))
+        self.members.iter().position(|m| m.slug == slug).ok_or_else(|| StudyError::Unknown {
+            what: "placement",
+            name: slug.to_owned(),
+            place: format!("the validation in {}", self.out.display()),
+            known: format!("it has {}", self.members.iter().map(|m| m.slug.as_str()).collect::<Vec<_>>().join(", ")),
         })
     }
 }
@@ -226,11 +222,10 @@ impl ValidationPlan {
 /// sections as text (what the placement set depends on), and the fingerprint of all of it
 /// with the scene and catalog.
 fn fingerprint(study: &Study, profile: &Profile, settings: &ValidationSettings) -> Result<(String, String)> {
-    let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
+    let sjson = serde_json::to_string(settings)?;
     // The study's weather conditions are no part of the validation (its placements are recorded
     // in the study's own weather), so a profile that runs them defines the same validation.
-    let pjson = serde_json::to_string(&Profile { conditions: Some(0), ..profile.clone() })
-        .map_err(|e| StudyError::Invalid(e.to_string()))?;
+    let pjson = serde_json::to_string(&Profile { conditions: Some(0), ..profile.clone() })?;
     let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, study.file.configurations);
     // What changes the trainings (not the set) joins the fingerprint only when present, so
     // folders made before the validation read these sections still open.
@@ -253,14 +248,15 @@ fn check_same_study(study: &Study, out: &Path) -> Result<()> {
     let r: FolderRecord = read_json(&out.join("validation-folder.json"), limit::TABLE)?;
     let (Some(profile), Some(settings)) = (&r.profile, &r.settings) else { return Ok(()) };
     if fingerprint(study, profile, settings)?.1 != r.fingerprint {
-        return Err(StudyError::Invalid(format!(
-            "{}: the study given ({}) is not the one validated there ({}): its scene, catalog, placement, \
-             [dataset] traffic, configurations or training sections differ; give the validated study, or \
-             validate this one in another folder",
-            out.display(),
-            study.source,
-            r.study
-        )));
+        return Err(StudyError::folder(
+            out,
+            format!(
+                "the study given ({}) is not the one validated there ({}): its scene, catalog, placement, \
+                 [dataset] traffic, configurations or training sections differ; give the validated study, or \
+                 validate this one in another folder",
+                study.source, r.study
+            ),
+        ));
     }
     Ok(())
 }
@@ -276,7 +272,7 @@ pub fn plan(
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<ValidationPlan> {
     let settings = &settings.resolved(registry, &study.source)?;
-    let sjson = serde_json::to_string(settings).map_err(|e| StudyError::Invalid(e.to_string()))?;
+    let sjson = serde_json::to_string(settings)?;
     let (defining, fingerprint) = fingerprint(study, profile, settings)?;
     claim(out, &fingerprint, study, profile, settings)?;
     // 1. The set.
@@ -371,8 +367,11 @@ pub fn train_job(
     id: &str,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<()> {
-    let j = plan.jobs.iter().find(|j| j.id == id).ok_or_else(|| {
-        StudyError::Invalid(format!("no training {id:?} in the validation in {}", plan.out.display()))
+    let j = plan.jobs.iter().find(|j| j.id == id).ok_or_else(|| StudyError::Unknown {
+        what: "training",
+        name: id.to_owned(),
+        place: format!("the validation in {}", plan.out.display()),
+        known: format!("{} trainings", plan.jobs.len()),
     })?;
     train(registry, profile, plan, j.configuration, Some(id), progress).map(|_| ())
 }
@@ -439,8 +438,8 @@ fn jobs(
             }
             let at_b = (settings.samples / tc.batch).max(1) * tc.batch;
             tc.keep = vec![at_b];
-            let detector = serde_json::to_string(&detector_cfg).map_err(|e| StudyError::Invalid(e.to_string()))?;
-            let schedule = serde_json::to_string(&tc).map_err(|e| StudyError::Invalid(e.to_string()))?;
+            let detector = serde_json::to_string(&detector_cfg)?;
+            let schedule = serde_json::to_string(&tc)?;
             let h = stage_hash("run", &[&data[mi].hash, &detector, &schedule]);
             let name = format!("{preset}-seed{seed}-{}", short(&h));
             let detector = detector_cfg.clone().validate()?;
@@ -512,7 +511,7 @@ impl Scorer {
         let rescore = |p: &Predictions| -> Result<Reweighable> {
             let mut p = rekey(p.clone(), &keys);
             p.sort_by(|a, b| a.0.cmp(&b.0));
-            Reweighable::new(&self.common, &p, cfg, &self.scenes).map_err(StudyError::Invalid)
+            Reweighable::new(&self.common, &p, cfg, &self.scenes).map_err(|e| StudyError::step("scoring detections", e))
         };
         let (mut map, mut at_b, mut ped, mut train_s) = (Vec::new(), Vec::new(), Vec::new(), 0.0);
         let mut class_ap: BTreeMap<String, f64> = BTreeMap::new();
@@ -696,10 +695,11 @@ pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {
     check_same_study(study, out)?;
     let mut r = read(out)?;
     let Some(rec) = r.recommendation.take() else {
-        return Err(StudyError::Invalid(format!(
-            "{}: no trained recommendation to add to the set (run --recommend first)",
-            out.join("validation.json").display()
-        )));
+        return Err(StudyError::NotReady {
+            path: out.join("validation.json"),
+            what: "no trained recommendation to add to the set".into(),
+            remedy: "run --recommend first".into(),
+        });
     };
     r.members.push((rec.member, rec.trained));
     r.transfer = None;
@@ -763,14 +763,14 @@ pub fn transfer(r: &ValidationReport, source: &Path) -> Result<calibrate::Transf
     let same_members = src.members.len() == r.members.len()
         && src.members.iter().zip(&r.members).all(|((a, ta), (b, tb))| a.slug == b.slug && ta == tb);
     if same_members {
-        return Err(StudyError::Invalid(format!(
-            "{}: holds the same placements and trainings as this validation; a transfer scores a fit on a set it \
+        return Err(StudyError::folder(
+            source,
+            "holds the same placements and trainings as this validation; a transfer scores a fit on a set it \
              never saw, so give another validation's validation.json",
-            source.display()
-        )));
+        ));
     }
     calibrate::transfer(&src, r, &source.display().to_string())
-        .map_err(|e| StudyError::Invalid(format!("{}: {e}", source.display())))
+        .map_err(|e| StudyError::step(source.display().to_string(), e))
 }
 
 /// Writes `validation.json`, `validation.md` and the scatter charts into `out`; returns the

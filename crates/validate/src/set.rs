@@ -224,12 +224,12 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
         }
     }
     if drawn.len() < v.placements {
-        return Err(StudyError::Invalid(format!(
-            "{}: the scene offers {} distinct placements of these configurations, fewer than validation.placements = {}",
-            study.source,
-            drawn.len(),
-            v.placements
-        )));
+        return Err(StudyError::setting(
+            &study.source,
+            "validation.placements",
+            v.placements,
+            format!("the scene offers {} distinct placements of these configurations", drawn.len()),
+        ));
     }
     let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
     drawn
@@ -298,10 +298,12 @@ pub fn recompute_from(study: &Study, v: &ValidationSettings, members: &[Member],
         .enumerate()
         .map(|(k, m)| {
             if m.placement.scene_hash != study.scene_hash || m.placement.catalog_hash != study.catalog_hash {
-                return Err(StudyError::Invalid(format!(
-                    "placement {} was drawn on another scene or catalog than {}",
-                    m.slug, study.source
-                )));
+                return Err(StudyError::Unknown {
+                    what: "placement",
+                    name: m.slug.clone(),
+                    place: study.source.clone(),
+                    known: "it was drawn on another scene or catalog".into(),
+                });
             }
             let mut again = ctx.member(
                 first + k,
@@ -311,7 +313,12 @@ pub fn recompute_from(study: &Study, v: &ValidationSettings, members: &[Member],
                 m.placement.proven_optimal,
             )?;
             if again.slug != m.slug {
-                return Err(StudyError::Invalid(format!("placement {} reads back as {}", m.slug, again.slug)));
+                return Err(StudyError::Unknown {
+                    what: "placement",
+                    name: m.slug.clone(),
+                    place: study.source.clone(),
+                    known: format!("it reads back as {}", again.slug),
+                });
             }
             let mut predictors = m.predictors.clone();
             predictors.append(&mut again.predictors);
