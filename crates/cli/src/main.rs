@@ -66,7 +66,8 @@ enum Command {
 enum SceneCommand {
     /// Draw a top-down picture of the scene: roads, lanes, crosswalks, poles, buildings, trees, ROIs.
     Show {
-        /// Scene TOML; the embedded default intersection when omitted.
+        /// Scene TOML, or an OpenDRIVE road network (.xodr) with --junction or --near; the
+        /// embedded default intersection when omitted.
         scene: Option<PathBuf>,
         /// Output PNG.
         #[arg(long, default_value = "scene.png")]
@@ -74,9 +75,51 @@ enum SceneCommand {
         /// Resolution, pixels per metre.
         #[arg(long, default_value_t = 4.0)]
         px_per_m: f32,
+        #[command(flatten)]
+        junction: JunctionArgs,
     },
-    /// Print a JSON summary: triangles, objects, mounts, ROIs and their areas.
-    Info { scene: Option<PathBuf> },
+    /// Print a JSON summary: triangles, objects, mounts, ROIs and their areas (and, for an
+    /// OpenDRIVE junction, the defaults its import used).
+    Info {
+        scene: Option<PathBuf>,
+        #[command(flatten)]
+        junction: JunctionArgs,
+    },
+    /// Write one junction of an OpenDRIVE road network (.xodr) as a scene file to edit.
+    Import {
+        /// The OpenDRIVE file.
+        file: PathBuf,
+        #[command(flatten)]
+        junction: JunctionArgs,
+        /// The scene file to write (TOML; its header lists what the import assumed).
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+/// Which junction of an OpenDRIVE road network: its id, or the one nearest a point.
+#[derive(clap::Args, Debug, Default)]
+pub struct JunctionArgs {
+    /// The junction's `<junction id>`.
+    #[arg(long, conflicts_with = "near")]
+    junction: Option<String>,
+    /// Or the junction whose centre is nearest this point, `x,y` in the file's frame (metres).
+    #[arg(long, value_delimiter = ',', num_args = 2, allow_hyphen_values = true)]
+    near: Option<Vec<f64>>,
+    /// How far from --near a junction's centre may be, metres.
+    #[arg(long, default_value_t = 100.0, requires = "near")]
+    radius_m: f64,
+}
+
+impl JunctionArgs {
+    fn pick(&self) -> Option<hilo_raycast::scene::opendrive::JunctionPick> {
+        use hilo_raycast::scene::opendrive::JunctionPick;
+        match (&self.junction, &self.near) {
+            (Some(id), _) => Some(JunctionPick::id(id)),
+            (None, Some(p)) => Some(JunctionPick { id: None, near: Some([p[0], p[1]]), radius_m: Some(self.radius_m) }),
+            (None, None) => None,
+        }
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -182,10 +225,12 @@ fn parse_variant(s: &str) -> std::result::Result<(String, serde_json::Value), St
     Ok((k.to_owned(), v))
 }
 
-/// Loads the named scene or the embedded default.
-pub fn load_scene(path: Option<&Path>) -> Result<Scene> {
+/// Loads the named scene (or junction of a road network) or the embedded default.
+pub fn load_scene(path: Option<&Path>, junction: &JunctionArgs) -> Result<Scene> {
     match path {
-        Some(p) => Scene::load(p).with_context(|| format!("loading scene {}", p.display())),
+        Some(p) => {
+            Scene::load_with(p, junction.pick().as_ref()).with_context(|| format!("loading scene {}", p.display()))
+        }
         None => Scene::default_fixture().context("building the embedded default scene"),
     }
 }
@@ -245,11 +290,11 @@ fn main() -> Result<()> {
         std::process::exit(status.code().unwrap_or(1));
     }
     match cli.command {
-        Command::Scene { command: SceneCommand::Show { scene, out, px_per_m } } => {
+        Command::Scene { command: SceneCommand::Show { scene, out, px_per_m, junction } } => {
             if !out.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
                 anyhow::bail!("--out {}: the picture is a PNG; give a file name ending in .png", out.display());
             }
-            let scene = load_scene(scene.as_deref())?;
+            let scene = load_scene(scene.as_deref(), &junction)?;
             if !(px_per_m.is_finite() && px_per_m > 0.0 && px_per_m <= 50.0) {
                 anyhow::bail!("--px-per-m must be in (0, 50], got {px_per_m}");
             }
@@ -257,9 +302,17 @@ fn main() -> Result<()> {
             hilo_core::fs::write_atomic(&out, &png)?;
             eprintln!("wrote {} ({})", out.display(), scene.source_name());
         }
-        Command::Scene { command: SceneCommand::Info { scene } } => {
-            let scene = load_scene(scene.as_deref())?;
+        Command::Scene { command: SceneCommand::Info { scene, junction } } => {
+            let scene = load_scene(scene.as_deref(), &junction)?;
             println!("{}", serde_json::to_string_pretty(&hilo_study::render::scene_summary(&scene))?);
+        }
+        Command::Scene { command: SceneCommand::Import { file, junction, out } } => {
+            let pick = junction.pick().context("name the junction: --junction ID, or --near X,Y")?;
+            let imported = hilo_raycast::scene::opendrive::import_to(&file, &pick, &out)?;
+            eprintln!("wrote {} (junction {}, {} arms)", out.display(), imported.junction, imported.config.arms.len());
+            for n in &imported.notes {
+                eprintln!("  {n}");
+            }
         }
         Command::Scan(args) => scan::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
@@ -321,7 +374,7 @@ fn bench(command: BenchCommand) -> Result<()> {
             emit(&hilo::bench::sensors(actors, frames.max(1))?, json, Some(hilo::bench::SensorsReport::print_table))
         }
         BenchCommand::Raycast { scene, azimuth_steps, repeats, json } => {
-            let scene = load_scene(scene.as_deref())?;
+            let scene = load_scene(scene.as_deref(), &JunctionArgs::default())?;
             let report = hilo::bench::raycast(&scene, azimuth_steps, repeats.max(1))?;
             emit(&report, json, Some(hilo::bench::RaycastReport::print_table))
         }

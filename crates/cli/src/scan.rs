@@ -42,7 +42,7 @@ pub struct ScanArgs {
 }
 
 pub fn run(args: &ScanArgs) -> Result<()> {
-    let scene = load_scene(args.scene.as_deref())?;
+    let scene = load_scene(args.scene.as_deref(), &crate::JunctionArgs::default())?;
     let catalog = match &args.catalog {
         Some(p) => Catalog::load(p)?,
         None => Catalog::default_catalog()?,

@@ -91,6 +91,8 @@ pub mod limit {
     pub const CONFIG: u64 = 16 << 20;
     /// A mesh imported into a scene (OBJ, glTF and its buffers).
     pub const MESH: u64 = 1 << 30;
+    /// A road network (OpenDRIVE `.xodr`, which a city's map makes tens of megabytes).
+    pub const ROAD_NETWORK: u64 = 512 << 20;
     /// One point file of a dataset (a LiDAR `.pcd.bin` or radar `.pcd`).
     pub const POINTS: u64 = 256 << 20;
     /// A table of a dataset, a results or metrics file, a checkpoint.

@@ -606,8 +606,9 @@ fn defining(f: &crate::study::StudyFile) -> String {
     let conditions = if f.conditions.is_empty() { String::new() } else { format!(", conditions: {:?}", f.conditions) };
     let patch = f.detector_patch.as_ref().map_or(String::new(), |p| format!(", detector_patch: Some({p:?})"));
     let schedule = f.train_schedule.as_ref().map_or(String::new(), |s| format!(", train_schedule: Some({s:?})"));
+    let junction = f.junction.as_ref().map_or(String::new(), |j| format!(", junction: Some({j:?})"));
     format!(
-        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions}{patch}{schedule} }}",
+        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions}{patch}{schedule}{junction} }}",
         f.scene, f.catalog, f.placement, f.dataset, f.configurations
     )
 }
@@ -635,21 +636,28 @@ mod tests {
             }
             t
         };
-        let whole = shown(&file, &[", detector_patch: None", ", train_schedule: None"]);
+        let whole = shown(&file, &[", detector_patch: None", ", train_schedule: None", ", junction: None"]);
         assert_eq!(defining(&file), whole);
+        // The junction of an OpenDRIVE scene is part of it.
+        let junction = crate::study::StudyFile {
+            junction: Some(hilo_raycast::scene::opendrive::JunctionPick::id("146")),
+            ..file.clone()
+        };
+        assert_eq!(defining(&junction), shown(&junction, &[", detector_patch: None", ", train_schedule: None"]));
         // A detector patch is part of it.
         let patched = crate::study::StudyFile {
             detector_patch: Some(serde_json::json!({ "velocity_weight": 2.0 })),
             ..file.clone()
         };
-        assert_eq!(defining(&patched), shown(&patched, &[", train_schedule: None"]));
+        assert_eq!(defining(&patched), shown(&patched, &[", train_schedule: None", ", junction: None"]));
         // So is a training schedule.
         let scheduled =
             crate::study::StudyFile { train_schedule: Some(serde_json::json!({ "batch": 16 })), ..file.clone() };
-        assert_eq!(defining(&scheduled), shown(&scheduled, &[", detector_patch: None"]));
+        assert_eq!(defining(&scheduled), shown(&scheduled, &[", detector_patch: None", ", junction: None"]));
         // Without conditions the text is what it was before they existed.
         let bare = crate::study::StudyFile { conditions: Vec::new(), ..file };
-        let whole = shown(&bare, &[", conditions: []", ", detector_patch: None", ", train_schedule: None"]);
+        let whole =
+            shown(&bare, &[", conditions: []", ", detector_patch: None", ", train_schedule: None", ", junction: None"]);
         assert_eq!(defining(&bare), whole);
     }
 }

@@ -480,6 +480,7 @@ pub fn scene_summary(scene: &Scene) -> serde_json::Value {
         "arms": scene.layout.arms.iter().map(|a| json!({"name": a.name, "lanes": a.lanes.len(), "stop_line_at_m": a.stop_line_at_m})).collect::<Vec<_>>(),
         "mounting_structures": scene.mounts.iter().map(|m| json!({"name": m.name, "pole_height_m": m.pole_height_m, "arm_length_m": m.arm_length_m, "arm_height_m": m.arm_height_m})).collect::<Vec<_>>(),
         "rois": rois,
+        "assumed": scene.assumed,
     })
 }
 

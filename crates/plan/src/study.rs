@@ -53,6 +53,10 @@ pub struct StudyFile {
     /// the presets' schedules.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub train_schedule: Option<serde_json::Value>,
+    /// Which junction of an OpenDRIVE scene (`scene = "town.xodr"`) to study (`[junction]`: `id
+    /// = "146"`, or `near = [x, y]` with `radius_m`); refused for a scene that is not OpenDRIVE.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub junction: Option<hilo_raycast::scene::opendrive::JunctionPick>,
 }
 
 /// A weather condition of the study (`[[conditions]]`): the named configurations recorded again,
@@ -530,7 +534,10 @@ impl Study {
         let placement = file.placement.clone().validate()?;
         let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
         let scene = match &file.scene {
-            Some(p) => Scene::load(&resolve(p))?,
+            Some(p) => Scene::load_with(&resolve(p), file.junction.as_ref())?,
+            None if file.junction.is_some() => {
+                return Err(bad("[junction] names a junction of an OpenDRIVE scene, and this study gives none (scene = \"town.xodr\")".into()));
+            }
             None => Scene::default_fixture()?,
         };
         let catalog = match &file.catalog {

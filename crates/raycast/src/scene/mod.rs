@@ -3,6 +3,7 @@
 pub mod config;
 pub mod import;
 pub mod layout;
+pub mod opendrive;
 
 use crate::error::RaycastError;
 use crate::mesh::TriangleMesh;
@@ -68,6 +69,9 @@ pub struct Scene {
     pub mesh: TriangleMesh,
     pub objects: Vec<SceneObject>,
     pub mounts: Vec<MountStructure>,
+    /// What loading assumed where the source said nothing (an OpenDRIVE junction's stated
+    /// defaults, [`opendrive::Imported::notes`]); empty for a scene file.
+    pub assumed: Vec<String>,
 }
 
 /// What the field would refuse in a scene whose numbers are each valid: a pole or street light
@@ -129,6 +133,37 @@ impl Scene {
         let mut scene = Self::from_config(cfg, dir, path)?;
         scene.source = Some(path.to_path_buf());
         Ok(scene)
+    }
+
+    /// Loads a scene file, or one junction of an OpenDRIVE road network (`.xodr`, which needs
+    /// `junction`; see [`opendrive`]). `junction` is refused for a scene file.
+    pub fn load_with(path: &Path, junction: Option<&opendrive::JunctionPick>) -> Result<Self, RaycastError> {
+        let xodr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("xodr"));
+        let refuse = |reason: &str| RaycastError::Invalid {
+            path: path.to_path_buf(),
+            field: "junction".into(),
+            value: format!("{junction:?}"),
+            reason: reason.into(),
+        };
+        match (xodr, junction) {
+            (false, None) => Self::load(path),
+            (false, Some(_)) => {
+                Err(refuse("a junction is chosen in an OpenDRIVE road network (.xodr); this is a scene file"))
+            }
+            (true, None) => {
+                Err(refuse("an OpenDRIVE road network holds many junctions: name one (`id`, or `near` a point)"))
+            }
+            (true, Some(pick)) => {
+                let imported = opendrive::import_file(path, pick)?;
+                let dir = path.parent().unwrap_or(Path::new("."));
+                let mut scene = Self::from_config(imported.config, dir, path)?;
+                scene.source = Some(path.to_path_buf());
+                scene.assumed = std::iter::once(format!("junction {} of the OpenDRIVE file", imported.junction))
+                    .chain(imported.notes)
+                    .collect();
+                Ok(scene)
+            }
+        }
     }
 
     /// The embedded default intersection.
@@ -245,7 +280,8 @@ impl Scene {
                 b.mesh.push(t, o);
             }
         }
-        Ok(Scene { config: cfg, source: None, frame, layout, rois, ground, mesh: b.mesh, objects: b.objects, mounts })
+        let (mesh, objects) = (b.mesh, b.objects);
+        Ok(Scene { config: cfg, source: None, frame, layout, rois, ground, mesh, objects, mounts, assumed: Vec::new() })
     }
 
     /// Display name of the file the scene came from.

@@ -1,0 +1,422 @@
+//! One junction of an OpenDRIVE road network (`.xodr`) as a scene.
+//!
+//! The file is read by the `xodr` crate (OpenDRIVE 1.4–1.9: reference lines, lane sections, the
+//! lane graph through junctions, signals). The junction is chosen by its `<junction id>` or as
+//! the one nearest a point. What hilo takes from the file:
+//! - **arms**: every road that leads into the junction is an arm, straight along its heading
+//!   where it meets the junction: its driving lanes that lead into the junction (inbound) and
+//!   out of it (outbound), their mean width, the width of its `median` lanes (a raised median)
+//!   and of its widest `sidewalk` lane, and its name (`road <id>` where the road has none);
+//! - **mounting structures**: a signal pole at each corner between neighbouring arms that has a
+//!   traffic light (a dynamic `<signal>`) nearer to it than to any other corner, with its mast
+//!   arm over the junction; at every corner when the file has no traffic light at this junction;
+//! - **regions of interest**: the junction box and crosswalks (weight 3) and the approach lanes'
+//!   first 60 m (weight 1), as in hilo's default intersection;
+//! - **origin**: the junction's centre (the mean of its lanes' centre lines) in the file's
+//!   coordinates, and its geo reference as the CRS where the header gives one.
+//!
+//! What the file does not say is a stated default, listed in [`Imported::notes`] (and by
+//! `hilo scene info`): arm length 120 m (the file's roads bend or end elsewhere), crosswalk
+//! width 3.5 m, curb height 0.15 m, speed limit 50 km/h, mast arms of up to 8 m over the junction,
+//! pole height 7 m, no buildings or trees (OpenDRIVE objects carry no heights hilo could trust;
+//! add them to the written scene file). Left out: the roads' curvature and elevation (hilo's arms
+//! are straight and flat), turn bays as their own lanes (they count as inbound lanes), and the
+//! junction's own lane geometry (hilo derives the box from the arms). `<include>`s are not
+//! followed: the one file given is read, with a bound on its size.
+
+use crate::error::RaycastError;
+use crate::scene::config::{ArmConfig, GroundConfig, OriginConfig, RoiConfig, RoiKind, SceneConfig, SignalPoleConfig};
+use crate::scene::layout::build_layout;
+use glam::Vec2;
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, BTreeSet, HashSet};
+use std::path::{Path, PathBuf};
+
+/// Which junction of a road network to study: its `<junction id>`, or the one whose centre is
+/// nearest `near` (file coordinates, metres) within `radius_m`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JunctionPick {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub id: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub near: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius_m: Option<f64>,
+}
+
+impl JunctionPick {
+    pub fn id(id: &str) -> Self {
+        JunctionPick { id: Some(id.to_owned()), near: None, radius_m: None }
+    }
+}
+
+/// A junction imported as a scene configuration, and what was assumed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Imported {
+    pub config: SceneConfig,
+    /// The `<junction id>` imported.
+    pub junction: String,
+    /// Each default used where the file says nothing, and each thing of the file left out.
+    pub notes: Vec<String>,
+}
+
+/// How a scene file written by [`write_scene`] begins.
+const HEADER: &str = "# Imported by `hilo scene import`";
+
+/// The stated defaults (see the module doc).
+const ARM_LENGTH_M: f32 = 120.0;
+const CROSSWALK_M: f32 = 3.5;
+const CURB_M: f32 = 0.15;
+const SPEED_KPH: f32 = 50.0;
+const POLE_HEIGHT_M: f32 = 7.0;
+const MAST_ARM_MAX_M: f32 = 8.0;
+const APPROACH_ROI_M: f32 = 60.0;
+
+/// Reads `path` (bounded, includes not followed) and imports the junction `pick` names.
+pub fn import_file(path: &Path, pick: &JunctionPick) -> Result<Imported, RaycastError> {
+    let bytes = hilo_core::fs::read_bounded(path, hilo_core::fs::limit::ROAD_NETWORK)
+        .map_err(|e| hilo_core::fs::FileError::io(path, e))?;
+    let xml = String::from_utf8(bytes).map_err(|e| hilo_core::fs::FileError::content(path, e))?;
+    import_str(&xml, path, pick)
+}
+
+/// Imports the junction `pick` names from the OpenDRIVE text `xml`; `path` names it in errors.
+pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Imported, RaycastError> {
+    let err = |field: &str, value: String, reason: String| RaycastError::Invalid {
+        path: path.to_path_buf(),
+        field: field.to_owned(),
+        value,
+        reason,
+    };
+    let (net, _) =
+        xodr::load_str_with(xml, |name| Err(format!("{name}: hilo reads one file; includes are not followed")))
+            .map_err(|e| err("OpenDRIVE", String::new(), e.to_string()))?;
+    let (lanes_of, centres) = junctions(&net);
+    let known = || centres.keys().map(|s| s.as_str()).collect::<Vec<_>>().join(", ");
+    let junction = pick_junction(pick, &centres).map_err(|reason| {
+        err("junction", format!("{pick:?}"), format!("{reason}; the file's junctions with lanes: {}", known()))
+    })?;
+    let centre = centres[&junction];
+    let approaches = approaches(&net, &lanes_of[&junction], Vec2::new(centre[0] as f32, centre[1] as f32));
+    if approaches.len() < 2 {
+        return Err(err(
+            "junction",
+            format!("{junction:?}"),
+            format!("{} road(s) lead into it; a junction to study has two or more", approaches.len()),
+        ));
+    }
+    let mut notes = Vec::new();
+    let mut arms: Vec<ArmConfig> = approaches.values().map(|a| arm(&net, a, &mut notes)).collect();
+    arms.sort_by(|a, b| a.heading_deg.rem_euclid(360.0).total_cmp(&b.heading_deg.rem_euclid(360.0)));
+    notes.push(format!(
+        "{} arms, each straight along its road's heading at the junction, {ARM_LENGTH_M} m long (the file's roads bend or end elsewhere)",
+        arms.len()
+    ));
+    if net.geo_reference().offset.is_some() {
+        notes.push("origin in the file's own frame: its header <offset> is not applied".into());
+    }
+    notes.push(format!(
+        "defaults: crosswalks {CROSSWALK_M} m wide, curbs {CURB_M} m high, {SPEED_KPH} km/h; turn bays count as inbound lanes"
+    ));
+    let stem = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
+    let mut config = SceneConfig {
+        name: format!("{stem} junction {junction}"),
+        origin: OriginConfig {
+            x_m: centre[0],
+            y_m: centre[1],
+            z_m: 0.0,
+            crs: net.geo_reference().proj.clone().filter(|g| !g.trim().is_empty()),
+        },
+        ground: GroundConfig { z_m: 0.0, half_size_m: ARM_LENGTH_M + 30.0 },
+        arms,
+        buildings: Vec::new(),
+        trees: Vec::new(),
+        signal_poles: Vec::new(),
+        street_lights: Vec::new(),
+        roi: default_rois(),
+        meshes: Vec::new(),
+    };
+    let lights = traffic_lights(&net, &centres, &junction);
+    config.signal_poles = corner_poles(&config, &lights);
+    notes.push(if lights.is_empty() {
+        format!(
+            "no traffic light at this junction in the file: a signal pole at each of the {} corners",
+            config.signal_poles.len()
+        )
+    } else {
+        format!(
+            "{} traffic lights in the file: a signal pole at each of the {} corners nearest them",
+            lights.len(),
+            config.signal_poles.len()
+        )
+    });
+    notes.push(format!(
+        "signal poles {POLE_HEIGHT_M} m high with mast arms of up to {MAST_ARM_MAX_M} m over the junction; no buildings or trees (add them to the scene file)"
+    ));
+    Ok(Imported { config, junction, notes })
+}
+
+/// A lane's road and its lane section's index.
+fn road_of<'a>(net: &'a xodr::RoadNetwork, l: &xodr::Lane) -> Option<(&'a xodr::Road, usize)> {
+    net.road_lane(l.id).and_then(|rl| net.road(rl.road).map(|r| (r, rl.section)))
+}
+
+/// Every junction's lanes, and the centre of those with driving lanes (the mean of their
+/// centre-line points), by `<junction id>`.
+type Junctions = (BTreeMap<String, HashSet<xodr::LaneId>>, BTreeMap<String, [f64; 2]>);
+
+fn junctions(net: &xodr::RoadNetwork) -> Junctions {
+    let mut lanes_of: BTreeMap<String, HashSet<xodr::LaneId>> = BTreeMap::new();
+    let mut sums: BTreeMap<String, (f64, f64, usize)> = BTreeMap::new();
+    for l in net.lanes() {
+        let Some(j) = road_of(net, l).and_then(|(r, _)| r.junction().map(str::to_owned)) else { continue };
+        lanes_of.entry(j.clone()).or_default().insert(l.id);
+        if l.kind == xodr::LaneType::Driving {
+            let c = sums.entry(j).or_insert((0.0, 0.0, 0));
+            for p in l.center.points() {
+                *c = (c.0 + f64::from(p.x), c.1 + f64::from(p.y), c.2 + 1);
+            }
+        }
+    }
+    let centres =
+        sums.into_iter().filter(|(_, c)| c.2 > 0).map(|(j, c)| (j, [c.0 / c.2 as f64, c.1 / c.2 as f64])).collect();
+    (lanes_of, centres)
+}
+
+/// The roads outside the junction with driving lanes into it (`inside`'s lanes) or out of it,
+/// by `<road id>`; `c` is the junction's centre.
+fn approaches(net: &xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, c: Vec2) -> BTreeMap<String, Approach> {
+    let mut out: BTreeMap<String, Approach> = BTreeMap::new();
+    for l in net.lanes().iter().filter(|l| l.kind == xodr::LaneType::Driving) {
+        let Some((road, section)) = road_of(net, l) else { continue };
+        let into = l.successors.iter().any(|s| inside.contains(s));
+        let out_of = l.predecessors.iter().any(|p| inside.contains(p));
+        if road.junction().is_some() || !(into || out_of) {
+            continue;
+        }
+        let a = out.entry(road.od_id().to_owned()).or_insert_with(|| Approach {
+            name: if road.name().is_empty() { format!("road {}", road.od_id()) } else { road.name().to_owned() },
+            road: road.id(),
+            section,
+            lanes_in: 0,
+            lanes_out: 0,
+            widths: Vec::new(),
+            out: Vec::new(),
+        });
+        if into {
+            a.lanes_in += 1;
+        } else {
+            a.lanes_out += 1;
+        }
+        a.widths.push(l.width);
+        a.out.push(outward(&l.center, c));
+    }
+    out
+}
+
+/// An approach as an arm: its lanes, their mean width, and its section's medians and sidewalks
+/// (a note where it has no sidewalk).
+fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmConfig {
+    let same = |l: &&xodr::Lane| road_of(net, l).is_some_and(|(r, s)| r.id() == a.road && s == a.section);
+    let of = |kind: xodr::LaneType| net.lanes().iter().filter(same).filter(move |l| l.kind == kind).map(|l| l.width);
+    let sidewalk = of(xodr::LaneType::Sidewalk).fold(0.0f32, f32::max);
+    let median: f32 = of(xodr::LaneType::Median).sum();
+    let dir = a.out.iter().fold(Vec2::ZERO, |s, d| s + *d).normalize_or_zero();
+    if sidewalk == 0.0 {
+        notes.push(format!("{}: no sidewalk lane in the file; none modelled", a.name));
+    }
+    ArmConfig {
+        name: a.name.clone(),
+        heading_deg: round(dir.y.atan2(dir.x).to_degrees(), 0.1),
+        length_m: ARM_LENGTH_M,
+        lanes_in: a.lanes_in,
+        lanes_out: a.lanes_out,
+        lane_width_m: round(a.widths.iter().sum::<f32>() / a.widths.len().max(1) as f32, 0.01),
+        left_turn_lanes: 0,
+        left_turn_bay_length_m: 0.0,
+        median_width_m: round(median, 0.01),
+        sidewalk_width_m: round(sidewalk, 0.01),
+        curb_height_m: CURB_M,
+        crosswalk_width_m: CROSSWALK_M,
+        speed_limit_kph: SPEED_KPH,
+    }
+}
+
+/// The default intersection's regions of interest: the junction box and crosswalks, and the
+/// approaches' first metres.
+fn default_rois() -> Vec<RoiConfig> {
+    vec![
+        RoiConfig {
+            name: "central conflict zone".into(),
+            weight: 3.0,
+            kind: RoiKind::Central,
+            polygon: None,
+            length_m: None,
+        },
+        RoiConfig {
+            name: "queue lanes".into(),
+            weight: 1.0,
+            kind: RoiKind::Approaches,
+            polygon: None,
+            length_m: Some(APPROACH_ROI_M),
+        },
+    ]
+}
+
+/// The traffic lights of `junction`, relative to its centre: dynamic signals within 60 m of it
+/// and no nearer any other junction's centre.
+fn traffic_lights(net: &xodr::RoadNetwork, centres: &BTreeMap<String, [f64; 2]>, junction: &str) -> Vec<Vec2> {
+    let dist = |s: &xodr::Signal, c: &[f64; 2]| (f64::from(s.position.x) - c[0]).hypot(f64::from(s.position.y) - c[1]);
+    let mine = centres[junction];
+    net.signals()
+        .iter()
+        .filter(|s| s.dynamic && dist(s, &mine) < 60.0 && centres.values().all(|o| dist(s, &mine) <= dist(s, o)))
+        .map(|s| Vec2::new((f64::from(s.position.x) - mine[0]) as f32, (f64::from(s.position.y) - mine[1]) as f32))
+        .collect()
+}
+
+/// An approach being gathered: its road and the lane section that meets the junction, its
+/// driving lanes by direction, their widths, and each lane's outward direction.
+struct Approach {
+    name: String,
+    road: xodr::RoadId,
+    section: usize,
+    lanes_in: u32,
+    lanes_out: u32,
+    widths: Vec<f32>,
+    out: Vec<Vec2>,
+}
+
+/// `v` to the nearest multiple of `step` (never -0, which TOML would print as `-0.0`).
+fn round(v: f32, step: f32) -> f32 {
+    (v / step).round() * step + 0.0
+}
+
+/// The junction `pick` names among `centres`.
+fn pick_junction(pick: &JunctionPick, centres: &BTreeMap<String, [f64; 2]>) -> Result<String, String> {
+    match (pick.id.as_deref(), pick.near) {
+        (Some(id), None) => {
+            centres.keys().find(|j| j.as_str() == id).cloned().ok_or_else(|| "no junction of that id".into())
+        }
+        (None, Some(p)) => {
+            let r = pick.radius_m.unwrap_or(100.0);
+            if !(p.iter().all(|v| v.is_finite()) && r.is_finite() && r > 0.0) {
+                return Err("near must be finite and radius_m positive".into());
+            }
+            let d = |c: &[f64; 2]| (c[0] - p[0]).hypot(c[1] - p[1]);
+            centres
+                .iter()
+                .filter(|(_, c)| d(c) <= r)
+                .min_by(|a, b| d(a.1).total_cmp(&d(b.1)))
+                .map(|(j, _)| j.clone())
+                .ok_or_else(|| format!("no junction centre within {r} m"))
+        }
+        _ => Err("give either id or near (with radius_m)".into()),
+    }
+}
+
+/// The unit direction, away from the junction centre `c`, of a lane's centre line at its end
+/// nearer `c`: from that end to the point 25 m (or the lane's length) along it.
+fn outward(center: &xodr::Polyline, c: Vec2) -> Vec2 {
+    let pts = center.points();
+    let (Some(first), Some(last)) = (pts.first(), pts.last()) else { return Vec2::ZERO };
+    let v = |p: &xodr::Point| Vec2::new(p.x, p.y);
+    let len = center.length();
+    let d = len.min(25.0);
+    let (near, far) = if v(first).distance(c) <= v(last).distance(c) {
+        (v(first), v(&center.point_at(d)))
+    } else {
+        (v(last), v(&center.point_at(len - d)))
+    };
+    (far - near).normalize_or_zero()
+}
+
+/// Signal poles at the corners between neighbouring arms: at each corner with a light in
+/// `lights` nearer to it than to any other corner, or at every corner when there is none. Each
+/// stands in its corner's sidewalk square (or, without sidewalks, 1 m outside the meeting of
+/// the two arms' edges), its mast arm pointing at the junction centre.
+fn corner_poles(cfg: &SceneConfig, lights: &[Vec2]) -> Vec<SignalPoleConfig> {
+    let layout = build_layout(cfg);
+    let corners: Vec<Vec2> = layout
+        .corner_sidewalks
+        .iter()
+        .filter(|c| !c.is_empty())
+        .map(|c| c.iter().fold(Vec2::ZERO, |s, p| s + *p) / c.len() as f32)
+        .collect();
+    let chosen: BTreeSet<usize> = if lights.is_empty() {
+        (0..corners.len()).collect()
+    } else {
+        lights
+            .iter()
+            .filter_map(|l| {
+                (0..corners.len()).min_by(|&a, &b| corners[a].distance(*l).total_cmp(&corners[b].distance(*l)))
+            })
+            .collect()
+    };
+    chosen
+        .into_iter()
+        .map(|k| {
+            let p = corners[k];
+            let reach = (p.length() * 0.6).min(MAST_ARM_MAX_M);
+            SignalPoleConfig {
+                name: format!("corner {k}"),
+                position: [round(p.x, 0.01), round(p.y, 0.01)],
+                height_m: POLE_HEIGHT_M,
+                radius_m: 0.15,
+                arm_heading_deg: round((-p.y).atan2(-p.x).to_degrees(), 0.1),
+                arm_length_m: round(reach, 0.1),
+                arm_height_m: 6.0,
+                head_offsets_m: vec![round(reach * 0.5, 0.1), round(reach * 0.9, 0.1)],
+            }
+        })
+        .collect()
+}
+
+/// A scene file's text for `imported`: a header naming the source and junction and every note,
+/// then the configuration as TOML.
+pub fn scene_toml(imported: &Imported, source: &Path) -> Result<String, RaycastError> {
+    let body = toml::to_string_pretty(&imported.config).map_err(|e| RaycastError::Invalid {
+        path: PathBuf::from(source),
+        field: "scene".into(),
+        value: String::new(),
+        reason: format!("cannot be written as TOML: {e}"),
+    })?;
+    let mut head = format!(
+        "{HEADER} from {} (junction {}).\n",
+        source.display().to_string().replace('\n', " "),
+        imported.junction.replace('\n', " ")
+    );
+    for n in &imported.notes {
+        head.push_str(&format!("# - {}\n", n.replace('\n', " ")));
+    }
+    Ok(format!("{head}\n{body}"))
+}
+
+/// Writes [`scene_toml`] to `out` atomically. An existing `out` is replaced only when an
+/// earlier import wrote it: another file of that name is refused, not overwritten.
+pub fn write_scene(imported: &Imported, source: &Path, out: &Path) -> Result<(), RaycastError> {
+    if std::fs::symlink_metadata(out).is_ok() {
+        let ours =
+            hilo_core::fs::read_text_bounded(out, hilo_core::fs::limit::CONFIG).is_ok_and(|t| t.starts_with(HEADER));
+        if !ours {
+            return Err(RaycastError::Invalid {
+                path: out.to_path_buf(),
+                field: "--out".into(),
+                value: out.display().to_string(),
+                reason: "exists and is not a scene `hilo scene import` wrote; move it, or choose another name".into(),
+            });
+        }
+    }
+    let text = scene_toml(imported, source)?;
+    Ok(hilo_core::fs::write_atomic(out, text.as_bytes())?)
+}
+
+/// `hilo scene import`: the junction `pick` of `file` imported, built once as a scene (so a
+/// junction hilo cannot model is refused before anything is written), and written to `out`.
+pub fn import_to(file: &Path, pick: &JunctionPick, out: &Path) -> Result<Imported, RaycastError> {
+    let imported = import_file(file, pick)?;
+    crate::Scene::from_config(imported.config.clone(), file.parent().unwrap_or(Path::new(".")), file)?;
+    write_scene(&imported, file, out)?;
+    Ok(imported)
+}

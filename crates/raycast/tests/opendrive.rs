@@ -1,0 +1,148 @@
+//! OpenDRIVE import: real junctions (esmini's public maps, `fixtures/opendrive/`) become scenes
+//! hilo builds, and what the file gives reaches the scene: each approach's heading against the
+//! file's own reference-line headings, its lanes by direction, widths and sidewalks.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use hilo_raycast::Scene;
+use hilo_raycast::scene::config::SceneConfig;
+use hilo_raycast::scene::opendrive::{JunctionPick, import_file, import_str, scene_toml};
+use std::path::{Path, PathBuf};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/opendrive").join(name)
+}
+
+fn build(cfg: &SceneConfig, path: &Path) -> Scene {
+    Scene::from_config(cfg.clone(), path.parent().unwrap(), path).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Signed difference of two headings in degrees, in (-180, 180].
+fn turn(a: f32, b: f32) -> f32 {
+    let d = (a - b).rem_euclid(360.0);
+    if d > 180.0 { d - 360.0 } else { d }
+}
+
+#[test]
+fn a_four_way_junction_keeps_the_files_headings_lanes_and_sidewalks() {
+    let path = fixture("fabriksgatan.xodr");
+    let imp = import_file(&path, &JunctionPick::id("4")).unwrap();
+    let arms = &imp.config.arms;
+    assert_eq!(arms.len(), 4);
+    // Outward headings from the file's <geometry hdg>: roads 0 and 1 start at the junction
+    // (their heading at s = 0), roads 2 and 3 end there (their end heading, reversed); road 2
+    // ends on a paramPoly3 whose end heading the first 25 m average only approximately.
+    let expected = [("road 0", -77.86, 1.5), ("road 1", 11.06, 0.5), ("road 2", 100.6, 2.0), ("road 3", -171.65, 0.5)];
+    for (name, heading, tol) in expected {
+        let a = arms.iter().find(|a| a.name == name).unwrap_or_else(|| panic!("no arm {name}: {arms:?}"));
+        assert!(turn(a.heading_deg, heading).abs() <= tol, "{name}: {} against {heading}", a.heading_deg);
+        assert_eq!((a.lanes_in, a.lanes_out), (1, 1), "{name}");
+        assert_eq!(a.lane_width_m, 3.5, "{name}");
+        assert_eq!(a.sidewalk_width_m, 2.0, "{name}");
+        assert_eq!(a.median_width_m, 0.0, "{name}");
+    }
+    // No traffic light in this version of the map: a pole at each of the four corners.
+    assert_eq!(imp.config.signal_poles.len(), 4);
+    assert!(imp.notes.iter().any(|n| n.contains("no traffic light")), "{:?}", imp.notes);
+    let scene = build(&imp.config, &path);
+    assert_eq!(scene.mounts.len(), 4);
+}
+
+#[test]
+fn traffic_lights_put_poles_only_at_their_corners() {
+    let path = fixture("fabriksgatan_traffic_lights.xodr");
+    let imp = import_file(&path, &JunctionPick::id("4")).unwrap();
+    let poles = &imp.config.signal_poles;
+    assert!(!poles.is_empty() && poles.len() < 4, "{poles:?}");
+    assert!(imp.notes.iter().any(|n| n.contains("3 traffic lights")), "{:?}", imp.notes);
+    build(&imp.config, &path);
+}
+
+#[test]
+fn every_junction_of_a_town_is_a_site() {
+    let path = fixture("multi_intersections.xodr");
+    for (id, arms) in [("146", 4), ("148", 3), ("150", 4), ("152", 3), ("154", 3)] {
+        let imp = import_file(&path, &JunctionPick::id(id)).unwrap();
+        assert_eq!(imp.junction, id);
+        assert_eq!(imp.config.arms.len(), arms, "junction {id}");
+        let scene = build(&imp.config, &path);
+        assert!(!scene.mounts.is_empty(), "junction {id}");
+        // The origin is the junction, so the arms meet at the scene's centre.
+        assert!(imp.config.origin.x_m.is_finite() && imp.config.origin.y_m.is_finite());
+    }
+    // Picked by a point: the junction whose centre is nearest, within the radius.
+    let at = import_file(&path, &JunctionPick::id("150")).unwrap().config.origin;
+    let near = JunctionPick { id: None, near: Some([at.x_m + 3.0, at.y_m - 2.0]), radius_m: Some(30.0) };
+    assert_eq!(import_file(&path, &near).unwrap().junction, "150");
+    let far = JunctionPick { id: None, near: Some([at.x_m + 5_000.0, at.y_m]), radius_m: Some(30.0) };
+    let e = import_file(&path, &far).unwrap_err().to_string();
+    assert!(e.contains("no junction centre within 30 m") && e.contains("146"), "{e}");
+}
+
+#[test]
+fn the_written_scene_file_reads_back_and_says_what_was_assumed() {
+    let path = fixture("multi_intersections.xodr");
+    let imp = import_file(&path, &JunctionPick::id("146")).unwrap();
+    let text = scene_toml(&imp, &path).unwrap();
+    assert!(text.starts_with("# Imported by `hilo scene import`"), "{text}");
+    for n in &imp.notes {
+        assert!(text.contains(n.as_str()), "{n}");
+    }
+    let back = SceneConfig::from_toml_str(&text, Path::new("scene.toml")).unwrap();
+    assert_eq!(back, imp.config);
+}
+
+#[test]
+fn a_junction_not_in_the_file_or_a_broken_file_is_named() {
+    let path = fixture("multi_intersections.xodr");
+    let e = import_file(&path, &JunctionPick::id("999")).unwrap_err().to_string();
+    assert!(
+        e.contains("multi_intersections.xodr") && e.contains("999") && e.contains("146, 148, 150, 152, 154"),
+        "{e}"
+    );
+    let both = JunctionPick { id: Some("146".into()), near: Some([0.0, 0.0]), radius_m: None };
+    let e = import_file(&path, &both).unwrap_err().to_string();
+    assert!(e.contains("either id or near"), "{e}");
+    let e = import_str("<OpenDRIVE><road", Path::new("bad.xodr"), &JunctionPick::id("1")).unwrap_err().to_string();
+    assert!(e.contains("bad.xodr") && e.contains("OpenDRIVE"), "{e}");
+    // A file that is not a regular file is refused before it is read.
+    let e = import_file(Path::new("/dev/zero"), &JunctionPick::id("1")).unwrap_err().to_string();
+    assert!(e.contains("not a regular file"), "{e}");
+}
+
+/// Truncated and mutated files give a clear error or a scene, never a panic; a file without a
+/// junction is refused by name.
+#[test]
+fn broken_files_are_errors_not_panics() {
+    let path = fixture("fabriksgatan_traffic_lights.xodr");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let pick = JunctionPick::id("4");
+    let cuts = (1..40).map(|k| text.len() * k / 40);
+    for cut in cuts.filter(|&c| text.is_char_boundary(c)) {
+        let _ = import_str(&text[..cut], &path, &pick);
+    }
+    // Numbers and ids changed one at a time (a seeded walk over the file's digits).
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let digits: Vec<usize> = text.char_indices().filter(|(_, c)| c.is_ascii_digit()).map(|(i, _)| i).collect();
+    for _ in 0..60 {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        let at = digits[(seed % digits.len() as u64) as usize];
+        let mut bytes = text.clone().into_bytes();
+        bytes[at] = [b'-', b'9', b'e', b'0', b'.'][(seed >> 32) as usize % 5];
+        let mutated = String::from_utf8(bytes).unwrap();
+        if let Ok(imp) = import_str(&mutated, &path, &pick) {
+            // What imports either builds or is refused with the file named.
+            if let Err(e) = Scene::from_config(imp.config, path.parent().unwrap(), &path) {
+                assert!(e.to_string().contains("fabriksgatan"), "{e}");
+            }
+        }
+    }
+    let one_road = r#"<?xml version="1.0"?><OpenDRIVE><header revMajor="1" revMinor="6"/>
+<road id="1" junction="-1" length="50"><planView><geometry s="0" x="0" y="0" hdg="0" length="50"><line/></geometry></planView>
+<lanes><laneSection s="0"><center><lane id="0" type="none"/></center>
+<right><lane id="-1" type="driving"><width sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right></laneSection></lanes></road></OpenDRIVE>"#;
+    let e = import_str(one_road, Path::new("road.xodr"), &pick).unwrap_err().to_string();
+    assert!(e.contains("road.xodr") && e.contains("junction"), "{e}");
+}
