@@ -90,6 +90,9 @@ fn the_written_scene_file_reads_back_and_says_what_was_assumed() {
     }
     let back = SceneConfig::from_toml_str(&text, Path::new("scene.toml")).unwrap();
     assert_eq!(back, imp.config);
+    // A source path with line breaks and other control characters stays inside its comment.
+    let odd = scene_toml(&imp, Path::new("a\nname = \"x\"\r\u{7}.xodr")).unwrap();
+    assert_eq!(SceneConfig::from_toml_str(&odd, Path::new("scene.toml")).unwrap(), imp.config);
 }
 
 #[test]

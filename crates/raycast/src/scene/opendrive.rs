@@ -373,6 +373,12 @@ fn corner_poles(cfg: &SceneConfig, lights: &[Vec2]) -> Vec<SignalPoleConfig> {
         .collect()
 }
 
+/// `s` fit for a TOML comment: control characters (a line break would end the comment) become
+/// spaces.
+fn comment(s: &str) -> String {
+    s.chars().map(|c| if c.is_control() { ' ' } else { c }).collect()
+}
+
 /// A scene file's text for `imported`: a header naming the source and junction and every note,
 /// then the configuration as TOML.
 pub fn scene_toml(imported: &Imported, source: &Path) -> Result<String, RaycastError> {
@@ -384,11 +390,11 @@ pub fn scene_toml(imported: &Imported, source: &Path) -> Result<String, RaycastE
     })?;
     let mut head = format!(
         "{HEADER} from {} (junction {}).\n",
-        source.display().to_string().replace('\n', " "),
-        imported.junction.replace('\n', " ")
+        comment(&source.display().to_string()),
+        comment(&imported.junction)
     );
     for n in &imported.notes {
-        head.push_str(&format!("# - {}\n", n.replace('\n', " ")));
+        head.push_str(&format!("# - {}\n", comment(n)));
     }
     Ok(format!("{head}\n{body}"))
 }
