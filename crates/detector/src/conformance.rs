@@ -94,8 +94,8 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
 
 fn check_one(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     let name = format!("{} ({})", cfg.name, if cfg.sparse.is_some() { "sparse" } else { "dense" });
-    let e = |what: &str, err: crate::error::FusionError| fail(&name, format!("{what}: {err}"));
-    let cfg = cfg.clone().validate().map_err(|x| e("config", x))?;
+    let e = |what: &str, err: crate::error::DetectorError| fail(&name, format!("{what}: {err}"));
+    let cfg = cfg.clone().validate().map_err(|x| e("config", x.into()))?;
     let dev = Device::Cpu;
     let det = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
     let boxes = [car(2.0, 3.0, 0.3, 6.0), car(-5.0, -4.0, 1.2, 0.0)];

@@ -16,7 +16,7 @@
 //! that no LiDAR point reaches, and a real system's clutter that moves (swaying trees, multipath
 //! ghosts of moving targets), which hilo's radar does not simulate.
 
-use crate::error::{FusionError, Result};
+use crate::error::{DetectorError, Result};
 use hilo_core::Class;
 use hilo_dataset::Dataset;
 use hilo_dataset::background::BackgroundModel;
@@ -163,14 +163,14 @@ impl LoadStats {
 pub fn check_modalities(ds: &Dataset, detector: &str, uses_radar: bool) -> Result<()> {
     let has = |m: &str| ds.tables.sensor.iter().any(|s| s.modality == m);
     if uses_radar && !has("radar") {
-        return Err(FusionError::Config(format!(
+        return Err(DetectorError::Config(format!(
             "detector {detector} fuses radar, but the dataset {} has no radar channel (sensors: {}); use a LiDAR-only preset such as centerpoint",
             ds.root.display(),
             ds.tables.sensor.iter().map(|s| s.channel.as_str()).collect::<Vec<_>>().join(", ")
         )));
     }
     if !has("lidar") {
-        return Err(FusionError::Config(format!(
+        return Err(DetectorError::Config(format!(
             "the dataset {} has no LiDAR channel; every detector needs one",
             ds.root.display()
         )));
@@ -240,7 +240,7 @@ fn check_lidar_sweeps(
         .collect();
     gaps.sort_unstable();
     match gaps.get(gaps.len() / 2) {
-        Some(&median) if median as f64 > 1.5 * period as f64 => Err(FusionError::Config(format!(
+        Some(&median) if median as f64 > 1.5 * period as f64 => Err(DetectorError::Config(format!(
             "input.lidar_sweeps = {} stacks LiDAR sweeps, but the dataset {} has LiDAR only at the key frames of split {split:?} (a median {:.2} s apart, against sweeps every {:.2} s elsewhere): record it with `[dataset] lidar_sweeps = true`",
             opts.lidar_sweeps,
             ds.root.display(),
@@ -252,8 +252,7 @@ fn check_lidar_sweeps(
 }
 
 fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usize>) -> Result<(Vec<Frame>, LoadStats)> {
-    let scenes: std::collections::HashSet<String> =
-        ds.split(split).map_err(FusionError::dataset)?.into_iter().collect();
+    let scenes: std::collections::HashSet<String> = ds.split(split).map_err(DetectorError::from)?.into_iter().collect();
     let t = &ds.tables;
     let scene_name: HashMap<&str, &str> =
         t.scene.iter().filter(|s| scenes.contains(&s.name)).map(|s| (s.token.as_str(), s.name.as_str())).collect();
@@ -313,7 +312,7 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             match modality {
                 "lidar" => {
                     for (cur, lag) in sweeps(sd, opts.lidar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
-                        let points = ds.lidar_points(cur).map_err(FusionError::dataset)?;
+                        let points = ds.lidar_points(cur).map_err(DetectorError::from)?;
                         let n = points.len();
                         let points = match opts.background {
                             Some(m) => m.foreground(channel, points),
@@ -329,7 +328,7 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
                 }
                 "radar" => {
                     for (cur, lag) in sweeps(sd, opts.radar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
-                        for p in ds.radar_points(cur).map_err(FusionError::dataset)? {
+                        for p in ds.radar_points(cur).map_err(DetectorError::from)? {
                             let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
                             let (dx, dy) = (q[0] - c.translation[0] as f32, q[1] - c.translation[1] as f32);
                             let n = (dx * dx + dy * dy).sqrt().max(1e-6);

@@ -3,7 +3,7 @@
 
 use crate::data::{CLASSES, Frame, GtBox, LIDAR_FEATURES, Pillars, RADAR_FEATURES, pillarize};
 use crate::decode::{Peaks, decode};
-use crate::error::{FusionError, Result};
+use crate::error::{DetectorError, Result};
 use crate::fusion::{Fusion, FusionInput, FusionOutput, Registry};
 use crate::layout::{At, Layout, SparseHost};
 use crate::loss::{
@@ -107,7 +107,7 @@ impl std::fmt::Debug for Detector {
 /// of 0.1) for the class logits' bias, as CenterNet does. Other rank-1 variables (BatchNorm
 /// scales, a fusion operator's α) keep the constant their module created them with.
 fn seeded_init(varmap: &VarMap, seed: u64) -> Result<()> {
-    let data = varmap.data().lock().map_err(|_| FusionError::Config("variable map lock poisoned".into()))?;
+    let data = varmap.data().lock().map_err(|_| DetectorError::Config("variable map lock poisoned".into()))?;
     let mut names: Vec<&String> = data.keys().collect();
     names.sort();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
@@ -250,7 +250,7 @@ impl Detector {
                 Ok(vec![h])
             }
             (FusionOutput::Heads(h), None, None) if !h.is_empty() => Ok(h),
-            _ => Err(FusionError::Config(format!(
+            _ => Err(DetectorError::Config(format!(
                 "detector {}: fusion plugin {:?} returned another kind of output than when the detector was built",
                 self.cfg.name, self.cfg.fusion
             ))),
@@ -259,7 +259,7 @@ impl Detector {
 
     /// The first head's outputs (the only one except for late fusion).
     pub fn forward(&self, b: &HostBatch, train: bool) -> Result<(Tensor, Tensor)> {
-        self.forward_heads(b, train)?.into_iter().next().ok_or_else(|| FusionError::Config("no head output".into()))
+        self.forward_heads(b, train)?.into_iter().next().ok_or_else(|| DetectorError::Config("no head output".into()))
     }
 
     /// The sum of every head's loss against the same targets.
@@ -272,7 +272,7 @@ impl Detector {
                 Some(a) => Loss { total: (&a.total + &l.total)?, cls: a.cls + l.cls, reg: a.reg + l.reg },
             });
         }
-        total.ok_or_else(|| FusionError::Config("no head output".into()))
+        total.ok_or_else(|| DetectorError::Config("no head output".into()))
     }
 
     /// Focal loss on the heatmap (or inside-box map) and weighted L1 on the regression at the
@@ -376,7 +376,7 @@ impl Detector {
 
     /// Weights (and BatchNorm statistics) to safetensors.
     pub fn save(&self, path: &Path) -> Result<()> {
-        let io = |e: std::io::Error| FusionError::from(hilo_core::fs::FileError::io(path, e));
+        let io = |e: std::io::Error| DetectorError::from(hilo_core::fs::FileError::io(path, e));
         hilo_core::fs::write_atomic_with(
             path,
             |tmp| self.varmap.save(tmp).map_err(|e| io(std::io::Error::other(e.to_string()))),
@@ -387,10 +387,10 @@ impl Detector {
     /// Loads weights saved by [`Self::save`] for the same architecture.
     pub fn load(&mut self, path: &Path) -> Result<()> {
         let tensors = candle_core::safetensors::load(path, &self.device)
-            .map_err(|e| FusionError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
-        let data = self.varmap.data().lock().map_err(|_| FusionError::Config("variable map lock poisoned".into()))?;
+            .map_err(|e| DetectorError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
+        let data = self.varmap.data().lock().map_err(|_| DetectorError::Config("variable map lock poisoned".into()))?;
         for (name, var) in data.iter() {
-            let t = tensors.get(name).ok_or_else(|| FusionError::Checkpoint {
+            let t = tensors.get(name).ok_or_else(|| DetectorError::Checkpoint {
                 path: path.to_path_buf(),
                 message: format!(
                     "has no tensor {name:?}: it was saved by another architecture than {} ({} tensors there)",
@@ -399,7 +399,7 @@ impl Detector {
                 ),
             })?;
             if t.dims() != var.dims() {
-                return Err(FusionError::Checkpoint {
+                return Err(DetectorError::Checkpoint {
                     path: path.to_path_buf(),
                     message: format!(
                         "tensor {name:?} has shape {:?}, detector {} needs {:?}: another architecture",
@@ -412,7 +412,7 @@ impl Detector {
             var.set(t)?;
         }
         if tensors.len() != data.len() {
-            return Err(FusionError::Checkpoint {
+            return Err(DetectorError::Checkpoint {
                 path: path.to_path_buf(),
                 message: format!(
                     "holds {} tensors, detector {} has {}: another architecture",

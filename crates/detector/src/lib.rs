@@ -22,6 +22,7 @@ pub mod conformance;
 pub mod data;
 pub mod decode;
 pub mod detector;
+pub mod error;
 pub mod infer;
 pub mod loss;
 pub mod paste;
@@ -29,10 +30,11 @@ pub mod targets;
 pub mod train;
 
 pub use detector::Detector;
+pub use error::{DetectorError, Result};
 pub use hilo_fusion::{
-    DetectorConfig, Fusion, FusionError, FusionInput, FusionOutput, Preset, Registry, Result, Stage, TrainConfig,
+    DetectorConfig, Fusion, FusionError, FusionInput, FusionOutput, Preset, Registry, Stage, TrainConfig,
 };
-pub use hilo_fusion::{bnrelu, config, conv, cpu, error, fuse, fusion, grid, layout, modules, pillars, presets};
+pub use hilo_fusion::{bnrelu, config, conv, cpu, fuse, fusion, grid, layout, modules, pillars, presets};
 
 /// Where training and detection run: the first CUDA GPU when hilo is built with the `cuda`
 /// feature and one is present, the CPU otherwise. The code is the same on both.

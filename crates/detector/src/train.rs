@@ -9,7 +9,7 @@
 use crate::bnrelu::BatchNormSync;
 use crate::data::Frame;
 use crate::detector::{Detector, DetectorConfig, HostBatch};
-use crate::error::{FusionError, Result};
+use crate::error::{DetectorError, Result};
 use crate::fusion::Registry;
 use crate::paste::PasteDb;
 use candle_core::{Device, Tensor, Var};
@@ -110,7 +110,7 @@ impl AdamW {
     /// One update from gradients in the optimizer's order ([`Self::gradients`]).
     pub fn step_with(&mut self, gs: &[Option<Tensor>], lr: f64, clip: f64) -> Result<f64> {
         if gs.len() != self.vars.len() {
-            return Err(FusionError::Config(format!("{} gradients for {} variables", gs.len(), self.vars.len())));
+            return Err(DetectorError::Config(format!("{} gradients for {} variables", gs.len(), self.vars.len())));
         }
         let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8f64);
         let mut sq = 0.0f64;
@@ -120,7 +120,7 @@ impl AdamW {
         let norm = sq.sqrt();
         let scale = if norm.is_finite() && norm > clip { clip / norm } else { 1.0 };
         if !norm.is_finite() {
-            return Err(FusionError::Config(format!("gradient norm is {norm} at step {}", self.step)));
+            return Err(DetectorError::Config(format!("gradient norm is {norm} at step {}", self.step)));
         }
         self.step += 1;
         let t = self.step as i32;
@@ -158,16 +158,16 @@ impl AdamW {
         );
         hilo_core::fs::write_atomic_with(
             path,
-            |tmp| candle_core::safetensors::save(&map, tmp).map_err(FusionError::from),
-            |e| FusionError::from(hilo_core::fs::FileError::io(path, e)),
+            |tmp| candle_core::safetensors::save(&map, tmp).map_err(DetectorError::from),
+            |e| DetectorError::from(hilo_core::fs::FileError::io(path, e)),
         )
     }
 
     pub fn load(&mut self, path: &Path, device: &Device) -> Result<()> {
         let t = candle_core::safetensors::load(path, device)
-            .map_err(|e| FusionError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
+            .map_err(|e| DetectorError::Checkpoint { path: path.to_path_buf(), message: e.to_string() })?;
         let get = |n: &str| {
-            t.get(n).cloned().ok_or_else(|| FusionError::Checkpoint {
+            t.get(n).cloned().ok_or_else(|| DetectorError::Checkpoint {
                 path: path.to_path_buf(),
                 message: format!("optimizer state has no {n:?}"),
             })
@@ -326,7 +326,7 @@ pub fn read_info(run: &Path) -> Result<RunInfo> {
     let p = info_path(run);
     let bytes = hilo_core::fs::read_bounded(&p, hilo_core::fs::limit::CONFIG)
         .map_err(|e| hilo_core::fs::FileError::content(&p, format!("{e} (not a training run folder?)")))?;
-    serde_json::from_slice(&bytes).map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })
+    serde_json::from_slice(&bytes).map_err(|e| DetectorError::Checkpoint { path: p, message: e.to_string() })
 }
 
 /// Progress of a training run, reported after every step.
@@ -475,7 +475,7 @@ impl ReplicaPools {
                 rayon::ThreadPoolBuilder::new()
                     .num_threads(1)
                     .build()
-                    .map_err(|e| FusionError::Config(format!("starting a replica's thread: {e}")))
+                    .map_err(|e| DetectorError::Config(format!("starting a replica's thread: {e}")))
             })
             .collect::<Result<Vec<_>>>()
             .map(ReplicaPools)
@@ -557,7 +557,7 @@ pub fn step_pass(
 ) -> Result<StepPass> {
     let sync = (sync_batch_norm && batches.len() > 1).then(|| BatchNormSync::new(batches.len()));
     if sync.is_some() && pools.0.len() < batches.len() {
-        return Err(FusionError::Config(format!(
+        return Err(DetectorError::Config(format!(
             "synchronised BatchNorm: {} replicas need a thread each, {} given",
             batches.len(),
             pools.0.len()
@@ -589,7 +589,7 @@ pub fn step_pass(
         let mut slots: Vec<Option<StepPass>> = (0..batches.len()).map(|_| None).collect();
         let mut errors = Vec::new();
         for done in joined {
-            let done = done.map_err(|_| FusionError::Config("a replica's thread panicked".into()))?;
+            let done = done.map_err(|_| DetectorError::Config("a replica's thread panicked".into()))?;
             for (r, pass) in done {
                 match pass {
                     Ok(p) => slots[r] = Some(p),
@@ -604,7 +604,7 @@ pub fn step_pass(
         }
         slots
             .into_iter()
-            .map(|p| p.ok_or_else(|| FusionError::Config("a replica did not run".into())))
+            .map(|p| p.ok_or_else(|| DetectorError::Config("a replica did not run".into())))
             .collect::<Result<_>>()?
     };
     average(passes)
@@ -615,7 +615,7 @@ pub fn step_pass(
 fn average(passes: Vec<StepPass>) -> Result<StepPass> {
     let n = passes.len();
     let mut it = passes.into_iter();
-    let mut acc = it.next().ok_or_else(|| FusionError::Config("a step without replicas".into()))?;
+    let mut acc = it.next().ok_or_else(|| DetectorError::Config("a step without replicas".into()))?;
     if n == 1 {
         return Ok(acc);
     }
@@ -672,10 +672,10 @@ pub fn train(
     on_step: &mut dyn FnMut(&StepReport) -> bool,
 ) -> Result<RunInfo> {
     if frames.is_empty() {
-        return Err(FusionError::Config("no training frames".into()));
+        return Err(DetectorError::Config("no training frames".into()));
     }
     if det_cfg.input.background.is_some() != background.is_some() {
-        return Err(FusionError::Config(format!(
+        return Err(DetectorError::Config(format!(
             "detector {}: input.background is {} but a background model was {}given",
             det_cfg.name,
             if det_cfg.input.background.is_some() { "set" } else { "not set" },
@@ -703,14 +703,14 @@ pub fn train(
     let old = if info_path(run).exists() { Some(read_info(run)?) } else { None };
     if let Some(old) = old.filter(|o| o.step > 0) {
         if old.detector != **det_cfg || old.train != **cfg {
-            return Err(FusionError::Config(format!(
+            return Err(DetectorError::Config(format!(
                 "{} holds a run with other settings (detector {}); use another --out or delete it",
                 run.display(),
                 old.detector.name
             )));
         }
         if old.data != info.data {
-            return Err(FusionError::Config(format!(
+            return Err(DetectorError::Config(format!(
                 "{} holds a run trained on other frames (data fingerprint {} there, {} now); use another --out or delete it",
                 run.display(),
                 old.data,
@@ -749,13 +749,13 @@ pub fn train(
         let pools = ReplicaPools::for_config(cfg)?;
         let mut window = std::time::Instant::now();
         for step in start..steps {
-            let batches = rx.recv().map_err(|_| FusionError::Config("the batch thread stopped".into()))?;
+            let batches = rx.recv().map_err(|_| DetectorError::Config("the batch thread stopped".into()))?;
             let pass = step_pass(&det, &opt, &batches, &pools, cfg.sync_batch_norm)?;
             let lr = cfg.lr(step);
             opt.step_with(&pass.grads, lr, cfg.clip_norm)?;
             let total = pass.total;
             if !total.is_finite() {
-                return Err(FusionError::Config(format!("loss is {total} at step {step}")));
+                return Err(DetectorError::Config(format!("loss is {total} at step {step}")));
             }
             let dt = window.elapsed().as_secs_f64();
             window = std::time::Instant::now();
@@ -825,7 +825,7 @@ pub fn load_run_at(
                 .map_err(|e| hilo_core::fs::FileError::io(&p, e))?;
             Some(
                 serde_json::from_slice(&bytes)
-                    .map_err(|e| FusionError::Checkpoint { path: p, message: e.to_string() })?,
+                    .map_err(|e| DetectorError::Checkpoint { path: p, message: e.to_string() })?,
             )
         }
     };
@@ -841,7 +841,7 @@ pub fn learn_background(
 ) -> Result<Option<BackgroundModel>> {
     match &input.background {
         None => Ok(None),
-        Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, cfg).map_err(FusionError::dataset)?)),
+        Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, cfg).map_err(DetectorError::from)?)),
     }
 }
 
@@ -863,10 +863,11 @@ pub fn recipe(
         None => {
             let p = registry.preset(preset)?;
             let det = match patch {
-                Some(path) => p
-                    .detector
-                    .with_patch(&read_json::<serde_json::Value>(path, limit::CONFIG)?)
-                    .map_err(|e| FusionError::Config(format!("{}: not a patch of the preset: {e}", path.display())))?,
+                Some(path) => {
+                    p.detector.with_patch(&read_json::<serde_json::Value>(path, limit::CONFIG)?).map_err(|e| {
+                        DetectorError::Config(format!("{}: not a patch of the preset: {e}", path.display()))
+                    })?
+                }
                 None => p.detector.clone(),
             };
             (det, p.train.clone())
@@ -875,7 +876,7 @@ pub fn recipe(
     let train = match schedule {
         Some(path) => base
             .with_fields(&read_json::<serde_json::Value>(path, limit::CONFIG)?)
-            .map_err(|e| FusionError::Config(format!("{}: not a valid training schedule: {e}", path.display())))?,
+            .map_err(|e| DetectorError::Config(format!("{}: not a valid training schedule: {e}", path.display())))?,
         None => base,
     };
     Ok((det, train))

@@ -537,7 +537,7 @@ fn bad_input_is_a_clear_error() {
     fn builder(
         _: serde_json::Value,
         _: candle_nn::VarBuilder,
-    ) -> hilo_detector::Result<Box<dyn hilo_detector::Fusion>> {
+    ) -> Result<Box<dyn hilo_detector::Fusion>, hilo_detector::FusionError> {
         Err(hilo_detector::FusionError::Config("unused".into()))
     }
     let e = r.register("lidar", Stage::Raw, builder).unwrap_err().to_string();

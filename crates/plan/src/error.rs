@@ -58,6 +58,8 @@ pub enum StudyError {
     #[error(transparent)]
     Fusion(#[from] hilo_detector::FusionError),
     #[error(transparent)]
+    Detector(#[from] hilo_detector::DetectorError),
+    #[error(transparent)]
     Eval(#[from] hilo_eval::EvalError),
     #[error("drawing {what}: {message}")]
     Picture { what: String, message: String },

@@ -11,6 +11,9 @@ use std::path::Path;
 
 // ---- A plugin of one's own: LiDAR and radar BEV maps, added. ----
 
+/// What a plugin returns: its errors are the fusion crate's, what a plugin can get wrong.
+type PluginResult<T> = Result<T, hilo_detector::FusionError>;
+
 #[derive(Debug)]
 struct Sum {
     l: PillarNet,
@@ -24,7 +27,7 @@ struct SumConfig {
     channels: usize,
 }
 
-fn build(c: SumConfig, vb: candle_nn::VarBuilder) -> hilo_detector::Result<Box<dyn Fusion>> {
+fn build(c: SumConfig, vb: candle_nn::VarBuilder) -> PluginResult<Box<dyn Fusion>> {
     use hilo_detector::config::{LIDAR_PILLAR_WIDTH, RADAR_PILLAR_WIDTH};
     Ok(Box::new(Sum {
         l: PillarNet::new(LIDAR_PILLAR_WIDTH, c.channels, vb.pp("l"))?,
@@ -33,7 +36,7 @@ fn build(c: SumConfig, vb: candle_nn::VarBuilder) -> hilo_detector::Result<Box<d
 }
 
 impl Fusion for Sum {
-    fn forward(&self, x: &FusionInput, train: bool) -> hilo_detector::Result<FusionOutput> {
+    fn forward(&self, x: &FusionInput, train: bool) -> PluginResult<FusionOutput> {
         let l = self.l.forward(x.lidar, x.layout, train)?;
         let r = self.r.forward(x.radar, x.layout, train)?;
         Ok(FusionOutput::Bev((l + r)?))
@@ -41,7 +44,7 @@ impl Fusion for Sum {
 }
 
 /// What the plugin's crate would export.
-fn register(r: &mut Registry) -> hilo_detector::Result<()> {
+fn register(r: &mut Registry) -> PluginResult<()> {
     r.register("sum", Stage::Middle, build)?;
     let detector = DetectorConfig {
         name: "sum-net".into(),
