@@ -34,8 +34,8 @@ impl Default for BackgroundConfig {
 }
 
 impl BackgroundConfig {
-    pub fn validate(&self) -> Result<(), String> {
-        let bad = |f: &str, v: String, why: &str| Err(format!("background.{f} = {v}: {why}"));
+    pub fn validate(&self) -> Result<(), crate::FieldError> {
+        let bad = |f: &str, v: String, why: &str| Err(crate::FieldError::new(format!("background.{f}"), v, why));
         if !(self.azimuth_bin_deg > 0.0 && self.azimuth_bin_deg <= 10.0) {
             return bad("azimuth_bin_deg", self.azimuth_bin_deg.to_string(), "must be in (0, 10]");
         }

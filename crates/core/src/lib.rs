@@ -25,5 +25,21 @@ pub use frame::{LocalFrame, Pose};
 pub use points::{Detection, LidarPoint, RadarPoint};
 pub use valid::{Check, Valid};
 
+/// A configuration value refused: its field (with its section), the value, and why. The error
+/// of the small validators a section's owner wraps into its own error type.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{field} = {value}: {reason}")]
+pub struct FieldError {
+    pub field: String,
+    pub value: String,
+    pub reason: String,
+}
+
+impl FieldError {
+    pub fn new(field: impl Into<String>, value: impl ToString, reason: impl Into<String>) -> Self {
+        FieldError { field: field.into(), value: value.to_string(), reason: reason.into() }
+    }
+}
+
 /// Re-exported so that every crate names the same glam.
 pub use glam;

@@ -141,7 +141,7 @@ impl BackgroundModel {
         frames: &BTreeMap<String, Vec<Vec<LidarPoint>>>,
         cfg: &BackgroundConfig,
     ) -> Result<BackgroundModel, DatasetError> {
-        cfg.validate().map_err(DatasetError::Invalid)?;
+        cfg.validate().map_err(DatasetError::from)?;
         Ok(Self::fit(frames, cfg))
     }
 
@@ -160,7 +160,7 @@ impl BackgroundModel {
 
     /// Learns the model from `cfg.frames` samples spread evenly over the scenes of `split`.
     pub fn learn(ds: &Dataset, split: &str, cfg: &BackgroundConfig) -> Result<BackgroundModel, DatasetError> {
-        cfg.validate().map_err(DatasetError::Invalid)?;
+        cfg.validate().map_err(DatasetError::from)?;
         let t = &ds.tables;
         let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
         let scene_tokens: std::collections::HashSet<&str> =
@@ -169,7 +169,10 @@ impl BackgroundModel {
             t.sample.iter().filter(|s| scene_tokens.contains(s.scene_token.as_str())).collect();
         samples.sort_by(|a, b| (a.scene_token.as_str(), a.timestamp).cmp(&(b.scene_token.as_str(), b.timestamp)));
         if samples.is_empty() {
-            return Err(DatasetError::Invalid(format!("split {split:?} has no samples to learn a background from")));
+            return Err(DatasetError::Writer {
+                what: format!("split {split:?}"),
+                reason: "has no samples to learn a background from".into(),
+            });
         }
         let n = cfg.frames.min(samples.len());
         let picked: std::collections::HashSet<&str> =

@@ -48,7 +48,7 @@ pub const NUSCENES_CATEGORIES: [&str; 23] = [
 /// The table folder's name: one folder inside the dataroot.
 pub fn check_version(version: &str) -> Result<(), DatasetError> {
     hilo_core::fs::check_file_name(version)
-        .map_err(|why| DatasetError::Invalid(format!("version (the table folder's name) = {version:?} {why}")))
+        .map_err(|why| DatasetError::setting("version (the table folder's name)", format!("{version:?}"), why))
 }
 
 /// A dataset's file name of a point file: relative, inside the dataroot (no `..`, no root).

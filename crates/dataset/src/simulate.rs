@@ -133,8 +133,10 @@ impl Check for SimulateConfig {
     /// Checks every setting before anything is simulated; counts are bounded ([`MAX_SCENES`],
     /// [`MAX_FRAMES`]) so a typo is an error, not an allocation that exhausts memory.
     fn check(&self) -> Result<(), DatasetError> {
-        let bad = |f: &str, v: String, why: &str| Err(DatasetError::Invalid(format!("dataset.{f} = {v}: {why}")));
-        self.weather.check().map_err(|e| DatasetError::Invalid(format!("dataset.{e}")))?;
+        let bad = |f: &str, v: String, why: &str| Err(DatasetError::setting(format!("dataset.{f}"), v, why));
+        self.weather
+            .check()
+            .map_err(|e| DatasetError::setting(format!("dataset.weather.{}", e.field), e.value, e.reason))?;
         if self.scenes == 0 {
             return bad("scenes", "0".into(), "at least one training scene is needed");
         }
@@ -343,7 +345,7 @@ pub fn simulate_scene_with(
         if key || has_radar || cfg.lidar_sweeps {
             let states = traffic.snapshot();
             let set = ActorSet::new(states.iter().map(ActorState::actor).collect())
-                .map_err(|e| DatasetError::Invalid(format!("scene {} sweep {m}: {e}", id.name())))?;
+                .map_err(|e| DatasetError::Actors { scene: id.name(), sweep: m, source: Box::new(e) })?;
             let mut lidar = Vec::new();
             let mut radar = Vec::new();
             let mut lidar_pts: BTreeMap<u32, u32> = BTreeMap::new();
@@ -354,8 +356,10 @@ pub fn simulate_scene_with(
                 } else {
                     derive_seed(cfg.seed, &[4, stream, m as u64, k as u64])
                 };
-                let err =
-                    |e: hilo_sensor_models::SensorError| DatasetError::Invalid(format!("sensor {}: {e}", s.channel));
+                let err = |e: hilo_sensor_models::SensorError| DatasetError::Sensor {
+                    channel: s.channel.clone(),
+                    source: Box::new(e),
+                };
                 match &s.spec {
                     SensorSpec::Lidar(l) if key || cfg.lidar_sweeps => {
                         let scan = simulate_lidar(l, &s.pose, world, Some(&set), noise).map_err(err)?;
@@ -513,22 +517,26 @@ pub fn write_dataset(
             // A run refused before it finished a scene left only this file: nothing is lost by
             // taking the folder over, and the corrected rerun must not be blocked by it.
             if old.get("fingerprint") != run.get("fingerprint") && hilo_core::fs::holds_file(&parts_dir(root)) {
-                return Err(DatasetError::Invalid(format!(
-                    "{} holds a dataset made with other settings (fingerprint {} here, {} now); choose another output folder or delete it",
-                    root.display(),
-                    old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?"),
-                    fingerprint
-                )));
+                return Err(DatasetError::Folder {
+                    path: root.to_path_buf(),
+                    reason: format!(
+                        "holds a dataset made with other settings (fingerprint {} here, {} now); choose another output folder or delete it",
+                        old.get("fingerprint").and_then(|v| v.as_str()).unwrap_or("?"),
+                        fingerprint
+                    ),
+                });
             }
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
             // Not ours: another program's files are never overwritten.
             if let Some(first) = std::fs::read_dir(root).ok().and_then(|mut d| d.next()).and_then(|e| e.ok()) {
-                return Err(DatasetError::Invalid(format!(
-                    "{} already holds files not written by `hilo simulate` (e.g. {:?}); choose an empty or new output folder",
-                    root.display(),
-                    first.file_name()
-                )));
+                return Err(DatasetError::Folder {
+                    path: root.to_path_buf(),
+                    reason: format!(
+                        "already holds files not written by `hilo simulate` (e.g. {:?}); choose an empty or new output folder",
+                        first.file_name()
+                    ),
+                });
             }
         }
         Err(e) => return Err(DatasetError::from(hilo_core::fs::FileError::Io { path: run_path, source: e })),

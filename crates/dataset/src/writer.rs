@@ -153,7 +153,10 @@ impl DatasetWriter {
     pub fn new(root: &Path, version: &str, namespace: &str, sensors: Vec<SensorSetup>) -> Result<Self, DatasetError> {
         let mut seen = std::collections::HashSet::new();
         if let Some(s) = sensors.iter().find(|s| !seen.insert(s.channel.clone())) {
-            return Err(DatasetError::Invalid(format!("sensor channel {:?} appears twice", s.channel)));
+            return Err(DatasetError::Writer {
+                what: format!("sensor channel {:?}", s.channel),
+                reason: "appears twice".into(),
+            });
         }
         let ns = namespace.to_owned();
         let mut t = Tables::default();
@@ -248,10 +251,10 @@ impl DatasetWriter {
             );
             chain.sort_by_key(|c| c.0);
             if chain.windows(2).any(|w| w[0].0 == w[1].0) {
-                return Err(DatasetError::Invalid(format!(
-                    "scene {:?}: a sweep shares a key frame's time",
-                    scene.name
-                )));
+                return Err(DatasetError::Scene {
+                    scene: scene.name.clone(),
+                    reason: "a sweep shares a key frame's time".into(),
+                });
             }
             let sd_token = |c: &(u64, Option<usize>, usize)| match c.1 {
                 Some(fi) => token(&[&ns, "sample_data", &s.channel, &sample_tokens[fi]]),
@@ -340,7 +343,7 @@ impl DatasetWriter {
         let t = &mut self.tables;
         for s in &rows.scene {
             if t.scene.iter().any(|x| x.token == s.token) {
-                return Err(DatasetError::Invalid(format!("scene {:?} added twice", s.name)));
+                return Err(DatasetError::Scene { scene: s.name.clone(), reason: "added twice".into() });
             }
         }
         for s in &rows.sample_data {
@@ -366,9 +369,10 @@ impl DatasetWriter {
         let names: std::collections::HashSet<&str> = self.tables.scene.iter().map(|s| s.name.as_str()).collect();
         for (split, scenes) in splits {
             if let Some(s) = scenes.iter().find(|s| !names.contains(s.as_str())) {
-                return Err(DatasetError::Invalid(format!(
-                    "split {split:?} names scene {s:?}, which the dataset does not have"
-                )));
+                return Err(DatasetError::Writer {
+                    what: format!("split {split:?}"),
+                    reason: format!("names scene {s:?}, which the dataset does not have"),
+                });
             }
         }
         let p = self.root.join(&self.version).join("splits.json");
@@ -411,45 +415,45 @@ impl DatasetWriter {
 /// in every frame and sweep.
 fn check_scene(t: &Tables, scene: &SceneData, lidars: usize, radars: usize) -> Result<(), DatasetError> {
     if scene.frames.is_empty() {
-        return Err(DatasetError::Invalid(format!("scene {:?} has no frames", scene.name)));
+        return Err(DatasetError::Scene { scene: scene.name.clone(), reason: "has no frames".into() });
     }
     // nuscenes-devkit sorts scenes by start time and cannot order two equal ones.
     let start = scene.frames[0].timestamp_us;
     if let Some(other) =
         t.scene.iter().find(|s| t.sample.iter().any(|x| x.token == s.first_sample_token && x.timestamp == start))
     {
-        return Err(DatasetError::Invalid(format!(
-            "scene {:?} starts at {start} µs, as scene {:?} does: scene start times must differ",
-            scene.name, other.name
-        )));
+        return Err(DatasetError::Scene {
+            scene: scene.name.clone(),
+            reason: format!("starts at {start} µs, as scene {:?} does: scene start times must differ", other.name),
+        });
     }
     if scene.frames.windows(2).any(|w| w[1].timestamp_us <= w[0].timestamp_us) {
-        return Err(DatasetError::Invalid(format!("scene {:?}: frame timestamps must increase", scene.name)));
+        return Err(DatasetError::Scene { scene: scene.name.clone(), reason: "frame timestamps must increase".into() });
     }
     for (fi, f) in scene.frames.iter().enumerate() {
         if f.lidar.len() != lidars || f.radar.len() != radars {
-            return Err(DatasetError::Invalid(format!(
-                "scene {:?} frame {fi}: {} LiDAR and {} radar clouds for {} and {} sensors",
-                scene.name,
-                f.lidar.len(),
-                f.radar.len(),
-                lidars,
-                radars
-            )));
+            return Err(DatasetError::Scene {
+                scene: scene.name.clone(),
+                reason: format!(
+                    "frame {fi}: {} LiDAR and {} radar clouds for {lidars} and {radars} sensors",
+                    f.lidar.len(),
+                    f.radar.len()
+                ),
+            });
         }
     }
     if let Some(sw) = scene.sweeps.iter().find(|sw| {
         (!sw.radar.is_empty() && sw.radar.len() != radars) || (!sw.lidar.is_empty() && sw.lidar.len() != lidars)
     }) {
-        return Err(DatasetError::Invalid(format!(
-            "scene {:?}: the sweep at {} µs has {} LiDAR and {} radar clouds for {} and {} sensors",
-            scene.name,
-            sw.timestamp_us,
-            sw.lidar.len(),
-            sw.radar.len(),
-            lidars,
-            radars
-        )));
+        return Err(DatasetError::Scene {
+            scene: scene.name.clone(),
+            reason: format!(
+                "the sweep at {} µs has {} LiDAR and {} radar clouds for {lidars} and {radars} sensors",
+                sw.timestamp_us,
+                sw.lidar.len(),
+                sw.radar.len()
+            ),
+        });
     }
     Ok(())
 }
@@ -488,7 +492,12 @@ fn add_annotations(t: &mut Tables, ns: &str, scene: &SceneData, sample_tokens: &
             } else {
                 match t.attribute.iter().find(|x| x.name == a.attribute) {
                     Some(x) => vec![x.token.clone()],
-                    None => return Err(DatasetError::Invalid(format!("unknown attribute {:?}", a.attribute))),
+                    None => {
+                        return Err(DatasetError::Writer {
+                            what: format!("attribute {:?}", a.attribute),
+                            reason: "is not one of nuScenes' attributes".into(),
+                        });
+                    }
                 }
             };
             t.sample_annotation.push(SampleAnnotation {

@@ -491,7 +491,7 @@ impl InputConfig {
             return Err(FusionError::Config(format!("input.max_sweep_lag_s = {}: must be > 0", self.max_sweep_lag_s)));
         }
         if let Some(b) = &self.background {
-            b.validate().map_err(FusionError::Config)?;
+            b.validate().map_err(|e| FusionError::Config(e.to_string()))?;
         }
         if let Some(c) = &self.radar_clutter {
             c.validate()?;

@@ -223,25 +223,31 @@ impl Weights {
     pub fn check(&self) -> Result<(), PlacementError> {
         for (name, v) in self.named() {
             if !(v.is_finite() && (0.0..=MAX_WEIGHT).contains(&v)) {
-                return Err(PlacementError::Invalid(format!(
-                    "placement.calibration.{name} = {v:e}: a weight must be in [0, {MAX_WEIGHT:e}] (only the weights' \
-                     ratios matter; fitted ones are mAP per unit of coverage, well below 1)"
-                )));
+                return Err(PlacementError::setting(
+                    format!("placement.calibration.{name}"),
+                    format!("{v:e}"),
+                    format!(
+                        "a weight must be in [0, {MAX_WEIGHT:e}] (only the weights' ratios matter; fitted ones are mAP \
+                         per unit of coverage, well below 1)"
+                    ),
+                ));
             }
         }
         if self.terms().iter().all(|t| t.weight == 0.0) {
-            return Err(PlacementError::Invalid(
-                "placement.calibration: every weight is 0; nothing to maximise".into(),
-            ));
+            return Err(PlacementError::setting("placement.calibration", "0 everywhere", "nothing to maximise"));
         }
         // One IP weighs every term against the largest: a term below this share of it is
         // within the solver's tolerances of nothing, and would be dropped without a word.
         let largest = self.largest();
         if let Some((name, v)) = self.named().into_iter().find(|&(_, v)| v > 0.0 && v < largest * MIN_WEIGHT_RATIO) {
-            return Err(PlacementError::Invalid(format!(
-                "placement.calibration.{name} = {v:e} is less than {MIN_WEIGHT_RATIO:e} of the largest weight \
-                 ({largest:e}); the solver cannot tell it from 0: set it to 0, or bring the weights closer"
-            )));
+            return Err(PlacementError::setting(
+                format!("placement.calibration.{name}"),
+                format!("{v:e}"),
+                format!(
+                    "less than {MIN_WEIGHT_RATIO:e} of the largest weight ({largest:e}); the solver cannot tell it \
+                     from 0: set it to 0, or bring the weights closer"
+                ),
+            ));
         }
         Ok(())
     }
@@ -256,11 +262,14 @@ impl Weights {
 /// targets).
 pub fn check_instance(inst: &Instance, w: &Weights) -> Result<(), PlacementError> {
     if w.reads_road_users() && inst.road_users.len() != inst.n_targets() {
-        return Err(PlacementError::Invalid(format!(
-            "placement.calibration weighs road users, but the instance has road-user weights for {} of its {} targets",
-            inst.road_users.len(),
-            inst.n_targets()
-        )));
+        return Err(PlacementError::instance(
+            "placement.calibration",
+            format!(
+                "weighs road users, but the instance has road-user weights for {} of its {} targets",
+                inst.road_users.len(),
+                inst.n_targets()
+            ),
+        ));
     }
     Ok(())
 }

@@ -91,7 +91,7 @@ pub struct Candidate {
 pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Candidate>, PlacementError> {
     for (name, v) in [("pole_step_m", cfg.pole_step_m), ("arm_step_m", cfg.arm_step_m)] {
         if !(v.is_finite() && v > 0.05) {
-            return Err(PlacementError::Invalid(format!("candidates.{name} = {v}: must be a step above 0.05 m")));
+            return Err(PlacementError::setting(format!("candidates.{name}"), v, "must be a step above 0.05 m"));
         }
     }
     for (name, v) in [
@@ -101,20 +101,22 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
         ("radar_yaw_offsets_deg", &cfg.radar_yaw_offsets_deg),
     ] {
         if v.is_empty() {
-            return Err(PlacementError::Invalid(format!("candidates.{name} is empty: give at least one angle")));
+            return Err(PlacementError::setting(format!("candidates.{name}"), "[]", "give at least one angle"));
         }
         let limit = if name.contains("tilt") { 90.0 } else { 180.0 };
         if let Some(a) = v.iter().find(|a| !(a.is_finite() && a.abs() <= limit)) {
-            return Err(PlacementError::Invalid(format!(
-                "candidates.{name} holds {a}: angles are degrees within ±{limit}"
-            )));
+            return Err(PlacementError::setting(
+                format!("candidates.{name}"),
+                format!("{v:?}"),
+                format!("holds {a}: angles are degrees within ±{limit}"),
+            ));
         }
     }
     if scene.mounts.is_empty() {
-        return Err(PlacementError::Invalid(format!(
-            "scene {} has no signal poles to mount sensors on",
-            scene.source_name()
-        )));
+        return Err(PlacementError::instance(
+            format!("scene {}", scene.source_name()),
+            "has no signal poles to mount sensors on",
+        ));
     }
     let gz = scene.ground.z_m;
     let centre = scene.layout.central.iter().copied().sum::<Vec2>() / scene.layout.central.len().max(1) as f32;
@@ -124,10 +126,13 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
         let tip = m.base + m.arm_dir * m.arm_length_m;
         for p in [m.base, tip] {
             if p.x < g.min.x || p.y < g.min.y || p.x > g.max.x || p.y > g.max.y {
-                return Err(PlacementError::Invalid(format!(
-                    "signal pole {} reaches ({:.1}, {:.1}), outside the scene's ground ({:.0}..{:.0} m, {:.0}..{:.0} m)",
-                    m.name, p.x, p.y, g.min.x, g.max.x, g.min.y, g.max.y
-                )));
+                return Err(PlacementError::instance(
+                    format!("signal pole {}", m.name),
+                    format!(
+                        "reaches ({:.1}, {:.1}), outside the scene's ground ({:.0}..{:.0} m, {:.0}..{:.0} m)",
+                        p.x, p.y, g.min.x, g.max.x, g.min.y, g.max.y
+                    ),
+                ));
             }
         }
         // Just outside the pole's surface, toward the junction.

@@ -29,9 +29,10 @@ pub fn exhaustive(inst: &Instance, limit: &Limit, max_evaluations: u64) -> Resul
     ) -> Result<(), PlacementError> {
         *count += 1;
         if *count > max {
-            return Err(PlacementError::Invalid(format!(
-                "exhaustive search over {n} options exceeds {max} selections"
-            )));
+            return Err(PlacementError::instance(
+                format!("exhaustive search over {n} options"),
+                format!("exceeds {max} selections"),
+            ));
         }
         let leaf_ok = inst.check(limit, stack).is_ok();
         if leaf_ok {

@@ -106,7 +106,7 @@ impl Instance {
 
     /// Checks shapes and values once; solvers trust a validated instance.
     pub fn validate(&self) -> Result<(), PlacementError> {
-        let bad = |m: String| Err(PlacementError::Invalid(m));
+        let bad = |m: String| Err(PlacementError::instance("instance", m));
         if !(self.p_min > 0.0 && self.p_min < 1.0) {
             return bad(format!("p_min = {}: must be in (0, 1)", self.p_min));
         }

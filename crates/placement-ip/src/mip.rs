@@ -255,7 +255,7 @@ pub fn write_mps(
     let m = build(inst, limit, form)?;
     let raw = m.problem.as_inner().to_raw();
     let name = std::ffi::CString::new(stem.to_string_lossy().as_bytes())
-        .map_err(|e| PlacementError::Invalid(format!("path {}: {e}", stem.display())))?;
+        .map_err(|e| PlacementError::Export { path: stem.to_path_buf(), reason: e.to_string() })?;
     raw.write_mps(&name);
     let written = std::path::PathBuf::from(format!("{}.mps.gz", stem.display()));
     if !written.exists() {

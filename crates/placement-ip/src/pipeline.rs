@@ -76,7 +76,7 @@ impl Check for PlacementConfig {
     /// Checks the settings that are not checked where they are used, before any visibility is
     /// computed (p_min is used only when the instances are built, seconds of ray casting later).
     fn check(&self) -> Result<(), PlacementError> {
-        let bad = |f: &str, v: String, why: &str| Err(PlacementError::Invalid(format!("placement.{f} = {v}: {why}")));
+        let bad = |f: &str, v: String, why: &str| Err(PlacementError::setting(format!("placement.{f}"), v, why));
         if !(self.p_min > 0.0 && self.p_min < 1.0) {
             return bad("p_min", self.p_min.to_string(), "must be a probability in (0, 1)");
         }
@@ -88,8 +88,10 @@ impl Check for PlacementConfig {
         }
         match (self.objective, &self.calibration) {
             (ObjectiveKind::Calibrated, None) => {
-                return Err(PlacementError::Invalid(
-                    "placement.objective = \"calibrated\" needs placement.calibration = { lidar = …, radar = … } (the weights `hilo validate` fits)".into(),
+                return Err(PlacementError::setting(
+                    "placement.objective",
+                    "\"calibrated\"",
+                    "needs placement.calibration = { lidar = …, radar = … } (the weights `hilo validate` fits)",
                 ));
             }
             (ObjectiveKind::Calibrated, Some(w)) => w.check()?,
@@ -167,7 +169,7 @@ pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64
         let vis = prep
             .visibility
             .get(name)
-            .ok_or_else(|| PlacementError::Invalid(format!("no visibility computed for {name}")))?;
+            .ok_or_else(|| PlacementError::instance(format!("sensor type {name}"), "no visibility computed for it"))?;
         inst.types.push(SensorType { name: name.clone(), modality: vis.modality, price_usd: spec.price_usd() });
         for (row, &cand) in vis.rows.iter().zip(&vis.candidates) {
             let c = &prep.candidates[cand as usize];

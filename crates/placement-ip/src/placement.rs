@@ -94,25 +94,21 @@ impl Placement {
     /// Reads a placement written by [`Placement::save`]; the error names the file and field.
     pub fn load(path: &Path) -> Result<Placement, PlacementError> {
         let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-            .map_err(|e| PlacementError::Invalid(format!("reading placement {}: {e}", path.display())))?;
+            .map_err(|e| hilo_core::fs::FileError::io(path, e))?;
         Placement::from_json(&text, path)
     }
 
     /// [`Placement::load`] of text already read; `path` names it in errors.
     pub fn from_json(text: &str, path: &Path) -> Result<Placement, PlacementError> {
-        let p: Placement = serde_json::from_str(text).map_err(|e| {
-            PlacementError::Invalid(format!("{}: not a placement written by `hilo place`: {e}", path.display()))
-        })?;
+        let content = |m: String| PlacementError::from(hilo_core::fs::FileError::content(path, m));
+        let p: Placement =
+            serde_json::from_str(text).map_err(|e| content(format!("not a placement written by `hilo place`: {e}")))?;
         if p.sensors.is_empty() {
-            return Err(PlacementError::Invalid(format!("{}: the placement has no sensors", path.display())));
+            return Err(content("the placement has no sensors".into()));
         }
         for (i, s) in p.sensors.iter().enumerate() {
             if !s.pose.is_valid() {
-                return Err(PlacementError::Invalid(format!(
-                    "{}: sensors[{i}].pose is not finite: {:?}",
-                    path.display(),
-                    s.pose
-                )));
+                return Err(content(format!("sensors[{i}].pose is not finite: {:?}", s.pose)));
             }
         }
         Ok(p)
@@ -120,26 +116,30 @@ impl Placement {
 
     /// The placement as pretty JSON (what [`Placement::load`] reads).
     pub fn to_json(&self) -> Result<String, PlacementError> {
-        serde_json::to_string_pretty(self).map_err(|e| PlacementError::Invalid(format!("placement {}: {e}", self.name)))
+        Ok(serde_json::to_string_pretty(self)?)
     }
 
     /// Refuses a placement made for another scene or catalog than the one given.
     pub fn check_made_for(&self, scene_hash: &str, catalog_hash: &str, source: &Path) -> Result<(), PlacementError> {
         if self.scene_hash != scene_hash {
-            return Err(PlacementError::Invalid(format!(
-                "{}: placement {:?} was made for another scene (scene hash {} there, {scene_hash} here); place it again on this scene",
-                source.display(),
-                self.name,
-                self.scene_hash
-            )));
+            return Err(PlacementError::MadeFor {
+                source_file: source.to_path_buf(),
+                name: self.name.clone(),
+                reason: format!(
+                    "for another scene (scene hash {} there, {scene_hash} here); place it again on this scene",
+                    self.scene_hash
+                ),
+            });
         }
         if self.catalog_hash != catalog_hash {
-            return Err(PlacementError::Invalid(format!(
-                "{}: placement {:?} was made with another sensor catalog (catalog hash {} there, {catalog_hash} here)",
-                source.display(),
-                self.name,
-                self.catalog_hash
-            )));
+            return Err(PlacementError::MadeFor {
+                source_file: source.to_path_buf(),
+                name: self.name.clone(),
+                reason: format!(
+                    "with another sensor catalog (catalog hash {} there, {catalog_hash} here)",
+                    self.catalog_hash
+                ),
+            });
         }
         Ok(())
     }

@@ -19,13 +19,13 @@ pub struct Target {
 /// Targets on a grid of `cell_m` squares (centres at half-cell offsets from the grid origin).
 pub fn roi_targets(scene: &Scene, cell_m: f32) -> Result<Vec<Target>, PlacementError> {
     if !(cell_m.is_finite() && cell_m >= 0.1) {
-        return Err(PlacementError::Invalid(format!("target cell size {cell_m} m: must be at least 0.1 m")));
+        return Err(PlacementError::setting("placement.cell_m", cell_m, "must be at least 0.1 m"));
     }
     if scene.rois.is_empty() {
-        return Err(PlacementError::Invalid(format!(
-            "scene {} has no regions of interest ([[roi]])",
-            scene.source_name()
-        )));
+        return Err(PlacementError::instance(
+            format!("scene {}", scene.source_name()),
+            "has no regions of interest ([[roi]])",
+        ));
     }
     let pts: Vec<Vec2> = scene.rois.iter().flat_map(|r| r.polygons.iter().flatten().copied()).collect();
     let lo = pts.iter().fold(Vec2::splat(f32::MAX), |a, b| a.min(*b));
@@ -48,7 +48,7 @@ pub fn roi_targets(scene: &Scene, cell_m: f32) -> Result<Vec<Target>, PlacementE
         }
     }
     if out.is_empty() {
-        return Err(PlacementError::Invalid("the regions of interest contain no target cell centre".into()));
+        return Err(PlacementError::instance("the regions of interest", "contain no target cell centre"));
     }
     Ok(out)
 }

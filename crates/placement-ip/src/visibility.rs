@@ -65,19 +65,25 @@ impl Default for VisibilityConfig {
 impl VisibilityConfig {
     pub fn validate(&self) -> Result<(), PlacementError> {
         if self.probes.is_empty() {
-            return Err(PlacementError::Invalid("visibility.probes is empty".into()));
+            return Err(PlacementError::setting("visibility.probes", "[]", "give at least one probe"));
         }
         let total: f32 = self.probes.iter().map(|p| p.weight).sum();
         if self.probes.iter().any(|p| !(p.weight.is_finite() && p.weight >= 0.0)) || (total - 1.0).abs() > 1e-4 {
-            return Err(PlacementError::Invalid(format!(
-                "visibility.probes weights must be >= 0 and sum to 1 (sum {total})"
-            )));
+            return Err(PlacementError::setting(
+                "visibility.probes[].weight",
+                format!("sum {total}"),
+                "weights must be >= 0 and sum to 1",
+            ));
         }
         if self.probes.iter().any(|p| p.los_heights_m.is_empty() || p.min_points == 0) {
-            return Err(PlacementError::Invalid("every probe needs los_heights_m and min_points >= 1".into()));
+            return Err(PlacementError::setting(
+                "visibility.probes",
+                "a probe without los_heights_m or with min_points = 0",
+                "every probe needs los_heights_m and min_points >= 1",
+            ));
         }
         if !(0.0..1.0).contains(&self.min_v) {
-            return Err(PlacementError::Invalid(format!("visibility.min_v = {}: must be in [0, 1)", self.min_v)));
+            return Err(PlacementError::setting("visibility.min_v", self.min_v, "must be in [0, 1)"));
         }
         Ok(())
     }
@@ -147,7 +153,11 @@ impl LineOfSight {
         range_m: f32,
     ) -> Result<Self, PlacementError> {
         if cfg.probes.len() > 4 {
-            return Err(PlacementError::Invalid("at most 4 probes".into()));
+            return Err(PlacementError::setting(
+                "visibility.probes",
+                format!("{} probes", cfg.probes.len()),
+                "at most 4",
+            ));
         }
         let frac = mounts
             .par_iter()

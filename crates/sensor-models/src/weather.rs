@@ -53,20 +53,37 @@ impl std::fmt::Display for Weather {
     }
 }
 
+/// A weather value outside what the models cover: the field of `[weather]`, its value, and why.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("weather.{field} = {value}: {reason}")]
+pub struct WeatherError {
+    pub field: &'static str,
+    pub value: String,
+    pub reason: &'static str,
+}
+
 impl Weather {
     pub fn is_clear(&self) -> bool {
         self.rain_mm_h == 0.0 && self.fog_visibility_m.is_none()
     }
 
     /// Refuses values outside what the models cover.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), WeatherError> {
         if !(self.rain_mm_h.is_finite() && (0.0..=200.0).contains(&self.rain_mm_h)) {
-            return Err(format!("weather.rain_mm_h = {}: give 0 to 200 mm/h", self.rain_mm_h));
+            return Err(WeatherError {
+                field: "rain_mm_h",
+                value: self.rain_mm_h.to_string(),
+                reason: "give 0 to 200 mm/h",
+            });
         }
         if let Some(v) = self.fog_visibility_m
             && !(v.is_finite() && (10.0..=10_000.0).contains(&v))
         {
-            return Err(format!("weather.fog_visibility_m = {v}: give 10 to 10,000 m, or leave it out for no fog"));
+            return Err(WeatherError {
+                field: "fog_visibility_m",
+                value: v.to_string(),
+                reason: "give 10 to 10,000 m, or leave it out for no fog",
+            });
         }
         Ok(())
     }

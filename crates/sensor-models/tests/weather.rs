@@ -108,9 +108,13 @@ fn rain_lowers_the_radar_snr_by_the_two_way_path_loss() {
         let loss = snr_db(&spec, 10.0, r) - snr_db(&wet, 10.0, r);
         assert!((loss - 2.0 * gamma * r / 1000.0).abs() < 1e-4, "{r} m: {loss} dB");
     }
-    assert!(Weather { rain_mm_h: -1.0, ..Weather::default() }.check().unwrap_err().contains("rain_mm_h"));
+    assert!(Weather { rain_mm_h: -1.0, ..Weather::default() }.check().unwrap_err().to_string().contains("rain_mm_h"));
     assert!(
-        Weather { fog_visibility_m: Some(0.0), ..Weather::default() }.check().unwrap_err().contains("fog_visibility_m")
+        Weather { fog_visibility_m: Some(0.0), ..Weather::default() }
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("fog_visibility_m")
     );
     assert!(w.check().is_ok());
 }

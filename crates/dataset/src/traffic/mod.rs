@@ -89,7 +89,7 @@ impl Default for TrafficConfig {
 }
 
 fn invalid(field: &str, value: impl std::fmt::Display, why: &str) -> DatasetError {
-    DatasetError::Invalid(format!("traffic.{field} = {value}: {why}"))
+    DatasetError::setting(format!("traffic.{field}"), value, why)
 }
 
 impl TrafficConfig {

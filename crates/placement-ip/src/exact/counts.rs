@@ -40,9 +40,10 @@ pub fn exact_counts(
     let radar_total: u32 =
         (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(count).sum();
     if radar_total != 1 {
-        return Err(PlacementError::Invalid(format!(
-            "the exact search handles configurations with exactly one radar, not {radar_total}"
-        )));
+        return Err(PlacementError::instance(
+            "the exact search",
+            format!("handles configurations with exactly one radar, not {radar_total}"),
+        ));
     }
     let lidar_types: Vec<(usize, usize)> = (0..inst.types.len())
         .filter(|&t| inst.types[t].modality == Modality::Lidar && count(t) > 0)

@@ -35,8 +35,9 @@ pub fn exact_lidar_first(
         (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Lidar && count(t) > 0).collect();
     let n_r: usize = (0..inst.types.len()).filter(|&t| inst.types[t].modality == Modality::Radar).map(count).sum();
     if lidar_types.len() != 1 || count(lidar_types[0]) > 2 || n_r == 0 {
-        return Err(PlacementError::Invalid(
-            "the LiDAR-first search takes one LiDAR type (at most two) and some radars".into(),
+        return Err(PlacementError::instance(
+            "the LiDAR-first search",
+            "takes one LiDAR type (at most two) and some radars",
         ));
     }
     let (lt, n_l) = (lidar_types[0], count(lidar_types[0]));

@@ -28,7 +28,7 @@ pub fn exact_single(
 ) -> Result<(Outcome, bool), PlacementError> {
     let start = Instant::now();
     if inst.requires(Modality::Lidar) && inst.requires(Modality::Radar) {
-        return Err(PlacementError::Invalid("the single-modality search takes an instance of one modality".into()));
+        return Err(PlacementError::instance("the single-modality search", "takes an instance of one modality"));
     }
     let count = |t: usize| counts.get(t).copied().unwrap_or(0) as usize;
     let k_max = (0..inst.types.len()).map(count).max().unwrap_or(0);
