@@ -74,7 +74,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     }
     let cfg = cfg.validate().context("--batch, --samples or the training schedule")?;
     let det = det.validate()?;
-    det.check_memory(cfg.batch, hilo_detector::config::machine_memory_bytes())?;
+    det.check_memory(cfg.batch, hilo_core::machine::memory_bytes())?;
     // Held from before the data is loaded, so a second training of the folder is refused at once.
     let _claim = hilo_core::folder::claim(&args.out, hilo_core::folder::Mode::Exclusive)?;
     hilo_detector::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;

@@ -178,7 +178,7 @@ impl DetectorConfig {
 
     /// Refuses a training whose step would not fit in `available` bytes by
     /// [`DetectorConfig::step_memory_bytes`]; `available` is the machine's memory
-    /// ([`machine_memory_bytes`]) where the system tells it.
+    /// (`hilo_core::machine::memory_bytes`) where the system tells it.
     pub fn check_memory(&self, batch: usize, available: Option<u64>) -> Result<()> {
         let need = self.step_memory_bytes(batch);
         match available {
@@ -379,12 +379,6 @@ impl TrainConfig {
             cos(self.lr_max, self.lr_max / 1e4, (t - up) / (total - up).max(1.0))
         }
     }
-}
-
-/// The machine's memory (Linux: `MemTotal` of `/proc/meminfo`), bytes; `None` where the
-/// system does not say.
-pub fn machine_memory_bytes() -> Option<u64> {
-    hilo_core::machine::memory_bytes()
 }
 
 /// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).

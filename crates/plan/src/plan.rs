@@ -290,7 +290,7 @@ impl Plan {
         let ablation_rig = radar.iter().position(|&r| r);
         let mut jobs = Vec::new();
         // What each training step may use, read once for every job below.
-        let memory = hilo_detector::config::machine_memory_bytes();
+        let memory = hilo_core::machine::memory_bytes();
         for (ci, conf) in configurations.iter().enumerate() {
             let ablations = profile.ablations.iter().filter(|_| ablation_rig == Some(ci));
             for preset in profile.presets.iter().chain(ablations) {

@@ -201,6 +201,8 @@ pub struct ValidationPlan {
     pub data: Vec<DataStage>,
     /// Every training, `configuration` the member's index.
     pub jobs: Vec<Job>,
+    /// The settings with both presets named ([`ValidationSettings::resolved`]).
+    pub settings: ValidationSettings,
 }
 
 impl ValidationPlan {
@@ -303,7 +305,7 @@ pub fn plan(
         })
         .collect();
     let jobs = jobs(study, &members, &data, registry, profile, settings, out)?;
-    Ok(ValidationPlan { out: out.to_owned(), members, set_dir, data, jobs })
+    Ok(ValidationPlan { out: out.to_owned(), members, set_dir, data, jobs, settings: settings.clone() })
 }
 
 /// Records one member's dataset (skipped when done).
@@ -387,9 +389,9 @@ pub fn run(
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<ValidationReport> {
     let t0 = std::time::Instant::now();
-    // The presets by name (the registry's where the study file gives none), as the report records them.
-    let settings = &settings.resolved(registry, &study.source)?;
     let plan = plan(study, registry, profile, settings, out, progress)?;
+    // The presets by name (the registry's where the study file gives none), as the report records them.
+    let settings = &plan.settings.clone();
     for m in &plan.members {
         simulate(study, profile, &plan, &m.slug, progress)?;
     }
@@ -423,7 +425,7 @@ fn jobs(
     let mut jobs = Vec::new();
     let named_sampling = study.file.train_schedule.as_ref().is_some_and(|s| s.get("sampling").is_some());
     // What each training step may use, read once for every job below.
-    let memory = hilo_detector::config::machine_memory_bytes();
+    let memory = hilo_core::machine::memory_bytes();
     for (mi, m) in members.iter().enumerate() {
         let radar = m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar);
         let preset = settings.preset_for(radar)?;
