@@ -7,6 +7,7 @@
 
 use crate::data::{Frame, GtBox};
 use crate::detector::{Detector, DetectorConfig, HostBatch};
+use crate::error::DetectorError;
 use crate::fusion::Registry;
 pub use crate::grid::small_grid;
 use candle_core::Device;
@@ -79,12 +80,27 @@ pub fn car(x: f32, y: f32, yaw: f32, speed: f32) -> GtBox {
     GtBox { class: 0, center: [x, y, 0.8], wlh: [1.9, 4.6, 1.6], yaw, velocity: [speed * yaw.cos(), speed * yaw.sin()] }
 }
 
-fn fail(name: &str, what: impl std::fmt::Display) -> String {
-    format!("conformance of {name}: {what}")
+/// A conformance failure: the detector (with its layout) and the step that failed or the
+/// property that does not hold.
+#[derive(Debug, thiserror::Error)]
+pub enum ConformanceError {
+    /// A step of the suite (building, a forward pass, saving, ...) that returned an error.
+    #[error("conformance of {detector}: {step}: {source}")]
+    Step { detector: String, step: String, source: Box<DetectorError> },
+    /// A property the suite asserts (shapes, gradients, round trips, determinism) that fails.
+    #[error("conformance of {detector}: {property}")]
+    Property { detector: String, property: String },
+    /// A plugin that no preset of the registry uses, so the suite has nothing to build.
+    #[error("conformance of plugin {plugin:?}: no preset uses it")]
+    NoPreset { plugin: String },
+}
+
+fn fail(name: &str, what: impl std::fmt::Display) -> ConformanceError {
+    ConformanceError::Property { detector: name.to_owned(), property: what.to_string() }
 }
 
 /// Runs the suite on `cfg` (its grid replaced by [`small_grid`]), dense and sparse.
-pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
+pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), ConformanceError> {
     let mut cfg = cfg.clone();
     cfg.grid = small_grid();
     let sparse = cfg.sparse.clone().unwrap_or_default();
@@ -92,9 +108,13 @@ pub fn check(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     check_one(registry, &DetectorConfig { sparse: Some(sparse), ..cfg })
 }
 
-fn check_one(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
+fn check_one(registry: &Registry, cfg: &DetectorConfig) -> Result<(), ConformanceError> {
     let name = format!("{} ({})", cfg.name, if cfg.sparse.is_some() { "sparse" } else { "dense" });
-    let e = |what: &str, err: crate::error::DetectorError| fail(&name, format!("{what}: {err}"));
+    let e = |what: &str, err: DetectorError| ConformanceError::Step {
+        detector: name.clone(),
+        step: what.to_owned(),
+        source: Box::new(err),
+    };
     let cfg = cfg.clone().validate().map_err(|x| e("config", x.into()))?;
     let dev = Device::Cpu;
     let det = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
@@ -131,13 +151,13 @@ fn check_one(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
         }
     }
     // Save → load identity, and determinism with a seed.
-    let dir = tempfile_dir().map_err(|x| fail(&name, x))?;
+    let dir = tempfile_dir().map_err(|x| e("a scratch folder", x.into()))?;
     let path = dir.join("weights.safetensors");
     det.save(&path).map_err(|x| e("save", x))?;
     let mut other = Detector::new(&cfg, registry, &dev, 8).map_err(|x| e("build", x))?;
     other.load(&path).map_err(|x| e("load", x))?;
     let same = Detector::new(&cfg, registry, &dev, 7).map_err(|x| e("build", x))?;
-    let out = |d: &Detector| -> Result<Vec<f32>, String> {
+    let out = |d: &Detector| -> Result<Vec<f32>, ConformanceError> {
         let mut v = Vec::new();
         for (c, r) in d.forward_heads(&b, false).map_err(|x| e("forward", x))? {
             v.extend(c.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|x| e("read", x.into()))?);
@@ -199,25 +219,29 @@ fn check_one(registry: &Registry, cfg: &DetectorConfig) -> Result<(), String> {
     Ok(())
 }
 
-fn tempfile_dir() -> Result<std::path::PathBuf, String> {
+fn tempfile_dir() -> Result<std::path::PathBuf, hilo_core::fs::FileError> {
     let d =
         std::env::temp_dir().join(format!("hilo-conformance-{}-{:?}", std::process::id(), std::thread::current().id()));
-    std::fs::create_dir_all(&d).map_err(|x| format!("creating {}: {x}", d.display()))?;
+    std::fs::create_dir_all(&d).map_err(|x| hilo_core::fs::FileError::io(&d, x))?;
     Ok(d)
 }
 
 /// Runs the suite on every preset registered for `plugin`; a plugin with no preset fails.
-pub fn check_plugin(registry: &Registry, plugin: &str) -> Result<(), String> {
+pub fn check_plugin(registry: &Registry, plugin: &str) -> Result<(), ConformanceError> {
     let names: Vec<String> = registry
         .preset_names()
         .into_iter()
         .filter(|n| registry.preset(n).is_ok_and(|p| p.detector.fusion == plugin))
         .collect();
     if names.is_empty() {
-        return Err(format!("conformance of plugin {plugin:?}: no preset uses it"));
+        return Err(ConformanceError::NoPreset { plugin: plugin.to_owned() });
     }
     for n in names {
-        let p = registry.preset(&n).map_err(|e| e.to_string())?;
+        let p = registry.preset(&n).map_err(|e| ConformanceError::Step {
+            detector: n.clone(),
+            step: "the preset".into(),
+            source: Box::new(e.into()),
+        })?;
         check(registry, &p.detector)?;
     }
     Ok(())

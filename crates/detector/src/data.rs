@@ -160,7 +160,7 @@ impl LoadStats {
 
 /// Refuses a detector that fuses radar (`uses_radar`) on a dataset with no radar channel: its
 /// radar branch would train and run on empty input, and its scores read as a fusion result.
-pub fn check_modalities(ds: &Dataset, detector: &str, uses_radar: bool) -> Result<()> {
+pub fn check_modalities(ds: &Dataset, detector: &str, uses_radar: bool) -> std::result::Result<(), DetectorError> {
     let has = |m: &str| ds.tables.sensor.iter().any(|s| s.modality == m);
     if uses_radar && !has("radar") {
         return Err(DetectorError::Config(format!(
@@ -470,7 +470,7 @@ mod tests {
         assert!(input.validate().is_ok());
         input.background = None;
         let e = input.validate().unwrap_err().to_string();
-        assert!(e.contains("input.radar_clutter needs input.background"), "{e}");
+        assert!(e.contains("input.background = (not given): input.radar_clutter needs it"), "{e}");
         let mut input = crate::presets::default_input();
         input.radar_clutter = Some(RadarClutterConfig { lidar_radius_m: 0.0, ..RadarClutterConfig::default() });
         let e = input.validate().unwrap_err().to_string();

@@ -1,5 +1,6 @@
 //! The detection evaluation settings (the devkit's `detection_cvpr_2019` with hilo's classes).
 
+use hilo_core::FieldError;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -52,36 +53,38 @@ impl DetectionConfig {
     /// min_recall), ranges, thresholds and the TP threshold not positive and finite (a class
     /// with range ≤ 0 would silently score 0), a distance function other than the centre
     /// distance (the only one hilo computes), no box allowed per sample.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), FieldError> {
+        let bad = |field: &str, value: &dyn std::fmt::Display, reason: &str| Err(FieldError::new(field, value, reason));
         if self.class_range.is_empty() {
-            return Err("class_range is empty: name at least one class and its range".into());
+            return bad("class_range", &"{}", "is empty: name at least one class and its range");
         }
         if let Some((c, r)) = self.class_range.iter().find(|(_, r)| !(r.is_finite() && **r > 0.0)) {
-            return Err(format!("class_range.{c} = {r}: a range is a distance in metres, finite and > 0"));
+            return bad(&format!("class_range.{c}"), r, "a range is a distance in metres, finite and > 0");
         }
         if self.dist_fcn != "center_distance" {
-            return Err(format!("dist_fcn = {:?}: hilo computes \"center_distance\" only", self.dist_fcn));
+            return bad("dist_fcn", &format!("{:?}", self.dist_fcn), "hilo computes \"center_distance\" only");
         }
+        let ths = format!("{:?}", self.dist_ths);
         if self.dist_ths.is_empty() {
-            return Err("dist_ths = []: give the matching thresholds (the devkit's [0.5, 1.0, 2.0, 4.0])".into());
+            return bad("dist_ths", &ths, "give the matching thresholds (the devkit's [0.5, 1.0, 2.0, 4.0])");
         }
         let positive = |t: f64| t.is_finite() && t > 0.0;
         if let Some(t) = self.dist_ths.iter().find(|t| !positive(**t)) {
-            return Err(format!("dist_ths holds {t}: a threshold is a distance in metres, finite and > 0"));
+            return bad("dist_ths", &ths, &format!("holds {t}: a threshold is a distance in metres, finite and > 0"));
         }
         if !positive(self.dist_th_tp) {
-            return Err(format!("dist_th_tp = {}: must be finite and > 0", self.dist_th_tp));
+            return bad("dist_th_tp", &self.dist_th_tp, "must be finite and > 0");
         }
         for (field, v) in [("min_recall", self.min_recall), ("min_precision", self.min_precision)] {
             if !(0.0..1.0).contains(&v) {
-                return Err(format!("{field} = {v}: must be in [0, 1)"));
+                return bad(field, &v, "must be in [0, 1)");
             }
         }
         if self.max_boxes_per_sample == 0 {
-            return Err("max_boxes_per_sample = 0: must be at least 1".into());
+            return bad("max_boxes_per_sample", &0, "must be at least 1");
         }
         if !(self.mean_ap_weight.is_finite() && self.mean_ap_weight >= 0.0) {
-            return Err(format!("mean_ap_weight = {}: must be finite and ≥ 0", self.mean_ap_weight));
+            return bad("mean_ap_weight", &self.mean_ap_weight, "must be finite and ≥ 0");
         }
         Ok(())
     }
@@ -104,7 +107,7 @@ mod tests {
         type Change = fn(&mut DetectionConfig);
         let cases: [(Change, &str); 9] = [
             (|c| c.dist_ths.clear(), "dist_ths = []"),
-            (|c| c.dist_ths.push(f64::NAN), "dist_ths holds NaN"),
+            (|c| c.dist_ths.push(f64::NAN), "holds NaN"),
             (|c| c.min_recall = 1.0, "min_recall = 1"),
             (|c| c.min_precision = -0.1, "min_precision = -0.1"),
             (
@@ -113,7 +116,7 @@ mod tests {
                 },
                 "class_range.car = -5",
             ),
-            (|c| c.class_range.clear(), "class_range is empty"),
+            (|c| c.class_range.clear(), "class_range = {}: is empty"),
             (|c| c.dist_th_tp = 0.0, "dist_th_tp = 0"),
             (|c| c.max_boxes_per_sample = 0, "max_boxes_per_sample = 0"),
             (|c| c.dist_fcn = "iou".into(), "dist_fcn"),
@@ -122,6 +125,7 @@ mod tests {
             let mut c = DetectionConfig::default();
             change(&mut c);
             let e = c.check().expect_err(needle);
+            let e = e.to_string();
             assert!(e.contains(needle), "{e} lacks {needle}");
         }
     }

@@ -94,14 +94,15 @@ impl Check for DetectorConfig {
     type Error = FusionError;
 
     /// Checks what the detector can be built from.
-    fn check(&self) -> Result<()> {
-        self.grid.validate().map_err(FusionError::Config)?;
+    fn check(&self) -> std::result::Result<(), FusionError> {
+        self.grid.validate()?;
         self.input.validate()?;
         if !(self.velocity_weight.is_finite() && self.velocity_weight >= 0.0) {
-            return Err(FusionError::Config(format!(
-                "detector {}: velocity_weight = {} must be finite and ≥ 0",
-                self.name, self.velocity_weight
-            )));
+            return Err(FusionError::field(
+                format!("detector {}: velocity_weight", self.name),
+                self.velocity_weight,
+                "must be finite and ≥ 0",
+            ));
         }
         let b = &self.backbone;
         let wide = |c: usize| c == 0 || c > limits::CHANNELS;
@@ -110,41 +111,46 @@ impl Check for DetectorConfig {
             || self.head_channels > limits::CHANNELS
             || b.blocks.iter().any(|x| wide(x.channels) || x.layers > limits::LAYERS)
         {
-            return Err(FusionError::Config(format!(
-                "detector {}: the backbone may have at most {} blocks of 1 to {} channels and at most {} layers each, \
-                 and neck_channels (1 to {}) and head_channels (at most {}) are bounded the same way; this one has \
-                 blocks {:?}, neck_channels {}, head_channels {}",
-                self.name,
-                limits::BLOCKS,
-                limits::CHANNELS,
-                limits::LAYERS,
-                limits::CHANNELS,
-                limits::CHANNELS,
-                b.blocks.iter().map(|x| (x.channels, x.layers)).collect::<Vec<_>>(),
-                b.neck_channels,
-                self.head_channels
-            )));
+            return Err(FusionError::field(
+                format!("detector {}: backbone (channels, layers), neck_channels, head_channels", self.name),
+                format!(
+                    "{:?}, {}, {}",
+                    b.blocks.iter().map(|x| (x.channels, x.layers)).collect::<Vec<_>>(),
+                    b.neck_channels,
+                    self.head_channels
+                ),
+                format!(
+                    "the backbone may have at most {} blocks of 1 to {} channels and at most {} layers each, and \
+                     neck_channels (1 to {}) and head_channels (at most {}) are bounded the same way",
+                    limits::BLOCKS,
+                    limits::CHANNELS,
+                    limits::LAYERS,
+                    limits::CHANNELS,
+                    limits::CHANNELS,
+                ),
+            ));
         }
         if b.blocks.is_empty() || !b.out_stride.is_power_of_two() {
-            return Err(FusionError::Config(format!(
-                "detector {}: the backbone needs blocks and a power-of-two out_stride",
-                self.name
-            )));
+            return Err(FusionError::field(
+                format!("detector {}: backbone.out_stride", self.name),
+                b.out_stride,
+                format!("the backbone needs blocks ({} given) and a power-of-two out_stride", b.blocks.len()),
+            ));
         }
         if let Some(k) = b.blocks.iter().position(|x| x.stride != 1 && x.stride != 2) {
-            return Err(FusionError::Config(format!(
-                "detector {}: block {k} has stride {}, not 1 or 2",
-                self.name, b.blocks[k].stride
-            )));
+            return Err(FusionError::field(
+                format!("detector {}: backbone.blocks[{k}].stride", self.name),
+                b.blocks[k].stride,
+                "must be 1 or 2",
+            ));
         }
         let total: usize = b.blocks.iter().map(|x| x.stride).product();
         if !self.grid.cells().is_multiple_of(total) || b.out_stride > total {
-            return Err(FusionError::Config(format!(
-                "detector {}: out_stride {} and the backbone's stride {total} must divide the grid's {} cells",
-                self.name,
+            return Err(FusionError::field(
+                format!("detector {}: backbone.out_stride", self.name),
                 b.out_stride,
-                self.grid.cells()
-            )));
+                format!("it and the backbone's stride {total} must divide the grid's {} cells", self.grid.cells()),
+            ));
         }
         Ok(())
     }
@@ -179,16 +185,19 @@ impl DetectorConfig {
     /// Refuses a training whose step would not fit in `available` bytes by
     /// [`DetectorConfig::step_memory_bytes`]; `available` is the machine's memory
     /// (`hilo_core::machine::memory_bytes`) where the system tells it.
-    pub fn check_memory(&self, batch: usize, available: Option<u64>) -> Result<()> {
+    pub fn check_memory(&self, batch: usize, available: Option<u64>) -> std::result::Result<(), FusionError> {
         let need = self.step_memory_bytes(batch);
         match available {
-            Some(have) if need > have as f64 => Err(FusionError::Config(format!(
-                "detector {}: a training step of batch {batch} needs about {:.1} GB, more than this machine's {:.1} \
-                 GB; make the grid coarser, the backbone narrower or the batch smaller",
-                self.name,
-                need / 1e9,
-                have as f64 / 1e9
-            ))),
+            Some(have) if need > have as f64 => Err(FusionError::field(
+                format!("detector {}: batch", self.name),
+                batch,
+                format!(
+                    "a training step needs about {:.1} GB, more than this machine's {:.1} GB; make the grid coarser, \
+                     the backbone narrower or the batch smaller",
+                    need / 1e9,
+                    have as f64 / 1e9
+                ),
+            )),
             _ => Ok(()),
         }
     }
@@ -198,14 +207,12 @@ impl DetectorConfig {
     /// field or a wrong type is an error naming its path (`input.lidar_sweeps`).
     pub fn with_patch(&self, patch: &serde_json::Value) -> Result<DetectorConfig> {
         if !patch.is_object() {
-            return Err(FusionError::Config(format!(
-                "a detector patch is a JSON object of the fields it changes, not {patch}"
-            )));
+            return Err(FusionError::field("detector patch", patch, "must be a JSON object of the fields it changes"));
         }
         let mut doc = serde_json::to_value(self).map_err(|e| FusionError::Config(e.to_string()))?;
         json_patch::merge(&mut doc, patch);
         serde_path_to_error::deserialize(doc)
-            .map_err(|e| FusionError::Config(format!("detector patch, field {}: {}", e.path(), e.inner())))
+            .map_err(|e| FusionError::field(format!("detector patch: {}", e.path()), patch, e.inner().to_string()))
     }
 }
 
@@ -309,15 +316,13 @@ impl Check for TrainConfig {
     type Error = FusionError;
 
     /// The settings' own consistency (what the detector crate's training and the benchmarks refuse).
-    fn check(&self) -> Result<()> {
+    fn check(&self) -> std::result::Result<(), FusionError> {
         if self.batch == 0 || self.samples == 0 || self.batch > limits::BATCH || self.samples > limits::SAMPLES {
-            return Err(FusionError::Config(format!(
-                "train: batch = {} (1 to {}) and samples = {} (1 to {}) are out of range",
-                self.batch,
-                limits::BATCH,
-                self.samples,
-                limits::SAMPLES
-            )));
+            return Err(FusionError::field(
+                "train: batch, samples",
+                format!("{}, {}", self.batch, self.samples),
+                format!("give batch 1 to {} and samples 1 to {}", limits::BATCH, limits::SAMPLES),
+            ));
         }
         // A negative rate climbs the loss; one over 1 diverges at the first step.
         let rates = [
@@ -327,23 +332,25 @@ impl Check for TrainConfig {
             ("warmup", self.warmup, (0.0..=1.0).contains(&self.warmup), "a share in [0, 1]"),
         ];
         if let Some((field, v, _, want)) = rates.iter().find(|r| !r.2) {
-            return Err(FusionError::Config(format!("train: {field} = {v} must be {want}")));
+            return Err(FusionError::field(format!("train: {field}"), v, format!("must be {want}")));
         }
         if self.checkpoint_steps == 0 {
-            return Err(FusionError::Config("train: checkpoint_steps = 0 must be positive".into()));
+            return Err(FusionError::field("train: checkpoint_steps", 0, "must be positive"));
         }
         if self.replicas == 0 || !self.batch.is_multiple_of(self.replicas) {
-            return Err(FusionError::Config(format!(
-                "train: replicas = {} must be positive and divide batch = {}",
-                self.replicas, self.batch
-            )));
+            return Err(FusionError::field(
+                "train: replicas",
+                self.replicas,
+                format!("must be positive and divide batch = {}", self.batch),
+            ));
         }
         if let Some(k) = self.keep.iter().find(|k| **k % self.batch != 0 || **k == 0 || **k > self.steps() * self.batch)
         {
-            return Err(FusionError::Config(format!(
-                "train: keep = {k} must be a positive multiple of batch {} and at most the {} samples",
-                self.batch, self.samples
-            )));
+            return Err(FusionError::field(
+                "train: keep",
+                k,
+                format!("must be a positive multiple of batch {} and at most the {} samples", self.batch, self.samples),
+            ));
         }
         Ok(())
     }
@@ -354,13 +361,20 @@ impl TrainConfig {
     /// only what it changes); an unknown field or a wrong type is an error naming it.
     pub fn with_fields(&self, fields: &serde_json::Value) -> Result<TrainConfig> {
         let Some(fields) = fields.as_object() else {
-            return Err(FusionError::Config(format!("a training schedule is a JSON object, not {fields}")));
+            return Err(FusionError::field(
+                "training schedule",
+                fields,
+                "must be a JSON object of the fields it changes",
+            ));
         };
         let mut cfg = serde_json::to_value(self).map_err(|e| FusionError::Config(e.to_string()))?;
         if let Some(base) = cfg.as_object_mut() {
             base.extend(fields.iter().map(|(k, v)| (k.clone(), v.clone())));
         }
-        serde_json::from_value(cfg).map_err(|e| FusionError::Config(format!("training schedule: {e}")))
+        serde_path_to_error::deserialize(cfg).map_err(|e| {
+            let given = serde_json::Value::Object(fields.clone());
+            FusionError::field(format!("training schedule: {}", e.path()), given, e.inner().to_string())
+        })
     }
 
     pub fn steps(&self) -> usize {
@@ -456,44 +470,47 @@ impl Default for RadarClutterConfig {
 }
 
 impl RadarClutterConfig {
-    pub fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> std::result::Result<(), FusionError> {
         if !(self.max_speed_mps >= 0.0 && self.max_speed_mps.is_finite()) {
-            return Err(FusionError::Config(format!(
-                "input.radar_clutter.max_speed_mps = {}: must be a finite speed >= 0",
-                self.max_speed_mps
-            )));
+            return Err(FusionError::field(
+                "input.radar_clutter.max_speed_mps",
+                self.max_speed_mps,
+                "must be a finite speed >= 0",
+            ));
         }
         if !(self.lidar_radius_m > 0.0 && self.lidar_radius_m <= 20.0) {
-            return Err(FusionError::Config(format!(
-                "input.radar_clutter.lidar_radius_m = {}: must be in (0, 20]",
-                self.lidar_radius_m
-            )));
+            return Err(FusionError::field(
+                "input.radar_clutter.lidar_radius_m",
+                self.lidar_radius_m,
+                "must be in (0, 20]",
+            ));
         }
         Ok(())
     }
 }
 
 impl InputConfig {
-    pub fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> std::result::Result<(), FusionError> {
         if self.lidar_sweeps == 0 || self.lidar_sweeps > 20 {
-            return Err(FusionError::Config(format!("input.lidar_sweeps = {}: must be in 1..=20", self.lidar_sweeps)));
+            return Err(FusionError::field("input.lidar_sweeps", self.lidar_sweeps, "must be in 1..=20"));
         }
         if self.radar_sweeps == 0 || self.radar_sweeps > 20 {
-            return Err(FusionError::Config(format!("input.radar_sweeps = {}: must be in 1..=20", self.radar_sweeps)));
+            return Err(FusionError::field("input.radar_sweeps", self.radar_sweeps, "must be in 1..=20"));
         }
         if self.max_sweep_lag_s.is_nan() || self.max_sweep_lag_s <= 0.0 {
-            return Err(FusionError::Config(format!("input.max_sweep_lag_s = {}: must be > 0", self.max_sweep_lag_s)));
+            return Err(FusionError::field("input.max_sweep_lag_s", self.max_sweep_lag_s, "must be > 0"));
         }
         if let Some(b) = &self.background {
-            b.validate().map_err(|e| FusionError::Config(e.to_string()))?;
+            b.validate().map_err(|e| FusionError::field(format!("input.{}", e.field), e.value, e.reason))?;
         }
         if let Some(c) = &self.radar_clutter {
             c.validate()?;
             if self.background.is_none() {
-                return Err(FusionError::Config(
-                    "input.radar_clutter needs input.background: without the LiDAR background removed every radar \
-                     detection near a static surface would count as a road user's"
-                        .into(),
+                return Err(FusionError::field(
+                    "input.background",
+                    "(not given)",
+                    "input.radar_clutter needs it: without the LiDAR background removed every radar detection near \
+                     a static surface would count as a road user's",
                 ));
             }
         }
@@ -587,13 +604,14 @@ impl PasteConfig {
         let mut out = Vec::new();
         for (name, &n) in &self.fill {
             let c: Class = name.parse().map_err(|_| {
-                FusionError::Config(format!(
-                    "train.paste.fill: unknown class {name:?} (one of {})",
-                    Class::ALL.map(|c| c.name()).join(", ")
-                ))
+                FusionError::field(
+                    "train.paste.fill",
+                    format!("{name:?}"),
+                    format!("unknown class (one of {})", Class::ALL.map(|c| c.name()).join(", ")),
+                )
             })?;
             if n > 64 {
-                return Err(FusionError::Config(format!("train.paste.fill.{name} = {n}: at most 64 per frame")));
+                return Err(FusionError::field(format!("train.paste.fill.{name}"), n, "at most 64 per frame"));
             }
             out.push((c.index(), n));
         }
@@ -601,11 +619,11 @@ impl PasteConfig {
         Ok(out)
     }
 
-    pub fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> std::result::Result<(), FusionError> {
         self.fill_by_class()?;
         for (field, v) in [("lidar_margin_m", self.lidar_margin_m), ("radar_margin_m", self.radar_margin_m)] {
             if !(v.is_finite() && (0.0..=5.0).contains(&v)) {
-                return Err(FusionError::Config(format!("train.paste.{field} = {v}: must be within 0..=5 m")));
+                return Err(FusionError::field(format!("train.paste.{field}"), v, "must be within 0..=5 m"));
             }
         }
         Ok(())
@@ -638,7 +656,7 @@ mod tests {
             wide.backbone.blocks.iter_mut().for_each(|b| b.channels *= 16);
             assert!(wide.step_memory_bytes(16) > 2.0 * need);
             let e = wide.check_memory(16, Some(4 << 30)).unwrap_err().to_string();
-            assert!(e.contains(&det.name) && e.contains("batch 16") && e.contains("GB"), "{e}");
+            assert!(e.contains(&det.name) && e.contains("batch = 16") && e.contains("GB"), "{e}");
             assert!(det.check_memory(16, None).is_ok(), "no figure from the system: no refusal");
         }
         let mut det = crate::presets::centerpoint();

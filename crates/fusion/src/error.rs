@@ -8,8 +8,19 @@ pub enum FusionError {
     /// A file that could not be read or written, or whose content is malformed.
     #[error(transparent)]
     File(#[from] hilo_core::fs::FileError),
+    /// A configuration value refused: its field (with its section), the value and why.
+    #[error(transparent)]
+    Field(#[from] hilo_core::FieldError),
+    /// A plugin's or preset's configuration that cannot be built from, in words.
     #[error("{0}")]
     Config(String),
+}
+
+impl FusionError {
+    /// A refused value: `field` (with its section), the value and why.
+    pub fn field(field: impl Into<String>, value: impl ToString, reason: impl Into<String>) -> Self {
+        FusionError::Field(hilo_core::FieldError::new(field, value, reason))
+    }
 }
 
 pub type Result<T> = std::result::Result<T, FusionError>;

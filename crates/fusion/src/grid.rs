@@ -49,43 +49,60 @@ impl BevGrid {
         (-self.half_extent_m + (col as f32 + 0.5) * self.cell_m, -self.half_extent_m + (row as f32 + 0.5) * self.cell_m)
     }
 
-    pub fn validate(&self) -> Result<(), String> {
+    /// A grid that can be allocated and tiled: fine enough cells but not too many, a whole
+    /// multiple of 4 cells a side, finite heights in order, bounded point and pillar limits.
+    pub fn validate(&self) -> Result<(), hilo_core::FieldError> {
         use crate::limits;
+        let bad = |field: &str, value: &dyn std::fmt::Display, reason: String| {
+            Err(hilo_core::FieldError::new(format!("grid.{field}"), value, reason))
+        };
         if !(self.cell_m.is_finite() && self.cell_m >= limits::CELL_M_MIN) {
-            return Err(format!("grid: cell_m = {} must be at least {} m", self.cell_m, limits::CELL_M_MIN));
+            return bad("cell_m", &self.cell_m, format!("must be at least {} m", limits::CELL_M_MIN));
         }
         let n = 2.0 * self.half_extent_m / self.cell_m;
         if !(n.is_finite() && n <= limits::GRID_CELLS as f32) {
-            return Err(format!(
-                "grid: half_extent_m = {} and cell_m = {} give {n} cells a side, more than the {} allowed (a \
-                 {}-cell grid needs gigabytes per map)",
-                self.half_extent_m,
-                self.cell_m,
-                limits::GRID_CELLS,
-                limits::GRID_CELLS
-            ));
+            return bad(
+                "half_extent_m",
+                &self.half_extent_m,
+                format!(
+                    "with cell_m = {} it gives {n} cells a side, more than the {} allowed (a {}-cell grid needs \
+                     gigabytes per map)",
+                    self.cell_m,
+                    limits::GRID_CELLS,
+                    limits::GRID_CELLS
+                ),
+            );
         }
-        if !(self.z_min_m.is_finite() && self.z_max_m.is_finite()) {
-            return Err(format!("grid: z_min_m = {} and z_max_m = {} must be finite", self.z_min_m, self.z_max_m));
+        if !(self.z_min_m.is_finite() && self.z_max_m.is_finite() && self.z_max_m > self.z_min_m) {
+            return bad(
+                "z_min_m, z_max_m",
+                &format!("{}, {}", self.z_min_m, self.z_max_m),
+                "must be finite, in order".into(),
+            );
         }
-        if self.max_points_per_pillar > limits::POINTS_PER_PILLAR || self.max_pillars > limits::PILLARS {
-            return Err(format!(
-                "grid: max_points_per_pillar = {} (at most {}) and max_pillars = {} (at most {}) size every batch's \
-                 point tensor",
-                self.max_points_per_pillar,
-                limits::POINTS_PER_PILLAR,
-                self.max_pillars,
-                limits::PILLARS
-            ));
+        if !(1..=limits::POINTS_PER_PILLAR).contains(&self.max_points_per_pillar) {
+            return bad(
+                "max_points_per_pillar",
+                &self.max_points_per_pillar,
+                format!("give 1 to {} (it sizes every batch's point tensor)", limits::POINTS_PER_PILLAR),
+            );
+        }
+        if !(1..=limits::PILLARS).contains(&self.max_pillars) {
+            return bad(
+                "max_pillars",
+                &self.max_pillars,
+                format!("give 1 to {} (it sizes every batch's point tensor)", limits::PILLARS),
+            );
         }
         if !(self.half_extent_m > 0.0 && self.cell_m > 0.0)
             || (n - n.round()).abs() > 1e-3
             || !(n.round() as usize).is_multiple_of(4)
         {
-            return Err(format!("grid: 2 × half_extent_m / cell_m = {n} must be a whole multiple of 4"));
-        }
-        if self.z_max_m <= self.z_min_m || self.max_points_per_pillar == 0 || self.max_pillars == 0 {
-            return Err("grid: need z_max_m > z_min_m and positive point and pillar limits".into());
+            return bad(
+                "half_extent_m",
+                &self.half_extent_m,
+                format!("2 × half_extent_m / cell_m = {n} (cell_m = {}) must be a whole multiple of 4", self.cell_m),
+            );
         }
         Ok(())
     }

@@ -47,6 +47,21 @@ pub enum Limit {
     Budget { usd: f64, min: Vec<u32>, max: Vec<u32> },
 }
 
+/// Why a selection is not a placement of an instance under a limit.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Infeasible {
+    #[error("option {0} does not exist")]
+    NoOption(usize),
+    #[error("two sensors on mount {0}")]
+    SharedMount(u32),
+    #[error("{n} x {ty} exceeds {rule}")]
+    TypeCount { n: u32, ty: String, rule: &'static str },
+    #[error("{n} sensors exceed the limit {limit}")]
+    Total { n: usize, limit: u32 },
+    #[error("cost {cost_usd} exceeds the budget {budget_usd}")]
+    Budget { cost_usd: f64, budget_usd: f64 },
+}
+
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Instance {
     pub weights: Vec<f64>,
@@ -131,37 +146,41 @@ impl Instance {
         Ok(())
     }
 
-    /// Whether a selection respects the limit and the one-sensor-per-mount rule.
-    pub fn check(&self, limit: &Limit, sel: &[usize]) -> Result<(), String> {
+    /// Whether a selection respects the limit and the one-sensor-per-mount rule; the error
+    /// says which rule it breaks.
+    pub fn check(&self, limit: &Limit, sel: &[usize]) -> Result<(), Infeasible> {
         let mut mounts = std::collections::HashSet::new();
         let mut per_type = vec![0u32; self.types.len()];
         let mut cost = 0.0;
         for &o in sel {
-            let opt = self.options.get(o).ok_or(format!("option {o} does not exist"))?;
+            let opt = self.options.get(o).ok_or(Infeasible::NoOption(o))?;
             if !mounts.insert(opt.mount) {
-                return Err(format!("two sensors on mount {}", opt.mount));
+                return Err(Infeasible::SharedMount(opt.mount));
             }
             per_type[opt.ty] += 1;
             cost += self.types[opt.ty].price_usd;
         }
+        let count = |t: usize| (per_type[t], self.types[t].name.clone());
         match limit {
             Limit::Counts(c) => {
                 if let Some(t) = (0..self.types.len()).find(|&t| per_type[t] > c.get(t).copied().unwrap_or(0)) {
-                    return Err(format!("{} x {} exceeds the limit", per_type[t], self.types[t].name));
+                    let (n, ty) = count(t);
+                    return Err(Infeasible::TypeCount { n, ty, rule: "the limit" });
                 }
             }
             Limit::Total(n) => {
                 if sel.len() as u32 > *n {
-                    return Err(format!("{} sensors exceed the limit {n}", sel.len()));
+                    return Err(Infeasible::Total { n: sel.len(), limit: *n });
                 }
             }
             Limit::Budget { usd, min, max } => {
                 if cost > usd + 1e-6 {
-                    return Err(format!("cost {cost} exceeds the budget {usd}"));
+                    return Err(Infeasible::Budget { cost_usd: cost, budget_usd: *usd });
                 }
                 for (t, &n) in per_type.iter().enumerate() {
                     if n < min.get(t).copied().unwrap_or(0) || n > max.get(t).copied().unwrap_or(u32::MAX) {
-                        return Err(format!("{} x {} outside its min/max", per_type[t], self.types[t].name));
+                        let (n, ty) = count(t);
+                        return Err(Infeasible::TypeCount { n, ty, rule: "its min/max" });
                     }
                 }
             }

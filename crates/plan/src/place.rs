@@ -170,7 +170,13 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
 
 /// Refuses what no solver can satisfy: a budget that buys no sensor, more sensors of a type than
 /// it has candidates.
-fn check_limit(study: &Study, conf: &Configuration, inst: &Instance, limit: &Limit, prep: &Prepared) -> Result<()> {
+fn check_limit(
+    study: &Study,
+    conf: &Configuration,
+    inst: &Instance,
+    limit: &Limit,
+    prep: &Prepared,
+) -> std::result::Result<(), StudyError> {
     match limit {
         Limit::Budget { usd, .. } => {
             let cheapest = inst.types.iter().map(|t| t.price_usd).fold(f64::INFINITY, f64::min);

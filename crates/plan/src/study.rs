@@ -3,7 +3,7 @@
 
 use crate::error::{Result, StudyError};
 use crate::files::hash;
-use hilo_core::Valid;
+use hilo_core::{FieldError, Valid};
 use hilo_dataset::simulate::SimulateConfig;
 use hilo_placement_ip::pipeline::PlacementConfig;
 use hilo_raycast::Scene;
@@ -80,33 +80,47 @@ impl Condition {
 
     /// A named weather, configurations that exist, once each, and names that stay apart from
     /// the configurations' file names; the error names the field and value.
-    fn check(&self, i: usize, file: &StudyFile) -> std::result::Result<(), String> {
-        let at = format!("conditions[{i}] ({:?})", self.name);
+    fn check(&self, i: usize, file: &StudyFile) -> std::result::Result<(), FieldError> {
+        let at = |field: &str, value: &dyn std::fmt::Display, reason: String| {
+            FieldError::new(format!("conditions[{i}].{field}"), value, format!("{reason} (condition {:?})", self.name))
+        };
         if slug(&self.name).is_empty() {
-            return Err(format!("conditions[{i}].name = {:?} has no ASCII letter or digit", self.name));
+            return Err(FieldError::new(
+                format!("conditions[{i}].name"),
+                format!("{:?}", self.name),
+                "has no ASCII letter or digit",
+            ));
         }
-        self.weather.check().map_err(|e| format!("{at}: {e}"))?;
+        self.weather.check().map_err(|e| at(&format!("weather.{}", e.field), &e.value, e.reason.to_owned()))?;
         if self.weather == file.dataset.weather {
-            return Err(format!("{at}: its weather is the study's own `[dataset.weather]`; nothing would change"));
+            return Err(at(
+                "weather",
+                &self.weather,
+                "this is the study's own `[dataset.weather]`; nothing would change".into(),
+            ));
         }
         if self.configurations.is_empty() {
-            return Err(format!("{at}: configurations = []: name the configurations to record in this weather"));
+            return Err(at("configurations", &"[]", "name the configurations to record in this weather".into()));
         }
         for (k, name) in self.configurations.iter().enumerate() {
+            let field = format!("configurations[{k}]");
+            let value = format!("{name:?}");
             if !file.configurations.iter().any(|c| c.name == *name) {
                 let names: Vec<&str> = file.configurations.iter().map(|c| c.name.as_str()).collect();
-                return Err(format!(
-                    "{at}: configurations[{k}] = {name:?} is not a configuration of the study ({names:?})"
-                ));
+                return Err(at(&field, &value, format!("is not a configuration of the study ({names:?})")));
             }
             if self.configurations[..k].contains(name) {
-                return Err(format!("{at}: configurations[{k}] = {name:?} is named twice"));
+                return Err(at(&field, &value, "is named twice".into()));
             }
             let label = slug(&self.label(name));
             if let Some(c) = file.configurations.iter().find(|c| c.slug() == label) {
-                return Err(format!(
-                    "{at}: {name:?} in this condition becomes the file name {label:?}, as configuration {:?} does; rename one",
-                    c.name
+                return Err(at(
+                    &field,
+                    &value,
+                    format!(
+                        "in this condition becomes the file name {label:?}, as configuration {:?} does; rename one",
+                        c.name
+                    ),
                 ));
             }
         }
@@ -146,33 +160,36 @@ impl EvaluationSettings {
 
     /// Known classes, ranges in (0, `annotate_radius_m`], bins that start at 0 or beyond and
     /// increase; the error names the field and value.
-    fn check(&self, annotate_radius_m: f64) -> std::result::Result<(), String> {
+    fn check(&self, annotate_radius_m: f64) -> std::result::Result<(), FieldError> {
         let known = hilo_eval::DetectionConfig::default().class_names();
         for (class, range) in &self.class_range_m {
+            let field = format!("evaluation.class_range_m.{class}");
             if !known.contains(class) {
-                return Err(format!(
-                    "evaluation.class_range_m.{class}: not a class; the classes are {}",
-                    known.join(", ")
+                return Err(FieldError::new(
+                    field,
+                    range,
+                    format!("not a class; the classes are {}", known.join(", ")),
                 ));
             }
             if !(range.is_finite() && *range > 0.0 && *range <= annotate_radius_m) {
-                return Err(format!(
-                    "evaluation.class_range_m.{class} = {range}: must be in (0, dataset.annotate_radius_m = {annotate_radius_m}] m"
+                return Err(FieldError::new(
+                    field,
+                    range,
+                    format!("must be in (0, dataset.annotate_radius_m = {annotate_radius_m}] m"),
                 ));
             }
         }
         let b = &self.range_bins_m;
+        let bins = |reason: String| FieldError::new("evaluation.range_bins_m", format!("{b:?}"), reason);
         if b.len() > MAX_RANGE_BINS + 1 {
-            return Err(format!(
-                "evaluation.range_bins_m has {} edges: at most {} (each bin is scored for every detector and seed)",
+            return Err(bins(format!(
+                "{} edges: at most {} (each bin is scored for every detector and seed)",
                 b.len(),
                 MAX_RANGE_BINS + 1
-            ));
+            )));
         }
         if b.len() < 2 || !b.iter().all(|e| e.is_finite()) || b[0] < 0.0 || b.windows(2).any(|w| w[1] <= w[0]) {
-            return Err(format!(
-                "evaluation.range_bins_m = {b:?}: needs at least two finite edges, from 0 m or more, increasing"
-            ));
+            return Err(bins("needs at least two finite edges, from 0 m or more, increasing".into()));
         }
         Ok(())
     }
@@ -259,7 +276,7 @@ impl ValidationSettings {
     /// Checks the values a study file may get wrong (the presets where given); `source` names
     /// the file. Every study plan checks its `[validation]` section, so `hilo study` refuses a
     /// section `hilo validate` would.
-    pub fn check(&self, registry: &hilo_detector::Registry, source: &str) -> Result<()> {
+    pub fn check(&self, registry: &hilo_detector::Registry, source: &str) -> std::result::Result<(), StudyError> {
         let bad = |field: &str, value: String, reason: String| {
             StudyError::setting(source, format!("validation.{field}"), value, reason)
         };
@@ -463,19 +480,23 @@ impl Study {
 
     /// A study from its parsed file: validates it and loads its scene and catalog.
     pub fn from_file(file: StudyFile, dir: &Path, source: &str) -> Result<Study> {
-        let bad =
-            |m: String| StudyError::from(hilo_core::fs::FileError::Content { path: PathBuf::from(source), message: m });
+        let bad = |field: String, value: &dyn std::fmt::Display, reason: String| {
+            StudyError::setting(source, field, value, reason)
+        };
+        let field_error = |e: FieldError| StudyError::setting(source, e.field, e.value, e.reason);
         if file.configurations.is_empty() {
-            return Err(bad("no [[configurations]]".into()));
+            return Err(bad("configurations".into(), &"[]", "give at least one [[configurations]]".into()));
         }
         let mut names: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
         for (i, c) in file.configurations.iter().enumerate() {
+            let name = format!("{:?}", c.name);
             let slug = c.slug();
             if slug.is_empty() {
-                return Err(bad(format!(
-                    "configurations[{i}].name = {:?} has no ASCII letter or digit; the name becomes file and folder names",
-                    c.name
-                )));
+                return Err(bad(
+                    format!("configurations[{i}].name"),
+                    &name,
+                    "has no ASCII letter or digit; the name becomes file and folder names".into(),
+                ));
             }
             if let Some(&j) = names.get(&slug) {
                 let other = &file.configurations[j].name;
@@ -486,48 +507,51 @@ impl Study {
                         "and configurations[{j}].name = {other:?} both become the file name {slug:?} (only ASCII letters and digits are kept; the rest becomes '_')"
                     )
                 };
-                return Err(bad(format!("configurations[{i}].name = {:?} {why}", c.name)));
+                return Err(bad(format!("configurations[{i}].name"), &name, why));
             }
             names.insert(slug, i);
+            let at = |key: &str, value: &dyn std::fmt::Display, reason: &str| {
+                bad(format!("configurations[{i}].{key}"), value, format!("{reason} (configuration {name})"))
+            };
             match (c.budget_usd, c.sensors.is_empty()) {
                 (Some(b), true) if b.is_finite() && b > 0.0 && !c.types.is_empty() => {}
                 (Some(b), true) => {
-                    return Err(bad(format!(
-                        "configurations[{i}] ({}): budget_usd = {b} needs a positive budget and a `types` list",
-                        c.name
-                    )));
+                    return Err(at("budget_usd", &b, "needs a positive budget and a `types` list"));
                 }
                 (None, false) => {}
                 _ => {
-                    return Err(bad(format!(
-                        "configurations[{i}] ({}): give either `sensors` or `budget_usd` with `types`",
-                        c.name
-                    )));
+                    return Err(at(
+                        "sensors",
+                        &format!("{:?}", c.sensors),
+                        "give either `sensors` or `budget_usd` with `types`",
+                    ));
                 }
             }
             if c.budget_usd.is_none() && c.sensors.values().all(|n| *n == 0) {
-                return Err(bad(format!(
-                    "configurations[{i}] ({}): every sensor count is 0; a configuration needs a sensor",
-                    c.name
-                )));
+                return Err(at(
+                    "sensors",
+                    &format!("{:?}", c.sensors),
+                    "every sensor count is 0; a configuration needs a sensor",
+                ));
             }
         }
         let m = file.verdict.equivalence_margin;
         if !(m > 0.0 && m < 1.0) {
-            return Err(bad(format!("verdict.equivalence_margin = {m}: must be in (0, 1)")));
+            return Err(bad("verdict.equivalence_margin".into(), &m, "must be in (0, 1)".into()));
         }
-        file.evaluation.check(file.dataset.annotate_radius_m as f64).map_err(bad)?;
+        file.evaluation.check(file.dataset.annotate_radius_m as f64).map_err(field_error)?;
         let v = file.verdict.velocity_equivalence_margin_m_s;
         if !(v > 0.0 && v < 10.0) {
-            return Err(bad(format!("verdict.velocity_equivalence_margin_m_s = {v}: must be in (0, 10) m/s")));
+            return Err(bad("verdict.velocity_equivalence_margin_m_s".into(), &v, "must be in (0, 10) m/s".into()));
         }
         for (i, c) in file.conditions.iter().enumerate() {
-            c.check(i, &file).map_err(bad)?;
+            c.check(i, &file).map_err(field_error)?;
             if let Some(j) = file.conditions[..i].iter().position(|o| slug(&o.name) == slug(&c.name)) {
-                return Err(bad(format!(
-                    "conditions[{i}].name = {:?}: conditions[{j}] has the same name (as a file name)",
-                    c.name
-                )));
+                return Err(bad(
+                    format!("conditions[{i}].name"),
+                    &format!("{:?}", c.name),
+                    format!("conditions[{j}] has the same name (as a file name)"),
+                ));
             }
         }
         let dataset = file.dataset.clone().validate()?;
@@ -536,7 +560,12 @@ impl Study {
         let scene = match &file.scene {
             Some(p) => Scene::load_with(&resolve(p), file.junction.as_ref())?,
             None if file.junction.is_some() => {
-                return Err(bad("[junction] names a junction of an OpenDRIVE scene, and this study gives none (scene = \"town.xodr\")".into()));
+                return Err(bad(
+                    "junction".into(),
+                    &"(given)",
+                    "names a junction of an OpenDRIVE scene, and this study gives no scene (scene = \"town.xodr\")"
+                        .into(),
+                ));
             }
             None => Scene::default_fixture()?,
         };
@@ -548,7 +577,7 @@ impl Study {
             for t in c.type_names() {
                 catalog
                     .get(&t)
-                    .map_err(|e| bad(format!("configurations[{i}] ({}) names sensor {t:?}: {e}", c.name)))?;
+                    .map_err(|e| bad(format!("configurations[{i}].sensors"), &format!("{t:?}"), e.to_string()))?;
             }
         }
         let scene_hash = scene_hash(&scene);
@@ -654,7 +683,7 @@ mod tests {
         for (extra, needle) in [
             (
                 fog("\"3x lidar-16\"", "fog_visibility_m = 50.0"),
-                "configurations[0] = \"3x lidar-16\" is not a configuration",
+                "configurations[0] = \"3x lidar-16\": is not a configuration",
             ),
             (fog("\"2x lidar-16\", \"2x lidar-16\"", "fog_visibility_m = 50.0"), "named twice"),
             (fog("", "fog_visibility_m = 50.0"), "configurations = []"),

@@ -82,7 +82,7 @@ pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
     }
     let weathers = match table.remove(crate::study::WEATHERS_KEY) {
         None => None,
-        Some(v) => Some(weathers(v, &table).map_err(bad)?),
+        Some(v) => Some(weathers(v, &table, source)?),
     };
     if lists.iter().all(Option::is_none) && weathers.is_none() {
         return Study::parse(text, dir, source).map(Loaded::Study);
@@ -124,27 +124,37 @@ pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Loaded> {
 
 /// The named weather conditions of `weathers = { name = { rain_mm_h = …, fog_visibility_m = … } }`
 /// (names as slugs, in name order), each checked; refused beside `[dataset.weather]`.
-fn weathers(
-    v: toml::Value,
-    table: &toml::Table,
-) -> std::result::Result<Vec<(String, hilo_sensor_models::Weather)>, String> {
+fn weathers(v: toml::Value, table: &toml::Table, source: &str) -> Result<Vec<(String, hilo_sensor_models::Weather)>> {
     let key = crate::study::WEATHERS_KEY;
+    let bad = |field: String, value: &dyn std::fmt::Display, reason: String| {
+        StudyError::setting(source, field, value, reason)
+    };
     let t: toml::Table = v.try_into().map_err(|e| {
-        format!("`{key}` must be a table of named conditions, e.g. {key} = {{ clear = {{}}, fog = {{ fog_visibility_m = 60.0 }} }}: {e}")
+        bad(
+            key.into(),
+            &"(not a table)",
+            format!("must be a table of named conditions, e.g. {key} = {{ clear = {{}}, fog = {{ fog_visibility_m = 60.0 }} }}: {e}"),
+        )
     })?;
     if t.is_empty() {
-        return Err(format!("`{key}` = {{}}: name at least one condition, or leave it out"));
+        return Err(bad(key.into(), &"{}", "name at least one condition, or leave it out".into()));
     }
     if table.get("dataset").and_then(|d| d.get("weather")).is_some() {
-        return Err(format!("give `dataset.weather` or `{key}`, not both"));
+        return Err(bad(key.into(), &"(given)", "give `dataset.weather` or this, not both".into()));
     }
     let mut out: Vec<(String, hilo_sensor_models::Weather)> = Vec::new();
     for (name, v) in t {
-        let w: hilo_sensor_models::Weather = v.try_into().map_err(|e| format!("{key}.{name}: {e}"))?;
-        w.check().map_err(|e| format!("{key}.{name}: {e}"))?;
+        let shown = v.to_string();
+        let w: hilo_sensor_models::Weather =
+            v.try_into().map_err(|e| bad(format!("{key}.{name}"), &shown, e.to_string()))?;
+        w.check().map_err(|e| bad(format!("{key}.{name}.{}", e.field), &e.value, e.reason.to_owned()))?;
         let s = slug(&name);
         if s.is_empty() || out.iter().any(|(n, _)| *n == s) {
-            return Err(format!("{key}.{name}: give each condition a distinct name of letters or digits"));
+            return Err(bad(
+                format!("{key}.{name}"),
+                &shown,
+                "give each condition a distinct name of letters or digits".into(),
+            ));
         }
         out.push((s, w));
     }
@@ -492,7 +502,7 @@ mod tests {
         let e = err(&format!("weathers = {{ fog = {{ visibility = 50.0 }} }}\n{CONFIG}"), d.path());
         assert!(e.contains("weathers.fog") && e.contains("visibility"), "{e}");
         let e = err(&format!("weathers = {{}}\n{CONFIG}"), d.path());
-        assert!(e.contains("`weathers` = {}"), "{e}");
+        assert!(e.contains("weathers = {}: name at least one"), "{e}");
         let e = err(&format!("weathers = {{ a = {{}} }}\n[dataset.weather]\nrain_mm_h = 5.0\n{CONFIG}"), d.path());
         assert!(e.contains("not both"), "{e}");
         let e = Study::parse(&format!("weathers = {{ a = {{}} }}\n{CONFIG}"), d.path(), "s.toml").unwrap_err();

@@ -246,7 +246,7 @@ fn fingerprint(study: &Study, profile: &Profile, settings: &ValidationSettings) 
 /// it is the study validated there: its scene, catalog, placement, traffic, configurations and
 /// training sections, under the recorded profile and settings. Another study's predictors
 /// would be fitted against trainings they did not produce.
-fn check_same_study(study: &Study, out: &Path) -> Result<()> {
+fn check_same_study(study: &Study, out: &Path) -> std::result::Result<(), StudyError> {
     let r: FolderRecord = read_json(&out.join("validation-folder.json"), limit::TABLE)?;
     let (Some(profile), Some(settings)) = (&r.profile, &r.settings) else { return Ok(()) };
     if fingerprint(study, profile, settings)?.1 != r.fingerprint {
