@@ -292,7 +292,7 @@ fn values_that_size_allocations_are_refused_by_field_before_any_stage_runs() {
         ("grid = { max_points_per_pillar = 1000000000000 }", "max_points_per_pillar = 1000000000000"),
         ("grid = { half_extent_m = 1e9 }", "half_extent_m = 1000000000"),
         ("grid = { cell_m = 1e-6 }", "cell_m = 0.000001"),
-        ("backbone = { neck_channels = 1000000000 }", "neck_channels 1000000000"),
+        ("backbone = { neck_channels = 1000000000 }", "backbone.neck_channels = 1000000000"),
         ("velocity_weight = nan", "detector_patch.velocity_weight = NaN"),
     ] {
         let o = run_study(&study(&format!("[detector_patch]\n{patch}\n")));
@@ -342,7 +342,7 @@ fn values_that_size_allocations_are_refused_by_field_before_any_stage_runs() {
     refused(&o, &["placement.calibration.lidar", "[0, 1e6]"]);
     let edges: Vec<String> = (0..100_000).map(|i| format!("{}.0", i)).collect();
     let o = run_study(&study(&format!("[evaluation]\nrange_bins_m = [{}]\n", edges.join(", "))));
-    refused(&o, &["range_bins_m has 100000 edges", "at most 65"]);
+    refused(&o, &["range_bins_m = (100000 edges)", "at most 65"]);
 }
 
 #[test]

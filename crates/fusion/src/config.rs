@@ -105,30 +105,26 @@ impl Check for DetectorConfig {
             ));
         }
         let b = &self.backbone;
-        let wide = |c: usize| c == 0 || c > limits::CHANNELS;
-        if b.blocks.len() > limits::BLOCKS
-            || wide(b.neck_channels)
-            || self.head_channels > limits::CHANNELS
-            || b.blocks.iter().any(|x| wide(x.channels) || x.layers > limits::LAYERS)
-        {
-            return Err(FusionError::field(
-                format!("detector {}: backbone (channels, layers), neck_channels, head_channels", self.name),
-                format!(
-                    "{:?}, {}, {}",
-                    b.blocks.iter().map(|x| (x.channels, x.layers)).collect::<Vec<_>>(),
-                    b.neck_channels,
-                    self.head_channels
-                ),
-                format!(
-                    "the backbone may have at most {} blocks of 1 to {} channels and at most {} layers each, and \
-                     neck_channels (1 to {}) and head_channels (at most {}) are bounded the same way",
-                    limits::BLOCKS,
-                    limits::CHANNELS,
-                    limits::LAYERS,
-                    limits::CHANNELS,
-                    limits::CHANNELS,
-                ),
-            ));
+        let bad = |field: String, value: &dyn std::fmt::Display, reason: String| {
+            Err(FusionError::field(format!("detector {}: {field}", self.name), value, reason))
+        };
+        let channels = format!("give 1 to {}", limits::CHANNELS);
+        if b.blocks.len() > limits::BLOCKS {
+            return bad("backbone.blocks".into(), &b.blocks.len(), format!("at most {} blocks", limits::BLOCKS));
+        }
+        for (k, x) in b.blocks.iter().enumerate() {
+            if x.channels == 0 || x.channels > limits::CHANNELS {
+                return bad(format!("backbone.blocks[{k}].channels"), &x.channels, channels);
+            }
+            if x.layers > limits::LAYERS {
+                return bad(format!("backbone.blocks[{k}].layers"), &x.layers, format!("at most {}", limits::LAYERS));
+            }
+        }
+        if b.neck_channels == 0 || b.neck_channels > limits::CHANNELS {
+            return bad("backbone.neck_channels".into(), &b.neck_channels, channels);
+        }
+        if self.head_channels > limits::CHANNELS {
+            return bad("head_channels".into(), &self.head_channels, format!("at most {}", limits::CHANNELS));
         }
         if b.blocks.is_empty() || !b.out_stride.is_power_of_two() {
             return Err(FusionError::field(
@@ -318,11 +314,12 @@ impl Check for TrainConfig {
     /// The settings' own consistency (what the detector crate's training and the benchmarks refuse).
     fn check(&self) -> std::result::Result<(), FusionError> {
         if self.batch == 0 || self.samples == 0 || self.batch > limits::BATCH || self.samples > limits::SAMPLES {
-            return Err(FusionError::field(
-                "train: batch, samples",
-                format!("{}, {}", self.batch, self.samples),
-                format!("give batch 1 to {} and samples 1 to {}", limits::BATCH, limits::SAMPLES),
-            ));
+            let (field, value, most) = if self.batch == 0 || self.batch > limits::BATCH {
+                ("batch", self.batch, limits::BATCH)
+            } else {
+                ("samples", self.samples, limits::SAMPLES)
+            };
+            return Err(FusionError::field(format!("train: {field}"), value, format!("give 1 to {most}")));
         }
         // A negative rate climbs the loss; one over 1 diverges at the first step.
         let rates = [

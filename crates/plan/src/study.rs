@@ -180,14 +180,15 @@ impl EvaluationSettings {
             }
         }
         let b = &self.range_bins_m;
-        let bins = |reason: String| FieldError::new("evaluation.range_bins_m", format!("{b:?}"), reason);
         if b.len() > MAX_RANGE_BINS + 1 {
-            return Err(bins(format!(
-                "{} edges: at most {} (each bin is scored for every detector and seed)",
-                b.len(),
-                MAX_RANGE_BINS + 1
-            )));
+            // The count, not the list: a list this long would be the whole message.
+            return Err(FieldError::new(
+                "evaluation.range_bins_m",
+                format!("({} edges)", b.len()),
+                format!("give at most {} (each bin is scored for every detector and seed)", MAX_RANGE_BINS + 1),
+            ));
         }
+        let bins = |reason: String| FieldError::new("evaluation.range_bins_m", format!("{b:?}"), reason);
         if b.len() < 2 || !b.iter().all(|e| e.is_finite()) || b[0] < 0.0 || b.windows(2).any(|w| w[1] <= w[0]) {
             return Err(bins("needs at least two finite edges, from 0 m or more, increasing".into()));
         }
@@ -326,6 +327,65 @@ impl ValidationSettings {
     }
 }
 
+/// The key of a study file that names the study it builds on.
+pub const EXTENDS_KEY: &str = "extends";
+
+/// A study file's text with the study it extends beneath it. `extends = "../study.toml"` reads
+/// that file (relative to this one's folder; it may not extend another in turn) and lays this
+/// file over it: a table (`[dataset]`, `[dataset.traffic]`) merges field by field, anything else
+/// (a value, a list, `[[configurations]]`) replaces the base's, and `scenes` / `catalogs` here
+/// replace the base's `scene` / `catalog`. Relative paths in either resolve against this file's
+/// folder. A file without `extends` is returned as it is.
+pub fn read_study_text(path: &Path) -> Result<String> {
+    let read = |p: &Path| {
+        hilo_core::fs::read_text_bounded(p, hilo_core::fs::limit::CONFIG)
+            .map_err(|e| hilo_core::fs::FileError::io(p, e))
+    };
+    let text = read(path)?;
+    // A file that does not parse is reported by the parser that reads it next, with its line.
+    let Ok(mut top) = toml::from_str::<toml::Table>(&text) else { return Ok(text) };
+    let Some(base) = top.remove(EXTENDS_KEY) else { return Ok(text) };
+    let source = path.display().to_string();
+    let toml::Value::String(base) = base else {
+        return Err(StudyError::setting(&source, EXTENDS_KEY, base, "give the path of a study file"));
+    };
+    let base_path = path.parent().unwrap_or(Path::new(".")).join(&base);
+    let content = |p: &Path, e: &dyn std::fmt::Display| {
+        StudyError::from(hilo_core::fs::FileError::Content {
+            path: p.to_path_buf(),
+            message: format!("invalid study: {e}"),
+        })
+    };
+    let mut merged: toml::Table = toml::from_str(&read(&base_path)?).map_err(|e| content(&base_path, &e))?;
+    if merged.contains_key(EXTENDS_KEY) {
+        return Err(StudyError::setting(
+            &source,
+            EXTENDS_KEY,
+            format!("{base:?}"),
+            "that study extends another in turn; extend the study at the bottom directly",
+        ));
+    }
+    for key in LIST_KEYS {
+        if top.contains_key(key) {
+            merged.remove(key.trim_end_matches('s'));
+        }
+    }
+    overlay(&mut merged, top);
+    toml::to_string(&merged).map_err(|e| content(path, &e))
+}
+
+/// `top` laid over `base`: tables merge key by key, any other value replaces.
+fn overlay(base: &mut toml::Table, top: toml::Table) {
+    for (key, value) in top {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(t)) => overlay(b, t),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
 /// The most range bins a study's `[evaluation]` may ask for.
 pub const MAX_RANGE_BINS: usize = 64;
 
@@ -450,8 +510,7 @@ fn non_finite(v: &toml::Value, at: &str) -> Option<(String, f64)> {
 impl Study {
     /// Reads a study file.
     pub fn load(path: &Path) -> Result<Study> {
-        let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-            .map_err(|e| hilo_core::fs::FileError::io(path, e))?;
+        let text = read_study_text(path)?;
         Study::parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
     }
 

@@ -9,6 +9,10 @@
 //!   present when its list is given);
 //! - a directory: every `*.toml` directly in it is a study, named after its stem.
 //!
+//! Either file may build on another study with `extends = "../study.toml"`
+//! ([`crate::study::read_study_text`]): a sweep of the default study over a site library is
+//! `extends` and a `scenes` list.
+//!
 //! Each study of a sweep (a *shard*) has its own folder `<out>/<name>/`, its own plan, hashes
 //! and report, exactly as if it were run alone; `<out>/sweep.json` records the shards and
 //! `<out>/comparison.md` / `comparison.json` put them side by side.
@@ -52,8 +56,7 @@ pub fn load(path: &Path) -> Result<Loaded> {
     if path.is_dir() {
         return directory(path).map(Loaded::Sweep);
     }
-    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-        .map_err(|e| hilo_core::fs::FileError::io(path, e))?;
+    let text = crate::study::read_study_text(path)?;
     parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
 }
 
@@ -525,5 +528,39 @@ mod tests {
         std::fs::write(d.path().join("c.toml"), format!("scenes = [\"scenes/x.toml\"]\n{CONFIG}")).unwrap();
         let e = load(d.path()).unwrap_err().to_string();
         assert!(e.contains("c.toml") && e.contains("studies of one scene and catalog each"), "{e}");
+    }
+    /// `extends` lays a file over another study: tables merge field by field, lists and
+    /// `[[configurations]]` replace, `scenes` replaces the base's `scene`; a chain of two, a
+    /// base that is not there and a value that is not a path are refused by name.
+    #[test]
+    fn a_study_extends_another() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join("scene.toml"), include_str!("../../../fixtures/intersection.toml")).unwrap();
+        std::fs::write(d.path().join("other.toml"), include_str!("../../../fixtures/intersection.toml")).unwrap();
+        std::fs::write(d.path().join("base.toml"), format!("scene = \"scene.toml\"\n{CONFIG}")).unwrap();
+        let child = d.path().join("child.toml");
+        let write = |text: &str| std::fs::write(&child, text).unwrap();
+        write("extends = \"base.toml\"\n[dataset]\nscenes = 3\n");
+        let Loaded::Study(s) = load(&child).unwrap() else { panic!("not a study") };
+        let base = Study::load(&d.path().join("base.toml")).unwrap();
+        assert_eq!(s.file.dataset.scenes, 3);
+        assert_eq!(s.file.dataset.seconds, base.file.dataset.seconds, "[dataset] merges field by field");
+        assert_eq!(s.file.configurations, base.file.configurations);
+        write("extends = \"base.toml\"\nscenes = [\"scene.toml\", \"other.toml\"]\n");
+        let Loaded::Sweep(w) = load(&child).unwrap() else { panic!("not a sweep") };
+        assert_eq!(w.shards.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["scene", "other"]);
+        write("extends = \"base.toml\"\n[[configurations]]\nname = \"one\"\nsensors = { \"lidar-16\" = 1 }\n");
+        let Loaded::Study(s) = load(&child).unwrap() else { panic!("not a study") };
+        assert_eq!(s.file.configurations.len(), 1, "[[configurations]] replaces");
+        std::fs::write(d.path().join("middle.toml"), "extends = \"base.toml\"\n").unwrap();
+        for (text, needle) in [
+            ("extends = \"middle.toml\"\n", "extends another in turn"),
+            ("extends = \"missing.toml\"\n", "missing.toml"),
+            ("extends = 3\n", "extends = 3"),
+        ] {
+            write(text);
+            let e = load(&child).err().map(|e| e.to_string()).unwrap_or_default();
+            assert!(e.contains(needle), "{text:?}: {e}");
+        }
     }
 }
