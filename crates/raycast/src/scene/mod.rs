@@ -74,11 +74,26 @@ pub struct Scene {
     pub assumed: Vec<String>,
 }
 
-/// What the field would refuse in a scene whose numbers are each valid: a pole or street light
-/// standing on the carriageway (on a median is fine) or in the junction box, or inside a
-/// building; a building reaching into the junction box. Poles count by their centre; a
-/// building meets the box when a corner of either lies inside the other (a thin building laid
-/// across the box corner to corner without either is not caught).
+/// Whether two simple polygons overlap: a corner of either inside the other, or two edges
+/// crossing (a thin building laid across a road without a corner on it).
+fn polygons_overlap(a: &[Vec2], b: &[Vec2]) -> bool {
+    use layout::point_in_polygon as inside;
+    let cross = |o: Vec2, p: Vec2, q: Vec2| (p - o).perp_dot(q - o);
+    let edges = |v: &[Vec2]| -> Vec<(Vec2, Vec2)> { (0..v.len()).map(|i| (v[i], v[(i + 1) % v.len()])).collect() };
+    let crossing = |(p1, p2): (Vec2, Vec2), (q1, q2): (Vec2, Vec2)| {
+        let (d1, d2) = (cross(q1, q2, p1), cross(q1, q2, p2));
+        let (d3, d4) = (cross(p1, p2, q1), cross(p1, p2, q2));
+        d1 * d2 < 0.0 && d3 * d4 < 0.0
+    };
+    a.iter().any(|&v| inside(v, b))
+        || b.iter().any(|&v| inside(v, a))
+        || edges(a).into_iter().any(|e| edges(b).into_iter().any(|f| crossing(e, f)))
+}
+
+/// What the field would refuse in a scene whose numbers are each valid: a pole, street light
+/// or tree standing on the carriageway (on a median is fine) or in the junction box, a pole or
+/// light inside a building; a building reaching into the junction box or onto an arm's
+/// carriageway. Poles and trees count by their centre; a building by its footprint.
 fn plausible(cfg: &SceneConfig, layout: &Layout, file: &Path) -> Result<(), RaycastError> {
     use layout::point_in_polygon as inside;
     let err = |field: String, value: String, reason: String| RaycastError::Invalid {
@@ -89,22 +104,28 @@ fn plausible(cfg: &SceneConfig, layout: &Layout, file: &Path) -> Result<(), Rayc
     };
     let footprints: Vec<Vec<Vec2>> =
         cfg.buildings.iter().map(|b| b.footprint.iter().map(|p| Vec2::from(*p)).collect()).collect();
-    if layout.central.len() >= 3 {
-        for (k, f) in footprints.iter().enumerate() {
-            if f.iter().any(|&v| inside(v, &layout.central)) || layout.central.iter().any(|&v| inside(v, f)) {
-                return Err(err(
-                    format!("buildings[{k}].footprint"),
-                    format!("{} corners", f.len()),
-                    "reaches into the junction box, where the arms' traffic crosses".into(),
-                ));
-            }
+    for (k, f) in footprints.iter().enumerate() {
+        let in_box = (layout.central.len() >= 3 && polygons_overlap(f, &layout.central))
+            .then(|| "reaches into the junction box, where the arms' traffic crosses".to_owned());
+        // A building may stand beside a median, not on the lanes either side of it: the road
+        // polygon spans both carriageways, so a footprint wholly inside the median is allowed.
+        let on_road = layout
+            .arms
+            .iter()
+            .find(|a| {
+                polygons_overlap(f, &a.road) && !a.median.as_ref().is_some_and(|m| f.iter().all(|&v| inside(v, m)))
+            })
+            .map(|a| format!("reaches onto the carriageway of arm {:?}", a.name));
+        if let Some(why) = in_box.or(on_road) {
+            return Err(err(format!("buildings[{k}].footprint"), format!("{} corners", f.len()), why));
         }
     }
-    let standing =
-        cfg.signal_poles.iter().enumerate().map(|(i, p)| (format!("signal_poles[{i}].position"), p.position)).chain(
-            cfg.street_lights.iter().enumerate().map(|(i, s)| (format!("street_lights[{i}].position"), s.position)),
-        );
-    for (field, pos) in standing {
+    let poles = cfg.signal_poles.iter().enumerate().map(|(i, p)| (format!("signal_poles[{i}].position"), p.position));
+    let lights =
+        cfg.street_lights.iter().enumerate().map(|(i, s)| (format!("street_lights[{i}].position"), s.position));
+    let trees = cfg.trees.iter().enumerate().map(|(i, t)| (format!("trees[{i}].position"), t.position));
+    let standing = poles.map(|(f, p)| (f, p, "pole")).chain(lights.map(|(f, p)| (f, p, "pole")));
+    for (field, pos, what) in standing.chain(trees.map(|(f, p)| (f, p, "tree"))) {
         let p = Vec2::from(pos);
         let on_road = layout
             .arms
@@ -118,7 +139,7 @@ fn plausible(cfg: &SceneConfig, layout: &Layout, file: &Path) -> Result<(), Rayc
             return Err(err(
                 field,
                 format!("{pos:?}"),
-                format!("{why}; a pole stands on a sidewalk, a median or the verge"),
+                format!("{why}; a {what} stands on a sidewalk, a median or the verge"),
             ));
         }
     }

@@ -1,0 +1,93 @@
+//! The site library (`fixtures/sites/`): structurally different junctions, each a scene hilo
+//! builds and the field would accept (poles, lights and trees off the carriageway, buildings
+//! off the roads and out of the junction box), and the imported real junctions equal to a fresh
+//! import of their OpenDRIVE file, so the committed scene is what the importer makes today.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use hilo_raycast::Scene;
+use hilo_raycast::scene::config::SceneConfig;
+use hilo_raycast::scene::opendrive::{JunctionPick, import_file, scene_toml};
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn sites() -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("fixtures/sites"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn every_site_builds_with_mounts_arms_and_regions_of_interest() {
+    let all = sites();
+    assert!(all.len() >= 6, "{all:?}");
+    let mut names = Vec::new();
+    let mut arm_counts = Vec::new();
+    for p in &all {
+        let scene = Scene::load(p).unwrap_or_else(|e| panic!("{e}"));
+        let n_arms = scene.layout.arms.len();
+        assert!((3..=6).contains(&n_arms), "{}: {n_arms} arms", p.display());
+        assert!(scene.mounts.len() >= 2, "{}: {} mounting structures", p.display(), scene.mounts.len());
+        assert!(!scene.rois.is_empty(), "{}: no regions of interest", p.display());
+        names.push(scene.config.name.clone());
+        arm_counts.push(n_arms);
+    }
+    names.sort();
+    names.dedup();
+    assert_eq!(names.len(), all.len(), "two sites share a name");
+    // Structurally different: three, four and five arms are all there.
+    for n in [3, 4, 5] {
+        assert!(arm_counts.contains(&n), "no site with {n} arms: {arm_counts:?}");
+    }
+}
+
+/// The imported sites are what `hilo scene import` writes today from the committed maps.
+#[test]
+fn imported_sites_equal_a_fresh_import() {
+    for (site, map, junction) in [
+        ("fabriksgatan.toml", "fixtures/opendrive/fabriksgatan_traffic_lights.xodr", "4"),
+        ("three_arm_grid.toml", "fixtures/opendrive/multi_intersections.xodr", "150"),
+    ] {
+        let imported = import_file(&root().join(map), &JunctionPick::id(junction)).unwrap();
+        let fresh = scene_toml(&imported, Path::new(map)).unwrap();
+        let committed = std::fs::read_to_string(root().join("fixtures/sites").join(site)).unwrap();
+        assert_eq!(committed, fresh, "{site}: import it again with `hilo scene import {map} --junction {junction}`");
+    }
+}
+
+fn default_config() -> SceneConfig {
+    SceneConfig::load(&root().join("fixtures/intersection.toml")).unwrap()
+}
+
+fn refused(cfg: SceneConfig, needle: &str) {
+    let path = Path::new("edited.toml");
+    let e = Scene::from_config(cfg, Path::new("."), path).err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(e.contains(needle), "{needle}: {e}");
+}
+
+/// A building laid across an arm with no corner on the road (its edges cross the road's) is
+/// refused, as is one in the lanes; a tree on the lanes is refused; median trees (the default
+/// fixture's) are not.
+#[test]
+fn buildings_and_trees_on_the_carriageway_are_refused() {
+    let mut cfg = default_config();
+    // The east arm runs along y = 0 from the box to x = 130: a thin slab from y = -40 to 40.
+    cfg.buildings[0].footprint = vec![[80.0, -40.0], [82.0, -40.0], [82.0, 40.0], [80.0, 40.0]];
+    refused(cfg, "buildings[0].footprint");
+    let mut cfg = default_config();
+    cfg.buildings[0].footprint = vec![[60.0, 3.0], [66.0, 3.0], [66.0, 8.0], [60.0, 8.0]];
+    refused(cfg, "reaches onto the carriageway of arm \"east\"");
+    let mut cfg = default_config();
+    cfg.trees[0].position = [60.0, 5.0];
+    refused(cfg, "trees[0].position");
+    let cfg = default_config();
+    assert!(cfg.trees.iter().any(|t| t.position[1] == 0.0), "the default has median trees");
+    Scene::from_config(cfg, Path::new("."), Path::new("intersection.toml")).unwrap();
+}
