@@ -103,4 +103,16 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
         sides("second_viewpoint"),
         (vec![g("1x lidar-64", "centerpoint")], vec![g("2x lidar-16", "centerpoint")], None)
     );
+    // With the cheap radar rig and the 64-beam LiDAR alone (the quick profile's first two), the
+    // only LiDAR-only rig costs more than the radar rig: the radar's claims are not tested
+    // rather than comparing the two rigs again under the radar's name.
+    let two = Design { configurations: &rigs[..2], ..design };
+    assert_eq!((rigs[0].0.as_str(), rigs[1].0.as_str()), (cheap, "1x lidar-64"));
+    let claims = two.claims();
+    for id in ["radar_adds", "radar_adds_velocity"] {
+        let c = claims.iter().find(|c| c.id == id).unwrap();
+        assert!(c.rows.is_empty() && c.not_tested.as_deref().is_some_and(|w| w.contains("costs less")), "{id}: {c:?}");
+    }
+    let c = claims.iter().find(|c| c.id == "vs_lidar_alone").unwrap();
+    assert!(c.not_tested.is_none() && !c.rows.is_empty());
 }
