@@ -97,17 +97,13 @@ impl Check for DetectorConfig {
     fn check(&self) -> std::result::Result<(), FusionError> {
         self.grid.validate()?;
         self.input.validate()?;
-        if !(self.velocity_weight.is_finite() && self.velocity_weight >= 0.0) {
-            return Err(FusionError::field(
-                format!("detector {}: velocity_weight", self.name),
-                self.velocity_weight,
-                "must be finite and ≥ 0",
-            ));
-        }
-        let b = &self.backbone;
         let bad = |field: String, value: &dyn std::fmt::Display, reason: String| {
             Err(FusionError::field(format!("detector {}: {field}", self.name), value, reason))
         };
+        if !(self.velocity_weight.is_finite() && self.velocity_weight >= 0.0) {
+            return bad("velocity_weight".into(), &self.velocity_weight, "must be finite and ≥ 0".into());
+        }
+        let b = &self.backbone;
         let channels = format!("give 1 to {}", limits::CHANNELS);
         if b.blocks.len() > limits::BLOCKS {
             return bad("backbone.blocks".into(), &b.blocks.len(), format!("at most {} blocks", limits::BLOCKS));
@@ -127,26 +123,17 @@ impl Check for DetectorConfig {
             return bad("head_channels".into(), &self.head_channels, format!("at most {}", limits::CHANNELS));
         }
         if b.blocks.is_empty() || !b.out_stride.is_power_of_two() {
-            return Err(FusionError::field(
-                format!("detector {}: backbone.out_stride", self.name),
-                b.out_stride,
-                format!("the backbone needs blocks ({} given) and a power-of-two out_stride", b.blocks.len()),
-            ));
+            let why = format!("the backbone needs blocks ({} given) and a power-of-two out_stride", b.blocks.len());
+            return bad("backbone.out_stride".into(), &b.out_stride, why);
         }
         if let Some(k) = b.blocks.iter().position(|x| x.stride != 1 && x.stride != 2) {
-            return Err(FusionError::field(
-                format!("detector {}: backbone.blocks[{k}].stride", self.name),
-                b.blocks[k].stride,
-                "must be 1 or 2",
-            ));
+            return bad(format!("backbone.blocks[{k}].stride"), &b.blocks[k].stride, "must be 1 or 2".into());
         }
         let total: usize = b.blocks.iter().map(|x| x.stride).product();
         if !self.grid.cells().is_multiple_of(total) || b.out_stride > total {
-            return Err(FusionError::field(
-                format!("detector {}: backbone.out_stride", self.name),
-                b.out_stride,
-                format!("it and the backbone's stride {total} must divide the grid's {} cells", self.grid.cells()),
-            ));
+            let why =
+                format!("it and the backbone's stride {total} must divide the grid's {} cells", self.grid.cells());
+            return bad("backbone.out_stride".into(), &b.out_stride, why);
         }
         Ok(())
     }

@@ -351,10 +351,7 @@ pub fn read_study_text(path: &Path) -> Result<String> {
     };
     let base_path = path.parent().unwrap_or(Path::new(".")).join(&base);
     let content = |p: &Path, e: &dyn std::fmt::Display| {
-        StudyError::from(hilo_core::fs::FileError::Content {
-            path: p.to_path_buf(),
-            message: format!("invalid study: {e}"),
-        })
+        StudyError::from(hilo_core::fs::FileError::content(p, format!("invalid study: {e}")))
     };
     let mut merged: toml::Table = toml::from_str(&read(&base_path)?).map_err(|e| content(&base_path, &e))?;
     if merged.contains_key(EXTENDS_KEY) {

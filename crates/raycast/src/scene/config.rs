@@ -364,13 +364,23 @@ impl Check<'_> {
 /// well under a second.
 pub const MAX_POLYGON_POINTS: usize = 4096;
 
+/// Twice the signed area of the triangle o, a, b, in f64: positive when b lies to the left of
+/// o → a.
+fn cross(o: [f32; 2], a: [f32; 2], b: [f32; 2]) -> f64 {
+    (a[0] as f64 - o[0] as f64) * (b[1] as f64 - o[1] as f64)
+        - (a[1] as f64 - o[1] as f64) * (b[0] as f64 - o[0] as f64)
+}
+
+/// Whether segments a–b and c–d cross at a point inside both (touching is not crossing).
+pub(crate) fn segments_cross(a: [f32; 2], b: [f32; 2], c: [f32; 2], d: [f32; 2]) -> bool {
+    let (d1, d2) = (cross(c, d, a), cross(c, d, b));
+    let (d3, d4) = (cross(a, b, c), cross(a, b, d));
+    (d1 > 0.0) != (d2 > 0.0) && d1 != 0.0 && d2 != 0.0 && (d3 > 0.0) != (d4 > 0.0) && d3 != 0.0 && d4 != 0.0
+}
+
 /// The first pair of non-adjacent edges of a closed polygon that touch or cross, if any.
 pub fn self_intersection(poly: &[[f32; 2]]) -> Option<(usize, usize)> {
     let n = poly.len();
-    let cross = |o: [f32; 2], a: [f32; 2], b: [f32; 2]| {
-        (a[0] as f64 - o[0] as f64) * (b[1] as f64 - o[1] as f64)
-            - (a[1] as f64 - o[1] as f64) * (b[0] as f64 - o[0] as f64)
-    };
     let on = |p: [f32; 2], a: [f32; 2], b: [f32; 2]| {
         cross(a, b, p).abs() < 1e-9
             && p[0] >= a[0].min(b[0])
@@ -379,13 +389,7 @@ pub fn self_intersection(poly: &[[f32; 2]]) -> Option<(usize, usize)> {
             && p[1] <= a[1].max(b[1])
     };
     let meet = |a: [f32; 2], b: [f32; 2], c: [f32; 2], d: [f32; 2]| {
-        let (d1, d2) = (cross(c, d, a), cross(c, d, b));
-        let (d3, d4) = (cross(a, b, c), cross(a, b, d));
-        ((d1 > 0.0) != (d2 > 0.0) && d1 != 0.0 && d2 != 0.0 && (d3 > 0.0) != (d4 > 0.0) && d3 != 0.0 && d4 != 0.0)
-            || on(a, c, d)
-            || on(b, c, d)
-            || on(c, a, b)
-            || on(d, a, b)
+        segments_cross(a, b, c, d) || on(a, c, d) || on(b, c, d) || on(c, a, b) || on(d, a, b)
     };
     for i in 0..n {
         for j in i + 2..n {

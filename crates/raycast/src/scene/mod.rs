@@ -78,16 +78,13 @@ pub struct Scene {
 /// crossing (a thin building laid across a road without a corner on it).
 fn polygons_overlap(a: &[Vec2], b: &[Vec2]) -> bool {
     use layout::point_in_polygon as inside;
-    let cross = |o: Vec2, p: Vec2, q: Vec2| (p - o).perp_dot(q - o);
-    let edges = |v: &[Vec2]| -> Vec<(Vec2, Vec2)> { (0..v.len()).map(|i| (v[i], v[(i + 1) % v.len()])).collect() };
-    let crossing = |(p1, p2): (Vec2, Vec2), (q1, q2): (Vec2, Vec2)| {
-        let (d1, d2) = (cross(q1, q2, p1), cross(q1, q2, p2));
-        let (d3, d4) = (cross(p1, p2, q1), cross(p1, p2, q2));
-        d1 * d2 < 0.0 && d3 * d4 < 0.0
+    let edges = |v: &[Vec2]| -> Vec<([f32; 2], [f32; 2])> {
+        (0..v.len()).map(|i| (v[i].to_array(), v[(i + 1) % v.len()].to_array())).collect()
     };
+    let (ea, eb) = (edges(a), edges(b));
     a.iter().any(|&v| inside(v, b))
         || b.iter().any(|&v| inside(v, a))
-        || edges(a).into_iter().any(|e| edges(b).into_iter().any(|f| crossing(e, f)))
+        || ea.iter().any(|&(p, q)| eb.iter().any(|&(r, s)| config::segments_cross(p, q, r, s)))
 }
 
 /// What the field would refuse in a scene whose numbers are each valid: a pole, street light
