@@ -250,7 +250,14 @@ pub fn assemble(
         if range_bins.is_empty() {
             range_bins = bins.iter().map(|b| (b.label.clone(), b.gt_boxes.clone())).collect();
         }
-        let (full, vel, scores) = score(pred)?;
+        let (full, vel, mut scores) = score(pred)?;
+        // The nuScenes convention beside it, under the same scene draws: the claims' other reading.
+        let (_, _, vis) = bootstrap_scores(&visible[conf], pred, &eval_cfg, &scenes, &draws)?;
+        for m in crate::verdict::METRICS {
+            if let Some(s) = vis.get(m) {
+                scores.insert(crate::verdict::visible_only(m), s.clone());
+            }
+        }
         let meta = &metas[&(conf.clone(), preset.clone(), *seed)];
         let vm = hilo_eval::evaluate_files(&visible[conf], pred, &eval_cfg);
         let six = |values: &BTreeMap<String, f64>| per_class(&class_boxes, values);
@@ -582,13 +589,15 @@ fn calibrate(design: &Design, planted: &[DetectorScores], share: f64) -> Calibra
         .map(|(a, b)| crate::stats::compare(a, b, sv, design.scenes, design.level))
         .collect();
     let found = tests.iter().filter(|t| t.estimable && t.p < alpha && t.estimate < 0.0).count();
+    let interval = crate::stats::binomial_interval(fp, aa.len(), 0.95);
     Calibration {
         alpha,
         pairs: aa.len(),
         false_positives: fp,
         false_positive_rate: fp as f64 / aa.len().max(1) as f64,
-        false_positive_interval: crate::stats::binomial_interval(fp, aa.len(), 0.95),
+        false_positive_interval: interval,
         held_out: true,
+        reading: (!aa.is_empty()).then(|| crate::verdict::CalibrationReading::of(interval, alpha)),
         planted_drop_share: share,
         planted_pairs: tests.len(),
         planted_mean_effect: tests.iter().map(|t| t.estimate).sum::<f64>() / tests.len().max(1) as f64,

@@ -416,7 +416,7 @@ fn md_claims(md: &mut String, r: &Report) {
     let p = &r.profile;
     let _ = writeln!(
         md,
-        "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds, `p` Holm-adjusted over every test of this report. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *equivalent* (not significant, and within ±{:.3} by two one-sided tests; ±{:.2} m/s for a velocity error), *budget-bound* (its sign changed over the last doubling of training), *undecided*. `vs paper`: where the interval lies against the paper's number; `MDE`: the smallest true difference this design finds with 80% power. Velocity errors (mAVE, car AVE; m/s) are errors: their claims are supported when B − A is below 0.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | vs paper | MDE | verdict |\n|---|---|---|---:|---|---:|---|---:|---|",
+        "## The paper's claims\n\nEach row is B − A; `paper` is the paper's number (AP points as a fraction), `hilo` the estimate with its 95% interval over scenes and seeds (Student's t with Welch–Satterthwaite degrees of freedom), `p` Holm-adjusted over the claims' own rows (the rig comparisons and the other readings are families of their own). Rows marked ↳ read the same question another way and do not decide the claim: *visible-only ground truth* scores each rig under the nuScenes convention (only boxes with a point of that rig; common ground truth, the default, counts every road user the rig should have seen), and *the paper's averaging* takes the mean of the fusion presets against the LiDAR-only baseline, as the paper's +7.7 and +3.1 do. Verdict: *supported* (significant in the paper's direction), *contradicted* (significant against it), *equivalent* (not significant, and within ±{:.3} by two one-sided tests; ±{:.2} m/s for a velocity error), *budget-bound* (its sign changed over the last doubling of training), *undecided*. `vs paper`: where the interval lies against the paper's number; `MDE`: the smallest true difference this design finds with 80% power. Velocity errors (mAVE, car AVE; m/s) are errors: their claims are supported when B − A is below 0.\n\n| claim | metric | B − A | paper | hilo [95%] | adjusted p | vs paper | MDE | verdict |\n|---|---|---|---:|---|---:|---|---:|---|",
         r.margin, r.velocity_margin_m_s
     );
     for c in &r.claims {
@@ -435,6 +435,22 @@ fn md_claims(md: &mut String, r: &Report) {
                 md,
                 "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 esc(&c.statement),
+                row.metric,
+                esc(&row.comparison),
+                row.paper.map_or("–".into(), |v| format!("{v:+.3}")),
+                est,
+                pv,
+                row.paper_relation.map_or("–", relation_word),
+                if row.mde.is_finite() { format!("{:.3}", row.mde) } else { "–".into() },
+                verdict_word(row.verdict)
+            );
+        }
+        for row in &c.readings {
+            let (est, pv) = test_cells(&row.test);
+            let _ = writeln!(
+                md,
+                "| ↳ {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                esc(row.reading.as_deref().unwrap_or("")),
                 row.metric,
                 esc(&row.comparison),
                 row.paper.map_or("–".into(), |v| format!("{v:+.3}")),
@@ -671,14 +687,14 @@ fn md_comparisons(md: &mut String, r: &Report) {
     if !r.comparisons.is_empty() {
         let _ = writeln!(
             md,
-            "\n## Is the difference real?\n\nThe rig under study (the cheapest configuration with a radar) against each other one, per preset: B − A with its 95% interval, whose standard error combines the scene bootstrap (paired: the same traffic) and the pooled seed variance; p Holm-adjusted over every test of this report.\n\n| metric | B | A | B − A [95%] | SE (scenes, seeds) | p | adjusted p |\n|---|---|---|---|---|---:|---:|"
+            "\n## Is the difference real?\n\nThe rig under study (the cheapest configuration with a radar) against each other one, per preset: B − A with its 95% interval, whose standard error combines the scene bootstrap (paired: the same traffic) and the pooled seed variance net of the scene noise the bootstrap already carries, with Welch–Satterthwaite degrees of freedom; p Holm-adjusted over these rig comparisons, a family of their own.\n\n| metric | B | A | B − A [95%] | SE (scenes, seeds) | df | p | adjusted p |\n|---|---|---|---|---|---:|---:|---:|"
         );
         for c in &r.comparisons {
             let (est, _) = test_cells(&c.test);
             let t = &c.test;
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {} | {:.4} ({:.4}, {:.4}) | {} | {} |",
+                "| {} | {} | {} | {} | {:.4} ({:.4}, {:.4}) | {} | {} | {} |",
                 c.metric,
                 esc(&c.b),
                 esc(&c.a),
@@ -686,6 +702,7 @@ fn md_comparisons(md: &mut String, r: &Report) {
                 t.se,
                 t.se_scenes,
                 t.se_seeds,
+                if t.df.is_finite() && t.df > 0.0 { format!("{:.0}", t.df) } else { "–".into() },
                 if t.p.is_finite() { format!("{:.3}", t.p) } else { "–".into() },
                 if t.p_adjusted.is_finite() { format!("{:.3}", t.p_adjusted) } else { "–".into() }
             );
@@ -695,20 +712,40 @@ fn md_comparisons(md: &mut String, r: &Report) {
     let sv = cal.seed_variance.get("mAP");
     let _ = writeln!(
         md,
-        "\n## Calibration of the test\n\nOn {} A/A pairs (two seeds of one configuration and preset), each tested with the seed variance of the other groups only (so the test is not calibrated by the pairs it judges), the test called {} significant at α = {}: a false-positive rate of {:.3} [{:.3}, {:.3}] (exact 95% interval). A planted degradation ({:.0}% of every detector's boxes dropped, a mean mAP change of {:+.3}) was found in {:.0}% of {} groups. Seed standard deviation of mAP (pooled over every group): {:.4} ({} degrees of freedom).\n",
+        "\n## Calibration of the test\n\nOn {} A/A pairs (two seeds of one configuration and preset), each tested with the seed variance of the other groups only (so the test is not calibrated by the pairs it judges), the test called {} significant at α = {}: a false-positive rate of {:.3} [{:.3}, {:.3}] (exact 95% interval){} A planted degradation ({:.0}% of every detector's boxes dropped, a mean mAP change of {:+.3}) was found in {:.0}% of {} groups. Seed standard deviation of mAP (pooled over every group): {:.4} ({} degrees of freedom), of which the scene bootstrap already carries {:.4}; the seed component proper is {:.4}.\n",
         cal.pairs,
         cal.false_positives,
         cal.alpha,
         cal.false_positive_rate,
         cal.false_positive_interval.0,
         cal.false_positive_interval.1,
+        calibration_words(cal),
         100.0 * cal.planted_drop_share,
         cal.planted_mean_effect,
         100.0 * cal.power,
         cal.planted_pairs,
         sv.map_or(f64::NAN, |s| s.variance.sqrt()),
-        sv.map_or(0, |s| s.df)
+        sv.map_or(0, |s| s.df),
+        sv.map_or(f64::NAN, |s| s.within.sqrt()),
+        sv.map_or(f64::NAN, |s| s.seed_only().sqrt()),
     );
+}
+
+/// What the A/A rate's interval says against α: a warning when it excludes α either way.
+fn calibration_words(cal: &crate::verdict::Calibration) -> String {
+    use crate::verdict::CalibrationReading::*;
+    match cal.reading {
+        Some(Nominal) => format!(", which holds the nominal {}.", cal.alpha),
+        Some(Conservative) => format!(
+            ". **Warning: conservative.** The interval lies below the nominal {}: the standard errors are larger than the seeds' spread bears out, and the verdicts lose power (more *undecided* than the data warrant).",
+            cal.alpha
+        ),
+        Some(Liberal) => format!(
+            ". **Warning: liberal.** The interval lies above the nominal {}: the standard errors are too small, and a *supported* or *contradicted* verdict may be a chance result.",
+            cal.alpha
+        ),
+        None => ".".into(),
+    }
 }
 
 /// The learning curves and whether the ranking held over the last doubling.

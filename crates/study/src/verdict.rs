@@ -11,6 +11,12 @@ use std::collections::BTreeMap;
 /// The metrics a verdict compares.
 pub const METRICS: [&str; 2] = ["mAP", "pedestrian AP"];
 
+/// The name of a metric of [`METRICS`] scored under the nuScenes convention (boxes with at least
+/// one point of the rig), beside the common ground truth.
+pub fn visible_only(metric: &str) -> String {
+    format!("{metric}, visible-only")
+}
+
 /// The velocity errors the velocity claims compare (m/s, lower is better): the devkit's mAVE
 /// (over the classes present) and the car AVE (the moving class the radar's Doppler serves
 /// most).
@@ -133,6 +139,10 @@ pub struct ClaimRow {
     /// The smallest true difference this design finds with 80% power at α = 0.05.
     #[serde(default = "nan")]
     pub mde: f64,
+    /// For a claim's other readings ([`Claim::readings`]): which one (visible-only ground
+    /// truth, the paper's averaging); None on the claim's own rows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reading: Option<String>,
 }
 
 fn nan() -> f64 {
@@ -177,6 +187,37 @@ pub struct Claim {
     /// The weather condition it is judged in (`[[conditions]]`); None: the study's own weather.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub condition: Option<String>,
+    /// The same question read other ways, each row labelled: under the nuScenes convention
+    /// (visible-only ground truth), and for the fusion claims the paper's averaging (the mean
+    /// of the fusion presets against the LiDAR-only baseline). A family of their own for Holm;
+    /// they do not decide the claim's verdict.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub readings: Vec<ClaimRow>,
+}
+
+/// How a calibration's A/A false-positive rate reads against the nominal α.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CalibrationReading {
+    /// The rate's interval holds α.
+    Nominal,
+    /// The rate's interval lies below α: the standard errors are too large and power is lost.
+    Conservative,
+    /// The rate's interval lies above α: the standard errors are too small.
+    Liberal,
+}
+
+impl CalibrationReading {
+    /// Where the exact interval of the false-positive rate lies against `alpha`.
+    pub fn of(interval: (f64, f64), alpha: f64) -> CalibrationReading {
+        if interval.1 < alpha {
+            CalibrationReading::Conservative
+        } else if interval.0 > alpha {
+            CalibrationReading::Liberal
+        } else {
+            CalibrationReading::Nominal
+        }
+    }
 }
 
 /// The test's measured calibration in this study.
@@ -194,6 +235,9 @@ pub struct Calibration {
     /// (leave one group out), so that the test cannot be calibrated by the pairs it judges.
     #[serde(default)]
     pub held_out: bool,
+    /// Where the rate's interval lies against α (None in reports written before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reading: Option<CalibrationReading>,
     /// A planted degradation (a share of every box dropped) against the undegraded seeds.
     pub planted_drop_share: f64,
     pub planted_pairs: usize,
@@ -257,10 +301,10 @@ impl Design<'_> {
 
     /// The pooled seed variance of a metric over every (configuration, preset) group.
     pub fn seed_variance(&self, metric: &str) -> SeedVariance {
-        let mut groups: BTreeMap<(&str, &str), Vec<f64>> = BTreeMap::new();
+        let mut groups: BTreeMap<(&str, &str), Vec<&Scores>> = BTreeMap::new();
         for d in self.scores {
             if let Some(s) = d.scores.get(metric) {
-                groups.entry((&d.configuration, &d.preset)).or_default().push(s.full);
+                groups.entry((&d.configuration, &d.preset)).or_default().push(s);
             }
         }
         pooled_seed_variance(&groups.into_values().collect::<Vec<_>>())
@@ -273,6 +317,73 @@ impl Design<'_> {
         let finite = !lower_is_better(metric) || a.iter().chain(&b).all(|s| s.full.is_finite());
         (!a.is_empty() && !b.is_empty() && finite)
             .then(|| compare(&a, &b, self.seed_variance(metric), self.scenes, self.level))
+    }
+
+    /// B − A where each side is a set of detector groups (configuration, preset): every group
+    /// weighs the same within its side and every seed the same within its group (one group a
+    /// side is a plain comparison). None when a group has no detector, or for a velocity error
+    /// that is not finite.
+    fn groups_test(&self, metric: &str, a: &[(String, String)], b: &[(String, String)]) -> Option<Test> {
+        let side = |groups: &[(String, String)]| -> Option<(Vec<(&Scores, f64)>, f64)> {
+            let n = groups.len() as f64;
+            let (mut w, mut term) = (Vec::new(), 0.0);
+            for (c, p) in groups {
+                let s = self.seeds(c, p, metric);
+                if s.is_empty() || (lower_is_better(metric) && s.iter().any(|x| !x.full.is_finite())) {
+                    return None;
+                }
+                let m = s.len() as f64;
+                w.extend(s.into_iter().map(|x| (x, 1.0 / (n * m))));
+                term += 1.0 / (n * n * m);
+            }
+            (!groups.is_empty()).then_some((w, term))
+        };
+        let ((wa, ta), (wb, tb)) = (side(a)?, side(b)?);
+        Some(test(&wa, &wb, self.seed_variance(metric), ta + tb, self.scenes, self.level))
+    }
+
+    /// A claim's other readings: each of its rows on [`METRICS`] under the visible-only ground
+    /// truth; and for the fusion claims, the paper's averaging (every fusion preset of the rig
+    /// against the row's LiDAR-only baseline, the fusion presets averaged), in both
+    /// conventions, when the rig has more than one fusion preset.
+    fn readings(&self, c: &Claim) -> Vec<ClaimRow> {
+        let mut out = Vec::new();
+        let paper_way = matches!(c.id.split('@').next(), Some("fusion_vs_lidar_only" | "fusion_over_pointpillars"));
+        for r in c.rows.iter().filter(|r| METRICS.contains(&r.metric.as_str())) {
+            let vis = visible_only(&r.metric);
+            if let Some(t) = self.groups_test(&vis, &r.a, &r.b) {
+                let mut v = row(&vis, r.comparison.clone(), r.paper, t);
+                (v.a, v.b, v.reading) = (r.a.clone(), r.b.clone(), Some("visible-only ground truth".into()));
+                out.push(v);
+            }
+            let Some((conf, _)) = r.b.first().filter(|_| paper_way && r.a.len() == 1 && r.b.len() == 1) else {
+                continue;
+            };
+            let fusions: Vec<(String, String)> = self
+                .presets
+                .iter()
+                .filter(|p| {
+                    self.uses_radar.get(*p).copied().unwrap_or(false) && !self.seeds(conf, p, &r.metric).is_empty()
+                })
+                .map(|p| (conf.clone(), p.clone()))
+                .collect();
+            if fusions.len() < 2 {
+                continue;
+            }
+            let names: Vec<&str> = fusions.iter().map(|f| f.1.as_str()).collect();
+            let what = format!("mean of {} − {} on {conf}", names.join(", "), r.a[0].1);
+            for (metric, label) in [
+                (r.metric.clone(), "the paper's averaging (the mean of the fusion presets)"),
+                (vis.clone(), "the paper's averaging, visible-only ground truth"),
+            ] {
+                if let Some(t) = self.groups_test(&metric, &r.a, &fusions) {
+                    let mut v = row(&metric, what.clone(), r.paper, t);
+                    (v.a, v.b, v.reading) = (r.a.clone(), fusions.clone(), Some(label.into()));
+                    out.push(v);
+                }
+            }
+        }
+        out
     }
 
     /// A claim of B − A on each of [`VELOCITY_METRICS`] that both sides have (not tested when
@@ -406,6 +517,9 @@ impl Design<'_> {
                 claims.push(c);
             }
         }
+        for c in &mut claims {
+            c.readings = self.readings(c);
+        }
         claims
     }
 
@@ -443,15 +557,27 @@ impl Design<'_> {
             ),
         };
         claims.push(c1);
-        // 2. Against the high-resolution LiDAR with the same radar, same detector (pooled).
-        let st2 = "Two cheap LiDARs and a radar beat one high-resolution LiDAR and a radar with the same detector";
+        // 2. Against the high-resolution LiDAR with the same radar, same detector (pooled over
+        // presets), supported only when every preset's own difference favours the cheap rig: the
+        // paper's "whichever module is used".
+        let st2 = "Two cheap LiDARs and a radar beat one high-resolution LiDAR and a radar with the same \
+                   detector, whichever module is used";
         let c2 = match (cheap, dear_radar) {
             (Some(c), Some(d)) if c != d => {
+                let mut per = BTreeMap::new();
                 let rows = [("mAP", Some(0.015)), ("pedestrian AP", None)]
                     .iter()
-                    .filter_map(|(m, paper)| self.pooled_row(m, d, c, *paper).map(|(r, _)| r))
+                    .filter_map(|(m, paper)| {
+                        let (r, p) = self.pooled_row(m, d, c, *paper)?;
+                        if *m == "mAP" {
+                            per = p;
+                        }
+                        Some(r)
+                    })
                     .collect();
-                claim("vs_lidar_radar", st2, rows, None)
+                let mut cl = claim("vs_lidar_radar", st2, rows, None);
+                cl.per_preset = per;
+                cl
             }
             _ => claim("vs_lidar_radar", st2, vec![], Some("needs two configurations with radar".into())),
         };
@@ -607,20 +733,11 @@ impl Design<'_> {
         claims
     }
 
-    /// The cheap rig's advantage over the other radar rigs, over every preset.
+    /// The cheap rig's advantage over a mid-resolution radar rig, over every preset (against
+    /// the dearest radar rig: `vs_lidar_radar`).
     fn claims_pooled(&self) -> Vec<Claim> {
         let (cheap, dear_radar, _) = self.roles();
-        let mut claims = Vec::new();
-        // 5. Whichever module: the cheap rig's advantage over the dear radar rig, per preset.
-        let c5 = self.pooled_claim(
-            "whichever_module",
-            "The cheap rig's advantage holds whichever detector module is used",
-            cheap.zip(dear_radar).filter(|(c, d)| c != d).map(|(c, d)| (d, c)),
-            0.015,
-            "needs two configurations with radar",
-        );
-        claims.push(c5);
-        // 6. Against a mid-resolution LiDAR and a radar (a radar rig between the cheapest and
+        // 5. Against a mid-resolution LiDAR and a radar (a radar rig between the cheapest and
         // the dearest), pooled over presets.
         let mid = self
             .configurations
@@ -635,8 +752,7 @@ impl Design<'_> {
             0.032,
             "needs a third configuration with radar, between the cheapest and the dearest",
         );
-        claims.push(c6);
-        claims
+        vec![c6]
     }
 
     /// [`Self::pooled`] as a claim row "b − a, mean over presets" with each side's groups, and
@@ -730,6 +846,7 @@ fn row(metric: &str, what: String, paper: Option<f64>, t: Test) -> ClaimRow {
         paper_relation: None,
         tost_p: f64::NAN,
         mde: f64::NAN,
+        reading: None,
     }
 }
 
@@ -753,6 +870,7 @@ fn claim(id: &str, statement: &str, rows: Vec<ClaimRow>, missing: Option<String>
         paper_relation: None,
         mde: None,
         condition: None,
+        readings: Vec::new(),
     }
 }
 
@@ -808,34 +926,42 @@ impl PresetRoles {
     }
 }
 
-/// Holm-adjusts a family of tests (claims' rows and comparisons together) and sets each claim
-/// row's and claim's verdict. A row is supported when it is significant in the claim's favoured
-/// direction (B − A > 0; B − A < 0 for an error such as mAVE), contradicted when significant
-/// against it, equivalent when not significant and its TOST against ± its metric's margin is
-/// (unadjusted p < α), undecided otherwise. A claim is contradicted when a row is, supported when
-/// every row is (and every preset's own difference is positive), equivalent when every row is,
-/// undecided otherwise. Each row also gets where its interval lies against the paper's number
-/// and its minimum detectable effect (80% power).
+/// Holm-adjusts each family of tests and sets each claim row's and claim's verdict. Three
+/// families, each adjusted on its own: the paper's claims (every claim's own rows), the rig
+/// comparisons, and the claims' other readings ([`Claim::readings`]). A row is supported when
+/// it is significant in the claim's favoured direction (B − A > 0; B − A < 0 for an error such
+/// as mAVE), contradicted when significant against it, equivalent when not significant and its
+/// TOST against ± its metric's margin is (unadjusted p < α), undecided otherwise. A claim is
+/// contradicted when a row is, supported when every row is (and every preset's own difference
+/// is positive), equivalent when every row is, undecided otherwise; its readings do not decide
+/// it. Each row also gets where its interval lies against the paper's number and its minimum
+/// detectable effect (80% power).
 pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64, margins: Margins) {
-    let mut p: Vec<f64> = claims.iter().flat_map(|c| c.rows.iter().map(|r| r.test.p)).collect();
-    p.extend(comparisons.iter().map(|c| c.test.p));
-    let adj = holm(&p);
-    let mut k = 0;
+    let judge = |r: &mut ClaimRow, p_adjusted: f64| {
+        r.test.p_adjusted = p_adjusted;
+        r.tost_p = tost_p(&r.test, margins.of(&r.metric));
+        r.mde = if r.test.estimable { mde(r.test.se, r.test.df, alpha, 0.8) } else { f64::NAN };
+        r.paper_relation = r.paper.and_then(|x| paper_relation(r.test.lo, r.test.hi, x));
+        r.verdict = if r.test.estimable && r.test.p_adjusted < alpha {
+            let gain = if lower_is_better(&r.metric) { -r.test.estimate } else { r.test.estimate };
+            if gain > 0.0 { Verdict::Supported } else { Verdict::Contradicted }
+        } else if r.tost_p < alpha {
+            Verdict::Equivalent
+        } else {
+            Verdict::Undecided
+        };
+    };
+    let own = holm(&claims.iter().flat_map(|c| c.rows.iter().map(|r| r.test.p)).collect::<Vec<_>>());
+    let other = holm(&claims.iter().flat_map(|c| c.readings.iter().map(|r| r.test.p)).collect::<Vec<_>>());
+    let (mut k, mut j) = (0, 0);
     for c in claims.iter_mut() {
         for r in &mut c.rows {
-            r.test.p_adjusted = adj[k];
+            judge(r, own[k]);
             k += 1;
-            r.tost_p = tost_p(&r.test, margins.of(&r.metric));
-            r.mde = if r.test.estimable { mde(r.test.se, r.test.df, alpha, 0.8) } else { f64::NAN };
-            r.paper_relation = r.paper.and_then(|x| paper_relation(r.test.lo, r.test.hi, x));
-            r.verdict = if r.test.estimable && r.test.p_adjusted < alpha {
-                let gain = if lower_is_better(&r.metric) { -r.test.estimate } else { r.test.estimate };
-                if gain > 0.0 { Verdict::Supported } else { Verdict::Contradicted }
-            } else if r.tost_p < alpha {
-                Verdict::Equivalent
-            } else {
-                Verdict::Undecided
-            };
+        }
+        for r in &mut c.readings {
+            judge(r, other[j]);
+            j += 1;
         }
         let all = |v: Verdict| !c.rows.is_empty() && c.rows.iter().all(|r| r.verdict == v);
         c.verdict = if c.rows.iter().any(|r| r.verdict == Verdict::Contradicted) {
@@ -850,9 +976,9 @@ pub fn adjust(claims: &mut [Claim], comparisons: &mut [Comparison], alpha: f64, 
         c.paper_relation = c.rows.first().and_then(|r| r.paper_relation);
         c.mde = c.rows.first().map(|r| r.mde).filter(|m| m.is_finite());
     }
-    for c in comparisons.iter_mut() {
-        c.test.p_adjusted = adj[k];
-        k += 1;
+    let rigs = holm(&comparisons.iter().map(|c| c.test.p).collect::<Vec<_>>());
+    for (c, p) in comparisons.iter_mut().zip(rigs) {
+        c.test.p_adjusted = p;
     }
 }
 
@@ -983,8 +1109,25 @@ mod tests {
         let d = roles.design(&scores, &configurations);
         let mut claims = d.claims();
         let mut comps = d.comparisons();
+        // The claims are a family of their own: the rig comparisons do not move their adjusted p.
+        let mut alone = claims.clone();
+        adjust(&mut alone, &mut [], 0.05, MARGINS);
         adjust(&mut claims, &mut comps, 0.05, MARGINS);
-        assert_eq!(claims.len(), 12);
+        let adjusted =
+            |v: &[Claim]| v.iter().flat_map(|c| c.rows.iter().map(|r| r.test.p_adjusted)).collect::<Vec<_>>();
+        assert_eq!(adjusted(&alone).len(), adjusted(&claims).len());
+        assert!(adjusted(&alone).iter().zip(adjusted(&claims)).all(|(a, b)| a.to_bits() == b.to_bits()));
+        let raw: Vec<f64> = claims.iter().flat_map(|c| c.rows.iter().map(|r| r.test.p)).collect();
+        let expected = holm(&raw);
+        assert!(adjusted(&claims).iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()));
+        // Each claim is one test: no two rows of different claims compare the same groups.
+        let mut seen = std::collections::BTreeSet::new();
+        for c in &claims {
+            for r in &c.rows {
+                assert!(seen.insert((r.metric.clone(), r.a.clone(), r.b.clone())), "{} repeats a row", c.id);
+            }
+        }
+        assert_eq!(claims.len(), 11);
         let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap();
         // The confounds: the one LiDAR-only rig costs more than the radar rig, so it is not the
         // radar rig's LiDARs without the radar and the radar's claims are not tested; two
@@ -996,7 +1139,7 @@ mod tests {
         assert_eq!(by("vs_lidar_alone").verdict, Verdict::Supported);
         // Pooled over cp and lf: (0.704 − 0.604 + 0.804 − 0.624) / 2 = 0.14.
         assert!((by("vs_lidar_radar").rows[0].test.estimate - 0.14).abs() < 1e-9);
-        assert_eq!(by("whichever_module").per_preset.len(), 2);
+        assert_eq!(by("vs_lidar_radar").per_preset.len(), 2);
         assert_eq!(by("early_fusion_ablation").verdict, Verdict::Supported);
         // Every adjusted p is at least the raw one.
         assert!(comps.iter().all(|c| c.test.p_adjusted >= c.test.p - 1e-15));
@@ -1061,6 +1204,56 @@ mod tests {
     }
 
     /// `det` with velocity errors (m/s): mAVE `mave` and car AVE 1.5 × `mave`.
+    /// The visible-only reading and the paper's averaging: the same groups scored the other
+    /// way, every fusion preset of the rig averaged against the LiDAR-only baseline, labelled,
+    /// adjusted as a family of their own and without a say in the claim's verdict.
+    #[test]
+    fn readings_give_the_other_convention_and_the_papers_averaging() {
+        let mut roles = Roles::new(false);
+        roles.presets.push("lf2".into());
+        roles.uses.insert("lf2".into(), true);
+        let with_visible = |conf: &str, preset: &str, seed: u64, map: f64, vis: f64| {
+            let mut d = det(conf, preset, seed, map);
+            let v = det(conf, preset, seed, vis).scores["mAP"].clone();
+            for m in METRICS {
+                d.scores.insert(visible_only(m), v.clone());
+            }
+            d
+        };
+        let mut scores = Vec::new();
+        for s in 0..3 {
+            let j = 0.004 * s as f64;
+            scores.push(with_visible("2x16+R", "cp", s, 0.70 + j, 0.75 + j));
+            scores.push(with_visible("2x16+R", "lf", s, 0.74 + j, 0.76 + j));
+            scores.push(with_visible("2x16+R", "lf2", s, 0.66 + j, 0.80 + j));
+            scores.push(with_visible("64", "cp", s, 0.60 + j, 0.70 + j));
+        }
+        let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("64".to_string(), 20_750.0, false)];
+        let d = roles.design(&scores, &configurations);
+        let mut claims = d.claims();
+        adjust(&mut claims, &mut [], 0.05, MARGINS);
+        let c = claims.iter().find(|c| c.id == "fusion_vs_lidar_only").unwrap();
+        assert!((c.rows[0].test.estimate - 0.04).abs() < 1e-9);
+        let reading = |label: &str| c.readings.iter().find(|r| r.reading.as_deref() == Some(label)).unwrap();
+        // lf on the visible-only ground truth: 0.76 − 0.75.
+        assert!((reading("visible-only ground truth").test.estimate - 0.01).abs() < 1e-9);
+        // The paper's way: (0.74 + 0.66) / 2 − 0.70 = 0, and (0.76 + 0.80) / 2 − 0.75 = +0.03.
+        let paper = reading("the paper's averaging (the mean of the fusion presets)");
+        assert!(paper.test.estimate.abs() < 1e-9 && paper.b.len() == 2 && paper.paper == Some(0.031));
+        let paper_vis = reading("the paper's averaging, visible-only ground truth");
+        assert!((paper_vis.test.estimate - 0.03).abs() < 1e-9);
+        // The readings' family: Holm over every reading of every claim.
+        let raw: Vec<f64> = claims.iter().flat_map(|c| c.readings.iter().map(|r| r.test.p)).collect();
+        let adj: Vec<f64> = claims.iter().flat_map(|c| c.readings.iter().map(|r| r.test.p_adjusted)).collect();
+        assert!(holm(&raw).iter().zip(&adj).all(|(a, b)| a.to_bits() == b.to_bits()));
+        // The claim's verdict is its own row's (lf beats cp by 0.04), whatever the readings say.
+        assert_eq!(c.verdict, c.rows[0].verdict);
+        // A rig comparison claim gets the visible-only reading but not the paper's averaging.
+        let alone = claims.iter().find(|c| c.id == "vs_lidar_alone").unwrap();
+        assert!(alone.readings.iter().all(|r| r.reading.as_deref() == Some("visible-only ground truth")));
+        assert_eq!(alone.readings.len(), 2);
+    }
+
     fn det_v(conf: &str, preset: &str, seed: u64, map: f64, mave: f64) -> DetectorScores {
         let mut d = det(conf, preset, seed, map);
         for (name, v) in [("mAVE", mave), ("car AVE", 1.5 * mave)] {
