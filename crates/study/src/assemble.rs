@@ -1,6 +1,7 @@
 //! The verdict assembled from a study's stage outputs: every detector scored on the common
-//! ground truth under shared scene draws, the comparisons and the paper's claims with Holm's
-//! adjustment, the test's calibration, learning curves and the configurations' summaries.
+//! ground truth (and the visible-only one) under shared scene draws, the comparisons and the
+//! paper's claims with Holm's adjustment per family, the test's calibration, learning curves
+//! and the configurations' summaries.
 //! Reads the result files a study folder holds, or takes them from memory when the stages just
 //! ran in this process (the two give the same report: results are kept in sample order and JSON
 //! numbers round-trip exactly).
@@ -452,7 +453,7 @@ fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
     Ok(summaries)
 }
 
-/// The verdict: comparisons, the paper's claims (Holm-adjusted together) and the calibration of
+/// The verdict: comparisons, the paper's claims (each a Holm family) and the calibration of
 /// the test on A/A pairs and the planted difference.
 fn verdict(
     prof: &Profile,

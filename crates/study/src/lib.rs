@@ -8,7 +8,9 @@
 //!   [`validation`]);
 //! - this crate: the verdict and the report, the in-process run and the workflow writer:
 //!   - [`assemble`], [`stats`], [`verdict`]: the verdict from the stage outputs (common ground
-//!     truth, scene bootstrap with pooled seed variance, Holm, calibration, the paper's claims;
+//!     truth, scene bootstrap with the pooled seed variance net of the scene noise it holds,
+//!     Welch–Satterthwaite degrees of freedom, Holm per family, calibration, the paper's claims
+//!     with their visible-only and paper-averaged readings;
 //!     the radar's claims again per weather condition, and the radar's value per $1,000);
 //!   - [`report`]: `report.md`, `report.json`, charts and pictures (with the validation's
 //!     section when one was run in the study's folder);
