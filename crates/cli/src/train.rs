@@ -78,7 +78,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     // Held from before the data is loaded, so a second training of the folder is refused at once.
     let _claim = hilo_core::folder::claim(&args.out, hilo_core::folder::Mode::Exclusive)?;
     hilo_detector::data::check_modalities(&ds, &det.name, registry.uses_radar(&det))?;
-    let background = hilo_detector::train::learn_background(&ds, &args.split, &det.input).with_context(|| {
+    let background = hilo_detector::train::learn_background(&ds, &args.split, &det).with_context(|| {
         format!("{}: learning the static background of split {:?}", args.data.display(), args.split)
     })?;
     let (frames, stats) =

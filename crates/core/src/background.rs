@@ -33,6 +33,14 @@ impl Default for BackgroundConfig {
     }
 }
 
+impl crate::valid::Check for BackgroundConfig {
+    type Error = crate::FieldError;
+
+    fn check(&self) -> Result<(), crate::FieldError> {
+        self.validate()
+    }
+}
+
 impl BackgroundConfig {
     pub fn validate(&self) -> Result<(), crate::FieldError> {
         let bad = |f: &str, v: String, why: &str| Err(crate::FieldError::new(format!("background.{f}"), v, why));

@@ -29,6 +29,15 @@ impl<T> Valid<T> {
     pub fn into_inner(self) -> T {
         self.0
     }
+
+    /// A part of the configuration, checked with it: `pick` names a part (None: the part is not
+    /// set) that `T`'s [`Check`] runs `U`'s check on, so the part is valid without a second
+    /// check. Debug builds check it again to hold `T`'s check to that.
+    pub fn part<U: Check + Clone>(&self, pick: impl FnOnce(&T) -> Option<&U>) -> Option<Valid<U>> {
+        let u = pick(&self.0)?;
+        debug_assert!(u.check().is_ok(), "a part of a checked configuration failed its own check");
+        Some(Valid(u.clone()))
+    }
 }
 
 impl<T> std::ops::Deref for Valid<T> {
@@ -89,5 +98,27 @@ mod tests {
         let e = serde_json::from_str::<Valid<Rate>>(r#"{"hz":-1.0}"#).unwrap_err().to_string();
         assert!(e.contains("hz = -1: must be > 0"), "{e}");
         assert_eq!(v.into_inner(), Rate { hz: 2.0 });
+    }
+
+    #[derive(Clone, Debug, PartialEq)]
+    struct Pair {
+        first: Rate,
+        second: Option<Rate>,
+    }
+
+    impl Check for Pair {
+        type Error = String;
+        fn check(&self) -> Result<(), String> {
+            self.first.check()?;
+            self.second.as_ref().map_or(Ok(()), Rate::check)
+        }
+    }
+
+    #[test]
+    fn a_part_of_a_checked_value_is_valid_and_an_unset_part_is_none() {
+        let v = Valid::new(Pair { first: Rate { hz: 1.0 }, second: None }).unwrap();
+        assert_eq!(v.part(|p| Some(&p.first)).unwrap().hz, 1.0);
+        assert!(v.part(|p| p.second.as_ref()).is_none());
+        assert!(Valid::new(Pair { first: Rate { hz: 1.0 }, second: Some(Rate { hz: -1.0 }) }).is_err());
     }
 }

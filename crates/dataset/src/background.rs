@@ -25,7 +25,7 @@
 
 use crate::error::DatasetError;
 use crate::reader::Dataset;
-use hilo_core::LidarPoint;
+use hilo_core::{LidarPoint, Valid};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -139,10 +139,9 @@ impl BackgroundModel {
     /// Learns the model from in-memory frames: per channel, its point clouds (sensor frame).
     pub fn learn_from(
         frames: &BTreeMap<String, Vec<Vec<LidarPoint>>>,
-        cfg: &BackgroundConfig,
-    ) -> Result<BackgroundModel, DatasetError> {
-        cfg.validate().map_err(DatasetError::from)?;
-        Ok(Self::fit(frames, cfg))
+        cfg: &Valid<BackgroundConfig>,
+    ) -> BackgroundModel {
+        Self::fit(frames, cfg)
     }
 
     /// The model of checked settings.
@@ -159,8 +158,7 @@ impl BackgroundModel {
     }
 
     /// Learns the model from `cfg.frames` samples spread evenly over the scenes of `split`.
-    pub fn learn(ds: &Dataset, split: &str, cfg: &BackgroundConfig) -> Result<BackgroundModel, DatasetError> {
-        cfg.validate().map_err(DatasetError::from)?;
+    pub fn learn(ds: &Dataset, split: &str, cfg: &Valid<BackgroundConfig>) -> Result<BackgroundModel, DatasetError> {
         let t = &ds.tables;
         let scenes: std::collections::HashSet<String> = ds.split(split)?.into_iter().collect();
         let scene_tokens: std::collections::HashSet<&str> =

@@ -50,15 +50,14 @@ fn background_removal_against_the_ray_cast_static_scene() {
     let catalog = Catalog::default_catalog().unwrap();
     let spec = catalog.lidar("lidar-16").unwrap().clone();
     let pose = pose(&scene, 0);
-    let cfg = BackgroundConfig { frames: 80, ..BackgroundConfig::default() };
+    let cfg = hilo_core::Valid::new(BackgroundConfig { frames: 80, ..BackgroundConfig::default() }).unwrap();
     // Learned from 80 frames of four traffic seeds, two seconds apart (as the training split is
     // sampled: evenly over its scenes).
     let train: Vec<_> = (0..4).flat_map(|s| frames(&scene, &world, &spec, &pose, 11 + s, 20, 40)).collect();
     let model = BackgroundModel::learn_from(
         &BTreeMap::from([("LIDAR_0".to_owned(), train.iter().map(|f| f.0.clone()).collect())]),
         &cfg,
-    )
-    .unwrap();
+    );
     let ch = &model.channels["LIDAR_0"];
 
     // 1. Oracle: each beam and column ray-cast on the static scene alone.

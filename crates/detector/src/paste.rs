@@ -13,6 +13,7 @@
 
 use crate::data::{Frame, GtBox, LIDAR_FEATURES, RADAR_FEATURES};
 use crate::error::Result;
+use hilo_core::Valid;
 pub use hilo_fusion::config::PasteConfig;
 use rand::Rng;
 
@@ -66,8 +67,7 @@ pub struct PasteDb {
 impl PasteDb {
     /// Cuts every instance of a filled class with at least `min_lidar_points` LiDAR points out
     /// of `frames` (deterministic: frame order, then box order).
-    pub fn build(frames: &[Frame], cfg: &PasteConfig) -> Result<Self> {
-        cfg.validate()?;
+    pub fn build(frames: &[Frame], cfg: &Valid<PasteConfig>) -> Result<Self> {
         let fill = cfg.fill_by_class()?;
         let mut by_class = vec![Vec::new(); fill.len()];
         for (fi, f) in frames.iter().enumerate() {
@@ -246,7 +246,7 @@ mod tests {
             // A target frame: one bus already, clutter at its centre of x = 20.
             frame_with(vec![bus(20.0, 0.0)]),
         ];
-        let cfg = PasteConfig { fill: [("bus".to_string(), 3)].into(), ..PasteConfig::default() };
+        let cfg = Valid::new(PasteConfig { fill: [("bus".to_string(), 3)].into(), ..PasteConfig::default() }).unwrap();
         let db = PasteDb::build(&frames, &cfg).unwrap();
         assert_eq!(db.counts(), vec![(Class::Bus.index(), 4)]);
         for inst in &db.by_class[0] {
@@ -291,7 +291,7 @@ mod tests {
         let mut target = frame_with(vec![]);
         // Residual points where the bus will stand, at two heights, and one just outside.
         target.lidar.extend([[20.0, 0.0, 0.2, 0.0, 0.0], [21.0, 0.5, 5.0, 0.0, 0.0], [20.0, 1.6, 0.5, 0.0, 0.0]]);
-        let cfg = PasteConfig { fill: [("bus".to_string(), 1)].into(), ..PasteConfig::default() };
+        let cfg = Valid::new(PasteConfig { fill: [("bus".to_string(), 1)].into(), ..PasteConfig::default() }).unwrap();
         let db = PasteDb::build(std::slice::from_ref(&source), &cfg).unwrap();
         let out = db.paste(&target, &mut rand_chacha::ChaCha8Rng::seed_from_u64(0));
         assert_eq!(out.boxes, vec![bus]);

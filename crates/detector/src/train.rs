@@ -413,8 +413,8 @@ fn step_frames(
 }
 
 /// The paste database of a schedule that pastes, cut from its training frames.
-pub fn paste_db(frames: &[Frame], cfg: &TrainConfig) -> Result<Option<PasteDb>> {
-    cfg.paste.as_ref().map(|p| PasteDb::build(frames, p)).transpose()
+pub fn paste_db(frames: &[Frame], cfg: &Valid<TrainConfig>) -> Result<Option<PasteDb>> {
+    cfg.part(|c| c.paste.as_ref()).map(|p| PasteDb::build(frames, &p)).transpose()
 }
 
 /// The seed of step `step`'s pillar sampling.
@@ -837,11 +837,11 @@ pub fn load_run_at(
 pub fn learn_background(
     ds: &hilo_dataset::Dataset,
     split: &str,
-    input: &crate::data::InputConfig,
+    det: &Valid<DetectorConfig>,
 ) -> Result<Option<BackgroundModel>> {
-    match &input.background {
+    match det.part(|d| d.input.background.as_ref()) {
         None => Ok(None),
-        Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, cfg).map_err(DetectorError::from)?)),
+        Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, &cfg).map_err(DetectorError::from)?)),
     }
 }
 
@@ -901,7 +901,7 @@ pub struct StepTimes {
 /// built on the same thread, and the replicas one after the other, so each part is measured
 /// alone; with several replicas a part's time is the sum over them, and BatchNorm is each
 /// replica's own: synchronising it adds barriers, not compute). For benchmarks.
-pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: usize) -> Result<StepTimes> {
+pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &Valid<TrainConfig>, steps: usize) -> Result<StepTimes> {
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;
     let epoch = epoch_frames(frames, cfg.sampling, cfg.seed);
     let paste = paste_db(frames, cfg)?;
@@ -934,7 +934,7 @@ pub fn time_steps(det: &Detector, frames: &[Frame], cfg: &TrainConfig, steps: us
 pub fn time_replicated_steps(
     det: &Detector,
     frames: &[Frame],
-    cfg: &TrainConfig,
+    cfg: &Valid<TrainConfig>,
     steps: usize,
 ) -> Result<(f64, usize)> {
     let mut opt = AdamW::new(det.trainable(), cfg.weight_decay)?;

@@ -108,9 +108,8 @@ fn cut_instances_hold_their_own_road_user() {
         }
         BackgroundModel::learn_from(
             &BTreeMap::from([("LIDAR_0".to_owned(), scans)]),
-            &BackgroundConfig { frames: 60, ..BackgroundConfig::default() },
+            &hilo_core::Valid::new(BackgroundConfig { frames: 60, ..BackgroundConfig::default() }).unwrap(),
         )
-        .unwrap()
     };
     let sims: Vec<Sim> = (0..4).flat_map(|s| simulate(&scene, &world, 41 + s, 40, 20, &model)).collect();
     let frames: Vec<Frame> = sims.iter().map(|s| s.frame.clone()).collect();
@@ -118,7 +117,7 @@ fn cut_instances_hold_their_own_road_user() {
     // receive them.
     let mut cfg = PasteConfig::default();
     cfg.fill.insert("golf_cart".into(), 8);
-    let db = PasteDb::build(&frames, &cfg).unwrap();
+    let db = PasteDb::build(&frames, &hilo_core::Valid::new(cfg.clone()).unwrap()).unwrap();
     let held: usize = db.counts().iter().map(|(_, n)| n).sum();
     assert!(held >= 200, "too few instances to judge: {:?}", db.counts());
     let (mut l_cut, mut l_own, mut l_all) = (0usize, 0usize, 0usize);

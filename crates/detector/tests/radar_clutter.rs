@@ -52,13 +52,12 @@ fn frames(scene: &Scene, world: &World, seed: u64, n: usize, every: usize) -> Ve
 fn radar_clutter_rule_against_the_known_sources() {
     let scene = Scene::default_fixture().unwrap();
     let world = World::build(&scene, &QueryRegion::everything()).unwrap();
-    let bg_cfg = BackgroundConfig { frames: 60, ..BackgroundConfig::default() };
+    let bg_cfg = hilo_core::Valid::new(BackgroundConfig { frames: 60, ..BackgroundConfig::default() }).unwrap();
     let train: Vec<Frame> = (0..3).flat_map(|s| frames(&scene, &world, 31 + s, 20, 40)).collect();
     let model = BackgroundModel::learn_from(
         &BTreeMap::from([("LIDAR_0".to_owned(), train.iter().map(|f| f.lidar.clone()).collect())]),
         &bg_cfg,
-    )
-    .unwrap();
+    );
     let lp = pose(&scene, 0, 0.4);
     let cfg = RadarClutterConfig::default();
     let (mut clutter, mut clutter_dropped, mut road, mut road_kept, mut moving, mut moving_kept) =

@@ -298,8 +298,12 @@ impl TrainConfig {
 impl Check for TrainConfig {
     type Error = FusionError;
 
-    /// The settings' own consistency (what the detector crate's training and the benchmarks refuse).
+    /// The settings' own consistency (what the detector crate's training and the benchmarks
+    /// refuse), the ground-truth paste's included.
     fn check(&self) -> std::result::Result<(), FusionError> {
+        if let Some(p) = &self.paste {
+            p.validate()?;
+        }
         if self.batch == 0 || self.samples == 0 || self.batch > limits::BATCH || self.samples > limits::SAMPLES {
             let (field, value, most) = if self.batch == 0 || self.batch > limits::BATCH {
                 ("batch", self.batch, limits::BATCH)
@@ -614,6 +618,14 @@ impl PasteConfig {
     }
 }
 
+impl Check for PasteConfig {
+    type Error = FusionError;
+
+    fn check(&self) -> std::result::Result<(), FusionError> {
+        self.validate()
+    }
+}
+
 /// A named detector and its default training schedule.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Preset {
@@ -664,6 +676,14 @@ mod tests {
         assert_eq!((fill.fill.len(), fill.min_lidar_points), (1, 5));
         let bad = preset.with_fields(&serde_json::json!({ "paste": { "margin": 1 } })).unwrap_err();
         assert!(bad.to_string().contains("margin"), "{bad}");
+        // The schedule's check covers its paste: a checked schedule's paste needs no check again.
+        let e = preset
+            .with_fields(&serde_json::json!({ "paste": { "fill": { "bicycle_bell": 1 } } }))
+            .unwrap()
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("train.paste.fill") && e.contains("bicycle_bell"), "{e}");
         let bad = preset.with_fields(&serde_json::json!({ "sampels": 10 })).unwrap_err();
         assert!(bad.to_string().contains("sampels"), "{bad}");
         assert!(preset.with_fields(&serde_json::json!([1, 2])).is_err());

@@ -139,7 +139,7 @@ pub fn load_inputs_from(dir: &std::path::Path, jobs: &[&Job]) -> Result<BTreeMap
     for j in jobs {
         let key = input_key(j);
         if let std::collections::btree_map::Entry::Vacant(slot) = inputs.entry(key) {
-            let background = learn_background(&ds, "train", &j.detector.input)?;
+            let background = learn_background(&ds, "train", &j.detector)?;
             let lo = LoadOptions::new(&j.detector.input, background.as_ref());
             let (train, _) = load_split(&ds, "train", &lo)?;
             let (val, _) = load_split(&ds, "val", &lo)?;
