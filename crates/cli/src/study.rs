@@ -93,8 +93,7 @@ fn shell_quoted(p: &Path) -> String {
 fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_detector::Registry) -> Result<hilo_study::Profile> {
     let mut profile = hilo_study::profile(args.profile, study, registry)?;
     if let Some(p) = &args.presets {
-        let (ablations, presets) = p.iter().cloned().partition(|x| registry.ablation_of(x).is_some());
-        (profile.presets, profile.ablations) = (presets, ablations);
+        profile.choose_presets(p, registry);
     }
     if let Some(s) = args.seeds {
         profile.seeds = s;

@@ -87,6 +87,21 @@ pub struct Profile {
     pub leaves_out: String,
 }
 
+impl Profile {
+    /// The detectors `--presets` names in place of the profile's (the registry's ablations among
+    /// them train as ablations); what the profile leaves out then says it was written for the
+    /// profile's own detectors.
+    pub fn choose_presets(&mut self, chosen: &[String], registry: &Registry) {
+        let (ablations, presets) = chosen.iter().cloned().partition(|x| registry.ablation_of(x).is_some());
+        (self.presets, self.ablations) = (presets, ablations);
+        self.leaves_out = format!(
+            "{} (said of the profile's own detectors: `--presets {}` chose them here)",
+            self.leaves_out,
+            chosen.join(",")
+        );
+    }
+}
+
 /// A profile written before weather conditions existed ran none.
 fn no_conditions() -> Option<usize> {
     Some(0)
@@ -236,6 +251,26 @@ mod tests {
         assert_eq!(default.conditions, Some(1));
         let back: Profile = serde_json::from_str(&serde_json::to_string(&default).unwrap()).unwrap();
         assert_eq!(back, default);
+    }
+
+    /// `--presets` replaces the profile's detectors, and what the profile leaves out says that
+    /// it speaks of the profile's own.
+    #[test]
+    fn chosen_presets_replace_the_profiles_and_say_so() {
+        let study =
+            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
+        let registry = Registry::with_builtin();
+        let mut p = profile(ProfileName::Quick, &study, &registry).unwrap();
+        let before = p.leaves_out.clone();
+        p.choose_presets(&["centerpoint".into(), "pointpillars".into()], &registry);
+        assert_eq!(p.presets, ["centerpoint", "pointpillars"]);
+        assert!(p.ablations.is_empty());
+        assert_eq!(
+            p.leaves_out,
+            format!(
+                "{before} (said of the profile's own detectors: `--presets centerpoint,pointpillars` chose them here)"
+            )
+        );
     }
 
     #[test]
