@@ -227,9 +227,7 @@ pub fn assemble(
             results_by.insert(key.clone(), sorted(rekey(out.predictions, &keys)));
             metas.insert(key, out.meta);
         }
-        if let Some(job) = jobs.first()
-            && let Some(pic) = picture(job, &ds, &keys, &common)?
-        {
+        if let Some(pic) = jobs.first().map(|job| picture(job, &ds, &keys, &common)).transpose()?.flatten() {
             pictures.insert(conf.name.clone(), pic);
         }
         visible.insert(conf.name.clone(), vis);
@@ -252,13 +250,7 @@ pub fn assemble(
             range_bins = bins.iter().map(|b| (b.label.clone(), b.gt_boxes.clone())).collect();
         }
         let (full, vel, mut scores) = score(pred)?;
-        // The nuScenes convention beside it, under the same scene draws: the claims' other reading.
-        let (_, _, vis) = bootstrap_scores(&visible[conf], pred, &eval_cfg, &scenes, &draws)?;
-        for m in crate::verdict::METRICS {
-            if let Some(s) = vis.get(m) {
-                scores.insert(crate::verdict::visible_only(m), s.clone());
-            }
-        }
+        scores.extend(visible_scores(&visible[conf], pred, &eval_cfg, &scenes, &draws)?);
         let meta = &metas[&(conf.clone(), preset.clone(), *seed)];
         let vm = hilo_eval::evaluate_files(&visible[conf], pred, &eval_cfg);
         let six = |values: &BTreeMap<String, f64>| per_class(&class_boxes, values);
@@ -352,6 +344,23 @@ fn bootstrap_scores(
         ("car AVE".to_string(), Scores { full: car(&vel), replicates: under.iter().map(|x| car(&x.1)).collect() }),
     ]);
     Ok((full, vel, scores))
+}
+
+/// A detector's accuracy scores under the nuScenes convention (`visible`: the boxes with a point
+/// of its rig), under the same scene draws, named as [`crate::verdict::visible_only`] names them:
+/// the claims' other reading.
+fn visible_scores(
+    visible: &GroundTruth,
+    pred: &Predictions,
+    eval_cfg: &DetectionConfig,
+    scenes: &[String],
+    draws: &[Vec<u32>],
+) -> Result<BTreeMap<String, Scores>> {
+    let (_, _, mut vis) = bootstrap_scores(visible, pred, eval_cfg, scenes, draws)?;
+    Ok(crate::verdict::METRICS
+        .iter()
+        .filter_map(|m| Some((crate::verdict::visible_only(m), vis.remove(*m)?)))
+        .collect())
 }
 
 /// A value per class of `class_boxes` (None where the class has no validation box or no value).
