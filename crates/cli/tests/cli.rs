@@ -226,6 +226,48 @@ fn a_lidar_only_configuration_is_placed_for_its_own_coverage() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// A radar rig placed `given` a LiDAR-only rig keeps its LiDARs at their poses and places the
+/// radar, proven optimal for the rest and never above the rig placed for itself; a `given`
+/// naming no configuration above it is refused.
+#[test]
+fn a_configuration_given_another_keeps_its_sensors() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"2x lidar-16\"\nsensors = { \"lidar-16\" = 2 }\n[[configurations]]\nname = \"2x lidar-16 + radar\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"2x lidar-16\"\n[[configurations]]\nname = \"placed alone\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\n",
+    );
+    let out = dir.path().join("p");
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let read = |f: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join(f)).unwrap()).unwrap()
+    };
+    let (lidars, given, alone) = (read("2x_lidar_16.json"), read("2x_lidar_16_radar.json"), read("placed_alone.json"));
+    let poses = |p: &serde_json::Value, ty: &str| -> Vec<String> {
+        let mut v: Vec<String> = p["sensors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| s["type"] == ty)
+            .map(|s| format!("{} {}", s["candidate_id"], s["position_m"]))
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(poses(&given, "lidar-16"), poses(&lidars, "lidar-16"));
+    assert_eq!(poses(&given, "radar-4d").len(), 1);
+    assert!(given["proven_optimal"].as_bool().unwrap(), "{given}");
+    assert!(given["method"].as_str().unwrap().contains("given"), "{given}");
+    assert!(given["objective"].as_f64().unwrap() <= alone["objective"].as_f64().unwrap() + 1e-6);
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"r\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"later\"\n[[configurations]]\nname = \"later\"\nsensors = { \"lidar-16\" = 2 }\n",
+    );
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("q")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("given") && err.contains("later") && err.contains("above"), "{err}");
+}
+
 /// With the calibrated objective and a radar worth nothing to the detectors, the budget buys
 /// LiDARs only; the paper's objective spends it on radars. Without weights it is refused.
 #[test]

@@ -191,8 +191,25 @@ pub fn solve(
     time_limit_s: f64,
     warm: Option<&[usize]>,
 ) -> Result<Outcome, PlacementError> {
+    solve_fixing(inst, limit, form, time_limit_s, warm, &[])
+}
+
+/// [`solve`] with the options in `fixed` chosen (x_o = 1): the best placement of the rest given
+/// them, and a bound over every selection that holds them. The caller checks that `fixed` is a
+/// feasible part of a selection ([`crate::pipeline::solve_given`] does).
+pub fn solve_fixing(
+    inst: &Instance,
+    limit: &Limit,
+    form: Formulation,
+    time_limit_s: f64,
+    warm: Option<&[usize]>,
+    fixed: &[usize],
+) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
-    let m = build(inst, limit, form)?;
+    let mut m = build(inst, limit, form)?;
+    for &o in fixed {
+        m.problem.add_constraint(Expression::from(m.x[o]).geq(1.0));
+    }
     let mut problem = m.problem.with_time_limit(time_limit_s.max(1.0));
     if let Some(sel) = warm {
         let chosen: std::collections::HashSet<usize> = sel.iter().copied().collect();

@@ -202,6 +202,30 @@ pub fn solve(inst: &Instance, limit: &Limit, time_limit_s: f64) -> Result<Outcom
     solve_from(inst, limit, time_limit_s, &greedy(inst, limit))
 }
 
+/// The best placement that keeps the sensors of `fixed` (option indices) and places the rest
+/// within `limit`: CBC on the strengthened model with their variables fixed to 1, so the result
+/// is proven optimal over every selection holding them (or carries its bound when the time limit
+/// stops CBC). `fixed` must be a feasible part of a selection: no option twice, no two on one
+/// mount, no more of a type than the limit allows (its minimum counts aside).
+pub fn solve_given(
+    inst: &Instance,
+    limit: &Limit,
+    fixed: &[usize],
+    time_limit_s: f64,
+) -> Result<Outcome, PlacementError> {
+    let partial = match limit {
+        Limit::Budget { usd, max, .. } => Limit::Budget { usd: *usd, min: Vec::new(), max: max.clone() },
+        other => other.clone(),
+    };
+    inst.check(&partial, fixed).map_err(|e| PlacementError::instance("the given sensors", e.to_string()))?;
+    let mut out = crate::mip::solve_fixing(inst, limit, Formulation::Strengthened, time_limit_s, None, fixed)?;
+    if let Some(o) = fixed.iter().find(|o| !out.selection.contains(o)) {
+        return Err(PlacementError::Solver(format!("CBC dropped the given option {o}")));
+    }
+    out.method = format!("CBC, strengthened formulation, {} given sensor(s) fixed", fixed.len());
+    Ok(out)
+}
+
 /// [`solve`] from a greedy outcome the caller already has (`greedy(inst, limit)`), so a caller
 /// that also reports the greedy objective does not run greedy twice. Its seconds are counted in
 /// the result's `solve_seconds`.

@@ -307,3 +307,49 @@ fn a_free_sensor_type_is_bounded_by_its_options_in_the_exact_search() {
     let vectors = maximal_count_vectors(&inst, 8000.0, &[], &[]);
     assert!(!vectors.is_empty() && vectors.iter().all(|v| v[2] == radars), "{vectors:?}");
 }
+
+/// Placement given fixed sensors: it keeps them, and its objective is the best of every
+/// feasible selection that holds them (every subset of the options enumerated), proven; an
+/// infeasible given set (two options on one mount, more of a type than the limit) is refused.
+#[test]
+fn a_placement_given_fixed_sensors_keeps_them_and_is_optimal_for_the_rest() {
+    use hilo_placement_ip::pipeline::solve_given;
+    let limits = [Limit::Counts(vec![2, 0, 1]), Limit::Counts(vec![1, 1, 2]), Limit::Total(3)];
+    let mut checked = 0;
+    for seed in 0..12u64 {
+        let inst = random_instance(100 + seed);
+        let limit = &limits[seed as usize % 3];
+        // A LiDAR given (the first option of the first LiDAR type the limit allows).
+        let lidar = (0..inst.options.len()).find(|&o| inst.options[o].ty == usize::from(seed % 3 == 1)).unwrap();
+        let fixed = [lidar];
+        let n = inst.options.len();
+        assert!(n <= 18, "enumeration too large: {n} options");
+        let mut best = f64::NEG_INFINITY;
+        for mask in 0u32..(1 << n) {
+            let sel: Vec<usize> = (0..n).filter(|&o| mask & (1 << o) != 0).collect();
+            if sel.contains(&lidar) && inst.check(limit, &sel).is_ok() {
+                best = best.max(evaluate(&inst, &sel));
+            }
+        }
+        let out = solve_given(&inst, limit, &fixed, 30.0).unwrap();
+        assert!(out.selection.contains(&lidar), "seed {seed}: the given sensor was dropped");
+        assert!(inst.check(limit, &out.selection).is_ok());
+        assert!(out.proven_optimal, "seed {seed}");
+        assert!((out.objective - best).abs() < 1e-6 * best.abs().max(1.0), "seed {seed}: {} vs {best}", out.objective);
+        // Never better than the free optimum.
+        assert!(out.objective <= exhaustive(&inst, limit, 10_000_000).unwrap().objective + 1e-9);
+        checked += 1;
+    }
+    assert_eq!(checked, 12);
+    let inst = random_instance(7);
+    let same_mount: Vec<usize> = {
+        let m = inst.options[0].mount;
+        (0..inst.options.len()).filter(|&o| inst.options[o].mount == m).take(2).collect()
+    };
+    assert_eq!(same_mount.len(), 2);
+    let e = solve_given(&inst, &Limit::Counts(vec![3, 3, 3]), &same_mount, 5.0).unwrap_err().to_string();
+    assert!(e.contains("the given sensors") && e.contains("mount"), "{e}");
+    let lidars: Vec<usize> = (0..inst.options.len()).filter(|&o| inst.options[o].ty == 0).take(2).collect();
+    let e = solve_given(&inst, &Limit::Counts(vec![1, 0, 1]), &lidars, 5.0).unwrap_err().to_string();
+    assert!(e.contains("exceeds"), "{e}");
+}

@@ -36,6 +36,40 @@ pub fn limit_for(cfg: &Configuration, types: &[String]) -> Limit {
     }
 }
 
+/// The options of `inst` that hold the sensors configuration `name` was placed with (already
+/// among `placements`): the same type at the same candidate.
+fn given_options(
+    inst: &Instance,
+    prep: &Prepared,
+    conf: &Configuration,
+    name: &str,
+    placements: &[Placement],
+    source: &str,
+) -> Result<Vec<usize>> {
+    let refuse =
+        |reason: String| StudyError::setting(source, format!("configuration {:?}: given", conf.name), name, reason);
+    let base = placements
+        .iter()
+        .find(|p| p.name == name)
+        .ok_or_else(|| refuse("is not placed before this configuration".into()))?;
+    base.sensors
+        .iter()
+        .map(|s| {
+            (0..inst.options.len())
+                .find(|&o| {
+                    let opt = &inst.options[o];
+                    inst.types[opt.ty].name == s.ty && prep.candidates[opt.candidate as usize].id == s.candidate_id
+                })
+                .ok_or_else(|| {
+                    refuse(format!(
+                        "its {} at candidate {} is not an option of this configuration",
+                        s.ty, s.candidate_id
+                    ))
+                })
+        })
+        .collect()
+}
+
 /// The sensors an instance's selection places (type, candidate, structure, pose).
 pub fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
     sel.iter()
@@ -99,8 +133,18 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         let mut inst = instance(&prep, catalog, &types, cfg.p_min)?;
         let limit = limit_for(conf, &types);
         check_limit(study, conf, &inst, &limit, &prep)?;
-        let (g, o) = match (cfg.objective, &cfg.calibration) {
-            (ObjectiveKind::Calibrated, Some(w)) => {
+        // The study file's check refuses `given` with the calibrated objective.
+        let given = match &conf.given {
+            Some(name) => Some(given_options(&inst, &prep, conf, name, &out.placements, &study.source)?),
+            None => None,
+        };
+        let (g, o) = match (cfg.objective, &cfg.calibration, given) {
+            (_, _, Some(fixed)) => {
+                let g = greedy(&inst, &limit);
+                let o = hilo_placement_ip::pipeline::solve_given(&inst, &limit, &fixed, cfg.time_limit_s)?;
+                (g, o)
+            }
+            (ObjectiveKind::Calibrated, Some(w), None) => {
                 if w.reads_road_users() {
                     if road_users.is_none() {
                         let traffic = crate::road_users::TrainingTraffic::new(study)?;

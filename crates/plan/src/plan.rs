@@ -499,7 +499,10 @@ fn conditioned(
                 ));
                 continue;
             };
-            out.push((bi, Configuration { name: cond.label(name), ..base[bi].clone() }));
+            // Its given rig is that rig's copy in the same weather (the poses are the clear-air
+            // ones either way).
+            let given = base[bi].given.as_ref().map(|g| cond.label(g));
+            out.push((bi, Configuration { name: cond.label(name), given, ..base[bi].clone() }));
             conditions.push(Some(cond.name.clone()));
             datasets.push(dataset.clone());
         }

@@ -420,6 +420,10 @@ pub struct Configuration {
     pub min: BTreeMap<String, u32>,
     #[serde(default)]
     pub max: BTreeMap<String, u32>,
+    /// An earlier configuration whose placed sensors this one keeps, at their poses, placing
+    /// only the rest: a rig and the same rig with a radar added then differ by the radar alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub given: Option<String>,
 }
 
 impl Configuration {
@@ -589,6 +593,33 @@ impl Study {
                     &format!("{:?}", c.sensors),
                     "every sensor count is 0; a configuration needs a sensor",
                 ));
+            }
+            if let Some(g) = &c.given {
+                let value = format!("{g:?}");
+                let Some(base) = file.configurations[..i].iter().find(|o| &o.name == g) else {
+                    return Err(at("given", &value, "names no configuration above this one"));
+                };
+                // The given rig's sensors must fit this one: counts of its types at most this one's.
+                let fits = base.budget_usd.is_none()
+                    && base.sensors.iter().all(|(t, n)| match c.budget_usd {
+                        Some(_) => *n == 0 || c.types.contains(t),
+                        None => c.sensors.get(t).copied().unwrap_or(0) >= *n,
+                    });
+                if !fits {
+                    return Err(at(
+                        "given",
+                        &value,
+                        "must be a configuration of fixed counts whose sensors this one can hold (each of its types, as many)",
+                    ));
+                }
+                if file.placement.objective == hilo_placement_ip::pipeline::ObjectiveKind::Calibrated {
+                    return Err(at(
+                        "given",
+                        &value,
+                        "placing given another configuration's sensors takes the paper's objective; \
+                         [placement] objective = \"calibrated\" does not support it",
+                    ));
+                }
             }
         }
         let m = file.verdict.equivalence_margin;

@@ -88,6 +88,9 @@ pub struct ConfigSummary {
     /// The weather condition it was recorded in (`[[conditions]]`); None: the study's own.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub condition: Option<String>,
+    /// The configuration whose placed sensors it keeps (`given`), placing only the rest.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub given: Option<String>,
 }
 
 /// A class of the verdict's ground truth.
@@ -457,6 +460,7 @@ fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
             unseen_share: f64::NAN,
             unseen_by_class: BTreeMap::new(),
             condition: plan.conditions[ci].clone(),
+            given: conf.given.clone(),
         });
     }
     Ok(summaries)
@@ -478,7 +482,10 @@ fn verdict(
     let conditions: BTreeMap<String, String> =
         summaries.iter().filter_map(|s| Some((s.name.clone(), s.condition.clone()?))).collect();
     let roles = PresetRoles::of(prof, registry);
+    let given: BTreeMap<String, String> =
+        summaries.iter().filter_map(|s| Some((s.name.clone(), s.given.clone()?))).collect();
     let design = Design {
+        given: &given,
         scores: det_scores,
         configurations: &conf_roles,
         conditions: &conditions,

@@ -273,6 +273,8 @@ pub struct Design<'a> {
     /// The weather condition of each configuration recorded in one (`[[conditions]]`), by name;
     /// the others are in the study's own weather.
     pub conditions: &'a BTreeMap<String, String>,
+    /// The configuration each one keeps the placed sensors of (`given`), by name.
+    pub given: &'a BTreeMap<String, String>,
     /// Presets trained on every configuration, in order; and ablations (cheapest only).
     pub presets: &'a [String],
     pub ablations: &'a [String],
@@ -592,9 +594,10 @@ impl Design<'_> {
         (v.first().map(|c| c.0.as_str()), v.last().map(|c| c.0.as_str()))
     }
 
-    /// What the rig's radar adds (the cheapest rig with a radar, fused, against the cheapest
-    /// LiDAR-only rig with its LiDAR-only counterpart: each rig placed for itself, so the
-    /// LiDARs' poses may differ too), and what two viewpoints add (the cheapest LiDAR-only rig
+    /// What the rig's radar adds (the cheapest rig with a radar, fused, against the LiDAR-only
+    /// rig it was placed given, its LiDARs at the same poses, when its configuration names one
+    /// with `given`; otherwise against the cheapest LiDAR-only rig, each rig placed for itself,
+    /// so the LiDARs' poses may differ too), with its LiDAR-only counterpart, and what two viewpoints add (the cheapest LiDAR-only rig
     /// against the dearest, both with the LiDAR-only preset). The radar's rows need a LiDAR-only
     /// rig that costs less than the radar rig (its LiDARs without the radar): a dearer one, as
     /// when a profile keeps only the radar rig and the 64-beam LiDAR, would compare rigs, not
@@ -603,10 +606,16 @@ impl Design<'_> {
         let (cheap, _, _) = self.roles();
         let (lidar_cheap, lidar_dear) = self.lidar_only_rigs();
         let cost = |name: &str| self.configurations.iter().find(|c| c.0 == name).map_or(f64::NAN, |c| c.1);
-        let without_radar = match (cheap, lidar_cheap) {
+        // The rig the radar rig was placed given (its LiDARs at the same poses) when it names a
+        // LiDAR-only one here; else the cheapest LiDAR-only rig, placed for itself.
+        let same_poses = cheap
+            .and_then(|c| self.given.get(c))
+            .map(String::as_str)
+            .filter(|g| self.configurations.iter().any(|x| x.0 == *g && !x.2));
+        let without_radar = same_poses.or(match (cheap, lidar_cheap) {
             (Some(c), Some(l)) if cost(l) < cost(c) => Some(l),
             _ => None,
-        };
+        });
         let (fusion, lidar) = self.fusion_and_lidar();
         let rows = |a: (&str, &str), b: (&str, &str)| -> Vec<ClaimRow> {
             ["mAP", "pedestrian AP"]
@@ -620,9 +629,10 @@ impl Design<'_> {
         let st1 = "A radar, fused, adds accuracy to the cheapest LiDAR-only rig";
         let needs = "needs a configuration with radar, a LiDAR-only one that costs less (its LiDARs without the \
                      radar), a fusion and a LiDAR-only preset";
+        let st1 = if same_poses.is_some() { format!("{st1}, its LiDARs at the same poses") } else { st1.to_owned() };
         let c1 = match (cheap, without_radar, fusion, lidar) {
-            (Some(c), Some(l), Some(f), Some(lp)) => claim("radar_adds", st1, rows((l, lp), (c, f)), None),
-            _ => claim("radar_adds", st1, vec![], Some(needs.into())),
+            (Some(c), Some(l), Some(f), Some(lp)) => claim("radar_adds", &st1, rows((l, lp), (c, f)), None),
+            _ => claim("radar_adds", &st1, vec![], Some(needs.into())),
         };
         let st1v = "A radar, fused, lowers the velocity error of the cheapest LiDAR-only rig";
         let c1v = match (cheap, without_radar, fusion, lidar) {
@@ -1037,6 +1047,7 @@ mod tests {
         counterpart: BTreeMap<String, String>,
         pointpillars_head: std::collections::BTreeSet<String>,
         conditions: BTreeMap<String, String>,
+        given: BTreeMap<String, String>,
     }
 
     impl Roles {
@@ -1049,6 +1060,7 @@ mod tests {
                 counterpart: BTreeMap::new(),
                 pointpillars_head: std::collections::BTreeSet::new(),
                 conditions: BTreeMap::new(),
+                given: BTreeMap::new(),
             };
             if ablation {
                 r.uses.insert("lf-no-early".to_string(), true);
@@ -1064,6 +1076,7 @@ mod tests {
                 scores,
                 configurations,
                 conditions: &self.conditions,
+                given: &self.given,
                 presets: &self.presets,
                 ablations: &self.ablations,
                 ablation_of: &self.ablation_of,
@@ -1204,6 +1217,36 @@ mod tests {
     }
 
     /// `det` with velocity errors (m/s): mAVE `mave` and car AVE 1.5 × `mave`.
+    /// A radar rig placed given a LiDAR-only rig is compared with that rig for what the radar
+    /// adds (the same LiDAR poses), not with the cheapest LiDAR-only rig, and says so.
+    #[test]
+    fn the_radar_is_judged_against_the_rig_it_was_placed_given() {
+        let mut roles = Roles::new(false);
+        let mut scores = Vec::new();
+        for s in 0..3 {
+            let j = 0.004 * s as f64;
+            scores.push(det("2x16+R", "cp", s, 0.70 + j));
+            scores.push(det("2x16+R", "lf", s, 0.75 + j));
+            scores.push(det("2x16", "cp", s, 0.71 + j));
+            scores.push(det("1x16", "cp", s, 0.50 + j));
+        }
+        let configurations = vec![
+            ("2x16+R".to_string(), 10_000.0, true),
+            ("2x16".to_string(), 8_000.0, false),
+            ("1x16".to_string(), 4_000.0, false),
+        ];
+        let by = |claims: &[Claim]| claims.iter().find(|c| c.id == "radar_adds").unwrap().clone();
+        // Without `given`: the cheapest LiDAR-only rig.
+        let placed_alone = by(&roles.design(&scores, &configurations).claims());
+        assert_eq!(placed_alone.rows[0].a, [("1x16".to_string(), "cp".to_string())]);
+        assert!(!placed_alone.statement.contains("same poses"));
+        roles.given.insert("2x16+R".into(), "2x16".into());
+        let given = by(&roles.design(&scores, &configurations).claims());
+        assert_eq!(given.rows[0].a, [("2x16".to_string(), "cp".to_string())]);
+        assert!((given.rows[0].test.estimate - 0.04).abs() < 1e-9);
+        assert!(given.statement.ends_with("its LiDARs at the same poses"), "{}", given.statement);
+    }
+
     /// The visible-only reading and the paper's averaging: the same groups scored the other
     /// way, every fusion preset of the rig averaged against the LiDAR-only baseline, labelled,
     /// adjusted as a family of their own and without a say in the claim's verdict.

@@ -54,6 +54,7 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
         scores: &scores,
         configurations: &rigs,
         conditions: &no_conditions,
+        given: &no_conditions,
         presets: &prof.presets,
         ablations: &prof.ablations,
         ablation_of: &roles.ablation_of,

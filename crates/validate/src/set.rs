@@ -120,6 +120,7 @@ pub fn set_configurations(study: &Study) -> Vec<Configuration> {
         types: Vec::new(),
         min: BTreeMap::new(),
         max: BTreeMap::new(),
+        given: None,
     };
     let mut out: Vec<Configuration> = study.file.configurations.clone();
     for l in &lidars {
@@ -147,6 +148,7 @@ pub fn set_configurations(study: &Study) -> Vec<Configuration> {
             types: study.type_names(),
             min: BTreeMap::new(),
             max: BTreeMap::new(),
+            given: None,
         });
     }
     let mut seen = BTreeSet::new();
