@@ -253,9 +253,9 @@ pub fn assemble(
             range_bins = bins.iter().map(|b| (b.label.clone(), b.gt_boxes.clone())).collect();
         }
         let (full, vel, mut scores) = score(pred)?;
-        scores.extend(visible_scores(&visible[conf], pred, &eval_cfg, &scenes, &draws)?);
+        let (visible_only, vis) = visible_scores(&visible[conf], pred, &eval_cfg, &scenes, &draws, &class_boxes)?;
+        scores.extend(vis);
         let meta = &metas[&(conf.clone(), preset.clone(), *seed)];
-        let vm = hilo_eval::evaluate_files(&visible[conf], pred, &eval_cfg);
         let six = |values: &BTreeMap<String, f64>| per_class(&class_boxes, values);
         entries.push(Entry {
             configuration: conf.clone(),
@@ -267,7 +267,7 @@ pub fn assemble(
             mean_ave: vel.mean,
             class_ave: six(&vel.by_class),
             map_by_range: bins.iter().map(|b| (b.label.clone(), b.mean_ap_present())).collect(),
-            visible_only: VisibleOnly { mean_ap: vm.mean_ap, nd_score: vm.nd_score, class_ap: six(&vm.mean_dist_aps) },
+            visible_only,
             train_s: meta.train_s,
             ms_per_frame: meta.ms_per_frame,
             samples: meta.samples,
@@ -349,21 +349,23 @@ fn bootstrap_scores(
     Ok((full, vel, scores))
 }
 
-/// A detector's accuracy scores under the nuScenes convention (`visible`: the boxes with a point
-/// of its rig), under the same scene draws, named as [`crate::verdict::visible_only`] names them:
-/// the claims' other reading.
+/// A detector under the nuScenes convention (`visible`: the boxes with a point of its rig): its
+/// scores on all scenes, and under the same scene draws named as [`crate::verdict::visible_only`]
+/// names them (the claims' other reading).
 fn visible_scores(
     visible: &GroundTruth,
     pred: &Predictions,
     eval_cfg: &DetectionConfig,
     scenes: &[String],
     draws: &[Vec<u32>],
-) -> Result<BTreeMap<String, Scores>> {
-    let (_, _, mut vis) = bootstrap_scores(visible, pred, eval_cfg, scenes, draws)?;
-    Ok(crate::verdict::METRICS
+    class_boxes: &BTreeMap<String, usize>,
+) -> Result<(VisibleOnly, BTreeMap<String, Scores>)> {
+    let (full, _, mut vis) = bootstrap_scores(visible, pred, eval_cfg, scenes, draws)?;
+    let scores = crate::verdict::METRICS
         .iter()
         .filter_map(|m| Some((crate::verdict::visible_only(m), vis.remove(*m)?)))
-        .collect())
+        .collect();
+    Ok((VisibleOnly { mean_ap: full.0, nd_score: full.1, class_ap: per_class(class_boxes, &full.2) }, scores))
 }
 
 /// A value per class of `class_boxes` (None where the class has no validation box or no value).
