@@ -430,36 +430,10 @@ fn md_claims(md: &mut String, r: &Report) {
             );
         }
         for row in &c.rows {
-            let (est, pv) = test_cells(&row.test);
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                esc(&c.statement),
-                row.metric,
-                esc(&row.comparison),
-                row.paper.map_or("–".into(), |v| format!("{v:+.3}")),
-                est,
-                pv,
-                row.paper_relation.map_or("–", relation_word),
-                if row.mde.is_finite() { format!("{:.3}", row.mde) } else { "–".into() },
-                verdict_word(row.verdict)
-            );
+            claim_row(md, &esc(&c.statement), row);
         }
         for row in &c.readings {
-            let (est, pv) = test_cells(&row.test);
-            let _ = writeln!(
-                md,
-                "| ↳ {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                esc(row.reading.as_deref().unwrap_or("")),
-                row.metric,
-                esc(&row.comparison),
-                row.paper.map_or("–".into(), |v| format!("{v:+.3}")),
-                est,
-                pv,
-                row.paper_relation.map_or("–", relation_word),
-                if row.mde.is_finite() { format!("{:.3}", row.mde) } else { "–".into() },
-                verdict_word(row.verdict)
-            );
+            claim_row(md, &format!("↳ {}", esc(row.reading.as_deref().unwrap_or(""))), row);
         }
         if !c.per_preset.is_empty() {
             let _ = writeln!(
@@ -479,6 +453,23 @@ fn md_claims(md: &mut String, r: &Report) {
             "Every training is its preset's schedule with the study's `[train_schedule]`: `{schedule}`.\n"
         );
     }
+}
+
+/// One row of the claims table: `first` in the claim column, then the row's cells.
+fn claim_row(md: &mut String, first: &str, row: &crate::verdict::ClaimRow) {
+    let (est, pv) = test_cells(&row.test);
+    let _ = writeln!(
+        md,
+        "| {first} | {} | {} | {} | {} | {} | {} | {} | {} |",
+        row.metric,
+        esc(&row.comparison),
+        row.paper.map_or("–".into(), |v| format!("{v:+.3}")),
+        est,
+        pv,
+        row.paper_relation.map_or("–", relation_word),
+        if row.mde.is_finite() { format!("{:.3}", row.mde) } else { "–".into() },
+        verdict_word(row.verdict)
+    );
 }
 
 /// What the radar adds and costs in the study's own weather and in each condition.

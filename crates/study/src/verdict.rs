@@ -796,36 +796,18 @@ impl Design<'_> {
         }
     }
 
-    /// B − A averaged over the presets that ran on both, paired by preset and seed structure;
-    /// and each preset's own difference.
+    /// B − A averaged over the presets that ran on both (each side their groups, weighed by
+    /// [`Self::groups_test`]); and each preset's own difference.
     fn pooled(&self, metric: &str, a: &str, b: &str) -> Option<(Test, BTreeMap<String, f64>)> {
-        let mut wa = Vec::new();
-        let mut wb = Vec::new();
-        let mut seed_term = 0.0;
-        let mut per = BTreeMap::new();
         let presets: Vec<&String> = self
             .presets
             .iter()
             .filter(|p| !self.seeds(a, p, metric).is_empty() && !self.seeds(b, p, metric).is_empty())
             .collect();
-        let n = presets.len() as f64;
-        for p in &presets {
-            let (sa, sb) = (self.seeds(a, p, metric), self.seeds(b, p, metric));
-            per.insert(
-                (*p).clone(),
-                mean(&sb.iter().map(|s| s.full).collect::<Vec<_>>())
-                    - mean(&sa.iter().map(|s| s.full).collect::<Vec<_>>()),
-            );
-            for s in &sa {
-                wa.push((*s, 1.0 / (n * sa.len() as f64)));
-            }
-            for s in &sb {
-                wb.push((*s, 1.0 / (n * sb.len() as f64)));
-            }
-            seed_term += (1.0 / sa.len() as f64 + 1.0 / sb.len() as f64) / (n * n);
-        }
-        (!presets.is_empty())
-            .then(|| (test(&wa, &wb, self.seed_variance(metric), seed_term, self.scenes, self.level), per))
+        let full = |rig: &str, p: &str| mean(&self.seeds(rig, p, metric).iter().map(|s| s.full).collect::<Vec<_>>());
+        let per = presets.iter().map(|p| ((*p).clone(), full(b, p) - full(a, p))).collect();
+        let side = |rig: &str| presets.iter().map(|p| (rig.to_owned(), (*p).clone())).collect::<Vec<_>>();
+        Some((self.groups_test(metric, &side(a), &side(b))?, per))
     }
 
     /// A/A pairs: for every group, each pair of its seeds, each tested with a seed variance
@@ -1101,18 +1083,23 @@ mod tests {
         }
     }
 
+    /// Three seeds of each (configuration, preset, mAP) group, seed s at mAP + 0.004 s.
+    fn seeded(groups: &[(&str, &str, f64)]) -> Vec<DetectorScores> {
+        (0..3)
+            .flat_map(|s| groups.iter().map(move |&(conf, preset, map)| det(conf, preset, s, map + 0.004 * s as f64)))
+            .collect()
+    }
+
     #[test]
     fn claims_follow_the_roles_and_a_clear_gap_is_supported() {
-        let mut scores = Vec::new();
-        for s in 0..3 {
-            let j = 0.004 * s as f64;
-            scores.push(det("2x16+R", "cp", s, 0.70 + j));
-            scores.push(det("2x16+R", "lf", s, 0.80 + j));
-            scores.push(det("2x16+R", "lf-no-early", s, 0.70 + j));
-            scores.push(det("64", "cp", s, 0.60 + j));
-            scores.push(det("64+R", "cp", s, 0.60 + j));
-            scores.push(det("64+R", "lf", s, 0.62 + j));
-        }
+        let scores = seeded(&[
+            ("2x16+R", "cp", 0.70),
+            ("2x16+R", "lf", 0.80),
+            ("2x16+R", "lf-no-early", 0.70),
+            ("64", "cp", 0.60),
+            ("64+R", "cp", 0.60),
+            ("64+R", "lf", 0.62),
+        ]);
         let configurations = vec![
             ("2x16+R".to_string(), 10_000.0, true),
             ("64".to_string(), 20_750.0, false),
@@ -1165,16 +1152,14 @@ mod tests {
     /// its relation to the paper's number.
     #[test]
     fn equivalence_budget_gate_mde_and_paper_relation() {
-        let mut scores = Vec::new();
-        for s in 0..3 {
-            let j = 0.004 * s as f64;
-            scores.push(det("2x16+R", "cp", s, 0.70 + j));
-            scores.push(det("2x16+R", "lf", s, 0.80 + j));
+        let scores = seeded(&[
+            ("2x16+R", "cp", 0.70),
+            ("2x16+R", "lf", 0.80),
             // The ablation scores as the preset does: no difference.
-            scores.push(det("2x16+R", "lf-no-early", s, 0.80 + j));
-            scores.push(det("64+R", "cp", s, 0.60 + j));
-            scores.push(det("64+R", "lf", s, 0.62 + j));
-        }
+            ("2x16+R", "lf-no-early", 0.80),
+            ("64+R", "cp", 0.60),
+            ("64+R", "lf", 0.62),
+        ]);
         let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("64+R".to_string(), 22_750.0, true)];
         let roles = Roles::new(true);
         let d = roles.design(&scores, &configurations);
@@ -1216,20 +1201,13 @@ mod tests {
         assert_eq!(by(&kept, "fusion_vs_lidar_only").verdict, Verdict::Supported);
     }
 
-    /// `det` with velocity errors (m/s): mAVE `mave` and car AVE 1.5 × `mave`.
     /// A radar rig placed given a LiDAR-only rig is compared with that rig for what the radar
     /// adds (the same LiDAR poses), not with the cheapest LiDAR-only rig, and says so.
     #[test]
     fn the_radar_is_judged_against_the_rig_it_was_placed_given() {
         let mut roles = Roles::new(false);
-        let mut scores = Vec::new();
-        for s in 0..3 {
-            let j = 0.004 * s as f64;
-            scores.push(det("2x16+R", "cp", s, 0.70 + j));
-            scores.push(det("2x16+R", "lf", s, 0.75 + j));
-            scores.push(det("2x16", "cp", s, 0.71 + j));
-            scores.push(det("1x16", "cp", s, 0.50 + j));
-        }
+        let scores =
+            seeded(&[("2x16+R", "cp", 0.70), ("2x16+R", "lf", 0.75), ("2x16", "cp", 0.71), ("1x16", "cp", 0.50)]);
         let configurations = vec![
             ("2x16+R".to_string(), 10_000.0, true),
             ("2x16".to_string(), 8_000.0, false),
@@ -1297,6 +1275,7 @@ mod tests {
         assert_eq!(alone.readings.len(), 2);
     }
 
+    /// `det` with velocity errors (m/s): mAVE `mave` and car AVE 1.5 × `mave`.
     fn det_v(conf: &str, preset: &str, seed: u64, map: f64, mave: f64) -> DetectorScores {
         let mut d = det(conf, preset, seed, map);
         for (name, v) in [("mAVE", mave), ("car AVE", 1.5 * mave)] {
