@@ -162,6 +162,17 @@ fn coarse_study(dir: &std::path::Path, configurations: &str) -> std::path::PathB
     p
 }
 
+/// A JSON file the command wrote.
+fn json(path: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// `hilo place STUDY --out OUT`, which must succeed.
+fn place_ok(study: &std::path::Path, out: &std::path::Path) {
+    let o = hilo().arg("place").arg(study).arg("--out").arg(out).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 #[test]
 fn place_writes_proven_placements_coverage_maps_and_exports() {
     let dir = tempfile::tempdir().unwrap();
@@ -176,8 +187,7 @@ fn place_writes_proven_placements_coverage_maps_and_exports() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(summary.as_array().unwrap().len(), 2);
-    let p: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("2x_lidar_16_radar.json")).unwrap()).unwrap();
+    let p = json(&out.join("2x_lidar_16_radar.json"));
     assert_eq!(p["proven_optimal"], true);
     assert_eq!(p["gap"].as_f64(), Some(0.0));
     assert_eq!(p["sensors"].as_array().unwrap().len(), 3);
@@ -195,8 +205,7 @@ fn place_writes_proven_placements_coverage_maps_and_exports() {
     ] {
         assert!(ex.join(f).exists(), "{f} not exported");
     }
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(ex.join("visibility_lidar-16.json")).unwrap()).unwrap();
+    let v = json(&ex.join("visibility_lidar-16.json"));
     assert_eq!(v["candidate"].as_array().unwrap().len(), v["v"].as_array().unwrap().len());
 }
 
@@ -208,11 +217,8 @@ fn a_lidar_only_configuration_is_placed_for_its_own_coverage() {
         "[[configurations]]\nname = \"16 alone\"\nsensors = { \"lidar-16\" = 1 }\n[[configurations]]\nname = \"16 + radar\"\nsensors = { \"lidar-16\" = 1, \"radar-4d\" = 1 }\n",
     );
     let out = dir.path().join("p");
-    let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).output().unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let read = |f: &str| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(out.join(f)).unwrap()).unwrap()
-    };
+    place_ok(&study, &out);
+    let read = |f: &str| json(&out.join(f));
     let (alone, both) = (read("16_alone.json"), read("16_radar.json"));
     assert_eq!(alone["sensors"].as_array().unwrap().len(), 1);
     // Its own objective (LiDAR coverage only), solved and proven, not a sibling's poses.
@@ -237,11 +243,8 @@ fn a_configuration_given_another_keeps_its_sensors() {
         "[[configurations]]\nname = \"2x lidar-16\"\nsensors = { \"lidar-16\" = 2 }\n[[configurations]]\nname = \"2x lidar-16 + radar\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"2x lidar-16\"\n[[configurations]]\nname = \"placed alone\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\n",
     );
     let out = dir.path().join("p");
-    let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).output().unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let read = |f: &str| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(out.join(f)).unwrap()).unwrap()
-    };
+    place_ok(&study, &out);
+    let read = |f: &str| json(&out.join(f));
     let (lidars, given, alone) = (read("2x_lidar_16.json"), read("2x_lidar_16_radar.json"), read("placed_alone.json"));
     let poses = |p: &serde_json::Value, ty: &str| -> Vec<String> {
         let mut v: Vec<String> = p["sensors"]
@@ -283,10 +286,8 @@ fn a_calibrated_objective_that_prices_radar_at_zero_buys_lidars() {
         let study = dir.path().join(format!("{name}.toml"));
         std::fs::write(&study, text(objective)).unwrap();
         let out = dir.path().join(name);
-        let o = hilo().arg("place").arg(&study).arg("--out").arg(&out).output().unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let p: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(out.join("budget.json")).unwrap()).unwrap();
+        place_ok(&study, &out);
+        let p = json(&out.join("budget.json"));
         p["sensors"].as_array().unwrap().iter().map(|s| s["type"].as_str().unwrap().to_owned()).collect()
     };
     let calibrated = types("calibrated", "objective = \"calibrated\"\ncalibration = { lidar = 0.6, radar = 0.0 }");
@@ -353,8 +354,7 @@ fn eval_writes_a_devkit_shaped_summary_and_refuses_mismatched_samples() {
     std::fs::write(&r, res).unwrap();
     let o = hilo().arg("eval").arg("--gt").arg(&g).arg("--results").arg(&r).arg("--out").arg(&out).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let m: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
+    let m = json(&out.join("metrics_summary.json"));
     for key in [
         "label_aps",
         "mean_dist_aps",
@@ -529,8 +529,7 @@ fn dataset_stats_and_eval_against_a_dataset() {
     };
     let o = eval(&["--bootstrap", "50"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let m: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("metrics_summary.json")).unwrap()).unwrap();
+    let m = json(&out.join("metrics_summary.json"));
     assert!((m["mean_dist_aps"]["car"].as_f64().unwrap() - 1.0).abs() < 1e-9);
     // Two validation scenes: intervals are not estimable, and said so.
     let text = String::from_utf8_lossy(&o.stdout);
@@ -570,8 +569,7 @@ fn a_detector_patch_changes_a_preset_and_sweeps_need_recorded_sweeps() {
     };
     let o = train(r#"{"velocity_weight": 1.0, "grid": {"max_points_per_pillar": 20}}"#, &root, "run");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let run: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("run/run.json")).unwrap()).unwrap();
+    let run = json(&dir.path().join("run/run.json"));
     assert_eq!(run["detector"]["velocity_weight"], 1.0);
     assert_eq!(run["detector"]["grid"]["max_points_per_pillar"], 20);
     // The fields the patch leaves alone, and the preset's schedule (replicas and all).
