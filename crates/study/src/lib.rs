@@ -20,6 +20,23 @@
 //!
 //! Nothing here parses command lines or draws progress bars: functions return values and
 //! [`StudyError`]s, and long stages report through a callback.
+//!
+//! # Where `hilo study`'s arguments go
+//!
+//! Each argument, from where the command line is read to where it takes effect (paths under
+//! `crates/`; past [`Plan::new`] every argument travels inside the [`Plan`], which the stages
+//! and the report read and nothing changes):
+//! - `STUDY`: `cli/src/study.rs` (`load`) → `cli/src/stages.rs` (the embedded default) or
+//!   `plan/src/sweep.rs` (a file, or a sweep's shards) → `plan/src/study.rs` (`Study::parse`:
+//!   every section checked once) → `study/src/run.rs` → `plan/src/plan.rs` (configurations,
+//!   hashes, jobs) → `plan/src/stages.rs` → `study/src/assemble.rs`.
+//! - `--profile`, `--seeds`, `--presets`: `plan/src/profile.rs` (the [`ProfileName`] parsed) →
+//!   `cli/src/study.rs` (`profile_of`) → `plan/src/profile.rs` (`profile`, `choose_presets`) →
+//!   `study/src/run.rs` → `plan/src/plan.rs` (the jobs) → `plan/src/stages.rs` and
+//!   `study/src/report.rs` (what the profile leaves out).
+//! - `--out`: `cli/src/study.rs` (claimed) → `core/src/folder.rs` → `study/src/run.rs` →
+//!   `plan/src/plan.rs` (every stage's folder) → `study/src/report.rs` (written).
+//! - `--workflow`: `cli/src/study.rs` → `study/src/workflow.rs`.
 
 pub mod assemble;
 pub mod compare;
