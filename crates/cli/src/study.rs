@@ -28,6 +28,11 @@ pub struct StudyArgs {
     /// Seeds per detector, 1 to 100 (overrides the profile's: 3 for default and paper).
     #[arg(long, value_parser = seeds)]
     pub seeds: Option<usize>,
+    /// Training-traffic draws, 1 to 10 (overrides the profile's 1): each configuration's
+    /// training scenes recorded again with other traffic, every detector trained on each, and
+    /// the draw a random effect of the verdict.
+    #[arg(long, value_parser = draws)]
+    pub traffic_draws: Option<usize>,
     /// Presets to train (comma-separated), overriding the profile's; ablations (as the plugins
     /// register them, e.g. `lirafusion-like-no-early`)
     /// train on the study's first configuration with a radar.
@@ -51,6 +56,10 @@ pub enum StageCommand {
         /// The configuration, by name or slug.
         #[arg(long)]
         configuration: String,
+        /// Its training-traffic draw (0, the study's own traffic, unless the study trains on
+        /// several: `--traffic-draws`).
+        #[arg(long, default_value_t = 0)]
+        draw: u64,
     },
     /// Train one detector and run it on the validation split.
     Train {
@@ -84,6 +93,14 @@ fn seeds(s: &str) -> std::result::Result<usize, String> {
     }
 }
 
+/// `--traffic-draws`: each draw is a dataset per configuration and a full set of trainings.
+fn draws(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=10).contains(&n) => Ok(n),
+        _ => Err(format!("{s} is not a count of training-traffic draws from 1 to 10")),
+    }
+}
+
 /// A path as one word of a shell line the user may paste (quoted where it needs it).
 fn shell_quoted(p: &Path) -> String {
     let s = p.to_string_lossy();
@@ -97,6 +114,9 @@ fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_detector::Registr
     }
     if let Some(s) = args.seeds {
         profile.seeds = s;
+    }
+    if let Some(d) = args.traffic_draws {
+        profile.traffic_draws = d;
     }
     Ok(profile)
 }
@@ -224,10 +244,10 @@ pub fn study(args: &StudyArgs) -> Result<()> {
             let (study, plan) = open_folder(&a.out, &registry)?;
             hilo_study::stages::place(&study, &plan, &mut |p| reporter.study(p))?;
         }
-        StageCommand::Simulate { args: a, configuration } => {
+        StageCommand::Simulate { args: a, configuration, draw } => {
             let (study, plan) = open_folder(&a.out, &registry)?;
-            let ci = plan.configuration(configuration)?;
-            hilo_study::stages::simulate(&study, &plan, ci, &mut |p| reporter.study(p))?;
+            let di = plan.data_index(plan.configuration(configuration)?, *draw)?;
+            hilo_study::stages::simulate(&study, &plan, di, &mut |p| reporter.study(p))?;
         }
         StageCommand::Train { args: a, job } => {
             let (_, plan) = open_folder(&a.out, &registry)?;

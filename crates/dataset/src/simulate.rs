@@ -46,6 +46,13 @@ pub struct SimulateConfig {
     pub lidar_sweeps: bool,
     /// Seed of the traffic and of the sensor noise.
     pub seed: u64,
+    /// Which draw of training traffic the training scenes hold (0: the dataset's own). Another
+    /// draw gives the training scenes other traffic (and sensor noise) from the same settings
+    /// and leaves the validation scenes as they are, so detectors trained on different draws
+    /// are scored on the same scenes: the study's way of measuring how much a result depends
+    /// on the traffic a detector happened to be trained on.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub train_traffic_draw: u64,
     /// Road users farther than this from the scene origin are not annotated.
     pub annotate_radius_m: f32,
     pub traffic: TrafficConfig,
@@ -66,6 +73,7 @@ impl Default for SimulateConfig {
             sweep_rate_hz: 10.0,
             lidar_sweeps: false,
             seed: 0,
+            train_traffic_draw: 0,
             annotate_radius_m: 70.0,
             traffic: TrafficConfig::default(),
             weather: Weather::default(),
@@ -116,6 +124,17 @@ impl SceneId {
 
 /// The most training (and, separately, validation) scenes a dataset may have.
 pub const MAX_SCENES: usize = 10_000;
+
+/// The most training-traffic draws ([`SimulateConfig::train_traffic_draw`] is below it).
+pub const MAX_TRAFFIC_DRAWS: u64 = 100;
+
+/// Training-traffic draw `d` seeds its training scenes from streams `d · TRAIN_DRAW_STRIDE +
+/// index`: above every validation stream (`1_000_000 + index`, index < [`MAX_SCENES`]).
+const TRAIN_DRAW_STRIDE: u64 = 2_000_000;
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
+}
 
 /// The most key frames a dataset may have (the paper's: 14,800).
 pub const MAX_FRAMES: usize = 2_000_000;
@@ -169,6 +188,13 @@ impl Check for SimulateConfig {
                 return bad(f, r.to_string(), &format!("must divide sweep_rate_hz = {} Hz", self.sweep_rate_hz));
             }
         }
+        if self.train_traffic_draw >= MAX_TRAFFIC_DRAWS {
+            return bad(
+                "train_traffic_draw",
+                self.train_traffic_draw.to_string(),
+                &format!("give a draw from 0 to {}", MAX_TRAFFIC_DRAWS - 1),
+            );
+        }
         if self.annotate_radius_m.is_nan() || self.annotate_radius_m <= 0.0 {
             return bad("annotate_radius_m", self.annotate_radius_m.to_string(), "must be > 0");
         }
@@ -204,6 +230,15 @@ impl SimulateConfig {
         self.scenes
             .saturating_mul(self.frames_per_scene())
             .saturating_add(self.val_scenes.saturating_mul(self.val_frames_per_scene()))
+    }
+
+    /// The seed stream of a scene: its own ([`SceneId::stream`]), moved past every other draw's
+    /// for a training scene of another training-traffic draw.
+    pub fn stream(&self, id: &SceneId) -> u64 {
+        match id.split {
+            Split::Train => self.train_traffic_draw * TRAIN_DRAW_STRIDE + id.stream(),
+            Split::Val => id.stream(),
+        }
     }
 
     /// Every scene, training first.
@@ -316,7 +351,7 @@ pub fn simulate_scene_with(
     id: &SceneId,
     on_frame: &(dyn Fn(usize) + Sync),
 ) -> Result<SceneData, DatasetError> {
-    let stream = id.stream();
+    let stream = cfg.stream(id);
     // The rig in the scene's weather (clear weather leaves every spec as it is).
     let weathered: Vec<RigSensor> = rig
         .iter()
@@ -445,7 +480,7 @@ pub fn key_frame_states(
     id: &SceneId,
 ) -> Result<Vec<Vec<ActorState>>, DatasetError> {
     let mut traffic =
-        Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, id.stream()]))?;
+        Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, cfg.stream(id)]))?;
     let (per_key, steps_per_sweep) = cadence(cfg, id);
     let n_frames = cfg.frames_of(id);
     let mut frames = Vec::with_capacity(n_frames);

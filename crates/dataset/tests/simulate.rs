@@ -145,6 +145,31 @@ fn simulated_datasets_round_trip_are_deterministic_and_resume() {
     common::devkit_check(a.path());
 }
 
+/// Another training-traffic draw: the training scenes hold other traffic, the validation
+/// scenes the same bytes (so detectors trained on either are scored on one test set), and a
+/// draw out of range is refused by name.
+#[test]
+fn another_traffic_draw_changes_training_scenes_only() {
+    use hilo_core::Check;
+    let scene = Scene::default_fixture().unwrap();
+    let (w, r) = (world(&scene), rig(&scene));
+    let c0 = SimulateConfig { scenes: 1, val_scenes: 1, ..cfg() }.validate().unwrap();
+    let c1 = SimulateConfig { train_traffic_draw: 1, ..c0.clone().into_inner() }.validate().unwrap();
+    let boxes = |c: &hilo_core::Valid<SimulateConfig>, id: &SceneId| {
+        let d = simulate_scene(&scene, &w, &r, c, id).unwrap();
+        d.frames.iter().flat_map(|f| f.annotations.iter().map(|a| a.box3.center.to_array())).collect::<Vec<_>>()
+    };
+    let val = SceneId { split: Split::Val, index: 0 };
+    assert_eq!(boxes(&c0, &val), boxes(&c1, &val));
+    let (t0, t1) = (boxes(&c0, &train(0)), boxes(&c1, &train(0)));
+    assert!(!t0.is_empty() && !t1.is_empty());
+    assert_ne!(t0, t1);
+    assert_eq!(c0.stream(&val), c1.stream(&val));
+    assert!(c1.stream(&train(9_999)) > c0.stream(&SceneId { split: Split::Val, index: 9_999 }));
+    let e = SimulateConfig { train_traffic_draw: 100, ..cfg() }.check().unwrap_err().to_string();
+    assert!(e.contains("dataset.train_traffic_draw") && e.contains("100"), "{e}");
+}
+
 /// Not circular: the road users' velocity is taken from the finite difference of their
 /// annotated positions (their true motion, frame to frame), not from the simulator's velocity
 /// field. The annotated velocity equals it, and the radar's Doppler equals its projection on the

@@ -18,6 +18,7 @@ use crate::profile::Profile;
 use crate::study::{Configuration, Study};
 use hilo_core::Valid;
 use hilo_core::fs::{limit, read_json, write_json};
+use hilo_dataset::simulate::SimulateConfig;
 use hilo_detector::train::TrainConfig;
 use hilo_detector::{DetectorConfig, Registry};
 use serde::{Deserialize, Serialize};
@@ -124,10 +125,16 @@ pub enum CurveKind {
 /// point; its run folders hold checkpoints, so an interrupted training resumes.
 #[derive(Clone, Debug)]
 pub struct Job {
-    /// `<configuration slug>/<preset>-seed<k>`: how a person or a workflow names it.
+    /// `<configuration slug>/<preset>-seed<k>` (`<preset>-draw<d>-seed<k>` on training-traffic
+    /// draw d > 0): how a person or a workflow names it.
     pub id: String,
     /// Index into [`Plan::configurations`].
     pub configuration: usize,
+    /// Index into [`Plan::data`]: the dataset it trains on (and detects on, whose validation
+    /// scenes every draw of its configuration shares).
+    pub data: usize,
+    /// The training-traffic draw of its dataset (0: the study's own traffic).
+    pub draw: u64,
     pub preset: String,
     pub seed: u64,
     pub run: PathBuf,
@@ -224,10 +231,14 @@ pub struct Plan {
     pub placed: Vec<usize>,
     /// Per configuration, its weather condition's name (None: the study's own weather).
     pub conditions: Vec<Option<String>>,
-    /// Per configuration, the settings its dataset is recorded with (the condition's weather).
+    /// Per dataset stage (as [`Plan::data`]), the settings it is recorded with (the
+    /// condition's weather, the training-traffic draw).
     pub datasets: Vec<Valid<hilo_dataset::simulate::SimulateConfig>>,
     pub placements: PathBuf,
     pub tradeoffs: PathBuf,
+    /// The dataset stages: each configuration's (in the order of `configurations`), then, when
+    /// the profile trains on several training-traffic draws, the configurations again for each
+    /// further draw ([`Plan::data_stage`]).
     pub data: Vec<DataStage>,
     pub jobs: Vec<Job>,
     /// Preset × configuration pairs left out, and why (a fusion preset on a rig without radar).
@@ -279,14 +290,21 @@ impl Plan {
         let placements = out.join("placements").join(short(&place_hash));
         let tradeoffs = placements
             .join(format!("tradeoffs-{}.json", profile.tradeoff_cell_m.map_or("study".into(), |c| c.to_string())));
-        let data: Vec<DataStage> = configurations
-            .iter()
-            .zip(&datasets)
-            .map(|(c, dataset)| {
+        // One dataset per configuration and training-traffic draw, draw 0 first: `data[ci]` is
+        // configuration ci's own, whose validation scenes every draw shares.
+        let mut data = Vec::new();
+        let mut drawn = Vec::new();
+        for draw in 0..profile.traffic_draws.max(1) as u64 {
+            for (c, dataset) in configurations.iter().zip(&datasets) {
+                let dataset = SimulateConfig { train_traffic_draw: draw, ..dataset.clone().into_inner() }.validate()?;
                 let h = stage_hash("data", &[&place_hash, &c.name, &format!("{dataset:?}")]);
-                DataStage { dir: out.join("data").join(format!("{}-{}", c.slug(), short(&h))), hash: h }
-            })
-            .collect();
+                let name = if draw == 0 { c.slug() } else { format!("{}-draw{draw}", c.slug()) };
+                data.push(DataStage { dir: out.join("data").join(format!("{name}-{}", short(&h))), hash: h });
+                drawn.push(dataset);
+            }
+        }
+        let datasets = drawn;
+        let n_conf = configurations.len();
         let ablation_rig = radar.iter().position(|&r| r);
         let mut jobs = Vec::new();
         // What each training step may use, read once for every job below.
@@ -307,7 +325,10 @@ impl Plan {
                     skipped.push(format!("{preset} on {}: skipped (the configuration has no radar)", conf.name));
                     continue;
                 }
-                for seed in 0..profile.seeds as u64 {
+                for (seed, draw) in (0..profile.traffic_draws.max(1) as u64)
+                    .flat_map(|d| (0..profile.seeds as u64).map(move |seed| (seed, d)))
+                {
+                    let di = draw as usize * n_conf + ci;
                     // One replica: the study trains its detectors side by side, one core each
                     // (`stages::train_all`), so a schedule's data-parallel replicas would run one
                     // after the other on that core, no faster (and synchronised BatchNorm, which
@@ -320,7 +341,7 @@ impl Plan {
                         tc.sampling = s;
                     }
                     let steps = tc.steps();
-                    let mut curve: Vec<usize> = if seed == 0 {
+                    let mut curve: Vec<usize> = if seed == 0 && draw == 0 {
                         profile
                             .curve
                             .iter()
@@ -336,13 +357,16 @@ impl Plan {
                     let schedule = serde_json::to_string(&tc)?;
                     // The curve's points are trainings of this stage (`CurveKind::Budget`).
                     let points = format!("budget curve {curve:?}");
-                    let h = stage_hash("run", &[&data[ci].hash, &detector, &schedule, &points]);
-                    let name = format!("{preset}-seed{seed}-{}", short(&h));
+                    let h = stage_hash("run", &[&data[di].hash, &detector, &schedule, &points]);
+                    let drawn = if draw == 0 { String::new() } else { format!("-draw{draw}") };
+                    let name = format!("{preset}{drawn}-seed{seed}-{}", short(&h));
                     let detector = detector_cfg.clone().validate()?;
                     detector.check_memory(tc.batch, memory)?;
                     jobs.push(Job {
-                        id: format!("{}/{preset}-seed{seed}", conf.slug()),
+                        id: format!("{}/{preset}{drawn}-seed{seed}", conf.slug()),
                         configuration: ci,
+                        data: di,
+                        draw,
                         preset: preset.clone(),
                         seed,
                         run: out.join("runs").join(conf.slug()).join(&name),
@@ -372,6 +396,35 @@ impl Plan {
         })
     }
 
+    /// The configuration and training-traffic draw of dataset stage `di`.
+    pub fn data_stage(&self, di: usize) -> (usize, u64) {
+        let n = self.configurations.len().max(1);
+        (di % n, (di / n) as u64)
+    }
+
+    /// The dataset stage of configuration `ci` on training-traffic draw `draw`.
+    pub fn data_index(&self, ci: usize, draw: u64) -> Result<usize> {
+        let di = draw as usize * self.configurations.len() + ci;
+        if ci < self.configurations.len() && di < self.data.len() {
+            return Ok(di);
+        }
+        Err(StudyError::Argument {
+            flag: "--draw",
+            value: draw.to_string(),
+            reason: format!(
+                "this study trains on {} training-traffic draw(s), 0 first",
+                self.profile.traffic_draws.max(1)
+            ),
+        })
+    }
+
+    /// A dataset stage's label: its configuration's name, and its draw when not the first.
+    pub fn data_label(&self, di: usize) -> String {
+        let (ci, draw) = self.data_stage(di);
+        let name = &self.configurations[ci].name;
+        if draw == 0 { name.clone() } else { format!("{name} (training-traffic draw {draw})") }
+    }
+
     /// Where configuration `ci`'s placement is written.
     pub fn placement(&self, ci: usize) -> PathBuf {
         self.placements.join(format!("{}.json", self.configurations[self.placed[ci]].slug()))
@@ -391,8 +444,11 @@ impl Plan {
         let mark = |done: bool| if done { "done" } else { "to do" };
         let placed = self.placement_outputs().iter().all(|p| p.exists());
         let mut lines = vec![format!("place                     {}  {}", mark(placed), self.placements.display())];
-        for (c, d) in self.configurations.iter().zip(&self.data) {
-            lines.push(format!("simulate {:<16} {}  {}", c.slug(), mark(d.done().exists()), d.dir.display()));
+        for (di, d) in self.data.iter().enumerate() {
+            let (ci, draw) = self.data_stage(di);
+            let slug = self.configurations[ci].slug();
+            let name = if draw == 0 { slug } else { format!("{slug} --draw {draw}") };
+            lines.push(format!("simulate {:<16} {}  {}", name, mark(d.done().exists()), d.dir.display()));
         }
         for j in &self.jobs {
             lines.push(format!("train {:<40} {}  {}", j.id, mark(j.done()), j.results.display()));
@@ -403,9 +459,9 @@ impl Plan {
     }
 
     /// The number of stages a workflow file holds for this plan (place, one simulate per
-    /// configuration, one train per job, report).
+    /// dataset, one train per job, report).
     pub fn stage_count(&self) -> usize {
-        self.jobs.len() + self.configurations.len() + 2
+        self.jobs.len() + self.data.len() + 2
     }
 
     /// A configuration by name or slug.

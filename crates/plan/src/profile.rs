@@ -62,8 +62,14 @@ pub struct Profile {
     /// The study's first configurations only (all when None): a study lists its rigs in order
     /// of interest, and a profile that cannot afford them all runs the first ones.
     pub configurations: Option<usize>,
-    /// Seeds per (configuration, preset).
+    /// Seeds per (configuration, preset) and training-traffic draw.
     pub seeds: usize,
+    /// Training-traffic draws: each configuration's training scenes recorded again with other
+    /// traffic (its validation scenes shared), and every detector of the profile trained on
+    /// each (`seeds` per draw). With two or more, the verdict treats the draw as a random effect:
+    /// a group's replicates are its draws, each the mean of its seeds.
+    #[serde(default = "one_draw", skip_serializing_if = "is_one_draw")]
+    pub traffic_draws: usize,
     /// Training samples per detector (None: each preset's default schedule).
     pub train_samples: Option<usize>,
     /// How training frames are drawn (None: each preset's default).
@@ -100,6 +106,15 @@ impl Profile {
             chosen.join(",")
         );
     }
+}
+
+/// A profile written before training-traffic draws existed trained on the study's traffic only.
+fn one_draw() -> usize {
+    1
+}
+
+fn is_one_draw(n: &usize) -> bool {
+    *n == 1
 }
 
 /// A profile written before weather conditions existed ran none.
@@ -160,6 +175,7 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
             ablations: vec![],
             configurations: Some(2),
             seeds: 2,
+            traffic_draws: 1,
             train_samples: Some(1_600),
             sampling: None,
             curve: vec![0.5, 1.0],
@@ -176,6 +192,7 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
             ablations: registry.primary().map(|(fusion, _)| registry.ablations_of(fusion)).unwrap_or_default(),
             configurations: Some(4),
             seeds: 3,
+            traffic_draws: 1,
             train_samples: Some(6_000),
             sampling: Some(Sampling::ClassBalanced),
             curve: vec![0.25, 0.5, 1.0],
@@ -192,6 +209,7 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
             ablations,
             configurations: None,
             seeds: 3,
+            traffic_draws: 1,
             train_samples: None,
             sampling: None,
             curve: vec![0.25, 0.5, 1.0],
@@ -208,6 +226,7 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
             ablations: vec![],
             configurations: Some(2),
             seeds: 2,
+            traffic_draws: 1,
             train_samples: Some(8),
             sampling: None,
             curve: vec![0.5, 1.0],

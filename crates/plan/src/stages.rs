@@ -66,13 +66,14 @@ pub struct DataRecord {
 pub fn simulate(
     study: &Study,
     plan: &Plan,
-    ci: usize,
+    di: usize,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<DataRecord> {
-    let stage = &plan.data[ci];
+    let stage = &plan.data[di];
     if let Ok(r) = read_json::<DataRecord>(&stage.done(), limit::TABLE) {
         return Ok(r);
     }
+    let (ci, _) = plan.data_stage(di);
     let conf = &plan.configurations[ci];
     let ppath = plan.placement(ci);
     if !ppath.exists() {
@@ -83,7 +84,7 @@ pub fn simulate(
         });
     }
     let placement = Placement::load(&ppath)?;
-    record_dataset(study, &placement, &ppath, &plan.datasets[ci], stage, &conf.name, progress)
+    record_dataset(study, &placement, &ppath, &plan.datasets[di], stage, &plan.data_label(di), progress)
 }
 
 /// Records `placement`'s dataset into `stage` (resumable scene by scene) and writes the stage's
@@ -127,9 +128,9 @@ pub struct Loaded {
     pub val: Vec<Frame>,
 }
 
-/// Loads configuration `ci`'s frames once per distinct detector input among `jobs`.
-pub fn load_inputs(plan: &Plan, ci: usize, jobs: &[&Job]) -> Result<BTreeMap<String, Loaded>> {
-    load_inputs_from(&plan.data[ci].dir, jobs)
+/// Loads dataset stage `di`'s frames once per distinct detector input among `jobs`.
+pub fn load_inputs(plan: &Plan, di: usize, jobs: &[&Job]) -> Result<BTreeMap<String, Loaded>> {
+    load_inputs_from(&plan.data[di].dir, jobs)
 }
 
 /// Loads the frames of the dataset in `dir` once per distinct detector input among `jobs`.
@@ -241,30 +242,31 @@ pub fn train_one(plan: &Plan, job: &Job, registry: &Registry, tick: &(dyn Fn(f64
         let empty = Loaded { background: None, train: Vec::new(), val: Vec::new() };
         return train_job(job, &empty, registry, tick);
     }
-    if !plan.data[job.configuration].done().exists() {
+    if !plan.data[job.data].done().exists() {
         return Err(StudyError::NotReady {
-            path: plan.data[job.configuration].dir.clone(),
-            what: format!("the dataset of {:?} is not complete", plan.configurations[job.configuration].name),
+            path: plan.data[job.data].dir.clone(),
+            what: format!("the dataset of {:?} is not complete", plan.data_label(job.data)),
             remedy: "run its simulate stage first".into(),
         });
     }
-    let inputs = load_inputs(plan, job.configuration, &[job])?;
+    let inputs = load_inputs(plan, job.data, &[job])?;
     let loaded = inputs.get(&input_key(job)).ok_or(StudyError::Internal("a training's frames were not loaded"))?;
     train_job(job, loaded, registry, tick)
 }
 
-/// Stage 3 for every job of configuration `ci`, in one process: frames loaded once per input,
-/// `workers` detectors at a time, each on a one-thread pool (on two cores one training gains
-/// little from a second thread, and two at once use both). Outputs in the order of `jobs`.
+/// Stage 3 for every job on dataset stage `di` (a configuration's, on one training-traffic
+/// draw), in one process: frames loaded once per input, `workers` detectors at a time, each on
+/// a one-thread pool (on two cores one training gains little from a second thread, and two at
+/// once use both). Outputs in the order of `jobs`.
 pub fn train_all(
     plan: &Plan,
-    ci: usize,
+    di: usize,
     registry: &Registry,
     workers: usize,
     tick: &(dyn Fn(&Job, f64) + Sync),
 ) -> Result<Vec<JobOutput>> {
-    let jobs: Vec<&Job> = plan.jobs.iter().filter(|j| j.configuration == ci).collect();
-    train_jobs(&plan.data[ci].dir, &jobs, registry, workers, tick)
+    let jobs: Vec<&Job> = plan.jobs.iter().filter(|j| j.data == di).collect();
+    train_jobs(&plan.data[di].dir, &jobs, registry, workers, tick)
 }
 
 /// Trains (or resumes) `jobs` on the dataset in `dir`, `workers` at a time (see [`train_all`]).

@@ -27,12 +27,26 @@ fn nan() -> f64 {
     f64::NAN
 }
 
+fn is_zero(v: &u64) -> bool {
+    *v == 0
+}
+
+/// A detector's place among its group's: seeds of draw 0 first (0 is seed 0 on the study's own
+/// traffic, whose learning curve and pictures the report shows), then those of each further
+/// training-traffic draw.
+fn replicate(prof: &Profile, seed: u64, draw: u64) -> u64 {
+    draw * prof.seeds.max(1) as u64 + seed
+}
+
 /// One trained detector's evaluation.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Entry {
     pub configuration: String,
     pub preset: String,
     pub seed: u64,
+    /// The training-traffic draw it was trained on (0: the study's own traffic).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub draw: u64,
     /// On the common ground truth (every road user, seen or not), over the classes present.
     pub mean_ap: f64,
     pub nd_score: f64,
@@ -156,7 +170,8 @@ pub struct Report {
     pub seconds: f64,
 }
 
-/// Predictions by (configuration, preset, seed).
+/// Predictions by (configuration, preset, replicate): the replicate is the seed on the study's
+/// own traffic, and counts on past the seeds for each further training-traffic draw.
 pub type ResultsBy = BTreeMap<(String, String, u64), Predictions>;
 /// Per configuration, the validation frame the report draws (the middle one), its sample key
 /// and its common ground truth.
@@ -223,7 +238,7 @@ pub fn assemble(
                 Some(o) => o,
                 None => read_outputs(job)?,
             };
-            let key = (conf.name.clone(), job.preset.clone(), job.seed);
+            let key = (conf.name.clone(), job.preset.clone(), replicate(prof, job.seed, job.draw));
             for (samples, p) in out.curve {
                 curve_preds.insert((conf.name.clone(), job.preset.clone(), samples), sorted(rekey(p, &keys)));
             }
@@ -247,7 +262,8 @@ pub fn assemble(
     let mut det_scores = Vec::new();
     let mut planted = Vec::new();
     let mut range_bins = Vec::new();
-    for ((conf, preset, seed), pred) in &results_by {
+    for ((conf, preset, r), pred) in &results_by {
+        let (seed, draw) = (r % prof.seeds.max(1) as u64, r / prof.seeds.max(1) as u64);
         let bins = hilo_eval::evaluate_distance_bins(&common, pred, &eval_cfg, &study.file.evaluation.range_bins_m);
         if range_bins.is_empty() {
             range_bins = bins.iter().map(|b| (b.label.clone(), b.gt_boxes.clone())).collect();
@@ -255,12 +271,13 @@ pub fn assemble(
         let (full, vel, mut scores) = score(pred)?;
         let (visible_only, vis) = visible_scores(&visible[conf], pred, &eval_cfg, &scenes, &draws, &class_boxes)?;
         scores.extend(vis);
-        let meta = &metas[&(conf.clone(), preset.clone(), *seed)];
+        let meta = &metas[&(conf.clone(), preset.clone(), *r)];
         let six = |values: &BTreeMap<String, f64>| per_class(&class_boxes, values);
         entries.push(Entry {
             configuration: conf.clone(),
             preset: preset.clone(),
-            seed: *seed,
+            seed,
+            draw,
             mean_ap: full.0,
             nd_score: full.1,
             class_ap: six(&full.2),
@@ -273,16 +290,13 @@ pub fn assemble(
             samples: meta.samples,
             parameters: meta.parameters,
         });
-        det_scores.push(DetectorScores { configuration: conf.clone(), preset: preset.clone(), seed: *seed, scores });
+        let of = |scores| DetectorScores { configuration: conf.clone(), preset: preset.clone(), seed, draw, scores };
+        det_scores.push(of(scores));
         // The planted difference: the same detector with a share of its boxes dropped.
-        let degraded = drop_share(pred, DROP, *seed);
-        let (_, _, s) = score(&degraded)?;
-        planted.push(DetectorScores { configuration: conf.clone(), preset: preset.clone(), seed: *seed, scores: s });
+        planted.push(of(score(&drop_share(pred, DROP, *r))?.2));
     }
-    entries.sort_by(|a, b| {
-        let pos = |c: &str| configs.iter().position(|x| x.name == c).unwrap_or(usize::MAX);
-        (pos(&a.configuration), a.preset.as_str(), a.seed).cmp(&(pos(&b.configuration), b.preset.as_str(), b.seed))
-    });
+    let pos = |c: &str| configs.iter().position(|x| x.name == c).unwrap_or(usize::MAX);
+    entries.sort_by_key(|e| (pos(&e.configuration), e.preset.clone(), e.draw, e.seed));
     let learning_curves = learning_curves(&results_by, &curve_preds, &metas, &entries, &common, &eval_cfg, &scenes)?;
     let v = &study.file.verdict;
     let margins = Margins { ap: v.equivalence_margin, velocity_m_s: v.velocity_equivalence_margin_m_s };
@@ -486,9 +500,12 @@ fn verdict(
     let roles = PresetRoles::of(prof, registry);
     let given: BTreeMap<String, String> =
         summaries.iter().filter_map(|s| Some((s.name.clone(), s.given.clone()?))).collect();
+    // With several training-traffic draws, the draw is the replicate (a random effect).
+    let units = crate::verdict::draw_units(det_scores);
+    let planted = crate::verdict::draw_units(planted);
     let design = Design {
         given: &given,
-        scores: det_scores,
+        scores: &units,
         configurations: &conf_roles,
         conditions: &conditions,
         presets: &prof.presets,
@@ -503,7 +520,11 @@ fn verdict(
     let mut comparisons = design.comparisons();
     let mut claims = design.claims();
     adjust(&mut claims, &mut comparisons, 0.05, margins);
-    let calibration = calibrate(&design, planted, DROP);
+    let mut calibration = calibrate(&design, &planted, DROP);
+    calibration.traffic_draws = crate::verdict::METRICS
+        .iter()
+        .filter_map(|m| Some((m.to_string(), crate::verdict::draw_variance(det_scores, m)?)))
+        .collect();
     (comparisons, claims, calibration)
 }
 
@@ -532,7 +553,7 @@ fn learning_curves(
             end,
             entries
                 .iter()
-                .find(|e| &e.configuration == conf && &e.preset == preset && e.seed == 0)
+                .find(|e| &e.configuration == conf && &e.preset == preset && e.seed == 0 && e.draw == 0)
                 .map_or(f64::NAN, |e| e.mean_ap),
         ));
         points.sort_by_key(|p| p.0);
@@ -622,6 +643,7 @@ fn calibrate(design: &Design, planted: &[DetectorScores], share: f64) -> Calibra
         planted_mean_effect: tests.iter().map(|t| t.estimate).sum::<f64>() / tests.len().max(1) as f64,
         power: found as f64 / tests.len().max(1) as f64,
         seed_variance: crate::verdict::METRICS.iter().map(|m| (m.to_string(), design.seed_variance(m))).collect(),
+        traffic_draws: BTreeMap::new(),
     }
 }
 

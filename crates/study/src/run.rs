@@ -89,14 +89,14 @@ fn run_plan(
         progress(Progress::Stage(s));
     }
     drop(stages::place(study, plan, progress)?);
-    for ci in 0..plan.configurations.len() {
-        stages::simulate(study, plan, ci, progress)?;
+    for di in 0..plan.data.len() {
+        stages::simulate(study, plan, di, progress)?;
     }
     let total_steps: usize = plan.jobs.iter().map(|j| j.steps()).sum();
     let label = format!("training {} detectors, {} at a time", plan.jobs.len(), plan.profile.trainings_at_once);
     let steps_done: Mutex<BTreeMap<String, usize>> = Mutex::new(BTreeMap::new());
     let mut outputs: BTreeMap<String, JobOutput> = BTreeMap::new();
-    for ci in 0..plan.configurations.len() {
+    for di in 0..plan.data.len() {
         let shared = Mutex::new(&mut *progress);
         let tick = |job: &hilo_plan::plan::Job, f: f64| {
             let Ok(mut s) = steps_done.lock() else { return };
@@ -107,12 +107,16 @@ fn run_plan(
                 p(Progress::Task { label: &label, done, total: total_steps, unit: "steps" });
             }
         };
-        let outs = stages::train_all(plan, ci, registry, plan.profile.trainings_at_once, &tick)?;
-        let jobs: Vec<&hilo_plan::plan::Job> = plan.jobs.iter().filter(|j| j.configuration == ci).collect();
+        let outs = stages::train_all(plan, di, registry, plan.profile.trainings_at_once, &tick)?;
+        let jobs: Vec<&hilo_plan::plan::Job> = plan.jobs.iter().filter(|j| j.data == di).collect();
         for (job, out) in jobs.into_iter().zip(outs) {
             progress(Progress::Stage(&format!(
                 "{} (seed {}) on {}: {} samples in {:.0} s",
-                job.preset, job.seed, plan.configurations[ci].name, out.meta.samples, out.meta.train_s
+                job.preset,
+                job.seed,
+                plan.data_label(di),
+                out.meta.samples,
+                out.meta.train_s
             )));
             if let Ok(mut s) = steps_done.lock() {
                 s.insert(job.id.clone(), job.steps());

@@ -226,24 +226,37 @@ fn rules(plan: &Plan, wf: &Workflow, shard: Option<&str>) -> Result<Vec<Rule>> {
             out: out.clone(),
         },
     ];
-    for (ci, conf) in plan.configurations.iter().enumerate() {
-        let slug = shell_word(&conf.slug())?.to_owned();
+    for (di, done) in data.iter().enumerate() {
+        let (ci, draw) = plan.data_stage(di);
+        let slug = shell_word(&plan.configurations[ci].slug())?.to_owned();
+        let (tag, flag) = if draw == 0 {
+            (slug.clone(), String::new())
+        } else {
+            (format!("{slug}-draw{draw}"), format!(" --draw {draw}"))
+        };
         rules.push(Rule {
-            name: name("simulate", &[&slug]),
+            name: name("simulate", &[&tag]),
             inputs: vec![path(&plan.placement(ci))?],
-            outputs: vec![data[ci].clone()],
+            outputs: vec![done.clone()],
             resources: simulate(all_frames),
             gpu: false,
-            log: log(format!("simulate-{slug}")),
-            cmd: format!("study simulate --configuration {slug}"),
+            log: log(format!("simulate-{tag}")),
+            cmd: format!("study simulate --configuration {slug}{flag}"),
             out: out.clone(),
         });
     }
     for j in &plan.jobs {
         let slug = plan.configurations[j.configuration].slug();
+        let draw = if j.draw == 0 { String::new() } else { format!("draw{}", j.draw) };
+        let mut parts = vec![slug.as_str(), j.preset.as_str()];
+        if j.draw > 0 {
+            parts.push(&draw);
+        }
+        let seed = format!("seed{}", j.seed);
+        parts.push(&seed);
         rules.push(Rule {
-            name: name("train", &[&slug, &j.preset, &format!("seed{}", j.seed)]),
-            inputs: vec![data[j.configuration].clone()],
+            name: name("train", &parts),
+            inputs: vec![data[j.data].clone()],
             outputs: j.outputs().iter().map(|p| path(p)).collect::<Result<_>>()?,
             resources: train(all_frames, j.samples()),
             gpu: wf.gpu,
@@ -339,7 +352,7 @@ pub fn validation_snakefile(plan: &ValidationPlan, profile: &Profile, wf: &Workf
         let id = shell_word(&j.id)?;
         rules.push(Rule {
             name: rule_name(&["train", &j.id]),
-            inputs: vec![data[j.configuration].clone()],
+            inputs: vec![data[j.data].clone()],
             outputs,
             resources: trainer,
             gpu: wf.gpu,

@@ -44,6 +44,7 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
                     configuration: rig.clone(),
                     preset: p.clone(),
                     seed,
+                    draw: 0,
                     scores: BTreeMap::from([("mAP".to_string(), s.clone()), ("pedestrian AP".to_string(), s)]),
                 });
             }

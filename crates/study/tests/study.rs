@@ -286,6 +286,51 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
 /// each), in its own weather (fog leaves more road users unseen by the LiDAR-only rig), trains
 /// them like the others, and the verdict judges the radar's claims and prices the radar in it;
 /// a profile without conditions plans none.
+/// Two training-traffic draws: each configuration recorded again with other training traffic
+/// (its validation scenes the same), every detector trained on both, the report's replicates
+/// the draws (two a side), the traffic's variance component reported, and the workflow names
+/// the second draw's stages.
+#[test]
+fn a_second_traffic_draw_trains_every_detector_again_and_is_the_replicate() {
+    let dir = tempfile::tempdir().unwrap();
+    let study = Study::parse(TWO_CONFIGS, dir.path(), "two-configs.toml").unwrap();
+    let registry = Registry::with_builtin();
+    let mut profile = hilo_study::profile(hilo_study::ProfileName::Tiny, &study, &registry).unwrap();
+    profile.presets = vec!["centerpoint".into()];
+    profile.train_samples = Some(4);
+    profile.traffic_draws = 2;
+    let out = dir.path().join("drawn");
+    let plan = hilo_study::Plan::new(&study, &registry, &profile, &out).unwrap();
+    assert_eq!((plan.data.len(), plan.jobs.len()), (4, 8), "2 configurations × 2 draws; × 2 seeds");
+    assert_eq!(plan.data_stage(3), (1, 1));
+    assert_eq!(plan.data_index(1, 1).unwrap(), 3);
+    assert!(plan.data_index(0, 2).unwrap_err().to_string().contains("--draw"));
+    let second: Vec<&str> = plan.jobs.iter().filter(|j| j.draw == 1).map(|j| j.id.as_str()).collect();
+    assert_eq!(second.len(), 4);
+    assert!(second.iter().all(|id| id.contains("centerpoint-draw1-seed")), "{second:?}");
+    assert!(plan.jobs.iter().all(|j| plan.data_stage(j.data) == (j.configuration, j.draw)));
+    let wf = hilo_study::workflow::Workflow { hilo: "/usr/bin/hilo".into(), gpu: false };
+    let snake = hilo_study::workflow::snakefile(&plan, &wf).unwrap();
+    assert!(snake.contains("--draw 1") && snake.contains("centerpoint-draw1-seed1"), "{snake}");
+    let report = hilo_study::run(&study, &registry, &RunOptions { profile, out: out.clone() }, &mut |_| {}).unwrap();
+    assert_eq!(report.entries.len(), 8);
+    assert_eq!(report.entries.iter().filter(|e| e.draw == 1).count(), 4);
+    // Every detector is scored on the validation scenes both draws share.
+    let val = |di: usize| {
+        let ds = hilo_dataset::Dataset::open(&plan.data[di].dir, "v1.0-trainval").unwrap();
+        let (kind, key) = (hilo_study::gt::GtKind::Common, hilo_study::gt::SampleKey::SceneTime);
+        serde_json::to_string(&hilo_study::gt::ground_truth(&ds, "val", kind, key).unwrap().0).unwrap()
+    };
+    assert_eq!(val(0), val(2));
+    let d = &report.calibration.traffic_draws["mAP"];
+    assert_eq!((d.draws, d.seeds), (2, 2));
+    for c in &report.comparisons {
+        assert!((c.test.seeds_a, c.test.seeds_b) == (2, 2), "{}: {:?}", c.b, c.test);
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("2 training-traffic draws") && md.contains("--traffic-draws 2"), "{md}");
+}
+
 #[test]
 fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
     use hilo_study::Plan;

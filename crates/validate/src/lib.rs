@@ -449,6 +449,8 @@ fn jobs(
             jobs.push(Job {
                 id: format!("{}/{preset}-seed{seed}", m.slug),
                 configuration: mi,
+                data: mi,
+                draw: 0,
                 preset: preset.to_owned(),
                 seed,
                 run: out.join("runs").join(&m.slug).join(&name),
