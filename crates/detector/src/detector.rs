@@ -41,8 +41,14 @@ impl HostBatch {
         let boxes: Vec<&[GtBox]> = frames.iter().map(|f| f.boxes.as_slice()).collect();
         let lidar = pillarize(&cfg.grid, &lidar, seed);
         let radar = pillarize(&cfg.grid, &radar, seed ^ 0x5eed_f4ad);
-        let mut targets =
-            crate::targets::build(&cfg.grid, cfg.backbone.out_stride, CLASSES.len(), &boxes, cfg.assignment);
+        let mut targets = crate::targets::build(
+            &cfg.grid,
+            cfg.backbone.out_stride,
+            CLASSES.len(),
+            &boxes,
+            cfg.assignment,
+            cfg.velocity_target,
+        );
         let sparse = cfg.sparse.as_ref().map(|s| {
             let occupied: Vec<u32> = lidar.index.iter().chain(&radar.index).copied().collect();
             let h = SparseHost::build(
@@ -297,6 +303,11 @@ impl Detector {
             LossNorm::All => {
                 let tm = Tensor::from_slice(&t.mask, mask_shape.as_slice(), dev)?;
                 let vm = Tensor::from_slice(&t.vel_mask, mask_shape.as_slice(), dev)?;
+                // Under `Footprint` each box's cells share one box's weight.
+                let vm = match t.vel_weight.is_empty() {
+                    true => vm,
+                    false => Tensor::from_slice(&t.vel_weight, mask_shape.as_slice(), dev)?,
+                };
                 (
                     match self.cfg.assignment {
                         Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
@@ -311,7 +322,10 @@ impl Detector {
                     Assignment::Inside => sigmoid_focal_terms(cls, &tc)?,
                 };
                 let site_w = t.per_class_site_weights(cls.dim(1)?, cls.rank() == 4);
-                let vel_w: Vec<f32> = site_w.iter().zip(&t.vel_mask).map(|(w, k)| w * k).collect();
+                let vel_w: Vec<f32> = match t.vel_weight.is_empty() {
+                    true => site_w.iter().zip(&t.vel_mask).map(|(w, k)| w * k).collect(),
+                    false => t.per_class_velocity_weights(cls.dim(1)?),
+                };
                 let sw = Tensor::from_vec(site_w, mask_shape.as_slice(), dev)?;
                 let vw = Tensor::from_vec(vel_w, mask_shape.as_slice(), dev)?;
                 (

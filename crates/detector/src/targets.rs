@@ -3,7 +3,7 @@
 use crate::data::GtBox;
 use crate::grid::BevGrid;
 use crate::modules::REG_CHANNELS;
-pub use hilo_fusion::config::Assignment;
+pub use hilo_fusion::config::{Assignment, VelocityTarget};
 
 /// Targets of a batch: class map (B, K, H, W), regression (B, 10, H, W), positive mask
 /// (B, 1, H, W), the mask of positives whose velocity is known (B, 1, H, W), all row-major,
@@ -16,6 +16,11 @@ pub struct Targets {
     /// 1 at a positive cell whose box's velocity is known, else 0: the velocity channels'
     /// loss is masked by it (an unknown velocity is not trained as zero).
     pub vel_mask: Vec<f32>,
+    /// Under [`VelocityTarget::Footprint`] (empty otherwise): each cell's share of its box's
+    /// velocity loss (1 / the box's footprint cells; 0 where the box's velocity is unknown or
+    /// no box covers the cell), and the class of that box (−1 where none).
+    pub vel_weight: Vec<f32>,
+    pub vel_class: Vec<f32>,
     pub num_pos: f32,
     /// Positives per class (their sum is `num_pos`).
     pub pos_per_class: Vec<f32>,
@@ -34,6 +39,8 @@ impl Targets {
             reg: Vec::with_capacity(sites.len() * REG_CHANNELS),
             mask: Vec::with_capacity(sites.len()),
             vel_mask: Vec::with_capacity(sites.len()),
+            vel_weight: Vec::new(),
+            vel_class: Vec::new(),
             num_pos: self.num_pos,
             pos_per_class: self.pos_per_class.clone(),
             size: self.size,
@@ -48,8 +55,24 @@ impl Targets {
             }
             t.mask.push(self.mask[b * hw + rc]);
             t.vel_mask.push(self.vel_mask[b * hw + rc]);
+            if !self.vel_weight.is_empty() {
+                t.vel_weight.push(self.vel_weight[b * hw + rc]);
+                t.vel_class.push(self.vel_class[b * hw + rc]);
+            }
         }
         t
+    }
+
+    /// Under [`VelocityTarget::Footprint`], each cell's weight in the velocity loss for
+    /// [`crate::loss::per_class_mean`]'s normalisation: its share of its box times the box
+    /// class's `1 / (K · max(1, n_k))`.
+    pub fn per_class_velocity_weights(&self, classes: usize) -> Vec<f32> {
+        let w = crate::loss::class_weights(&self.pos_per_class, classes);
+        self.vel_weight
+            .iter()
+            .zip(&self.vel_class)
+            .map(|(share, k)| if *k >= 0.0 { share * w.get(*k as usize).copied().unwrap_or(0.0) } else { 0.0 })
+            .collect()
     }
 
     /// The regression's weight at each cell of the mask for [`crate::loss::per_class_mean`]'s
@@ -83,7 +106,48 @@ pub fn gaussian_radius(l: f32, w: f32, min_overlap: f32) -> f32 {
     r1.min(r2).min(r3)
 }
 
-pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBox]], how: Assignment) -> Targets {
+/// The head cells (row, column, squared distance of the cell centre from the box centre, in
+/// cells) whose centre lies in the box's footprint, in row-major order; the centre cell alone
+/// when none does (a box smaller than a cell). `u, v`: the box centre in cells.
+fn footprint(g: &GtBox, grid: &BevGrid, cell: f32, n: usize, (u, v): (f32, f32)) -> Vec<(usize, usize, f32)> {
+    let (ci, ri) = (u as usize, v as usize);
+    let (cy, sy) = (g.yaw.cos(), g.yaw.sin());
+    let reach = (0.5 * (g.wlh[0].hypot(g.wlh[1])) / cell).ceil() as i64 + 1;
+    let mut cells = Vec::new();
+    for dr in -reach..=reach {
+        for dc in -reach..=reach {
+            let (rr, cc) = (ri as i64 + dr, ci as i64 + dc);
+            if rr < 0 || cc < 0 || rr >= n as i64 || cc >= n as i64 {
+                continue;
+            }
+            let (x, y) = (
+                (cc as f32 + 0.5) * cell - grid.half_extent_m - g.center[0],
+                (rr as f32 + 0.5) * cell - grid.half_extent_m - g.center[1],
+            );
+            let (along, across) = (x * cy + y * sy, -x * sy + y * cy);
+            if along.abs() <= 0.5 * g.wlh[1] && across.abs() <= 0.5 * g.wlh[0] {
+                let (du, dv) = (cc as f32 + 0.5 - u, rr as f32 + 0.5 - v);
+                cells.push((rr as usize, cc as usize, du * du + dv * dv));
+            }
+        }
+    }
+    if cells.is_empty() {
+        let (du, dv) = (ci as f32 + 0.5 - u, ri as f32 + 0.5 - v);
+        cells.push((ri, ci, du * du + dv * dv));
+    }
+    cells
+}
+
+/// The targets of a batch of frames on the head's grid (`out_stride` cells of the BEV grid per
+/// head cell), with velocity supervised where `velocity` says.
+pub fn build(
+    grid: &BevGrid,
+    out_stride: usize,
+    classes: usize,
+    frames: &[&[GtBox]],
+    how: Assignment,
+    velocity: VelocityTarget,
+) -> Targets {
     let n = grid.cells() / out_stride;
     let cell = grid.cell_m * out_stride as f32;
     let hw = n * n;
@@ -93,11 +157,20 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
         reg: vec![0.0; b * REG_CHANNELS * hw],
         mask: vec![0.0; b * hw],
         vel_mask: vec![0.0; b * hw],
+        vel_weight: Vec::new(),
+        vel_class: Vec::new(),
         num_pos: 0.0,
         pos_per_class: vec![0.0; classes],
         size: n,
     };
+    let footprints = velocity == VelocityTarget::Footprint;
+    if footprints {
+        t.vel_weight = vec![0.0; b * hw];
+        t.vel_class = vec![-1.0; b * hw];
+    }
     for (bi, boxes) in frames.iter().enumerate() {
+        // Under `Footprint`: per cell, the squared distance to the centre of the box it learns.
+        let mut nearest = if footprints { vec![f32::INFINITY; hw] } else { Vec::new() };
         for g in boxes.iter() {
             let u = (g.center[0] + grid.half_extent_m) / cell;
             let v = (g.center[1] + grid.half_extent_m) / cell;
@@ -151,30 +224,24 @@ pub fn build(grid: &BevGrid, out_stride: usize, classes: usize, frames: &[&[GtBo
                     put_reg(&mut t, ri, ci);
                 }
                 Assignment::Inside => {
-                    let (cy, sy) = (g.yaw.cos(), g.yaw.sin());
-                    let reach = (0.5 * (g.wlh[0].hypot(g.wlh[1])) / cell).ceil() as i64 + 1;
-                    let mut any = false;
-                    for dr in -reach..=reach {
-                        for dc in -reach..=reach {
-                            let (rr, cc) = (ri as i64 + dr, ci as i64 + dc);
-                            if rr < 0 || cc < 0 || rr >= n as i64 || cc >= n as i64 {
-                                continue;
-                            }
-                            let (x, y) = (
-                                (cc as f32 + 0.5) * cell - grid.half_extent_m - g.center[0],
-                                (rr as f32 + 0.5) * cell - grid.half_extent_m - g.center[1],
-                            );
-                            let (along, across) = (x * cy + y * sy, -x * sy + y * cy);
-                            if along.abs() <= 0.5 * g.wlh[1] && across.abs() <= 0.5 * g.wlh[0] {
-                                t.cls[cls_base + rr as usize * n + cc as usize] = 1.0;
-                                put_reg(&mut t, rr as usize, cc as usize);
-                                any = true;
-                            }
-                        }
+                    for (rr, cc, _) in footprint(g, grid, cell, n, (u, v)) {
+                        t.cls[cls_base + rr * n + cc] = 1.0;
+                        put_reg(&mut t, rr, cc);
                     }
-                    if !any {
-                        t.cls[cls_base + ri * n + ci] = 1.0;
-                        put_reg(&mut t, ri, ci);
+                }
+            }
+            if footprints {
+                let cells = footprint(g, grid, cell, n, (u, v));
+                let share = if known { 1.0 / cells.len() as f32 } else { 0.0 };
+                for (rr, cc, d2) in cells {
+                    let i = rr * n + cc;
+                    if d2 < nearest[i] {
+                        nearest[i] = d2;
+                        t.vel_weight[bi * hw + i] = share;
+                        t.vel_class[bi * hw + i] = g.class as f32;
+                        let base = bi * REG_CHANNELS * hw + i;
+                        t.reg[base + 8 * hw] = vel[0];
+                        t.reg[base + 9 * hw] = vel[1];
                     }
                 }
             }

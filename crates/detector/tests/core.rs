@@ -567,3 +567,81 @@ fn bad_input_is_a_clear_error() {
 fn the_builtin_plugin_passes_the_conformance_suite() {
     hilo_detector::conformance::check_plugin(&Registry::with_builtin(), "lidar").unwrap();
 }
+
+/// `velocity_target = "footprint"`: every head cell inside a moving box learns its velocity (the
+/// cells of a box share one box's weight), a box of unknown velocity teaches none, the cell
+/// between two overlapping boxes learns the nearer one, and `positives` (the default) still
+/// supervises the centre cell alone. Then the loss: moving a footprint cell's predicted velocity
+/// off its target raises the loss under `footprint` and not under `positives`, the sparse and
+/// dense heads agree on it, and per-class normalisation keeps a box's weight at its class's.
+#[test]
+fn footprint_velocity_targets_cover_the_box_and_enter_the_loss() {
+    use hilo_detector::targets::{Assignment, VelocityTarget, build};
+    let cfg = dense("centerpoint");
+    let (grid, n) = (cfg.grid, cfg.grid.cells());
+    let hw = n * n;
+    let moving = car(3.0, 2.0, 0.4);
+    let still_unknown = GtBox { velocity: [f32::NAN, f32::NAN], ..car(-6.0, -6.0, 0.0) };
+    let boxes = [moving, still_unknown];
+    let fp = build(&grid, 1, 6, &[&boxes], Assignment::Center, VelocityTarget::Footprint);
+    let pos = build(&grid, 1, 6, &[&boxes], Assignment::Center, VelocityTarget::Positives);
+    assert!(pos.vel_weight.is_empty() && pos.vel_mask.iter().sum::<f32>() == 1.0);
+    // The moving car's cells: 1.9 × 4.6 m over 0.8 m cells, about a dozen.
+    let cells: Vec<usize> = (0..hw).filter(|&i| fp.vel_weight[i] > 0.0).collect();
+    assert!((8..=20).contains(&cells.len()), "{} cells", cells.len());
+    let total: f32 = cells.iter().map(|&i| fp.vel_weight[i]).sum();
+    assert!((total - 1.0).abs() < 1e-5, "shares sum to {total}");
+    for &i in &cells {
+        assert_eq!(
+            (fp.reg[8 * hw + i], fp.reg[9 * hw + i], fp.vel_class[i]),
+            (moving.velocity[0], moving.velocity[1], 0.0)
+        );
+    }
+    // The unknown box claims its cells with no weight; the other targets are the positives'.
+    let claimed: Vec<usize> = (0..hw).filter(|&i| fp.vel_class[i] == 0.0).collect();
+    assert!(claimed.len() > cells.len() && claimed.iter().all(|&i| cells.contains(&i) || fp.vel_weight[i] == 0.0));
+    assert_eq!((fp.cls.clone(), fp.mask.clone(), fp.num_pos), (pos.cls.clone(), pos.mask.clone(), pos.num_pos));
+    // Overlap: two cars side by side 1 m apart; each shared cell learns the nearer centre.
+    let (a, b) = (car(0.0, 0.0, 0.0), GtBox { velocity: [-2.0, 0.0], ..car(0.0, 1.0, 0.0) });
+    let t = build(&grid, 1, 6, &[&[a, b]], Assignment::Center, VelocityTarget::Footprint);
+    for i in (0..hw).filter(|&i| t.vel_class[i] >= 0.0) {
+        let y = (i / n) as f32 * grid.cell_m + 0.5 * grid.cell_m - grid.half_extent_m;
+        let want = if y.abs() <= (y - 1.0).abs() { a.velocity[0] } else { b.velocity[0] };
+        assert_eq!(t.reg[8 * hw + i], want, "cell {i} at y {y}");
+    }
+    // The loss sees a footprint cell's velocity only under `footprint`, dense or sparse, with
+    // either normalisation.
+    let loss_at = |c: DetectorConfig| {
+        let det = build_detector(&c);
+        let b = HostBatch::new(&c, &[frame(1, &boxes)], false, 0);
+        let (cls, _) = det.forward(&b, true).unwrap();
+        let t = &b.targets;
+        let shape = cls.dims().iter().enumerate().map(|(k, d)| if k == 1 { 10 } else { *d }).collect::<Vec<_>>();
+        let rows = t.mask.len();
+        let at = |i: usize, ch: usize| if cls.rank() == 4 { ch * rows + i } else { i * 10 + ch };
+        // A cell learning the moving car's velocity that is not one of its positives.
+        let off = (0..rows).find(|&i| t.mask[i] == 0.0 && t.reg[at(i, 8)] == moving.velocity[0]);
+        let target = Tensor::from_slice(&t.reg, shape.as_slice(), &Device::Cpu).unwrap();
+        let l = |r: &Tensor| det.loss(&cls, r, t).unwrap().reg;
+        let moved = off.map(|i| {
+            let mut m = t.reg.clone();
+            m[at(i, 8)] += 1.0;
+            l(&Tensor::from_slice(&m, shape.as_slice(), &Device::Cpu).unwrap())
+        });
+        (l(&target), moved)
+    };
+    for c in [cfg.clone(), small("centerpoint")] {
+        for norm in [LossNorm::All, LossNorm::PerClass] {
+            let with = |f: VelocityTarget| DetectorConfig { velocity_target: f, loss_norm: norm, ..c.clone() };
+            let (at, off) = loss_at(with(VelocityTarget::Footprint));
+            let off = off.expect("a footprint cell off the centre among the head's cells");
+            assert!(at.abs() < 1e-6 && off > 1e-3, "footprint, {norm:?}: {at} then {off}");
+            let (at, off) = loss_at(with(VelocityTarget::Positives));
+            assert!(at.abs() < 1e-6 && off.is_none(), "positives, {norm:?}: {at}, {off:?}");
+        }
+    }
+}
+
+fn build_detector(cfg: &DetectorConfig) -> Detector {
+    build(cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap()
+}

@@ -43,6 +43,10 @@ pub struct DetectorConfig {
     /// weight, 0.2, for detectors saved before the field existed).
     #[serde(default = "velocity_weight", skip_serializing_if = "is_velocity_weight")]
     pub velocity_weight: f64,
+    /// Which head cells learn a box's velocity (detectors saved before the field existed read
+    /// [`VelocityTarget::Positives`]).
+    #[serde(default, skip_serializing_if = "VelocityTarget::is_positives")]
+    pub velocity_target: VelocityTarget,
 }
 
 fn velocity_weight() -> f64 {
@@ -554,6 +558,27 @@ pub enum Assignment {
     /// Anchor-free PointPillars: every cell whose centre lies in a box footprint is positive
     /// (the centre cell when none does) and regresses that box.
     Inside,
+}
+
+/// Which head cells learn a box's velocity.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VelocityTarget {
+    /// The cells that regress the box: its centre cell under [`Assignment::Center`] (where a
+    /// radar point rarely falls), every cell inside it under [`Assignment::Inside`].
+    #[default]
+    Positives,
+    /// Every head cell whose centre lies in the box's footprint (its centre cell when none
+    /// does), the cells of one box sharing one box's weight; where footprints overlap, a cell
+    /// learns the box whose centre is nearest. The cells holding a box's radar points then
+    /// learn its velocity, and the centre cell still does (decoding reads it there).
+    Footprint,
+}
+
+impl VelocityTarget {
+    pub fn is_positives(&self) -> bool {
+        *self == VelocityTarget::Positives
+    }
 }
 
 /// What the detector crate's ground-truth paste fills a frame with.

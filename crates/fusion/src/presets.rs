@@ -4,6 +4,7 @@
 
 use crate::config::{
     Assignment, DecodeConfig, DetectorConfig, InputConfig, LossNorm, Preset, RadarClutterConfig, TrainConfig,
+    VelocityTarget,
 };
 use crate::grid::BevGrid;
 use crate::layout::SparseConfig;
@@ -53,6 +54,7 @@ pub fn centerpoint() -> DetectorConfig {
         sparse: Some(SparseConfig::default()),
         loss_norm: LossNorm::All,
         velocity_weight: 0.2,
+        velocity_target: VelocityTarget::Positives,
     }
 }
 
