@@ -645,3 +645,49 @@ fn footprint_velocity_targets_cover_the_box_and_enter_the_loss() {
 fn build_detector(cfg: &DetectorConfig) -> Detector {
     build(cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap()
 }
+
+/// Footprint velocity targets against a brute-force rasterisation: for random boxes (any yaw,
+/// sizes from a pedestrian to a bus, some smaller than a cell, some over the grid's edge), the
+/// cells that learn a box's velocity are exactly those of the whole grid whose centre lies in
+/// its rotated rectangle (its centre cell when none does), each with weight 1 / their count.
+#[test]
+fn footprint_velocity_cells_match_a_brute_force_rasterisation() {
+    use hilo_detector::targets::{Assignment, VelocityTarget, build};
+    let grid = dense("centerpoint").grid;
+    let (n, cell, half) = (grid.cells(), grid.cell_m, grid.half_extent_m);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+    for _ in 0..300 {
+        let g = GtBox {
+            class: rng.random_range(0..6),
+            center: [rng.random_range(-13.0..13.0), rng.random_range(-13.0..13.0), 0.8],
+            wlh: [rng.random_range(0.3..3.0), rng.random_range(0.3..12.0), 1.5],
+            yaw: rng.random_range(-3.2..3.2),
+            velocity: [rng.random_range(-10.0..10.0), rng.random_range(-10.0..10.0)],
+        };
+        let (u, v) = ((g.center[0] + half) / cell, (g.center[1] + half) / cell);
+        let t = build(&grid, 1, 6, &[&[g]], Assignment::Center, VelocityTarget::Footprint);
+        if !(u >= 0.0 && v >= 0.0 && u < n as f32 && v < n as f32) {
+            assert!(t.vel_weight.iter().all(|w| *w == 0.0), "a box off the grid teaches nothing");
+            continue;
+        }
+        let (c, s) = (g.yaw.cos(), g.yaw.sin());
+        let mut want: Vec<usize> = (0..n * n)
+            .filter(|&i| {
+                let (x, y) = (
+                    ((i % n) as f32 + 0.5) * cell - half - g.center[0],
+                    ((i / n) as f32 + 0.5) * cell - half - g.center[1],
+                );
+                (x * c + y * s).abs() <= 0.5 * g.wlh[1] && (-x * s + y * c).abs() <= 0.5 * g.wlh[0]
+            })
+            .collect();
+        if want.is_empty() {
+            want.push(v as usize * n + u as usize);
+        }
+        let got: Vec<usize> = (0..n * n).filter(|&i| t.vel_weight[i] > 0.0).collect();
+        assert_eq!(got, want, "{g:?}");
+        for &i in &got {
+            assert!((t.vel_weight[i] - 1.0 / want.len() as f32).abs() < 1e-7);
+            assert_eq!((t.reg[8 * n * n + i], t.reg[9 * n * n + i]), (g.velocity[0], g.velocity[1]));
+        }
+    }
+}
