@@ -211,6 +211,11 @@ pub fn solve_fixing(
         m.problem.add_constraint(Expression::from(m.x[o]).geq(1.0));
     }
     let mut problem = m.problem.with_time_limit(time_limit_s.max(1.0));
+    // Without CBC's preprocessing: stopped by the time limit inside it, its post-processing
+    // crashes the process on some instances (SIGSEGV in `CglPreProcess::postProcess`, CBC 2.10;
+    // the budgeted problem at the Fabriksgatan site, tests/scene.rs). The default study's
+    // placements and trade-off rows are the same without it.
+    problem.set_parameter("preprocess", "off");
     if let Some(sel) = warm {
         let chosen: std::collections::HashSet<usize> = sel.iter().copied().collect();
         let tau = inst.tau() * (1.0 - 1e-9);

@@ -137,3 +137,25 @@ fn tilt_candidates_round_trip_through_a_placement_file() {
         assert!([4.0, 16.0].iter().any(|t: &f32| (s.pitch_deg - t).abs() < 1e-4), "{}", s.pitch_deg);
     }
 }
+
+/// CBC stopped by its time limit returns its incumbent and bound. On the budgeted problem of the
+/// Fabriksgatan site (every catalog type, a $22,750 budget, the default placement settings), a
+/// one-second limit stopped CBC inside its preprocessing, whose post-processing then crashed
+/// the process (SIGSEGV in `CglPreProcess::postProcess`, CBC 2.10): the MIP now runs without it.
+#[test]
+fn cbc_stopped_by_its_time_limit_returns_on_the_fabriksgatan_budget_problem() {
+    use hilo_placement_ip::greedy::greedy;
+    use hilo_placement_ip::mip::{Formulation, solve};
+    use hilo_placement_ip::pipeline::instance;
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/sites/fabriksgatan.toml");
+    let scene = Scene::load(&path).unwrap();
+    let catalog = Catalog::default_catalog().unwrap();
+    let cfg = PlacementConfig::default().validate().unwrap();
+    let types: Vec<String> = ["lidar-16", "lidar-32", "lidar-64", "radar-4d"].map(String::from).to_vec();
+    let prep = prepare(&scene, &catalog, &types, &cfg).unwrap();
+    let inst = instance(&prep, &catalog, &types, cfg.p_min).unwrap();
+    let limit = hilo_placement_ip::Limit::Budget { usd: 22_750.0, min: vec![], max: vec![] };
+    let g = greedy(&inst, &limit);
+    let o = solve(&inst, &limit, Formulation::Strengthened, 0.1, Some(&g.selection)).unwrap();
+    assert!(o.objective.is_finite() && o.bound >= o.objective - 1e-6, "{o:?}");
+}
