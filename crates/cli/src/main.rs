@@ -287,7 +287,7 @@ fn main() -> Result<()> {
         // Explicit, so it wins over RAYON_NUM_THREADS (which is for candle here).
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("starting the thread pool")?;
     } else if let Some(status) = pin_training_env(&cli)? {
-        std::process::exit(status.code().unwrap_or(1));
+        std::process::exit(hilo_core::machine::exit_code(status));
     }
     match cli.command {
         Command::Scene { command: SceneCommand::Show { scene, out, px_per_m, junction } } => {

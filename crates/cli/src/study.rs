@@ -26,12 +26,12 @@ pub struct StudyArgs {
     #[arg(long, default_value = "default")]
     pub profile: hilo_study::ProfileName,
     /// Seeds per detector, 1 to 100 (overrides the profile's: 3 for default and paper).
-    #[arg(long, value_parser = seeds)]
+    #[arg(long, value_parser = hilo_study::profile::seeds_arg)]
     pub seeds: Option<usize>,
     /// Training-traffic draws, 1 to 10 (overrides the profile's 1): each configuration's
     /// training scenes recorded again with other traffic, every detector trained on each, and
     /// the draw a random effect of the verdict.
-    #[arg(long, value_parser = draws)]
+    #[arg(long, value_parser = hilo_study::profile::draws_arg)]
     pub traffic_draws: Option<usize>,
     /// Presets to train (comma-separated), overriding the profile's; ablations (as the plugins
     /// register them, e.g. `lirafusion-like-no-early`)
@@ -84,23 +84,6 @@ pub struct StageArgs {
     pub out: PathBuf,
 }
 
-/// `--seeds`: each seed is a full set of trainings, so a count past 100 is a typo, and one of
-/// millions would exhaust memory planning them.
-fn seeds(s: &str) -> std::result::Result<usize, String> {
-    match s.parse::<usize>() {
-        Ok(n) if (1..=100).contains(&n) => Ok(n),
-        _ => Err(format!("{s} is not a seed count from 1 to 100")),
-    }
-}
-
-/// `--traffic-draws`: each draw is a dataset per configuration and a full set of trainings.
-fn draws(s: &str) -> std::result::Result<usize, String> {
-    match s.parse::<usize>() {
-        Ok(n) if (1..=10).contains(&n) => Ok(n),
-        _ => Err(format!("{s} is not a count of training-traffic draws from 1 to 10")),
-    }
-}
-
 /// A path as one word of a shell line the user may paste (quoted where it needs it).
 fn shell_quoted(p: &Path) -> String {
     let s = p.to_string_lossy();
@@ -108,17 +91,8 @@ fn shell_quoted(p: &Path) -> String {
 }
 
 fn profile_of(args: &StudyArgs, study: &Study, registry: &hilo_detector::Registry) -> Result<hilo_study::Profile> {
-    let mut profile = hilo_study::profile(args.profile, study, registry)?;
-    if let Some(p) = &args.presets {
-        profile.choose_presets(p, registry);
-    }
-    if let Some(s) = args.seeds {
-        profile.seeds = s;
-    }
-    if let Some(d) = args.traffic_draws {
-        profile.traffic_draws = d;
-    }
-    Ok(profile)
+    let chosen = (args.presets.as_deref(), args.seeds, args.traffic_draws);
+    Ok(hilo_study::profile(args.profile, study, registry)?.overridden(chosen, registry))
 }
 
 /// What `hilo study [PATH]` names: the embedded default study, a study file, or a sweep.

@@ -93,7 +93,41 @@ pub struct Profile {
     pub leaves_out: String,
 }
 
+/// `--seeds` (1 to 100): each seed is a full set of trainings, so a larger count is a typo, and
+/// one of millions would exhaust memory planning them.
+pub fn seeds_arg(s: &str) -> std::result::Result<usize, String> {
+    count_arg(s, 100, "a seed count")
+}
+
+/// `--traffic-draws` (1 to 10): each draw is a dataset per configuration and a full set of
+/// trainings.
+pub fn draws_arg(s: &str) -> std::result::Result<usize, String> {
+    count_arg(s, 10, "a count of training-traffic draws")
+}
+
+fn count_arg(s: &str, max: usize, what: &str) -> std::result::Result<usize, String> {
+    s.parse::<usize>()
+        .ok()
+        .filter(|n| (1..=max).contains(n))
+        .ok_or_else(|| format!("{s} is not {what} from 1 to {max}"))
+}
+
 impl Profile {
+    /// The profile with what the command line chose in its place: presets (`--presets`, see
+    /// [`Profile::choose_presets`]), seeds and training-traffic draws.
+    pub fn overridden(
+        mut self,
+        (presets, seeds, draws): (Option<&[String]>, Option<usize>, Option<usize>),
+        registry: &Registry,
+    ) -> Profile {
+        if let Some(p) = presets {
+            self.choose_presets(p, registry);
+        }
+        self.seeds = seeds.unwrap_or(self.seeds);
+        self.traffic_draws = draws.unwrap_or(self.traffic_draws);
+        self
+    }
+
     /// The detectors `--presets` names in place of the profile's (the registry's ablations among
     /// them train as ablations); what the profile leaves out then says it was written for the
     /// profile's own detectors.
