@@ -47,7 +47,24 @@ fn frames(seed: u64, n: usize) -> Vec<Frame> {
 }
 
 fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame], seed: u64) -> f64 {
+    scores_for(name, registry, train_frames, val, seed, None).0
+}
+
+/// mAP and car velocity error (AVE, m/s) of preset `name` trained on `train_frames`, with its
+/// velocity learned over each box's footprint at weight `footprint` where given.
+fn scores_for(
+    name: &str,
+    registry: &Registry,
+    train_frames: &[Frame],
+    val: &[Frame],
+    seed: u64,
+    footprint: Option<f64>,
+) -> (f64, f64) {
     let mut cfg = registry.preset(name).unwrap().detector.clone();
+    if let Some(w) = footprint {
+        cfg.velocity_target = hilo_detector::targets::VelocityTarget::Footprint;
+        cfg.velocity_weight = w;
+    }
     cfg.grid = small_grid();
     // The synthetic frames have no static background to learn (and so no LiDAR foreground for
     // the radar clutter rule: their radar holds no clutter).
@@ -122,12 +139,13 @@ fn map_for(name: &str, registry: &Registry, train_frames: &[Frame], val: &[Frame
     let mut ec = DetectionConfig { dist_ths: vec![2.0, 4.0], ..DetectionConfig::default() };
     ec.class_range.retain(|k, _| k == "car" || k == "golf_cart");
     let m = hilo_eval::evaluate_files(&gt, &pred, &ec);
+    let car_ave = m.label_tp_errors.get("car").and_then(|e| e.get("vel_err")).copied().unwrap_or(f64::NAN);
     eprintln!(
-        "{name} (training seed {seed}): mAP {:.3} ({:?})",
+        "{name} (training seed {seed}, footprint velocity {footprint:?}): mAP {:.3} ({:?}), car AVE {car_ave:.2} m/s",
         m.mean_ap,
         m.label_aps.iter().map(|(k, v)| (k.clone(), v.values().sum::<f64>() / v.len() as f64)).collect::<Vec<_>>()
     );
-    m.mean_ap
+    (m.mean_ap, car_ave)
 }
 
 /// Fixture and training seeds to run: the first `HILO_MOTION_SEEDS` (1 unless set; 5 for the
@@ -195,4 +213,26 @@ fn every_fusion_preset_separates_classes_that_differ_only_by_motion() {
         }
     }
     assert!(failures.is_empty(), "fused below LiDAR-only + 0.25:\n{}", failures.join("\n"));
+}
+
+/// The radar's Doppler reaches a CenterPoint head's velocity output when velocity is learned
+/// over each box's footprint: on the motion fixture (cars at 6–10 m/s, mostly along the radar's
+/// line of sight) `lirafusion-like` with `velocity_target = "footprint"` (weight 1.0) brings the
+/// car velocity error below 3 m/s and at least 3 m/s below LiDAR-only `centerpoint` (seeds 0–2:
+/// 1.81, 1.89, 1.97 against 7.59, 7.94, 7.67; at the centre cell alone the preset reached 5.97,
+/// 7.33 and 1.79: sometimes, not reliably).
+#[test]
+fn footprint_velocity_lets_the_radar_set_a_cars_velocity() {
+    let r = hilo::registry().unwrap();
+    let mut failures = Vec::new();
+    for k in 0..seeds() {
+        let (tr, val) = (frames(2 * k + 1, 200), frames(2 * k + 2, 12));
+        let lidar = scores_for("centerpoint", &r, &tr, &val, k, None).1;
+        let footprint = scores_for("lirafusion-like", &r, &tr, &val, k, Some(1.0)).1;
+        eprintln!("seed {k}: car AVE {footprint:.2} (footprint) against {lidar:.2} (LiDAR only)");
+        if !(footprint <= 3.0 && footprint <= lidar - 3.0) {
+            failures.push(format!("seed {k}: footprint {footprint:.2}, LiDAR only {lidar:.2} m/s"));
+        }
+    }
+    assert!(failures.is_empty(), "car velocity error not lowered by the footprint:\n{}", failures.join("\n"));
 }
