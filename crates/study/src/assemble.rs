@@ -105,6 +105,10 @@ pub struct ConfigSummary {
     /// The configuration whose placed sensors it keeps (`given`), placing only the rest.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub given: Option<String>,
+    /// Per radar, the mounting structure it stands on, and whether a LiDAR of the rig shares it
+    /// (the radar then adds no viewpoint of its own).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub radar_mounts: Vec<(String, bool)>,
 }
 
 /// A class of the verdict's ground truth.
@@ -477,9 +481,21 @@ fn config_summaries(plan: &Plan) -> Result<Vec<ConfigSummary>> {
             unseen_by_class: BTreeMap::new(),
             condition: plan.conditions[ci].clone(),
             given: conf.given.clone(),
+            radar_mounts: radar_mounts(&placement),
         });
     }
     Ok(summaries)
+}
+
+/// Each radar's mounting structure, and whether one of the rig's LiDARs stands on it too.
+fn radar_mounts(p: &Placement) -> Vec<(String, bool)> {
+    use hilo_placement_ip::Modality;
+    let lidar = |structure: &str| p.sensors.iter().any(|s| s.modality == Modality::Lidar && s.structure == structure);
+    p.sensors
+        .iter()
+        .filter(|s| s.modality == Modality::Radar)
+        .map(|s| (s.structure.clone(), lidar(&s.structure)))
+        .collect()
 }
 
 /// The verdict: comparisons, the paper's claims (each a Holm family) and the calibration of

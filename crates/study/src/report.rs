@@ -546,6 +546,28 @@ fn md_configurations(md: &mut String, r: &Report) {
             c.sensors.join(", ")
         );
     }
+    let mounts: Vec<String> = r
+        .configurations
+        .iter()
+        .filter(|c| !c.radar_mounts.is_empty() && c.condition.is_none())
+        .map(|c| {
+            let each: Vec<String> = c
+                .radar_mounts
+                .iter()
+                .map(|(m, shared)| {
+                    format!("{} ({})", esc(m), if *shared { "beside a LiDAR" } else { "a structure of its own" })
+                })
+                .collect();
+            format!("{}: {}", c.name, each.join(", "))
+        })
+        .collect();
+    if !mounts.is_empty() {
+        let _ = writeln!(
+            md,
+            "\nWhere the radars stand (a radar beside a LiDAR adds no viewpoint of its own, only its measurements): {}.",
+            mounts.join("; ")
+        );
+    }
     if !r.cost_reduction.is_empty() {
         let _ = writeln!(
             md,

@@ -289,7 +289,7 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
 /// Two training-traffic draws: each configuration recorded again with other training traffic
 /// (its validation scenes the same), every detector trained on both, the report's replicates
 /// the draws (two a side), the traffic's variance component reported, and the workflow names
-/// the second draw's stages.
+/// the second draw's stages. The report also says where each rig's radar stands.
 #[test]
 fn a_second_traffic_draw_trains_every_detector_again_and_is_the_replicate() {
     let dir = tempfile::tempdir().unwrap();
@@ -329,6 +329,17 @@ fn a_second_traffic_draw_trains_every_detector_again_and_is_the_replicate() {
     }
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.contains("2 training-traffic draws") && md.contains("--traffic-draws 2"), "{md}");
+    // Where each rig's radar stands, against its placement file.
+    assert!(md.contains("Where the radars stand"), "{md}");
+    for (ci, c) in report.configurations.iter().enumerate() {
+        let p = hilo_placement_ip::Placement::load(&plan.placement(ci)).unwrap();
+        let radar = p.sensors.iter().find(|s| s.modality == hilo_placement_ip::Modality::Radar).unwrap();
+        let beside = p
+            .sensors
+            .iter()
+            .any(|s| s.modality == hilo_placement_ip::Modality::Lidar && s.structure == radar.structure);
+        assert_eq!(c.radar_mounts, vec![(radar.structure.clone(), beside)], "{}", c.name);
+    }
 }
 
 #[test]
