@@ -585,8 +585,11 @@ fn md_configurations(md: &mut String, r: &Report) {
 fn md_accuracy(md: &mut String, r: &Report, presets: &[String]) {
     let _ = writeln!(
         md,
-        "\n## Accuracy\n\nSeed mean [min, max] over {} seeds; common ground truth unless marked.\n\n| configuration | preset | mAP | pedestrian AP | NDS | mAVE (m/s) | mAP, visible-only | training | inference |\n|---|---|---|---|---|---|---|---:|---:|",
-        r.seeds
+        "\n## Accuracy\n\nSeed mean [min, max] over {}; common ground truth unless marked.\n\n| configuration | preset | mAP | pedestrian AP | NDS | mAVE (m/s) | mAP, visible-only | training | inference |\n|---|---|---|---|---|---|---|---:|---:|",
+        match r.profile.traffic_draws {
+            1 => format!("{} seeds", r.seeds),
+            d => format!("{} detectors ({} seeds on each of {d} training-traffic draws)", r.seeds * d, r.seeds),
+        }
     );
     for c in &r.configurations {
         for pr in presets {

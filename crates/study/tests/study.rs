@@ -329,6 +329,7 @@ fn a_second_traffic_draw_trains_every_detector_again_and_is_the_replicate() {
     }
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.contains("2 training-traffic draws") && md.contains("--traffic-draws 2"), "{md}");
+    assert!(md.contains("over 4 detectors (2 seeds on each of 2 training-traffic draws)"), "{md}");
     // Where each rig's radar stands, against its placement file.
     assert!(md.contains("Where the radars stand"), "{md}");
     for (ci, c) in report.configurations.iter().enumerate() {
