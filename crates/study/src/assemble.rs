@@ -27,10 +27,6 @@ fn nan() -> f64 {
     f64::NAN
 }
 
-fn is_zero(v: &u64) -> bool {
-    *v == 0
-}
-
 /// A detector's place among its group's: seeds of draw 0 first (0 is seed 0 on the study's own
 /// traffic, whose learning curve and pictures the report shows), then those of each further
 /// training-traffic draw.
@@ -45,7 +41,7 @@ pub struct Entry {
     pub preset: String,
     pub seed: u64,
     /// The training-traffic draw it was trained on (0: the study's own traffic).
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "crate::verdict::is_zero")]
     pub draw: u64,
     /// On the common ground truth (every road user, seen or not), over the classes present.
     pub mean_ap: f64,

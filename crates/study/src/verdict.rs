@@ -108,7 +108,8 @@ pub struct DetectorScores {
     pub scores: BTreeMap<String, Scores>,
 }
 
-fn is_zero(v: &u64) -> bool {
+/// A field left out of report.json at its default 0.
+pub(crate) fn is_zero(v: &u64) -> bool {
     *v == 0
 }
 
