@@ -135,11 +135,16 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
                 ));
             }
         }
-        // Just outside the pole's surface, toward the junction.
+        // Just outside the pole's surface, toward the junction; not where that point is inside
+        // the mast arm (an arm that points at the junction passes through it at its height).
         let out = (centre - m.base).normalize_or(Vec2::X) * (m.pole_radius_m + 0.15);
+        let (a, b) = m.arm_axis(gz);
         let mut h = cfg.pole_min_height_m;
         while h <= m.pole_height_m + 1e-3 {
-            points.push((format!("{}/pole", m.name), (m.base + out).extend(gz + h)));
+            let p = (m.base + out).extend(gz + h);
+            if m.arm_length_m <= 0.0 || distance_to_segment(p, a, b) >= m.arm_radius_m() + ARM_CLEARANCE_M {
+                points.push((format!("{}/pole", m.name), p));
+            }
             h += cfg.pole_step_m;
         }
         let mut s = cfg.arm_step_m;
@@ -174,4 +179,15 @@ pub fn sample_candidates(scene: &Scene, cfg: &CandidateConfig) -> Result<Vec<Can
         }
     }
     Ok(out)
+}
+
+/// The least distance a pole candidate keeps from a mast arm's surface (a sensor's housing
+/// against the arm, not inside it).
+const ARM_CLEARANCE_M: f32 = 0.05;
+
+/// Distance from `p` to the segment from `a` to `b`.
+fn distance_to_segment(p: Vec3, a: Vec3, b: Vec3) -> f32 {
+    let ab = b - a;
+    let t = if ab.length_squared() > 0.0 { ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+    p.distance(a + ab * t)
 }

@@ -159,3 +159,32 @@ fn cbc_stopped_by_its_time_limit_returns_on_the_fabriksgatan_budget_problem() {
     let o = solve(&inst, &limit, Formulation::Strengthened, 0.1, Some(&g.selection)).unwrap();
     assert!(o.objective.is_finite() && o.bound >= o.objective - 1e-6, "{o:?}");
 }
+
+/// Every candidate mount of every site of the library is outside the scene's geometry (the
+/// sensor models refuse one inside): on the imported sites the mast arms point at the
+/// junction, through the spot just outside the pole where pole candidates stand, and at
+/// the arm's height that spot was inside the arm.
+#[test]
+fn no_candidate_of_any_site_is_inside_its_geometry() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
+    let mut scenes = vec![dir.join("intersection.toml")];
+    scenes.extend(
+        ["t_junction", "skewed", "five_leg", "urban_canyon", "fabriksgatan", "three_arm_grid"]
+            .map(|s| dir.join(format!("sites/{s}.toml"))),
+    );
+    // The default steps, and a pole step that lands on the arm's height (6 m) wherever the
+    // lowest pole candidate starts.
+    for cfg in [CandidateConfig::default(), CandidateConfig { pole_step_m: 0.5, ..CandidateConfig::default() }] {
+        for path in &scenes {
+            let scene = Scene::load(path).unwrap();
+            let world = World::build(&scene, &QueryRegion::everything()).unwrap();
+            let candidates = sample_candidates(&scene, &cfg).unwrap();
+            assert!(!candidates.is_empty());
+            for c in &candidates {
+                if let Err(e) = hilo_sensor_models::lidar::check_mount(&world, None, &c.pose) {
+                    panic!("{}: candidate {} on {}: {e}", path.display(), c.id, c.structure);
+                }
+            }
+        }
+    }
+}

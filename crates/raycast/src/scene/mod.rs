@@ -56,6 +56,22 @@ pub struct MountStructure {
     pub arm_height_m: f32,
 }
 
+impl MountStructure {
+    /// The mast arm's radius: a share of the pole's, as the scene builds it.
+    pub fn arm_radius_m(&self) -> f32 {
+        ARM_RADIUS_SHARE * self.pole_radius_m
+    }
+
+    /// The mast arm's axis, from the pole's centre to its tip, at its height above `ground_z`.
+    pub fn arm_axis(&self, ground_z: f32) -> (Vec3, Vec3) {
+        let z = ground_z + self.arm_height_m;
+        (self.base.extend(z), (self.base + self.arm_dir * self.arm_length_m).extend(z))
+    }
+}
+
+/// A mast arm's radius as a share of its pole's.
+const ARM_RADIUS_SHARE: f32 = 0.6;
+
 /// A loaded scene: configuration, layout, ROIs, static triangles with their objects, ground.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -259,7 +275,8 @@ impl Scene {
             if p.arm_length_m > 0.0 {
                 let o = b.object(format!("{}/mast_arm", p.name), ObjectKind::MastArm, Material::Metal);
                 let z = gz + p.arm_height_m;
-                b.mesh.push_cylinder(base.extend(z), (base + dir * p.arm_length_m).extend(z), 0.6 * p.radius_m, 8, o);
+                let r = ARM_RADIUS_SHARE * p.radius_m;
+                b.mesh.push_cylinder(base.extend(z), (base + dir * p.arm_length_m).extend(z), r, 8, o);
             }
             for (k, off) in p.head_offsets_m.iter().enumerate() {
                 let o = b.object(format!("{}/head{k}", p.name), ObjectKind::SignalHead, Material::Metal);
