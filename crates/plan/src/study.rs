@@ -200,7 +200,9 @@ impl EvaluationSettings {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ValidationSettings {
-    /// Placements in the set (at least 10; 30 by default).
+    /// Placements in the set (at least 10; 30 by default): every configuration's optimum and
+    /// greedy placement, then perturbed and random ones up to this many, and at least a quarter
+    /// of this many of those (so a study with many configurations draws a larger set).
     pub placements: usize,
     /// Seed of the random and perturbed placements.
     pub seed: u64,

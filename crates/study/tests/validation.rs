@@ -59,6 +59,10 @@ fn the_placement_set_is_deterministic_and_spans_kinds_tilts_and_modalities() {
         m.placement.sensors.iter().any(|s| s.modality == hilo_placement_ip::Modality::Radar)
     };
     assert!(a.iter().any(|m| !radar(m)), "no LiDAR-only rig");
+    // Rigs of the sizes a budget buys, and four LiDARs without radars.
+    let sizes: std::collections::BTreeSet<usize> = a.iter().map(|m| m.placement.sensors.len()).collect();
+    assert!(sizes.iter().any(|&n| (5..=8).contains(&n)) && sizes.contains(&8), "{sizes:?}");
+    assert!(a.iter().any(|m| !radar(m) && m.placement.sensors.len() == 4), "no 4-LiDAR rig");
     for m in &a {
         assert_eq!(m.predictors[PAPER_OBJECTIVE].is_some(), radar(m), "{}", m.slug);
         assert!((1..=9).contains(&m.placement.sensors.len()));
@@ -146,7 +150,16 @@ fn predictors_recompute_to_the_same_values_and_two_views_need_two_sensors() {
     let set = placement_set(&study, &settings(), &mut |_| {}).unwrap();
     let again = recompute(&study, &settings(), &set).unwrap();
     assert_eq!(serde_json::to_string(&set).unwrap(), serde_json::to_string(&again).unwrap());
+    use hilo_study::validation::set::{LIDAR_BEAMS, LIDAR_MOUNTS, LIDARS};
     for m in &set {
+        // The baselines that need no model: count, structures and beams of the LiDARs.
+        let lidars: Vec<_> =
+            m.placement.sensors.iter().filter(|s| s.modality == hilo_placement_ip::Modality::Lidar).collect();
+        let structures: std::collections::BTreeSet<&str> = lidars.iter().map(|s| s.structure.as_str()).collect();
+        let beams: u32 = lidars.iter().map(|s| study.catalog.lidar(&s.ty).unwrap().beams).sum();
+        assert_eq!(m.predictors[LIDARS], Some(lidars.len() as f64), "{}", m.slug);
+        assert_eq!(m.predictors[LIDAR_MOUNTS], Some(structures.len() as f64), "{}", m.slug);
+        assert_eq!(m.predictors[LIDAR_BEAMS], Some(f64::from(beams)), "{}", m.slug);
         // The same relations hold over the regions of interest and over the traffic's road users.
         for (one, two, dense, modality) in [
             (LIDAR_SATURATED, LIDAR_TWO_VIEWS, LIDAR_DENSE, hilo_placement_ip::Modality::Lidar),

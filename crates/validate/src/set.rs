@@ -69,6 +69,12 @@ pub const RADAR_TWO_VIEWS_USERS: &str = "radar coverage of road users by two vie
 pub const LIDAR_DENSE_USERS: &str = "LiDAR coverage of road users at twice the threshold";
 pub const RADAR_DENSE_USERS: &str = "radar coverage of road users at twice the threshold";
 
+/// Baselines that need no model: how many LiDARs the rig has, on how many mounting structures,
+/// and their beams summed (from the catalog).
+pub const LIDARS: &str = "LiDARs";
+pub const LIDAR_MOUNTS: &str = "mounting structures holding a LiDAR";
+pub const LIDAR_BEAMS: &str = "LiDAR beams";
+
 /// The occupancy of the study's training traffic from the placement alone
 /// ([`hilo_plan::road_users::TrafficPoints`]): the class-balanced mean of min(1, n / k) over road
 /// users with n LiDAR points (capped-linear, the form an IP could hold) and the share with
@@ -103,7 +109,7 @@ pub fn unit_term(k: usize) -> calibrated::Weights {
 }
 
 /// The configurations the set is drawn from: the study's, then the rigs a buyer compares them
-/// with, once each (by sensor counts).
+/// with (one to eight sensors), once each (by sensor counts).
 pub fn set_configurations(study: &Study) -> Vec<Configuration> {
     let cat = &study.catalog;
     let price = |t: &String| cat.get(t).map_or(f64::INFINITY, |s| s.price_usd());
@@ -131,6 +137,15 @@ pub fn set_configurations(study: &Study) -> Vec<Configuration> {
         if let Some(r) = radars.first() {
             out.push(counts(format!("1x {l} + {r}"), &[(l, 1), (r, 1)]));
             out.push(counts(format!("2x {l} + 2x {r}"), &[(l, 2), (r, 2)]));
+        }
+        // Rigs of four to eight sensors, the sizes a budget buys (a fit that saw only smaller
+        // rigs extrapolates its saturating terms to them), and the four LiDARs without their
+        // radars beside them. Counts are upper limits: a scene with fewer mounts places fewer.
+        out.push(counts(format!("4x {l}"), &[(l, 4)]));
+        if let Some(r) = radars.first() {
+            out.push(counts(format!("4x {l} + {r}"), &[(l, 4), (r, 1)]));
+            out.push(counts(format!("4x {l} + 3x {r}"), &[(l, 4), (r, 3)]));
+            out.push(counts(format!("6x {l} + 2x {r}"), &[(l, 6), (r, 2)]));
         }
     }
     let dearest = study
@@ -213,9 +228,13 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(v.seed);
     let mut attempts = 0;
-    while drawn.len() < v.placements && !optima.is_empty() && attempts < 100 * v.placements {
-        let (ci, inst, limit, opt) = &optima[attempts % optima.len()];
-        let (kind, sel) = if (attempts / optima.len()).is_multiple_of(2) {
+    // Perturbed and random placements up to the set's size, and at least a quarter of it
+    // however many configurations there are: the optima alone span too narrow a range.
+    let target = v.placements.max(drawn.len() + v.placements / 4);
+    while drawn.len() < target && !optima.is_empty() && attempts < 100 * target {
+        // Each configuration in turn, perturbed then random.
+        let (ci, inst, limit, opt) = &optima[(attempts / 2) % optima.len()];
+        let (kind, sel) = if attempts.is_multiple_of(2) {
             ("perturbed", perturb(inst, opt, &mut rng))
         } else {
             ("random", random(inst, limit, &mut rng))
@@ -464,6 +483,11 @@ impl<'a> Context<'a> {
             .filter(|(_, s)| s.modality == Modality::Lidar)
             .map(|(k, s)| Ok((k, study.catalog.lidar(&s.ty)?.clone(), s.pose)))
             .collect::<Result<Vec<_>>>()?;
+        let structures: BTreeSet<&str> =
+            sensors.iter().filter(|s| s.modality == Modality::Lidar).map(|s| s.structure.as_str()).collect();
+        predictors.insert(LIDARS.to_owned(), Some(lidars.len() as f64));
+        predictors.insert(LIDAR_MOUNTS.to_owned(), Some(structures.len() as f64));
+        predictors.insert(LIDAR_BEAMS.to_owned(), Some(lidars.iter().map(|(_, l, _)| f64::from(l.beams)).sum()));
         let (capped, hit) = self.traffic.shares(&self.world, &lidars, self.min_points)?;
         predictors.insert(LIDAR_POINTS_CAPPED.to_owned(), Some(capped));
         predictors.insert(HIT_SHARE_TRAINING.to_owned(), Some(hit));
