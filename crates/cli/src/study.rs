@@ -141,9 +141,7 @@ fn one_study(
         Some(Engine::Snakemake) => {
             let plan = Plan::new(study, registry, &profile, &args.out)?;
             plan.claim_folder(study)?;
-            for p in hilo_study::workflow::write(&plan, &workflow()?)? {
-                eprintln!("wrote {}", p.display());
-            }
+            wrote(hilo_study::workflow::write(&plan, &workflow()?)?);
             eprintln!(
                 "{} stages ({} trainings); run them with: cd {} && snakemake --cores 2",
                 plan.stage_count(),
@@ -159,6 +157,11 @@ fn one_study(
 /// run holds it alone; a stage, as a workflow engine runs several side by side, shares it (the
 /// dataset, training run or placements a stage writes are claimed alone below it). A command
 /// that only reads the folder claims nothing.
+/// Says which files were written.
+fn wrote(files: Vec<PathBuf>) {
+    files.iter().for_each(|p| eprintln!("wrote {}", p.display()));
+}
+
 fn claim(out: &Path, whole: bool) -> Result<hilo_core::folder::Claim> {
     use hilo_core::folder::Mode;
     Ok(hilo_core::folder::claim(out, if whole { Mode::Exclusive } else { Mode::Shared })?)
@@ -198,9 +201,7 @@ pub fn study(args: &StudyArgs) -> Result<()> {
             Some(Engine::Snakemake) => {
                 let plans = hilo_study::run::sweep_plans(&sweep, &registry, &profile, &args.out)?;
                 sweep.claim_folder(&args.out, &plans)?;
-                for p in hilo_study::workflow::write_sweep(&sweep, &plans, &args.out, &workflow()?)? {
-                    eprintln!("wrote {}", p.display());
-                }
+                wrote(hilo_study::workflow::write_sweep(&sweep, &plans, &args.out, &workflow()?)?);
                 let stages: usize = plans.iter().map(Plan::stage_count).sum();
                 let jobs: usize = plans.iter().map(|p| p.jobs.len()).sum();
                 eprintln!(
@@ -248,9 +249,7 @@ pub fn study(args: &StudyArgs) -> Result<()> {
         }
         StageCommand::Compare(a) => {
             let c = hilo_study::compare::compare(&a.out)?;
-            for p in hilo_study::compare::write(&a.out, &c)? {
-                eprintln!("wrote {}", p.display());
-            }
+            wrote(hilo_study::compare::write(&a.out, &c)?);
         }
         StageCommand::Plan(a) if SweepRecord::path(&a.out).exists() => {
             println!("{}", hilo_study::sweep::status(&a.out, &registry, default_study)?);
@@ -316,6 +315,11 @@ pub struct ValidateArgs {
     /// records (the Snakefile's last step: scores, fit, recommendation).
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "transfer"])]
     pub resume: bool,
+    /// Leave one site out over these finished validations (each a site's validation.json; at
+    /// least three): the calibrated objective fitted on the other sites ranks each site's
+    /// placements, beside baselines that need no fit. Writes sites.json and sites.md into --out.
+    #[arg(long, value_name = "VALIDATION_JSON", num_args = 1.., conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "transfer", "resume"])]
+    pub sites: Vec<PathBuf>,
 }
 
 /// A stage of the validation in `out`, run alone: the study, profile and settings it records.
@@ -328,9 +332,7 @@ fn validation_stage(args: &ValidateArgs) -> Result<()> {
     let mut progress = |p: hilo_study::stages::Progress<'_>| reporter.study(p);
     if args.resume {
         let report = hilo_study::validation::run(&study, &registry, &profile, &settings, &args.out, &mut progress)?;
-        for p in hilo_study::validation::write(&args.out, &report)? {
-            eprintln!("wrote {}", p.display());
-        }
+        wrote(hilo_study::validation::write(&args.out, &report)?);
         return Ok(());
     }
     let plan = hilo_study::validation::plan(&study, &registry, &profile, &settings, &args.out, &mut progress)?;
@@ -345,6 +347,17 @@ fn validation_stage(args: &ValidateArgs) -> Result<()> {
 
 /// `hilo validate`: does the placement objective predict trained accuracy?
 pub fn validate(args: &ValidateArgs) -> Result<()> {
+    if !args.sites.is_empty() {
+        let _claim = claim(&args.out, true)?;
+        let r = hilo_study::validation::sites(&args.sites, &args.out, 0)?;
+        let (m, b) = (r.mean_spearman, r.best_baseline_spearman);
+        eprintln!(
+            "wrote {}/sites.md: mean held-out ρ {m:+.2}, best baseline {} {b:+.2}",
+            args.out.display(),
+            r.best_baseline
+        );
+        return Ok(());
+    }
     let stage = args.simulate.is_some() || args.train.is_some();
     let in_folder = stage || args.resume || args.transfer.is_some() || args.refit || args.recommend || args.absorb;
     // What works in a finished (or started) validation claims it when it exists; a new
@@ -356,9 +369,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     if let Some(source) = args.transfer.as_deref().filter(|_| !args.refit && !args.recommend && !args.absorb) {
         let mut report = hilo_study::validation::read(&args.out)?;
         report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
-        for p in hilo_study::validation::write(&args.out, &report)? {
-            eprintln!("wrote {}", p.display());
-        }
+        wrote(hilo_study::validation::write(&args.out, &report)?);
         return Ok(());
     }
     if args.refit || args.recommend || args.absorb {
@@ -384,9 +395,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
                 &mut |p| reporter.study(p),
             )?;
         }
-        for p in hilo_study::validation::write(&args.out, &report)? {
-            eprintln!("wrote {}", p.display());
-        }
+        wrote(hilo_study::validation::write(&args.out, &report)?);
         return Ok(());
     }
     let registry = crate::train::registry()?;
@@ -410,9 +419,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
             let plan = hilo_study::validation::plan(&study, &registry, &profile, &settings, &args.out, &mut |p| {
                 reporter.study(p)
             })?;
-            for p in hilo_study::workflow::write_validation(&plan, &profile, &workflow()?)? {
-                eprintln!("wrote {}", p.display());
-            }
+            wrote(hilo_study::workflow::write_validation(&plan, &profile, &workflow()?)?);
             eprintln!(
                 "{} placements, {} trainings; run them with: cd {} && snakemake --cores 2",
                 plan.members.len(),
@@ -424,8 +431,6 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     }
     let report =
         hilo_study::validation::run(&study, &registry, &profile, &settings, &args.out, &mut |p| reporter.study(p))?;
-    for p in hilo_study::validation::write(&args.out, &report)? {
-        eprintln!("wrote {}", p.display());
-    }
+    wrote(hilo_study::validation::write(&args.out, &report)?);
     Ok(())
 }

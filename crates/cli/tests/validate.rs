@@ -117,6 +117,33 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     assert_eq!(kept.len(), n + 1);
     assert_eq!((&kept[n][0]["slug"], &kept[n][1]), (&grown[n][0]["slug"], &grown[n][1]));
     refuses_what_would_fit_the_wrong_thing(&study, &out);
+    leaves_each_site_out(dir.path(), &out.join("validation.json"));
+}
+
+/// `--sites` over three finished validations (here one validation as three sites, which the
+/// command cannot tell apart): each held out and ranked by the fit on the others, beside the
+/// count baselines; fewer than three sites are refused.
+fn leaves_each_site_out(dir: &std::path::Path, finished: &std::path::Path) {
+    let sites: Vec<std::path::PathBuf> = ["a", "b", "c"].iter().map(|s| dir.join(format!("{s}.json"))).collect();
+    for s in &sites {
+        std::fs::copy(finished, s).unwrap();
+    }
+    let loso = dir.join("loso");
+    let o = hilo().args(["validate", "--out"]).arg(&loso).arg("--sites").args(&sites).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = json(&loso.join("sites.json"));
+    let held = r["held_out"].as_array().unwrap();
+    assert_eq!(held.len(), 3);
+    let n = json(finished)["members"].as_array().unwrap().len();
+    for h in held {
+        assert_eq!(h["predicted"].as_array().unwrap().len(), n);
+        assert_eq!(h["fitted_on"].as_array().unwrap().len(), 2);
+        assert!(h["baselines"].as_array().unwrap().iter().any(|b| b["predictor"] == "LiDARs"), "{h}");
+    }
+    assert!(std::fs::read_to_string(loso.join("sites.md")).unwrap().contains("best baseline"));
+    let o =
+        hilo().args(["validate", "--out"]).arg(dir.join("loso2")).arg("--sites").args(&sites[..2]).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("at least 3"), "{o:?}");
 }
 
 /// On a finished validation: a transfer from the folder's own file (or a copy) would be scored

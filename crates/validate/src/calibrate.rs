@@ -135,9 +135,9 @@ fn leverage(x: &[f64], inv: &[Vec<f64>]) -> f64 {
 
 /// One constrained fit: the features used, coefficients (intercept first), (XᵀX)⁻¹, residual SD,
 /// degrees of freedom and PRESS.
-struct Fit {
-    used: Vec<usize>,
-    beta: Vec<f64>,
+pub(crate) struct Fit {
+    pub(crate) used: Vec<usize>,
+    pub(crate) beta: Vec<f64>,
     inv: Vec<Vec<f64>>,
     sd: f64,
     df: usize,
@@ -149,12 +149,12 @@ impl Fit {
         std::iter::once(1.0).chain(self.used.iter().map(|&f| x(FEATURES[f]))).collect()
     }
 
-    fn predict(&self, x: &dyn Fn(&str) -> f64) -> f64 {
+    pub(crate) fn predict(&self, x: &dyn Fn(&str) -> f64) -> f64 {
         self.row(x).iter().zip(&self.beta).map(|(a, b)| a * b).sum()
     }
 
     /// Half-width of the 95% prediction interval at `x`.
-    fn half_width(&self, x: &dyn Fn(&str) -> f64) -> f64 {
+    pub(crate) fn half_width(&self, x: &dyn Fn(&str) -> f64) -> f64 {
         let t = statrs::distribution::StudentsT::new(0.0, 1.0, self.df as f64)
             .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
             .unwrap_or(1.96);
@@ -162,37 +162,71 @@ impl Fit {
     }
 }
 
-/// Fits mAP on [`FEATURES`] over the members `idx`: of the feature subsets whose least-squares
-/// weights are all ≥ 0, the one with the smallest PRESS.
-fn fit(r: &ValidationReport, idx: &[usize]) -> Option<Fit> {
-    let value = |i: usize, f: &str| r.members[i].0.predictors.get(f).copied().flatten().unwrap_or(0.0);
-    let y: Vec<f64> = idx.iter().map(|&i| r.members[i].1.map_mean).collect();
+/// One placement as a fit reads it: its predictors and its measured mAP.
+#[derive(Clone, Copy)]
+pub(crate) struct Row<'a> {
+    pub predictors: &'a std::collections::BTreeMap<String, Option<f64>>,
+    pub map: f64,
+}
+
+impl Row<'_> {
+    /// A feature's value (0 where the predictor is undefined for the rig).
+    pub(crate) fn value(&self, f: &str) -> f64 {
+        self.predictors.get(f).copied().flatten().unwrap_or(0.0)
+    }
+}
+
+/// The members `idx` of `r` as rows.
+fn rows<'a>(r: &'a ValidationReport, idx: &[usize]) -> Vec<Row<'a>> {
+    idx.iter().map(|&i| Row { predictors: &r.members[i].0.predictors, map: r.members[i].1.map_mean }).collect()
+}
+
+/// The subsets of [`FEATURES`] a fit may use, each as its feature indices.
+pub(crate) fn subsets() -> impl Iterator<Item = Vec<usize>> {
+    (0..(1usize << FEATURES.len())).map(|mask| (0..FEATURES.len()).filter(|f| mask & (1 << f) != 0).collect())
+}
+
+/// The least-squares fit of mAP on the features `used` over `rows`, with its PRESS; None when
+/// too few rows, collinear columns, or a weight below 0.
+pub(crate) fn fit_subset(rows: &[Row], used: Vec<usize>) -> Option<Fit> {
+    if used.len() + 2 > rows.len() {
+        return None;
+    }
+    let y: Vec<f64> = rows.iter().map(|r| r.map).collect();
+    let cols: Vec<Vec<f64>> = used.iter().map(|&f| rows.iter().map(|r| r.value(FEATURES[f])).collect()).collect();
+    let (beta, inv) = least_squares(&cols, &y)?;
+    if beta[1..].iter().any(|b| *b < 0.0) {
+        return None;
+    }
+    let df = rows.len() - used.len() - 1;
+    let mut f = Fit { used, beta, inv, sd: 0.0, df, press: 0.0 };
+    let mut sse = 0.0;
+    for (r, yi) in rows.iter().zip(&y) {
+        let x = |name: &str| r.value(name);
+        let e = yi - f.predict(&x);
+        sse += e * e;
+        f.press += (e / (1.0 - leverage(&f.row(&x), &f.inv)).max(1e-9)).powi(2);
+    }
+    f.sd = (sse / df as f64).sqrt();
+    Some(f)
+}
+
+/// Fits mAP on [`FEATURES`] over `rows`: of the feature subsets whose least-squares weights are
+/// all ≥ 0, the one with the smallest PRESS.
+pub(crate) fn fit_rows(rows: &[Row]) -> Option<Fit> {
     let mut best: Option<Fit> = None;
-    for mask in 0..(1usize << FEATURES.len()) {
-        let used: Vec<usize> = (0..FEATURES.len()).filter(|f| mask & (1 << f) != 0).collect();
-        if used.len() + 2 > idx.len() {
-            continue;
-        }
-        let cols: Vec<Vec<f64>> = used.iter().map(|&f| idx.iter().map(|&i| value(i, FEATURES[f])).collect()).collect();
-        let Some((beta, inv)) = least_squares(&cols, &y) else { continue };
-        if beta[1..].iter().any(|b| *b < 0.0) {
-            continue;
-        }
-        let df = idx.len() - used.len() - 1;
-        let mut f = Fit { used, beta, inv, sd: 0.0, df, press: 0.0 };
-        let mut sse = 0.0;
-        for (&i, yi) in idx.iter().zip(&y) {
-            let x = |name: &str| value(i, name);
-            let e = yi - f.predict(&x);
-            sse += e * e;
-            f.press += (e / (1.0 - leverage(&f.row(&x), &f.inv)).max(1e-9)).powi(2);
-        }
-        f.sd = (sse / df as f64).sqrt();
+    for used in subsets() {
+        let Some(f) = fit_subset(rows, used) else { continue };
         if best.as_ref().is_none_or(|b| f.press < b.press - 1e-15) {
             best = Some(f);
         }
     }
     best
+}
+
+/// [`fit_rows`] over the members `idx` of `r`.
+fn fit(r: &ValidationReport, idx: &[usize]) -> Option<Fit> {
+    fit_rows(&rows(r, idx))
 }
 
 /// A placement outside the set predicted by the fit on every member: (mAP, 95% prediction

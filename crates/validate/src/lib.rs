@@ -47,6 +47,7 @@ pub mod occupancy;
 pub mod rank;
 pub mod recommend;
 pub mod set;
+pub mod sites;
 
 use crate::rank::{Agreement, agreement};
 use hilo_core::fs::{FileError, limit, read_json, write_json};
@@ -1068,4 +1069,18 @@ fn scatter(out: &Path, stem: &str, r: &ValidationReport, name: &str) -> Result<b
     };
     save(out, stem, &chart)?;
     Ok(true)
+}
+
+/// `hilo validate --sites`: the finished validations at `paths` (each a `validation.json`, one
+/// per site), each held out in turn ([`sites::leave_one_site_out`]); writes `sites.json` and
+/// `sites.md` into `out` and returns the report.
+pub fn sites(paths: &[PathBuf], out: &Path, seed: u64) -> Result<sites::SitesReport> {
+    let reports = paths.iter().map(|p| read_report(p)).collect::<Result<Vec<_>>>()?;
+    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    let given: Vec<(&str, &ValidationReport)> = names.iter().map(String::as_str).zip(&reports).collect();
+    let r = sites::leave_one_site_out(&given, seed).map_err(|e| StudyError::step("leave one site out", e))?;
+    std::fs::create_dir_all(out).map_err(|e| FileError::io(out, e))?;
+    write_json(&out.join("sites.json"), &r)?;
+    hilo_core::fs::write_atomic(&out.join("sites.md"), sites::markdown(&r).as_bytes())?;
+    Ok(r)
 }
