@@ -19,7 +19,7 @@ use hilo_plan::error::{Result, StudyError};
 use hilo_plan::place::{central_targets, lidar_hits, limit_for, placed};
 use hilo_plan::study::{Configuration, Study};
 use hilo_raycast::{QueryRegion, World};
-use hilo_sensor_models::SensorSpec;
+use hilo_sensor_models::{SensorPose, SensorSpec};
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -390,13 +390,21 @@ fn random(inst: &Instance, limit: &Limit, rng: &mut impl Rng) -> Option<Vec<usiz
     Some(sel)
 }
 
-/// The options of `inst` that are these sensors (by type and candidate); sensors whose
-/// candidate sees no target have no option and add nothing.
-fn selection(inst: &Instance, sensors: &[PlacedSensor]) -> Vec<usize> {
+/// The options of `inst` that are these sensors, by type and pose: a candidate's id is its
+/// index in the sampling, which another build may number otherwise (a set drawn by it is
+/// recomputed by `--refit`), while the pose is where the sensor is. Sensors whose candidate sees
+/// no target, or stands where this build samples none, have no option and add nothing.
+fn selection(inst: &Instance, prep: &Prepared, sensors: &[PlacedSensor]) -> Vec<usize> {
+    let same = |a: &SensorPose, b: &SensorPose| {
+        a.position.distance(b.position) < 1e-3 && (a.yaw - b.yaw).abs() < 1e-4 && (a.pitch - b.pitch).abs() < 1e-4
+    };
     sensors
         .iter()
         .filter_map(|s| {
-            inst.options.iter().position(|o| inst.types[o.ty].name == s.ty && o.candidate == s.candidate_id)
+            inst.options.iter().position(|o| {
+                inst.types[o.ty].name == s.ty
+                    && prep.candidates.get(o.candidate as usize).is_some_and(|c| same(&c.pose, &s.pose))
+            })
         })
         .collect()
 }
@@ -454,8 +462,8 @@ impl<'a> Context<'a> {
             self.own.insert(own_types.clone(), inst);
         }
         let own = &self.own[&own_types];
-        let sel_own = selection(own, &sensors);
-        let sel_all = selection(all, &sensors);
+        let sel_own = selection(own, prep, &sensors);
+        let sel_all = selection(all, prep, &sensors);
         let has = |m: Modality| sensors.iter().any(|s| s.modality == m);
         let weight: f64 = all.weights.iter().sum::<f64>().max(1e-12);
         let share =
