@@ -20,10 +20,11 @@
 //! trained as the members were and set beside its prediction and the best configuration of the
 //! study at equal or lower cost ([`recommend`]); [`absorb`] adds that trained rig to the set and
 //! fits again, so the next recommendation is placed by a fit that knows how the last one
-//! trained (the set's rigs have one to four sensors, a budget buys more). Cross-fitting within
-//! one set shares that set's traffic and may have chosen the objective's form from its residuals; `--transfer` predicts
-//! the placements of a second set (other seeds) with the first set's weights frozen
-//! ([`calibrate::transfer`]). It runs in one process ([`run`]) or as a
+//! trained (sets drawn before the rigs of five to eight sensors had one to four). Cross-fitting
+//! within one set shares that set's traffic and junction and may have chosen the objective's
+//! form from its residuals; `--transfer` predicts the placements of a second set (other seeds)
+//! with the first set's weights frozen ([`calibrate::transfer`]), and `--sites` holds each of
+//! several junctions' validations out in turn, fitting on the others ([`sites`]). It runs in one process ([`run`]) or as a
 //! workflow engine's jobs ([`plan`] draws the set and names the stages, [`simulate`] and
 //! [`train_job`] run one each, `hilo_study::workflow::validation_snakefile` writes them); its stage
 //! folders are named by hashes that include the code, so a run is resumed by the same build
@@ -691,9 +692,9 @@ fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationRepo
 /// Adds the trained recommendation of `out`'s validation to its set, a placement like the
 /// others (the one the fit chose, trained as they were), and fits again ([`refit`]): the
 /// calibrated objective then knows how the rig it bought trained, and the next recommendation
-/// is placed by that fit — the loop closed once more. The set's placements span one to four
-/// sensors and the fit's saturating terms extrapolate past them to the seven or eight a budget
-/// buys; each rig added is evidence where the optimiser goes. It stays in `validation.json`
+/// is placed by that fit — the loop closed once more. A budget buys seven or eight sensors,
+/// where the fit's saturating terms are least certain (sets drawn before the rigs of five to
+/// eight sensors had one to four); each rig added is evidence where the optimiser goes. It stays in `validation.json`
 /// (its placement, dataset and trainings in `recommendation/`, `data/`, `runs/`), and a rerun of
 /// the validation keeps it. An error when no recommendation was trained.
 pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {

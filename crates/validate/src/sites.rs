@@ -93,6 +93,11 @@ pub struct SitesReport {
     pub best_baseline_spearman: f64,
     /// Calibrated mean ρ − the best baseline's, with its paired 95% bootstrap interval.
     pub difference: Agreement,
+    /// The same against the best baseline computable from the placement alone (the others
+    /// count points in each rig's simulated validation scenes, the scenes mAP is scored on).
+    pub best_placement_baseline: String,
+    pub best_placement_baseline_spearman: f64,
+    pub placement_difference: Agreement,
     /// The fit on every site (features chosen by leave-one-site-out error over all of them):
     /// the weights a study at another junction places with.
     pub pooled: Pooled,
@@ -122,6 +127,15 @@ impl Pooled {
             .collect();
         format!("calibration = {{ {} }}", terms.join(", "))
     }
+}
+
+/// Whether a predictor counts points in the rig's simulated validation scenes (the occupancy
+/// predictors) rather than following from the placement alone.
+pub fn needs_simulation(name: &str) -> bool {
+    use crate::occupancy::{HIT_SHARE, POINTS_PER_USER, RADAR_SHARE};
+    (name.starts_with(HIT_SHARE) && name != crate::set::HIT_SHARE_TRAINING)
+        || name == POINTS_PER_USER
+        || name == RADAR_SHARE
 }
 
 /// The count baselines and every predictor all sites record (features and all), by name.
@@ -367,14 +381,20 @@ pub fn leave_one_site_out(sites: &[(&str, &ValidationReport)], seed: u64) -> Res
         (0..sites.len()).map(|k| hold_out(sites, k, &baselines, seed)).collect::<Result<_, _>>()?;
     let mean = |f: &dyn Fn(&HeldOutSite) -> f64| held.iter().map(f).sum::<f64>() / held.len() as f64;
     let mean_spearman = mean(&|h| h.spearman.value);
-    let (best_baseline, best_baseline_spearman) = baselines
-        .iter()
-        .enumerate()
-        .map(|(b, name)| (name.clone(), mean(&|h| h.baselines[b].spearman.value)))
-        .filter(|(_, v)| v.is_finite())
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .unwrap_or_default();
+    let best = |admit: &dyn Fn(&str) -> bool| {
+        baselines
+            .iter()
+            .enumerate()
+            .filter(|(_, name)| admit(name))
+            .map(|(b, name)| (name.clone(), mean(&|h| h.baselines[b].spearman.value)))
+            .filter(|(_, v)| v.is_finite())
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or_default()
+    };
+    let (best_baseline, best_baseline_spearman) = best(&|_| true);
     let difference = paired_difference(sites, &held, &best_baseline, seed);
+    let (best_placement_baseline, best_placement_baseline_spearman) = best(&|n| !needs_simulation(n));
+    let placement_difference = paired_difference(sites, &held, &best_placement_baseline, seed);
     let (fit, site_rmse, shift2) =
         fit_across_sites(&site_rows(&reports)).ok_or("the sites together give no fit (collinear predictors)")?;
     let mut w = [0.0; FEATURES.len()];
@@ -395,6 +415,9 @@ pub fn leave_one_site_out(sites: &[(&str, &ValidationReport)], seed: u64) -> Res
         best_baseline,
         best_baseline_spearman,
         difference,
+        best_placement_baseline,
+        best_placement_baseline_spearman,
+        placement_difference,
         seed,
     })
 }
@@ -445,6 +468,15 @@ pub fn markdown(r: &SitesReport) -> String {
         r.best_baseline_spearman,
         fmt(&r.difference)
     ));
+    if r.best_placement_baseline != r.best_baseline {
+        s.push_str(&format!(
+            "That baseline counts points in each rig's simulated validation scenes (a simulation per rig, and the \
+             scenes mAP is scored on). From the placement alone the best is **{}**, {:+.2}; calibrated − it: **{}**.\n\n",
+            r.best_placement_baseline,
+            r.best_placement_baseline_spearman,
+            fmt(&r.placement_difference)
+        ));
+    }
     s.push_str(&format!(
         "Fitted on all {} sites (leave-one-site-out RMSE {:.3}, between-site s.d. {:.3}), the objective a study at \
          another junction places with: `[placement] objective = \"calibrated\"` and `{}` (predicted mAP = {:+.3} + \
@@ -486,8 +518,9 @@ pub fn markdown(r: &SitesReport) -> String {
             let mean = vals.iter().sum::<f64>() / vals.len() as f64;
             let cells: Vec<String> = r.held_out.iter().map(|h| fmt(&h.baselines[b].spearman)).collect();
             s.push_str(&format!(
-                "| {} | {} | {} |\n",
+                "| {}{} | {} | {} |\n",
                 base.predictor,
+                if needs_simulation(&base.predictor) { " (simulated scenes)" } else { "" },
                 cells.join(" | "),
                 if mean.is_finite() { format!("{mean:+.2}") } else { "–".into() }
             ));
@@ -638,6 +671,19 @@ mod tests {
         c.members[2].0.predictors.remove(RADAR_SATURATED);
         let e = leave_one_site_out(&[("a", &a), ("b", &b), ("c", &c)], 0).unwrap_err();
         assert!(e.contains("c:") && e.contains("p2") && e.contains("--refit"), "{e}");
+    }
+
+    /// The occupancy of the simulated validation scenes is told apart from what a placement
+    /// gives alone (the training traffic's share is ray-cast from the placement).
+    #[test]
+    fn simulated_predictors_are_told_from_placement_ones() {
+        use crate::occupancy::{HIT_SHARE, POINTS_PER_USER, RADAR_SHARE};
+        for n in [HIT_SHARE, POINTS_PER_USER, RADAR_SHARE, "road users hit by k LiDAR points (pedestrian)"] {
+            assert!(needs_simulation(n), "{n}");
+        }
+        for n in [crate::set::HIT_SHARE_TRAINING, crate::set::LIDAR_POINTS_CAPPED, LIDARS, LIDAR_SATURATED] {
+            assert!(!needs_simulation(n), "{n}");
+        }
     }
 
     /// Same inputs and seed, same report.
