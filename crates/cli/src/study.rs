@@ -153,15 +153,15 @@ fn one_study(
     }
 }
 
-/// Claims a study's or validation's folder for this process (see `hilo_core::folder`): a whole
-/// run holds it alone; a stage, as a workflow engine runs several side by side, shares it (the
-/// dataset, training run or placements a stage writes are claimed alone below it). A command
-/// that only reads the folder claims nothing.
 /// Says which files were written.
 fn wrote(files: Vec<PathBuf>) {
     files.iter().for_each(|p| eprintln!("wrote {}", p.display()));
 }
 
+/// Claims a study's or validation's folder for this process (see `hilo_core::folder`): a whole
+/// run holds it alone; a stage, as a workflow engine runs several side by side, shares it (the
+/// dataset, training run or placements a stage writes are claimed alone below it). A command
+/// that only reads the folder claims nothing.
 fn claim(out: &Path, whole: bool) -> Result<hilo_core::folder::Claim> {
     use hilo_core::folder::Mode;
     Ok(hilo_core::folder::claim(out, if whole { Mode::Exclusive } else { Mode::Shared })?)
@@ -318,7 +318,7 @@ pub struct ValidateArgs {
     /// Leave one site out over these finished validations (each a site's validation.json; at
     /// least three): the calibrated objective fitted on the other sites ranks each site's
     /// placements, beside baselines that need no fit. Writes sites.json and sites.md into --out.
-    #[arg(long, value_name = "VALIDATION_JSON", num_args = 1.., conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "transfer", "resume"])]
+    #[arg(long, value_name = "VALIDATION_JSON", num_args = 1.., conflicts_with_all = ["study", "refit", "recommend", "absorb", "workflow", "transfer", "resume", "simulate", "train"])]
     pub sites: Vec<PathBuf>,
 }
 

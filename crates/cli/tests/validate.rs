@@ -144,6 +144,9 @@ fn leaves_each_site_out(dir: &std::path::Path, finished: &std::path::Path) {
     let o =
         hilo().args(["validate", "--out"]).arg(dir.join("loso2")).arg("--sites").args(&sites[..2]).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("at least 3"), "{o:?}");
+    // A study or a stage beside --sites would be ignored: refused instead.
+    let o = hilo().args(["validate", "study.toml", "--sites"]).args(&sites).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("cannot be used with"), "{o:?}");
 }
 
 /// On a finished validation: a transfer from the folder's own file (or a copy) would be scored
