@@ -14,8 +14,9 @@
 //! - **Intervals that know sites differ.** A 95% prediction interval from the pooled fit's
 //!   residuals alone covers the placements of the sites it was fitted on; a new site may sit
 //!   higher or lower as a whole. The interval adds the between-site variance measured by the
-//!   inner leave-one-site-out (the mean squared site-mean error), so its coverage at the
-//!   held-out site is the check.
+//!   inner leave-one-site-out (the mean squared site-mean error), scaled by the t quantile with
+//!   the fitting sites less one degrees of freedom (few sites, wide intervals), so its coverage
+//!   at the held-out site is the check.
 //! - **Baselines it must beat**, on the same placements, with no fitting: the number of LiDARs,
 //!   the number of mounting structures holding one, the total LiDAR beams, the paper's
 //!   objective where defined, and every predictor the sets record. The best baseline is the one
@@ -215,7 +216,10 @@ fn hold_out(
     let (fit, inner_rmse, shift2) = fit_across_sites(&site_rows(&fitting)).ok_or_else(|| {
         format!("the sites other than {name} give no fit (too few placements, or collinear predictors)")
     })?;
-    let t = statrs::distribution::StudentsT::new(0.0, 1.0, (fit.beta.len() as f64).max(1.0))
+    // The between-site variance is estimated from the fitting sites' mean errors: its t
+    // quantile has their number less one degrees of freedom (4.30 with three sites).
+    let site_df = (fitting.len() as f64 - 1.0).max(1.0);
+    let t = statrs::distribution::StudentsT::new(0.0, 1.0, site_df)
         .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
         .unwrap_or(1.96);
     let predicted: Vec<HeldOut> = r
