@@ -434,10 +434,7 @@ pub fn transfer(source: &ValidationReport, target: &ValidationReport, source_nam
 mod tests {
     use super::*;
 
-    use crate::set::{
-        LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, Member, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS,
-    };
-    use crate::{Trained, ValidationSettings};
+    use crate::set::{LIDAR_DENSE, LIDAR_SATURATED, LIDAR_TWO_VIEWS, RADAR_DENSE, RADAR_SATURATED, RADAR_TWO_VIEWS};
     use rand::Rng;
     use std::collections::BTreeMap;
 
@@ -456,13 +453,6 @@ mod tests {
                 // By two views a target counts at most half as much as by one, up to as much;
                 // how much depends on the second views, independent of C_L.
                 let cl2 = cl * rng.random_range(0.5..1.0);
-                let placement: hilo_placement_ip::Placement = serde_json::from_value(serde_json::json!({
-                    "name": format!("p{i}"), "sensors": [], "objective": 0.0, "bound": null, "gap": null,
-                    "proven_optimal": false, "solve_seconds": 0.0, "method": "", "solved": false,
-                    "greedy_objective": 0.0, "central_coverage": 0.0, "lidar_radar_overlap": 0.0,
-                    "cost_usd": 0.0, "targets": 0, "candidates": 0, "scene_hash": "", "catalog_hash": ""
-                }))
-                .unwrap();
                 let predictors = BTreeMap::from([
                     (LIDAR_SATURATED.to_owned(), Some(cl)),
                     (RADAR_SATURATED.to_owned(), Some(cr)),
@@ -470,47 +460,11 @@ mod tests {
                     (RADAR_TWO_VIEWS.to_owned(), Some(cr * 0.5)),
                     (PAPER_OBJECTIVE.to_owned(), (cr > 0.0).then_some(cl * cr)),
                 ]);
-                let m = Member {
-                    slug: format!("p{i}"),
-                    kind: "random".into(),
-                    configuration: String::new(),
-                    placement,
-                    predictors,
-                };
                 let map = truth(cl, cr, cl2) + rng.random_range(-0.017..0.017);
-                let t = Trained {
-                    preset: String::new(),
-                    map: vec![map],
-                    map_mean: map,
-                    map_at_b: vec![map],
-                    map_at_b_mean: map,
-                    pedestrian_ap_mean: map,
-                    class_ap: BTreeMap::new(),
-                    map_replicates: (0..50).map(|_| map + rng.random_range(-0.005..0.005)).collect(),
-                    pedestrian_replicates: vec![map; 50],
-                    train_s: 0.0,
-                };
-                (m, t)
+                crate::testing::member(i, predictors, map, 50, &mut rng)
             })
             .collect();
-        let none = Agreement { value: f64::NAN, lo: f64::NAN, hi: f64::NAN, n: 0 };
-        ValidationReport {
-            study: String::new(),
-            profile: String::new(),
-            settings: ValidationSettings::default(),
-            provenance: hilo_plan::plan::Provenance::here(1),
-            validation_scenes: 0,
-            resamples: 50,
-            members,
-            predictors: Vec::new(),
-            budget_spearman: none,
-            budget_kendall: none,
-            seed_spearman: None,
-            calibrated: None,
-            recommendation: None,
-            transfer: None,
-            seconds: 0.0,
-        }
+        crate::testing::report(members, 50, "", "")
     }
 
     /// A planted relation (LiDAR coverage helps, radar coverage does nothing) is recovered: β_L

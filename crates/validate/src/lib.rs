@@ -50,6 +50,78 @@ pub mod recommend;
 pub mod set;
 pub mod sites;
 
+/// Synthetic validation sets for the tests of [`calibrate`] and [`sites`]: members without
+/// sensors, with predictors and a measured mAP given, and the report around them.
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+pub(crate) mod testing {
+    use super::{Trained, ValidationReport, ValidationSettings};
+    use crate::rank::Agreement;
+    use crate::set::Member;
+    use rand::Rng;
+    use std::collections::BTreeMap;
+
+    /// Member `p{i}`: no sensors, these predictors, mAP `map` from one seed, and `replicates`
+    /// scene-bootstrap scores within ±0.005 of it (drawn from `rng`).
+    pub fn member(
+        i: usize,
+        predictors: BTreeMap<String, Option<f64>>,
+        map: f64,
+        replicates: usize,
+        rng: &mut impl Rng,
+    ) -> (Member, Trained) {
+        let placement: hilo_placement_ip::Placement = serde_json::from_value(serde_json::json!({
+            "name": format!("p{i}"), "sensors": [], "objective": 0.0, "bound": null, "gap": null,
+            "proven_optimal": false, "solve_seconds": 0.0, "method": "", "solved": false,
+            "greedy_objective": 0.0, "central_coverage": 0.0, "lidar_radar_overlap": 0.0,
+            "cost_usd": 0.0, "targets": 0, "candidates": 0, "scene_hash": "", "catalog_hash": ""
+        }))
+        .unwrap();
+        let m = Member {
+            slug: format!("p{i}"),
+            kind: "random".into(),
+            configuration: String::new(),
+            placement,
+            predictors,
+        };
+        let t = Trained {
+            preset: String::new(),
+            map: vec![map],
+            map_mean: map,
+            map_at_b: vec![map],
+            map_at_b_mean: map,
+            pedestrian_ap_mean: map,
+            class_ap: BTreeMap::new(),
+            map_replicates: (0..replicates).map(|_| map + rng.random_range(-0.005..0.005)).collect(),
+            pedestrian_replicates: vec![map; replicates],
+            train_s: 0.0,
+        };
+        (m, t)
+    }
+
+    /// The report of `members` (study and profile named as given), nothing scored or fitted.
+    pub fn report(members: Vec<(Member, Trained)>, resamples: usize, study: &str, profile: &str) -> ValidationReport {
+        let none = Agreement { value: f64::NAN, lo: f64::NAN, hi: f64::NAN, n: 0 };
+        ValidationReport {
+            study: study.to_owned(),
+            profile: profile.to_owned(),
+            settings: ValidationSettings::default(),
+            provenance: hilo_plan::plan::Provenance::here(1),
+            validation_scenes: 0,
+            resamples,
+            members,
+            predictors: Vec::new(),
+            budget_spearman: none,
+            budget_kendall: none,
+            seed_spearman: None,
+            calibrated: None,
+            recommendation: None,
+            transfer: None,
+            seconds: 0.0,
+        }
+    }
+}
+
 use crate::rank::{Agreement, agreement};
 use hilo_core::fs::{FileError, limit, read_json, write_json};
 use hilo_detector::Registry;

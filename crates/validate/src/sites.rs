@@ -537,8 +537,7 @@ pub fn markdown(r: &SitesReport) -> String {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::set::{LIDAR_SATURATED, LIDARS, Member, RADAR_SATURATED};
-    use crate::{Trained, ValidationSettings};
+    use crate::set::{LIDAR_SATURATED, LIDARS, RADAR_SATURATED};
     use std::collections::BTreeMap;
 
     /// A site of `n` placements: every feature of the fit drawn uniformly, a LiDAR count, and
@@ -554,54 +553,11 @@ mod tests {
                 predictors.insert(RADAR_SATURATED.into(), Some(cr));
                 // Counting LiDARs: more LiDARs tend to cover more, with much scatter.
                 predictors.insert(LIDARS.into(), Some((cl * 4.0 + rng.random_range(-1.5..1.5)).round().max(1.0)));
-                let placement: hilo_placement_ip::Placement = serde_json::from_value(serde_json::json!({
-                    "name": format!("p{i}"), "sensors": [], "objective": 0.0, "bound": null, "gap": null,
-                    "proven_optimal": false, "solve_seconds": 0.0, "method": "", "solved": false,
-                    "greedy_objective": 0.0, "central_coverage": 0.0, "lidar_radar_overlap": 0.0,
-                    "cost_usd": 0.0, "targets": 0, "candidates": 0, "scene_hash": "", "catalog_hash": ""
-                }))
-                .unwrap();
-                let m = Member {
-                    slug: format!("p{i}"),
-                    kind: "random".into(),
-                    configuration: String::new(),
-                    placement,
-                    predictors,
-                };
                 let map = truth(cl, cr) + rng.random_range(-0.017..0.017);
-                let t = Trained {
-                    preset: String::new(),
-                    map: vec![map],
-                    map_mean: map,
-                    map_at_b: vec![map],
-                    map_at_b_mean: map,
-                    pedestrian_ap_mean: map,
-                    class_ap: BTreeMap::new(),
-                    map_replicates: (0..60).map(|_| map + rng.random_range(-0.005..0.005)).collect(),
-                    pedestrian_replicates: vec![map; 60],
-                    train_s: 0.0,
-                };
-                (m, t)
+                crate::testing::member(i, predictors, map, 60, &mut rng)
             })
             .collect();
-        let none = Agreement { value: f64::NAN, lo: f64::NAN, hi: f64::NAN, n: 0 };
-        ValidationReport {
-            study: format!("site{seed}"),
-            profile: "quick".into(),
-            settings: ValidationSettings::default(),
-            provenance: hilo_plan::plan::Provenance::here(1),
-            validation_scenes: 0,
-            resamples: 60,
-            members,
-            predictors: Vec::new(),
-            budget_spearman: none,
-            budget_kendall: none,
-            seed_spearman: None,
-            calibrated: None,
-            recommendation: None,
-            transfer: None,
-            seconds: 0.0,
-        }
+        crate::testing::report(members, 60, &format!("site{seed}"), "quick")
     }
 
     fn weight(h: &HeldOutSite, f: &str) -> f64 {
