@@ -294,8 +294,7 @@ pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
     for (&f, b) in whole.used.iter().zip(&whole.beta[1..]) {
         weights[f] = *b;
     }
-    let m = r.members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0);
-    let reps: Vec<Vec<f64>> = (0..m).map(|k| r.members.iter().map(|(_, t)| t.map_replicates[k]).collect()).collect();
+    let reps = replicates(r);
     let acc: Vec<f64> = held_out.iter().map(|h| h.measured).collect();
     let pred: Vec<f64> = held_out.iter().map(|h| h.predicted).collect();
     let (held_out_spearman, held_out_kendall) = agreement(&pred, &acc, &reps, 0.95, seed);
@@ -352,9 +351,15 @@ pub struct Transfer {
     pub rmse: f64,
 }
 
+/// Each member's mAP under scene-bootstrap replicate k, for each k every member has.
+pub(crate) fn replicates(r: &ValidationReport) -> Vec<Vec<f64>> {
+    let n = r.members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0);
+    (0..n).map(|k| r.members.iter().map(|(_, t)| t.map_replicates[k]).collect()).collect()
+}
+
 /// The first of [`FEATURES`] that some member of `r` lacks (a set scored by a build from before
 /// that predictor), with the member: a fit would read it as 0.
-fn missing_feature(r: &ValidationReport) -> Option<(&'static str, String)> {
+pub(crate) fn missing_feature(r: &ValidationReport) -> Option<(&'static str, String)> {
     r.members
         .iter()
         .find_map(|(m, _)| FEATURES.iter().find(|f| !m.predictors.contains_key(**f)).map(|f| (*f, m.slug.clone())))
@@ -404,9 +409,7 @@ pub fn transfer(source: &ValidationReport, target: &ValidationReport, source_nam
         })
         .collect();
     let n = target.members.len();
-    let draws = target.members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0);
-    let reps: Vec<Vec<f64>> =
-        (0..draws).map(|k| target.members.iter().map(|(_, t)| t.map_replicates[k]).collect()).collect();
+    let reps = replicates(target);
     let acc: Vec<f64> = predicted.iter().map(|h| h.measured).collect();
     let pred: Vec<f64> = predicted.iter().map(|h| h.predicted).collect();
     let (spearman, kendall) = agreement(&pred, &acc, &reps, 0.95, target.settings.seed);

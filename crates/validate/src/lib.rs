@@ -868,7 +868,7 @@ pub fn write(out: &Path, r: &ValidationReport) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-fn fmt_agreement(a: &Agreement) -> String {
+pub(crate) fn fmt_agreement(a: &Agreement) -> String {
     if a.value.is_finite() { format!("{:+.2} [{:+.2}, {:+.2}]", a.value, a.lo, a.hi) } else { "–".into() }
 }
 

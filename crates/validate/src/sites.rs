@@ -31,7 +31,7 @@
 //! report lists each site's profile and commit.
 
 use crate::ValidationReport;
-use crate::calibrate::{FEATURES, HeldOut, Row, fit_subset, subsets};
+use crate::calibrate::{FEATURES, HeldOut, Row, fit_subset, missing_feature, replicates, subsets};
 use crate::rank::{Agreement, agreement, percentile, spearman};
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
@@ -198,12 +198,6 @@ fn values(r: &ValidationReport, name: &str) -> Vec<f64> {
     r.members.iter().map(|(m, _)| m.predictors.get(name).copied().flatten().unwrap_or(f64::NAN)).collect()
 }
 
-/// Each member's mAP under scene-bootstrap replicate k (of as many as every member has).
-fn replicates(r: &ValidationReport) -> Vec<Vec<f64>> {
-    let n = r.members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0);
-    (0..n).map(|k| r.members.iter().map(|(_, t)| t.map_replicates[k]).collect()).collect()
-}
-
 /// Site `k` of `sites` held out: fitted on the others, predicted, scored beside `baselines`.
 fn hold_out(
     sites: &[(&str, &ValidationReport)],
@@ -368,14 +362,9 @@ pub fn leave_one_site_out(sites: &[(&str, &ValidationReport)], seed: u64) -> Res
         if r.members.len() < 10 {
             return Err(format!("{name}: {} placements; a site needs at least 10", r.members.len()));
         }
-        if let Some((m, f)) = r
-            .members
-            .iter()
-            .find_map(|(m, _)| FEATURES.iter().find(|f| !m.predictors.contains_key(**f)).map(|f| (m, f)))
-        {
+        if let Some((f, slug)) = missing_feature(r) {
             return Err(format!(
-                "{name}: placement {:?} has no predictor {f:?}: run `hilo validate --refit` on it with this build",
-                m.slug
+                "{name}: placement {slug:?} has no predictor {f:?}: run `hilo validate --refit` on it with this build"
             ));
         }
     }
@@ -426,10 +415,6 @@ pub fn leave_one_site_out(sites: &[(&str, &ValidationReport)], seed: u64) -> Res
     })
 }
 
-fn fmt(a: &Agreement) -> String {
-    if a.value.is_finite() { format!("{:+.2} [{:+.2}, {:+.2}]", a.value, a.lo, a.hi) } else { "–".into() }
-}
-
 /// `sites.md`: per held-out site the calibrated objective's ranking beside the baselines, then
 /// the pooled comparison.
 pub fn markdown(r: &SitesReport) -> String {
@@ -453,9 +438,9 @@ pub fn markdown(r: &SitesReport) -> String {
             h.profile,
             &h.commit[..h.commit.len().min(7)],
             h.predicted.len(),
-            fmt(&h.spearman),
-            fmt(&h.kendall),
-            fmt(&h.better_half_spearman),
+            crate::fmt_agreement(&h.spearman),
+            crate::fmt_agreement(&h.kendall),
+            crate::fmt_agreement(&h.better_half_spearman),
             h.mean_error,
             h.rmse,
             h.covered,
@@ -470,7 +455,7 @@ pub fn markdown(r: &SitesReport) -> String {
         r.mean_spearman,
         r.best_baseline,
         r.best_baseline_spearman,
-        fmt(&r.difference)
+        crate::fmt_agreement(&r.difference)
     ));
     if r.best_placement_baseline != r.best_baseline {
         s.push_str(&format!(
@@ -478,7 +463,7 @@ pub fn markdown(r: &SitesReport) -> String {
              scenes mAP is scored on). From the placement alone the best is **{}**, {:+.2}; calibrated − it: **{}**.\n\n",
             r.best_placement_baseline,
             r.best_placement_baseline_spearman,
-            fmt(&r.placement_difference)
+            crate::fmt_agreement(&r.placement_difference)
         ));
     }
     s.push_str(&format!(
@@ -520,7 +505,8 @@ pub fn markdown(r: &SitesReport) -> String {
         for (b, base) in first.baselines.iter().enumerate() {
             let vals: Vec<f64> = r.held_out.iter().map(|h| h.baselines[b].spearman.value).collect();
             let mean = vals.iter().sum::<f64>() / vals.len() as f64;
-            let cells: Vec<String> = r.held_out.iter().map(|h| fmt(&h.baselines[b].spearman)).collect();
+            let cells: Vec<String> =
+                r.held_out.iter().map(|h| crate::fmt_agreement(&h.baselines[b].spearman)).collect();
             s.push_str(&format!(
                 "| {}{} | {} | {} |\n",
                 base.predictor,
