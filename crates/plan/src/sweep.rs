@@ -529,6 +529,23 @@ mod tests {
         let e = load(d.path()).unwrap_err().to_string();
         assert!(e.contains("c.toml") && e.contains("studies of one scene and catalog each"), "{e}");
     }
+    /// The realism sweep (`fixtures/realism-study.toml`): the default study with the paper's
+    /// catalog and the datasheet one, which differ in the LiDARs alone.
+    #[test]
+    fn the_realism_fixture_sweeps_the_two_catalogs() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/realism-study.toml");
+        let Loaded::Sweep(w) = load(&path).unwrap() else { panic!("not a sweep") };
+        assert_eq!(w.shards.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["sensors", "sensors_datasheet"]);
+        let (paper, sheet) = (&w.shards[0].study, &w.shards[1].study);
+        assert_ne!(paper.catalog_hash, sheet.catalog_hash);
+        assert_eq!(paper.file.configurations, sheet.file.configurations);
+        for name in ["lidar-16", "lidar-32", "lidar-64"] {
+            assert!(paper.catalog.lidar(name).unwrap().detection_range.is_none());
+            assert!(sheet.catalog.lidar(name).unwrap().detection_range.is_some(), "{name}");
+        }
+        assert_eq!(paper.catalog.radar("radar-4d").unwrap(), sheet.catalog.radar("radar-4d").unwrap());
+    }
+
     /// `extends` lays a file over another study: tables merge field by field, lists and
     /// `[[configurations]]` replace, `scenes` replaces the base's `scene`; a chain of two, a
     /// base that is not there and a value that is not a path are refused by name.

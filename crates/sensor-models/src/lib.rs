@@ -1,13 +1,16 @@
 //! LiDAR and 4D-radar sensor models for hilo.
 //!
 //! - [`spec`]: specifications and the priced catalog (`fixtures/sensors.toml`, the paper's
-//!   Table I), validated once.
+//!   Table I; `fixtures/sensors-datasheet.toml`, LiDARs with datasheet beam tables and range by
+//!   reflectivity), validated once.
 //! - [`lidar`], [`radar`]: scan simulation over a [`hilo_raycast::World`] and the frame's
 //!   actors; deterministic for a seed.
 //! - [`probability`]: the detection-probability model placement uses (expected LiDAR returns,
 //!   radar detection probability) for probe targets.
 //! - [`export`]: PCD and PLY writers and readers.
 //! - [`weather`]: rain and fog (published attenuation models) applied to the specs.
+//! - [`range`]: the hard-target range equation through extinction (Lambert's W), which the
+//!   specs and the weather share.
 //!
 //! The difference the paper studies is made physical here: a LiDAR returns dense geometry whose
 //! density falls with range and beam count; a radar returns a few detections per target, each
@@ -20,6 +23,7 @@ pub mod noise;
 pub mod pose;
 pub mod probability;
 pub mod radar;
+pub mod range;
 pub mod spec;
 pub mod weather;
 
@@ -28,5 +32,5 @@ pub use lidar::{LidarScan, PointSource, simulate_lidar};
 pub use pose::SensorPose;
 pub use probability::{Probe, lidar_expected_returns, radar_detection_probability};
 pub use radar::{RadarScan, simulate_radar};
-pub use spec::{Catalog, LidarSpec, RadarSpec, SensorSpec};
+pub use spec::{Catalog, DetectionRange, LidarSpec, RadarSpec, SensorSpec};
 pub use weather::Weather;

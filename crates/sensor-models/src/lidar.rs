@@ -5,7 +5,9 @@
 //! noise and an intensity = reflectivity × |cos incidence| × exp(−a·range); returns are then
 //! dropped as CARLA does: a general rate, plus an intensity rule (probability
 //! `dropoff_zero_intensity` at zero intensity, falling linearly to 0 at
-//! `dropoff_intensity_limit`).
+//! `dropoff_intensity_limit`). A sensor with a datasheet detection range
+//! ([`LidarSpec::detection_range`]) first keeps only the returns the lidar equation detects:
+//! received power ρ·|cos incidence|·e^{−2αr}/r² at least the reference target's.
 //!
 //! Left out, on purpose: actors are frozen at the frame time during the sweep (a 50 ms sweep
 //! moves a 20 m/s car by at most 1 m; point timestamps are still recorded per column, so a
@@ -186,8 +188,11 @@ pub fn simulate_lidar(
                         continue;
                     }
                     let cos_inc = hit.normal.dot(ray.dir);
-                    let i =
-                        intensity(hit.material.lidar_reflectivity(), cos_inc, range, spec.atmosphere_attenuation_per_m);
+                    let reflectivity = hit.material.lidar_reflectivity();
+                    if !spec.detects(reflectivity, cos_inc, range) {
+                        continue;
+                    }
+                    let i = intensity(reflectivity, cos_inc, range, spec.atmosphere_attenuation_per_m);
                     if rng.random::<f32>() >= survival_probability(spec, i) {
                         continue;
                     }

@@ -5,7 +5,8 @@
 //! - LiDAR: the expected number of returns on the probe, computed exactly for the spec's beam
 //!   pattern: every ray of the pattern whose direction falls in the probe's angular window is
 //!   intersected with the probe box, and each hit counts with its survival probability under
-//!   the drop-off rules at its intensity. No sampling: the answer is deterministic.
+//!   the drop-off rules at its intensity (and only where the lidar equation detects it, for a
+//!   sensor with a datasheet detection range). No sampling: the answer is deterministic.
 //! - Radar: the Swerling-I detection probability exp(−T/SNR̄) at the probe's range and class
 //!   RCS, if any ray of the radar's grid reaches the probe within the field of view, else 0.
 
@@ -109,7 +110,8 @@ fn expected_returns_impl(
 ) -> f32 {
     let rot = pose.rotation();
     let w = window(pose, rot.inverse(), b);
-    if w.range.0 > spec.max_range_m {
+    let refl = probe.material().lidar_reflectivity();
+    if w.range.0 > spec.reach_m(refl) {
         return 0.0;
     }
     // Inside the box (or touching it): everything is in the window; count the whole pattern.
@@ -118,7 +120,6 @@ fn expected_returns_impl(
     let hfov = spec.hfov_deg.to_radians();
     let full = spec.hfov_deg >= 360.0;
     let step = hfov / cols as f32;
-    let refl = probe.material().lidar_reflectivity();
     let mut expected = 0.0f32;
     // Only the columns and beams whose angles fall in the probe's window (plus a margin) are
     // intersected: the window is found by index arithmetic, not by scanning the pattern.
@@ -154,7 +155,9 @@ fn expected_returns_impl(
                 t_min: spec.min_range_m,
                 t_max: spec.max_range_m,
             };
-            if let Some((t, n)) = intersect_box(b, &ray, ray.t_max) {
+            if let Some((t, n)) = intersect_box(b, &ray, ray.t_max)
+                && spec.detects(refl, n.dot(ray.dir), t)
+            {
                 let i = intensity(refl, n.dot(ray.dir), t, spec.atmosphere_attenuation_per_m);
                 expected += survival_probability(spec, i);
             }

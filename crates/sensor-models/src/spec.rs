@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 pub const DEFAULT_CATALOG_TOML: &str = include_str!("../../../fixtures/sensors.toml");
 
 /// A spinning multi-beam LiDAR.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LidarSpec {
     pub name: String,
@@ -40,6 +40,62 @@ pub struct LidarSpec {
     pub price_usd: f64,
     /// Where the price comes from, or "assumption: …".
     pub price_source: String,
+    /// The lidar equation's detection limit, from a datasheet's "range R at reflectivity ρ":
+    /// a return is kept only where its received power, ρ·|cos incidence|·e^{−2αr}/r², reaches
+    /// that of the reference target at its range, ρ_ref/R_ref² (a Lambertian target filling the
+    /// beam). A dark car is then seen less far than a white one, and grazing returns fall out
+    /// first. Absent: every return within `max_range_m` is kept (the paper's sensors).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detection_range: Option<DetectionRange>,
+    /// Extinction of the air, per metre one way (the α above): 0 in clear air; set by
+    /// [`crate::weather::Weather::lidar`] in fog and rain for a sensor with a `detection_range`.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub extinction_per_m: f32,
+}
+
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
+}
+
+/// A datasheet's range at a stated target reflectivity (normal incidence, clear air).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectionRange {
+    pub range_m: f32,
+    /// Lambertian reflectivity of the reference target at the LiDAR's wavelength, (0, 1].
+    pub reflectivity: f32,
+}
+
+/// As derived, but the fields added after the first catalogs (`detection_range`,
+/// `extinction_per_m`) appear only when set: a catalog's content hash (taken over this form)
+/// stays what it was for the LiDARs it already described.
+impl std::fmt::Debug for LidarSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("LidarSpec");
+        d.field("name", &self.name)
+            .field("beams", &self.beams)
+            .field("rate_hz", &self.rate_hz)
+            .field("hfov_deg", &self.hfov_deg)
+            .field("vfov_deg", &self.vfov_deg)
+            .field("elevations_deg", &self.elevations_deg)
+            .field("azimuth_resolution_deg", &self.azimuth_resolution_deg)
+            .field("min_range_m", &self.min_range_m)
+            .field("max_range_m", &self.max_range_m)
+            .field("range_noise_m", &self.range_noise_m)
+            .field("atmosphere_attenuation_per_m", &self.atmosphere_attenuation_per_m)
+            .field("dropoff_general_rate", &self.dropoff_general_rate)
+            .field("dropoff_intensity_limit", &self.dropoff_intensity_limit)
+            .field("dropoff_zero_intensity", &self.dropoff_zero_intensity)
+            .field("price_usd", &self.price_usd)
+            .field("price_source", &self.price_source);
+        if let Some(r) = &self.detection_range {
+            d.field("detection_range", r);
+        }
+        if self.extinction_per_m != 0.0 {
+            d.field("extinction_per_m", &self.extinction_per_m);
+        }
+        d.finish()
+    }
 }
 
 /// A 4D imaging radar (range, azimuth, elevation, Doppler).
@@ -210,6 +266,24 @@ impl LidarSpec {
     pub fn rays_per_frame(&self) -> usize {
         self.beams as usize * self.columns() as usize
     }
+
+    /// Whether a return from a surface of `reflectivity`, hit at `cos_incidence`, at `range_m`
+    /// is strong enough to be detected ([`LidarSpec::detection_range`]); always, without one.
+    /// The range gate (`min_range_m`, `max_range_m`) is the caller's.
+    pub fn detects(&self, reflectivity: f32, cos_incidence: f32, range_m: f32) -> bool {
+        let Some(d) = self.detection_range else { return true };
+        let received = reflectivity * cos_incidence.abs() * (-2.0 * self.extinction_per_m * range_m).exp();
+        received * d.range_m * d.range_m >= d.reflectivity * range_m * range_m
+    }
+
+    /// The farthest a surface of `reflectivity` at normal incidence is detected: `max_range_m`
+    /// without a detection range, else the root of ρ·e^{−2αr}/r² = ρ_ref/R_ref² (at most
+    /// `max_range_m`): R_ref·√(ρ/ρ_ref) in clear air, W(α·that)/α through extinction α.
+    pub fn reach_m(&self, reflectivity: f32) -> f32 {
+        let Some(d) = self.detection_range else { return self.max_range_m };
+        let clear = d.range_m * (reflectivity.max(0.0) / d.reflectivity).sqrt();
+        crate::range::max_range_m(clear, self.extinction_per_m).min(self.max_range_m)
+    }
 }
 
 #[derive(Deserialize)]
@@ -316,6 +390,13 @@ fn validate_lidar(l: &LidarSpec, c: &Check) -> Result<(), SensorError> {
     c.probability("dropoff_general_rate", l.dropoff_general_rate)?;
     c.non_negative("dropoff_intensity_limit", l.dropoff_intensity_limit)?;
     c.probability("dropoff_zero_intensity", l.dropoff_zero_intensity)?;
+    if let Some(d) = &l.detection_range {
+        c.positive("detection_range.range_m", d.range_m)?;
+        if !(d.reflectivity.is_finite() && d.reflectivity > 0.0 && d.reflectivity <= 1.0) {
+            return Err(c.err("detection_range.reflectivity", d.reflectivity, "must be a reflectivity in (0, 1]"));
+        }
+    }
+    c.non_negative("extinction_per_m", l.extinction_per_m)?;
     c.price(l.price_usd)
 }
 

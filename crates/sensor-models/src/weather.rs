@@ -23,6 +23,7 @@
 //! fraction of a dB over an intersection); snow; wet-road spray; and the weather's effect on the
 //! placement IP's visibility (placement assumes clear air).
 
+pub use crate::range::{lambert_w0, max_range_m};
 use crate::spec::{LidarSpec, RadarSpec};
 use serde::{Deserialize, Serialize};
 
@@ -94,15 +95,23 @@ impl Weather {
             + rain_optical_db_per_km(self.rain_mm_h) * DB_PER_KM_TO_PER_M
     }
 
-    /// `spec` in this weather: maximum range from the hard-target range equation, intensity
-    /// with the two-way transmission. Clear weather returns it unchanged.
+    /// `spec` in this weather: maximum range from the hard-target range equation (for a sensor
+    /// with a datasheet detection range, the extinction in its lidar equation instead, which
+    /// shortens each target's reach by its reflectivity), intensity with the two-way
+    /// transmission. Clear weather returns it unchanged.
     pub fn lidar(&self, spec: &LidarSpec) -> LidarSpec {
         let mut s = spec.clone();
         if self.is_clear() {
             return s;
         }
         let a = self.lidar_extinction_per_m();
-        s.max_range_m = max_range_m(spec.max_range_m, a).max(spec.min_range_m);
+        if s.detection_range.is_some() {
+            // The lidar equation carries the extinction to every target by its reflectivity;
+            // `max_range_m` stays the sensor's range gate.
+            s.extinction_per_m += a;
+        } else {
+            s.max_range_m = max_range_m(spec.max_range_m, a).max(spec.min_range_m);
+        }
         s.atmosphere_attenuation_per_m += 2.0 * a;
         s
     }
@@ -125,35 +134,6 @@ pub fn fog_extinction_per_m(visibility_m: f32) -> f32 {
 /// ITU-R P.1814: specific attenuation of rain for optical links, dB/km.
 pub fn rain_optical_db_per_km(rain_mm_h: f32) -> f32 {
     if rain_mm_h <= 0.0 { 0.0 } else { 1.076 * rain_mm_h.powf(0.67) }
-}
-
-/// The maximum range (m) of a sensor whose clear maximum range is `clear_m` under extinction
-/// `a` (per metre, one way): the root of r² e^{2ar} = clear², r = W(a·clear)/a.
-pub fn max_range_m(clear_m: f32, a: f32) -> f32 {
-    if a <= 0.0 {
-        return clear_m;
-    }
-    let x = f64::from(a) * f64::from(clear_m);
-    (lambert_w0(x) / f64::from(a)) as f32
-}
-
-/// The principal branch W₀ of Lambert's function for x ≥ 0 (w e^w = x), by Halley's iteration
-/// from a start that is within a few per cent everywhere; to machine precision.
-pub fn lambert_w0(x: f64) -> f64 {
-    if x <= 0.0 {
-        return 0.0;
-    }
-    let mut w = if x < 3.0 { (1.0 + x).ln() * 0.8 } else { x.ln() - x.ln().ln().max(0.0) };
-    for _ in 0..50 {
-        let e = w.exp();
-        let f = w * e - x;
-        let step = f / (e * (w + 1.0) - (w + 2.0) * f / (2.0 * w + 2.0));
-        w -= step;
-        if step.abs() <= 1e-15 * (1.0 + w.abs()) {
-            break;
-        }
-    }
-    w
 }
 
 /// ITU-R P.838-3 coefficients (k, α) for horizontal polarisation at `f_ghz` (1–1,000 GHz).
