@@ -14,7 +14,7 @@ use crate::writer::{Annotation, FrameData, SceneData, Sweep};
 use glam::Vec3;
 use hilo_core::{Check, Valid};
 use hilo_raycast::{ActorSet, HitTarget, Ray, Scene, World};
-use hilo_sensor_models::{SensorPose, SensorSpec, Weather, simulate_lidar, simulate_radar};
+use hilo_sensor_models::{CalibrationError, SensorPose, SensorSpec, Weather, simulate_lidar, simulate_radar};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -26,7 +26,7 @@ use std::collections::BTreeMap;
 /// while training may record fewer scenes densely. Between key frames the radars also record
 /// sweeps at `sweep_rate_hz` (nuScenes' non-key-frame sample_data), so a detector can stack a
 /// radar's last sweeps however far apart the key frames are.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimulateConfig {
     /// Training scenes, their length (s) and key frames per second.
@@ -59,6 +59,37 @@ pub struct SimulateConfig {
     /// Rain and fog (clear when absent): the sensors' specs are changed by the published
     /// models of [`hilo_sensor_models::weather`] before every scan.
     pub weather: Weather,
+    /// The rig's extrinsic calibration error (absent: perfect calibration). Each sensor scans
+    /// from a true pose drawn once per dataset seed and sensor around the pose its
+    /// `calibrated_sensor` record keeps, so a detector that merges the sensors' points with the
+    /// recorded calibration sees them misaligned, as a field rig's are.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration_error: Option<CalibrationError>,
+}
+
+/// As derived, but `calibration_error` appears only when set: the form a study's fingerprint
+/// is taken over stays what it was for the datasets made before the field existed.
+impl std::fmt::Debug for SimulateConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("SimulateConfig");
+        d.field("scenes", &self.scenes)
+            .field("seconds", &self.seconds)
+            .field("rate_hz", &self.rate_hz)
+            .field("val_scenes", &self.val_scenes)
+            .field("val_seconds", &self.val_seconds)
+            .field("val_rate_hz", &self.val_rate_hz)
+            .field("sweep_rate_hz", &self.sweep_rate_hz)
+            .field("lidar_sweeps", &self.lidar_sweeps)
+            .field("seed", &self.seed)
+            .field("train_traffic_draw", &self.train_traffic_draw)
+            .field("annotate_radius_m", &self.annotate_radius_m)
+            .field("traffic", &self.traffic)
+            .field("weather", &self.weather);
+        if let Some(e) = &self.calibration_error {
+            d.field("calibration_error", e);
+        }
+        d.finish()
+    }
 }
 
 impl Default for SimulateConfig {
@@ -77,6 +108,7 @@ impl Default for SimulateConfig {
             annotate_radius_m: 70.0,
             traffic: TrafficConfig::default(),
             weather: Weather::default(),
+            calibration_error: None,
         }
     }
 }
@@ -156,6 +188,14 @@ impl Check for SimulateConfig {
         self.weather
             .check()
             .map_err(|e| DatasetError::setting(format!("dataset.weather.{}", e.field), e.value, e.reason))?;
+        if let Some(e) = &self.calibration_error {
+            if !(e.rotation_deg.is_finite() && (0.0..=10.0).contains(&e.rotation_deg)) {
+                return bad("calibration_error.rotation_deg", e.rotation_deg.to_string(), "give 0 to 10 degrees");
+            }
+            if !(e.translation_m.is_finite() && (0.0..=1.0).contains(&e.translation_m)) {
+                return bad("calibration_error.translation_m", e.translation_m.to_string(), "give 0 to 1 m");
+            }
+        }
         if self.scenes == 0 {
             return bad("scenes", "0".into(), "at least one training scene is needed");
         }
@@ -267,6 +307,18 @@ impl SimulateConfig {
     }
 }
 
+/// Where rig sensor `s` really scans from: its recorded pose, or with the dataset's calibration
+/// error a draw around it, the same for every scene and split of the dataset (keyed by the
+/// dataset seed and the sensor's channel, so a sensor keeps its error in every rig that holds
+/// its channel).
+pub fn true_pose(cfg: &SimulateConfig, s: &RigSensor) -> SensorPose {
+    let Some(e) = &cfg.calibration_error else { return s.pose };
+    // FNV-1a of the channel name: a stable index for the sensor's generator.
+    let key = s.channel.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3));
+    let mut rng = hilo_sensor_models::noise::rng_for(cfg.seed, hilo_sensor_models::noise::stream::CALIBRATION, key);
+    s.pose.miscalibrated(e, &mut rng)
+}
+
 pub fn scene_name(index: usize) -> String {
     format!("scene-{index:04}")
 }
@@ -360,6 +412,7 @@ pub fn simulate_scene_with(
                 SensorSpec::Lidar(l) => SensorSpec::Lidar(cfg.weather.lidar(l)),
                 SensorSpec::Radar(r) => SensorSpec::Radar(cfg.weather.radar(r)),
             },
+            pose: true_pose(cfg, s),
             ..s.clone()
         })
         .collect();

@@ -368,3 +368,64 @@ fn key_frame_states_are_the_annotated_road_users() {
         assert!(seen > 0, "{}: no road user in any key frame", id.name());
     }
 }
+
+/// A rig with a calibration error scans from a true pose drawn once per seed and channel, and
+/// records the nominal one: the same traffic, other points, exactly the points a scan from the
+/// true pose gives; an error of zero is no error; the written calibration is the nominal pose.
+#[test]
+fn a_miscalibrated_rig_scans_from_its_true_pose_and_records_the_nominal_one() {
+    use hilo_core::Check;
+    use hilo_sensor_models::CalibrationError;
+    let scene = Scene::default_fixture().unwrap();
+    let (w, r) = (world(&scene), rig(&scene));
+    let base = SimulateConfig { scenes: 1, seconds: 0.5, val_scenes: 1, val_seconds: 1.0, ..cfg() };
+    let error = CalibrationError { rotation_deg: 0.2, translation_m: 0.02 };
+    let exact = base.clone().validate().unwrap();
+    let off = SimulateConfig { calibration_error: Some(error), ..base.clone() }.validate().unwrap();
+    let zero = SimulateConfig {
+        calibration_error: Some(CalibrationError { rotation_deg: 0.0, translation_m: 0.0 }),
+        ..base.clone()
+    }
+    .validate()
+    .unwrap();
+    let (a, b, z) = (
+        simulate_scene(&scene, &w, &r, &exact, &train(0)).unwrap(),
+        simulate_scene(&scene, &w, &r, &off, &train(0)).unwrap(),
+        simulate_scene(&scene, &w, &r, &zero, &train(0)).unwrap(),
+    );
+    let boxes = |d: &hilo_dataset::writer::SceneData| {
+        d.frames.iter().flat_map(|f| f.annotations.iter().map(|x| x.box3.center.to_array())).collect::<Vec<_>>()
+    };
+    assert_eq!(boxes(&a), boxes(&b));
+    assert_eq!(a.frames[0].lidar, z.frames[0].lidar);
+    assert_ne!(a.frames[0].lidar, b.frames[0].lidar);
+    // The points are a scan from the true pose: a draw within a few sigma of the nominal one,
+    // the same for every scene (and for the seed's other datasets).
+    let truth = hilo_dataset::simulate::true_pose(&off, &r[0]);
+    assert_eq!(truth, hilo_dataset::simulate::true_pose(&off, &r[0]));
+    let moved = (truth.position - r[0].pose.position).length();
+    assert!(moved > 0.0 && moved < 6.0 * 0.02 * 3f32.sqrt(), "{moved}");
+    let turned = [truth.yaw - r[0].pose.yaw, truth.pitch - r[0].pose.pitch, truth.roll - r[0].pose.roll];
+    assert!(turned.iter().all(|d| d.abs() < 6.0 * 0.2f32.to_radians()) && turned.iter().any(|d| *d != 0.0));
+    assert_ne!(truth, hilo_dataset::simulate::true_pose(&SimulateConfig { seed: 6, ..(*off).clone() }, &r[0]));
+    let d = tempfile::tempdir().unwrap();
+    write_dataset(&scene, &w, &r, &off, d.path(), "v1.0-trainval", "test", &|_| {}).unwrap();
+    let ds = Dataset::open(d.path(), "v1.0-trainval").unwrap();
+    let p = r[0].pose.position;
+    let recorded: Vec<[f64; 3]> = ds.tables.calibrated_sensor.iter().map(|c| c.translation).collect();
+    assert!(recorded.contains(&[p.x as f64, p.y as f64, p.z as f64]), "the nominal pose is recorded: {recorded:?}");
+    let e = SimulateConfig { calibration_error: Some(CalibrationError { rotation_deg: 20.0, ..error }), ..base }
+        .check()
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("dataset.calibration_error.rotation_deg") && e.contains("20"), "{e}");
+    // Stage and study hashes are taken over the Debug form: without the error it is as before
+    // the field existed, and with it, it differs.
+    let plain = format!("{:?}", SimulateConfig::default());
+    assert!(
+        !plain.contains("calibration_error")
+            && plain.ends_with("weather: Weather { rain_mm_h: 0.0, fog_visibility_m: None } }"),
+        "{plain}"
+    );
+    assert!(format!("{off:?}").contains("calibration_error"));
+}

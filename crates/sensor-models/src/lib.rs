@@ -29,7 +29,7 @@ pub mod weather;
 
 pub use error::SensorError;
 pub use lidar::{LidarScan, PointSource, simulate_lidar};
-pub use pose::SensorPose;
+pub use pose::{CalibrationError, SensorPose};
 pub use probability::{Probe, lidar_expected_returns, radar_detection_probability};
 pub use radar::{RadarScan, simulate_radar};
 pub use spec::{Catalog, DetectionRange, LidarSpec, RadarSpec, SensorSpec};

@@ -24,4 +24,6 @@ pub mod stream {
     pub const LIDAR_RAY: u64 = 1;
     pub const RADAR_TARGET: u64 = 2;
     pub const RADAR_CELL: u64 = 3;
+    /// A rig sensor's calibration error (one draw per dataset seed and sensor).
+    pub const CALIBRATION: u64 = 4;
 }

@@ -53,6 +53,29 @@ impl SensorPose {
     }
 }
 
+/// A rig's calibration error: how far a mounted sensor's true pose lies from the pose its
+/// calibration records (the extrinsic error a survey or a target-based calibration leaves).
+/// Each component is drawn once per sensor from a zero-mean Gaussian of these standard
+/// deviations: the position per axis, and yaw, pitch and roll each.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationError {
+    pub rotation_deg: f32,
+    pub translation_m: f32,
+}
+
+impl SensorPose {
+    /// This (recorded) pose moved by a draw of `error` from `rng`: the sensor's true pose.
+    pub fn miscalibrated(&self, error: &CalibrationError, rng: &mut impl rand::Rng) -> SensorPose {
+        let mut normal = || -> f32 { rng.sample(rand_distr::StandardNormal) };
+        let t = error.translation_m;
+        let position = self.position + Vec3::new(t * normal(), t * normal(), t * normal());
+        let r = error.rotation_deg.to_radians();
+        let (dy, dp, dr) = (r * normal(), r * normal(), r * normal());
+        SensorPose { position, yaw: self.yaw + dy, pitch: self.pitch + dp, roll: self.roll + dr }
+    }
+}
+
 /// Unit direction for azimuth `az` (counter-clockwise from +x) and elevation `el`, radians.
 #[inline]
 pub fn spherical_dir(az: f32, el: f32) -> Vec3 {
