@@ -313,8 +313,7 @@ impl SimulateConfig {
 /// its channel).
 pub fn true_pose(cfg: &SimulateConfig, s: &RigSensor) -> SensorPose {
     let Some(e) = &cfg.calibration_error else { return s.pose };
-    // FNV-1a of the channel name: a stable index for the sensor's generator.
-    let key = s.channel.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x100_0000_01b3));
+    let key = crate::writer::name_hash(&s.channel);
     let mut rng = hilo_sensor_models::noise::rng_for(cfg.seed, hilo_sensor_models::noise::stream::CALIBRATION, key);
     s.pose.miscalibrated(e, &mut rng)
 }

@@ -110,16 +110,23 @@ pub const ATTRIBUTES: [&str; 6] = [
     "cycle.with_rider",
 ];
 
+/// FNV-1a over `bytes` from the offset basis `basis`, each step's product rotated left by
+/// `rotate` bits (0: plain FNV-1a).
+fn fnv1a(bytes: impl Iterator<Item = u8>, basis: u64, rotate: u32) -> u64 {
+    bytes.fold(basis, |h, byte| (h ^ u64::from(byte)).wrapping_mul(0x0000_0100_0000_01b3).rotate_left(rotate))
+}
+
+/// FNV-1a (64 bits, the standard offset basis) of a name: a stable number for it, the same in
+/// every build.
+pub fn name_hash(name: &str) -> u64 {
+    fnv1a(name.bytes(), 0xcbf2_9ce4_8422_2325, 0)
+}
+
 /// A 32-hex-digit token from names (two independent 64-bit FNV-1a hashes).
 pub fn token(parts: &[&str]) -> String {
-    let mut a: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut b: u64 = 0x8422_2325_cbf2_9ce4;
-    for p in parts {
-        for &byte in p.as_bytes().iter().chain(b"\x1f") {
-            a = (a ^ byte as u64).wrapping_mul(0x0000_0100_0000_01b3);
-            b = (b ^ byte as u64).wrapping_mul(0x0000_0100_0000_01b3).rotate_left(7);
-        }
-    }
+    let bytes = || parts.iter().flat_map(|p| p.bytes().chain([0x1f]));
+    let a = fnv1a(bytes(), 0xcbf2_9ce4_8422_2325, 0);
+    let b = fnv1a(bytes(), 0x8422_2325_cbf2_9ce4, 7);
     format!("{a:016x}{b:016x}")
 }
 

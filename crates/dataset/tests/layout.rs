@@ -243,3 +243,16 @@ fn ground_truth_with_unknown_categories_bad_boxes_duplicate_tokens_or_broken_cha
     let e = ds.lidar_points(sd).unwrap_err().to_string();
     assert!(e.contains(&sd.filename) && e.contains("not a finite number"), "{e}");
 }
+
+/// Tokens and name hashes are fixed numbers: a dataset written by another build resumes and
+/// keeps its tokens, and a sensor keeps its calibration draw. The values are those of the
+/// first implementation.
+#[test]
+fn tokens_and_name_hashes_do_not_change_between_builds() {
+    use hilo_dataset::writer::{name_hash, token};
+    assert_eq!(token(&["ns", "calibrated_sensor", "LIDAR_0"]), "160f3bbd0903bb7a3e41609997fb7c25");
+    assert_eq!(token(&[]), "cbf29ce48422232584222325cbf29ce4");
+    assert_eq!(token(&[""]), "af63d24c8601db8e4f5a1cc6a05f40bc");
+    assert_eq!(token(&["scene-0001"]), "fb876f8cb40bb3d609f6728c42ce271f");
+    assert_eq!(name_hash("LIDAR_0"), 0xafac_7ef5_3771_2fca);
+}
