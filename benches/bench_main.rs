@@ -4,7 +4,7 @@
 //! against CBC on an instance CBC can finish), evaluation (the nuScenes metric on a fixed
 //! fixture, the bootstrap's reweighted curves against a direct evaluation), and fusion (forward
 //! and forward + backward of one batch for every registered plugin: a new plugin appears here
-//! by its registration alone). Run: `cargo bench --bench bench_main`; list: `-- --list`.
+//! by its registration alone), and the loss (its fused nodes against their composite). Run: `cargo bench --bench bench_main`; list: `-- --list`.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -255,9 +255,62 @@ fn fusion(c: &mut Criterion) {
     g.finish();
 }
 
+/// The detector's loss, forward and backward, as one fused node per loss against its composite
+/// of candle's operations (the lever `hilo bench train --variant fused=...` turns), on the head
+/// outputs of `centerpoint` (sparse sites) and `pointpillars` (dense maps) for a batch of two
+/// frames. The error paid: the largest difference of the loss and of its gradient, relative to
+/// the composite's largest value.
+fn loss(c: &mut Criterion) {
+    use hilo::detector::conformance::{car, synthetic_frame};
+    use hilo::detector::detector::{Detector, HostBatch};
+    use hilo::fusion::cpu::{Layer, set_fused};
+    let registry = hilo::registry().expect("registry");
+    let frames: Vec<_> = (0..2u64)
+        .map(|s| {
+            let boxes: Vec<_> =
+                (0..12).map(|k| car(-40.0 + 7.0 * k as f32, 6.0 * (s as f32 - 0.5), 0.2 * k as f32, 5.0)).collect();
+            synthetic_frame(s, &boxes, true, false)
+        })
+        .collect();
+    let mut g = c.benchmark_group("loss_batch_of_2");
+    for preset in ["centerpoint", "pointpillars"] {
+        let cfg = registry.preset(preset).expect("preset").detector.clone().validate().expect("a valid preset");
+        let det = Detector::new(&cfg, &registry, &candle_core::Device::Cpu, 0).expect("detector");
+        let batch = HostBatch::new(&cfg, &frames, det.uses_radar(), 0);
+        let (cls, reg) = det.forward(&batch, false).expect("forward");
+        let (cls, reg) =
+            (candle_core::Var::from_tensor(&cls).expect("cls"), candle_core::Var::from_tensor(&reg).expect("reg"));
+        let run = || {
+            let l = det.loss(cls.as_tensor(), reg.as_tensor(), &batch.targets).expect("loss");
+            let g = l.total.backward().expect("backward");
+            let grad = |v: &candle_core::Var| {
+                g.get(v.as_tensor()).expect("gradient").flatten_all().expect("flat").to_vec1::<f32>().expect("host")
+            };
+            (l.total.to_scalar::<f32>().expect("scalar"), [grad(&cls), grad(&reg)].concat())
+        };
+        let fused = run();
+        set_fused(&[Layer::Conv, Layer::BnRelu]);
+        let composite = run();
+        set_fused(&Layer::ALL);
+        let scale = composite.1.iter().fold(0f32, |m, v| m.max(v.abs()));
+        let worst = fused.1.iter().zip(&composite.1).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        eprintln!(
+            "loss error paid ({preset}, {} elements): value {:.1e} relative, gradient {:.1e} of its largest",
+            cls.elem_count() + reg.elem_count(),
+            ((fused.0 - composite.0) / composite.0).abs(),
+            worst / scale
+        );
+        g.bench_function(format!("{preset}/fused"), |b| b.iter(|| black_box(run()).0));
+        set_fused(&[Layer::Conv, Layer::BnRelu]);
+        g.bench_function(format!("{preset}/composite"), |b| b.iter(|| black_box(run()).0));
+        set_fused(&Layer::ALL);
+    }
+    g.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(20).measurement_time(std::time::Duration::from_secs(3));
-    targets = raycast, sensors, placement, evaluation, fusion
+    targets = raycast, sensors, placement, evaluation, fusion, loss
 }
 criterion_main!(benches);

@@ -531,6 +531,9 @@ pub struct TrainRow {
     /// The optimizer's update: `fused` (in place) or `composite` (candle's operations).
     #[serde(default)]
     pub optimizer: String,
+    /// The fused layers that ran, `+`-separated (`--variant fused=off`: none, each its
+    /// composite of candle's operations).
+    pub fused: String,
     pub steps: usize,
     /// From the wall time of the steps as training runs them (replicas side by side where
     /// there are threads for them; data prepared on another thread, so not counted unless it
@@ -707,16 +710,43 @@ fn product_rate(device: &candle_core::Device, n: usize) -> candle_core::Result<f
     Ok(2.0 * (n * n * n) as f64 / median(t) / 1e9)
 }
 
+/// The fused layers `--variant fused=V` keeps on: `on` (all), `off` (none), or names joined by
+/// `+` (`conv+bn_relu`).
+fn fused_layers(v: &serde_json::Value) -> Result<Vec<hilo_fusion::cpu::Layer>> {
+    use hilo_fusion::cpu::Layer;
+    match v {
+        serde_json::Value::Bool(true) => return Ok(Layer::ALL.to_vec()),
+        serde_json::Value::Bool(false) => return Ok(Vec::new()),
+        _ => {}
+    }
+    let s = v.as_str().unwrap_or_default();
+    match s {
+        "on" | "all" => Ok(Layer::ALL.to_vec()),
+        "off" | "none" => Ok(Vec::new()),
+        _ => s
+            .split('+')
+            .map(|name| {
+                Layer::ALL.into_iter().find(|l| l.name() == name).ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "variant fused = {v}: unknown layer {name:?} (on, off, or any of conv+bn_relu+loss)"
+                    )
+                })
+            })
+            .collect(),
+    }
+}
+
 /// `hilo bench train`'s `--variant` levers applied to a preset's detector config and schedule;
-/// returns the sparse convolutions' backward pass (None: the device's default) and whether the
-/// optimizer updates in place.
+/// returns the sparse convolutions' backward pass (None: the device's default), whether the
+/// optimizer updates in place and whether the fused layers are on.
 fn apply_variants(
     overrides: &[(String, serde_json::Value)],
     det_cfg: &mut hilo_detector::detector::DetectorConfig,
     cfg: &mut hilo_detector::train::TrainConfig,
-) -> Result<(Option<hilo_fusion::layout::Backward>, bool)> {
+) -> Result<(Option<hilo_fusion::layout::Backward>, bool, Vec<hilo_fusion::cpu::Layer>)> {
     let mut backward = None;
     let mut fused_optimizer = true;
+    let mut fused = hilo_fusion::cpu::Layer::ALL.to_vec();
     // Variants for the levers' rows.
     for (k, v) in overrides {
         match (k.as_str(), v.as_u64()) {
@@ -738,6 +768,7 @@ fn apply_variants(
             ("sparse_backward", _) if v == "gather" => backward = Some(hilo_fusion::layout::Backward::Gather),
             ("optimizer", _) if v == "composite" => fused_optimizer = false,
             ("optimizer", _) if v == "fused" => fused_optimizer = true,
+            ("fused", _) => fused = fused_layers(v)?,
             ("head_dilation", Some(n)) => {
                 if let Some(sp) = det_cfg.sparse.as_mut() {
                     sp.head_dilation = n as usize;
@@ -750,11 +781,11 @@ fn apply_variants(
                 })?
             }
             _ => anyhow::bail!(
-                "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, lidar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, sparse_backward=gather|scatter, optimizer=fused|composite, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
+                "unknown variant {k} = {v} (layout=dense, background=false, radar_clutter=false, paste=true|false, radar_sweeps=K, lidar_sweeps=K, batch=N, replicas=N, sync_batch_norm=true|false, sparse_backward=gather|scatter, optimizer=fused|composite, fused=on|off|conv+bn_relu+loss, head_dilation=N, layers=N, blocks=[{{stride, channels, layers}}, ...])"
             ),
         }
     }
-    Ok((backward, fused_optimizer))
+    Ok((backward, fused_optimizer, fused))
 }
 
 /// `hilo bench train`: the presets of `registry` named in `presets`, each with `overrides`
@@ -779,7 +810,7 @@ pub fn train(
         let preset = registry.preset(name)?;
         let mut det_cfg = preset.detector.clone();
         let mut cfg = preset.train.clone();
-        let (backward, fused_optimizer) = apply_variants(overrides, &mut det_cfg, &mut cfg)?;
+        let (backward, fused_optimizer, fused) = apply_variants(overrides, &mut det_cfg, &mut cfg)?;
         // A plugin that builds its own branches (`late`) carries the backbone in its config too.
         if let Some(b) = det_cfg.fusion_config.get_mut("backbone") {
             *b = serde_json::to_value(&det_cfg.backbone)?;
@@ -791,6 +822,7 @@ pub fn train(
         let det = Detector::new(&det_cfg, registry, &device, 0)?;
         hilo_fusion::layout::Backward::set_default(backward);
         hilo_detector::train::AdamW::set_fused_default(fused_optimizer);
+        hilo_fusion::cpu::set_fused(&fused);
         // Warm-up steps (allocator, caches), then the timed ones.
         hilo_detector::train::time_steps(&det, &frames, &cfg, 3)?;
         hilo_detector::conv::FORWARD_FLOPS.store(0, Ordering::Relaxed);
@@ -852,6 +884,7 @@ pub fn train(
             sync_batch_norm: cfg.sync_batch_norm,
             sparse_backward: format!("{:?}", hilo_fusion::layout::Backward::default_on(&device)).to_lowercase(),
             optimizer: if fused_optimizer { "fused" } else { "composite" }.into(),
+            fused: fused.iter().map(|l| l.name()).collect::<Vec<_>>().join("+"),
             steps,
             samples_per_s: cfg.batch as f64 / step_s,
             ms,
@@ -898,11 +931,12 @@ impl TrainReport {
         );
         for r in &self.presets {
             println!(
-                "{} ({}, {} backward, {} optimizer, background {}{}{}, batch {} in {} replicas, {} at once): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
+                "{} ({}, {} backward, {} optimizer, fused layers: {}, background {}{}{}, batch {} in {} replicas, {} at once): {:.1} samples/s, {:.2} GFLOP forward per step, {:.1} GFLOP/s = {:.1}% of peak; {:.0} pillars/frame, {:.0} level-0 and {:.0} head sites per batch",
                 r.preset,
                 r.layout,
                 r.sparse_backward,
                 r.optimizer,
+                if r.fused.is_empty() { "none" } else { &r.fused },
                 if r.background_removed { "removed" } else { "kept" },
                 if r.radar_clutter_removed { ", radar clutter removed" } else { "" },
                 if r.ground_truth_paste { ", ground-truth paste" } else { "" },

@@ -197,7 +197,7 @@ enum BenchCommand {
         /// A lever turned off or changed, for a before/after row: `layout=dense`,
         /// `background=false`, `radar_clutter=false`, `paste=true|false`, `radar_sweeps=K`, `lidar_sweeps=K`,
         /// `batch=N`, `replicas=N`, `sync_batch_norm=true|false`, `sparse_backward=gather|scatter`,
-        /// `optimizer=fused|composite`, `head_dilation=N`, `layers=N`,
+        /// `optimizer=fused|composite`, `fused=on|off|conv+bn_relu+loss`, `head_dilation=N`, `layers=N`,
         /// `blocks=[{"stride":2,"channels":32,"layers":2},...]` (repeatable).
         #[arg(long = "variant", value_parser = parse_variant)]
         variants: Vec<(String, serde_json::Value)>,

@@ -6,9 +6,7 @@ use crate::decode::{Peaks, decode};
 use crate::error::{DetectorError, Result};
 use crate::fusion::{Fusion, FusionInput, FusionOutput, Registry};
 use crate::layout::{At, Layout, SparseHost};
-use crate::loss::{
-    centernet_focal, centernet_focal_terms, masked_l1, per_class_mean, sigmoid_focal, sigmoid_focal_terms,
-};
+use crate::loss::{Focal, class_weights, focal_sum, weighted_l1};
 use crate::modules::{Backbone, Head, PillarTensors, REG_CHANNELS};
 use crate::targets::{Assignment, Targets};
 use candle_core::{DType, Device, Tensor};
@@ -282,58 +280,34 @@ impl Detector {
     }
 
     /// Focal loss on the heatmap (or inside-box map) and weighted L1 on the regression at the
-    /// positive cells; targets are laid out as the head's output is.
+    /// positive cells; targets are laid out as the head's output is. Each is one fused node on
+    /// the CPU ([`focal_sum`], [`weighted_l1`]), else candle's operations.
     pub fn loss(&self, cls: &Tensor, reg: &Tensor, t: &Targets) -> Result<Loss> {
-        let dev = &self.device;
-        let tc = Tensor::from_slice(&t.cls, cls.shape(), dev)?;
-        let tr = Tensor::from_slice(&t.reg, reg.shape(), dev)?;
-        // Box channels weigh 1, velocity `velocity_weight`; velocity only where it is known.
-        let vw = self.cfg.velocity_weight as f32;
-        let w_box = [1.0f32, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0];
-        let w_vel = [0.0f32, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, vw, vw];
-        let (mask_shape, cw_shape): (Vec<usize>, Vec<usize>) = if cls.rank() == 4 {
-            let (b, _, h, wd) = cls.dims4()?;
-            (vec![b, 1, h, wd], vec![1, REG_CHANNELS, 1, 1])
-        } else {
-            (vec![cls.dim(0)?, 1], vec![1, REG_CHANNELS])
+        let k = cls.dim(1)?;
+        let dense = cls.rank() == 4;
+        let kind = match self.cfg.assignment {
+            Assignment::Center => Focal::CenterNet,
+            Assignment::Inside => Focal::Sigmoid,
         };
-        let cw_box = Tensor::from_slice(&w_box, cw_shape.as_slice(), dev)?;
-        let cw_vel = Tensor::from_slice(&w_vel, cw_shape.as_slice(), dev)?;
-        let (lc, lr) = match self.cfg.loss_norm {
+        // Per cell (the mask's layout), the weight of the box channels and of the velocity
+        // channels (velocity only where it is known).
+        let (class_w, box_w, vel_w): (Vec<f32>, Vec<f32>, Vec<f32>) = match self.cfg.loss_norm {
             LossNorm::All => {
-                let tm = Tensor::from_slice(&t.mask, mask_shape.as_slice(), dev)?;
-                let vm = Tensor::from_slice(&t.vel_mask, mask_shape.as_slice(), dev)?;
-                // Under `Footprint` each box's cells share one box's weight.
-                let vm = match t.vel_weight.is_empty() {
-                    true => vm,
-                    false => Tensor::from_slice(&t.vel_weight, mask_shape.as_slice(), dev)?,
-                };
-                (
-                    match self.cfg.assignment {
-                        Assignment::Center => centernet_focal(cls, &tc, t.num_pos)?,
-                        Assignment::Inside => sigmoid_focal(cls, &tc, t.num_pos)?,
-                    },
-                    (masked_l1(reg, &tr, &tm, &cw_box, t.num_pos)? + masked_l1(reg, &tr, &vm, &cw_vel, t.num_pos)?)?,
-                )
+                let norm = 1.0 / t.num_pos.max(1.0);
+                let vel = if t.vel_weight.is_empty() { &t.vel_mask } else { &t.vel_weight };
+                (vec![norm; k], t.mask.iter().map(|m| m * norm).collect(), vel.iter().map(|m| m * norm).collect())
             }
             LossNorm::PerClass => {
-                let terms = match self.cfg.assignment {
-                    Assignment::Center => centernet_focal_terms(cls, &tc)?,
-                    Assignment::Inside => sigmoid_focal_terms(cls, &tc)?,
-                };
-                let site_w = t.per_class_site_weights(cls.dim(1)?, cls.rank() == 4);
+                let site_w = t.per_class_site_weights(k, dense);
                 let vel_w: Vec<f32> = match t.vel_weight.is_empty() {
-                    true => site_w.iter().zip(&t.vel_mask).map(|(w, k)| w * k).collect(),
-                    false => t.per_class_velocity_weights(cls.dim(1)?),
+                    true => site_w.iter().zip(&t.vel_mask).map(|(w, m)| w * m).collect(),
+                    false => t.per_class_velocity_weights(k),
                 };
-                let sw = Tensor::from_vec(site_w, mask_shape.as_slice(), dev)?;
-                let vw = Tensor::from_vec(vel_w, mask_shape.as_slice(), dev)?;
-                (
-                    per_class_mean(&terms, &t.pos_per_class)?,
-                    (masked_l1(reg, &tr, &sw, &cw_box, 1.0)? + masked_l1(reg, &tr, &vw, &cw_vel, 1.0)?)?,
-                )
+                (class_weights(&t.pos_per_class, k), site_w, vel_w)
             }
         };
+        let lc = focal_sum(kind, cls, &t.cls, &class_w)?;
+        let lr = weighted_l1(reg, &t.reg, &regression_weights(reg, &box_w, &vel_w, self.cfg.velocity_weight as f32)?)?;
         let total = (&lc + (&lr * 0.25)?)?;
         Ok(Loss { total, cls: lc.to_scalar::<f32>()?, reg: lr.to_scalar::<f32>()? })
     }
@@ -438,6 +412,28 @@ impl Detector {
         }
         Ok(())
     }
+}
+
+/// The regression's weight per element of `reg` (`(N, 10)` at sites or `(B, 10, H, W)` dense):
+/// the cell's box weight on the eight box channels, its velocity weight times
+/// `velocity_weight` on the two velocity channels.
+fn regression_weights(reg: &Tensor, box_w: &[f32], vel_w: &[f32], velocity_weight: f32) -> Result<Vec<f32>> {
+    let cells = box_w.len();
+    let inner: usize = reg.dims().iter().skip(2).product();
+    if reg.elem_count() != cells * REG_CHANNELS || vel_w.len() != cells {
+        return Err(DetectorError::Config(format!(
+            "regression loss: {} and {} cell weights for {:?}",
+            cells,
+            vel_w.len(),
+            reg.dims()
+        )));
+    }
+    Ok((0..reg.elem_count())
+        .map(|e| {
+            let (c, cell) = ((e / inner) % REG_CHANNELS, e / (inner * REG_CHANNELS) * inner + e % inner);
+            if c < 8 { box_w[cell] } else { vel_w[cell] * velocity_weight }
+        })
+        .collect())
 }
 
 #[cfg(test)]

@@ -691,3 +691,110 @@ fn footprint_velocity_cells_match_a_brute_force_rasterisation() {
         }
     }
 }
+
+/// The detector's loss (fused nodes on the CPU) equals the loss written from the composite
+/// functions (focal terms, per-class mean, masked L1 per mask and channel weight), in value and
+/// in the gradients of the class and regression maps: dense maps and sparse sites, both
+/// normalisations, both assignments, velocity on the positives and on the footprint, and a
+/// box of unknown velocity.
+#[test]
+fn the_fused_loss_equals_the_composite_formula() {
+    use hilo_detector::config::VelocityTarget;
+    use hilo_detector::loss::{centernet_focal_terms, masked_l1, sigmoid_focal_terms};
+    use hilo_detector::targets::Assignment;
+    let mut still = car(-6.0, 6.0, 2.0);
+    still.velocity = [f32::NAN; 2];
+    let frames = vec![frame(1, &[car(2.0, 3.0, 0.3), ped(-4.0, 1.0)]), frame(2, &[still, car(6.0, -7.0, -1.0)])];
+    let dev = Device::Cpu;
+    let host = |t: &Tensor| -> Vec<f32> { t.flatten_all().unwrap().to_vec1().unwrap() };
+    for name in ["centerpoint", "pointpillars"] {
+        for base in [dense(name), small(name)] {
+            for (norm, target) in [
+                (LossNorm::All, VelocityTarget::Positives),
+                (LossNorm::PerClass, VelocityTarget::Positives),
+                (LossNorm::PerClass, VelocityTarget::Footprint),
+                (LossNorm::All, VelocityTarget::Footprint),
+            ] {
+                let cfg =
+                    DetectorConfig { loss_norm: norm, velocity_target: target, velocity_weight: 0.7, ..base.clone() };
+                let det = build(&cfg, &Registry::with_builtin(), &dev, 0).unwrap();
+                let b = HostBatch::new(&cfg, &frames, false, 0);
+                let t = &b.targets;
+                let (cls, reg) = det.forward(&b, true).unwrap();
+                let (cls, reg) = (host(&cls), host(&reg));
+                let (cv, rv) = (
+                    candle_core::Var::from_slice(&cls, det.forward(&b, false).unwrap().0.shape(), &dev).unwrap(),
+                    candle_core::Var::from_slice(&reg, det.forward(&b, false).unwrap().1.shape(), &dev).unwrap(),
+                );
+                let fused = det.loss(cv.as_tensor(), rv.as_tensor(), t).unwrap();
+                // The same loss from the composite functions.
+                let (c, r) = (
+                    candle_core::Var::from_slice(&cls, cv.shape(), &dev).unwrap(),
+                    candle_core::Var::from_slice(&reg, rv.shape(), &dev).unwrap(),
+                );
+                let k = cv.dim(1).unwrap();
+                let is_dense = cv.rank() == 4;
+                let mask_shape: Vec<usize> = if is_dense {
+                    vec![cv.dim(0).unwrap(), 1, cv.dim(2).unwrap(), cv.dim(3).unwrap()]
+                } else {
+                    vec![cv.dim(0).unwrap(), 1]
+                };
+                let cw_shape: Vec<usize> = if is_dense { vec![1, 10, 1, 1] } else { vec![1, 10] };
+                let vw = 0.7f32;
+                let cw_box =
+                    Tensor::from_slice(&[1f32, 1., 1., 1., 1., 1., 1., 1., 0., 0.], cw_shape.as_slice(), &dev).unwrap();
+                let cw_vel =
+                    Tensor::from_slice(&[0f32, 0., 0., 0., 0., 0., 0., 0., vw, vw], cw_shape.as_slice(), &dev).unwrap();
+                let tc = Tensor::from_slice(&t.cls, cv.shape(), &dev).unwrap();
+                let tr = Tensor::from_slice(&t.reg, rv.shape(), &dev).unwrap();
+                let terms = match cfg.assignment {
+                    Assignment::Center => centernet_focal_terms(c.as_tensor(), &tc).unwrap(),
+                    Assignment::Inside => sigmoid_focal_terms(c.as_tensor(), &tc).unwrap(),
+                };
+                let mk = |v: Vec<f32>| Tensor::from_vec(v, mask_shape.as_slice(), &dev).unwrap();
+                let (lc, lr) = match norm {
+                    LossNorm::All => {
+                        let n = t.num_pos.max(1.0);
+                        let vm = if t.vel_weight.is_empty() { t.vel_mask.clone() } else { t.vel_weight.clone() };
+                        (
+                            (terms.sum_all().unwrap() / n as f64).unwrap(),
+                            (masked_l1(r.as_tensor(), &tr, &mk(t.mask.clone()), &cw_box, n).unwrap()
+                                + masked_l1(r.as_tensor(), &tr, &mk(vm), &cw_vel, n).unwrap())
+                            .unwrap(),
+                        )
+                    }
+                    LossNorm::PerClass => {
+                        let sw = t.per_class_site_weights(k, is_dense);
+                        let vel: Vec<f32> = if t.vel_weight.is_empty() {
+                            sw.iter().zip(&t.vel_mask).map(|(w, m)| w * m).collect()
+                        } else {
+                            t.per_class_velocity_weights(k)
+                        };
+                        (
+                            per_class_mean(&terms, &t.pos_per_class).unwrap(),
+                            (masked_l1(r.as_tensor(), &tr, &mk(sw), &cw_box, 1.0).unwrap()
+                                + masked_l1(r.as_tensor(), &tr, &mk(vel), &cw_vel, 1.0).unwrap())
+                            .unwrap(),
+                        )
+                    }
+                };
+                let what = format!("{name} {} {norm:?} {target:?}", if is_dense { "dense" } else { "sparse" });
+                let (rc, rr) = (lc.to_scalar::<f32>().unwrap(), lr.to_scalar::<f32>().unwrap());
+                assert!(rr > 0.0 && rc > 0.0, "{what}: a loss to compare ({rc}, {rr})");
+                assert!((fused.cls - rc).abs() <= 1e-5 * rc, "{what}: class loss {} vs {rc}", fused.cls);
+                assert!((fused.reg - rr).abs() <= 1e-5 * rr, "{what}: regression loss {} vs {rr}", fused.reg);
+                let total = (&lc + (&lr * 0.25).unwrap()).unwrap();
+                let (g, gr) = (fused.total.backward().unwrap(), total.backward().unwrap());
+                for (a, b, part) in [(&cv, &c, "class"), (&rv, &r, "regression")] {
+                    let (x, y) = (host(g.get(a.as_tensor()).unwrap()), host(gr.get(b.as_tensor()).unwrap()));
+                    let scale = y.iter().fold(0f32, |m, v| m.max(v.abs()));
+                    let worst = x.iter().zip(&y).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+                    assert!(
+                        scale > 0.0 && worst <= 1e-5 * scale,
+                        "{what}: {part} gradient off by {worst} (scale {scale})"
+                    );
+                }
+            }
+        }
+    }
+}

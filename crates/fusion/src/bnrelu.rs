@@ -228,7 +228,12 @@ fn batch_norm_frozen(bn: &BatchNorm, x: &Tensor) -> Result<Tensor> {
 /// with the other replicas inside [`with_synced_batch_norm`]), synchronised replicas elsewhere
 /// the same function from tensor operations.
 pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
-    bn_relu_on(bn, x, train, x.device().is_cpu() && x.dtype() == DType::F32)
+    bn_relu_on(bn, x, train, kernel_for(x))
+}
+
+/// Whether `x` takes the fused node's host kernel: f32 on the CPU, the fused layer on.
+fn kernel_for(x: &Tensor) -> bool {
+    crate::cpu::fused(crate::cpu::Layer::BnRelu) && x.device().is_cpu() && x.dtype() == DType::F32
 }
 
 /// [`bn_relu`] of the rows `x` `(N, C)` followed by `zeros` rows of zeros, returning only the
@@ -238,7 +243,7 @@ pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
 /// statistics count) computed on its real points alone. In training on the CPU the zero rows
 /// enter only the sums (in closed form); elsewhere they are appended and cut off again.
 pub fn bn_relu_padded(bn: &BatchNorm, x: &Tensor, zeros: usize, train: bool) -> Result<Tensor> {
-    bn_relu_padded_on(bn, x, zeros, train, x.device().is_cpu() && x.dtype() == DType::F32)
+    bn_relu_padded_on(bn, x, zeros, train, kernel_for(x))
 }
 
 fn bn_relu_padded_on(bn: &BatchNorm, x: &Tensor, zeros: usize, train: bool, kernel: bool) -> Result<Tensor> {
@@ -599,19 +604,18 @@ impl BnRelu {
         };
         let nf = self.n as f32;
         let scale: Vec<f32> = gamma_v.iter().zip(inv).map(|(g, i)| g * i / nf.max(1.0)).collect();
-        let mut dx = vec![0f32; n * c];
-        dx.par_chunks_mut(ROWS * c).zip(dz.par_chunks(ROWS * c)).zip(xv.par_chunks(ROWS * c)).for_each(
-            |((dxc, dzc), xc)| {
-                for ((dxr, dzr), xr) in dxc.chunks_exact_mut(c).zip(dzc.chunks_exact(c)).zip(xc.chunks_exact(c)) {
-                    let (dxr, dzr, xr) = (&mut dxr[..c], &dzr[..c], &xr[..c]);
-                    let (scale, db_all, dg_all) = (&scale[..c], &db_all[..c], &dg_all[..c]);
-                    for k in 0..c {
-                        let h = (xr[k] - mean[k]) * inv[k];
-                        dxr[k] = scale[k] * (nf * dzr[k] - db_all[k] - h * dg_all[k]);
-                    }
+        // dx in place of dz: each element reads its own dz once.
+        let mut dx = dz;
+        dx.par_chunks_mut(ROWS * c).zip(xv.par_chunks(ROWS * c)).for_each(|(dxc, xc)| {
+            for (dxr, xr) in dxc.chunks_exact_mut(c).zip(xc.chunks_exact(c)) {
+                let (dxr, xr) = (&mut dxr[..c], &xr[..c]);
+                let (scale, db_all, dg_all) = (&scale[..c], &db_all[..c], &dg_all[..c]);
+                for k in 0..c {
+                    let h = (xr[k] - mean[k]) * inv[k];
+                    dxr[k] = scale[k] * (nf * dxr[k] - db_all[k] - h * dg_all[k]);
                 }
-            },
-        );
+            }
+        });
         Ok((dx, dg, db))
     }
 }

@@ -4,11 +4,57 @@
 
 use candle_core::{CpuStorage, Layout, Tensor};
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 
 /// Multiply-add FLOPs (2 per multiply-add) of every convolution and pillar linear layer run in
 /// this process's forward passes. Benchmarks read it to express a step's speed as GFLOP/s.
 pub static FORWARD_FLOPS: AtomicU64 = AtomicU64::new(0);
+
+/// hilo's fused layers: custom ops with a hand-written backward pass, one autograd node each,
+/// where they can run (f32 on the CPU). Off, each takes its composite of candle's own
+/// operations, the reference the fused op is tested against (`hilo bench train --variant
+/// fused=off` times both; `fused=conv+bn_relu` keeps some on).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layer {
+    /// The sparse and parent convolutions ([`crate::layout`]).
+    Conv = 1,
+    /// BatchNorm + ReLU over rows ([`crate::bnrelu`]).
+    BnRelu = 2,
+    /// The detector's focal and L1 losses.
+    Loss = 4,
+}
+
+impl Layer {
+    pub const ALL: [Layer; 3] = [Layer::Conv, Layer::BnRelu, Layer::Loss];
+
+    /// The name `--variant fused=...` uses.
+    pub fn name(self) -> &'static str {
+        match self {
+            Layer::Conv => "conv",
+            Layer::BnRelu => "bn_relu",
+            Layer::Loss => "loss",
+        }
+    }
+}
+
+/// The fused layers that are on, one bit per [`Layer`]; all by default.
+static FUSED: AtomicU8 = AtomicU8::new(7);
+
+/// Whether the fused `layer` is on (see [`set_fused`]).
+pub fn fused(layer: Layer) -> bool {
+    FUSED.load(Ordering::Relaxed) & layer as u8 != 0
+}
+
+/// Turns on the fused `layers` and off the others, for the whole process: a benchmark's
+/// before/after lever; training keeps them all on.
+pub fn set_fused(layers: &[Layer]) {
+    FUSED.store(layers.iter().fold(0, |m, l| m | *l as u8), Ordering::Relaxed);
+}
+
+/// The fused layers that are on.
+pub fn fused_layers() -> Vec<Layer> {
+    Layer::ALL.into_iter().filter(|l| fused(*l)).collect()
+}
 
 /// Whether [`count_matmul`] also logs each product's shape (for `hilo bench train`).
 static RECORDING: AtomicBool = AtomicBool::new(false);

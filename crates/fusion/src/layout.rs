@@ -533,14 +533,19 @@ fn kernel_taps_out(w: &[f32], co: usize, ci: usize, taps: usize) -> Vec<f32> {
     out
 }
 
-/// `op` on `x` and `w` as one node where both are f32 on the CPU; elsewhere `composite`.
+/// `op` on `x` and `w` as one node where both are f32 on the CPU (and the fused convolutions are
+/// on, [`crate::cpu::fused`]); elsewhere `composite`.
 fn fused_on_cpu(
     x: &Tensor,
     w: &Tensor,
     op: impl CustomOp2 + Send + Sync + 'static,
     composite: impl FnOnce() -> Result<Tensor>,
 ) -> Result<Tensor> {
-    if x.device().is_cpu() && x.dtype() == DType::F32 && w.dtype() == DType::F32 {
+    if crate::cpu::fused(crate::cpu::Layer::Conv)
+        && x.device().is_cpu()
+        && x.dtype() == DType::F32
+        && w.dtype() == DType::F32
+    {
         Ok(x.contiguous()?.apply_op2(&w.contiguous()?, op)?)
     } else {
         composite()
