@@ -8,8 +8,8 @@
 //! logits (f64 per element, partial sums in fixed chunks, so the result does not depend on the
 //! threads), with the derivative of every term kept from that pass for the hand-written backward
 //! pass. Training takes the fused ones on the CPU while [`hilo_fusion::cpu::fused`] is on for
-//! [`hilo_fusion::cpu::Layer::Loss`]; the
-//! tests hold them to the composites and to central differences.
+//! [`hilo_fusion::cpu::Layer::Loss`]; the tests hold them to the composites and to central
+//! differences.
 
 use crate::error::Result;
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
