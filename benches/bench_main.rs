@@ -4,7 +4,8 @@
 //! against CBC on an instance CBC can finish), evaluation (the nuScenes metric on a fixed
 //! fixture, the bootstrap's reweighted curves against a direct evaluation), and fusion (forward
 //! and forward + backward of one batch for every registered plugin: a new plugin appears here
-//! by its registration alone), and the loss (its fused nodes against their composite). Run: `cargo bench --bench bench_main`; list: `-- --list`.
+//! by its registration alone), and the loss (its fused nodes against their composite). Run:
+//! `cargo bench --bench bench_main`; list: `-- --list`.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -264,6 +265,8 @@ fn loss(c: &mut Criterion) {
     use hilo::detector::conformance::{car, synthetic_frame};
     use hilo::detector::detector::{Detector, HostBatch};
     use hilo::fusion::cpu::{Layer, set_fused};
+    // The composite loss, every other layer fused as in training.
+    const COMPOSITE_LOSS: [Layer; 2] = [Layer::Conv, Layer::BnRelu];
     let registry = hilo::registry().expect("registry");
     let frames: Vec<_> = (0..2u64)
         .map(|s| {
@@ -289,7 +292,7 @@ fn loss(c: &mut Criterion) {
             (l.total.to_scalar::<f32>().expect("scalar"), [grad(&cls), grad(&reg)].concat())
         };
         let fused = run();
-        set_fused(&[Layer::Conv, Layer::BnRelu]);
+        set_fused(&COMPOSITE_LOSS);
         let composite = run();
         set_fused(&Layer::ALL);
         let scale = composite.1.iter().fold(0f32, |m, v| m.max(v.abs()));
@@ -301,7 +304,7 @@ fn loss(c: &mut Criterion) {
             worst / scale
         );
         g.bench_function(format!("{preset}/fused"), |b| b.iter(|| black_box(run()).0));
-        set_fused(&[Layer::Conv, Layer::BnRelu]);
+        set_fused(&COMPOSITE_LOSS);
         g.bench_function(format!("{preset}/composite"), |b| b.iter(|| black_box(run()).0));
         set_fused(&Layer::ALL);
     }

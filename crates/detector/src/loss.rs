@@ -13,6 +13,7 @@
 
 use crate::error::Result;
 use candle_core::{CpuStorage, CustomOp1, Layout, Shape, Tensor};
+use hilo_fusion::cpu::{Layer, fused_on};
 use rayon::prelude::*;
 use std::sync::OnceLock;
 
@@ -69,12 +70,17 @@ pub fn sigmoid_focal_terms(logits: &Tensor, t: &Tensor) -> Result<Tensor> {
 /// each class's sum divided by its positives (at least 1), and the classes averaged:
 /// `(1/K) Σ_k Σ terms[·, k, ·] / max(1, n_k)`, the per-task normalisation of CenterPoint's heads.
 pub fn per_class_mean(terms: &Tensor, pos_per_class: &[f32]) -> Result<Tensor> {
-    let k = terms.dim(1)?;
+    class_weighted_sum(terms, &class_weights(pos_per_class, terms.dim(1)?))
+}
+
+/// `Σ_k weight[k] · Σ terms[·, k, ·]` over loss terms whose class axis is 1 (`(N, K)` or
+/// `(B, K, H, W)`), from candle's operations.
+fn class_weighted_sum(terms: &Tensor, weight: &[f32]) -> Result<Tensor> {
     let by_class = match terms.rank() {
         2 => terms.sum(0)?,
         _ => terms.flatten_from(2)?.sum(2)?.sum(0)?,
     };
-    Ok(by_class.mul(&Tensor::from_vec(class_weights(pos_per_class, k), k, terms.device())?)?.sum_all()?)
+    Ok(by_class.mul(&Tensor::from_slice(weight, weight.len(), terms.device())?)?.sum_all()?)
 }
 
 /// Each class's weight in [`per_class_mean`]: `1 / (K · max(1, n_k))` (a class missing from
@@ -195,18 +201,10 @@ impl CustomOp1 for FusedLoss {
 
     fn bwd(&self, arg: &Tensor, _res: &Tensor, grad: &Tensor) -> candle_core::Result<Option<Tensor>> {
         let Some(slope) = self.slope.get() else { candle_core::bail!("{}: backward before forward", self.name) };
-        let g = grad.to_dtype(candle_core::DType::F32)?.flatten_all()?.to_vec1::<f32>()?;
-        let g = g.first().copied().unwrap_or(0.0);
+        let g = grad.to_dtype(candle_core::DType::F32)?.to_scalar::<f32>()?;
         let d: Vec<f32> = slope.par_iter().map(|v| v * g).collect();
         Ok(Some(Tensor::from_vec(d, arg.shape(), arg.device())?))
     }
-}
-
-/// Whether `x` takes a fused loss: f32 on the CPU with the fused layers on.
-fn fused_for(x: &Tensor) -> bool {
-    hilo_fusion::cpu::fused(hilo_fusion::cpu::Layer::Loss)
-        && x.device().is_cpu()
-        && x.dtype() == candle_core::DType::F32
 }
 
 /// Σ over the logits of `class_weight[k] · term(x, t)`, k the element's class (axis 1 of `(N, K)`
@@ -224,18 +222,13 @@ pub fn focal_sum(kind: Focal, logits: &Tensor, t: &[f32], class_weight: &[f32]) 
             logits.dims()
         )));
     }
-    if !fused_for(logits) {
+    if !fused_on(Layer::Loss, logits) {
         let tt = Tensor::from_slice(t, logits.shape(), logits.device())?;
         let terms = match kind {
             Focal::CenterNet => centernet_focal_terms(logits, &tt)?,
             Focal::Sigmoid => sigmoid_focal_terms(logits, &tt)?,
         };
-        let by_class = match terms.rank() {
-            2 => terms.sum(0)?,
-            _ => terms.flatten_from(2)?.sum(2)?.sum(0)?,
-        };
-        let w = Tensor::from_slice(class_weight, k, logits.device())?;
-        return Ok(by_class.mul(&w)?.sum_all()?);
+        return class_weighted_sum(&terms, class_weight);
     }
     let (t, w) = (t.to_vec(), class_weight.to_vec());
     let pass =
@@ -259,7 +252,7 @@ pub fn weighted_l1(pred: &Tensor, target: &[f32], weight: &[f32]) -> Result<Tens
             pred.dims()
         )));
     }
-    if !fused_for(pred) {
+    if !fused_on(Layer::Loss, pred) {
         let (tt, w) = (
             Tensor::from_slice(target, pred.shape(), pred.device())?,
             Tensor::from_slice(weight, pred.shape(), pred.device())?,

@@ -228,12 +228,7 @@ fn batch_norm_frozen(bn: &BatchNorm, x: &Tensor) -> Result<Tensor> {
 /// with the other replicas inside [`with_synced_batch_norm`]), synchronised replicas elsewhere
 /// the same function from tensor operations.
 pub fn bn_relu(bn: &BatchNorm, x: &Tensor, train: bool) -> Result<Tensor> {
-    bn_relu_on(bn, x, train, kernel_for(x))
-}
-
-/// Whether `x` takes the fused node's host kernel: f32 on the CPU, the fused layer on.
-fn kernel_for(x: &Tensor) -> bool {
-    crate::cpu::fused(crate::cpu::Layer::BnRelu) && x.device().is_cpu() && x.dtype() == DType::F32
+    bn_relu_on(bn, x, train, crate::cpu::fused_on(crate::cpu::Layer::BnRelu, x))
 }
 
 /// [`bn_relu`] of the rows `x` `(N, C)` followed by `zeros` rows of zeros, returning only the
@@ -243,7 +238,7 @@ fn kernel_for(x: &Tensor) -> bool {
 /// statistics count) computed on its real points alone. In training on the CPU the zero rows
 /// enter only the sums (in closed form); elsewhere they are appended and cut off again.
 pub fn bn_relu_padded(bn: &BatchNorm, x: &Tensor, zeros: usize, train: bool) -> Result<Tensor> {
-    bn_relu_padded_on(bn, x, zeros, train, kernel_for(x))
+    bn_relu_padded_on(bn, x, zeros, train, crate::cpu::fused_on(crate::cpu::Layer::BnRelu, x))
 }
 
 fn bn_relu_padded_on(bn: &BatchNorm, x: &Tensor, zeros: usize, train: bool, kernel: bool) -> Result<Tensor> {

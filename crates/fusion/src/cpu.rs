@@ -51,6 +51,11 @@ pub fn set_fused(layers: &[Layer]) {
     FUSED.store(layers.iter().fold(0, |m, l| m | *l as u8), Ordering::Relaxed);
 }
 
+/// Whether the fused `layer` runs on `x`: the layer on, `x` f32 on the CPU.
+pub fn fused_on(layer: Layer, x: &Tensor) -> bool {
+    fused(layer) && x.device().is_cpu() && x.dtype() == candle_core::DType::F32
+}
+
 /// The fused layers that are on.
 pub fn fused_layers() -> Vec<Layer> {
     Layer::ALL.into_iter().filter(|l| fused(*l)).collect()

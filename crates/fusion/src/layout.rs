@@ -541,11 +541,7 @@ fn fused_on_cpu(
     op: impl CustomOp2 + Send + Sync + 'static,
     composite: impl FnOnce() -> Result<Tensor>,
 ) -> Result<Tensor> {
-    if crate::cpu::fused(crate::cpu::Layer::Conv)
-        && x.device().is_cpu()
-        && x.dtype() == DType::F32
-        && w.dtype() == DType::F32
-    {
+    if crate::cpu::fused_on(crate::cpu::Layer::Conv, x) && w.dtype() == DType::F32 {
         Ok(x.contiguous()?.apply_op2(&w.contiguous()?, op)?)
     } else {
         composite()
