@@ -64,6 +64,17 @@ fn sensors(c: &mut Criterion) {
     g.bench_function("radar-4d", |b| {
         b.iter(|| simulate_radar(radar, &pose, &world, None, 1).expect("scan").points.len())
     });
+    // The same radar with a field radar's effects (multipath rays, side lobes, false alarms,
+    // merging of unresolved detections): what they cost a frame.
+    let field = Catalog::from_toml_str(
+        include_str!("../fixtures/sensors-datasheet.toml"),
+        std::path::Path::new("sensors-datasheet.toml"),
+    )
+    .expect("datasheet catalog");
+    let radar = field.radar("radar-4d").expect("radar");
+    g.bench_function("radar-4d-field-effects", |b| {
+        b.iter(|| simulate_radar(radar, &pose, &world, None, 1).expect("scan").points.len())
+    });
     g.finish();
 }
 

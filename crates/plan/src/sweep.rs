@@ -530,7 +530,7 @@ mod tests {
         assert!(e.contains("c.toml") && e.contains("studies of one scene and catalog each"), "{e}");
     }
     /// The realism sweep (`fixtures/realism-study.toml`): the default study with the paper's
-    /// catalog and the datasheet one, which differ in the LiDARs alone.
+    /// catalog and the datasheet one, which differ in the LiDARs and the radars' effects.
     #[test]
     fn the_realism_fixture_sweeps_the_two_catalogs() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/realism-study.toml");
@@ -543,7 +543,11 @@ mod tests {
             assert!(paper.catalog.lidar(name).unwrap().detection_range.is_none());
             assert!(sheet.catalog.lidar(name).unwrap().detection_range.is_some(), "{name}");
         }
-        assert_eq!(paper.catalog.radar("radar-4d").unwrap(), sheet.catalog.radar("radar-4d").unwrap());
+        let (p, q) = (paper.catalog.radar("radar-4d").unwrap(), sheet.catalog.radar("radar-4d").unwrap());
+        assert!(p.effects.is_ideal() && p.azimuth_table.is_empty());
+        assert!(!q.effects.is_ideal());
+        let ideal = hilo_sensor_models::RadarSpec { effects: Default::default(), azimuth_table: vec![], ..q.clone() };
+        assert_eq!(*p, ideal, "the same radar otherwise");
     }
 
     /// `extends` lays a file over another study: tables merge field by field, lists and

@@ -5,6 +5,9 @@
 //!   reflectivity), validated once.
 //! - [`lidar`], [`radar`]: scan simulation over a [`hilo_raycast::World`] and the frame's
 //!   actors; deterministic for a seed.
+//! - [`radar_effects`]: what a real radar adds to the ideal one, each a catalog setting:
+//!   azimuth by angle, unresolved targets, multipath ghosts, side lobes, false alarms,
+//!   vegetation Doppler, RCS by aspect.
 //! - [`probability`]: the detection-probability model placement uses (expected LiDAR returns,
 //!   radar detection probability) for probe targets.
 //! - [`export`]: PCD and PLY writers and readers.
@@ -23,6 +26,7 @@ pub mod noise;
 pub mod pose;
 pub mod probability;
 pub mod radar;
+pub mod radar_effects;
 pub mod range;
 pub mod spec;
 pub mod weather;

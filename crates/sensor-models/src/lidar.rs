@@ -26,12 +26,19 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
 
-/// What produced a point: the static scene, the ground, or an actor (its id).
+/// What produced a point: the static scene, the ground, or an actor (its id); for a radar
+/// also its artefacts: a road user's multipath ghost, a side lobe, a false alarm.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PointSource {
     Ground,
     Static,
     Actor(u32),
+    /// A road user (its id) seen over a reflecting surface, at its mirror image.
+    Multipath(u32),
+    /// A side lobe of a stronger detection.
+    SideLobe,
+    /// A false alarm: noise that crossed the threshold.
+    Noise,
 }
 
 impl PointSource {

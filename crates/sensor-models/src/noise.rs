@@ -26,4 +26,6 @@ pub mod stream {
     pub const RADAR_CELL: u64 = 3;
     /// A rig sensor's calibration error (one draw per dataset seed and sensor).
     pub const CALIBRATION: u64 = 4;
+    /// A radar's side lobes and false alarms.
+    pub const RADAR_ARTEFACT: u64 = 5;
 }

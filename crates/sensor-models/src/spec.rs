@@ -4,6 +4,7 @@
 //! and probability models then trust them.
 
 use crate::error::SensorError;
+use crate::radar_effects::{Azimuth, AzimuthRow, RadarEffects};
 use hilo_core::Class;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -147,6 +148,15 @@ pub struct RadarSpec {
     /// [`crate::weather::Weather::radar`] for rain. The SNR loses it twice over the range.
     #[serde(default)]
     pub path_loss_db_per_m: f32,
+    /// Azimuth resolution and accuracy by angle off boresight (`[[radar.azimuth_table]]`,
+    /// from boresight outward); empty: `azimuth_resolution_deg` and `azimuth_noise_deg` over
+    /// the whole field. See [`crate::radar_effects`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub azimuth_table: Vec<AzimuthRow>,
+    /// Multipath ghosts, side lobes, false alarms, unresolved targets, vegetation Doppler and
+    /// RCS by aspect (`[radar.effects]`); all off when absent.
+    #[serde(default, skip_serializing_if = "RadarEffects::is_ideal")]
+    pub effects: RadarEffects,
 }
 
 fn carrier_77() -> f32 {
@@ -154,7 +164,8 @@ fn carrier_77() -> f32 {
 }
 
 /// As derived, but the fields added after the first catalogs (`carrier_ghz`,
-/// `path_loss_db_per_m`) appear only when they differ from their defaults: a catalog's content
+/// `path_loss_db_per_m`, `azimuth_table`, `effects`) appear only when they differ from their
+/// defaults: a catalog's content
 /// hash (taken over this form) stays what it was for the radars it already described.
 impl std::fmt::Debug for RadarSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -190,6 +201,12 @@ impl std::fmt::Debug for RadarSpec {
         }
         if self.path_loss_db_per_m != 0.0 {
             d.field("path_loss_db_per_m", &self.path_loss_db_per_m);
+        }
+        if !self.azimuth_table.is_empty() {
+            d.field("azimuth_table", &self.azimuth_table);
+        }
+        if !self.effects.is_ideal() {
+            d.field("effects", &self.effects);
         }
         d.finish()
     }
@@ -240,6 +257,13 @@ impl SensorSpec {
             SensorSpec::Lidar(l) => l.price_usd,
             SensorSpec::Radar(r) => r.price_usd,
         }
+    }
+}
+
+impl RadarSpec {
+    /// Azimuth resolution, accuracy and cells, by the table when there is one.
+    pub fn azimuth(&self) -> Azimuth<'_> {
+        Azimuth::new(&self.azimuth_table, self.hfov_deg, self.azimuth_resolution_deg, self.azimuth_noise_deg)
     }
 }
 
@@ -453,7 +477,67 @@ fn validate_radar(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {
         return Err(c.err("carrier_ghz", r.carrier_ghz, "must be 1 to 1,000 GHz (the rain model's range)"));
     }
     c.non_negative("path_loss_db_per_m", r.path_loss_db_per_m)?;
+    validate_azimuth_table(r, c)?;
+    validate_effects(&r.effects, c)?;
     c.price(r.price_usd)
+}
+
+fn validate_azimuth_table(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {
+    let t = &r.azimuth_table;
+    if t.is_empty() {
+        return Ok(());
+    }
+    if t[0].off_boresight_deg != 0.0 {
+        return Err(c.err(
+            "azimuth_table[0].off_boresight_deg",
+            t[0].off_boresight_deg,
+            "the table starts at boresight (0)",
+        ));
+    }
+    for (i, row) in t.iter().enumerate() {
+        c.positive(&format!("azimuth_table[{i}].resolution_deg"), row.resolution_deg)?;
+        c.fine_step(&format!("azimuth_table[{i}].resolution_deg"), row.resolution_deg)?;
+        c.non_negative(&format!("azimuth_table[{i}].accuracy_deg"), row.accuracy_deg)?;
+        c.non_negative(&format!("azimuth_table[{i}].off_boresight_deg"), row.off_boresight_deg)?;
+        if i > 0 && row.off_boresight_deg <= t[i - 1].off_boresight_deg {
+            return Err(c.err(
+                &format!("azimuth_table[{i}].off_boresight_deg"),
+                row.off_boresight_deg,
+                "rows must go outward from boresight, each angle above the last",
+            ));
+        }
+    }
+    let edge = t[t.len() - 1].off_boresight_deg;
+    if edge < 0.5 * r.hfov_deg {
+        return Err(c.err(
+            &format!("azimuth_table[{}].off_boresight_deg", t.len() - 1),
+            edge,
+            &format!("the table must reach the field's edge, {} deg", 0.5 * r.hfov_deg),
+        ));
+    }
+    Ok(())
+}
+
+fn validate_effects(e: &RadarEffects, c: &Check) -> Result<(), SensorError> {
+    if let Some(v) = e.doppler_resolution_mps {
+        c.positive("effects.doppler_resolution_mps", v)?;
+    }
+    for (f, v) in [
+        ("effects.wall_multipath_loss_db", e.wall_multipath_loss_db),
+        ("effects.ground_multipath_loss_db", e.ground_multipath_loss_db),
+        ("effects.side_lobe_level_db", e.side_lobe_level_db),
+    ] {
+        if let Some(v) = v {
+            c.non_negative(f, v)?;
+        }
+    }
+    c.non_negative("effects.false_alarms_per_frame", e.false_alarms_per_frame)?;
+    if e.false_alarms_per_frame > 10_000.0 {
+        return Err(c.err("effects.false_alarms_per_frame", e.false_alarms_per_frame, "must be at most 10,000"));
+    }
+    c.non_negative("effects.false_alarm_speed_mps", e.false_alarm_speed_mps)?;
+    c.non_negative("effects.vegetation_doppler_mps", e.vegetation_doppler_mps)?;
+    c.finite("effects.rcs_aspect_db", e.rcs_aspect_db)
 }
 
 impl Catalog {

@@ -143,6 +143,7 @@ fn points_on_actors_are_attributed_and_local_frame_is_consistent() {
                 assert!(grown.contains(q), "point {q} not on actor {id}");
             }
             PointSource::Static => panic!("no static geometry here"),
+            other => panic!("a LiDAR gives no radar artefact: {other:?}"),
         }
     }
 }
