@@ -65,9 +65,26 @@ pub struct SimulateConfig {
     /// recorded calibration sees them misaligned, as a field rig's are.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub calibration_error: Option<CalibrationError>,
+    /// The rig's time-synchronisation error: standard deviation, s, of each sensor's clock
+    /// offset, drawn once per dataset seed and sensor (absent: perfect synchronisation). A
+    /// sensor whose clock is δ off samples the road users δ later than the time it records, so a
+    /// detector that merges the sensors sees a moving road user where each saw it at its own
+    /// instant (a PTP-synchronised rig: well under a millisecond; NTP: milliseconds; none: tens).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time_sync_error_s: Option<f32>,
+    /// Spinning LiDARs see road users move during a rotation: each azimuth column meets them
+    /// where they are at its time within the sweep (the frame's timestamp is the sweep's start),
+    /// so a moving road user is skewed. False: frozen at the frame's instant.
+    #[serde(skip_serializing_if = "is_false")]
+    pub rolling_shutter: bool,
 }
 
-/// As derived, but `calibration_error` appears only when set: the form a study's fingerprint
+fn is_false(v: &bool) -> bool {
+    !*v
+}
+
+/// As derived, but `calibration_error`, `time_sync_error_s` and `rolling_shutter` appear only
+/// when set: the form a study's fingerprint
 /// is taken over stays what it was for the datasets made before the field existed.
 impl std::fmt::Debug for SimulateConfig {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -87,6 +104,12 @@ impl std::fmt::Debug for SimulateConfig {
             .field("weather", &self.weather);
         if let Some(e) = &self.calibration_error {
             d.field("calibration_error", e);
+        }
+        if let Some(e) = &self.time_sync_error_s {
+            d.field("time_sync_error_s", e);
+        }
+        if self.rolling_shutter {
+            d.field("rolling_shutter", &self.rolling_shutter);
         }
         d.finish()
     }
@@ -109,6 +132,8 @@ impl Default for SimulateConfig {
             traffic: TrafficConfig::default(),
             weather: Weather::default(),
             calibration_error: None,
+            time_sync_error_s: None,
+            rolling_shutter: false,
         }
     }
 }
@@ -195,6 +220,11 @@ impl Check for SimulateConfig {
             if !(e.translation_m.is_finite() && (0.0..=1.0).contains(&e.translation_m)) {
                 return bad("calibration_error.translation_m", e.translation_m.to_string(), "give 0 to 1 m");
             }
+        }
+        if let Some(e) = self.time_sync_error_s
+            && !(e.is_finite() && (0.0..=1.0).contains(&e))
+        {
+            return bad("time_sync_error_s", e.to_string(), "give 0 to 1 s");
         }
         if self.scenes == 0 {
             return bad("scenes", "0".into(), "at least one training scene is needed");
@@ -318,6 +348,51 @@ pub fn true_pose(cfg: &SimulateConfig, s: &RigSensor) -> SensorPose {
     s.pose.miscalibrated(e, &mut rng)
 }
 
+/// How late rig sensor `s` samples the road users against the time it records, s: 0, or with
+/// the dataset's time-synchronisation error a Gaussian draw of that standard deviation, the
+/// same for every scene and split of the dataset (keyed by the dataset seed and the channel).
+pub fn clock_offset_s(cfg: &SimulateConfig, s: &RigSensor) -> f32 {
+    let Some(sigma) = cfg.time_sync_error_s else { return 0.0 };
+    let key = crate::writer::name_hash(&s.channel);
+    let mut rng = hilo_sensor_models::noise::rng_for(cfg.seed, hilo_sensor_models::noise::stream::TIME_SYNC, key);
+    sigma * rand::Rng::sample::<f32, _>(&mut rng, rand_distr::StandardNormal)
+}
+
+/// How long after the frame's instant the road users are met: the longest LiDAR rotation of
+/// the rig with a rolling shutter, else 0 (frozen).
+pub fn sweep_span_s(cfg: &SimulateConfig, rig: &[RigSensor]) -> f32 {
+    if !cfg.rolling_shutter {
+        return 0.0;
+    }
+    rig.iter()
+        .filter_map(|s| match &s.spec {
+            SensorSpec::Lidar(l) => Some(1.0 / l.rate_hz),
+            SensorSpec::Radar(_) => None,
+        })
+        .fold(0.0, f32::max)
+}
+
+/// The road users of one frame as rig sensor k meets them: moved by its clock offset, moving
+/// for the sweep's span. Sensors without an offset share `still`.
+fn actor_sets(
+    actors: &[hilo_raycast::Actor],
+    offsets: &[f32],
+    span_s: f32,
+) -> Result<(ActorSet, Vec<Option<ActorSet>>), hilo_raycast::RaycastError> {
+    let still = ActorSet::moving(actors.to_vec(), span_s)?;
+    let shifted = offsets
+        .iter()
+        .map(|&d| {
+            if d == 0.0 {
+                Ok(None)
+            } else {
+                ActorSet::moving(actors.iter().map(|a| a.moved(d)).collect(), span_s).map(Some)
+            }
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((still, shifted))
+}
+
 pub fn scene_name(index: usize) -> String {
     format!("scene-{index:04}")
 }
@@ -416,6 +491,8 @@ pub fn simulate_scene_with(
         })
         .collect();
     let rig = &weathered[..];
+    let offsets: Vec<f32> = rig.iter().map(|s| clock_offset_s(cfg, s)).collect();
+    let span_s = sweep_span_s(cfg, rig);
     let mut traffic = Traffic::new(&scene.layout, scene.ground.z_m, &cfg.traffic, derive_seed(cfg.seed, &[1, stream]))?;
     let (per_key, steps_per_sweep) = cadence(cfg, id);
     let start = scene_start_us(id);
@@ -431,13 +508,18 @@ pub fn simulate_scene_with(
         let f = m / per_key;
         if key || has_radar || cfg.lidar_sweeps {
             let states = traffic.snapshot();
-            let set = ActorSet::new(states.iter().map(ActorState::actor).collect())
-                .map_err(|e| DatasetError::Actors { scene: id.name(), sweep: m, source: Box::new(e) })?;
+            let actors: Vec<hilo_raycast::Actor> = states.iter().map(ActorState::actor).collect();
+            let (set, shifted) = actor_sets(&actors, &offsets, span_s).map_err(|e| DatasetError::Actors {
+                scene: id.name(),
+                sweep: m,
+                source: Box::new(e),
+            })?;
             let mut lidar = Vec::new();
             let mut radar = Vec::new();
             let mut lidar_pts: BTreeMap<u32, u32> = BTreeMap::new();
             let mut radar_pts: BTreeMap<u32, u32> = BTreeMap::new();
             for (k, s) in rig.iter().enumerate() {
+                let sensor_set = shifted[k].as_ref().unwrap_or(&set);
                 let noise = if key {
                     derive_seed(cfg.seed, &[2, stream, f as u64, k as u64])
                 } else {
@@ -449,7 +531,7 @@ pub fn simulate_scene_with(
                 };
                 match &s.spec {
                     SensorSpec::Lidar(l) if key || cfg.lidar_sweeps => {
-                        let scan = simulate_lidar(l, &s.pose, world, Some(&set), noise).map_err(err)?;
+                        let scan = simulate_lidar(l, &s.pose, world, Some(sensor_set), noise).map_err(err)?;
                         for (a, n) in scan.points_per_actor() {
                             *lidar_pts.entry(a).or_default() += n as u32;
                         }
@@ -457,7 +539,7 @@ pub fn simulate_scene_with(
                     }
                     SensorSpec::Lidar(_) => {}
                     SensorSpec::Radar(r) => {
-                        let scan = simulate_radar(r, &s.pose, world, Some(&set), noise).map_err(err)?;
+                        let scan = simulate_radar(r, &s.pose, world, Some(sensor_set), noise).map_err(err)?;
                         for src in &scan.sources {
                             if let Some(a) = src.actor() {
                                 *radar_pts.entry(a).or_default() += 1;

@@ -429,3 +429,65 @@ fn a_miscalibrated_rig_scans_from_its_true_pose_and_records_the_nominal_one() {
     );
     assert!(format!("{off:?}").contains("calibration_error"));
 }
+
+/// A rig with a time-synchronisation error samples the road users at each sensor's own clock
+/// offset (drawn once per seed and channel) and records the common time; with a rolling shutter
+/// each LiDAR column meets them at its own time in the sweep. The points are exactly a scan of
+/// the key frame's road users moved by the sensor's offset and moving for the sweep; the
+/// annotations stay where the road users are at the recorded time.
+#[test]
+fn an_unsynchronised_rig_scans_each_sensor_at_its_own_instant() {
+    use hilo_core::Check;
+    use hilo_dataset::simulate::{clock_offset_s, derive_seed, key_frame_states, sweep_span_s};
+    use hilo_raycast::ActorSet;
+    use hilo_sensor_models::{SensorSpec, simulate_lidar, simulate_radar};
+    let scene = Scene::default_fixture().unwrap();
+    let (w, r) = (world(&scene), rig(&scene));
+    let base =
+        SimulateConfig { scenes: 1, seconds: 0.5, val_scenes: 1, val_seconds: 1.0, annotate_radius_m: 1e6, ..cfg() };
+    let exact = base.clone().validate().unwrap();
+    let skewed =
+        SimulateConfig { time_sync_error_s: Some(0.02), rolling_shutter: true, ..base.clone() }.validate().unwrap();
+    let (a, b) = (
+        simulate_scene(&scene, &w, &r, &exact, &train(0)).unwrap(),
+        simulate_scene(&scene, &w, &r, &skewed, &train(0)).unwrap(),
+    );
+    let boxes = |d: &hilo_dataset::writer::SceneData| {
+        d.frames.iter().flat_map(|f| f.annotations.iter().map(|x| x.box3.center.to_array())).collect::<Vec<_>>()
+    };
+    assert_eq!(boxes(&a), boxes(&b), "the annotations keep the recorded time");
+    assert_ne!(a.frames[0].lidar, b.frames[0].lidar);
+    // Offsets: one draw per channel and seed, within a few sigma, and none without the error.
+    let offsets: Vec<f32> = r.iter().map(|s| clock_offset_s(&skewed, s)).collect();
+    assert!(offsets.iter().all(|d| *d != 0.0 && d.abs() < 6.0 * 0.02), "{offsets:?}");
+    assert_ne!(offsets[0], offsets[1]);
+    assert_eq!(offsets, r.iter().map(|s| clock_offset_s(&skewed, s)).collect::<Vec<_>>());
+    assert!(r.iter().all(|s| clock_offset_s(&exact, s) == 0.0));
+    let span = sweep_span_s(&skewed, &r);
+    assert_eq!((span, sweep_span_s(&exact, &r)), (0.05, 0.0), "a 20 Hz LiDAR's rotation, or frozen");
+    // The oracle: scan the key frame's road users moved by each sensor's offset.
+    let states = key_frame_states(&scene, &skewed, &train(0)).unwrap();
+    let actors: Vec<hilo_raycast::Actor> = states[0].iter().map(|s| s.actor()).collect();
+    let (mut li, mut ri) = (0, 0);
+    for (k, s) in r.iter().enumerate() {
+        let set = ActorSet::moving(actors.iter().map(|x| x.moved(offsets[k])).collect(), span).unwrap();
+        let noise = derive_seed(skewed.seed, &[2, skewed.stream(&train(0)), 0, k as u64]);
+        match &s.spec {
+            SensorSpec::Lidar(l) => {
+                let want = simulate_lidar(l, &s.pose, &w, Some(&set), noise).unwrap().points;
+                assert_eq!(b.frames[0].lidar[li], want, "{}", s.channel);
+                li += 1;
+            }
+            SensorSpec::Radar(x) => {
+                let want = simulate_radar(x, &s.pose, &w, Some(&set), noise).unwrap().points;
+                assert_eq!(b.frames[0].radar[ri], want, "{}", s.channel);
+                ri += 1;
+            }
+        }
+    }
+    let e = SimulateConfig { time_sync_error_s: Some(2.0), ..base }.check().unwrap_err().to_string();
+    assert!(e.contains("dataset.time_sync_error_s") && e.contains('2'), "{e}");
+    let plain = format!("{:?}", SimulateConfig::default());
+    assert!(!plain.contains("time_sync") && !plain.contains("rolling_shutter"), "{plain}");
+    assert!(format!("{skewed:?}").contains("time_sync_error_s: 0.02, rolling_shutter: true"));
+}

@@ -71,6 +71,18 @@ impl Actor {
         self
     }
 
+    /// The same actor `dt` seconds later: its shape moved by velocity × dt.
+    pub fn moved(&self, dt: f32) -> Self {
+        let d = self.velocity_mps * dt;
+        let shape = match self.shape {
+            ActorShape::Box(b) => ActorShape::Box(Box3 { center: b.center + d, ..b }),
+            ActorShape::Capsule(c) => {
+                ActorShape::Capsule(Capsule { center: c.center + d.truncate(), z0: c.z0 + d.z, z1: c.z1 + d.z, ..c })
+            }
+        };
+        Actor { shape, ..*self }
+    }
+
     /// Contains `p` (inside or on the surface).
     pub fn contains(&self, p: Vec3) -> bool {
         match &self.shape {
@@ -88,16 +100,29 @@ impl Actor {
     }
 }
 
-/// The actors of one frame and a BVH over their bounds.
+/// The actors of one frame and a BVH over their bounds. Built with [`ActorSet::moving`], the
+/// actors move at their velocities for a span of time after the frame's instant (a spinning
+/// LiDAR's rotation): [`ActorSet::closest_at`] meets each where it is at a given time.
 #[derive(Clone, Debug, Default)]
 pub struct ActorSet {
     actors: Vec<Actor>,
     bvh: BoxBvh,
+    /// The span of time after the frame's instant the bounds cover, s (0: the instant only).
+    span_s: f32,
 }
 
 impl ActorSet {
     /// Builds the per-frame structure. Shapes with non-finite or negative sizes are rejected.
     pub fn new(actors: Vec<Actor>) -> Result<Self, RaycastError> {
+        Self::moving(actors, 0.0)
+    }
+
+    /// The actors at the frame's instant and for `span_s` seconds after it, each moving at its
+    /// velocity: the BVH holds each actor's bounds swept over the span.
+    pub fn moving(actors: Vec<Actor>, span_s: f32) -> Result<Self, RaycastError> {
+        if !(span_s.is_finite() && span_s >= 0.0) {
+            return Err(RaycastError::Geometry(format!("a span of time must be finite and >= 0 s, not {span_s}")));
+        }
         let mut bounds = Vec::with_capacity(actors.len());
         for (i, a) in actors.iter().enumerate() {
             let ok = match a.shape {
@@ -112,9 +137,19 @@ impl ActorSet {
                     a.id, a.shape
                 )));
             }
-            bounds.push(a.shape.aabb());
+            if !a.velocity_mps.is_finite() {
+                return Err(RaycastError::Geometry(format!("actor {i} (id {}) has a non-finite velocity", a.id)));
+            }
+            let (lo, hi) = a.shape.aabb();
+            let d = a.velocity_mps * span_s;
+            bounds.push((lo.min(lo + d), hi.max(hi + d)));
         }
-        Ok(ActorSet { bvh: BoxBvh::build(&bounds)?, actors })
+        Ok(ActorSet { bvh: BoxBvh::build(&bounds)?, actors, span_s })
+    }
+
+    /// The span of time after the frame's instant the actors move for (0: a still frame).
+    pub fn span_s(&self) -> f32 {
+        self.span_s
     }
 
     pub fn actors(&self) -> &[Actor] {
@@ -131,13 +166,27 @@ impl ActorSet {
 
     /// Closest actor hit in `(ray.t_min, t_max)`.
     pub fn closest(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
+        self.closest_at(ray, t_max, 0.0)
+    }
+
+    /// Closest actor hit in `(ray.t_min, t_max)` with every actor where it is `dt` seconds
+    /// after the frame's instant (its shape moved by velocity × dt); `dt` is clamped to the
+    /// set's span. Meeting a shape moved by d is meeting the shape with the ray moved by −d.
+    pub fn closest_at(&self, ray: &Ray, t_max: f32, dt: f32) -> Option<Hit> {
         if self.actors.is_empty() {
             return None;
         }
+        let dt = dt.clamp(0.0, self.span_s);
         let mut best: Option<(f32, Vec3, u32)> = None;
         let mut limit = t_max;
         self.bvh.traverse(ray, &mut limit, |i, t_max| {
-            if let Some((t, n)) = self.actors[i as usize].shape.intersect(ray, *t_max) {
+            let a = &self.actors[i as usize];
+            let hit = if dt == 0.0 {
+                a.shape.intersect(ray, *t_max)
+            } else {
+                a.shape.intersect(&Ray { origin: ray.origin - a.velocity_mps * dt, ..*ray }, *t_max)
+            };
+            if let Some((t, n)) = hit {
                 *t_max = t;
                 best = Some((t, n, i));
             }

@@ -111,13 +111,20 @@ impl World {
     /// with the shortest possible range.
     #[inline]
     pub fn closest_hit(&self, ray: &Ray, actors: Option<&ActorSet>) -> Option<Hit> {
+        self.closest_hit_at(ray, actors, 0.0)
+    }
+
+    /// [`World::closest_hit`] with the actors where they are `dt` seconds after the frame's
+    /// instant ([`ActorSet::closest_at`]): a ray of a spinning LiDAR fired `dt` into its sweep.
+    #[inline]
+    pub fn closest_hit_at(&self, ray: &Ray, actors: Option<&ActorSet>, dt: f32) -> Option<Hit> {
         let mut t_max = ray.t_max;
         let mut best = None;
         if let Some((t, g)) = self.ground.as_ref().and_then(|g| Some((g.intersect(ray, t_max)?, g))) {
             t_max = t;
             best = Some(Hit::new(ray, t, g.normal(), HitTarget::Ground, Material::Asphalt));
         }
-        if let Some(h) = actors.and_then(|a| a.closest(ray, t_max)) {
+        if let Some(h) = actors.and_then(|a| a.closest_at(ray, t_max, dt)) {
             t_max = h.t;
             best = Some(h);
         }

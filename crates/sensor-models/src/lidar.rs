@@ -9,9 +9,12 @@
 //! ([`LidarSpec::detection_range`]) first keeps only the returns the lidar equation detects:
 //! received power ρ·|cos incidence|·e^{−2αr}/r² at least the reference target's.
 //!
-//! Left out, on purpose: actors are frozen at the frame time during the sweep (a 50 ms sweep
-//! moves a 20 m/s car by at most 1 m; point timestamps are still recorded per column, so a
-//! consumer can de-skew), there are no multiple returns or beam divergence; the beams fire from
+//! Every point carries its column's time within the sweep. Given actors that move during the
+//! sweep ([`hilo_raycast::ActorSet::moving`]), each column meets them where they are at its
+//! time, so a moving road user is skewed as a spinning sensor sees it (a 50 ms sweep moves a
+//! 20 m/s car by up to 1 m); given a still set, they are frozen at the frame's instant.
+//!
+//! Left out, on purpose: there are no multiple returns or beam divergence; the beams fire from
 //! one point (no per-laser offsets). Rain and fog act through the spec
 //! ([`crate::weather::Weather::lidar`]: shorter maximum range, weaker returns).
 
@@ -187,7 +190,9 @@ pub fn simulate_lidar(
                         t_min: spec.min_range_m,
                         t_max: spec.max_range_m,
                     };
-                    let Some(hit) = world.closest_hit(&ray, actors) else { continue };
+                    // Moving actors (a set built with a span) are met where they are when
+                    // this column fires: the rolling shutter of a spinning sensor.
+                    let Some(hit) = world.closest_hit_at(&ray, actors, time_s) else { continue };
                     let mut rng = rng_for(seed, stream::LIDAR_RAY, (k * beams + ring) as u64);
                     let noise: f32 = rng.sample(StandardNormal);
                     let range = hit.t + spec.range_noise_m * noise;

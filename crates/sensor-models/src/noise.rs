@@ -28,4 +28,6 @@ pub mod stream {
     pub const CALIBRATION: u64 = 4;
     /// A radar's side lobes and false alarms.
     pub const RADAR_ARTEFACT: u64 = 5;
+    /// A rig sensor's clock offset (one draw per dataset seed and sensor).
+    pub const TIME_SYNC: u64 = 6;
 }

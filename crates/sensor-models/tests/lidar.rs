@@ -147,3 +147,45 @@ fn points_on_actors_are_attributed_and_local_frame_is_consistent() {
         }
     }
 }
+
+/// With road users that move during the sweep, every return on one lies on it where it is at
+/// the return's column time (the rolling shutter), and a fast one's returns no longer fit where
+/// it was at the frame's instant.
+#[test]
+fn a_spinning_lidar_sees_a_moving_road_user_where_it_is_at_each_column() {
+    let world = ground_world();
+    let spec = ideal_lidar("lidar-64");
+    let pose = SensorPose::new(Vec3::new(0.0, 0.0, 6.0), 0.0, 0.0, 0.0);
+    let period = 1.0 / spec.rate_hz;
+    // Across the start of the rotation (azimuth 0: time 0 on its +y side, time ≈ period on its
+    // −y side), moving toward −y: the rotation's end finds it a metre on, stretched.
+    let car = Actor::from_box(3, Class::Car, Box3::new(Vec3::new(18.0, 0.0, 0.8), 4.5, 1.9, 1.6, 0.0))
+        .with_velocity(Vec3::new(0.0, -20.0, 0.0));
+    let moving = ActorSet::moving(vec![car], period).unwrap();
+    let scan = simulate_lidar(&spec, &pose, &world, Some(&moving), 4).unwrap();
+    let grown =
+        |b: Box3| Box3 { length_m: b.length_m + 0.01, width_m: b.width_m + 0.01, height_m: b.height_m + 0.01, ..b };
+    let box_of = |a: &Actor| match a.shape {
+        hilo_raycast::ActorShape::Box(b) => b,
+        _ => unreachable!(),
+    };
+    let (mut on_car, mut off_start) = (0, 0);
+    for (p, s) in scan.points_local().iter().zip(&scan.sources) {
+        if *s != PointSource::Actor(3) {
+            continue;
+        }
+        let q = Vec3::new(p.x, p.y, p.z);
+        on_car += 1;
+        assert!(grown(box_of(&car.moved(p.time_s))).contains(q), "{q} at {} s is not on the car", p.time_s);
+        off_start += usize::from(!grown(box_of(&car)).contains(q));
+    }
+    assert!(on_car > 100, "{on_car}");
+    assert!(off_start > on_car / 10, "the car is skewed: {off_start} of {on_car} returns off its start");
+    // A still set freezes it at the frame's instant, as before.
+    let still = simulate_lidar(&spec, &pose, &world, Some(&ActorSet::new(vec![car]).unwrap()), 4).unwrap();
+    for (p, s) in still.points_local().iter().zip(&still.sources) {
+        if *s == PointSource::Actor(3) {
+            assert!(grown(box_of(&car)).contains(Vec3::new(p.x, p.y, p.z)));
+        }
+    }
+}
