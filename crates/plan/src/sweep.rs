@@ -545,9 +545,78 @@ mod tests {
         }
         let (p, q) = (paper.catalog.radar("radar-4d").unwrap(), sheet.catalog.radar("radar-4d").unwrap());
         assert!(p.effects.is_ideal() && p.azimuth_table.is_empty());
-        assert!(!q.effects.is_ideal());
+        assert!(!q.effects.is_ideal() && !q.azimuth_table.is_empty());
         let ideal = hilo_sensor_models::RadarSpec { effects: Default::default(), azimuth_table: vec![], ..q.clone() };
         assert_eq!(*p, ideal, "the same radar otherwise");
+    }
+
+    /// `scripts/realism-ablation.py` writes a sweep of the default study: none, each effect
+    /// alone, all; each shard differs from `ideal` by its effect and nothing else.
+    #[test]
+    fn the_realism_ablation_switches_one_effect_at_a_time() {
+        use hilo_sensor_models::{RadarSpec, SensorSpec};
+        let d = tempfile::tempdir().unwrap();
+        let out = d.path().join("ablation");
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/realism-ablation.py");
+        let run = std::process::Command::new("python3").arg(&script).arg(&out).output().unwrap();
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let Loaded::Sweep(w) = load(&out).unwrap() else { panic!("not a sweep") };
+        let names: Vec<&str> = w.shards.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names.len(), 14, "{names:?}");
+        let get = |n: &str| &w.shards.iter().find(|s| s.name == n).unwrap().study;
+        let ideal = get("ideal");
+        let default = Study::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/study.toml")).unwrap();
+        assert_eq!(ideal.catalog_hash, default.catalog_hash, "ideal is the paper's catalog");
+        let sensors = |s: &Study| s.catalog.sensors().to_vec();
+        // What each radar effect sets, and nothing else.
+        let radar_effect = |n: &str, check: &dyn Fn(&RadarSpec) -> bool| {
+            let s = get(n);
+            assert_eq!(s.dataset.calibration_error, None, "{n}");
+            for (a, b) in sensors(ideal).iter().zip(sensors(s)) {
+                match (a, &b) {
+                    (SensorSpec::Radar(a), SensorSpec::Radar(b)) => {
+                        assert!(check(b), "{n}: {b:?}");
+                        let back = RadarSpec {
+                            effects: Default::default(),
+                            azimuth_table: vec![],
+                            azimuth_resolution_deg: a.azimuth_resolution_deg,
+                            ..b.clone()
+                        };
+                        assert_eq!(*a, back, "{n}");
+                    }
+                    (a, b) => assert_eq!(a, b, "{n}"),
+                }
+            }
+        };
+        radar_effect("radar_azimuth", &|r| r.effects.is_ideal() && r.azimuth_table.len() == 3);
+        radar_effect("radar_resolution", &|r| r.effects.doppler_resolution_mps.is_some() && r.azimuth_table.is_empty());
+        radar_effect("radar_multipath", &|r| {
+            r.effects.wall_multipath_loss_db.is_some() && r.effects.side_lobe_level_db.is_none()
+        });
+        radar_effect("radar_false_alarms", &|r| {
+            r.effects.false_alarms_per_frame > 0.0 && r.effects.rcs_aspect_db == 0.0
+        });
+        radar_effect("radar_aspect", &|r| r.effects.rcs_aspect_db > 0.0 && r.effects.false_alarms_per_frame == 0.0);
+        // LiDAR effects touch the LiDARs alone.
+        let tables = get("lidar_tables");
+        assert_eq!(tables.catalog.lidar("lidar-64").unwrap().elevations_deg.as_ref().map(Vec::len), Some(64));
+        assert!(tables.catalog.lidar("lidar-64").unwrap().detection_range.is_none());
+        assert!(get("lidar_range").catalog.lidar("lidar-16").unwrap().detection_range.is_some());
+        assert_eq!(get("lidar_range").catalog.radar("radar-4d").unwrap(), ideal.catalog.radar("radar-4d").unwrap());
+        // Rig settings on the paper's catalog; all of them together on the datasheet one.
+        for n in ["calibration", "time_sync", "rolling_shutter"] {
+            assert_eq!(get(n).catalog_hash, ideal.catalog_hash, "{n}");
+        }
+        assert!(get("calibration").dataset.calibration_error.is_some());
+        assert_eq!(get("time_sync").dataset.time_sync_error_s, Some(0.005));
+        assert!(get("rolling_shutter").dataset.rolling_shutter && !get("time_sync").dataset.rolling_shutter);
+        let all = get("all");
+        assert!(all.dataset.rolling_shutter && all.dataset.time_sync_error_s.is_some());
+        assert!(!all.catalog.radar("radar-4d").unwrap().effects.is_ideal());
+        assert!(all.catalog.lidar("lidar-16").unwrap().detection_range.is_some());
+        // It refuses a folder that holds something.
+        let again = std::process::Command::new("python3").arg(&script).arg(&out).output().unwrap();
+        assert!(!again.status.success());
     }
 
     /// `extends` lays a file over another study: tables merge field by field, lists and
