@@ -15,7 +15,8 @@ Every study extends fixtures/study.toml. The effects and where each comes from:
 - calibration: `[dataset] calibration_error` of 0.2 deg and 2 cm (a careful survey).
 - time_sync: `[dataset] time_sync_error_s` of 5 ms (NTP-class clocks).
 - rolling_shutter: `[dataset] rolling_shutter = true`.
-- all: the datasheet catalog and the three rig settings together.
+- vehicle_paint: `[dataset] vehicle_paint = "fleet"` (each vehicle a colour's reflectivity).
+- all: the datasheet catalog and the four dataset settings together.
 The one-effect catalogs go to OUT/catalogs/. OUT must not exist yet or be empty.
 """
 import os
@@ -29,6 +30,7 @@ RIG = {
     "calibration": "calibration_error = { rotation_deg = 0.2, translation_m = 0.02 }",
     "time_sync": "time_sync_error_s = 0.005",
     "rolling_shutter": "rolling_shutter = true",
+    "vehicle_paint": 'vehicle_paint = "fleet"',
 }
 RADAR_EFFECTS = {
     "radar_resolution": ["doppler_resolution_mps"],

@@ -9,7 +9,9 @@
 
 pub mod background;
 pub mod error;
+pub mod paint;
 pub mod reader;
+pub mod seed;
 pub mod simulate;
 pub mod tables;
 pub mod traffic;

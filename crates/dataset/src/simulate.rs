@@ -9,6 +9,8 @@
 //! (centre and eight inner corners) in line of sight of at least one LiDAR.
 
 use crate::error::DatasetError;
+use crate::paint::VehiclePaint;
+pub use crate::seed::derive_seed;
 use crate::traffic::{ActorState, Traffic, TrafficConfig};
 use crate::writer::{Annotation, FrameData, SceneData, Sweep};
 use glam::Vec3;
@@ -77,14 +79,22 @@ pub struct SimulateConfig {
     /// so a moving road user is skewed. False: frozen at the frame's instant.
     #[serde(skip_serializing_if = "is_false")]
     pub rolling_shutter: bool,
+    /// Vehicles' LiDAR reflectivity: `class` (absent: every vehicle the class's 0.5) or `fleet`
+    /// (each vehicle a colour of the fleet, drawn per road user and seed: [`crate::paint`]).
+    #[serde(skip_serializing_if = "is_class_paint")]
+    pub vehicle_paint: VehiclePaint,
+}
+
+fn is_class_paint(p: &VehiclePaint) -> bool {
+    *p == VehiclePaint::Class
 }
 
 fn is_false(v: &bool) -> bool {
     !*v
 }
 
-/// As derived, but `calibration_error`, `time_sync_error_s` and `rolling_shutter` appear only
-/// when set: the form a study's fingerprint
+/// As derived, but `calibration_error`, `time_sync_error_s`, `rolling_shutter` and
+/// `vehicle_paint` appear only when set: the form a study's fingerprint
 /// is taken over stays what it was for the datasets made before the field existed.
 impl std::fmt::Debug for SimulateConfig {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -111,6 +121,9 @@ impl std::fmt::Debug for SimulateConfig {
         if self.rolling_shutter {
             d.field("rolling_shutter", &self.rolling_shutter);
         }
+        if self.vehicle_paint != VehiclePaint::Class {
+            d.field("vehicle_paint", &self.vehicle_paint);
+        }
         d.finish()
     }
 }
@@ -134,6 +147,7 @@ impl Default for SimulateConfig {
             calibration_error: None,
             time_sync_error_s: None,
             rolling_shutter: false,
+            vehicle_paint: VehiclePaint::Class,
         }
     }
 }
@@ -358,6 +372,16 @@ pub fn clock_offset_s(cfg: &SimulateConfig, s: &RigSensor) -> f32 {
     sigma * rand::Rng::sample::<f32, _>(&mut rng, rand_distr::StandardNormal)
 }
 
+/// Road user `a` of the scene with seed stream `stream` as the sensors meet it: its shape,
+/// velocity and, with a fleet's paint, its colour's reflectivity.
+pub fn painted(cfg: &SimulateConfig, stream: u64, a: &ActorState) -> hilo_raycast::Actor {
+    let actor = a.actor();
+    match crate::paint::reflectivity(cfg.vehicle_paint, cfg.seed, stream, a.id, a.class) {
+        Some(r) => actor.with_reflectivity(r),
+        None => actor,
+    }
+}
+
 /// How long after the frame's instant the road users are met: the longest LiDAR rotation of
 /// the rig with a rolling shutter, else 0 (frozen).
 pub fn sweep_span_s(cfg: &SimulateConfig, rig: &[RigSensor]) -> f32 {
@@ -395,18 +419,6 @@ fn actor_sets(
 
 pub fn scene_name(index: usize) -> String {
     format!("scene-{index:04}")
-}
-
-/// SplitMix64 of the dataset seed and a stream: independent seeds per scene, frame, sensor.
-pub fn derive_seed(seed: u64, stream: &[u64]) -> u64 {
-    let mut x = seed ^ 0x9e37_79b9_7f4a_7c15;
-    for &s in stream {
-        x = x.wrapping_add(s.wrapping_mul(0xbf58_476d_1ce4_e5b9)).wrapping_add(0x9e37_79b9_7f4a_7c15);
-        x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        x ^= x >> 31;
-    }
-    x
 }
 
 /// One mounted sensor.
@@ -508,7 +520,7 @@ pub fn simulate_scene_with(
         let f = m / per_key;
         if key || has_radar || cfg.lidar_sweeps {
             let states = traffic.snapshot();
-            let actors: Vec<hilo_raycast::Actor> = states.iter().map(ActorState::actor).collect();
+            let actors: Vec<hilo_raycast::Actor> = states.iter().map(|a| painted(cfg, stream, a)).collect();
             let (set, shifted) = actor_sets(&actors, &offsets, span_s).map_err(|e| DatasetError::Actors {
                 scene: id.name(),
                 sweep: m,

@@ -488,6 +488,9 @@ fn an_unsynchronised_rig_scans_each_sensor_at_its_own_instant() {
     let e = SimulateConfig { time_sync_error_s: Some(2.0), ..base }.check().unwrap_err().to_string();
     assert!(e.contains("dataset.time_sync_error_s") && e.contains('2'), "{e}");
     let plain = format!("{:?}", SimulateConfig::default());
-    assert!(!plain.contains("time_sync") && !plain.contains("rolling_shutter"), "{plain}");
+    assert!(
+        !plain.contains("time_sync") && !plain.contains("rolling_shutter") && !plain.contains("vehicle_paint"),
+        "{plain}"
+    );
     assert!(format!("{skewed:?}").contains("time_sync_error_s: 0.02, rolling_shutter: true"));
 }

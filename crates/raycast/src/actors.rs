@@ -56,13 +56,24 @@ pub struct Actor {
     pub shape: ActorShape,
     /// Velocity in the local frame, m/s (radar Doppler reads it; rays do not).
     pub velocity_mps: Vec3,
+    /// Diffuse reflectivity at a LiDAR's wavelength, [0, 1]: its material's by default
+    /// ([`Material::lidar_reflectivity`]), or its own paint's.
+    pub reflectivity: f32,
 }
 
 impl Actor {
     /// The shape hilo uses for a class: capsules for pedestrians, boxes otherwise.
     pub fn from_box(id: u32, class: Class, b: Box3) -> Self {
         let shape = if class == Class::Pedestrian { ActorShape::capsule_in(&b) } else { ActorShape::Box(b) };
-        Actor { id, class, shape, velocity_mps: Vec3::ZERO }
+        let mut a = Actor { id, class, shape, velocity_mps: Vec3::ZERO, reflectivity: 0.0 };
+        a.reflectivity = a.material().lidar_reflectivity();
+        a
+    }
+
+    /// The same actor with its own LiDAR reflectivity (a paint), clamped to [0, 1].
+    pub fn with_reflectivity(mut self, r: f32) -> Self {
+        self.reflectivity = r.clamp(0.0, 1.0);
+        self
     }
 
     /// The same actor moving at `v` (local frame, m/s).
@@ -139,6 +150,12 @@ impl ActorSet {
             }
             if !a.velocity_mps.is_finite() {
                 return Err(RaycastError::Geometry(format!("actor {i} (id {}) has a non-finite velocity", a.id)));
+            }
+            if !(0.0..=1.0).contains(&a.reflectivity) {
+                return Err(RaycastError::Geometry(format!(
+                    "actor {i} (id {}) has reflectivity {}, not in [0, 1]",
+                    a.id, a.reflectivity
+                )));
             }
             let (lo, hi) = a.shape.aabb();
             let d = a.velocity_mps * span_s;

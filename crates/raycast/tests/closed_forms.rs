@@ -44,7 +44,7 @@ proptest! {
         prop_assert!((t - (dist - l / 2.0)).abs() <= TOL * dist, "{t}");
         prop_assert!((n - b.local_dir_to_world(Vec3::X)).length() < 1e-5);
         // Through the actor set, the same answer.
-        let set = ActorSet::new(vec![Actor { id: 9, class: Class::Car, shape: ActorShape::Box(b), velocity_mps: Vec3::ZERO }]).unwrap();
+        let set = ActorSet::new(vec![Actor { id: 9, class: Class::Car, shape: ActorShape::Box(b), velocity_mps: Vec3::ZERO, reflectivity: 0.5 }]).unwrap();
         let h = set.closest(&ray, ray.t_max).unwrap();
         prop_assert!((h.t - t).abs() <= 1e-6);
         let is_car9 = matches!(h.target, HitTarget::Actor { id: 9, class: Class::Car, .. });

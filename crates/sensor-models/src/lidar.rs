@@ -200,7 +200,10 @@ pub fn simulate_lidar(
                         continue;
                     }
                     let cos_inc = hit.normal.dot(ray.dir);
-                    let reflectivity = hit.material.lidar_reflectivity();
+                    let reflectivity = match (hit.target, actors) {
+                        (HitTarget::Actor { index, .. }, Some(set)) => set.actors()[index as usize].reflectivity,
+                        _ => hit.material.lidar_reflectivity(),
+                    };
                     if !spec.detects(reflectivity, cos_inc, range) {
                         continue;
                     }

@@ -189,3 +189,39 @@ fn a_spinning_lidar_sees_a_moving_road_user_where_it_is_at_each_column() {
         }
     }
 }
+
+/// A road user's own reflectivity reaches its returns: intensities scale with it, and under
+/// the lidar equation a black car is lost where a white one is still seen.
+#[test]
+fn a_road_users_paint_sets_its_returns() {
+    let world = ground_world();
+    let mut spec = ideal_lidar("lidar-16");
+    let pose = SensorPose::new(Vec3::new(0.0, 0.0, 4.0), 0.0, 0.0, 0.0);
+    let car = |r: f32, x: f32| {
+        let b = Box3::new(Vec3::new(x, 0.0, 0.8), 4.5, 1.9, 1.6, 0.3);
+        ActorSet::new(vec![Actor::from_box(2, Class::Car, b).with_reflectivity(r)]).unwrap()
+    };
+    let on_car = |s: &hilo_sensor_models::LidarScan| -> Vec<f32> {
+        s.points
+            .iter()
+            .zip(&s.sources)
+            .filter(|(_, s)| **s == PointSource::Actor(2))
+            .map(|(p, _)| p.intensity)
+            .collect()
+    };
+    let white = on_car(&simulate_lidar(&spec, &pose, &world, Some(&car(0.75, 20.0)), 1).unwrap());
+    let black = on_car(&simulate_lidar(&spec, &pose, &world, Some(&car(0.06, 20.0)), 1).unwrap());
+    assert!(!white.is_empty() && white.len() == black.len(), "the same rays hit it");
+    for (w, b) in white.iter().zip(&black) {
+        assert!((w / 0.75 - b / 0.06).abs() < 1e-4, "intensity ∝ reflectivity: {w} {b}");
+    }
+    // The lidar equation: 100 m at 0.8, so reach = 100·sqrt(ρ/0.8): 97 m white, 27 m black.
+    spec.detection_range = Some(hilo_sensor_models::DetectionRange { range_m: 100.0, reflectivity: 0.8 });
+    let at = |r: f32, x: f32| on_car(&simulate_lidar(&spec, &pose, &world, Some(&car(r, x)), 1).unwrap()).len();
+    assert!(at(0.06, 20.0) > 0 && at(0.75, 40.0) > 0);
+    assert_eq!(at(0.06, 40.0), 0, "a black car 40 m away is past its reach");
+    // The default is the class's.
+    let plain = Actor::from_box(2, Class::Car, Box3::new(Vec3::ZERO, 4.5, 1.9, 1.6, 0.0));
+    assert_eq!(plain.reflectivity, hilo_raycast::Material::VehicleBody.lidar_reflectivity());
+    assert!(ActorSet::new(vec![Actor { reflectivity: f32::NAN, ..plain }]).is_err());
+}
