@@ -22,6 +22,8 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     for section in [
         "## The paper's claims",
         "## Configurations",
+        "## What the simulation models",
+        "| radar side lobes | no |",
         "## Accuracy",
         "## Is the difference real?",
         "## Calibration of the test",

@@ -157,6 +157,10 @@ pub struct Report {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub train_schedule: Option<serde_json::Value>,
     pub calibration: Calibration,
+    /// Which field effects the study's sensors and rig model ([`crate::modelled`]); empty in
+    /// reports written before it existed.
+    #[serde(default)]
+    pub modelled: Vec<crate::modelled::Modelled>,
     pub learning_curves: Vec<Curve>,
     /// Whether every preset ranks the configurations the same at half its training and at the
     /// end (seed 0), and the presets where it does not.
@@ -327,6 +331,7 @@ pub fn assemble(
         margin: margins.ap,
         velocity_margin_m_s: margins.velocity_m_s,
         calibration,
+        modelled: crate::modelled::modelled(study, &prof.dataset),
         learning_curves,
         ranking_stable: ranking_changed.is_empty(),
         ranking_changed,

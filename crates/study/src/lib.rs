@@ -13,7 +13,8 @@
 //!     with their visible-only and paper-averaged readings;
 //!     the radar's claims again per weather condition, and the radar's value per $1,000);
 //!   - [`report`]: `report.md`, `report.json`, charts and pictures (with the validation's
-//!     section when one was run in the study's folder);
+//!     section when one was run in the study's folder), and [`modelled`]: which field effects
+//!     the study's sensors and rig model, as the report states them;
 //!   - [`run`](mod@run): every stage in one process, with a progress callback, and [`compare`]: one
 //!     comparison across a sweep's studies;
 //!   - [`workflow`]: the study, a sweep or a validation as a Snakemake workflow.
@@ -40,6 +41,7 @@
 
 pub mod assemble;
 pub mod compare;
+pub mod modelled;
 pub mod report;
 pub mod run;
 pub mod stats;

@@ -340,6 +340,7 @@ fn markdown(
     md_claims(&mut md, r);
     md_weather(&mut md, r);
     md_configurations(&mut md, r);
+    md_modelled(&mut md, r);
     md_accuracy(&mut md, r, presets);
     md_comparisons(&mut md, r);
     md_learning_curves(&mut md, r);
@@ -524,6 +525,21 @@ fn md_weather(md: &mut String, r: &Report) {
         );
     }
     md.push('\n');
+}
+
+/// Which field effects the simulation models, and what it leaves out.
+fn md_modelled(md: &mut String, r: &Report) {
+    if r.modelled.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "\n## What the simulation models\n\nField effects are catalog entries or `[dataset]` settings, off when absent; a study of ideal sensors reads as one. Left out whatever the settings: {}.\n\n| effect | modelled | where |\n|---|---|---|",
+        crate::modelled::LEFT_OUT
+    );
+    for m in &r.modelled {
+        let _ = writeln!(md, "| {} | {} | {} |", m.effect, if m.on { "yes" } else { "no" }, esc(&m.detail));
+    }
 }
 
 /// Each configuration: cost, coverage, placement, sensors.

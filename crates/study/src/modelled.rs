@@ -1,0 +1,120 @@
+//! Which field effects a study's sensors and rig model: the report's statement of what the
+//! simulation holds, so that no reader takes an ideal sensor for a datasheet one. Every effect
+//! is a catalog entry or a `[dataset]` setting, off when absent (`docs/realism.md` measures
+//! what each does to the verdict).
+
+use hilo_dataset::paint::VehiclePaint;
+use hilo_dataset::simulate::SimulateConfig;
+use hilo_plan::study::Study;
+use hilo_sensor_models::SensorSpec;
+use serde::{Deserialize, Serialize};
+
+/// One effect: whether the study models it, and with what (the sensors it applies to, or the
+/// setting).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Modelled {
+    pub effect: String,
+    pub on: bool,
+    pub detail: String,
+}
+
+/// What no setting models yet.
+pub const LEFT_OUT: &str = "beam divergence and multiple returns, fog's backscatter points, a \
+dynamic background (swaying trees, parked cars that come and go), radar velocity aliasing and \
+chirp timing, ghosts of more than one bounce, clock drift";
+
+/// The effects of the sensors the study's configurations use, under its dataset settings
+/// `dataset` (the profile's: the study's `[dataset]` with the profile's sizes).
+pub fn modelled(study: &Study, dataset: &SimulateConfig) -> Vec<Modelled> {
+    let mut used: Vec<String> = study.file.configurations.iter().flat_map(|c| c.type_names()).collect();
+    used.sort();
+    used.dedup();
+    let sensors: Vec<&SensorSpec> = used.iter().filter_map(|n| study.catalog.get(n).ok()).collect();
+    let lidars: Vec<_> =
+        sensors.iter().filter_map(|s| if let SensorSpec::Lidar(l) = s { Some(l) } else { None }).collect();
+    let radars: Vec<_> =
+        sensors.iter().filter_map(|s| if let SensorSpec::Radar(r) = s { Some(r) } else { None }).collect();
+    let which = |names: Vec<&str>| -> (bool, String) { (!names.is_empty(), names.join(", ")) };
+    let mut out = Vec::new();
+    let mut push = |effect: &str, (on, detail): (bool, String)| {
+        out.push(Modelled { effect: effect.to_owned(), on, detail });
+    };
+    push(
+        "LiDAR beam tables (published, not spread uniformly)",
+        which(lidars.iter().filter(|l| l.elevations_deg.is_some()).map(|l| l.name.as_str()).collect()),
+    );
+    push(
+        "LiDAR range by reflectivity (the lidar equation)",
+        which(lidars.iter().filter(|l| l.detection_range.is_some()).map(|l| l.name.as_str()).collect()),
+    );
+    let fx = |f: &dyn Fn(&hilo_sensor_models::RadarSpec) -> bool| -> (bool, String) {
+        which(radars.iter().filter(|r| f(r)).map(|r| r.name.as_str()).collect())
+    };
+    push("radar azimuth resolution by angle", fx(&|r| !r.azimuth_table.is_empty()));
+    push("radar: unresolved targets merged", fx(&|r| r.effects.doppler_resolution_mps.is_some()));
+    push(
+        "radar multipath ghosts",
+        fx(&|r| r.effects.wall_multipath_loss_db.is_some() || r.effects.ground_multipath_loss_db.is_some()),
+    );
+    push("radar side lobes", fx(&|r| r.effects.side_lobe_level_db.is_some()));
+    push("radar false alarms", fx(&|r| r.effects.false_alarms_per_frame > 0.0));
+    push("radar Doppler of foliage", fx(&|r| r.effects.vegetation_doppler_mps > 0.0));
+    push("radar RCS by aspect", fx(&|r| r.effects.rcs_aspect_db != 0.0));
+    let setting = |on: bool, detail: String| (on, if on { detail } else { String::new() });
+    push(
+        "rig calibration error",
+        match &dataset.calibration_error {
+            Some(e) => setting(true, format!("{}°, {} m (1σ)", e.rotation_deg, e.translation_m)),
+            None => setting(false, String::new()),
+        },
+    );
+    push(
+        "rig clock offsets",
+        match dataset.time_sync_error_s {
+            Some(s) => setting(true, format!("{} ms (1σ)", s * 1000.0)),
+            None => setting(false, String::new()),
+        },
+    );
+    push("LiDAR rolling shutter", setting(dataset.rolling_shutter, "on".into()));
+    push("vehicles' own paint", setting(dataset.vehicle_paint == VehiclePaint::Fleet, "the fleet's colours".into()));
+    out
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn fixture(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures").join(name)
+    }
+
+    #[test]
+    fn the_default_study_models_no_field_effect_and_the_field_study_all() {
+        let s = Study::load(&fixture("study.toml")).unwrap();
+        let m = modelled(&s, &s.dataset);
+        assert_eq!(m.len(), 13);
+        // The paper's 16-beam sensor has its published table; nothing else is on.
+        assert_eq!((m[0].on, m[0].detail.as_str()), (true, "lidar-16"));
+        assert!(m[1..].iter().all(|e| !e.on && e.detail.is_empty()), "{m:?}");
+        let d = tempfile::tempdir().unwrap();
+        let f = d.path().join("field.toml");
+        std::fs::write(
+            &f,
+            format!(
+                "extends = {:?}\ncatalog = {:?}\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n",
+                fixture("study.toml"),
+                fixture("sensors-datasheet.toml")
+            ),
+        )
+        .unwrap();
+        let s = Study::load(&f).unwrap();
+        let m = modelled(&s, &s.dataset);
+        assert!(m.iter().all(|e| e.on), "{m:?}");
+        let by = |name: &str| m.iter().find(|e| e.effect.starts_with(name)).unwrap().detail.clone();
+        assert_eq!(by("LiDAR beam tables"), "lidar-16, lidar-32, lidar-64");
+        assert_eq!(by("radar side lobes"), "radar-4d", "only the radars the configurations use");
+        assert_eq!(by("rig clock offsets"), "5 ms (1σ)");
+    }
+}
