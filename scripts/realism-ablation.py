@@ -16,7 +16,9 @@ Every study extends fixtures/study.toml. The effects and where each comes from:
 - time_sync: `[dataset] time_sync_error_s` of 5 ms (NTP-class clocks).
 - rolling_shutter: `[dataset] rolling_shutter = true`.
 - vehicle_paint: `[dataset] vehicle_paint = "fleet"` (each vehicle a colour's reflectivity).
-- all: the datasheet catalog and the four dataset settings together.
+- foliage: `[dataset] foliage`, crowns in wind: 30% of the rays that meet one pass through a
+  gap, the others return from a leaf moved by 0.1 m (1 sigma) along the ray.
+- all: the datasheet catalog and the five dataset settings together.
 The one-effect catalogs go to OUT/catalogs/. OUT must not exist yet or be empty.
 """
 import os
@@ -31,6 +33,7 @@ RIG = {
     "time_sync": "time_sync_error_s = 0.005",
     "rolling_shutter": "rolling_shutter = true",
     "vehicle_paint": 'vehicle_paint = "fleet"',
+    "foliage": "foliage = { gap_probability = 0.3, sway_m = 0.1 }",
 }
 RADAR_EFFECTS = {
     "radar_resolution": ["doppler_resolution_mps"],

@@ -16,7 +16,9 @@ use crate::writer::{Annotation, FrameData, SceneData, Sweep};
 use glam::Vec3;
 use hilo_core::{Check, Valid};
 use hilo_raycast::{ActorSet, HitTarget, Ray, Scene, World};
-use hilo_sensor_models::{CalibrationError, SensorPose, SensorSpec, Weather, simulate_lidar, simulate_radar};
+use hilo_sensor_models::{
+    CalibrationError, Foliage, LidarSpec, SensorPose, SensorSpec, Weather, simulate_lidar, simulate_radar,
+};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -83,6 +85,11 @@ pub struct SimulateConfig {
     /// (each vehicle a colour of the fleet, drawn per road user and seed: [`crate::paint`]).
     #[serde(skip_serializing_if = "is_class_paint")]
     pub vehicle_paint: VehiclePaint,
+    /// Tree crowns in wind, as the LiDARs see them (absent: still and opaque): each ray that
+    /// meets a crown passes through a gap with `gap_probability`, and otherwise returns from a
+    /// leaf displaced along it by a Gaussian of `sway_m` ([`hilo_sensor_models::Foliage`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub foliage: Option<Foliage>,
 }
 
 fn is_class_paint(p: &VehiclePaint) -> bool {
@@ -93,8 +100,8 @@ fn is_false(v: &bool) -> bool {
     !*v
 }
 
-/// As derived, but `calibration_error`, `time_sync_error_s`, `rolling_shutter` and
-/// `vehicle_paint` appear only when set: the form a study's fingerprint
+/// As derived, but `calibration_error`, `time_sync_error_s`, `rolling_shutter`,
+/// `vehicle_paint` and `foliage` appear only when set: the form a study's fingerprint
 /// is taken over stays what it was for the datasets made before the field existed.
 impl std::fmt::Debug for SimulateConfig {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -124,6 +131,9 @@ impl std::fmt::Debug for SimulateConfig {
         if self.vehicle_paint != VehiclePaint::Class {
             d.field("vehicle_paint", &self.vehicle_paint);
         }
+        if let Some(f) = &self.foliage {
+            d.field("foliage", f);
+        }
         d.finish()
     }
 }
@@ -148,6 +158,7 @@ impl Default for SimulateConfig {
             time_sync_error_s: None,
             rolling_shutter: false,
             vehicle_paint: VehiclePaint::Class,
+            foliage: None,
         }
     }
 }
@@ -239,6 +250,14 @@ impl Check for SimulateConfig {
             && !(e.is_finite() && (0.0..=1.0).contains(&e))
         {
             return bad("time_sync_error_s", e.to_string(), "give 0 to 1 s");
+        }
+        if let Some(f) = &self.foliage {
+            if !(0.0..1.0).contains(&f.gap_probability) {
+                return bad("foliage.gap_probability", f.gap_probability.to_string(), "give a probability in [0, 1)");
+            }
+            if !(f.sway_m.is_finite() && (0.0..=2.0).contains(&f.sway_m)) {
+                return bad("foliage.sway_m", f.sway_m.to_string(), "give 0 to 2 m");
+            }
         }
         if self.scenes == 0 {
             return bad("scenes", "0".into(), "at least one training scene is needed");
@@ -495,7 +514,7 @@ pub fn simulate_scene_with(
         .iter()
         .map(|s| RigSensor {
             spec: match &s.spec {
-                SensorSpec::Lidar(l) => SensorSpec::Lidar(cfg.weather.lidar(l)),
+                SensorSpec::Lidar(l) => SensorSpec::Lidar(LidarSpec { foliage: cfg.foliage, ..cfg.weather.lidar(l) }),
                 SensorSpec::Radar(r) => SensorSpec::Radar(cfg.weather.radar(r)),
             },
             pose: true_pose(cfg, s),

@@ -489,8 +489,29 @@ fn an_unsynchronised_rig_scans_each_sensor_at_its_own_instant() {
     assert!(e.contains("dataset.time_sync_error_s") && e.contains('2'), "{e}");
     let plain = format!("{:?}", SimulateConfig::default());
     assert!(
-        !plain.contains("time_sync") && !plain.contains("rolling_shutter") && !plain.contains("vehicle_paint"),
+        !plain.contains("time_sync")
+            && !plain.contains("rolling_shutter")
+            && !plain.contains("vehicle_paint")
+            && !plain.contains("foliage"),
         "{plain}"
     );
+    // Foliage in wind reaches the LiDARs' scans (the fixture's crowns), and is checked.
+    let windy = SimulateConfig {
+        foliage: Some(hilo_sensor_models::Foliage { gap_probability: 0.3, sway_m: 0.1 }),
+        ..SimulateConfig { time_sync_error_s: None, rolling_shutter: false, ..(*exact).clone() }
+    }
+    .validate()
+    .unwrap();
+    let w2 = simulate_scene(&scene, &w, &r, &windy, &train(0)).unwrap();
+    assert_ne!(w2.frames[0].lidar, a.frames[0].lidar);
+    assert_eq!(w2.frames[0].radar, a.frames[0].radar, "the radar sees foliage as before");
+    for (f, field) in [(f32::NAN, "gap_probability"), (1.0, "gap_probability")] {
+        let bad = SimulateConfig {
+            foliage: Some(hilo_sensor_models::Foliage { gap_probability: f, sway_m: 0.1 }),
+            ..SimulateConfig::default()
+        };
+        let e = bad.check().unwrap_err().to_string();
+        assert!(e.contains(&format!("dataset.foliage.{field}")), "{e}");
+    }
     assert!(format!("{skewed:?}").contains("time_sync_error_s: 0.02, rolling_shutter: true"));
 }

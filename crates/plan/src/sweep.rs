@@ -562,7 +562,7 @@ mod tests {
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
         let Loaded::Sweep(w) = load(&out).unwrap() else { panic!("not a sweep") };
         let names: Vec<&str> = w.shards.iter().map(|s| s.name.as_str()).collect();
-        assert_eq!(names.len(), 15, "{names:?}");
+        assert_eq!(names.len(), 16, "{names:?}");
         let get = |n: &str| &w.shards.iter().find(|s| s.name == n).unwrap().study;
         let ideal = get("ideal");
         let default = Study::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/study.toml")).unwrap();
@@ -604,7 +604,7 @@ mod tests {
         assert!(get("lidar_range").catalog.lidar("lidar-16").unwrap().detection_range.is_some());
         assert_eq!(get("lidar_range").catalog.radar("radar-4d").unwrap(), ideal.catalog.radar("radar-4d").unwrap());
         // Rig settings on the paper's catalog; all of them together on the datasheet one.
-        for n in ["calibration", "time_sync", "rolling_shutter", "vehicle_paint"] {
+        for n in ["calibration", "time_sync", "rolling_shutter", "vehicle_paint", "foliage"] {
             assert_eq!(get(n).catalog_hash, ideal.catalog_hash, "{n}");
         }
         assert!(get("calibration").dataset.calibration_error.is_some());
@@ -613,6 +613,8 @@ mod tests {
         let all = get("all");
         assert!(all.dataset.rolling_shutter && all.dataset.time_sync_error_s.is_some());
         assert_eq!(all.dataset.vehicle_paint, hilo_dataset::paint::VehiclePaint::Fleet);
+        assert!(all.dataset.foliage.is_some() && get("foliage").dataset.foliage.is_some());
+        assert!(get("vehicle_paint").dataset.foliage.is_none());
         assert!(!all.catalog.radar("radar-4d").unwrap().effects.is_ideal());
         assert!(all.catalog.lidar("lidar-16").unwrap().detection_range.is_some());
         // It refuses a folder that holds something.

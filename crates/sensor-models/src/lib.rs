@@ -36,5 +36,5 @@ pub use lidar::{LidarScan, PointSource, simulate_lidar};
 pub use pose::{CalibrationError, SensorPose};
 pub use probability::{Probe, lidar_expected_returns, radar_detection_probability};
 pub use radar::{RadarScan, simulate_radar};
-pub use spec::{Catalog, DetectionRange, LidarSpec, RadarSpec, SensorSpec};
+pub use spec::{Catalog, DetectionRange, Foliage, LidarSpec, RadarSpec, SensorSpec};
 pub use weather::Weather;

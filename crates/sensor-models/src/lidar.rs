@@ -24,7 +24,7 @@ use crate::pose::{SensorPose, spherical_dir};
 use crate::spec::LidarSpec;
 use glam::Vec3;
 use hilo_core::LidarPoint;
-use hilo_raycast::{ActorSet, HitTarget, Ray, World};
+use hilo_raycast::{ActorSet, HitTarget, Material, Ray, World};
 use rand::Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
@@ -96,6 +96,36 @@ impl LidarScan {
         }
         m
     }
+}
+
+/// The surface a ray returns from when its first hit is foliage that moves ([`Foliage`]): the
+/// leaf, displaced along the ray (the second value), or, through a gap, whatever lies behind
+/// (None: nothing). Any other hit, or still foliage, is returned as it is. Draws from its own
+/// stream, so a scan without foliage keeps its bytes.
+#[allow(clippy::too_many_arguments)]
+fn through_foliage(
+    spec: &LidarSpec,
+    world: &World,
+    actors: Option<&ActorSet>,
+    ray: &Ray,
+    hit: hilo_raycast::Hit,
+    time_s: f32,
+    seed: u64,
+    index: usize,
+) -> Option<(hilo_raycast::Hit, f32)> {
+    let Some(f) = &spec.foliage else { return Some((hit, 0.0)) };
+    if !(matches!(hit.target, HitTarget::Static { .. }) && hit.material == Material::Vegetation) {
+        return Some((hit, 0.0));
+    }
+    let mut rng = rng_for(seed, stream::LIDAR_FOLIAGE, index as u64);
+    if rng.random::<f32>() < f.gap_probability {
+        // Through a gap: the next surface along the ray (one gap per ray; a second crown
+        // behind returns as it is).
+        let behind = Ray { t_min: hit.t + 0.05, ..*ray };
+        return world.closest_hit_at(&behind, actors, time_s).map(|h| (h, 0.0));
+    }
+    let sway: f32 = rng.sample(StandardNormal);
+    Some((hit, f.sway_m * sway))
 }
 
 /// Intensity of a return: reflectivity × |cos incidence| × exp(−a·range), in [0, 1].
@@ -195,7 +225,12 @@ pub fn simulate_lidar(
                     let Some(hit) = world.closest_hit_at(&ray, actors, time_s) else { continue };
                     let mut rng = rng_for(seed, stream::LIDAR_RAY, (k * beams + ring) as u64);
                     let noise: f32 = rng.sample(StandardNormal);
-                    let range = hit.t + spec.range_noise_m * noise;
+                    let Some((hit, sway)) =
+                        through_foliage(spec, world, actors, &ray, hit, time_s, seed, k * beams + ring)
+                    else {
+                        continue;
+                    };
+                    let range = hit.t + spec.range_noise_m * noise + sway;
                     if range <= spec.min_range_m || range > spec.max_range_m {
                         continue;
                     }

@@ -30,4 +30,6 @@ pub mod stream {
     pub const RADAR_ARTEFACT: u64 = 5;
     /// A rig sensor's clock offset (one draw per dataset seed and sensor).
     pub const TIME_SYNC: u64 = 6;
+    /// A LiDAR ray's passage through moving foliage.
+    pub const LIDAR_FOLIAGE: u64 = 7;
 }

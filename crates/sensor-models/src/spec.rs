@@ -52,6 +52,24 @@ pub struct LidarSpec {
     /// [`crate::weather::Weather::lidar`] in fog and rain for a sensor with a `detection_range`.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub extinction_per_m: f32,
+    /// Foliage that moves in the wind, a property of the scene's weather rather than of the
+    /// sensor: set from a dataset's `foliage` setting, never read from a catalog (absent: crowns
+    /// are still and opaque). See [`Foliage`].
+    #[serde(skip)]
+    pub foliage: Option<Foliage>,
+}
+
+/// Tree crowns as a LiDAR sees them in wind: porous and moving. A ray whose first surface is
+/// foliage passes through a gap between the leaves with `gap_probability` (and returns from
+/// whatever lies behind), and otherwise returns from a leaf displaced along the ray by a
+/// Gaussian of `sway_m`; each ray and frame draws anew (leaf motion is uncorrelated at a beam's
+/// footprint from one 10 Hz frame to the next). So the static scene no longer returns the same
+/// range frame after frame, and a learned background does not remove it for free.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Foliage {
+    pub gap_probability: f32,
+    pub sway_m: f32,
 }
 
 fn is_zero(v: &f32) -> bool {
@@ -68,7 +86,7 @@ pub struct DetectionRange {
 }
 
 /// As derived, but the fields added after the first catalogs (`detection_range`,
-/// `extinction_per_m`) appear only when set: a catalog's content hash (taken over this form)
+/// `extinction_per_m`, `foliage`) appear only when set: a catalog's content hash (taken over this form)
 /// stays what it was for the LiDARs it already described.
 impl std::fmt::Debug for LidarSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -94,6 +112,9 @@ impl std::fmt::Debug for LidarSpec {
         }
         if self.extinction_per_m != 0.0 {
             d.field("extinction_per_m", &self.extinction_per_m);
+        }
+        if let Some(f) = &self.foliage {
+            d.field("foliage", f);
         }
         d.finish()
     }
@@ -421,6 +442,7 @@ fn validate_lidar(l: &LidarSpec, c: &Check) -> Result<(), SensorError> {
         }
     }
     c.non_negative("extinction_per_m", l.extinction_per_m)?;
+
     c.price(l.price_usd)
 }
 

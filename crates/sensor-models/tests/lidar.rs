@@ -8,7 +8,7 @@ use common::*;
 use glam::Vec3;
 use hilo_core::{Box3, Class};
 use hilo_raycast::{Actor, ActorSet, QueryRegion, Scene, World};
-use hilo_sensor_models::{PointSource, SensorError, SensorPose, simulate_lidar};
+use hilo_sensor_models::{LidarSpec, PointSource, SensorError, SensorPose, simulate_lidar};
 
 #[test]
 fn beam_and_azimuth_counts_ranges_fov_rings_and_times_follow_the_spec() {
@@ -224,4 +224,74 @@ fn a_road_users_paint_sets_its_returns() {
     let plain = Actor::from_box(2, Class::Car, Box3::new(Vec3::ZERO, 4.5, 1.9, 1.6, 0.0));
     assert_eq!(plain.reflectivity, hilo_raycast::Material::VehicleBody.lidar_reflectivity());
     assert!(ActorSet::new(vec![Actor { reflectivity: f32::NAN, ..plain }]).is_err());
+}
+
+/// Foliage in wind: of the rays whose first surface is a tree crown, the stated share passes
+/// through a gap and returns from what lies behind (exactly the next surface along the ray);
+/// the others return from a leaf displaced along the ray with the stated spread; every other
+/// ray returns as it did, and still foliage is no change at all.
+#[test]
+fn crowns_in_wind_let_rays_through_and_sway() {
+    use hilo_raycast::{HitTarget, Material, Ray};
+    use hilo_sensor_models::Foliage;
+    use std::collections::BTreeMap;
+    let scene = Scene::default_fixture().unwrap();
+    let world = World::build(&scene, &QueryRegion::everything()).unwrap();
+    let base = ideal_lidar("lidar-64");
+    let pose = SensorPose::new(Vec3::new(13.0, 16.6, 7.8), -2.2, 0.17, 0.0);
+    let scan = |f: Option<Foliage>| {
+        let spec = LidarSpec { foliage: f, ..base.clone() };
+        let s = simulate_lidar(&spec, &pose, &world, None, 8).unwrap();
+        // Each ray by (ring, column time): its return in the sensor frame.
+        s.points.iter().map(|p| ((p.ring, p.time_s.to_bits()), Vec3::new(p.x, p.y, p.z))).collect::<BTreeMap<_, _>>()
+    };
+    let still = scan(None);
+    assert_eq!(still, scan(Some(Foliage { gap_probability: 0.0, sway_m: 0.0 })), "still foliage changes nothing");
+    let rot = pose.rotation();
+    let first = |p: Vec3| {
+        let ray =
+            Ray { origin: pose.position, dir: rot * p.normalize(), t_min: base.min_range_m, t_max: base.max_range_m };
+        (ray, world.closest_hit(&ray, None).unwrap())
+    };
+    let on_crown = |p: &Vec3| {
+        let h = first(*p).1;
+        matches!(h.target, HitTarget::Static { .. }) && h.material == Material::Vegetation
+    };
+    let crown_rays = still.values().filter(|p| on_crown(p)).count();
+    assert!(crown_rays >= 300, "the pose sees the fixture's trees: {crown_rays} crown returns");
+    // Gaps: 30% of crown rays pass; each returns the next surface or nothing.
+    let gappy = scan(Some(Foliage { gap_probability: 0.3, sway_m: 0.0 }));
+    let mut passed = 0;
+    for (key, p) in &still {
+        let q = gappy.get(key);
+        if !on_crown(p) {
+            assert_eq!(q, Some(p), "a ray that meets no crown returns as before");
+            continue;
+        }
+        if q == Some(p) {
+            continue;
+        }
+        passed += 1;
+        let (ray, h) = first(*p);
+        let behind = world.closest_hit(&Ray { t_min: h.t + 0.05, ..ray }, None).filter(|b| b.t <= base.max_range_m);
+        match (q, behind) {
+            (Some(q), Some(b)) => assert!((q.length() - b.t).abs() < 1e-3, "{} vs {}", q.length(), b.t),
+            (None, None) => {}
+            (q, b) => panic!("through the gap: {q:?} against {:?}", b.map(|b| b.t)),
+        }
+    }
+    let share = passed as f64 / crown_rays as f64;
+    let sd = (0.3 * 0.7 / crown_rays as f64).sqrt();
+    assert!((share - 0.3).abs() < 4.5 * sd, "{passed} of {crown_rays} passed");
+    // Sway: leaves move along the ray with the stated spread.
+    let swayed = scan(Some(Foliage { gap_probability: 0.0, sway_m: 0.2 }));
+    let d: Vec<f64> = still
+        .iter()
+        .filter(|(_, p)| on_crown(p))
+        .filter_map(|(k, p)| swayed.get(k).map(|q| (q.length() - p.length()) as f64))
+        .collect();
+    let n = d.len() as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    assert!(mean.abs() < 4.0 * 0.2 / n.sqrt() && (sd / 0.2 - 1.0).abs() < 0.1, "mean {mean}, sd {sd} over {n}");
 }

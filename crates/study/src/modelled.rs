@@ -19,9 +19,9 @@ pub struct Modelled {
 }
 
 /// What no setting models yet.
-pub const LEFT_OUT: &str = "beam divergence and multiple returns, fog's backscatter points, a \
-dynamic background (swaying trees, parked cars that come and go), radar velocity aliasing and \
-chirp timing, ghosts of more than one bounce, clock drift";
+pub const LEFT_OUT: &str = "beam divergence and multiple returns, fog's backscatter points, \
+parked cars that come and go, radar velocity aliasing and chirp timing, ghosts of more than one \
+bounce, clock drift";
 
 /// The effects of the sensors the study's configurations use, under its dataset settings
 /// `dataset` (the profile's: the study's `[dataset]` with the profile's sizes).
@@ -77,6 +77,16 @@ pub fn modelled(study: &Study, dataset: &SimulateConfig) -> Vec<Modelled> {
     );
     push("LiDAR rolling shutter", setting(dataset.rolling_shutter, "on".into()));
     push("vehicles' own paint", setting(dataset.vehicle_paint == VehiclePaint::Fleet, "the fleet's colours".into()));
+    push(
+        "tree crowns in wind (LiDAR)",
+        match &dataset.foliage {
+            Some(f) => setting(
+                true,
+                format!("{:.0}% of rays through gaps, leaves {} m (1σ)", f.gap_probability * 100.0, f.sway_m),
+            ),
+            None => setting(false, String::new()),
+        },
+    );
     out
 }
 
@@ -94,7 +104,7 @@ mod tests {
     fn the_default_study_models_no_field_effect_and_the_field_study_all() {
         let s = Study::load(&fixture("study.toml")).unwrap();
         let m = modelled(&s, &s.dataset);
-        assert_eq!(m.len(), 13);
+        assert_eq!(m.len(), 14);
         // The paper's 16-beam sensor has its published table; nothing else is on.
         assert_eq!((m[0].on, m[0].detail.as_str()), (true, "lidar-16"));
         assert!(m[1..].iter().all(|e| !e.on && e.detail.is_empty()), "{m:?}");
@@ -103,7 +113,7 @@ mod tests {
         std::fs::write(
             &f,
             format!(
-                "extends = {:?}\ncatalog = {:?}\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n",
+                "extends = {:?}\ncatalog = {:?}\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\nfoliage = {{ gap_probability = 0.3, sway_m = 0.1 }}\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n",
                 fixture("study.toml"),
                 fixture("sensors-datasheet.toml")
             ),
