@@ -76,6 +76,55 @@ fn sensors(c: &mut Criterion) {
         b.iter(|| simulate_radar(radar, &pose, &world, None, 1).expect("scan").points.len())
     });
     g.finish();
+    lidar_points(c, &world, &catalog, &pose);
+}
+
+/// LiDAR points on road users (the calibrated objective's point-count rows): the rays towards
+/// the road users' bounds only, against the full scan; the error paid is the road users whose
+/// counts differ (0 by construction, checked here).
+fn lidar_points(c: &mut Criterion, world: &World, catalog: &hilo::sensors::Catalog, pose: &hilo::sensors::SensorPose) {
+    use hilo::core::glam::Vec3;
+    use hilo::core::{Box3, Class};
+    use hilo::raycast::{Actor, ActorSet};
+    use hilo::sensors::{lidar_points_on, simulate_lidar};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    // 40 road users over the junction, none overlapping: cars, pedestrians and buses.
+    let mut actors: Vec<Actor> = Vec::new();
+    let sizes = [(Class::Car, 4.5, 1.9, 1.6), (Class::Pedestrian, 0.6, 0.6, 1.75), (Class::Bus, 12.0, 2.6, 3.2)];
+    while actors.len() < 40 {
+        let (class, l, w, h) = sizes[actors.len() % 3];
+        let c = Vec3::new(rng.random_range(-40.0..40.0), rng.random_range(-40.0..40.0), 0.5 * h);
+        let a = Actor::from_box(actors.len() as u32, class, Box3::new(c, l, w, h, rng.random_range(-3.1..3.1)));
+        let (lo, hi) = a.shape.aabb();
+        if actors.iter().all(|b| {
+            let (l2, h2) = b.shape.aabb();
+            hi.x < l2.x || h2.x < lo.x || hi.y < l2.y || h2.y < lo.y
+        }) {
+            actors.push(a);
+        }
+    }
+    let set = ActorSet::new(actors).expect("actors");
+    let ids: Vec<u32> = (0..40).collect();
+    let mut g = c.benchmark_group("lidar_points_on_40_road_users");
+    for name in ["lidar-16", "lidar-64"] {
+        let spec = catalog.lidar(name).expect("lidar");
+        let full = simulate_lidar(spec, pose, world, Some(&set), 1).expect("scan").points_per_actor();
+        let windowed = lidar_points_on(spec, pose, world, &set, 1, &ids).expect("count");
+        let differ = ids.iter().filter(|id| full.get(id).copied().unwrap_or(0) != windowed[id]).count();
+        eprintln!(
+            "{name} points on road users, error paid: {differ} of {} road users' counts differ ({} points)",
+            ids.len(),
+            windowed.values().sum::<usize>()
+        );
+        g.bench_function(format!("{name}/full-scan"), |b| {
+            b.iter(|| simulate_lidar(spec, pose, world, Some(&set), 1).expect("scan").points_per_actor().len())
+        });
+        g.bench_function(format!("{name}/windowed"), |b| {
+            b.iter(|| lidar_points_on(spec, pose, world, &set, 1, black_box(&ids)).expect("count").len())
+        });
+    }
+    g.finish();
 }
 
 fn placement(c: &mut Criterion) {
@@ -106,7 +155,14 @@ fn placement(c: &mut Criterion) {
         }
     }
     let weights = (0..n_t).map(|_| if rng.random_bool(0.3) { 3.0 } else { 1.0 }).collect();
-    let inst = Instance { weights, types, options, p_min: 1.0 - (-1.0f64).exp(), road_users: Vec::new() };
+    let inst = Instance {
+        weights,
+        types,
+        options,
+        p_min: 1.0 - (-1.0f64).exp(),
+        road_users: Vec::new(),
+        points: Default::default(),
+    };
     let limit = Limit::Counts(vec![2, 1]);
     let exact = hilo::placement::pipeline::solve(&inst, &limit, 60.0).expect("exact");
     let cbc = solve(&inst, &limit, Formulation::Plain, 60.0, None).expect("cbc");

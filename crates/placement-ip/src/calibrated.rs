@@ -26,6 +26,12 @@
 //! nothing). The second family is the occupancy predictor "share of road users seen" made
 //! linear: it weighs where road users are, but not the occlusion by other road users that the
 //! simulated scans count (that depends on the traffic at each instant, not on the cell).
+//!
+//! The thirteenth term (`lidar_points`) counts what the simulated scans do count: over road users
+//! of sampled frames of the study's traffic (class-balanced), min(1, Σ_{o ∈ S} n_oj / k) with n_oj
+//! the LiDAR points option o puts on road user j in its frame, occlusion by the frame's other road
+//! users, buildings and poles included ([`crate::instance::PointRows`]). Points add up over
+//! sensors, so the term is exact: z_j ≤ Σ_o n_oj x_o / k, 0 ≤ z_j ≤ 1, like the others.
 
 use crate::candidates::Modality;
 use crate::error::PlacementError;
@@ -49,19 +55,19 @@ pub use search::{greedy, swaps, upper_bound};
 pub const CBC_MAX_NONZEROS: usize = 1_000_000;
 
 /// The non-zeros of the calibrated IP's coverage rows: per non-zero term, its modality's
-/// visibility entries on targets of positive weight.
+/// visibility entries (or point counts) on targets of positive weight.
 pub fn nonzeros(inst: &Instance, w: &Weights) -> usize {
+    let tau = inst.tau();
     w.terms()
         .iter()
         .filter(|t| t.weight > 0.0)
         .map(|t| {
             let wt = t.targets(inst);
-            (0..inst.options.len())
-                .filter(|&o| inst.modality(o) == t.modality)
-                .map(|o| {
-                    inst.options[o].row.iter().filter(|&&(j, _)| wt.get(j as usize).is_some_and(|&w| w > 0.0)).count()
-                })
-                .sum::<usize>()
+            let mut n = 0;
+            for o in (0..inst.options.len()).filter(|&o| inst.modality(o) == t.modality) {
+                t.for_each(inst, o, tau, |j, _| n += usize::from(wt.get(j).is_some_and(|&w| w > 0.0)));
+            }
+            n
         })
         .sum()
 }
@@ -95,6 +101,8 @@ pub struct Weights {
     pub lidar_dense_road_users: f64,
     #[serde(default, skip_serializing_if = "is_zero")]
     pub radar_dense_road_users: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lidar_points: f64,
 }
 
 /// The largest weight [`Weights::check`] admits: the objective sums weight × coverage over
@@ -105,25 +113,36 @@ pub const MAX_WEIGHT: f64 = 1e6;
 pub const MIN_WEIGHT_RATIO: f64 = 1e-9;
 
 /// How many terms the calibrated objective has ([`Weights::named`]).
-pub const N_TERMS: usize = 12;
+pub const N_TERMS: usize = 13;
 
 /// Each term's name in a study file and its shape: modality, the multiple k of the threshold
-/// that counts a target fully, whether each sensor's coefficient is capped at 1, whether the
-/// targets are weighted by road users; in the order of [`Weights::values`].
-const SHAPES: [(&str, Modality, f64, bool, bool); N_TERMS] = [
-    ("lidar", Modality::Lidar, 1.0, true, false),
-    ("radar", Modality::Radar, 1.0, true, false),
-    ("lidar_two_views", Modality::Lidar, 2.0, true, false),
-    ("radar_two_views", Modality::Radar, 2.0, true, false),
-    ("lidar_dense", Modality::Lidar, 2.0, false, false),
-    ("radar_dense", Modality::Radar, 2.0, false, false),
-    ("lidar_road_users", Modality::Lidar, 1.0, true, true),
-    ("radar_road_users", Modality::Radar, 1.0, true, true),
-    ("lidar_two_views_road_users", Modality::Lidar, 2.0, true, true),
-    ("radar_two_views_road_users", Modality::Radar, 2.0, true, true),
-    ("lidar_dense_road_users", Modality::Lidar, 2.0, false, true),
-    ("radar_dense_road_users", Modality::Radar, 2.0, false, true),
+/// that counts a target fully, whether each sensor's coefficient is capped at 1, what its
+/// targets are; in the order of [`Weights::values`].
+const SHAPES: [(&str, Modality, f64, bool, Source); N_TERMS] = [
+    ("lidar", Modality::Lidar, 1.0, true, Source::Regions),
+    ("radar", Modality::Radar, 1.0, true, Source::Regions),
+    ("lidar_two_views", Modality::Lidar, 2.0, true, Source::Regions),
+    ("radar_two_views", Modality::Radar, 2.0, true, Source::Regions),
+    ("lidar_dense", Modality::Lidar, 2.0, false, Source::Regions),
+    ("radar_dense", Modality::Radar, 2.0, false, Source::Regions),
+    ("lidar_road_users", Modality::Lidar, 1.0, true, Source::RoadUsers),
+    ("radar_road_users", Modality::Radar, 1.0, true, Source::RoadUsers),
+    ("lidar_two_views_road_users", Modality::Lidar, 2.0, true, Source::RoadUsers),
+    ("radar_two_views_road_users", Modality::Radar, 2.0, true, Source::RoadUsers),
+    ("lidar_dense_road_users", Modality::Lidar, 2.0, false, Source::RoadUsers),
+    ("radar_dense_road_users", Modality::Radar, 2.0, false, Source::RoadUsers),
+    ("lidar_points", Modality::Lidar, 1.0, false, Source::Points),
 ];
+
+/// What a term sums over: the target cells weighted by their region of interest, the same
+/// cells weighted by the road users found there, or road users of sampled traffic frames with
+/// the LiDAR points each option puts on them ([`Instance::points`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Source {
+    Regions,
+    RoadUsers,
+    Points,
+}
 
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
@@ -138,14 +157,37 @@ pub(crate) struct Term {
     pub modality: Modality,
     pub k: f64,
     pub capped: bool,
-    pub road_users: bool,
+    pub source: Source,
     pub weight: f64,
 }
 
 impl Term {
     /// The target weights this term sums over.
     pub fn targets<'a>(&self, inst: &'a Instance) -> &'a [f64] {
-        if self.road_users { &inst.road_users } else { &inst.weights }
+        match self.source {
+            Source::Regions => &inst.weights,
+            Source::RoadUsers => &inst.road_users,
+            Source::Points => &inst.points.weights,
+        }
+    }
+
+    /// Calls `f(target, coefficient)` for each target option `o` adds to this term's sums
+    /// (τ: the coverage threshold). The caller keeps `o` to the term's modality.
+    #[inline]
+    pub fn for_each(&self, inst: &Instance, o: usize, tau: f64, mut f: impl FnMut(usize, f64)) {
+        match self.source {
+            Source::Points => {
+                let k = inst.points.k;
+                for &(j, n) in inst.points.rows.get(o).map_or(&[][..], |r| r.as_slice()) {
+                    f(j as usize, f64::from(n) / k);
+                }
+            }
+            Source::Regions | Source::RoadUsers => {
+                for &(j, v) in &inst.options[o].row {
+                    f(j as usize, self.coef(coverage_coef(v as f64) / tau));
+                }
+            }
+        }
     }
 
     /// Their sum (the term's normaliser W).
@@ -153,7 +195,7 @@ impl Term {
         self.targets(inst).iter().sum::<f64>().max(1e-12)
     }
 
-    /// A sensor's contribution to this term's sum for a target it sees with a / τ = `r`.
+    /// A sensor's contribution to a coverage term's sum for a target it sees with a / τ = `r`.
     pub fn coef(&self, r: f64) -> f64 {
         if self.capped { r.min(1.0) } else { r }
     }
@@ -169,15 +211,21 @@ impl Weights {
     pub(crate) fn terms(&self) -> [Term; N_TERMS] {
         let v = self.values();
         std::array::from_fn(|i| {
-            let (_, modality, k, capped, road_users) = SHAPES[i];
-            Term { modality, k, capped, road_users, weight: v[i] }
+            let (_, modality, k, capped, source) = SHAPES[i];
+            Term { modality, k, capped, source, weight: v[i] }
         })
     }
 
     /// Whether a term over the road users has a weight (the instance then needs
     /// [`Instance::road_users`]).
     pub fn reads_road_users(&self) -> bool {
-        self.terms().iter().any(|t| t.road_users && t.weight > 0.0)
+        self.terms().iter().any(|t| t.source == Source::RoadUsers && t.weight > 0.0)
+    }
+
+    /// Whether the point-count term has a weight (the instance then needs
+    /// [`Instance::points`]).
+    pub fn reads_points(&self) -> bool {
+        self.lidar_points > 0.0
     }
 
     /// The weights by their names in a study file, in the order of [`Weights::terms`].
@@ -216,6 +264,7 @@ impl Weights {
             &mut self.radar_two_views_road_users,
             &mut self.lidar_dense_road_users,
             &mut self.radar_dense_road_users,
+            &mut self.lidar_points,
         ]
     }
 
@@ -271,6 +320,16 @@ pub fn check_instance(inst: &Instance, w: &Weights) -> Result<(), PlacementError
             ),
         ));
     }
+    if w.reads_points() && inst.points.rows.len() != inst.options.len() {
+        return Err(PlacementError::instance(
+            "placement.calibration.lidar_points",
+            format!(
+                "weighs LiDAR points on road users, but the instance has point counts for {} of its {} options",
+                inst.points.rows.len(),
+                inst.options.len()
+            ),
+        ));
+    }
     Ok(())
 }
 
@@ -290,11 +349,13 @@ pub fn evaluate(inst: &Instance, sel: &[usize], w: &Weights) -> f64 {
 /// Per target, the sum of term `t`'s coefficients over the sensors of `sel` of its modality
 /// (for a capped term, how many sensors see the target well, each counting at most once).
 fn sums(inst: &Instance, sel: &[usize], t: &Term, tau: f64) -> Vec<f64> {
-    let mut s = vec![0.0; inst.n_targets()];
+    let mut s = vec![0.0; t.targets(inst).len()];
     for &o in sel.iter().filter(|&&o| inst.modality(o) == t.modality) {
-        for &(j, v) in &inst.options[o].row {
-            s[j as usize] += t.coef(coverage_coef(v as f64) / tau);
-        }
+        t.for_each(inst, o, tau, |j, c| {
+            if let Some(x) = s.get_mut(j) {
+                *x += c;
+            }
+        });
     }
     s
 }
@@ -372,23 +433,30 @@ fn cbc(
     let tau = inst.tau();
     let mut vars = ProblemVariables::new();
     let x: Vec<Variable> = (0..inst.options.len()).map(|_| vars.add(variable().binary())).collect();
-    let mut cols: Vec<Vec<Vec<(usize, f64)>>> = vec![vec![Vec::new(); inst.n_targets()]; 2];
-    for (o, opt) in inst.options.iter().enumerate() {
-        let m = usize::from(inst.modality(o) == Modality::Radar);
-        for &(j, v) in &opt.row {
-            cols[m][j as usize].push((o, coverage_coef(v as f64) / tau));
-        }
-    }
+    // Per non-zero term, per target, the options adding to it with their coefficients.
+    let terms = w.terms();
+    let cols: Vec<Vec<Vec<(usize, f64)>>> = terms
+        .iter()
+        .map(|t| {
+            let mut c = vec![Vec::new(); if t.weight > 0.0 { t.targets(inst).len() } else { 0 }];
+            for o in (0..inst.options.len()).filter(|&o| t.weight > 0.0 && inst.modality(o) == t.modality) {
+                t.for_each(inst, o, tau, |j, a| {
+                    if let Some(col) = c.get_mut(j) {
+                        col.push((o, a));
+                    }
+                });
+            }
+            c
+        })
+        .collect();
     // (variable, objective coefficient, term's index, target). The weights enter divided by
     // the largest: the argmax is the same, and CBC's coefficients stay in its range however
     // large the weights are (CBC aborts past 1e25 and loses the smaller terms long before).
-    let terms = w.terms();
     let scale = w.largest();
     let mut z: Vec<(Variable, f64, usize, usize)> = Vec::new();
     for (ti, t) in terms.iter().enumerate().filter(|(_, t)| t.weight > 0.0) {
-        let m = usize::from(t.modality == Modality::Radar);
         let (wt, total) = (t.targets(inst), t.total(inst));
-        for (j, col) in cols[m].iter().enumerate() {
+        for (j, col) in cols[ti].iter().enumerate() {
             if !col.is_empty() && wt[j] > 0.0 {
                 z.push((vars.add(variable().min(0.0).max(1.0)), t.weight / scale * wt[j] / total, ti, j));
             }
@@ -399,8 +467,7 @@ fn cbc(
     problem.set_parameter("log", "0");
     for &(v, _, ti, j) in &z {
         let t = &terms[ti];
-        let m = usize::from(t.modality == Modality::Radar);
-        let cover: Expression = cols[m][j].iter().map(|&(o, a)| (t.coef(a) / t.k) * x[o]).sum();
+        let cover: Expression = cols[ti][j].iter().map(|&(o, a)| (a / t.k) * x[o]).sum();
         problem.add_constraint((v - cover).leq(0.0));
     }
     crate::mip::add_limit(&mut problem, inst, limit, &x);
@@ -461,7 +528,31 @@ mod tests {
             road_users: (0..25)
                 .map(|_| if rng.random::<f32>() < 0.4 { 0.0 } else { rng.random_range(0.0..0.1) })
                 .collect(),
+            points: random_points(&mut rng, 12),
         }
+    }
+
+    /// 30 road-user samples of two classes (class-balanced weights) and, per LiDAR option, the
+    /// points it puts on some of them (0 to 12, k = 5: one dense view can fill a sample).
+    fn random_points(rng: &mut rand::rngs::StdRng, options: usize) -> crate::instance::PointRows {
+        let class: Vec<usize> = (0..30).map(|j| usize::from(j % 3 == 0)).collect();
+        let per = [20.0, 10.0];
+        let weights = class.iter().map(|&c| 1.0 / (per[c] * 2.0)).collect();
+        let rows = (0..options)
+            .map(|o| {
+                if o % 2 == 1 {
+                    return Vec::new();
+                }
+                let mut row = Vec::new();
+                for j in 0..30u32 {
+                    if rng.random::<f32>() < 0.4 {
+                        row.push((j, rng.random_range(1..12)));
+                    }
+                }
+                row
+            })
+            .collect();
+        crate::instance::PointRows { k: 5.0, weights, rows }
     }
 
     /// Every feasible selection of a small instance, by brute force.
@@ -490,6 +581,7 @@ mod tests {
                     radar_road_users: 0.1,
                     lidar_two_views_road_users: 0.3,
                     radar_dense_road_users: 0.05,
+                    lidar_points: if seed == 7 { 0.4 } else { 0.0 },
                     ..Weights::default()
                 },
                 _ => Weights {
@@ -527,6 +619,7 @@ mod tests {
                     lidar_road_users: 0.4,
                     radar_two_views_road_users: 0.2,
                     lidar_dense_road_users: 0.3,
+                    lidar_points: if seed == 7 { 0.5 } else { 0.0 },
                     ..Weights::default()
                 },
                 _ => Weights {
@@ -569,6 +662,7 @@ mod tests {
             options: vec![SensorOption { ty: 0, candidate: 0, mount: 0, row: vec![(0, 0.99)] }],
             p_min: 1.0 - (-1.0f64).exp(),
             road_users: vec![0.3, 0.1],
+            points: Default::default(),
         };
         let w = Weights { lidar_road_users: 1.0, ..Weights::default() };
         // Target 0 seen fully holds 0.3 of the 0.4 road users on targets; by region, 1 of 2.
@@ -606,6 +700,52 @@ mod tests {
         assert!(out.bound.is_finite() && out.bound >= out.objective && !out.proven_optimal);
     }
 
+    /// The point-count term is the capped count by hand: per road-user sample, min(1, the
+    /// chosen LiDARs' points / k), weighted; CBC's optimum of it alone, and of it with a
+    /// coverage term, equals brute force; an instance without point counts is refused.
+    #[test]
+    fn the_point_term_is_the_capped_point_count() {
+        for seed in 0..6 {
+            let inst = random_instance(300 + seed);
+            inst.validate().unwrap();
+            let w = if seed % 2 == 0 {
+                Weights { lidar_points: 1.0, ..Weights::default() }
+            } else {
+                Weights { lidar_points: 0.5, radar: 0.2, ..Weights::default() }
+            };
+            let p = &inst.points;
+            for sel in [vec![0], vec![0, 2], vec![0, 1, 2, 4, 6], (0..12).collect()] {
+                let mut n = vec![0u32; p.weights.len()];
+                for &o in &sel {
+                    for &(j, c) in &p.rows[o] {
+                        n[j as usize] += c;
+                    }
+                }
+                let by_hand: f64 =
+                    n.iter().zip(&p.weights).map(|(&n, w)| w * (f64::from(n) / p.k).min(1.0)).sum::<f64>()
+                        / p.weights.iter().sum::<f64>();
+                let only = Weights { lidar_points: 1.0, ..Weights::default() };
+                assert!((evaluate(&inst, &sel, &only) - by_hand).abs() < 1e-12, "seed {seed} {sel:?}");
+            }
+            for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
+                let g = greedy(&inst, &limit, &w);
+                let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
+                let best = brute(&inst, &limit, &w);
+                assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
+                assert!(out.proven_optimal);
+            }
+        }
+        let mut bare = random_instance(1);
+        bare.points = Default::default();
+        let w = Weights { lidar_points: 1.0, ..Weights::default() };
+        let limit = Limit::Counts(vec![2, 1]);
+        let err = solve(&bare, &limit, &w, 5.0, CBC_MAX_NONZEROS, &greedy(&bare, &limit, &w)).unwrap_err();
+        assert!(err.to_string().contains("lidar_points"), "{err}");
+        let mut bad = random_instance(2);
+        bad.points.rows[0].push((999, 3));
+        assert!(bad.validate().unwrap_err().to_string().contains("sample 999"));
+    }
+
     /// Saturation: a target seen beyond τ counts once; half-seen counts half.
     #[test]
     fn coverage_saturates_at_the_threshold() {
@@ -620,6 +760,7 @@ mod tests {
             }],
             p_min: 1.0 - (-1.0f64).exp(),
             road_users: Vec::new(),
+            points: Default::default(),
         };
         let f = evaluate(&inst, &[0], &Weights::once(1.0, 0.0));
         assert!((f - (1.0 + 0.5) / 2.0).abs() < 1e-6, "{f}");

@@ -74,6 +74,31 @@ pub struct Instance {
     /// road users ([`crate::calibrated`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub road_users: Vec<f64>,
+    /// Road users of sampled traffic frames and the LiDAR points each option puts on them (empty
+    /// unless computed): the calibrated objective's point-count term ([`crate::calibrated`]).
+    #[serde(default, skip_serializing_if = "PointRows::is_empty")]
+    pub points: PointRows,
+}
+
+/// Road users of sampled traffic frames ("samples": one road user in one frame), each with its
+/// weight, and per option the LiDAR points it puts on each sample it hits. A sample counts
+/// fully once the chosen LiDARs put `k` points on it, in part below that: the capped count
+/// min(1, Σ_o n_oj / k), linear in per-option terms under a cap, which an IP holds exactly
+/// (LiDAR points add up over sensors: each casts its own rays).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PointRows {
+    /// Points that count a sample fully.
+    pub k: f64,
+    /// Per sample, its weight (class-balanced: each class's samples share 1 / classes).
+    pub weights: Vec<f64>,
+    /// Per option, (sample, points) for the samples it puts points on (empty for a radar).
+    pub rows: Vec<Vec<(u32, u32)>>,
+}
+
+impl PointRows {
+    pub fn is_empty(&self) -> bool {
+        self.weights.is_empty() && self.rows.is_empty()
+    }
 }
 
 /// V is clamped to this before taking logs, so that V = 1 gives a finite coefficient.
@@ -140,6 +165,23 @@ impl Instance {
             for &(j, v) in &o.row {
                 if j as usize >= self.weights.len() || !(v.is_finite() && (0.0..=1.0).contains(&v)) {
                     return bad(format!("option {i}: entry (target {j}, V = {v}) out of range"));
+                }
+            }
+        }
+        let pts = &self.points;
+        if !pts.is_empty() {
+            if pts.rows.len() != self.options.len() {
+                return bad(format!("point rows for {} of {} options", pts.rows.len(), self.options.len()));
+            }
+            if !(pts.k.is_finite() && pts.k >= 1.0) {
+                return bad(format!("points that count a road user fully: {} (must be >= 1)", pts.k));
+            }
+            if pts.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+                return bad("road-user sample weights must be finite and >= 0".into());
+            }
+            for (i, row) in pts.rows.iter().enumerate() {
+                if let Some(&(j, _)) = row.iter().find(|(j, _)| *j as usize >= pts.weights.len()) {
+                    return bad(format!("option {i}: points on sample {j} of {}", pts.weights.len()));
                 }
             }
         }

@@ -163,6 +163,7 @@ pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64
         options: Vec::new(),
         p_min,
         road_users: Vec::new(),
+        points: Default::default(),
     };
     for (ty, name) in types.iter().enumerate() {
         let spec = catalog.get(name)?;

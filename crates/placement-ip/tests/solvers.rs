@@ -43,7 +43,14 @@ fn random_instance(seed: u64) -> Instance {
             });
         }
     }
-    Instance { weights, types: types(), options, p_min: 1.0 - (-1.0f64).exp(), road_users: Vec::new() }
+    Instance {
+        weights,
+        types: types(),
+        options,
+        p_min: 1.0 - (-1.0f64).exp(),
+        road_users: Vec::new(),
+        points: Default::default(),
+    }
 }
 
 #[test]
@@ -102,6 +109,7 @@ fn greedy_is_strictly_worse_on_a_constructed_instance() {
         ],
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
+        points: Default::default(),
     };
     let limit = Limit::Counts(vec![2, 0, 1]);
     let g = greedy(&inst, &limit);
@@ -132,6 +140,7 @@ fn coefficients_are_finite_at_v_one_zero_and_tiny() {
         ],
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
+        points: Default::default(),
     };
     let o = solve(&inst, &Limit::Counts(vec![1, 0, 1]), Formulation::Plain, 10.0, None).unwrap();
     assert!((o.objective - 2.0).abs() < 1e-9, "{}", o.objective);
@@ -149,6 +158,7 @@ fn a_target_seen_by_one_modality_never_counts() {
         ],
         p_min: 0.5,
         road_users: Vec::new(),
+        points: Default::default(),
     };
     let sel = [0usize, 1];
     assert!((evaluate(&inst, &sel) - 1.8).abs() < 1e-6);
@@ -278,6 +288,7 @@ fn the_budget_bound_on_sensors_is_a_sum_over_types() {
         options: vec![opt(0, 0), opt(0, 1), opt(0, 2), opt(1, 3), opt(1, 4), opt(1, 5)],
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
+        points: Default::default(),
     };
     let limit = Limit::Budget { usd: 300.0, min: vec![], max: vec![u32::MAX, 2] };
     let oracle = exhaustive(&inst, &limit, 1000).unwrap();

@@ -11,7 +11,7 @@ use hilo_placement_ip::pipeline::{ObjectiveKind, Prepared, instance, prepare, so
 use hilo_placement_ip::{Instance, Limit, Modality, PlacedSensor, Placement};
 use hilo_raycast::scene::config::RoiKind;
 use hilo_raycast::{QueryRegion, World};
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 /// What placing a study computed: the targets, candidates and visibility of every sensor type
 /// (reused by the trade-off sweeps), and each configuration's placement with its coverage.
@@ -109,6 +109,54 @@ pub fn prepare_study(study: &Study) -> Result<Prepared> {
     Ok(prepare(&study.scene, &study.catalog, &study.type_names(), &study.placement)?)
 }
 
+/// The calibrated objective's point-count rows, computed once per (type, candidate) over the
+/// study's training traffic ([`crate::road_users::TrafficPoints::rows`]).
+#[derive(Default)]
+struct PointCache {
+    traffic: Option<crate::road_users::TrafficPoints>,
+    k: f64,
+    weights: Vec<f64>,
+    rows: HashMap<(String, u32), Vec<(u32, u32)>>,
+}
+
+/// Key frames between two the point-count term samples (as the validation's occupancy
+/// predictor does).
+pub const POINTS_EVERY: usize = 20;
+
+impl PointCache {
+    fn rows(
+        &mut self,
+        study: &Study,
+        world: &World,
+        prep: &Prepared,
+        inst: &Instance,
+    ) -> Result<hilo_placement_ip::instance::PointRows> {
+        if self.traffic.is_none() {
+            let traffic = crate::road_users::TrainingTraffic::new(study)?;
+            self.traffic = Some(crate::road_users::TrafficPoints::new(&traffic, POINTS_EVERY)?);
+        }
+        let key = |o: usize| (inst.types[inst.options[o].ty].name.clone(), inst.options[o].candidate);
+        let missing: Vec<usize> = (0..inst.options.len())
+            .filter(|&o| inst.modality(o) == Modality::Lidar && !self.rows.contains_key(&key(o)))
+            .collect();
+        if let Some(tp) = &self.traffic {
+            let lidar_of = |i: usize| {
+                let o = missing[i];
+                let c = &prep.candidates[inst.options[o].candidate as usize];
+                study.catalog.lidar(&inst.types[inst.options[o].ty].name).ok().map(|l| (l.clone(), c.pose))
+            };
+            let new = tp.rows(world, missing.len(), lidar_of, study.file.validation.min_points)?;
+            self.k = new.k;
+            self.weights = new.weights;
+            for (i, row) in new.rows.into_iter().enumerate() {
+                self.rows.insert(key(missing[i]), row);
+            }
+        }
+        let rows = (0..inst.options.len()).map(|o| self.rows.get(&key(o)).cloned().unwrap_or_default()).collect();
+        Ok(hilo_placement_ip::instance::PointRows { k: self.k, weights: self.weights.clone(), rows })
+    }
+}
+
 /// Places every configuration; `progress` hears one line per configuration.
 pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) -> Result<Placed> {
     let scene = &study.scene;
@@ -126,6 +174,8 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
     // The road users of the study's traffic on each target, counted once when the calibrated
     // objective weighs them.
     let mut road_users: Option<Vec<f64>> = None;
+    // And the LiDAR points every LiDAR option puts on them, counted once per (type, candidate).
+    let mut points = PointCache::default();
     for conf in &study.file.configurations {
         // A configuration of one modality is placed for that modality's coverage
         // (`Instance::requires`): the paper's both-modality objective would be zero for it.
@@ -151,6 +201,9 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
                         road_users = Some(crate::road_users::road_users(&traffic, &prep.targets, cfg.cell_m)?.weights);
                     }
                     inst.road_users = road_users.clone().unwrap_or_default();
+                }
+                if w.reads_points() {
+                    inst.points = points.rows(study, &world, &prep, &inst)?;
                 }
                 let g = hilo_placement_ip::calibrated::greedy(&inst, &limit, w);
                 let o = hilo_placement_ip::calibrated::solve(

@@ -270,14 +270,7 @@ impl Plan {
             placed.push(base);
         }
         let radar: Vec<bool> = configurations.iter().map(|c| c.has_radar(&study.catalog)).collect();
-        // A calibrated objective over road users places for the study's traffic: the traffic's
-        // settings then decide the placements too (and only then, so other hashes stay).
-        let traffic = match (study.placement.objective, &study.placement.calibration) {
-            (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_road_users() => {
-                format!("{:?}", study.dataset)
-            }
-            _ => String::new(),
-        };
+        let traffic = placement_traffic(study);
         let place_hash = stage_hash(
             "placements",
             &[
@@ -524,6 +517,21 @@ impl Plan {
             profile: self.profile.clone(),
         };
         Ok(write_json(&marker, &record)?)
+    }
+}
+
+/// What of the study's traffic the placements depend on, for their hash: with a calibrated
+/// objective over road users the traffic's settings decide the placements too (and only then,
+/// so other hashes stay), and the point-count term's k (`[validation] min_points`) with them.
+fn placement_traffic(study: &Study) -> String {
+    match (study.placement.objective, &study.placement.calibration) {
+        (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_points() => {
+            format!("{:?} points k = {}", study.dataset, study.file.validation.min_points)
+        }
+        (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_road_users() => {
+            format!("{:?}", study.dataset)
+        }
+        _ => String::new(),
     }
 }
 

@@ -201,6 +201,59 @@ impl TrafficPoints {
             .collect()
     }
 
+    /// The calibrated objective's point-count rows ([`hilo_placement_ip::instance::PointRows`])
+    /// for options whose LiDAR pose (or `None`: a radar) `lidar_of(o)` gives: every counted road
+    /// user of every frame is a sample, weighted 1 / (its class's samples × classes); each
+    /// option's points on them are counted with [`hilo_sensor_models::lidar_points_on`] (rays cast
+    /// only towards the road users, the full scan's counts exactly) as if it were the rig's
+    /// first sensor (the dataset seeds a sensor's dropouts by its place in the rig, so a rig's
+    /// own count, [`TrafficPoints::shares`], differs from the term's by those draws alone).
+    pub fn rows(
+        &self,
+        world: &hilo_raycast::World,
+        options: usize,
+        lidar_of: impl Fn(usize) -> Option<(hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose)> + Sync,
+        k: u32,
+    ) -> Result<hilo_placement_ip::instance::PointRows> {
+        use rayon::prelude::*;
+        let mut per_class = vec![0usize; self.classes];
+        let mut first = Vec::with_capacity(self.frames.len());
+        for fr in &self.frames {
+            first.push(per_class.iter().sum::<usize>());
+            for &(_, c) in &fr.users {
+                per_class[c] += 1;
+            }
+        }
+        let seen = per_class.iter().filter(|&&n| n > 0).count().max(1) as f64;
+        let weights: Vec<f64> = self
+            .frames
+            .iter()
+            .flat_map(|fr| fr.users.iter().map(|&(_, c)| 1.0 / (per_class[c] as f64 * seen)))
+            .collect();
+        let rows = (0..options)
+            .into_par_iter()
+            .map(|o| {
+                let Some((spec, pose)) = lidar_of(o) else { return Ok(Vec::new()) };
+                let mut row = Vec::new();
+                for (fr, &base) in self.frames.iter().zip(&first) {
+                    let seed = hilo_dataset::simulate::derive_seed(self.seed, &[2, fr.stream, fr.index as u64, 0]);
+                    let ids: Vec<u32> = fr.users.iter().map(|u| u.0).collect();
+                    let n = hilo_sensor_models::lidar_points_on(&spec, &pose, world, &fr.actors, seed, &ids).map_err(
+                        |e| crate::error::StudyError::step(format!("LiDAR option {o} on a training key frame"), e),
+                    )?;
+                    for (i, id) in ids.iter().enumerate() {
+                        match n.get(id) {
+                            Some(&p) if p > 0 => row.push(((base + i) as u32, p as u32)),
+                            _ => {}
+                        }
+                    }
+                }
+                Ok(row)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(hilo_placement_ip::instance::PointRows { k: f64::from(k.max(1)), weights, rows })
+    }
+
     /// (mean of min(1, n / k), share with n ≥ k), class-balanced, for the LiDARs `lidars`.
     pub fn shares(&self, world: &hilo_raycast::World, lidars: &[RigLidar], k: u32) -> Result<(f64, f64)> {
         let mut sum = vec![(0.0, 0.0, 0usize); self.classes];
@@ -336,5 +389,83 @@ mod tests {
         assert!(hit > 3, "the rig sees road users: {hit}");
         let (capped, share) = tp.shares(&world, &lidars, 5).unwrap();
         assert!(capped >= share && capped > 0.0 && share <= 1.0, "{capped} {share}");
+    }
+
+    /// The calibrated objective's point-count term over rows from [`TrafficPoints::rows`]
+    /// against a brute-force count: every chosen LiDAR's full scan of every sampled frame (seeded
+    /// as the rows are), points summed per road user, min(1, n / k) averaged per class and over
+    /// classes; for every selection of three LiDAR options and a radar (which adds nothing).
+    #[test]
+    fn the_point_term_equals_a_brute_force_count() {
+        use hilo_placement_ip::Modality;
+        use hilo_placement_ip::calibrated::{Weights, evaluate};
+        use hilo_placement_ip::instance::{Instance, SensorOption, SensorType};
+        use hilo_sensor_models::{Catalog, SensorPose};
+        let study = small_study(1);
+        let catalog = Catalog::default_catalog().unwrap();
+        let pose = |m: usize| {
+            let m = &study.scene.mounts[m];
+            let p = m.base + m.arm_dir * (0.5 * m.arm_length_m);
+            SensorPose::new(p.extend(study.scene.ground.z_m + m.arm_height_m + 0.4), (-p.y).atan2(-p.x), 0.17, 0.0)
+        };
+        // Options: three LiDARs on three mounts, then a radar.
+        let lidar = |o: usize| -> Option<(hilo_sensor_models::LidarSpec, SensorPose)> {
+            let ty = ["lidar-16", "lidar-64", "lidar-32"].get(o)?;
+            Some((catalog.lidar(ty).unwrap().clone(), pose(o)))
+        };
+        let world = hilo_raycast::World::build(&study.scene, &hilo_raycast::QueryRegion::everything()).unwrap();
+        let traffic = TrainingTraffic::new(&study).unwrap();
+        let tp = TrafficPoints::new(&traffic, 5).unwrap();
+        let k = 5;
+        let rows = tp.rows(&world, 4, lidar, k).unwrap();
+        assert!(rows.rows[3].is_empty() && rows.rows[..3].iter().all(|r| !r.is_empty()), "{:?}", rows.rows);
+        let inst = Instance {
+            weights: vec![1.0],
+            types: vec![
+                SensorType { name: "l".into(), modality: Modality::Lidar, price_usd: 1.0 },
+                SensorType { name: "r".into(), modality: Modality::Radar, price_usd: 1.0 },
+            ],
+            options: (0..4)
+                .map(|o| SensorOption {
+                    ty: usize::from(o == 3),
+                    candidate: o as u32,
+                    mount: o as u32,
+                    row: Vec::new(),
+                })
+                .collect(),
+            p_min: 0.5,
+            road_users: Vec::new(),
+            points: rows,
+        };
+        inst.validate().unwrap();
+        let w = Weights { lidar_points: 1.0, ..Weights::default() };
+        for mask in 1u32..16 {
+            let sel: Vec<usize> = (0..4).filter(|o| mask & (1 << o) != 0).collect();
+            // Brute force: full scans, the road users' classes and ranges from the traffic.
+            let mut per_class: BTreeMap<usize, (f64, usize)> = BTreeMap::new();
+            for fr in &tp.frames {
+                let mut n: BTreeMap<u32, usize> = BTreeMap::new();
+                for &o in sel.iter().filter(|&&o| o < 3) {
+                    let (spec, pose) = lidar(o).unwrap();
+                    let seed = hilo_dataset::simulate::derive_seed(tp.seed, &[2, fr.stream, fr.index as u64, 0]);
+                    let scan =
+                        hilo_sensor_models::simulate_lidar(&spec, &pose, &world, Some(&fr.actors), seed).unwrap();
+                    for (a, p) in scan.points_per_actor() {
+                        *n.entry(a).or_default() += p;
+                    }
+                }
+                for &(a, c) in &fr.users {
+                    let e = per_class.entry(c).or_default();
+                    e.0 += (n.get(&a).copied().unwrap_or(0) as f64 / f64::from(k)).min(1.0);
+                    e.1 += 1;
+                }
+            }
+            let want = per_class.values().map(|(s, n)| s / *n as f64).sum::<f64>() / per_class.len() as f64;
+            let got = evaluate(&inst, &sel, &w);
+            assert!((got - want).abs() < 1e-12, "{sel:?}: {got} against {want}");
+            if sel == [0, 1, 2] {
+                assert!(want > 0.05, "the rig sees its road users: {want}");
+            }
+        }
     }
 }

@@ -29,6 +29,9 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
 
+mod window;
+pub use window::lidar_points_on;
+
 /// What produced a point: the static scene, the ground, or an actor (its id); for a radar
 /// also its artefacts: a road user's multipath ghost, a side lobe, a false alarm.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -184,6 +187,97 @@ pub fn check_mount(world: &World, actors: Option<&ActorSet>, pose: &SensorPose) 
     Err(SensorError::InsideGeometry { position: p.to_array(), what: name, within_m: WITHIN })
 }
 
+/// One sensor's scan pattern over one frame: what every ray of it returns. The full scan
+/// ([`simulate_lidar`]) and the count on chosen road users ([`lidar_points_on`]) cast their rays
+/// through it, so a ray gives the same return whichever of the two casts it.
+struct Scanner<'a> {
+    spec: &'a LidarSpec,
+    pose: &'a SensorPose,
+    world: &'a World,
+    actors: Option<&'a ActorSet>,
+    seed: u64,
+    elevations: Vec<f32>,
+    cols: usize,
+    hfov: f32,
+    full_circle: bool,
+    step: f32,
+    period: f32,
+    rot: glam::Quat,
+}
+
+impl<'a> Scanner<'a> {
+    fn new(
+        spec: &'a LidarSpec,
+        pose: &'a SensorPose,
+        world: &'a World,
+        actors: Option<&'a ActorSet>,
+        seed: u64,
+    ) -> Self {
+        let cols = spec.columns() as usize;
+        let hfov = spec.hfov_deg.to_radians();
+        Scanner {
+            spec,
+            pose,
+            world,
+            actors,
+            seed,
+            elevations: spec.elevations_rad(),
+            cols,
+            hfov,
+            full_circle: spec.hfov_deg >= 360.0,
+            step: hfov / cols as f32,
+            period: 1.0 / spec.rate_hz,
+            rot: pose.rotation(),
+        }
+    }
+
+    /// Column `k`'s azimuth in the sensor frame.
+    fn azimuth(&self, k: usize) -> f32 {
+        if self.full_circle { k as f32 * self.step } else { -0.5 * self.hfov + (k as f32 + 0.5) * self.step }
+    }
+
+    /// The return of ring `ring` in column `k`, if any.
+    fn ray(&self, k: usize, ring: usize) -> Option<(LidarPoint, PointSource)> {
+        let (spec, beams) = (self.spec, self.elevations.len());
+        let time_s = self.period * k as f32 / self.cols as f32;
+        let d_sensor = spherical_dir(self.azimuth(k), self.elevations[ring]);
+        let ray = Ray {
+            origin: self.pose.position,
+            dir: self.rot * d_sensor,
+            t_min: spec.min_range_m,
+            t_max: spec.max_range_m,
+        };
+        // Moving actors (a set built with a span) are met where they are when this column
+        // fires: the rolling shutter of a spinning sensor.
+        let hit = self.world.closest_hit_at(&ray, self.actors, time_s)?;
+        let index = k * beams + ring;
+        let mut rng = rng_for(self.seed, stream::LIDAR_RAY, index as u64);
+        let noise: f32 = rng.sample(StandardNormal);
+        let (hit, sway) = through_foliage(spec, self.world, self.actors, &ray, hit, time_s, self.seed, index)?;
+        let range = hit.t + spec.range_noise_m * noise + sway;
+        if range <= spec.min_range_m || range > spec.max_range_m {
+            return None;
+        }
+        let cos_inc = hit.normal.dot(ray.dir);
+        let reflectivity = match (hit.target, self.actors) {
+            (HitTarget::Actor { index, .. }, Some(set)) => set.actors()[index as usize].reflectivity,
+            _ => hit.material.lidar_reflectivity(),
+        };
+        if !spec.detects(reflectivity, cos_inc, range) {
+            return None;
+        }
+        let i = intensity(reflectivity, cos_inc, range, spec.atmosphere_attenuation_per_m);
+        if rng.random::<f32>() >= survival_probability(spec, i) {
+            return None;
+        }
+        let p = d_sensor * range;
+        Some((
+            LidarPoint { x: p.x, y: p.y, z: p.z, intensity: i, ring: ring as u16, time_s },
+            PointSource::of(&hit.target),
+        ))
+    }
+}
+
 /// Simulates one frame. `seed` should already identify the sensor and frame (see
 /// [`crate::noise::mix`]); the same inputs give identical scans.
 pub fn simulate_lidar(
@@ -194,14 +288,8 @@ pub fn simulate_lidar(
     seed: u64,
 ) -> Result<LidarScan, SensorError> {
     check_mount(world, actors, pose)?;
-    let elevations = spec.elevations_rad();
-    let cols = spec.columns() as usize;
-    let beams = elevations.len();
-    let hfov = spec.hfov_deg.to_radians();
-    let full_circle = spec.hfov_deg >= 360.0;
-    let step = hfov / cols as f32;
-    let period = 1.0 / spec.rate_hz;
-    let rot = pose.rotation();
+    let scanner = Scanner::new(spec, pose, world, actors, seed);
+    let (cols, beams) = (scanner.cols, scanner.elevations.len());
     // Columns in blocks: enough tasks for the thread pool, few allocations.
     const BLOCK: usize = 32;
     let blocks: Vec<(Vec<LidarPoint>, Vec<PointSource>)> = (0..cols.div_ceil(BLOCK))
@@ -210,45 +298,11 @@ pub fn simulate_lidar(
             let mut pts = Vec::with_capacity(BLOCK * beams);
             let mut src = Vec::with_capacity(BLOCK * beams);
             for k in blk * BLOCK..((blk + 1) * BLOCK).min(cols) {
-                let az = if full_circle { k as f32 * step } else { -0.5 * hfov + (k as f32 + 0.5) * step };
-                let time_s = period * k as f32 / cols as f32;
-                for (ring, &el) in elevations.iter().enumerate() {
-                    let d_sensor = spherical_dir(az, el);
-                    let ray = Ray {
-                        origin: pose.position,
-                        dir: rot * d_sensor,
-                        t_min: spec.min_range_m,
-                        t_max: spec.max_range_m,
-                    };
-                    // Moving actors (a set built with a span) are met where they are when
-                    // this column fires: the rolling shutter of a spinning sensor.
-                    let Some(hit) = world.closest_hit_at(&ray, actors, time_s) else { continue };
-                    let mut rng = rng_for(seed, stream::LIDAR_RAY, (k * beams + ring) as u64);
-                    let noise: f32 = rng.sample(StandardNormal);
-                    let Some((hit, sway)) =
-                        through_foliage(spec, world, actors, &ray, hit, time_s, seed, k * beams + ring)
-                    else {
-                        continue;
-                    };
-                    let range = hit.t + spec.range_noise_m * noise + sway;
-                    if range <= spec.min_range_m || range > spec.max_range_m {
-                        continue;
+                for ring in 0..beams {
+                    if let Some((p, s)) = scanner.ray(k, ring) {
+                        pts.push(p);
+                        src.push(s);
                     }
-                    let cos_inc = hit.normal.dot(ray.dir);
-                    let reflectivity = match (hit.target, actors) {
-                        (HitTarget::Actor { index, .. }, Some(set)) => set.actors()[index as usize].reflectivity,
-                        _ => hit.material.lidar_reflectivity(),
-                    };
-                    if !spec.detects(reflectivity, cos_inc, range) {
-                        continue;
-                    }
-                    let i = intensity(reflectivity, cos_inc, range, spec.atmosphere_attenuation_per_m);
-                    if rng.random::<f32>() >= survival_probability(spec, i) {
-                        continue;
-                    }
-                    let p = d_sensor * range;
-                    pts.push(LidarPoint { x: p.x, y: p.y, z: p.z, intensity: i, ring: ring as u16, time_s });
-                    src.push(PointSource::of(&hit.target));
                 }
             }
             (pts, src)

@@ -99,6 +99,7 @@ pub const TERMS: [&str; calibrated::N_TERMS] = [
     RADAR_TWO_VIEWS_USERS,
     LIDAR_DENSE_USERS,
     RADAR_DENSE_USERS,
+    LIDAR_POINTS_CAPPED,
 ];
 
 /// The calibrated objective with weight 1 on term `k` of [`TERMS`].
@@ -499,8 +500,9 @@ impl<'a> Context<'a> {
         let (capped, hit) = self.traffic.shares(&self.world, &lidars, self.min_points)?;
         predictors.insert(LIDAR_POINTS_CAPPED.to_owned(), Some(capped));
         predictors.insert(HIT_SHARE_TRAINING.to_owned(), Some(hit));
-        // The calibrated objective's terms, one at a time.
-        for (k, name) in TERMS.iter().enumerate() {
+        // The calibrated objective's coverage terms, one at a time (the point-count term is the
+        // rig's own count above: the same sum with the rig's dropout draws).
+        for (k, name) in TERMS.iter().enumerate().filter(|(_, n)| **n != LIDAR_POINTS_CAPPED) {
             predictors.insert(name.to_string(), Some(calibrated::evaluate(all, &sel_all, &unit_term(k))));
         }
         let cost_usd = sensors

@@ -14,7 +14,7 @@
 //! Every gain is computed incrementally from the per-target view sums.
 
 use super::{Term, Weights};
-use crate::instance::{Instance, Limit, Outcome, coverage_coef};
+use crate::instance::{Instance, Limit, Outcome};
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -37,7 +37,7 @@ impl<'a> State<'a> {
             .filter(|t| t.weight > 0.0)
             .map(|t| Term { weight: t.weight / t.total(inst), ..t })
             .collect();
-        let s = vec![vec![0.0; inst.n_targets()]; terms.len()];
+        let s = terms.iter().map(|t| vec![0.0; t.targets(inst).len()]).collect();
         State { inst, terms, tau: inst.tau(), s, sel: Vec::new(), f: 0.0 }
     }
 
@@ -48,13 +48,11 @@ impl<'a> State<'a> {
         let mut total = 0.0;
         for (t, s) in self.terms.iter().zip(&self.s).filter(|(t, _)| t.modality == m) {
             let wt = t.targets(self.inst);
-            for &(j, v) in &self.inst.options[o].row {
-                let j = j as usize;
-                let Some(&wj) = wt.get(j) else { continue };
-                let c = t.coef(coverage_coef(v as f64) / self.tau);
+            t.for_each(self.inst, o, self.tau, |j, c| {
+                let Some(&wj) = wt.get(j) else { return };
                 let (now, then) = (s[j].max(0.0), (s[j] + sign * c).max(0.0));
                 total += t.weight * wj * ((then / t.k).min(1.0) - (now / t.k).min(1.0));
-            }
+            });
         }
         total
     }
@@ -73,9 +71,11 @@ impl<'a> State<'a> {
         let m = self.inst.modality(o);
         let tau = self.tau;
         for (t, s) in self.terms.iter().zip(self.s.iter_mut()).filter(|(t, _)| t.modality == m) {
-            for &(j, v) in &self.inst.options[o].row {
-                s[j as usize] += sign * t.coef(coverage_coef(v as f64) / tau);
-            }
+            t.for_each(self.inst, o, tau, |j, c| {
+                if let Some(x) = s.get_mut(j) {
+                    *x += sign * c;
+                }
+            });
         }
     }
 
