@@ -1,6 +1,6 @@
 //! No panic on any input: every reader of a user's file (study, scene and catalog TOML,
 //! placement, results and ground-truth JSON, point files, OBJ and glTF meshes, a validation's
-//! `validation.json`) gets 10,000 mutations of a valid
+//! `validation.json`, a calibration file) gets 10,000 mutations of a valid
 //! document (characters replaced, inserted and deleted, among them quotes, brackets, a byte-order
 //! mark, typographic quotes and multi-byte letters) and must return a value or an error.
 
@@ -87,6 +87,7 @@ fn placement() -> String {
         candidates: 616,
         scene_hash: "s".into(),
         catalog_hash: "c".into(),
+        prediction: None,
     }
     .to_json()
     .unwrap()
@@ -186,6 +187,16 @@ proptest! {
     }
 
     #[test]
+    fn calibration_toml_never_panics(e in edits()) {
+        thread_local!(static DOC: String = fixture("calibration-sites.toml"));
+        let text = DOC.with(|d| mutate(d, &e));
+        // A file that still parses has passed its checks.
+        if let Ok(f) = hilo::placement::calibrated::file::CalibrationFile::from_toml(&text) {
+            prop_assert!(f.check().is_ok());
+        }
+    }
+
+    #[test]
     fn scene_toml_never_panics(e in edits()) {
         thread_local!(static DOC: String = fixture("intersection.toml"));
         let text = DOC.with(|d| mutate(d, &e));
@@ -228,4 +239,5 @@ fn the_fuzzed_documents_parse_unmutated() {
     assert_eq!(hilo::raycast::scene::import::parse_obj(CUBE_OBJ.as_bytes(), p).unwrap().triangles.len(), 12);
     assert_eq!(hilo::raycast::scene::import::parse_gltf(TRIANGLE_GLTF.as_bytes(), p).unwrap().triangles.len(), 1);
     assert_eq!(hilo::study::validation::parse_report(&validation_json(), p).unwrap().members.len(), 3);
+    assert!(hilo::placement::calibrated::file::CalibrationFile::from_toml(&fixture("calibration-sites.toml")).is_ok());
 }

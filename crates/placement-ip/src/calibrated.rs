@@ -44,6 +44,7 @@ use good_lp::{
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
+pub mod file;
 pub mod search;
 pub use search::{greedy, swaps, upper_bound};
 

@@ -88,6 +88,10 @@ pub struct Placement {
     /// Content hashes of the scene and the catalog the placement was made for.
     pub scene_hash: String,
     pub catalog_hash: String,
+    /// Placed with a calibration file: the rig's predicted mAP and how far the junction lies
+    /// from the sites the file was fitted on ([`crate::calibrated::file`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prediction: Option<crate::calibrated::file::Prediction>,
 }
 
 impl Placement {
@@ -177,6 +181,7 @@ mod tests {
             candidates: 616,
             scene_hash: "s".into(),
             catalog_hash: "c".into(),
+            prediction: None,
         };
         let dir = std::env::temp_dir().join(format!("hilo-placement-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
@@ -212,6 +217,7 @@ mod tests {
             candidates: 1,
             scene_hash: "s".into(),
             catalog_hash: "c".into(),
+            prediction: None,
         };
         let json = p.to_json().unwrap();
         assert!(json.contains("\"bound\": null") && json.contains("\"gap\": null"), "{json}");

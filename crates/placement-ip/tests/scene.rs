@@ -128,6 +128,7 @@ fn tilt_candidates_round_trip_through_a_placement_file() {
         candidates: prep.candidates.len(),
         scene_hash: "s".into(),
         catalog_hash: "c".into(),
+        prediction: None,
     };
     let back = Placement::from_json(&p.to_json().unwrap(), std::path::Path::new("p.json")).unwrap();
     assert_eq!(back, p);

@@ -246,6 +246,7 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
             candidates: prep.candidates.len(),
             scene_hash: study.scene_hash.clone(),
             catalog_hash: study.catalog_hash.clone(),
+            prediction: study.calibration.as_ref().map(|c| c.predict(&inst, &o.selection)),
         };
         progress(&format!(
             "{:<24} objective {:>9.1} (greedy {:>9.1}) {} in {:.3} s, central coverage {:.1}%, cost {} USD",
@@ -257,6 +258,9 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
             100.0 * p.central_coverage,
             p.cost_usd
         ));
+        if let Some(pr) = &p.prediction {
+            progress(&format!("{:<24} predicted mAP {:.3} [{:.3}, {:.3}]; {}", "", pr.map, pr.lo, pr.hi, pr.advice));
+        }
         out.placements.push(p);
         out.lidar_hits.push(hits);
         out.radar_covered.push(radar);

@@ -522,9 +522,11 @@ impl Plan {
 
 /// What of the study's traffic the placements depend on, for their hash: with a calibrated
 /// objective over road users the traffic's settings decide the placements too (and only then,
-/// so other hashes stay), and the point-count term's k (`[validation] min_points`) with them.
+/// so other hashes stay), and the point-count term's k (`[validation] min_points`) with them; a
+/// calibration file's prediction model decides what each placement predicts.
 fn placement_traffic(study: &Study) -> String {
-    match (study.placement.objective, &study.placement.calibration) {
+    let file = study.calibration.as_ref().map_or(String::new(), |c| format!(" calibration file {c:?}"));
+    file + &match (study.placement.objective, &study.placement.calibration) {
         (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_points() => {
             format!("{:?} points k = {}", study.dataset, study.file.validation.min_points)
         }
@@ -674,8 +676,9 @@ fn defining(f: &crate::study::StudyFile) -> String {
     let patch = f.detector_patch.as_ref().map_or(String::new(), |p| format!(", detector_patch: Some({p:?})"));
     let schedule = f.train_schedule.as_ref().map_or(String::new(), |s| format!(", train_schedule: Some({s:?})"));
     let junction = f.junction.as_ref().map_or(String::new(), |j| format!(", junction: Some({j:?})"));
+    let calibration = f.calibration_file.as_ref().map_or(String::new(), |c| format!(", calibration_file: Some({c:?})"));
     format!(
-        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions}{patch}{schedule}{junction} }}",
+        "StudyFile {{ scene: {:?}, catalog: {:?}, placement: {:?}, dataset: {:?}, configurations: {:?}{conditions}{patch}{schedule}{junction}{calibration} }}",
         f.scene, f.catalog, f.placement, f.dataset, f.configurations
     )
 }
@@ -703,28 +706,50 @@ mod tests {
             }
             t
         };
-        let whole = shown(&file, &[", detector_patch: None", ", train_schedule: None", ", junction: None"]);
+        let none = [", detector_patch: None", ", train_schedule: None", ", junction: None", ", calibration_file: None"];
+        let whole = shown(&file, &none);
         assert_eq!(defining(&file), whole);
+        // A calibration file is part of it.
+        let calibrated =
+            crate::study::StudyFile { calibration_file: Some("calibration-sites.toml".into()), ..file.clone() };
+        assert_eq!(defining(&calibrated), shown(&calibrated, &none[..3]));
         // The junction of an OpenDRIVE scene is part of it.
         let junction = crate::study::StudyFile {
             junction: Some(hilo_raycast::scene::opendrive::JunctionPick::id("146")),
             ..file.clone()
         };
-        assert_eq!(defining(&junction), shown(&junction, &[", detector_patch: None", ", train_schedule: None"]));
+        assert_eq!(
+            defining(&junction),
+            shown(&junction, &[", detector_patch: None", ", train_schedule: None", ", calibration_file: None"])
+        );
         // A detector patch is part of it.
         let patched = crate::study::StudyFile {
             detector_patch: Some(serde_json::json!({ "velocity_weight": 2.0 })),
             ..file.clone()
         };
-        assert_eq!(defining(&patched), shown(&patched, &[", train_schedule: None", ", junction: None"]));
+        assert_eq!(
+            defining(&patched),
+            shown(&patched, &[", train_schedule: None", ", junction: None", ", calibration_file: None"])
+        );
         // So is a training schedule.
         let scheduled =
             crate::study::StudyFile { train_schedule: Some(serde_json::json!({ "batch": 16 })), ..file.clone() };
-        assert_eq!(defining(&scheduled), shown(&scheduled, &[", detector_patch: None", ", junction: None"]));
+        assert_eq!(
+            defining(&scheduled),
+            shown(&scheduled, &[", detector_patch: None", ", junction: None", ", calibration_file: None"])
+        );
         // Without conditions the text is what it was before they existed.
         let bare = crate::study::StudyFile { conditions: Vec::new(), ..file };
-        let whole =
-            shown(&bare, &[", conditions: []", ", detector_patch: None", ", train_schedule: None", ", junction: None"]);
+        let whole = shown(
+            &bare,
+            &[
+                ", conditions: []",
+                ", detector_patch: None",
+                ", train_schedule: None",
+                ", junction: None",
+                ", calibration_file: None",
+            ],
+        );
         assert_eq!(defining(&bare), whole);
     }
 }

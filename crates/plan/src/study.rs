@@ -57,6 +57,12 @@ pub struct StudyFile {
     /// = "146"`, or `near = [x, y]` with `radius_m`); refused for a scene that is not OpenDRIVE.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub junction: Option<hilo_raycast::scene::opendrive::JunctionPick>,
+    /// A calibrated objective fitted across junctions (`calibration.toml`, as `hilo validate
+    /// --sites` writes it; hilo ships one in `fixtures/`): placement maximises it, and each
+    /// placement gets its predicted mAP and how far the junction lies from the sites it was
+    /// fitted on. Refused beside `[placement] calibration`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_file: Option<PathBuf>,
 }
 
 /// A weather condition of the study (`[[conditions]]`): the named configurations recorded again,
@@ -483,6 +489,42 @@ pub struct Study {
     /// Its name within a study file that lists several scenes or catalogs (a sweep,
     /// [`crate::sweep`]); None for a study file of one scene and catalog.
     pub shard: Option<String>,
+    /// The file `calibration_file` names, read and checked; its weights are the placement's.
+    pub calibration: Option<hilo_placement_ip::calibrated::file::CalibrationFile>,
+}
+
+/// Reads the file `calibration_file` names (if any) and places with its weights: the calibrated
+/// objective with them, refused beside `[placement] calibration`.
+fn apply_calibration(
+    file: &mut StudyFile,
+    resolve: &dyn Fn(&Path) -> PathBuf,
+    source: &str,
+) -> Result<Option<hilo_placement_ip::calibrated::file::CalibrationFile>> {
+    let Some(p) = &file.calibration_file else { return Ok(None) };
+    if file.placement.calibration.is_some() {
+        return Err(StudyError::setting(
+            source,
+            "calibration_file",
+            p.display(),
+            "the study also gives [placement] calibration: give one of the two",
+        ));
+    }
+    let f = load_calibration(&resolve(p))?;
+    file.placement.objective = hilo_placement_ip::pipeline::ObjectiveKind::Calibrated;
+    file.placement.calibration = Some(f.weights);
+    Ok(Some(f))
+}
+
+/// Reads a calibration file; the error names the file and what is wrong in it.
+fn load_calibration(path: &Path) -> Result<hilo_placement_ip::calibrated::file::CalibrationFile> {
+    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
+        .map_err(|e| StudyError::from(hilo_core::fs::FileError::io(path, e)))?;
+    hilo_placement_ip::calibrated::file::CalibrationFile::from_toml(&text).map_err(|message| {
+        StudyError::from(hilo_core::fs::FileError::Content {
+            path: path.to_path_buf(),
+            message: format!("not a calibration file (as `hilo validate --sites` writes): {message}"),
+        })
+    })
 }
 
 /// Refuses a NaN or infinity in a study file's `[detector_patch]` or `[train_schedule]`. JSON
@@ -541,7 +583,7 @@ impl Study {
     }
 
     /// A study from its parsed file: validates it and loads its scene and catalog.
-    pub fn from_file(file: StudyFile, dir: &Path, source: &str) -> Result<Study> {
+    pub fn from_file(mut file: StudyFile, dir: &Path, source: &str) -> Result<Study> {
         let bad = |field: String, value: &dyn std::fmt::Display, reason: String| {
             StudyError::setting(source, field, value, reason)
         };
@@ -644,8 +686,9 @@ impl Study {
             }
         }
         let dataset = file.dataset.clone().validate()?;
-        let placement = file.placement.clone().validate()?;
         let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { dir.join(p) };
+        let calibration = apply_calibration(&mut file, &resolve, source)?;
+        let placement = file.placement.clone().validate()?;
         let scene = match &file.scene {
             Some(p) => Scene::load_with(&resolve(p), file.junction.as_ref())?,
             None if file.junction.is_some() => {
@@ -682,6 +725,7 @@ impl Study {
             scene_hash,
             catalog_hash,
             shard: None,
+            calibration,
         })
     }
 
@@ -791,5 +835,34 @@ mod tests {
             let e = parse(&extra).err().map(|e| e.to_string()).unwrap_or_default();
             assert!(e.contains(needle) && e.contains("s.toml"), "{extra:?}: {e}");
         }
+    }
+
+    /// `calibration_file` places with the shipped calibration: the calibrated objective with
+    /// its weights, and the file kept for the predictions; refused beside `[placement]
+    /// calibration`; a missing or malformed file is refused with its path.
+    #[test]
+    fn a_calibration_file_sets_the_objective_and_bad_ones_are_refused() {
+        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
+        let with = |key: &str, extra: &str| {
+            let text = format!("{key}\n{}\n{extra}", include_str!("../../../fixtures/study.toml"));
+            Study::parse(&text, &fixtures, "s.toml")
+        };
+        let s = with("calibration_file = \"calibration-sites.toml\"", "").unwrap();
+        let f = s.calibration.as_ref().unwrap();
+        assert_eq!(s.placement.objective, hilo_placement_ip::pipeline::ObjectiveKind::Calibrated);
+        assert_eq!(s.placement.calibration, Some(f.weights));
+        assert!(f.fitted_on.len() >= 4);
+        let text = include_str!("../../../fixtures/study.toml").replace(
+            "[placement]\n",
+            "[placement]\ncalibration = { lidar = 1.0, radar = 0.0 }\nobjective = \"calibrated\"\n",
+        );
+        let e = Study::parse(&format!("calibration_file = \"calibration-sites.toml\"\n{text}"), &fixtures, "s.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("calibration_file") && e.contains("give one of the two"), "{e}");
+        let e = with("calibration_file = \"no-such-calibration.toml\"", "").unwrap_err().to_string();
+        assert!(e.contains("no-such-calibration.toml"), "{e}");
+        let e = with("calibration_file = \"study.toml\"", "").unwrap_err().to_string();
+        assert!(e.contains("study.toml") && e.contains("not a calibration file"), "{e}");
     }
 }

@@ -145,6 +145,15 @@ pub(crate) struct Fit {
 }
 
 impl Fit {
+    /// (XᵀX)⁻¹ (intercept first), the residual s.d. and the 97.5% t quantile of its degrees of
+    /// freedom: what a prediction interval away from the fit needs.
+    pub(crate) fn interval_parts(&self) -> (Vec<Vec<f64>>, f64, f64) {
+        let t = statrs::distribution::StudentsT::new(0.0, 1.0, self.df as f64)
+            .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
+            .unwrap_or(1.96);
+        (self.inv.clone(), self.sd, t)
+    }
+
     fn row(&self, x: &dyn Fn(&str) -> f64) -> Vec<f64> {
         std::iter::once(1.0).chain(self.used.iter().map(|&f| x(FEATURES[f]))).collect()
     }

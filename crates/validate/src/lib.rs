@@ -1145,8 +1145,9 @@ fn scatter(out: &Path, stem: &str, r: &ValidationReport, name: &str) -> Result<b
 }
 
 /// `hilo validate --sites`: the finished validations at `paths` (each a `validation.json`, one
-/// per site), each held out in turn ([`sites::leave_one_site_out`]); writes `sites.json` and
-/// `sites.md` into `out` and returns the report.
+/// per site), each held out in turn ([`sites::leave_one_site_out`]); writes `sites.json`,
+/// `sites.md` and `calibration.toml` (the objective to place with at another junction, which a
+/// study file names with `calibration_file`) into `out` and returns the report.
 pub fn sites(paths: &[PathBuf], out: &Path, seed: u64) -> Result<sites::SitesReport> {
     let reports = paths.iter().map(|p| read_report(p)).collect::<Result<Vec<_>>>()?;
     let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
@@ -1155,5 +1156,10 @@ pub fn sites(paths: &[PathBuf], out: &Path, seed: u64) -> Result<sites::SitesRep
     std::fs::create_dir_all(out).map_err(|e| FileError::io(out, e))?;
     write_json(&out.join("sites.json"), &r)?;
     hilo_core::fs::write_atomic(&out.join("sites.md"), sites::markdown(&r).as_bytes())?;
+    let toml = r.shipped.to_toml().map_err(|e| StudyError::step("calibration.toml", e))?;
+    let header = "# The calibrated objective `hilo validate --sites` fitted across the sites below: name this file\n\
+                  # in a study file (calibration_file = \"calibration.toml\") to place with it and to predict each\n\
+                  # rig's mAP, with how far the study's junction lies from these sites.\n";
+    hilo_core::fs::write_atomic(&out.join("calibration.toml"), format!("{header}{toml}").as_bytes())?;
     Ok(r)
 }

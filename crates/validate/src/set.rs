@@ -528,6 +528,7 @@ impl<'a> Context<'a> {
             candidates: prep.candidates.len(),
             scene_hash: study.scene_hash.clone(),
             catalog_hash: study.catalog_hash.clone(),
+            prediction: None,
         };
         Ok(Member { slug, kind: kind.to_owned(), configuration: conf.to_owned(), placement, predictors })
     }
