@@ -22,7 +22,8 @@ use hilo_dataset::Dataset;
 use hilo_dataset::background::BackgroundModel;
 use hilo_dataset::tables::SampleData;
 pub use hilo_fusion::config::{
-    Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, radar_point,
+    Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, RadarPairConfig,
+    radar_point,
 };
 pub use hilo_fusion::pillars::{Pillars, pillarize};
 use rand::Rng;
@@ -41,6 +42,55 @@ pub struct GtBox {
     /// devkit's velocity is NaN there too), which the loss leaves out rather than training
     /// the box as standing still.
     pub velocity: [f32; 2],
+}
+
+/// Gives each detection of the frame's own sweep (lag 0) that another radar also sees the full
+/// ground velocity of the pair ([`hilo_sensor_models::radar_pair`]) in place of its radial
+/// velocity vector (features 8 and 9); `origin[i]` is point i's radar (an index) and that
+/// radar's position. Of several pairs (three radars or more) the one of least dilution wins.
+/// Returns how many detections were paired.
+pub fn pair_radar_velocities(
+    radar: &mut [[f32; RADAR_FEATURES]],
+    origin: &[(usize, [f32; 3])],
+    cfg: &RadarPairConfig,
+) -> usize {
+    use glam::Vec3;
+    use hilo_sensor_models::radar_pair::pair_velocities;
+    let radars = origin.iter().map(|o| o.0 + 1).max().unwrap_or(0);
+    /// One radar: its position, the indices of its own-sweep detections, and each one's
+    /// (position, v_r).
+    #[derive(Clone, Default)]
+    struct View {
+        at: Vec3,
+        index: Vec<usize>,
+        points: Vec<(Vec3, f32)>,
+    }
+    let mut views: Vec<View> = vec![View::default(); radars];
+    for (i, (p, &(k, at))) in radar.iter().zip(origin).enumerate() {
+        if p[7] == 0.0 {
+            views[k].at = Vec3::from(at);
+            views[k].index.push(i);
+            views[k].points.push((Vec3::new(p[0], p[1], p[2]), p[4]));
+        }
+    }
+    let min_angle = cfg.min_angle_deg.to_radians();
+    let mut best: HashMap<usize, (f32, [f32; 2])> = HashMap::new();
+    for a in 0..radars {
+        for b in (0..radars).filter(|&b| b != a) {
+            let (va, vb) = (&views[a], &views[b]);
+            for (ia, _, v) in pair_velocities((va.at, &va.points), (vb.at, &vb.points), cfg.max_gap_m, min_angle) {
+                let i = va.index[ia];
+                if best.get(&i).is_none_or(|(d, _)| v.dilution < *d) {
+                    best.insert(i, (v.dilution, v.velocity.to_array()));
+                }
+            }
+        }
+    }
+    for (&i, (_, v)) in &best {
+        radar[i][8] = v[0];
+        radar[i][9] = v[1];
+    }
+    best.len()
 }
 
 /// Drops the radar detections of `radar` that [`RadarClutterConfig`] calls clutter, given the
@@ -102,6 +152,8 @@ pub struct LoadOptions<'a> {
     pub max_sweep_lag_s: f32,
     /// Radar static clutter is dropped by this rule (against the frame's LiDAR foreground).
     pub radar_clutter: Option<RadarClutterConfig>,
+    /// Detections two radars see get their full ground velocity ([`pair_radar_velocities`]).
+    pub radar_pairs: Option<RadarPairConfig>,
 }
 
 impl<'a> LoadOptions<'a> {
@@ -113,6 +165,7 @@ impl<'a> LoadOptions<'a> {
             lidar_sweeps: input.lidar_sweeps,
             max_sweep_lag_s: input.max_sweep_lag_s,
             radar_clutter: input.radar_clutter,
+            radar_pairs: input.radar_pairs,
         }
     }
 }
@@ -129,6 +182,8 @@ pub struct LoadStats {
     pub older_sweep_points: usize,
     /// Radar points dropped as static clutter (not in `radar_points`).
     pub radar_clutter_points: usize,
+    /// Radar detections given a full velocity by a second radar.
+    pub radar_paired_points: usize,
 }
 
 impl LoadStats {
@@ -298,6 +353,9 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
     for s in samples {
         let mut lidar = Vec::new();
         let mut radar = Vec::new();
+        // Per radar point, its radar (index into `radar_channels`) and that radar's position.
+        let mut radar_origin: Vec<(usize, [f32; 3])> = Vec::new();
+        let mut radar_channels: Vec<String> = Vec::new();
         let mut sds = by_sample.get(s.token.as_str()).cloned().unwrap_or_default();
         sds.sort_by(|a, b| a.filename.cmp(&b.filename));
         for sd in sds {
@@ -327,18 +385,27 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
                     }
                 }
                 "radar" => {
+                    let at = c.translation.map(|v| v as f32);
+                    let k = radar_channels.iter().position(|ch| ch == channel).unwrap_or_else(|| {
+                        radar_channels.push(channel.to_owned());
+                        radar_channels.len() - 1
+                    });
                     for (cur, lag) in sweeps(sd, opts.radar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
                         for p in ds.radar_points(cur).map_err(DetectorError::from)? {
                             let q = to_local([p.x as f64, p.y as f64, p.z as f64]);
-                            let (dx, dy) = (q[0] - c.translation[0] as f32, q[1] - c.translation[1] as f32);
+                            let (dx, dy) = (q[0] - at[0], q[1] - at[1]);
                             let n = (dx * dx + dy * dy).sqrt().max(1e-6);
                             radar.push(radar_point([q[0], q[1], q[2]], p.rcs_dbsm, p.v_r_mps, [dx / n, dy / n], lag));
+                            radar_origin.push((k, at));
                             stats.radar_points += 1;
                         }
                     }
                 }
                 _ => {}
             }
+        }
+        if let Some(c) = &opts.radar_pairs {
+            stats.radar_paired_points += pair_radar_velocities(&mut radar, &radar_origin, c);
         }
         if let Some(c) = &opts.radar_clutter {
             // Against the frame's own LiDAR sweep: older sweeps' points lie where road users were.
@@ -393,7 +460,14 @@ pub fn augment(aug: &Augmentation, f: &Frame, rng: &mut impl Rng) -> Frame {
     for p in &mut out.radar {
         let (x, y) = xy(p[0], p[1]);
         let (lx, ly) = xy(p[5], p[6]);
+        // A paired detection's velocity vector (`pair_radar_velocities`) turns as a vector; a
+        // radial one is rebuilt from v_r and the line of sight, bit for bit as before.
+        let radial = p[8] == p[4] * p[5] && p[9] == p[4] * p[6];
+        let (vx, vy) = xy(p[8], p[9]);
         *p = radar_point([x * s, y * s, p[2] * s], p[3], p[4] * s, [lx, ly], p[7]);
+        if !radial {
+            (p[8], p[9]) = (vx * s, vy * s);
+        }
     }
     for b in &mut out.boxes {
         let (x, y) = xy(b.center[0], b.center[1]);
@@ -462,6 +536,71 @@ mod tests {
         drop_radar_clutter(&[], &mut alone, &cfg);
         assert!(alone.iter().all(|p| p[4].abs() > cfg.max_speed_mps));
         assert_eq!(alone.len(), radar.iter().filter(|p| p[4].abs() > cfg.max_speed_mps).count());
+    }
+
+    /// Two radars 90° apart around a car moving at (4, 3) m/s: every own-sweep detection near
+    /// the car gets (4, 3) in place of its radial vector; a detection only one radar sees, and
+    /// an older sweep's, keep theirs. Augmented, a paired vector turns with the frame and a
+    /// radial one is rebuilt exactly as before; bad pair settings are refused by field.
+    #[test]
+    fn two_radars_give_detections_their_full_velocity() {
+        let v = [4.0f32, 3.0];
+        let at = [[-20.0f32, 0.0, 1.5], [0.0, -20.0, 1.5]];
+        let mut radar = Vec::new();
+        let mut origin = Vec::new();
+        let point = |k: usize, p: [f32; 3], lag: f32| {
+            let d = [p[0] - at[k][0], p[1] - at[k][1], p[2] - at[k][2]];
+            let n3 = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let vr = (d[0] * v[0] + d[1] * v[1]) / n3;
+            let n = (d[0] * d[0] + d[1] * d[1]).sqrt();
+            radar_point(p, 5.0, vr, [d[0] / n, d[1] / n], lag)
+        };
+        for (k, p, lag) in [
+            (0, [0.1, 0.2, 0.8], 0.0),
+            (0, [-0.4, 0.5, 0.6], 0.0),
+            (1, [0.3, -0.1, 0.9], 0.0),
+            (1, [-0.2, 0.6, 0.7], 0.0),
+            (0, [15.0, 15.0, 0.5], 0.0),
+            (0, [0.0, 0.1, 0.8], 0.1),
+        ] {
+            radar.push(point(k, p, lag));
+            origin.push((k, at[k]));
+        }
+        let before = radar.clone();
+        let paired = pair_radar_velocities(&mut radar, &origin, &RadarPairConfig::default());
+        assert_eq!(paired, 4);
+        for p in &radar[..4] {
+            assert!((p[8] - v[0]).abs() < 1e-3 && (p[9] - v[1]).abs() < 1e-3, "{p:?}");
+        }
+        assert_eq!(&radar[4..], &before[4..], "one radar's, and an older sweep's, keep the radial vector");
+        // Augmentation: a turn of up to 90°, no mirror, no scale.
+        let f = Frame {
+            sample_token: "t".into(),
+            scene: "s".into(),
+            lidar: Vec::new(),
+            radar: radar.clone(),
+            boxes: Vec::new(),
+        };
+        let aug = Augmentation { rotate_deg: 90.0, flip_p: 0.0, scale: 0.0 };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let out = augment(&aug, &f, &mut rng);
+        for (a, b) in out.radar.iter().zip(&radar) {
+            // The turn the positions took, applied to the velocity vector.
+            let th = a[1].atan2(a[0]) - b[1].atan2(b[0]);
+            let (c, s) = (th.cos(), th.sin());
+            let want = [c * b[8] - s * b[9], s * b[8] + c * b[9]];
+            assert!((a[8] - want[0]).abs() < 1e-3 && (a[9] - want[1]).abs() < 1e-3, "{a:?} {b:?}");
+        }
+        for (a, b) in out.radar[4..].iter().zip(&radar[4..]) {
+            let rebuilt = radar_point([a[0], a[1], a[2]], b[3], b[4], [a[5], a[6]], b[7]);
+            assert_eq!(a, &rebuilt);
+        }
+        let input = InputConfig {
+            radar_pairs: Some(RadarPairConfig { min_angle_deg: 0.0, ..RadarPairConfig::default() }),
+            ..InputConfig::default()
+        };
+        let e = input.validate().unwrap_err().to_string();
+        assert!(e.contains("input.radar_pairs.min_angle_deg"), "{e}");
     }
 
     #[test]

@@ -75,8 +75,14 @@ fn radar_sweeps_stack_with_their_time_lags() {
     w.finish().unwrap();
     let ds = Dataset::open(dir.path(), "v1.0-trainval").unwrap();
     let load_with = |radar_sweeps: usize, lidar_sweeps: usize| {
-        let opts =
-            LoadOptions { background: None, radar_sweeps, lidar_sweeps, max_sweep_lag_s: 0.5, radar_clutter: None };
+        let opts = LoadOptions {
+            background: None,
+            radar_sweeps,
+            lidar_sweeps,
+            max_sweep_lag_s: 0.5,
+            radar_clutter: None,
+            radar_pairs: None,
+        };
         load_split(&ds, "val", &opts).unwrap()
     };
     let load = |k: usize| load_with(k, 1);
@@ -100,8 +106,14 @@ fn radar_sweeps_stack_with_their_time_lags() {
     assert_eq!(f6[2].radar.iter().map(|p| p[3]).collect::<Vec<_>>(), vec![15.0]);
     assert_eq!(s4.older_sweep_points, 4);
     // One frame alone is the split's frame at that index, sweeps and all; past the end, none.
-    let opts =
-        LoadOptions { background: None, radar_sweeps: 4, lidar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None };
+    let opts = LoadOptions {
+        background: None,
+        radar_sweeps: 4,
+        lidar_sweeps: 1,
+        max_sweep_lag_s: 0.5,
+        radar_clutter: None,
+        radar_pairs: None,
+    };
     for (i, f) in f4.iter().enumerate() {
         let one = load_split_frame(&ds, "val", &opts, i).unwrap().unwrap();
         assert_eq!((&one.sample_token, &one.lidar, &one.radar), (&f.sample_token, &f.lidar, &f.radar));

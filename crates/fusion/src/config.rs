@@ -436,11 +436,56 @@ pub struct InputConfig {
     /// Drop radar static clutter (needs `background`: the LiDAR foreground tells road users
     /// from clutter).
     pub radar_clutter: Option<RadarClutterConfig>,
+    /// With two radars or more: each detection of the frame's own sweep that another radar also
+    /// sees gets the full ground velocity the two radial velocities give, in place of its
+    /// radial velocity vector (the last two features of [`radar_point`]); detections seen by
+    /// one radar keep theirs. None: every detection keeps its radial vector.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radar_pairs: Option<RadarPairConfig>,
 }
 
 impl Default for InputConfig {
     fn default() -> Self {
-        InputConfig { background: None, radar_sweeps: 1, lidar_sweeps: 1, max_sweep_lag_s: 0.5, radar_clutter: None }
+        InputConfig {
+            background: None,
+            radar_sweeps: 1,
+            lidar_sweeps: 1,
+            max_sweep_lag_s: 0.5,
+            radar_clutter: None,
+            radar_pairs: None,
+        }
+    }
+}
+
+/// How detections of two radars are paired for a full ground velocity: the nearest detection of
+/// the other radar within `max_gap_m` on the ground, when the two lines of sight meet at
+/// `min_angle_deg` or more (the velocity's error grows as 1 / sin of that angle).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RadarPairConfig {
+    pub max_gap_m: f32,
+    pub min_angle_deg: f32,
+}
+
+impl Default for RadarPairConfig {
+    fn default() -> Self {
+        RadarPairConfig { max_gap_m: 1.0, min_angle_deg: 20.0 }
+    }
+}
+
+impl RadarPairConfig {
+    pub fn validate(&self) -> std::result::Result<(), FusionError> {
+        if !(self.max_gap_m > 0.0 && self.max_gap_m <= 10.0) {
+            return Err(FusionError::field("input.radar_pairs.max_gap_m", self.max_gap_m, "must be in (0, 10] m"));
+        }
+        if !(self.min_angle_deg >= 1.0 && self.min_angle_deg <= 89.0) {
+            return Err(FusionError::field(
+                "input.radar_pairs.min_angle_deg",
+                self.min_angle_deg,
+                "must be in [1, 89] degrees",
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -494,6 +539,9 @@ impl InputConfig {
         }
         if let Some(b) = &self.background {
             b.validate().map_err(|e| FusionError::field(format!("input.{}", e.field), e.value, e.reason))?;
+        }
+        if let Some(p) = &self.radar_pairs {
+            p.validate()?;
         }
         if let Some(c) = &self.radar_clutter {
             c.validate()?;

@@ -27,6 +27,7 @@ pub mod pose;
 pub mod probability;
 pub mod radar;
 pub mod radar_effects;
+pub mod radar_pair;
 pub mod range;
 pub mod spec;
 pub mod weather;
