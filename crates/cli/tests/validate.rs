@@ -118,6 +118,40 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     assert_eq!((&kept[n][0]["slug"], &kept[n][1]), (&grown[n][0]["slug"], &grown[n][1]));
     refuses_what_would_fit_the_wrong_thing(&study, &out);
     leaves_each_site_out(dir.path(), &out.join("validation.json"));
+    places_with_the_sites_calibration(dir.path(), &study);
+}
+
+/// The user's path at a junction no validation has seen: a study file naming the calibration
+/// `--sites` wrote places with it, and each placement carries its predicted mAP, interval and
+/// advice; beside `[placement] calibration` the file is refused.
+fn places_with_the_sites_calibration(dir: &std::path::Path, study: &std::path::Path) {
+    let file = dir.join("loso").join("calibration.toml");
+    let table: toml::Table = toml::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    assert!(table.contains_key("choice") && table.contains_key("prediction") && table.contains_key("weights"));
+    let text = std::fs::read_to_string(study).unwrap();
+    let calibrated = dir.join("calibrated.toml");
+    std::fs::write(&calibrated, format!("calibration_file = {:?}\n{text}", file.display().to_string())).unwrap();
+    let placed = dir.join("placed");
+    let o = hilo().arg("place").arg(&calibrated).arg("--out").arg(&placed).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let said = String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("predicted mAP"), "{said}");
+    let mut n = 0;
+    for e in std::fs::read_dir(&placed).unwrap() {
+        let path = e.unwrap().path();
+        if path.extension().is_some_and(|x| x == "json") {
+            let p = json(&path)["prediction"].clone();
+            let (map, lo, hi) = (p["map"].as_f64().unwrap(), p["lo"].as_f64().unwrap(), p["hi"].as_f64().unwrap());
+            assert!(lo < map && map < hi && !p["advice"].as_str().unwrap().is_empty(), "{p}");
+            n += 1;
+        }
+    }
+    assert!(n > 0);
+    let both = dir.join("both.toml");
+    let text = text.replacen("[placement]\n", "[placement]\ncalibration = { lidar = 1.0, radar = 0.0 }\n", 1);
+    std::fs::write(&both, format!("calibration_file = {:?}\n{text}", file.display().to_string())).unwrap();
+    let o = hilo().arg("place").arg(&both).arg("--out").arg(dir.join("placed2")).output().unwrap();
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("give one of the two"), "{o:?}");
 }
 
 /// `--sites` over three finished validations (here one validation as three sites, which the
