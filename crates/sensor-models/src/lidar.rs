@@ -101,36 +101,6 @@ impl LidarScan {
     }
 }
 
-/// The surface a ray returns from when its first hit is foliage that moves ([`Foliage`]): the
-/// leaf, displaced along the ray (the second value), or, through a gap, whatever lies behind
-/// (None: nothing). Any other hit, or still foliage, is returned as it is. Draws from its own
-/// stream, so a scan without foliage keeps its bytes.
-#[allow(clippy::too_many_arguments)]
-fn through_foliage(
-    spec: &LidarSpec,
-    world: &World,
-    actors: Option<&ActorSet>,
-    ray: &Ray,
-    hit: hilo_raycast::Hit,
-    time_s: f32,
-    seed: u64,
-    index: usize,
-) -> Option<(hilo_raycast::Hit, f32)> {
-    let Some(f) = &spec.foliage else { return Some((hit, 0.0)) };
-    if !(matches!(hit.target, HitTarget::Static { .. }) && hit.material == Material::Vegetation) {
-        return Some((hit, 0.0));
-    }
-    let mut rng = rng_for(seed, stream::LIDAR_FOLIAGE, index as u64);
-    if rng.random::<f32>() < f.gap_probability {
-        // Through a gap: the next surface along the ray (one gap per ray; a second crown
-        // behind returns as it is).
-        let behind = Ray { t_min: hit.t + 0.05, ..*ray };
-        return world.closest_hit_at(&behind, actors, time_s).map(|h| (h, 0.0));
-    }
-    let sway: f32 = rng.sample(StandardNormal);
-    Some((hit, f.sway_m * sway))
-}
-
 /// Intensity of a return: reflectivity × |cos incidence| × exp(−a·range), in [0, 1].
 pub fn intensity(reflectivity: f32, cos_incidence: f32, range_m: f32, attenuation_per_m: f32) -> f32 {
     (reflectivity * cos_incidence.abs() * (-attenuation_per_m * range_m).exp()).clamp(0.0, 1.0)
@@ -236,6 +206,32 @@ impl<'a> Scanner<'a> {
         if self.full_circle { k as f32 * self.step } else { -0.5 * self.hfov + (k as f32 + 0.5) * self.step }
     }
 
+    /// The surface a ray returns from when its first hit is foliage that moves ([`Foliage`]): the
+    /// leaf, displaced along the ray (the second value), or, through a gap, whatever lies behind
+    /// (None: nothing). Any other hit, or still foliage, is returned as it is. Draws from its own
+    /// stream, so a scan without foliage keeps its bytes.
+    fn through_foliage(
+        &self,
+        ray: &Ray,
+        hit: hilo_raycast::Hit,
+        time_s: f32,
+        index: usize,
+    ) -> Option<(hilo_raycast::Hit, f32)> {
+        let Some(f) = &self.spec.foliage else { return Some((hit, 0.0)) };
+        if !(matches!(hit.target, HitTarget::Static { .. }) && hit.material == Material::Vegetation) {
+            return Some((hit, 0.0));
+        }
+        let mut rng = rng_for(self.seed, stream::LIDAR_FOLIAGE, index as u64);
+        if rng.random::<f32>() < f.gap_probability {
+            // Through a gap: the next surface along the ray (one gap per ray; a second crown
+            // behind returns as it is).
+            let behind = Ray { t_min: hit.t + 0.05, ..*ray };
+            return self.world.closest_hit_at(&behind, self.actors, time_s).map(|h| (h, 0.0));
+        }
+        let sway: f32 = rng.sample(StandardNormal);
+        Some((hit, f.sway_m * sway))
+    }
+
     /// The return of ring `ring` in column `k`, if any.
     fn ray(&self, k: usize, ring: usize) -> Option<(LidarPoint, PointSource)> {
         let (spec, beams) = (self.spec, self.elevations.len());
@@ -253,7 +249,7 @@ impl<'a> Scanner<'a> {
         let index = k * beams + ring;
         let mut rng = rng_for(self.seed, stream::LIDAR_RAY, index as u64);
         let noise: f32 = rng.sample(StandardNormal);
-        let (hit, sway) = through_foliage(spec, self.world, self.actors, &ray, hit, time_s, self.seed, index)?;
+        let (hit, sway) = self.through_foliage(&ray, hit, time_s, index)?;
         let range = hit.t + spec.range_noise_m * noise + sway;
         if range <= spec.min_range_m || range > spec.max_range_m {
             return None;
