@@ -6,7 +6,8 @@
 //! - [`instance`]: the problem as solvers see it, and the exact objective of any selection;
 //! - solvers: [`exact`] (branch and bound that proves the paper's count-limited
 //!   configurations optimal), [`mip`] (the IP for CBC, plain or strengthened, any limit),
-//!   [`calibrated`] (the objective `hilo validate` fits to trained accuracy, for CBC),
+//!   [`calibrated`] (the objective `hilo validate` fits to trained accuracy, for CBC; its
+//!   [`calibrated::file`] ships a fit across sites with its prediction of a rig's mAP),
 //!   [`greedy`] (the baseline), [`exhaustive`] (the oracle on small instances).
 
 pub mod calibrated;
