@@ -241,6 +241,13 @@ impl Weights {
         w.fields_mut().map(|f| *f)
     }
 
+    /// Weight 1 on term `k` of [`Weights::named`], 0 on the others: that term alone.
+    pub fn unit(k: usize) -> Self {
+        let mut v = [0.0; N_TERMS];
+        v[k] = 1.0;
+        Weights::from_array(v)
+    }
+
     /// Weights from their values in the order of [`Weights::named`].
     pub fn from_array(v: [f64; N_TERMS]) -> Self {
         let mut w = Weights::default();
@@ -747,10 +754,10 @@ mod tests {
         assert!(bad.validate().unwrap_err().to_string().contains("sample 999"));
     }
 
-    /// Saturation: a target seen beyond τ counts once; half-seen counts half.
-    #[test]
-    fn coverage_saturates_at_the_threshold() {
-        let inst = Instance {
+    /// One LiDAR that sees one of two targets fully (a ≈ 4.6 τ) and the other at half the
+    /// threshold: its LiDAR coverage term is (1 + 0.5) / 2.
+    pub(super) fn one_lidar_two_targets() -> Instance {
+        Instance {
             weights: vec![1.0, 1.0],
             types: vec![SensorType { name: "l".into(), modality: Modality::Lidar, price_usd: 1.0 }],
             options: vec![SensorOption {
@@ -762,7 +769,13 @@ mod tests {
             p_min: 1.0 - (-1.0f64).exp(),
             road_users: Vec::new(),
             points: Default::default(),
-        };
+        }
+    }
+
+    /// Saturation: a target seen beyond τ counts once; half-seen counts half.
+    #[test]
+    fn coverage_saturates_at_the_threshold() {
+        let inst = one_lidar_two_targets();
         let f = evaluate(&inst, &[0], &Weights::once(1.0, 0.0));
         assert!((f - (1.0 + 0.5) / 2.0).abs() < 1e-6, "{f}");
         // Two views: one sensor, however well it sees (a ≈ 4.6 τ), counts a target half.

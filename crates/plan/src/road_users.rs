@@ -230,15 +230,22 @@ impl TrafficPoints {
             .iter()
             .flat_map(|fr| fr.users.iter().map(|&(_, c)| 1.0 / (per_class[c] as f64 * seen)))
             .collect();
+        // Per frame, the counted road users' ids and the seed a rig's first sensor scans it with.
+        let frames: Vec<(Vec<u32>, u64)> = self
+            .frames
+            .iter()
+            .map(|fr| {
+                let seed = hilo_dataset::simulate::derive_seed(self.seed, &[2, fr.stream, fr.index as u64, 0]);
+                (fr.users.iter().map(|u| u.0).collect(), seed)
+            })
+            .collect();
         let rows = (0..options)
             .into_par_iter()
             .map(|o| {
                 let Some((spec, pose)) = lidar_of(o) else { return Ok(Vec::new()) };
                 let mut row = Vec::new();
-                for (fr, &base) in self.frames.iter().zip(&first) {
-                    let seed = hilo_dataset::simulate::derive_seed(self.seed, &[2, fr.stream, fr.index as u64, 0]);
-                    let ids: Vec<u32> = fr.users.iter().map(|u| u.0).collect();
-                    let n = hilo_sensor_models::lidar_points_on(&spec, &pose, world, &fr.actors, seed, &ids).map_err(
+                for ((fr, &base), (ids, seed)) in self.frames.iter().zip(&first).zip(&frames) {
+                    let n = hilo_sensor_models::lidar_points_on(&spec, &pose, world, &fr.actors, *seed, ids).map_err(
                         |e| crate::error::StudyError::step(format!("LiDAR option {o} on a training key frame"), e),
                     )?;
                     for (i, id) in ids.iter().enumerate() {

@@ -128,6 +128,14 @@ pub fn weights(c: &Calibrated) -> hilo_placement_ip::calibrated::Weights {
     hilo_placement_ip::calibrated::Weights::from_array(TERMS.map(w))
 }
 
+/// The 97.5% quantile of Student's t with `df` degrees of freedom (1.96 where statrs refuses
+/// the df): the half-width factor of every 95% interval here.
+pub(crate) fn t975(df: f64) -> f64 {
+    statrs::distribution::StudentsT::new(0.0, 1.0, df)
+        .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
+        .unwrap_or(1.96)
+}
+
 /// xᵀ (XᵀX)⁻¹ x: a row's leverage.
 fn leverage(x: &[f64], inv: &[Vec<f64>]) -> f64 {
     (0..x.len()).map(|p| (0..x.len()).map(|q| x[p] * inv[p][q] * x[q]).sum::<f64>()).sum()
@@ -145,13 +153,19 @@ pub(crate) struct Fit {
 }
 
 impl Fit {
+    /// Its coefficients per feature of [`FEATURES`] (0 for a feature it does not use).
+    pub(crate) fn weights(&self) -> Vec<f64> {
+        let mut w = vec![0.0; FEATURES.len()];
+        for (&f, b) in self.used.iter().zip(&self.beta[1..]) {
+            w[f] = *b;
+        }
+        w
+    }
+
     /// (XᵀX)⁻¹ (intercept first), the residual s.d. and the 97.5% t quantile of its degrees of
     /// freedom: what a prediction interval away from the fit needs.
     pub(crate) fn interval_parts(&self) -> (Vec<Vec<f64>>, f64, f64) {
-        let t = statrs::distribution::StudentsT::new(0.0, 1.0, self.df as f64)
-            .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
-            .unwrap_or(1.96);
-        (self.inv.clone(), self.sd, t)
+        (self.inv.clone(), self.sd, t975(self.df as f64))
     }
 
     fn row(&self, x: &dyn Fn(&str) -> f64) -> Vec<f64> {
@@ -164,10 +178,7 @@ impl Fit {
 
     /// Half-width of the 95% prediction interval at `x`.
     pub(crate) fn half_width(&self, x: &dyn Fn(&str) -> f64) -> f64 {
-        let t = statrs::distribution::StudentsT::new(0.0, 1.0, self.df as f64)
-            .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
-            .unwrap_or(1.96);
-        t * self.sd * (1.0 + leverage(&self.row(x), &self.inv)).sqrt()
+        t975(self.df as f64) * self.sd * (1.0 + leverage(&self.row(x), &self.inv)).sqrt()
     }
 }
 
@@ -299,10 +310,7 @@ pub fn calibrate(r: &ValidationReport, seed: u64) -> Option<Calibrated> {
         (1..=RESHUFFLES).filter_map(|k| cross_fit(r, seed.wrapping_add(k))).map(|h| rho(&h)).collect();
     let all: Vec<usize> = (0..n).collect();
     let whole = fit(r, &all)?;
-    let mut weights = vec![0.0; FEATURES.len()];
-    for (&f, b) in whole.used.iter().zip(&whole.beta[1..]) {
-        weights[f] = *b;
-    }
+    let weights = whole.weights();
     let reps = replicates(r);
     let acc: Vec<f64> = held_out.iter().map(|h| h.measured).collect();
     let pred: Vec<f64> = held_out.iter().map(|h| h.predicted).collect();
@@ -393,10 +401,7 @@ pub fn transfer(source: &ValidationReport, target: &ValidationReport, source_nam
     }
     let all: Vec<usize> = (0..source.members.len()).collect();
     let f = fit(source, &all).ok_or("the fitted set's placements give no fit (collinear predictors)")?;
-    let mut weights = vec![0.0; FEATURES.len()];
-    for (&k, b) in f.used.iter().zip(&f.beta[1..]) {
-        weights[k] = *b;
-    }
+    let weights = f.weights();
     if let Some(c) = &source.calibrated {
         let same = c.features.len() == FEATURES.len()
             && c.features.iter().zip(FEATURES).all(|(a, b)| a == b)

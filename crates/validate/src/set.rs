@@ -104,9 +104,7 @@ pub const TERMS: [&str; calibrated::N_TERMS] = [
 
 /// The calibrated objective with weight 1 on term `k` of [`TERMS`].
 pub fn unit_term(k: usize) -> calibrated::Weights {
-    let mut v = [0.0; calibrated::N_TERMS];
-    v[k] = 1.0;
-    calibrated::Weights::from_array(v)
+    calibrated::Weights::unit(k)
 }
 
 /// The configurations the set is drawn from: the study's, then the rigs a buyer compares them

@@ -195,20 +195,25 @@ fn site_fit(groups: &[Vec<Row>], used: Vec<usize>) -> Option<(crate::calibrate::
     (n > 0).then(|| (whole, (sse / n as f64).sqrt(), shift2 / groups.len() as f64))
 }
 
+/// A fit's weights as the placement IP takes them.
+fn fixed_weights(fit: &crate::calibrate::Fit) -> hilo_placement_ip::calibrated::Weights {
+    let w = fit.weights();
+    hilo_placement_ip::calibrated::Weights::from_array(std::array::from_fn(|f| w[f]))
+}
+
 /// The objective to ship (`calibration.toml`): the fit across all sites, or, when one of its
 /// terms alone ranked the held-out sites better on average (a baseline computable from the
 /// placement alone), that term with its own fit across sites; with the ranges of its features
 /// over every site's placements.
 fn shipped(
     sites: &[(&str, &ValidationReport)],
+    groups: &[Vec<Row>],
     held: &[HeldOutSite],
     baselines: &[String],
-    pooled: (crate::calibrate::Fit, f64, f64),
+    pooled: (crate::calibrate::Fit, f64),
     mean_spearman: f64,
 ) -> Result<hilo_placement_ip::calibrated::file::CalibrationFile, String> {
     use hilo_placement_ip::calibrated::file::{CalibrationFile, FeatureRange, PredictionModel};
-    let reports: Vec<&ValidationReport> = sites.iter().map(|s| s.1).collect();
-    let groups = site_rows(&reports);
     let mean_of = |b: usize| held.iter().map(|h| h.baselines[b].spearman.value).sum::<f64>() / held.len() as f64;
     let best_term = FEATURES
         .iter()
@@ -217,10 +222,10 @@ fn shipped(
         .filter(|(_, v)| v.is_finite())
         .max_by(|a, b| a.1.total_cmp(&b.1));
     let single =
-        best_term.filter(|&(_, v)| v > mean_spearman).and_then(|(k, v)| Some((site_fit(&groups, vec![k])?, k, v)));
-    let ((fit, _, shift2), choice, rho) = match single {
-        Some((f, k, v)) => (
-            f,
+        best_term.filter(|&(_, v)| v > mean_spearman).and_then(|(k, v)| Some((site_fit(groups, vec![k])?, k, v)));
+    let ((fit, shift2), choice, rho) = match single {
+        Some(((f, _, shift2), k, v)) => (
+            (f, shift2),
             format!(
                 "{} alone: it ranked the held-out sites at mean rho {v:+.2}, the fit across sites at {mean_spearman:+.2}",
                 FEATURES[k]
@@ -232,14 +237,8 @@ fn shipped(
         }
     };
     let names = hilo_placement_ip::calibrated::Weights::default().named();
-    let mut w = [0.0; FEATURES.len()];
-    for (&f, b) in fit.used.iter().zip(&fit.beta[1..]) {
-        w[f] = *b;
-    }
     let (inverse, residual_sd, t_fit) = fit.interval_parts();
-    let t_sites = statrs::distribution::StudentsT::new(0.0, 1.0, (sites.len() as f64 - 1.0).max(1.0))
-        .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
-        .unwrap_or(1.96);
+    let t_sites = crate::calibrate::t975((sites.len() as f64 - 1.0).max(1.0));
     let ranges = fit
         .used
         .iter()
@@ -266,7 +265,7 @@ fn shipped(
             .collect(),
         choice,
         held_out_spearman: rho,
-        weights: hilo_placement_ip::calibrated::Weights::from_array(w),
+        weights: fixed_weights(&fit),
         prediction: PredictionModel {
             intercept: fit.beta[0],
             features: fit.used.iter().map(|&f| names[f].0.to_owned()).collect(),
@@ -302,9 +301,7 @@ fn hold_out(
     // The between-site variance is estimated from the fitting sites' mean errors: its t
     // quantile has their number less one degrees of freedom (4.30 with three sites).
     let site_df = (fitting.len() as f64 - 1.0).max(1.0);
-    let t = statrs::distribution::StudentsT::new(0.0, 1.0, site_df)
-        .map(|d| statrs::distribution::ContinuousCDF::inverse_cdf(&d, 0.975))
-        .unwrap_or(1.96);
+    let t = crate::calibrate::t975(site_df);
     let predicted: Vec<HeldOut> = r
         .members
         .iter()
@@ -331,10 +328,7 @@ fn hold_out(
     let (better_half_spearman, _) = agreement(&pick(&pred), &pick(&acc), &better_reps, 0.95, seed);
     let errors: Vec<f64> = predicted.iter().map(|h| h.measured - h.predicted).collect();
     let n = errors.len().max(1) as f64;
-    let mut weights = vec![0.0; FEATURES.len()];
-    for (&f, b) in fit.used.iter().zip(&fit.beta[1..]) {
-        weights[f] = *b;
-    }
+    let weights = fit.weights();
     Ok(HeldOutSite {
         site: name.to_owned(),
         study: r.study.clone(),
@@ -477,19 +471,12 @@ pub fn leave_one_site_out(sites: &[(&str, &ValidationReport)], seed: u64) -> Res
     let difference = paired_difference(sites, &held, &best_baseline, seed);
     let (best_placement_baseline, best_placement_baseline_spearman) = best(&|n| !needs_simulation(n));
     let placement_difference = paired_difference(sites, &held, &best_placement_baseline, seed);
+    let groups = site_rows(&reports);
     let (fit, site_rmse, shift2) =
-        fit_across_sites(&site_rows(&reports)).ok_or("the sites together give no fit (collinear predictors)")?;
-    let mut w = [0.0; FEATURES.len()];
-    for (&f, b) in fit.used.iter().zip(&fit.beta[1..]) {
-        w[f] = *b;
-    }
-    let pooled = Pooled {
-        intercept: fit.beta[0],
-        weights: hilo_placement_ip::calibrated::Weights::from_array(w),
-        site_rmse,
-        between_site_sd: shift2.sqrt(),
-    };
-    let shipped = shipped(sites, &held, &baselines, (fit, site_rmse, shift2), mean_spearman)?;
+        fit_across_sites(&groups).ok_or("the sites together give no fit (collinear predictors)")?;
+    let pooled =
+        Pooled { intercept: fit.beta[0], weights: fixed_weights(&fit), site_rmse, between_site_sd: shift2.sqrt() };
+    let shipped = shipped(sites, &groups, &held, &baselines, (fit, shift2), mean_spearman)?;
     Ok(SitesReport {
         shipped,
         pooled,

@@ -11,7 +11,7 @@
 //! Distance: each feature's value in standard deviations of its values over the fitting sites'
 //! placements, and whether it lies outside their range; outside it the fit extrapolates.
 
-use super::{N_TERMS, Weights, evaluate};
+use super::{Weights, evaluate};
 use crate::instance::Instance;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -132,13 +132,9 @@ impl CalibrationFile {
     pub fn predict(&self, inst: &Instance, sel: &[usize]) -> Prediction {
         let p = &self.prediction;
         let named = Weights::default().named();
-        let value = |f: &str| {
-            let mut v = [0.0; N_TERMS];
-            if let Some(k) = named.iter().position(|(n, _)| *n == f) {
-                v[k] = 1.0;
-            }
-            evaluate(inst, sel, &Weights::from_array(v))
-        };
+        // `check` admits only the objective's own term names.
+        let value =
+            |f: &str| named.iter().position(|(n, _)| *n == f).map_or(0.0, |k| evaluate(inst, sel, &Weights::unit(k)));
         let x: Vec<f64> = p.features.iter().map(|f| value(f)).collect();
         let row: Vec<f64> = std::iter::once(1.0).chain(x.iter().copied()).collect();
         let map = p.intercept + p.coefficients.iter().zip(&x).map(|(b, v)| b * v).sum::<f64>();
@@ -197,8 +193,7 @@ impl CalibrationFile {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::candidates::Modality;
-    use crate::instance::{SensorOption, SensorType};
+    use crate::calibrated::tests::one_lidar_two_targets;
 
     fn one_term() -> CalibrationFile {
         CalibrationFile {
@@ -221,29 +216,11 @@ mod tests {
         }
     }
 
-    /// One LiDAR that sees one of two targets fully and the other at half the threshold: its
-    /// LiDAR coverage term is (1 + 0.5) / 2.
-    fn instance() -> Instance {
-        Instance {
-            weights: vec![1.0, 1.0],
-            types: vec![SensorType { name: "l".into(), modality: Modality::Lidar, price_usd: 1.0 }],
-            options: vec![SensorOption {
-                ty: 0,
-                candidate: 0,
-                mount: 0,
-                row: vec![(0, 0.99), (1, (1.0 - (-0.5f64).exp()) as f32)],
-            }],
-            p_min: 1.0 - (-1.0f64).exp(),
-            road_users: Vec::new(),
-            points: Default::default(),
-        }
-    }
-
     /// By hand: mAP 0.1 + 0.5 × 0.75; the interval's two variances; 2.5 s.d. from the sites'
     /// mean, inside their range, so the advice is to validate here.
     #[test]
     fn a_prediction_is_the_fit_and_its_two_variances() {
-        let p = one_term().predict(&instance(), &[0]);
+        let p = one_term().predict(&one_lidar_two_targets(), &[0]);
         assert!((p.features["lidar"] - 0.75).abs() < 1e-6, "{p:?}");
         assert!((p.map - 0.475).abs() < 1e-6, "{p:?}");
         let own = 2.0 * 0.02 * (1.0f64 + 1.0 + 0.75 * 0.75).sqrt();
@@ -254,10 +231,10 @@ mod tests {
         // Nearer the sites' mean: within what the fit saw.
         let mut f = one_term();
         f.ranges[0].mean = 0.7;
-        assert!(f.predict(&instance(), &[0]).advice.starts_with("within"));
+        assert!(f.predict(&one_lidar_two_targets(), &[0]).advice.starts_with("within"));
         // Past the sites' range: said by name.
         f.ranges[0].max = 0.7;
-        let p = f.predict(&instance(), &[0]);
+        let p = f.predict(&one_lidar_two_targets(), &[0]);
         assert_eq!(p.outside, vec!["lidar".to_owned()]);
         assert!(p.advice.contains("lidar beyond the sites' range"), "{}", p.advice);
     }
