@@ -75,6 +75,17 @@ fn sensors(c: &mut Criterion) {
     g.bench_function("radar-4d-field-effects", |b| {
         b.iter(|| simulate_radar(radar, &pose, &world, None, 1).expect("scan").points.len())
     });
+    // The datasheet LiDARs with their beams' width (19 sub-rays a pulse) and as rays of no
+    // width: what the footprint costs a frame, and the points it changes.
+    for name in ["lidar-16", "lidar-64"] {
+        let wide = field.lidar(name).expect("lidar").clone();
+        let thin = hilo::sensors::LidarSpec { beam: None, ..wide.clone() };
+        let n = |s: &hilo::sensors::LidarSpec| simulate_lidar(s, &pose, &world, None, 1).expect("scan").points.len();
+        eprintln!("{name} datasheet: {} points with the beam's width, {} as rays of no width", n(&wide), n(&thin));
+        for (variant, spec) in [("no-width", thin), ("beam-width", wide)] {
+            g.bench_function(format!("{name}-datasheet/{variant}"), |b| b.iter(|| n(&spec)));
+        }
+    }
     g.finish();
     lidar_points(c, &world, &catalog, &pose);
 }

@@ -6,8 +6,10 @@ none, and all together, as a directory of study files (a sweep):
 
 Every study extends fixtures/study.toml. The effects and where each comes from:
 - ideal: the paper's sensors (fixtures/sensors.toml), a perfect rig.
-- lidar_tables, lidar_range: one of the datasheet LiDARs' two changes (beam tables; range by
+- lidar_tables, lidar_range: one of the datasheet LiDARs' changes (beam tables; range by
   reflectivity from the lidar equation), taken from fixtures/sensors-datasheet.toml.
+- lidar_range_beam: lidar_range and the beams' width and return mode (`beam`), which needs the
+  lidar equation to decide which partial hits are seen: compare it with lidar_range.
 - radar_azimuth, radar_resolution, radar_multipath, radar_side_lobes, radar_false_alarms,
   radar_vegetation, radar_aspect: one of the datasheet radars' effects (their azimuth tables;
   `doppler_resolution_mps`; both multipath losses; `side_lobe_level_db`; the false alarms and
@@ -97,9 +99,11 @@ def one_effect(paper, sheet, effect):
         if effect == "lidar_tables" and "elevations_deg" in s:
             e["elevations_deg"] = s["elevations_deg"]
             e["vfov_deg"] = s["vfov_deg"]
-        if effect == "lidar_range":
+        if effect in ("lidar_range", "lidar_range_beam"):
             e["max_range_m"] = s["max_range_m"]
             e["detection_range"] = s["detection_range"]
+        if effect == "lidar_range_beam" and "beam" in s:
+            e["beam"] = s["beam"]
     for e in doc["radar"]:
         s = radars.get(e["name"])
         if s is None:
@@ -135,7 +139,7 @@ def main():
         sheet = tomllib.load(f)
     base = os.path.join(FIXTURES, "study.toml")
     studies = {"ideal": study(base, paper_path, []), "all": study(base, sheet_path, list(RIG.values()))}
-    for effect in ["lidar_tables", "lidar_range", "radar_azimuth", *RADAR_EFFECTS]:
+    for effect in ["lidar_tables", "lidar_range", "lidar_range_beam", "radar_azimuth", *RADAR_EFFECTS]:
         path = os.path.join(out, "catalogs", effect + ".toml")
         with open(path, "w") as f:
             f.write(catalog(one_effect(paper, sheet, effect)))

@@ -562,7 +562,7 @@ mod tests {
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
         let Loaded::Sweep(w) = load(&out).unwrap() else { panic!("not a sweep") };
         let names: Vec<&str> = w.shards.iter().map(|s| s.name.as_str()).collect();
-        assert_eq!(names.len(), 16, "{names:?}");
+        assert_eq!(names.len(), 17, "{names:?}");
         let get = |n: &str| &w.shards.iter().find(|s| s.name == n).unwrap().study;
         let ideal = get("ideal");
         let default = Study::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/study.toml")).unwrap();
@@ -603,6 +603,13 @@ mod tests {
         assert!(tables.catalog.lidar("lidar-64").unwrap().detection_range.is_none());
         assert!(get("lidar_range").catalog.lidar("lidar-16").unwrap().detection_range.is_some());
         assert_eq!(get("lidar_range").catalog.radar("radar-4d").unwrap(), ideal.catalog.radar("radar-4d").unwrap());
+        // The beam's width needs the lidar equation: it comes on top of lidar_range, and only it.
+        let (range, beam) = (get("lidar_range"), get("lidar_range_beam"));
+        for n in ["lidar-16", "lidar-32", "lidar-64"] {
+            let (a, b) = (range.catalog.lidar(n).unwrap(), beam.catalog.lidar(n).unwrap());
+            assert!(a.beam.is_none() && b.beam.is_some(), "{n}");
+            assert_eq!(*a, hilo_sensor_models::LidarSpec { beam: None, ..b.clone() }, "{n}");
+        }
         // Rig settings on the paper's catalog; all of them together on the datasheet one.
         for n in ["calibration", "time_sync", "rolling_shutter", "vehicle_paint", "foliage"] {
             assert_eq!(get(n).catalog_hash, ideal.catalog_hash, "{n}");
@@ -617,6 +624,7 @@ mod tests {
         assert!(get("vehicle_paint").dataset.foliage.is_none());
         assert!(!all.catalog.radar("radar-4d").unwrap().effects.is_ideal());
         assert!(all.catalog.lidar("lidar-16").unwrap().detection_range.is_some());
+        assert!(all.catalog.lidar("lidar-16").unwrap().beam.is_some());
         // It refuses a folder that holds something.
         let again = std::process::Command::new("python3").arg(&script).arg(&out).output().unwrap();
         assert!(!again.status.success());

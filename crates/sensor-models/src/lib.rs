@@ -4,7 +4,8 @@
 //!   Table I; `fixtures/sensors-datasheet.toml`, LiDARs with datasheet beam tables and range by
 //!   reflectivity), validated once.
 //! - [`lidar`], [`radar`]: scan simulation over a [`hilo_raycast::World`] and the frame's
-//!   actors; deterministic for a seed.
+//!   actors; deterministic for a seed. [`lidar::beam`]: a LiDAR beam of finite width (sub-rays
+//!   over its footprint, echoes, the strongest, last or dual returns).
 //! - [`radar_effects`]: what a real radar adds to the ideal one, each a catalog setting:
 //!   azimuth by angle, unresolved targets, multipath ghosts, side lobes, false alarms,
 //!   vegetation Doppler, RCS by aspect.
@@ -37,5 +38,5 @@ pub use lidar::{LidarScan, PointSource, lidar_points_on, simulate_lidar};
 pub use pose::{CalibrationError, SensorPose};
 pub use probability::{Probe, lidar_expected_returns, radar_detection_probability};
 pub use radar::{RadarScan, simulate_radar};
-pub use spec::{Catalog, DetectionRange, Foliage, LidarSpec, RadarSpec, SensorSpec};
+pub use spec::{Beam, Catalog, DetectionRange, Foliage, LidarSpec, RadarSpec, ReturnMode, SensorSpec};
 pub use weather::Weather;

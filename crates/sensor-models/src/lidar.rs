@@ -14,8 +14,13 @@
 //! time, so a moving road user is skewed as a spinning sensor sees it (a 50 ms sweep moves a
 //! 20 m/s car by up to 1 m); given a still set, they are frozen at the frame's instant.
 //!
-//! Left out, on purpose: there are no multiple returns or beam divergence; the beams fire from
-//! one point (no per-laser offsets). Rain and fog act through the spec
+//! A sensor with a [`crate::spec::Beam`] casts its beams with their width: the footprint is
+//! sampled by sub-rays, their hits form echoes (a mixed pixel where two surfaces lie within the
+//! separation), a thin pole intercepts only part of the pulse and is seen less far, and the
+//! return mode reports the strongest, the last or both echoes ([`beam`]). Without one, a beam is
+//! a ray of no width with one return.
+//!
+//! Left out, on purpose: the beams fire from one point (no per-laser offsets). Rain and fog act through the spec
 //! ([`crate::weather::Weather::lidar`]: shorter maximum range, weaker returns).
 
 use crate::error::SensorError;
@@ -29,6 +34,7 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
 
+pub mod beam;
 mod window;
 pub use window::lidar_points_on;
 
@@ -173,6 +179,8 @@ struct Scanner<'a> {
     step: f32,
     period: f32,
     rot: glam::Quat,
+    /// The sub-rays of a beam of finite width ([`LidarSpec::beam`]); none: one ray of no width.
+    footprint: Option<beam::Footprint>,
 }
 
 impl<'a> Scanner<'a> {
@@ -198,6 +206,7 @@ impl<'a> Scanner<'a> {
             step: hfov / cols as f32,
             period: 1.0 / spec.rate_hz,
             rot: pose.rotation(),
+            footprint: spec.beam.as_ref().map(beam::Footprint::new),
         }
     }
 
@@ -232,10 +241,31 @@ impl<'a> Scanner<'a> {
         Some((hit, f.sway_m * sway))
     }
 
-    /// The return of ring `ring` in column `k`, if any.
-    fn ray(&self, k: usize, ring: usize) -> Option<(LidarPoint, PointSource)> {
+    /// The returns of ring `ring` in column `k`: none or one, or two from a dual-return beam.
+    fn ray(&self, k: usize, ring: usize) -> Returns {
+        match &self.footprint {
+            None => [self.thin_ray(k, ring), None],
+            Some(f) => self.wide_ray(k, ring, f),
+        }
+    }
+
+    /// The time within the sweep at which column `k` fires, s.
+    fn time_s(&self, k: usize) -> f32 {
+        self.period * k as f32 / self.cols as f32
+    }
+
+    /// The reflectivity of what `hit` met.
+    fn reflectivity(&self, hit: &hilo_raycast::Hit) -> f32 {
+        match (hit.target, self.actors) {
+            (HitTarget::Actor { index, .. }, Some(set)) => set.actors()[index as usize].reflectivity,
+            _ => hit.material.lidar_reflectivity(),
+        }
+    }
+
+    /// The return of a ray of no width, if any.
+    fn thin_ray(&self, k: usize, ring: usize) -> Option<(LidarPoint, PointSource)> {
         let (spec, beams) = (self.spec, self.elevations.len());
-        let time_s = self.period * k as f32 / self.cols as f32;
+        let time_s = self.time_s(k);
         let d_sensor = spherical_dir(self.azimuth(k), self.elevations[ring]);
         let ray = Ray {
             origin: self.pose.position,
@@ -255,10 +285,7 @@ impl<'a> Scanner<'a> {
             return None;
         }
         let cos_inc = hit.normal.dot(ray.dir);
-        let reflectivity = match (hit.target, self.actors) {
-            (HitTarget::Actor { index, .. }, Some(set)) => set.actors()[index as usize].reflectivity,
-            _ => hit.material.lidar_reflectivity(),
-        };
+        let reflectivity = self.reflectivity(&hit);
         if !spec.detects(reflectivity, cos_inc, range) {
             return None;
         }
@@ -272,7 +299,63 @@ impl<'a> Scanner<'a> {
             PointSource::of(&hit.target),
         ))
     }
+
+    /// The returns of a beam of finite width ([`beam`]): its sub-rays cast, their hits grouped
+    /// into echoes, the echoes the return mode reports kept when the lidar equation sees them,
+    /// each then drawn its range noise and drop-off in range order. A point lies on the beam's
+    /// axis at its echo's range, as a sensor reports it.
+    fn wide_ray(&self, k: usize, ring: usize, footprint: &beam::Footprint) -> Returns {
+        let (spec, beams) = (self.spec, self.elevations.len());
+        let Some(b) = &spec.beam else { return [None, None] };
+        let time_s = self.time_s(k);
+        let (az, el) = (self.azimuth(k), self.elevations[ring]);
+        let d_sensor = spherical_dir(az, el);
+        let index = k * beams + ring;
+        let two_alpha = 2.0 * spec.extinction_per_m;
+        let mut hits = Vec::with_capacity(footprint.samples.len());
+        for (j, (dir, sample)) in footprint.directions(az, el, d_sensor).enumerate() {
+            let ray = Ray {
+                origin: self.pose.position,
+                dir: self.rot * dir,
+                t_min: spec.min_range_m,
+                t_max: spec.max_range_m,
+            };
+            let Some(hit) = self.world.closest_hit_at(&ray, self.actors, time_s) else { continue };
+            // Each sub-ray draws its own gap and leaf (a crown's leaves are smaller than the spot).
+            let Some((hit, sway)) = self.through_foliage(&ray, hit, time_s, index * beam::MAX_SUB_RAYS + j) else {
+                continue;
+            };
+            let range_m = hit.t + sway;
+            if range_m <= spec.min_range_m || range_m > spec.max_range_m {
+                continue;
+            }
+            let reflectance = sample.weight * self.reflectivity(&hit) * hit.normal.dot(ray.dir).abs();
+            let power = reflectance * (-two_alpha * range_m).exp() / (range_m * range_m);
+            hits.push(beam::SubHit { range_m, reflectance, power, source: PointSource::of(&hit.target) });
+        }
+        let echoes = beam::echoes(&mut hits, b.separation_m);
+        let mut rng = rng_for(self.seed, stream::LIDAR_RAY, index as u64);
+        let mut out = [None, None];
+        for (slot, e) in out.iter_mut().zip(beam::reported(&echoes, b.returns, |e| spec.detects_power(e.power))) {
+            let noise: f32 = rng.sample(StandardNormal);
+            let survive: f32 = rng.random();
+            let range = e.range_m + spec.range_noise_m * noise;
+            if range <= spec.min_range_m || range > spec.max_range_m {
+                continue;
+            }
+            let i = intensity(e.reflectance, 1.0, range, spec.atmosphere_attenuation_per_m);
+            if survive >= survival_probability(spec, i) {
+                continue;
+            }
+            let p = d_sensor * range;
+            *slot = Some((LidarPoint { x: p.x, y: p.y, z: p.z, intensity: i, ring: ring as u16, time_s }, e.source));
+        }
+        out
+    }
 }
+
+/// A ray's returns: none, one, or two (a dual-return beam), nearest first.
+type Returns = [Option<(LidarPoint, PointSource)>; 2];
 
 /// Simulates one frame. `seed` should already identify the sensor and frame (see
 /// [`crate::noise::mix`]); the same inputs give identical scans.
@@ -295,7 +378,7 @@ pub fn simulate_lidar(
             let mut src = Vec::with_capacity(BLOCK * beams);
             for k in blk * BLOCK..((blk + 1) * BLOCK).min(cols) {
                 for ring in 0..beams {
-                    if let Some((p, s)) = scanner.ray(k, ring) {
+                    for (p, s) in scanner.ray(k, ring).into_iter().flatten() {
                         pts.push(p);
                         src.push(s);
                     }

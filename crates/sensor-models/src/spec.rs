@@ -57,6 +57,48 @@ pub struct LidarSpec {
     /// are still and opaque). See [`Foliage`].
     #[serde(skip)]
     pub foliage: Option<Foliage>,
+    /// The beam's footprint and the sensor's return mode (absent: a ray of no width, one
+    /// return). Needs a `detection_range`: the lidar equation decides which partial hits are
+    /// seen. See [`Beam`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beam: Option<Beam>,
+}
+
+/// A LiDAR beam of finite width and the echoes it returns. The pulse leaves the sensor as an
+/// elliptical Gaussian spot whose 1/e² full angles are `horizontal_mrad` (across the scan) and
+/// `vertical_mrad`; it is sampled by sub-rays on a hexagonal lattice of `rings` rings inside
+/// the 1/e² contour (1 + 3·rings·(rings + 1) sub-rays), each weighted by the spot's irradiance.
+/// Sub-ray hits closer than `separation_m` along the beam form one echo, reported at their
+/// power-weighted range (a mixed pixel, between a pedestrian and the wall behind); an echo is
+/// seen when its summed received power reaches the lidar equation's threshold, so a pole
+/// narrower than the spot is seen less far than a wall. `returns` says which echoes the
+/// sensor reports.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Beam {
+    pub horizontal_mrad: f32,
+    pub vertical_mrad: f32,
+    pub returns: ReturnMode,
+    pub separation_m: f32,
+    #[serde(default = "two_rings")]
+    pub rings: u32,
+}
+
+fn two_rings() -> u32 {
+    2
+}
+
+/// Which of a pulse's echoes a LiDAR reports (Velodyne's three modes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReturnMode {
+    /// The echo of the highest received power.
+    Strongest,
+    /// The farthest echo that is seen.
+    Last,
+    /// The strongest and the last; when they are one echo, the strongest and the second
+    /// strongest.
+    Dual,
 }
 
 /// Tree crowns as a LiDAR sees them in wind: porous and moving. A ray whose first surface is
@@ -86,7 +128,7 @@ pub struct DetectionRange {
 }
 
 /// As derived, but the fields added after the first catalogs (`detection_range`,
-/// `extinction_per_m`, `foliage`) appear only when set: a catalog's content hash (taken over this form)
+/// `extinction_per_m`, `foliage`, `beam`) appear only when set: a catalog's content hash (taken over this form)
 /// stays what it was for the LiDARs it already described.
 impl std::fmt::Debug for LidarSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -115,6 +157,9 @@ impl std::fmt::Debug for LidarSpec {
         }
         if let Some(f) = &self.foliage {
             d.field("foliage", f);
+        }
+        if let Some(b) = &self.beam {
+            d.field("beam", b);
         }
         d.finish()
     }
@@ -321,6 +366,14 @@ impl LidarSpec {
         received * d.range_m * d.range_m >= d.reflectivity * range_m * range_m
     }
 
+    /// [`Self::detects`] for a received power already summed, ρ·|cos|·e^{−2αr}/r² over the
+    /// parts of a beam's footprint (each weighted by its share of the pulse): at least the
+    /// reference target's ρ_ref/R_ref². True without a detection range.
+    pub fn detects_power(&self, power: f32) -> bool {
+        let Some(d) = self.detection_range else { return true };
+        power * d.range_m * d.range_m >= d.reflectivity
+    }
+
     /// The farthest a surface of `reflectivity` at normal incidence is detected: `max_range_m`
     /// without a detection range, else the root of ρ·e^{−2αr}/r² = ρ_ref/R_ref² (at most
     /// `max_range_m`): R_ref·√(ρ/ρ_ref) in clear air, W(α·that)/α through extinction α.
@@ -353,6 +406,9 @@ pub const MAX_RATE_HZ: f32 = 100.0;
 
 /// The finest angular (degrees) or range (metres) step a catalog may give.
 pub const MIN_STEP: f32 = 0.01;
+
+/// The widest beam divergence a catalog may give, mrad (roadside LiDARs: 1–5).
+pub const MAX_DIVERGENCE_MRAD: f32 = 50.0;
 
 struct Check<'a> {
     path: &'a Path,
@@ -442,8 +498,38 @@ fn validate_lidar(l: &LidarSpec, c: &Check) -> Result<(), SensorError> {
         }
     }
     c.non_negative("extinction_per_m", l.extinction_per_m)?;
-
+    if let Some(b) = &l.beam {
+        validate_beam(l, b, c)?;
+    }
     c.price(l.price_usd)
+}
+
+/// A beam a real LiDAR has: divergence of at most [`MAX_DIVERGENCE_MRAD`] each way, a
+/// separation of echoes above 0, 1 to 3 rings of sub-rays, and a detection range to decide
+/// which partial hits are seen.
+fn validate_beam(l: &LidarSpec, b: &Beam, c: &Check) -> Result<(), SensorError> {
+    for (field, v) in [("beam.horizontal_mrad", b.horizontal_mrad), ("beam.vertical_mrad", b.vertical_mrad)] {
+        c.positive(field, v)?;
+        if v > MAX_DIVERGENCE_MRAD {
+            return Err(c.err(
+                field,
+                v,
+                &format!("must be at most {MAX_DIVERGENCE_MRAD} mrad (a LiDAR's beam, not a floodlight)"),
+            ));
+        }
+    }
+    c.positive("beam.separation_m", b.separation_m)?;
+    if !(1..=3).contains(&b.rings) {
+        return Err(c.err("beam.rings", b.rings, "must be 1, 2 or 3 (7, 19 or 37 sub-rays)"));
+    }
+    if l.detection_range.is_none() {
+        return Err(c.err(
+            "beam",
+            "set",
+            "needs a detection_range: the lidar equation decides which partial hits of the footprint are seen",
+        ));
+    }
+    Ok(())
 }
 
 fn validate_radar(r: &RadarSpec, c: &Check) -> Result<(), SensorError> {

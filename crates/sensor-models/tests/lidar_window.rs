@@ -1,7 +1,8 @@
 //! The windowed count of a LiDAR's points on road users against the full scan it shortcuts:
 //! equal counts, road user by road user, over random traffic, poses (pitched and rolled, right
 //! above a road user, inside the traffic), every catalog LiDAR (noise and drop-off on, a
-//! limited field of view, datasheet beam tables and range gates), foliage in wind and road
+//! limited field of view, datasheet beam tables and range gates, a beam of finite width with two
+//! returns), foliage in wind and road
 //! users that move during the sweep.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
@@ -11,7 +12,7 @@ mod common;
 use glam::Vec3;
 use hilo_core::{Box3, Class};
 use hilo_raycast::{Actor, ActorSet, QueryRegion, Scene, World};
-use hilo_sensor_models::{Catalog, Foliage, LidarSpec, SensorPose, lidar_points_on, simulate_lidar};
+use hilo_sensor_models::{Beam, Catalog, Foliage, LidarSpec, ReturnMode, SensorPose, lidar_points_on, simulate_lidar};
 use rand::{Rng, SeedableRng};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -63,6 +64,19 @@ fn specs() -> Vec<LidarSpec> {
     out.push(LidarSpec {
         foliage: Some(Foliage { gap_probability: 0.3, sway_m: 0.2 }),
         ..default.lidar("lidar-64").unwrap().clone()
+    });
+    // A beam of finite width reporting two echoes (a wide one, so partial hits reach past a
+    // road user's box), through foliage in wind.
+    out.push(LidarSpec {
+        beam: Some(Beam {
+            horizontal_mrad: 20.0,
+            vertical_mrad: 10.0,
+            returns: ReturnMode::Dual,
+            separation_m: 0.5,
+            rings: 1,
+        }),
+        foliage: Some(Foliage { gap_probability: 0.3, sway_m: 0.2 }),
+        ..sheet.lidar("lidar-16").unwrap().clone()
     });
     out
 }
@@ -122,4 +136,52 @@ fn a_road_user_under_the_sensor_is_counted_whole() {
     }
     // Level, its beams pass over the car; tilted, they meet its roof.
     assert!(seen > 50, "seen from above: {seen}");
+}
+
+/// A wide beam puts points on a car from columns whose axis passes beside it (a sub-ray at the
+/// footprint's edge meets the car): the window grows by the footprint and counts them.
+#[test]
+fn a_wide_beams_partial_hits_are_counted() {
+    let sheet = Catalog::from_toml_str(DATASHEET, Path::new("sensors-datasheet.toml")).unwrap();
+    let spec = LidarSpec {
+        beam: Some(Beam {
+            horizontal_mrad: 50.0,
+            vertical_mrad: 50.0,
+            returns: ReturnMode::Dual,
+            separation_m: 0.5,
+            rings: 1,
+        }),
+        ..sheet.lidar("lidar-16").unwrap().clone()
+    };
+    let car = Actor::from_box(1, Class::Car, Box3::new(Vec3::new(12.0, 0.0, 0.8), 4.5, 1.9, 1.6, 0.0));
+    let (lo, hi) = car.shape.aabb();
+    let set = ActorSet::new(vec![car]).unwrap();
+    let world = common::ground_world();
+    let pose = SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0);
+    let scan = simulate_lidar(&spec, &pose, &world, Some(&set), 1).unwrap();
+    // Points whose beam axis misses the car's box by more than the window's own margin.
+    let beside = scan
+        .points_local()
+        .iter()
+        .zip(&scan.sources)
+        .filter(|(p, s)| {
+            let d = (Vec3::new(p.x, p.y, p.z) - pose.position).normalize();
+            let margin = 12.0 * 5e-3;
+            s.actor() == Some(1) && !ray_meets_box(pose.position, d, lo - Vec3::splat(margin), hi + Vec3::splat(margin))
+        })
+        .count();
+    assert!(beside > 0, "no partial hit beside the box: the test would not test the grown window");
+    let got = lidar_points_on(&spec, &pose, &world, &set, 1, &[1]).unwrap();
+    assert_eq!(got[&1], scan.points_per_actor()[&1], "{beside} points beside the box");
+}
+
+/// Whether the ray from `o` along `d` meets the box [lo, hi] (slab test).
+fn ray_meets_box(o: Vec3, d: Vec3, lo: Vec3, hi: Vec3) -> bool {
+    let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
+    for a in 0..3 {
+        let (a_lo, a_hi) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+        t0 = t0.max(a_lo.min(a_hi));
+        t1 = t1.min(a_lo.max(a_hi));
+    }
+    t0 <= t1
 }

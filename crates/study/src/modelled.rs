@@ -19,7 +19,7 @@ pub struct Modelled {
 }
 
 /// What no setting models yet.
-pub const LEFT_OUT: &str = "beam divergence and multiple returns, fog's backscatter points, \
+pub const LEFT_OUT: &str = "per-laser origin offsets, fog's backscatter points, \
 parked cars that come and go, radar velocity aliasing and chirp timing, ghosts of more than one \
 bounce, clock drift";
 
@@ -46,6 +46,18 @@ pub fn modelled(study: &Study, dataset: &SimulateConfig) -> Vec<Modelled> {
     push(
         "LiDAR range by reflectivity (the lidar equation)",
         which(lidars.iter().filter(|l| l.detection_range.is_some()).map(|l| l.name.as_str()).collect()),
+    );
+    let beams: Vec<String> = lidars
+        .iter()
+        .filter_map(|l| {
+            let b = l.beam.as_ref()?;
+            let mode = format!("{:?}", b.returns).to_lowercase();
+            Some(format!("{} ({mode}, {} × {} mrad)", l.name, b.horizontal_mrad, b.vertical_mrad))
+        })
+        .collect();
+    push(
+        "LiDAR beam width and return mode (partial hits, mixed pixels)",
+        which(beams.iter().map(String::as_str).collect()),
     );
     let fx = |f: &dyn Fn(&hilo_sensor_models::RadarSpec) -> bool| -> (bool, String) {
         which(radars.iter().filter(|r| f(r)).map(|r| r.name.as_str()).collect())
@@ -104,7 +116,7 @@ mod tests {
     fn the_default_study_models_no_field_effect_and_the_field_study_all() {
         let s = Study::load(&fixture("study.toml")).unwrap();
         let m = modelled(&s, &s.dataset);
-        assert_eq!(m.len(), 14);
+        assert_eq!(m.len(), 15);
         // The paper's 16-beam sensor has its published table; nothing else is on.
         assert_eq!((m[0].on, m[0].detail.as_str()), (true, "lidar-16"));
         assert!(m[1..].iter().all(|e| !e.on && e.detail.is_empty()), "{m:?}");
@@ -125,6 +137,10 @@ mod tests {
         let by = |name: &str| m.iter().find(|e| e.effect.starts_with(name)).unwrap().detail.clone();
         assert_eq!(by("LiDAR beam tables"), "lidar-16, lidar-32, lidar-64");
         assert_eq!(by("radar side lobes"), "radar-4d", "only the radars the configurations use");
+        assert_eq!(
+            by("LiDAR beam width"),
+            "lidar-16 (strongest, 3 × 1.5 mrad), lidar-32 (strongest, 3 × 1.5 mrad), lidar-64 (strongest, 3 × 1.5 mrad)"
+        );
         assert_eq!(by("rig clock offsets"), "5 ms (1σ)");
     }
 }

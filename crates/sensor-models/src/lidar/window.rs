@@ -9,7 +9,8 @@
 //! atan2(z_max, r_min) and atan2(z_min, r_min) widened to the corners' own (r_min: the least
 //! horizontal distance to the footprint, the convex hull of the projected corners, which an
 //! edge between two corners attains). The rays of the pattern inside these windows, plus a
-//! margin, are cast through the same [`super::Scanner`] the full scan uses, with the same
+//! margin (a beam of finite width: its box grown by the footprint's spread at the box's far
+//! corner), are cast through the same [`super::Scanner`] the full scan uses, with the same
 //! per-ray random draws, so the counts equal the full scan's exactly; the test
 //! `windowed_counts_equal_the_full_scan` holds them to it.
 
@@ -123,11 +124,18 @@ pub fn lidar_points_on(
     // Per column, the rings to cast (a ray is cast once however many windows hold it).
     let mut cast = vec![false; scanner.cols * beams];
     let mut cols = vec![false; scanner.cols];
+    let spread = scanner.footprint.as_ref().map_or(0.0, |f| f.spread_rad());
     for a in actors.actors().iter().filter(|a| counts.contains_key(&a.id)) {
         let (mut lo, mut hi) = a.shape.aabb();
         if actors.span_s() > 0.0 {
             let (l2, h2) = a.moved(actors.span_s()).shape.aabb();
             (lo, hi) = (lo.min(l2), hi.max(h2));
+        }
+        if spread > 0.0 {
+            // A beam's axis passes within D·spread of any point its sub-rays meet at range ≤ D.
+            let far = (lo - pose.position).abs().max((hi - pose.position).abs()).length();
+            let grow = Vec3::splat(far * spread.tan() * 1.01 + 1e-3);
+            (lo, hi) = (lo - grow, hi + grow);
         }
         let corners: [Vec3; 8] = std::array::from_fn(|i| {
             let c = Vec3::new(
@@ -151,10 +159,10 @@ pub fn lidar_points_on(
         }
     }
     for (index, _) in cast.iter().enumerate().filter(|(_, c)| **c) {
-        if let Some((_, source)) = scanner.ray(index / beams, index % beams)
-            && let Some(n) = source.actor().and_then(|id| counts.get_mut(&id))
-        {
-            *n += 1;
+        for (_, source) in scanner.ray(index / beams, index % beams).into_iter().flatten() {
+            if let Some(n) = source.actor().and_then(|id| counts.get_mut(&id)) {
+                *n += 1;
+            }
         }
     }
     Ok(counts)
