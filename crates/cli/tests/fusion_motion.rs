@@ -87,7 +87,7 @@ fn scores_for(
         samples: 4 * 500,
         batch: 4,
         lr_max: 5e-3,
-        augmentation: Augmentation { rotate_deg: 0.0, flip_p: 0.0, scale: 0.02 },
+        augmentation: Augmentation { scale: 0.02, ..Augmentation::none() },
         checkpoint_steps: 10_000,
         // The fixture holds one class per motion state in set proportions; pasting golf carts
         // would change them, and what is tested is the radar's path through each plugin.

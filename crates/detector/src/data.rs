@@ -442,10 +442,15 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
     Ok((frames, stats))
 }
 
-/// A frame under a random draw of `aug` (rotation about the scene origin, mirror, scale).
+/// A frame under a random draw of `aug` (rotation about the scene origin, mirror, scale). With
+/// `keep_site_p` > 0 a draw either keeps the site's geometry (a small rotation, no mirror) or
+/// takes the full rotation and mirror with its boxes' velocities unknown.
 pub fn augment(aug: &Augmentation, f: &Frame, rng: &mut impl Rng) -> Frame {
-    let th = if aug.rotate_deg > 0.0 { rng.random_range(-aug.rotate_deg..=aug.rotate_deg).to_radians() } else { 0.0 };
-    let flip = aug.flip_p > 0.0 && rng.random::<f32>() < aug.flip_p;
+    let keep_site = aug.keep_site_p > 0.0 && rng.random::<f32>() < aug.keep_site_p;
+    let (rotate_deg, flip_p) = if keep_site { (aug.keep_site_rotate_deg, 0.0) } else { (aug.rotate_deg, aug.flip_p) };
+    let forget_velocity = aug.keep_site_p > 0.0 && !keep_site;
+    let th = if rotate_deg > 0.0 { rng.random_range(-rotate_deg..=rotate_deg).to_radians() } else { 0.0 };
+    let flip = flip_p > 0.0 && rng.random::<f32>() < flip_p;
     let s = if aug.scale > 0.0 { rng.random_range(1.0 - aug.scale..=1.0 + aug.scale) } else { 1.0 };
     let (c, sn) = (th.cos(), th.sin());
     let xy = |x: f32, y: f32| {
@@ -478,7 +483,7 @@ pub fn augment(aug: &Augmentation, f: &Frame, rng: &mut impl Rng) -> Frame {
             center: [x * s, y * s, b.center[2] * s],
             wlh: b.wlh.map(|v| v * s),
             yaw,
-            velocity: [vx * s, vy * s],
+            velocity: if forget_velocity { [f32::NAN; 2] } else { [vx * s, vy * s] },
         };
     }
     out
@@ -581,7 +586,7 @@ mod tests {
             radar: radar.clone(),
             boxes: Vec::new(),
         };
-        let aug = Augmentation { rotate_deg: 90.0, flip_p: 0.0, scale: 0.0 };
+        let aug = Augmentation { rotate_deg: 90.0, ..Augmentation::none() };
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let out = augment(&aug, &f, &mut rng);
         for (a, b) in out.radar.iter().zip(&radar) {
@@ -624,7 +629,7 @@ mod tests {
     /// velocity projected on the line of sight stays v_r (rotation, mirror and scale together).
     #[test]
     fn augmentation_keeps_the_radial_velocity_vector_consistent() {
-        let aug = Augmentation { rotate_deg: 180.0, flip_p: 0.5, scale: 0.05 };
+        let aug = Augmentation::default();
         let (lx, ly) = (0.6f32, 0.8f32);
         let velocity = [3.0f32, -4.0];
         let v_r = velocity[0] * lx + velocity[1] * ly;
@@ -644,5 +649,69 @@ mod tests {
             let v = f.boxes[0].velocity;
             assert!((v[0] * p[5] + v[1] * p[6] - p[4]).abs() < 1e-4, "{v:?} {p:?}");
         }
+    }
+
+    /// With `keep_site_p`, a draw either keeps the site (turned by at most
+    /// `keep_site_rotate_deg`, never mirrored, velocity kept and turned) or takes the full turn
+    /// and mirror with its velocity unknown; the share of the first within binomial bounds.
+    /// Without it, the draws are those of the plain augmentation, bit for bit.
+    #[test]
+    fn keeping_the_site_teaches_velocity_only_in_the_sites_geometry() {
+        let frame = Frame {
+            sample_token: "s".into(),
+            scene: "a".into(),
+            lidar: vec![[10.0, 5.0, 1.0, 0.2, 0.0]],
+            radar: Vec::new(),
+            boxes: vec![GtBox {
+                class: 0,
+                center: [10.0, 5.0, 1.0],
+                wlh: [1.9, 4.6, 1.6],
+                yaw: 0.3,
+                velocity: [3.0, -4.0],
+            }],
+        };
+        let aug = Augmentation { keep_site_p: 0.3, ..Augmentation::default() };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let n = 4_000;
+        let (mut kept, mut wide_forgotten) = (0, 0);
+        for _ in 0..n {
+            let f = augment(&aug, &frame, &mut rng);
+            let (b, p) = (&f.boxes[0], f.lidar[0]);
+            // The turn and mirror the draw took, from the point: a mirror flips the sign of the
+            // cross product of (10, 5) with its image direction relative to the turn.
+            let turn = (p[1].atan2(p[0]) - 5.0f32.atan2(10.0)).to_degrees();
+            let turn = (turn + 540.0).rem_euclid(360.0) - 180.0;
+            if b.velocity.iter().all(|v| v.is_finite()) {
+                kept += 1;
+                assert!(turn.abs() <= 15.0 + 1e-3, "a site-keeping draw turned by {turn}°");
+                // Unmirrored: the yaw turned by the same angle as the position.
+                let dyaw = ((b.yaw - 0.3).to_degrees() - turn + 540.0).rem_euclid(360.0) - 180.0;
+                assert!(dyaw.abs() < 1e-2, "mirrored or turned apart: {dyaw}");
+                let speed = b.velocity[0].hypot(b.velocity[1]) / (p[0].hypot(p[1]) / 10.0f32.hypot(5.0));
+                assert!((speed - 5.0).abs() < 1e-3, "{speed}");
+            } else {
+                assert!(b.velocity.iter().all(|v| v.is_nan()), "{:?}", b.velocity);
+                wide_forgotten += usize::from(turn.abs() > 15.0);
+            }
+        }
+        let (p, sd) = (0.3 * n as f64, (n as f64 * 0.3 * 0.7).sqrt());
+        assert!((kept as f64 - p).abs() < 4.0 * sd, "{kept} of {n} kept the site");
+        assert!(wide_forgotten > (n - kept) * 3 / 4, "the others turn freely: {wide_forgotten}");
+        // Off (0), the draws are the plain augmentation's, bit for bit.
+        let plain = Augmentation::default();
+        let off = Augmentation { keep_site_p: 0.0, keep_site_rotate_deg: 40.0, ..Augmentation::default() };
+        let (mut r1, mut r2) = (rand_chacha::ChaCha8Rng::seed_from_u64(2), rand_chacha::ChaCha8Rng::seed_from_u64(2));
+        for _ in 0..50 {
+            let (a, b) = (augment(&plain, &frame, &mut r1), augment(&off, &frame, &mut r2));
+            assert_eq!((a.lidar, a.boxes[0].velocity), (b.lidar, b.boxes[0].velocity));
+        }
+        let bad = Augmentation { keep_site_p: 1.5, ..Augmentation::default() };
+        let e = bad.check().unwrap_err().to_string();
+        assert!(e.contains("augmentation.keep_site_p") && e.contains("1.5"), "{e}");
+        let bad = Augmentation { rotate_deg: f32::NAN, ..Augmentation::default() };
+        assert!(bad.check().unwrap_err().to_string().contains("augmentation.rotate_deg"));
+        // The default's text and JSON do not name the share (stage hashes and run.json keep theirs).
+        assert_eq!(format!("{plain:?}"), "Augmentation { rotate_deg: 180.0, flip_p: 0.5, scale: 0.05 }");
+        assert_eq!(serde_json::to_string(&plain).unwrap(), r#"{"rotate_deg":180.0,"flip_p":0.5,"scale":0.05}"#);
     }
 }

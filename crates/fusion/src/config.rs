@@ -308,6 +308,7 @@ impl Check for TrainConfig {
         if let Some(p) = &self.paste {
             p.validate()?;
         }
+        self.augmentation.check()?;
         if self.batch == 0 || self.samples == 0 || self.batch > limits::BATCH || self.samples > limits::SAMPLES {
             let (field, value, most) = if self.batch == 0 || self.batch > limits::BATCH {
                 ("batch", self.batch, limits::BATCH)
@@ -559,7 +560,14 @@ impl InputConfig {
 }
 
 /// Global augmentation (roadside: about the scene origin).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+///
+/// A roadside rig sees one site from fixed poses, and its traffic keeps to the site's lanes:
+/// with `keep_site_p` > 0, that share of the draws keeps the site's geometry (rotated by at
+/// most `keep_site_rotate_deg`, never mirrored), and only those teach velocity; the others
+/// rotate and mirror as `rotate_deg` and `flip_p` say, their velocities unknown (the velocity
+/// loss skips them). The boxes, classes and sizes learn from every draw. 0, the default:
+/// every draw teaches everything.
+#[derive(Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Augmentation {
     /// Uniform rotation in ±this many degrees.
@@ -568,17 +576,76 @@ pub struct Augmentation {
     pub flip_p: f32,
     /// Uniform scaling in [1 − s, 1 + s].
     pub scale: f32,
+    /// The share of draws that keep the site's geometry and teach velocity (0: off).
+    #[serde(skip_serializing_if = "is_zero_f32")]
+    pub keep_site_p: f32,
+    /// Rotation of a draw that keeps the site's geometry, uniform in ± this many degrees.
+    #[serde(skip_serializing_if = "is_fifteen")]
+    pub keep_site_rotate_deg: f32,
 }
+
+fn is_zero_f32(v: &f32) -> bool {
+    *v == 0.0
+}
+
+fn is_fifteen(v: &f32) -> bool {
+    *v == KEEP_SITE_ROTATE_DEG
+}
+
+/// [`Augmentation::keep_site_rotate_deg`]'s default.
+pub const KEEP_SITE_ROTATE_DEG: f32 = 15.0;
 
 impl Default for Augmentation {
     fn default() -> Self {
-        Augmentation { rotate_deg: 180.0, flip_p: 0.5, scale: 0.05 }
+        Augmentation { rotate_deg: 180.0, flip_p: 0.5, scale: 0.05, ..Augmentation::none() }
     }
 }
 
 impl Augmentation {
     pub fn none() -> Self {
-        Augmentation { rotate_deg: 0.0, flip_p: 0.0, scale: 0.0 }
+        Augmentation {
+            rotate_deg: 0.0,
+            flip_p: 0.0,
+            scale: 0.0,
+            keep_site_p: 0.0,
+            keep_site_rotate_deg: KEEP_SITE_ROTATE_DEG,
+        }
+    }
+
+    /// The settings' own range: finite angles in [0, 180], probabilities in [0, 1], a scale in
+    /// [0, 1).
+    pub fn check(&self) -> std::result::Result<(), FusionError> {
+        let fields = [
+            ("rotate_deg", self.rotate_deg, (0.0..=180.0).contains(&self.rotate_deg), "in [0, 180]"),
+            ("flip_p", self.flip_p, (0.0..=1.0).contains(&self.flip_p), "a probability in [0, 1]"),
+            ("scale", self.scale, (0.0..1.0).contains(&self.scale), "in [0, 1)"),
+            ("keep_site_p", self.keep_site_p, (0.0..=1.0).contains(&self.keep_site_p), "a probability in [0, 1]"),
+            (
+                "keep_site_rotate_deg",
+                self.keep_site_rotate_deg,
+                (0.0..=180.0).contains(&self.keep_site_rotate_deg),
+                "in [0, 180]",
+            ),
+        ];
+        match fields.iter().find(|f| !f.2) {
+            Some((field, v, _, want)) => {
+                Err(FusionError::field(format!("train: augmentation.{field}"), v, format!("must be {want}")))
+            }
+            None => Ok(()),
+        }
+    }
+}
+
+/// As derived, but the site-keeping share appears only when set, so a schedule without it
+/// keeps the text (and the stage hashes taken over it) it had before the share existed.
+impl std::fmt::Debug for Augmentation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("Augmentation");
+        d.field("rotate_deg", &self.rotate_deg).field("flip_p", &self.flip_p).field("scale", &self.scale);
+        if self.keep_site_p != 0.0 || self.keep_site_rotate_deg != KEEP_SITE_ROTATE_DEG {
+            d.field("keep_site_p", &self.keep_site_p).field("keep_site_rotate_deg", &self.keep_site_rotate_deg);
+        }
+        d.finish()
     }
 }
 

@@ -20,8 +20,8 @@
 //! return mode reports the strongest, the last or both echoes ([`beam`]). Without one, a beam is
 //! a ray of no width with one return.
 //!
-//! Left out, on purpose: the beams fire from one point (no per-laser offsets). Rain and fog act through the spec
-//! ([`crate::weather::Weather::lidar`]: shorter maximum range, weaker returns).
+//! Left out, on purpose: the beams fire from one point (no per-laser offsets). Rain and fog act
+//! through the spec ([`crate::weather::Weather::lidar`]: shorter maximum range, weaker returns).
 
 use crate::error::SensorError;
 use crate::noise::{rng_for, stream};

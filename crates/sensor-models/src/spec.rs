@@ -128,8 +128,8 @@ pub struct DetectionRange {
 }
 
 /// As derived, but the fields added after the first catalogs (`detection_range`,
-/// `extinction_per_m`, `foliage`, `beam`) appear only when set: a catalog's content hash (taken over this form)
-/// stays what it was for the LiDARs it already described.
+/// `extinction_per_m`, `foliage`, `beam`) appear only when set: a catalog's content hash (taken
+/// over this form) stays what it was for the LiDARs it already described.
 impl std::fmt::Debug for LidarSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut d = f.debug_struct("LidarSpec");
