@@ -529,6 +529,31 @@ mod tests {
         let e = load(d.path()).unwrap_err().to_string();
         assert!(e.contains("c.toml") && e.contains("studies of one scene and catalog each"), "{e}");
     }
+    /// The velocity study (`fixtures/velocity-study.toml`): the default study, its configurations
+    /// and traffic, with every detector's footprint velocity head and every schedule keeping the
+    /// site in three draws of four (the rest of the augmentation the preset's).
+    #[test]
+    fn the_velocity_fixture_changes_the_heads_and_the_draws_only() {
+        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
+        let Loaded::Study(v) = load(&fixtures.join("velocity-study.toml")).unwrap() else { panic!("not a study") };
+        let default = Study::load(&fixtures.join("study.toml")).unwrap();
+        assert_eq!(v.file.configurations, default.file.configurations);
+        assert_eq!((&v.scene_hash, &v.catalog_hash), (&default.scene_hash, &default.catalog_hash));
+        assert_eq!(format!("{:?}", v.dataset), format!("{:?}", default.dataset));
+        let patch = v.file.detector_patch.as_ref().unwrap();
+        assert_eq!(
+            (patch["velocity_target"].as_str(), patch["velocity_weight"].as_f64()),
+            (Some("footprint"), Some(1.0))
+        );
+        let preset = hilo_detector::train::TrainConfig::default();
+        let t = crate::plan::scheduled(&v, "centerpoint", &preset).unwrap();
+        assert_eq!(t.augmentation.keep_site_p, 0.75);
+        assert_eq!(
+            (t.augmentation.rotate_deg, t.augmentation.flip_p),
+            (preset.augmentation.rotate_deg, preset.augmentation.flip_p)
+        );
+    }
+
     /// The realism sweep (`fixtures/realism-study.toml`): the default study with the paper's
     /// catalog and the datasheet one, which differ in the LiDARs and the radars' effects.
     #[test]

@@ -531,7 +531,21 @@ fn a_train_schedule_reaches_every_job_and_is_checked() {
         assert_eq!(p.detector, q.detector);
         assert_ne!(p.run, q.run, "{}: a rescheduled run has a folder of its own", p.id);
     }
+    // The augmentation's site-keeping share (fixtures/velocity-study.toml): the other
+    // augmentation fields keep the preset's.
+    let site = plan(&format!("{TWO_CONFIGS}\n[train_schedule.augmentation]\nkeep_site_p = 0.75\n")).unwrap();
+    for (p, q) in site.jobs.iter().zip(&plain.jobs) {
+        let (a, b) = (&p.train.augmentation, &q.train.augmentation);
+        assert_eq!(
+            (a.keep_site_p, a.rotate_deg, a.flip_p, a.scale),
+            (0.75, b.rotate_deg, b.flip_p, b.scale),
+            "{}",
+            p.id
+        );
+        assert_ne!(p.run, q.run, "{}", p.id);
+    }
     for (text, words) in [
+        ("\n[train_schedule.augmentation]\nkeep_site_p = 2.0\n", vec!["[train_schedule]", "keep_site_p"]),
         ("\n[train_schedule]\nseed = 3\n", vec!["[train_schedule]", "seed = 3"]),
         ("\n[train_schedule]\nreplicas = 2\n", vec!["[train_schedule]", "replicas = 2"]),
         ("\n[train_schedule]\nbatchsize = 16\n", vec!["[train_schedule]", "batchsize"]),
