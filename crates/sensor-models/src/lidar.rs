@@ -305,8 +305,7 @@ impl<'a> Scanner<'a> {
     /// each then drawn its range noise and drop-off in range order. A point lies on the beam's
     /// axis at its echo's range, as a sensor reports it.
     fn wide_ray(&self, k: usize, ring: usize, footprint: &beam::Footprint) -> Returns {
-        let (spec, beams) = (self.spec, self.elevations.len());
-        let Some(b) = &spec.beam else { return [None, None] };
+        let (spec, beams, b) = (self.spec, self.elevations.len(), &footprint.beam);
         let time_s = self.time_s(k);
         let (az, el) = (self.azimuth(k), self.elevations[ring]);
         let d_sensor = spherical_dir(az, el);

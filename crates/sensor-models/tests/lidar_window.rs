@@ -11,7 +11,8 @@ mod common;
 
 use glam::Vec3;
 use hilo_core::{Box3, Class};
-use hilo_raycast::{Actor, ActorSet, QueryRegion, Scene, World};
+use hilo_raycast::shapes::intersect_box;
+use hilo_raycast::{Actor, ActorSet, QueryRegion, Ray, Scene, World};
 use hilo_sensor_models::{Beam, Catalog, Foliage, LidarSpec, ReturnMode, SensorPose, lidar_points_on, simulate_lidar};
 use rand::{Rng, SeedableRng};
 use std::collections::BTreeMap;
@@ -154,34 +155,24 @@ fn a_wide_beams_partial_hits_are_counted() {
         ..sheet.lidar("lidar-16").unwrap().clone()
     };
     let car = Actor::from_box(1, Class::Car, Box3::new(Vec3::new(12.0, 0.0, 0.8), 4.5, 1.9, 1.6, 0.0));
-    let (lo, hi) = car.shape.aabb();
     let set = ActorSet::new(vec![car]).unwrap();
     let world = common::ground_world();
     let pose = SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0);
     let scan = simulate_lidar(&spec, &pose, &world, Some(&set), 1).unwrap();
-    // Points whose beam axis misses the car's box by more than the window's own margin.
+    // Points whose beam axis misses the car's box, grown by more than the window's own margin.
+    let margin = 2.0 * 12.0 * 5e-3;
+    let grown = Box3::new(Vec3::new(12.0, 0.0, 0.8), 4.5 + margin, 1.9 + margin, 1.6 + margin, 0.0);
     let beside = scan
         .points_local()
         .iter()
         .zip(&scan.sources)
         .filter(|(p, s)| {
-            let d = (Vec3::new(p.x, p.y, p.z) - pose.position).normalize();
-            let margin = 12.0 * 5e-3;
-            s.actor() == Some(1) && !ray_meets_box(pose.position, d, lo - Vec3::splat(margin), hi + Vec3::splat(margin))
+            let dir = (Vec3::new(p.x, p.y, p.z) - pose.position).normalize();
+            let axis = Ray { origin: pose.position, dir, t_min: 0.0, t_max: f32::INFINITY };
+            s.actor() == Some(1) && intersect_box(&grown, &axis, f32::INFINITY).is_none()
         })
         .count();
     assert!(beside > 0, "no partial hit beside the box: the test would not test the grown window");
     let got = lidar_points_on(&spec, &pose, &world, &set, 1, &[1]).unwrap();
     assert_eq!(got[&1], scan.points_per_actor()[&1], "{beside} points beside the box");
-}
-
-/// Whether the ray from `o` along `d` meets the box [lo, hi] (slab test).
-fn ray_meets_box(o: Vec3, d: Vec3, lo: Vec3, hi: Vec3) -> bool {
-    let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
-    for a in 0..3 {
-        let (a_lo, a_hi) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
-        t0 = t0.max(a_lo.min(a_hi));
-        t1 = t1.min(a_lo.max(a_hi));
-    }
-    t0 <= t1
 }

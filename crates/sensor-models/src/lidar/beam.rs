@@ -34,9 +34,11 @@ pub struct Sample {
     pub weight: f32,
 }
 
-/// The sub-rays that sample one beam's footprint, the axis first.
+/// The sub-rays that sample one beam's footprint, the axis first, and the beam they sample
+/// (its echoes' separation and return mode).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Footprint {
+    pub beam: Beam,
     pub samples: Vec<Sample>,
 }
 
@@ -70,7 +72,7 @@ impl Footprint {
                 weight: (-2.0 * (x * x + y * y)).exp() / total,
             })
             .collect();
-        Footprint { samples }
+        Footprint { beam: *beam, samples }
     }
 
     /// The widest angle of a sub-ray from the axis, rad.
