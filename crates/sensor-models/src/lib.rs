@@ -5,7 +5,8 @@
 //!   reflectivity), validated once.
 //! - [`lidar`], [`radar`]: scan simulation over a [`hilo_raycast::World`] and the frame's
 //!   actors; deterministic for a seed. [`lidar::beam`]: a LiDAR beam of finite width (sub-rays
-//!   over its footprint, echoes, the strongest, last or dual returns).
+//!   over its footprint, echoes, the strongest, last or dual returns). [`fog`]: fog's own
+//!   echo for a LiDAR (Hahner et al.'s soft-target channel).
 //! - [`radar_effects`]: what a real radar adds to the ideal one, each a catalog setting:
 //!   azimuth by angle, unresolved targets, multipath ghosts, side lobes, false alarms,
 //!   vegetation Doppler, RCS by aspect.
@@ -22,6 +23,7 @@
 
 pub mod error;
 pub mod export;
+pub mod fog;
 pub mod lidar;
 pub mod noise;
 pub mod pose;

@@ -21,7 +21,8 @@
 //! a ray of no width with one return.
 //!
 //! Left out, on purpose: the beams fire from one point (no per-laser offsets). Rain and fog act
-//! through the spec ([`crate::weather::Weather::lidar`]: shorter maximum range, weaker returns).
+//! through the spec ([`crate::weather::Weather::lidar`]: shorter maximum range, weaker returns,
+//! and on request fog's own echo, which a beam reports as it would a surface's: [`crate::fog`]).
 
 use crate::error::SensorError;
 use crate::noise::{rng_for, stream};
@@ -51,6 +52,8 @@ pub enum PointSource {
     SideLobe,
     /// A false alarm: noise that crossed the threshold.
     Noise,
+    /// A LiDAR's echo from fog in front of it ([`crate::fog`]).
+    Fog,
 }
 
 impl PointSource {
@@ -262,11 +265,37 @@ impl<'a> Scanner<'a> {
         }
     }
 
-    /// The return of a ray of no width, if any.
+    /// The return of a ray of no width, if any. In fog with its echo ([`crate::fog`]) the ray
+    /// reports the stronger of the fog's echo and the hard target's (a single-return sensor
+    /// reports its strongest), the fog's alone where no surface is seen behind it.
     fn thin_ray(&self, k: usize, ring: usize) -> Option<(LidarPoint, PointSource)> {
         let (spec, beams) = (self.spec, self.elevations.len());
         let time_s = self.time_s(k);
         let d_sensor = spherical_dir(self.azimuth(k), self.elevations[ring]);
+        let index = k * beams + ring;
+        let hard = self.thin_hard(index, d_sensor, time_s);
+        let fog = self.fog_return(index, hard.as_ref().map(|h| h.range_m));
+        let (range, reflectance, source, survive) = match (hard, fog) {
+            (Some(h), Some(f)) if f.power > h.power => (f.range_m, f.reflectance, PointSource::Fog, f.survive),
+            (Some(mut h), _) => {
+                let survive = h.rng.random::<f32>();
+                (h.range_m, h.reflectance, h.source, survive)
+            }
+            (None, Some(f)) => (f.range_m, f.reflectance, PointSource::Fog, f.survive),
+            (None, None) => return None,
+        };
+        let i = intensity(reflectance, 1.0, range, spec.atmosphere_attenuation_per_m);
+        if survive >= survival_probability(spec, i) {
+            return None;
+        }
+        let p = d_sensor * range;
+        Some((LidarPoint { x: p.x, y: p.y, z: p.z, intensity: i, ring: ring as u16, time_s }, source))
+    }
+
+    /// The hard target a ray of no width sees, before the drop-off: its noisy range, ρ·|cos|,
+    /// received power and source, and the ray's generator, whose next draw is the drop-off's.
+    fn thin_hard(&self, index: usize, d_sensor: Vec3, time_s: f32) -> Option<HardReturn> {
+        let spec = self.spec;
         let ray = Ray {
             origin: self.pose.position,
             dir: self.rot * d_sensor,
@@ -276,7 +305,6 @@ impl<'a> Scanner<'a> {
         // Moving actors (a set built with a span) are met where they are when this column
         // fires: the rolling shutter of a spinning sensor.
         let hit = self.world.closest_hit_at(&ray, self.actors, time_s)?;
-        let index = k * beams + ring;
         let mut rng = rng_for(self.seed, stream::LIDAR_RAY, index as u64);
         let noise: f32 = rng.sample(StandardNormal);
         let (hit, sway) = self.through_foliage(&ray, hit, time_s, index)?;
@@ -289,15 +317,27 @@ impl<'a> Scanner<'a> {
         if !spec.detects(reflectivity, cos_inc, range) {
             return None;
         }
-        let i = intensity(reflectivity, cos_inc, range, spec.atmosphere_attenuation_per_m);
-        if rng.random::<f32>() >= survival_probability(spec, i) {
+        let reflectance = reflectivity * cos_inc.abs();
+        let power = reflectance * (-2.0 * spec.extinction_per_m * range).exp() / (range * range);
+        Some(HardReturn { range_m: range, reflectance, power, source: PointSource::of(&hit.target), rng })
+    }
+
+    /// The fog's echo on ray `index` ([`crate::fog`]), if the weather gives one, the sensor sees it
+    /// and it lies before the hard target at `hard_m` (a target within the echo's span masks
+    /// it): its range drawn over the echo's crest, and the drop-off's draw.
+    fn fog_return(&self, index: usize, hard_m: Option<f32>) -> Option<FogReturn> {
+        let echo = self.spec.fog_echo.as_ref()?;
+        if hard_m.is_some_and(|h| h <= echo.span_m.1) || !self.spec.detects_power(echo.power) {
             return None;
         }
-        let p = d_sensor * range;
-        Some((
-            LidarPoint { x: p.x, y: p.y, z: p.z, intensity: i, ring: ring as u16, time_s },
-            PointSource::of(&hit.target),
-        ))
+        let mut rng = rng_for(self.seed, stream::LIDAR_FOG, index as u64);
+        let range_m = echo.range_at(rng.random());
+        let survive = rng.random();
+        if range_m <= self.spec.min_range_m {
+            return None;
+        }
+        let reflectance = echo.reflectance_at(range_m, self.spec.extinction_per_m);
+        Some(FogReturn { range_m, reflectance, power: echo.power, survive })
     }
 
     /// The returns of a beam of finite width ([`beam`]): its sub-rays cast, their hits grouped
@@ -332,7 +372,14 @@ impl<'a> Scanner<'a> {
             let power = reflectance * (-two_alpha * range_m).exp() / (range_m * range_m);
             hits.push(beam::SubHit { range_m, reflectance, power, source: PointSource::of(&hit.target) });
         }
-        let echoes = beam::echoes(&mut hits, b.separation_m);
+        let mut echoes = beam::echoes(&mut hits, b.separation_m);
+        // The fog's echo, in front of the nearest surface's by more than the separation.
+        let nearest = echoes.first().map(|e| e.range_m - b.separation_m);
+        if let Some(f) = self.fog_return(index, nearest) {
+            let fog =
+                beam::Echo { range_m: f.range_m, reflectance: f.reflectance, power: f.power, source: PointSource::Fog };
+            echoes.insert(0, fog);
+        }
         let mut rng = rng_for(self.seed, stream::LIDAR_RAY, index as u64);
         let mut out = [None, None];
         for (slot, e) in out.iter_mut().zip(beam::reported(&echoes, b.returns, |e| spec.detects_power(e.power))) {
@@ -355,6 +402,26 @@ impl<'a> Scanner<'a> {
 
 /// A ray's returns: none, one, or two (a dual-return beam), nearest first.
 type Returns = [Option<(LidarPoint, PointSource)>; 2];
+
+/// What a ray of no width returns from a surface, before the drop-off.
+struct HardReturn {
+    range_m: f32,
+    /// ρ·|cos incidence|.
+    reflectance: f32,
+    /// ρ·|cos|·e^{−2αr}/r².
+    power: f32,
+    source: PointSource,
+    rng: rand_pcg::Pcg32,
+}
+
+/// The fog's echo on one ray: its range, the reflectance its intensity is computed from, its
+/// received power, and the drop-off's draw.
+struct FogReturn {
+    range_m: f32,
+    reflectance: f32,
+    power: f32,
+    survive: f32,
+}
 
 /// Simulates one frame. `seed` should already identify the sensor and frame (see
 /// [`crate::noise::mix`]); the same inputs give identical scans.

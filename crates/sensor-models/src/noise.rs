@@ -32,4 +32,6 @@ pub mod stream {
     pub const TIME_SYNC: u64 = 6;
     /// A LiDAR ray's passage through moving foliage.
     pub const LIDAR_FOLIAGE: u64 = 7;
+    /// Where in fog's echo a LiDAR ray's fog point lies, and whether it survives the drop-off.
+    pub const LIDAR_FOG: u64 = 8;
 }

@@ -62,6 +62,11 @@ pub struct LidarSpec {
     /// seen. See [`Beam`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub beam: Option<Beam>,
+    /// The echo of fog in front of the sensor, a property of the scene's weather: set by
+    /// [`crate::weather::Weather::lidar`] when the weather asks for fog's backscatter, never read
+    /// from a catalog (absent: fog only attenuates). See [`crate::fog`].
+    #[serde(skip)]
+    pub fog_echo: Option<crate::fog::FogEcho>,
 }
 
 /// A LiDAR beam of finite width and the echoes it returns. The pulse leaves the sensor as an
@@ -160,6 +165,9 @@ impl std::fmt::Debug for LidarSpec {
         }
         if let Some(b) = &self.beam {
             d.field("beam", b);
+        }
+        if let Some(e) = &self.fog_echo {
+            d.field("fog_echo", e);
         }
         d.finish()
     }

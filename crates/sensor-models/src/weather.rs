@@ -16,25 +16,50 @@
 //!   recommendation's fitted coefficients at the carrier frequency (horizontal polarisation);
 //!   the SNR loses 2γr over the two-way path.
 //!
-//! Left out, and why: fog's backscatter (the spurious near-range returns Hahner et al. simulate)
-//! and rain's drop returns — both add clutter points within a few metres of the sensor, where a
-//! roadside mast sees no road user, so they move no detection here; fog's attenuation of the
-//! radar (ITU-R P.840: liquid water of dense fog costs a 77 GHz link a few dB/km at most, a
+//! - **LiDAR, fog's backscatter** (`fog_backscatter = true`): the pulse's echo from the fog
+//!   itself, a metre or two in front of the sensor ([`crate::fog`], Hahner et al.'s
+//!   soft-target model). It does not only add points around the sensor: a beam reporting its
+//!   strongest echo reports the fog's wherever it outshines the road user behind it, so dense
+//!   fog takes the distant road users of a strongest-return sensor. It needs a sensor with a
+//!   datasheet detection range (the lidar equation's units compare the two echoes); the
+//!   paper's sensors, which keep every return, are left as they are.
+//!
+//! Left out, and why: rain's drop returns (sparse points within a few metres of the sensor,
+//! where a roadside mast sees no road user, so they move no detection here); fog's attenuation
+//! of the radar (ITU-R P.840: liquid water of dense fog costs a 77 GHz link a few dB/km at most, a
 //! fraction of a dB over an intersection); snow; wet-road spray; and the weather's effect on the
 //! placement IP's visibility (placement assumes clear air).
 
+use crate::fog::{FogChannel, FogEcho};
 pub use crate::range::{lambert_w0, max_range_m};
 use crate::spec::{LidarSpec, RadarSpec};
 use serde::{Deserialize, Serialize};
 
 /// A weather condition (`[dataset.weather]` in a study or dataset file). Clear by default.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Weather {
     /// Rain rate, mm/h (0: none; 2.5 light, 10 moderate, 25 heavy, 50+ violent).
     pub rain_mm_h: f32,
     /// Meteorological optical range in fog, m (absent: no fog; < 1,000 m is fog, < 200 m dense).
     pub fog_visibility_m: Option<f32>,
+    /// The fog's own echo ([`crate::fog`]) for the LiDARs with a detection range (false:
+    /// fog only attenuates). Needs `fog_visibility_m`.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub fog_backscatter: bool,
+}
+
+/// As derived, but `fog_backscatter` appears only when set: the content hash of a dataset
+/// (taken over this form) stays what it was for the weathers it already described.
+impl std::fmt::Debug for Weather {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("Weather");
+        d.field("rain_mm_h", &self.rain_mm_h).field("fog_visibility_m", &self.fog_visibility_m);
+        if self.fog_backscatter {
+            d.field("fog_backscatter", &self.fog_backscatter);
+        }
+        d.finish()
+    }
 }
 
 /// dB per km to an extinction coefficient per metre (power).
@@ -48,7 +73,8 @@ impl std::fmt::Display for Weather {
             parts.push(format!("rain ({} mm/h)", self.rain_mm_h));
         }
         if let Some(v) = self.fog_visibility_m {
-            parts.push(format!("fog (visibility {v} m)"));
+            let echo = if self.fog_backscatter { ", its echo" } else { "" };
+            parts.push(format!("fog (visibility {v} m{echo})"));
         }
         if parts.is_empty() { f.write_str("clear") } else { f.write_str(&parts.join(" and ")) }
     }
@@ -86,6 +112,13 @@ impl Weather {
                 reason: "give 10 to 10,000 m, or leave it out for no fog",
             });
         }
+        if self.fog_backscatter && self.fog_visibility_m.is_none() {
+            return Err(WeatherError {
+                field: "fog_backscatter",
+                value: "true".to_owned(),
+                reason: "fog's echo needs fog: give fog_visibility_m too",
+            });
+        }
         Ok(())
     }
 
@@ -98,7 +131,8 @@ impl Weather {
     /// `spec` in this weather: maximum range from the hard-target range equation (for a sensor
     /// with a datasheet detection range, the extinction in its lidar equation instead, which
     /// shortens each target's reach by its reflectivity), intensity with the two-way
-    /// transmission. Clear weather returns it unchanged.
+    /// transmission, and with `fog_backscatter` the fog's echo ([`Self::fog_echo`]). Clear
+    /// weather returns it unchanged.
     pub fn lidar(&self, spec: &LidarSpec) -> LidarSpec {
         let mut s = spec.clone();
         if self.is_clear() {
@@ -107,13 +141,22 @@ impl Weather {
         let a = self.lidar_extinction_per_m();
         if s.detection_range.is_some() {
             // The lidar equation carries the extinction to every target by its reflectivity;
-            // `max_range_m` stays the sensor's range gate.
+            // `max_range_m` stays the sensor's range gate. Its units also weigh fog's echo
+            // against a surface's.
+            s.fog_echo = self.fog_echo();
             s.extinction_per_m += a;
         } else {
             s.max_range_m = max_range_m(spec.max_range_m, a).max(spec.min_range_m);
         }
         s.atmosphere_attenuation_per_m += 2.0 * a;
         s
+    }
+
+    /// The fog's echo a LiDAR meets in this weather (Hahner et al.'s channel through the fog's
+    /// and the rain's extinction): none without `fog_backscatter`.
+    pub fn fog_echo(&self) -> Option<FogEcho> {
+        let v = self.fog_visibility_m.filter(|_| self.fog_backscatter)?;
+        Some(FogEcho::new(&FogChannel::hahner(f64::from(v), f64::from(self.lidar_extinction_per_m()))))
     }
 
     /// `spec` in this weather: the rain's one-way loss at its carrier (dB per metre).

@@ -19,7 +19,7 @@ pub struct Modelled {
 }
 
 /// What no setting models yet.
-pub const LEFT_OUT: &str = "per-laser origin offsets, fog's backscatter points, \
+pub const LEFT_OUT: &str = "per-laser origin offsets, \
 parked cars that come and go, radar velocity aliasing and chirp timing, ghosts of more than one \
 bounce, clock drift";
 
@@ -59,6 +59,16 @@ pub fn modelled(study: &Study, dataset: &SimulateConfig) -> Vec<Modelled> {
         "LiDAR beam width and return mode (partial hits, mixed pixels)",
         which(beams.iter().map(String::as_str).collect()),
     );
+    // Fog's own echo: the conditions that ask for it, for the LiDARs with a detection range.
+    let ranged: Vec<&str> = lidars.iter().filter(|l| l.detection_range.is_some()).map(|l| l.name.as_str()).collect();
+    let echo: Vec<String> = study
+        .file
+        .conditions
+        .iter()
+        .filter(|c| c.weather.fog_backscatter && !ranged.is_empty())
+        .map(|c| format!("{} ({})", c.name, ranged.join(", ")))
+        .collect();
+    push("fog's echo (LiDAR backscatter)", which(echo.iter().map(String::as_str).collect()));
     let fx = |f: &dyn Fn(&hilo_sensor_models::RadarSpec) -> bool| -> (bool, String) {
         which(radars.iter().filter(|r| f(r)).map(|r| r.name.as_str()).collect())
     };
@@ -116,7 +126,7 @@ mod tests {
     fn the_default_study_models_no_field_effect_and_the_field_study_all() {
         let s = Study::load(&fixture("study.toml")).unwrap();
         let m = modelled(&s, &s.dataset);
-        assert_eq!(m.len(), 15);
+        assert_eq!(m.len(), 16);
         // The paper's 16-beam sensor has its published table; nothing else is on.
         assert_eq!((m[0].on, m[0].detail.as_str()), (true, "lidar-16"));
         assert!(m[1..].iter().all(|e| !e.on && e.detail.is_empty()), "{m:?}");
@@ -125,7 +135,7 @@ mod tests {
         std::fs::write(
             &f,
             format!(
-                "extends = {:?}\ncatalog = {:?}\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\nfoliage = {{ gap_probability = 0.3, sway_m = 0.1 }}\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n",
+                "extends = {:?}\ncatalog = {:?}\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\nfoliage = {{ gap_probability = 0.3, sway_m = 0.1 }}\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n[[conditions]]\nname = \"dense fog, echo\"\nweather = {{ fog_visibility_m = 60.0, fog_backscatter = true }}\nconfigurations = [\"2x lidar-16\"]\n",
                 fixture("study.toml"),
                 fixture("sensors-datasheet.toml")
             ),
@@ -142,5 +152,6 @@ mod tests {
             "lidar-16 (strongest, 3 × 1.5 mrad), lidar-32 (strongest, 3 × 1.5 mrad), lidar-64 (strongest, 3 × 1.5 mrad)"
         );
         assert_eq!(by("rig clock offsets"), "5 ms (1σ)");
+        assert_eq!(by("fog's echo"), "dense fog, echo (lidar-16, lidar-32, lidar-64)");
     }
 }
