@@ -18,6 +18,15 @@ pub struct BackgroundConfig {
     /// A point within `margin_m + margin_rel · range` of the background is background.
     pub margin_m: f32,
     pub margin_rel: f32,
+    /// Returns nearer than this to their sensor are not learned from, m (0: all are): fog's
+    /// echo in a sensor's sky cells would otherwise become their background and hide every
+    /// road user beyond it. A detector sets it to its `input.lidar_min_range_m`.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub min_range_m: f32,
+}
+
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
 }
 
 impl Default for BackgroundConfig {
@@ -29,6 +38,7 @@ impl Default for BackgroundConfig {
             min_return_share: 0.05,
             margin_m: 0.15,
             margin_rel: 0.005,
+            min_range_m: 0.0,
         }
     }
 }
@@ -55,6 +65,9 @@ impl BackgroundConfig {
         }
         if !(0.0..=1.0).contains(&self.min_return_share) {
             return bad("min_return_share", self.min_return_share.to_string(), "must be in [0, 1]");
+        }
+        if !(self.min_range_m >= 0.0 && self.min_range_m <= 20.0) {
+            return bad("min_range_m", self.min_range_m.to_string(), "must be in [0, 20] m");
         }
         if !(self.margin_m >= 0.0 && self.margin_rel >= 0.0 && self.margin_m.is_finite() && self.margin_rel < 1.0) {
             return bad("margin_m / margin_rel", format!("{} / {}", self.margin_m, self.margin_rel), "must be >= 0");

@@ -8,7 +8,9 @@
 //!
 //! The model is learned from the training split alone, per LiDAR channel and per cell
 //! (ring, azimuth bin): from `frames` frames sampled evenly over the split, the `quantile` of
-//! the ranges returned in the cell. A road user only ever shortens a cell's range, so a high
+//! the ranges returned in the cell, one per frame: its farthest (a dual-return sensor's second
+//! echo, or fog's echo in front of the surface, is not the background, and counting it would
+//! lower the quantile). A road user only ever shortens a cell's range, so a high
 //! quantile is the static surface as long as it is seen in more than `1 − quantile` of the
 //! frames (a queue that covers a lane half of the time does not hide it). A cell that returns in
 //! fewer than `min_return_share` of the frames has no background (the sky, or ground beyond the
@@ -19,9 +21,9 @@
 //! columns lie on multiples of its resolution puts each column in one bin whatever the float
 //! rounding, provided the resolution is a whole multiple of the bin (the default 0.05° divides
 //! every resolution of the catalog: 0.35° and 0.4°). Most bins then hold no column; the model
-//! is stored with its occupied cells only. Left out: azimuth jitter between
-//! revolutions (a real sensor's columns drift, which a bin then averages), multiple returns,
-//! and adapting the model over time (weather, parked vehicles that stay for hours).
+//! is stored with its occupied cells only. Left out: azimuth jitter between revolutions (a real
+//! sensor's columns drift, which a bin then averages), and adapting the model over time
+//! (weather, parked vehicles that stay for hours).
 
 use crate::error::DatasetError;
 use crate::reader::Dataset;
@@ -98,19 +100,26 @@ impl ChannelBackground {
     pub fn learn(frames: &[&[LidarPoint]], cfg: &BackgroundConfig) -> ChannelBackground {
         let bins = cfg.bins();
         let rings = frames.iter().flat_map(|f| f.iter()).map(|p| p.ring as usize + 1).max().unwrap_or(0);
-        // Every return as (cell, range), sorted: each cell's ranges are then one run.
-        let mut all: Vec<(u32, f32)> = frames
+        // Every return as (cell, frame, range), sorted; then each cell's farthest return of each
+        // frame (a second return, or fog's echo in front of the surface, is not the background
+        // and must not dilute the quantile), sorted by range: each cell's ranges are one run.
+        let mut all: Vec<(u32, u32, f32)> = frames
             .iter()
-            .flat_map(|f| f.iter())
-            .map(|p| {
+            .enumerate()
+            .flat_map(|(k, f)| f.iter().map(move |p| (k, p)))
+            .map(|(k, p)| {
                 let (r, b, d) = cell(p, cfg.azimuth_bin_deg, bins);
-                ((r * bins + b) as u32, d)
+                ((r * bins + b) as u32, k as u32, d)
             })
+            .filter(|x| x.2 >= cfg.min_range_m)
             .collect();
-        all.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
+        all.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.total_cmp(&b.2)));
+        let mut last: Vec<(u32, f32)> =
+            all.chunk_by(|a, b| (a.0, a.1) == (b.0, b.1)).filter_map(|run| run.last().map(|x| (x.0, x.2))).collect();
+        last.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
         let need = (cfg.min_return_share * frames.len() as f32).ceil().max(1.0) as usize;
         let mut range_m = vec![0.0; rings * bins];
-        for run in all.chunk_by(|a, b| a.0 == b.0) {
+        for run in last.chunk_by(|a, b| a.0 == b.0) {
             if run.len() >= need {
                 range_m[run[0].0 as usize] = run[(((run.len() - 1) as f32) * cfg.quantile).round() as usize].1;
             }
@@ -240,6 +249,39 @@ mod tests {
         assert!(!bg.is_background(&pt(1, 10.0, 8.0), &cfg));
         // A neighbouring bin has its own background (none here).
         assert!(!bg.is_background(&pt(0, 10.4, 30.0), &cfg));
+    }
+
+    #[test]
+    fn fogs_echo_neither_dilutes_a_wall_nor_becomes_the_skys_background() {
+        let cfg = BackgroundConfig { frames: 20, min_return_share: 0.1, ..BackgroundConfig::default() };
+        // Ring 0 at 10°: each frame a fog point at 1–3 m in front of the wall at 30 m, which a car
+        // at 12 m hides in 16 of 20 frames (dual returns: the fog's echo and the last surface).
+        // Ring 1 at 10°: the sky, whose beam returns fog's echo alone; a car at 15 m in frame 5.
+        let fog = |k: usize| 1.0 + 0.1 * k as f32;
+        let frames: Vec<Vec<LidarPoint>> = (0..20)
+            .map(|k| {
+                let mut f = vec![pt(0, 10.0, fog(k)), pt(0, 10.0, if k % 5 < 4 { 12.0 } else { 30.0 })];
+                f.push(pt(1, 10.0, fog(k)));
+                if k == 5 {
+                    f.push(pt(1, 10.0, 15.0));
+                }
+                f
+            })
+            .collect();
+        let refs: Vec<&[LidarPoint]> = frames.iter().map(Vec::as_slice).collect();
+        // Counting every return, fog's half of them would put the 0.9 quantile at the car; one
+        // return a frame, the farthest, keeps the wall.
+        let bg = ChannelBackground::learn(&refs, &cfg);
+        assert!((bg.range_at(&pt(0, 10.0, 1.0), &cfg) - 30.0).abs() < 1e-4);
+        assert!(!bg.is_background(&pt(0, 10.0, 12.0), &cfg), "the car is foreground");
+        // Without a near-range cut the sky's background is the fog's echo, and the car at 15 m
+        // behind it would count as background; with the cut the sky has none.
+        assert!(bg.is_background(&pt(1, 10.0, 15.0), &cfg));
+        let near = BackgroundConfig { min_range_m: 4.0, ..cfg.clone() };
+        let bg = ChannelBackground::learn(&refs, &near);
+        assert_eq!(bg.range_at(&pt(1, 10.0, 1.0), &near), 0.0);
+        assert!(!bg.is_background(&pt(1, 10.0, 15.0), &near));
+        assert!((bg.range_at(&pt(0, 10.0, 1.0), &near) - 30.0).abs() < 1e-4);
     }
 
     #[test]

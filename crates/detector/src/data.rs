@@ -154,6 +154,8 @@ pub struct LoadOptions<'a> {
     pub radar_clutter: Option<RadarClutterConfig>,
     /// Detections two radars see get their full ground velocity ([`pair_radar_velocities`]).
     pub radar_pairs: Option<RadarPairConfig>,
+    /// LiDAR points closer than this to their own sensor are left out, m (0: none).
+    pub lidar_min_range_m: f32,
 }
 
 impl<'a> LoadOptions<'a> {
@@ -166,6 +168,7 @@ impl<'a> LoadOptions<'a> {
             max_sweep_lag_s: input.max_sweep_lag_s,
             radar_clutter: input.radar_clutter,
             radar_pairs: input.radar_pairs,
+            lidar_min_range_m: input.lidar_min_range_m,
         }
     }
 }
@@ -177,6 +180,8 @@ pub struct LoadStats {
     pub lidar_points: usize,
     /// LiDAR points removed as background.
     pub background_points: usize,
+    /// LiDAR points removed as too near their sensor ([`LoadOptions::lidar_min_range_m`]).
+    pub near_points: usize,
     pub radar_points: usize,
     /// Radar points from older sweeps (included in `radar_points`).
     pub older_sweep_points: usize,
@@ -189,10 +194,19 @@ pub struct LoadStats {
 impl LoadStats {
     /// What the input rules removed, one line each, as `hilo train` reports them: the LiDAR
     /// points of the static background (when a model was learned) and the radar's static
-    /// clutter (when the rule is on and there were radar points).
+    /// clutter (when the rule is on and there were radar points), and the LiDAR points too near
+    /// their sensor (when there were any).
     pub fn notes(&self, background: bool, radar_clutter: bool) -> Vec<String> {
         let share = |part: usize, of: usize| 100.0 * part as f64 / of.max(1) as f64;
         let mut notes = Vec::new();
+        if self.near_points > 0 {
+            let of = self.near_points + self.background_points + self.lidar_points;
+            notes.push(format!(
+                "near-range LiDAR points removed: {} of {of} ({:.1}%)",
+                self.near_points,
+                share(self.near_points, of)
+            ));
+        }
         if background {
             let of = self.background_points + self.lidar_points;
             notes.push(format!(
@@ -370,7 +384,13 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             match modality {
                 "lidar" => {
                     for (cur, lag) in sweeps(sd, opts.lidar_sweeps, opts.max_sweep_lag_s, &sd_by_token) {
-                        let points = ds.lidar_points(cur).map_err(DetectorError::from)?;
+                        let mut points = ds.lidar_points(cur).map_err(DetectorError::from)?;
+                        if opts.lidar_min_range_m > 0.0 {
+                            let before = points.len();
+                            let r2 = opts.lidar_min_range_m * opts.lidar_min_range_m;
+                            points.retain(|p| p.x * p.x + p.y * p.y + p.z * p.z >= r2);
+                            stats.near_points += before - points.len();
+                        }
                         let n = points.len();
                         let points = match opts.background {
                             Some(m) => m.foreground(channel, points),

@@ -841,6 +841,14 @@ pub fn learn_background(
 ) -> Result<Option<BackgroundModel>> {
     match det.part(|d| d.input.background.as_ref()) {
         None => Ok(None),
+        Some(cfg) if det.input.lidar_min_range_m > cfg.min_range_m => {
+            // The near-range cut the detector applies to its input applies to what the
+            // background is learned from too.
+            let mut near = (*cfg).clone();
+            near.min_range_m = det.input.lidar_min_range_m;
+            let near = Valid::new(near).map_err(|e| DetectorError::Config(e.to_string()))?;
+            Ok(Some(BackgroundModel::learn(ds, split, &near).map_err(DetectorError::from)?))
+        }
         Some(cfg) => Ok(Some(BackgroundModel::learn(ds, split, &cfg).map_err(DetectorError::from)?)),
     }
 }

@@ -82,6 +82,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
             max_sweep_lag_s: 0.5,
             radar_clutter: None,
             radar_pairs: None,
+            lidar_min_range_m: 0.0,
         };
         load_split(&ds, "val", &opts).unwrap()
     };
@@ -113,6 +114,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
         max_sweep_lag_s: 0.5,
         radar_clutter: None,
         radar_pairs: None,
+        lidar_min_range_m: 0.0,
     };
     for (i, f) in f4.iter().enumerate() {
         let one = load_split_frame(&ds, "val", &opts, i).unwrap().unwrap();

@@ -443,6 +443,11 @@ pub struct InputConfig {
     /// one radar keep theirs. None: every detection keeps its radial vector.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub radar_pairs: Option<RadarPairConfig>,
+    /// LiDAR points closer than this to their own sensor are dropped, m (0: none): the near-range
+    /// cut a roadside pipeline applies, which takes fog's echo around the mount and the mount's
+    /// own structure while a road user rarely comes that close to a LiDAR on a mast.
+    #[serde(default, skip_serializing_if = "is_zero_f32")]
+    pub lidar_min_range_m: f32,
 }
 
 impl Default for InputConfig {
@@ -454,6 +459,7 @@ impl Default for InputConfig {
             max_sweep_lag_s: 0.5,
             radar_clutter: None,
             radar_pairs: None,
+            lidar_min_range_m: 0.0,
         }
     }
 }
@@ -537,6 +543,9 @@ impl InputConfig {
         }
         if self.max_sweep_lag_s.is_nan() || self.max_sweep_lag_s <= 0.0 {
             return Err(FusionError::field("input.max_sweep_lag_s", self.max_sweep_lag_s, "must be > 0"));
+        }
+        if !(self.lidar_min_range_m >= 0.0 && self.lidar_min_range_m <= 20.0) {
+            return Err(FusionError::field("input.lidar_min_range_m", self.lidar_min_range_m, "must be in [0, 20] m"));
         }
         if let Some(b) = &self.background {
             b.validate().map_err(|e| FusionError::field(format!("input.{}", e.field), e.value, e.reason))?;
