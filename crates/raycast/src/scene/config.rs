@@ -87,6 +87,10 @@ pub struct ArmConfig {
     /// Raised median width (0 = painted centre line only).
     #[serde(default)]
     pub median_width_m: f32,
+    /// A parking lane on each curb side, between the outermost lane and the sidewalk, m (0:
+    /// none). Vehicles park there when the traffic has a `[traffic.parking]` section.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub parking_lane_width_m: f32,
     #[serde(default = "d_sidewalk")]
     pub sidewalk_width_m: f32,
     #[serde(default = "d_curb")]
@@ -97,6 +101,9 @@ pub struct ArmConfig {
     pub speed_limit_kph: f32,
 }
 
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
+}
 fn d_arm_length() -> f32 {
     120.0
 }
@@ -469,6 +476,10 @@ impl SceneConfig {
             if !(2.0..=6.0).contains(&a.lane_width_m) {
                 return Err(c.err(&f("lane_width_m"), a.lane_width_m, "a lane is 2 to 6 m wide"));
             }
+            let park = a.parking_lane_width_m;
+            if !(park == 0.0 || (1.8..=3.0).contains(&park)) {
+                return Err(c.err(&f("parking_lane_width_m"), park, "a parking lane is 1.8 to 3 m wide (0: none)"));
+            }
             if a.length_m > self.ground.half_size_m {
                 return Err(c.err(
                     &f("length_m"),
@@ -599,9 +610,12 @@ fn overlapping_arms(arms: &[ArmConfig]) -> Option<(usize, usize, f32)> {
         let (a, b) = (&arms[i], &arms[j]);
         // Arm i's left (inbound) edge and arm j's right (outbound) edge, as offsets from their
         // centre lines, sidewalks included.
-        let left_a =
-            0.5 * a.median_width_m + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m + a.sidewalk_width_m;
-        let right_b = 0.5 * b.median_width_m + b.lanes_out as f32 * b.lane_width_m + b.sidewalk_width_m;
+        let left_a = 0.5 * a.median_width_m
+            + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m
+            + a.parking_lane_width_m
+            + a.sidewalk_width_m;
+        let right_b =
+            0.5 * b.median_width_m + b.lanes_out as f32 * b.lane_width_m + b.parking_lane_width_m + b.sidewalk_width_m;
         let theta = gap.to_radians();
         // Distance along the arms where the two edges meet: the corner of the junction.
         let along = (left_a + right_b * theta.cos()) / theta.sin().max(1e-6);

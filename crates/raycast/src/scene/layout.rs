@@ -4,6 +4,8 @@
 //! Simplifications (documented for users): arms are straight; the junction corners are sharp
 //! (no curb radius); right turns share the outermost through lane (no right-turn bays); roads
 //! are flat at ground height, and only sidewalks and medians are raised (by the curb height).
+//! A parking lane (`parking_lane_width_m`) widens the road on both curb sides of an arm; the
+//! crosswalk crosses it, the stop line does not.
 
 use super::config::{ArmConfig, RoiConfig, RoiKind, SceneConfig};
 use glam::Vec2;
@@ -42,6 +44,10 @@ pub struct ArmLayout {
     pub edge_out_m: f32,
     /// Half the median width: the lanes start this far from the centreline on each side.
     pub median_half_width_m: f32,
+    /// Width of the parking lane inside each road edge, between the outermost lane and the
+    /// curb (0: none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub parking_lane_m: f32,
     pub lanes: Vec<Lane>,
     /// Stop line across the inbound lanes, `[median side, curb side]`.
     pub stop_line: [Vec2; 2],
@@ -138,8 +144,8 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
                 dir,
                 normal: dir.perp(),
                 s_med,
-                edge_in: s_med + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m,
-                edge_out: -(s_med + a.lanes_out as f32 * a.lane_width_m),
+                edge_in: s_med + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m + a.parking_lane_width_m,
+                edge_out: -(s_med + a.lanes_out as f32 * a.lane_width_m + a.parking_lane_width_m),
             }
         })
         .collect();
@@ -201,8 +207,9 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             edge_in_m: f.edge_in,
             edge_out_m: f.edge_out,
             median_half_width_m: f.s_med,
+            parking_lane_m: a.parking_lane_width_m,
             lanes,
-            stop_line: [f.at(stop, f.s_med), f.at(stop, f.edge_in)],
+            stop_line: [f.at(stop, f.s_med), f.at(stop, f.edge_in - a.parking_lane_width_m)],
             stop_line_at_m: stop,
             crosswalk: f.rect(cw0, cw1, f.edge_out, f.edge_in),
             road: f.rect(0.0, len, f.edge_out, f.edge_in),
@@ -240,6 +247,10 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
     layout
 }
 
+fn is_zero(v: &f32) -> bool {
+    *v == 0.0
+}
+
 /// Resolves the configured ROIs against the layout.
 pub fn resolve_rois(rois: &[RoiConfig], layout: &Layout) -> Vec<Roi> {
     rois.iter()
@@ -265,7 +276,10 @@ pub fn resolve_rois(rois: &[RoiConfig], layout: &Layout) -> Vec<Roi> {
                             let s0 = if inner.is_finite() { inner } else { 0.0 };
                             let (d, nrm) = (arm.dir, arm.normal);
                             let at = |a: f32, s: f32| d * a + nrm * s;
-                            vec![at(a0, s0), at(a0 + length, s0), at(a0 + length, arm.edge_in_m), at(a0, arm.edge_in_m)]
+                            {
+                                let e = arm.edge_in_m - arm.parking_lane_m;
+                                vec![at(a0, s0), at(a0 + length, s0), at(a0 + length, e), at(a0, e)]
+                            }
                         })
                         .collect()
                 }

@@ -226,6 +226,15 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmCon
     if sidewalk == 0.0 {
         notes.push(format!("{}: no sidewalk lane in the file; none modelled", a.name));
     }
+    // A parking lane, the widest of the section's, within what a scene file accepts.
+    let parking = of(xodr::LaneType::Parking).fold(0.0f32, f32::max);
+    let parking_lane_width_m = if parking > 0.0 { round(parking.clamp(1.8, 3.0), 0.01) } else { 0.0 };
+    if parking > 0.0 && parking_lane_width_m != round(parking, 0.01) {
+        notes.push(format!(
+            "{}: parking lane {parking:.2} m wide in the file; modelled {parking_lane_width_m} m wide",
+            a.name
+        ));
+    }
     ArmConfig {
         name: a.name.clone(),
         heading_deg: round(dir.y.atan2(dir.x).to_degrees(), 0.1),
@@ -236,6 +245,7 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmCon
         left_turn_lanes: 0,
         left_turn_bay_length_m: 0.0,
         median_width_m: round(median, 0.01),
+        parking_lane_width_m,
         sidewalk_width_m: round(sidewalk, 0.01),
         curb_height_m: CURB_M,
         crosswalk_width_m: CROSSWALK_M,
