@@ -15,8 +15,11 @@
 //! path within a few seconds; jaywalkers cross mid-block when no vehicle would reach them
 //! before they are across.
 //!
+//! Vehicles parked at the curb ([`ParkingConfig`]) stand in bays of the arms' parking lanes and
+//! come and go between scenes (and, rarely, within one).
+//!
 //! What it leaves out, on purpose: lane changes (vehicles keep the lane they enter on), right
-//! turns on red, cyclists, parking, and lateral dynamics (road users are on their path's
+//! turns on red, cyclists, parking manoeuvres, and lateral dynamics (road users are on their path's
 //! centreline, heading along its tangent). The sensors see boxes, so none of this changes what a
 //! detector has to learn beyond the mix of poses and speeds, which the model covers.
 //!
@@ -24,6 +27,7 @@
 
 pub mod geom;
 mod obstacles;
+mod parking;
 pub mod routes;
 pub mod signal;
 mod spawn;
@@ -33,7 +37,8 @@ use crate::error::DatasetError;
 use geom::{Rect, point_segment_distance};
 use glam::Vec2;
 use hilo_core::{Box3, Class};
-use hilo_raycast::scene::layout::{LaneKind, Layout};
+use hilo_raycast::scene::layout::{ArmLayout, LaneKind, Layout};
+pub use parking::{BayState, PARKED_ID_BASE, ParkingConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Exp, Normal};
@@ -44,7 +49,7 @@ use spawn::pedestrian_sources;
 use std::collections::BTreeMap;
 
 /// Traffic settings (`[traffic]` in a study file).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrafficConfig {
     /// Vehicle arrivals per approach (Poisson).
@@ -65,6 +70,10 @@ pub struct TrafficConfig {
     /// Integration step.
     pub step_s: f64,
     pub signal: SignalConfig,
+    /// Vehicles parked in the arms' parking lanes, coming and going ([`ParkingConfig`]); none
+    /// when absent.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parking: Option<ParkingConfig>,
 }
 
 impl Default for TrafficConfig {
@@ -84,7 +93,30 @@ impl Default for TrafficConfig {
             warmup_s: 45.0,
             step_s: 0.05,
             signal: SignalConfig::default(),
+            parking: None,
         }
+    }
+}
+
+/// The derived form, with `parking` only when it is set: the Debug form that stage hashes take
+/// is the same as before parking existed for a study without it.
+impl std::fmt::Debug for TrafficConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("TrafficConfig");
+        d.field("vehicles_per_hour", &self.vehicles_per_hour)
+            .field("approach_vehicles_per_hour", &self.approach_vehicles_per_hour)
+            .field("left_share", &self.left_share)
+            .field("right_share", &self.right_share)
+            .field("class_mix", &self.class_mix)
+            .field("pedestrians_per_hour", &self.pedestrians_per_hour)
+            .field("jaywalk_share", &self.jaywalk_share)
+            .field("warmup_s", &self.warmup_s)
+            .field("step_s", &self.step_s)
+            .field("signal", &self.signal);
+        if let Some(p) = &self.parking {
+            d.field("parking", p);
+        }
+        d.finish()
     }
 }
 
@@ -162,6 +194,9 @@ impl TrafficConfig {
             && !(2.0..=8.0).contains(&y)
         {
             return Err(invalid("signal.yellow_s", y, "must be in [2, 8] s"));
+        }
+        if let Some(p) = &self.parking {
+            p.validate(layout)?;
         }
         Ok(())
     }
@@ -377,6 +412,8 @@ pub struct Traffic {
     next_arrival: Vec<f64>,
     pending: Vec<Vec<PendingVehicle>>,
     ped_sources: Vec<PedSource>,
+    /// Parked vehicles, with their own random stream.
+    parking: Option<parking::Parking>,
     speed_limits: Vec<f32>,
     /// The warm-up, rounded to whole steps.
     warm_s: f64,
@@ -449,6 +486,7 @@ impl Traffic {
             next_arrival: next_arrival_v,
             pending: vec![Vec::new(); n_routes],
             ped_sources,
+            parking: cfg.parking.as_ref().map(|p| parking::Parking::new(layout, p, seed)),
             speed_limits: speeds,
             warm_s: (cfg.warmup_s / cfg.step_s).round() * cfg.step_s,
             steps: 0,
@@ -502,8 +540,14 @@ impl Traffic {
         footprint(self.path(a), a.s, 0.5 * a.length, 0.5 * a.width)
     }
 
-    /// Every road user now.
+    /// Every parking bay now (none without `[traffic.parking]`).
+    pub fn parking_bays(&self) -> Vec<BayState> {
+        self.parking.as_ref().map(|p| p.bays().collect()).unwrap_or_default()
+    }
+
+    /// Every road user now: the moving ones, then the parked vehicles.
     pub fn snapshot(&self) -> Vec<ActorState> {
+        let parked = self.parking.iter().flat_map(|p| p.snapshot(self.ground_z));
         self.agents
             .iter()
             .map(|a| {
@@ -552,6 +596,7 @@ impl Traffic {
                     route,
                 }
             })
+            .chain(parked)
             .collect()
     }
 }

@@ -171,9 +171,9 @@ impl Traffic {
 pub(super) fn pedestrian_sources(layout: &Layout) -> Vec<PedSource> {
     let mut out = Vec::new();
     for (i, arm) in layout.arms.iter().enumerate() {
-        let sw = arm.sidewalks.first().map_or(0.0, |p| (p[3] - p[0]).dot(arm.normal).abs());
+        let sw = sidewalk_width(arm);
         let w = crosswalk_width(arm);
-        if sw < 1.2 || w < 2.6 {
+        if !has_pedestrians(arm) {
             continue;
         }
         let at = |a: f32, l: f32| arm.dir * a + arm.normal * l;
@@ -213,13 +213,8 @@ pub(super) fn pedestrian_sources(layout: &Layout) -> Vec<PedSource> {
         out.push(PedSource { arm: i, paths: inward, next_arrival_s: 0.0, pending: 0, jaywalk: false });
         // Jaywalkers: straight across, 15–45 m beyond the stop line (clear of the crosswalk
         // streams on the sidewalks).
-        let len = arm.road[1].dot(arm.dir);
         let mut jw = Vec::new();
-        for k in 0..4 {
-            let a = arm.stop_line_at_m + 15.0 + 10.0 * k as f32;
-            if a + 2.0 > len {
-                break;
-            }
+        for (k, a) in jaywalk_lines(arm).into_iter().enumerate() {
             let (p, q) = if k % 2 == 0 { (ein, eout) } else { (eout, ein) };
             let side = |l: f32| if l > 0.0 { l + 0.5 * sw } else { l - 0.5 * sw };
             let curb = |l: f32| if l > 0.0 { l + 0.4 } else { l - 0.4 };
@@ -230,6 +225,25 @@ pub(super) fn pedestrian_sources(layout: &Layout) -> Vec<PedSource> {
         }
     }
     out
+}
+
+fn sidewalk_width(arm: &ArmLayout) -> f32 {
+    arm.sidewalks.first().map_or(0.0, |p| (p[3] - p[0]).dot(arm.normal).abs())
+}
+
+/// Whether an arm has room for pedestrians: a sidewalk and a crosswalk wide enough to walk.
+fn has_pedestrians(arm: &ArmLayout) -> bool {
+    sidewalk_width(arm) >= 1.2 && crosswalk_width(arm) >= 2.6
+}
+
+/// Where an arm's jaywalkers cross the road, m from the junction's centre along the arm: 15,
+/// 25, 35 and 45 m beyond the stop line, as many as the arm holds (none without pedestrians).
+pub(super) fn jaywalk_lines(arm: &ArmLayout) -> Vec<f32> {
+    if !has_pedestrians(arm) {
+        return Vec::new();
+    }
+    let len = arm.road[1].dot(arm.dir);
+    (0..4).map(|k| arm.stop_line_at_m + 15.0 + 10.0 * k as f32).take_while(|a| a + 2.0 <= len).collect()
 }
 
 /// A pedestrian path through `p` (sidewalk, curb, far curb, sidewalk) with optional corner

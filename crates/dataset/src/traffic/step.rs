@@ -40,6 +40,10 @@ impl Traffic {
         self.steps += 1;
         self.t = self.steps as f64 * self.cfg.step_s - self.warm_s;
         self.spawn();
+        let now = self.signal_t();
+        if let Some(p) = &mut self.parking {
+            p.advance(now);
+        }
     }
 
     /// Every road user's obstacles ahead, with crossing conflicts settled: whoever can no longer
