@@ -20,7 +20,7 @@ pub struct Modelled {
 
 /// What no setting models yet.
 pub const LEFT_OUT: &str = "per-laser origin offsets, \
-parked cars that come and go, radar velocity aliasing and chirp timing, ghosts of more than one \
+parking manoeuvres, radar velocity aliasing and chirp timing, ghosts of more than one \
 bounce, clock drift";
 
 /// The effects of the sensors the study's configurations use, under its dataset settings
@@ -109,6 +109,16 @@ pub fn modelled(study: &Study, dataset: &SimulateConfig) -> Vec<Modelled> {
             None => setting(false, String::new()),
         },
     );
+    push(
+        "parked cars that come and go",
+        match &dataset.traffic.parking {
+            Some(p) => setting(
+                true,
+                format!("{:.0}% of bays taken, {:.0} min mean stay", p.occupancy * 100.0, p.mean_stay_s / 60.0),
+            ),
+            None => setting(false, String::new()),
+        },
+    );
     out
 }
 
@@ -126,7 +136,7 @@ mod tests {
     fn the_default_study_models_no_field_effect_and_the_field_study_all() {
         let s = Study::load(&fixture("study.toml")).unwrap();
         let m = modelled(&s, &s.dataset);
-        assert_eq!(m.len(), 16);
+        assert_eq!(m.len(), 17);
         // The paper's 16-beam sensor has its published table; nothing else is on.
         assert_eq!((m[0].on, m[0].detail.as_str()), (true, "lidar-16"));
         assert!(m[1..].iter().all(|e| !e.on && e.detail.is_empty()), "{m:?}");
@@ -135,9 +145,10 @@ mod tests {
         std::fs::write(
             &f,
             format!(
-                "extends = {:?}\ncatalog = {:?}\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\nfoliage = {{ gap_probability = 0.3, sway_m = 0.1 }}\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n[[conditions]]\nname = \"dense fog, echo\"\nweather = {{ fog_visibility_m = 60.0, fog_backscatter = true }}\nconfigurations = [\"2x lidar-16\"]\n",
+                "extends = {:?}\ncatalog = {:?}\nscene = {:?}\n[dataset.traffic.parking]\noccupancy = 0.6\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\nfoliage = {{ gap_probability = 0.3, sway_m = 0.1 }}\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n[[conditions]]\nname = \"dense fog, echo\"\nweather = {{ fog_visibility_m = 60.0, fog_backscatter = true }}\nconfigurations = [\"2x lidar-16\"]\n",
                 fixture("study.toml"),
-                fixture("sensors-datasheet.toml")
+                fixture("sensors-datasheet.toml"),
+                fixture("sites/arterial_parking.toml")
             ),
         )
         .unwrap();
@@ -153,5 +164,6 @@ mod tests {
         );
         assert_eq!(by("rig clock offsets"), "5 ms (1σ)");
         assert_eq!(by("fog's echo"), "dense fog, echo (lidar-16, lidar-32, lidar-64)");
+        assert_eq!(by("parked cars"), "60% of bays taken, 30 min mean stay");
     }
 }
