@@ -368,6 +368,15 @@ pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
                 c.stroke(&[a, b], &white, 0.12, Some((3.0, 6.0)));
             }
         }
+        // A parking lane: a solid white line between it and the outer lane, beyond the crosswalk.
+        if arm.parking_lane_m > 0.0 {
+            let (from, to) =
+                (arm.crosswalk[1].dot(arm.dir).max(arm.crosswalk[0].dot(arm.dir)), arm.road[1].dot(arm.dir));
+            for (edge, inward) in [(arm.edge_in_m, -1.0), (arm.edge_out_m, 1.0)] {
+                let s = edge + inward * arm.parking_lane_m;
+                c.stroke(&[arm.dir * from + arm.normal * s, arm.dir * to + arm.normal * s], &white, 0.12, None);
+            }
+        }
         c.stroke(&arm.stop_line, &white, 0.45, None);
         // Zebra crosswalk: bars parallel to the traffic, spread across the road.
         let cw = &arm.crosswalk;
