@@ -391,6 +391,17 @@ fn overlay(base: &mut toml::Table, top: toml::Table) {
     }
 }
 
+/// The traffic against the scene's layout (arms named, parking lanes for parking) before anything
+/// runs, a bad setting named as the study file names it (`dataset.traffic.…`).
+fn check_traffic(traffic: &hilo_dataset::traffic::TrafficConfig, scene: &Scene, source: &str) -> Result<()> {
+    traffic.validate(&scene.layout).map_err(|e| match e {
+        hilo_dataset::DatasetError::Setting { field, value, reason } => {
+            StudyError::setting(source, format!("dataset.{field}"), &value, reason)
+        }
+        e => e.into(),
+    })
+}
+
 /// The most range bins a study's `[evaluation]` may ask for.
 pub const MAX_RANGE_BINS: usize = 64;
 
@@ -701,6 +712,7 @@ impl Study {
             }
             None => Scene::default_fixture()?,
         };
+        check_traffic(&dataset.traffic, &scene, source)?;
         let catalog = match &file.catalog {
             Some(p) => Catalog::load(&resolve(p))?,
             None => Catalog::default_catalog()?,
@@ -800,6 +812,25 @@ mod tests {
             let e = parse(extra).err().map(|e| e.to_string()).unwrap_or_default();
             assert!(e.contains(needle) && e.contains("s.toml"), "{extra:?}: {e}");
         }
+    }
+
+    /// The traffic is checked against the scene when the study loads: parking needs a scene
+    /// with parking lanes, an approach rate an arm of that name; the parking study loads.
+    #[test]
+    fn the_traffic_is_checked_against_the_scene() {
+        for (extra, needle) in [
+            ("[dataset.traffic.parking]\noccupancy = 0.5\n", "dataset.traffic.parking"),
+            ("[dataset.traffic.approach_vehicles_per_hour]\nsouthwest = 10.0\n", "southwest"),
+        ] {
+            let e = parse(extra).err().map(|e| e.to_string()).unwrap_or_default();
+            assert!(e.contains(needle) && e.contains("s.toml"), "{extra:?}: {e}");
+        }
+        let e = parse("[dataset.traffic.parking]\n").err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("parking_lane_width_m"), "{e}");
+        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
+        let s = Study::load(&fixtures.join("parking-study.toml")).unwrap();
+        assert_eq!(s.dataset.traffic.parking.as_ref().map(|p| p.occupancy), Some(0.7));
+        assert!(s.scene.layout.arms.iter().all(|a| a.parking_lane_m == 2.4));
     }
 
     /// `[[conditions]]` name configurations of the study, once each, in a weather other than
