@@ -4,7 +4,8 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use hilo_dataset::traffic::geom::Rect;
+mod footprints;
+
 use hilo_dataset::traffic::{ActorState, PARKED_ID_BASE, ParkingConfig, Traffic, TrafficConfig};
 use hilo_raycast::Scene;
 use std::collections::BTreeMap;
@@ -23,16 +24,6 @@ fn scene(park: f32) -> Scene {
     cfg.street_lights.clear();
     cfg.meshes.clear();
     Scene::from_config(cfg, Path::new("."), Path::new("parking.toml")).unwrap()
-}
-
-fn rect(a: &ActorState, shrink: f32) -> Rect {
-    let b = a.box3;
-    Rect {
-        center: b.center.truncate(),
-        dir: b.heading(),
-        half_l: 0.5 * b.length_m - shrink,
-        half_w: 0.5 * b.width_m - shrink,
-    }
 }
 
 fn run(s: &Scene, cfg: &TrafficConfig, seed: u64, seconds: f64) -> (Traffic, Vec<Vec<ActorState>>) {
@@ -87,18 +78,7 @@ fn parked_vehicles_stay_in_their_lane_clear_of_everyone_and_leave_traffic_alone(
         // Moving traffic is the same with parking as without it.
         let own: Vec<&ActorState> = actors.iter().filter(|a| a.id < PARKED_ID_BASE).collect();
         assert_eq!(own, moving.iter().collect::<Vec<_>>(), "frame {k}: parking changed the moving traffic");
-        for i in 0..actors.len() {
-            for j in i + 1..actors.len() {
-                assert!(
-                    !rect(&actors[i], 0.01).overlaps(&rect(&actors[j], 0.01)),
-                    "frame {k}: {} and {} overlap: {:?} {:?}",
-                    actors[i].id,
-                    actors[j].id,
-                    actors[i].box3,
-                    actors[j].box3
-                );
-            }
-        }
+        footprints::assert_apart(&format!("frame {k}"), actors);
         jaywalker_frames += actors.iter().filter(|a| a.jaywalking).count();
         let parked: Vec<&ActorState> = actors.iter().filter(|a| a.id >= PARKED_ID_BASE).collect();
         for p in &parked {
@@ -106,7 +86,7 @@ fn parked_vehicles_stay_in_their_lane_clear_of_everyone_and_leave_traffic_alone(
             assert_eq!(p.attribute, "vehicle.parked");
             // Every corner in one arm's parking lane, beyond the crosswalk's clearance.
             let inside = s.layout.arms.iter().any(|arm| {
-                rect(p, 0.0).corners().iter().all(|c| {
+                footprints::rect(p, 0.0).corners().iter().all(|c| {
                     let (along, side) = (c.dot(arm.dir), c.dot(arm.normal));
                     let lane_in = side <= arm.edge_in_m + 1e-3 && side >= arm.edge_in_m - arm.parking_lane_m - 1e-3;
                     let lane_out = side >= arm.edge_out_m - 1e-3 && side <= arm.edge_out_m + arm.parking_lane_m + 1e-3;

@@ -6,8 +6,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod footprints;
+
 use hilo_core::Class;
-use hilo_dataset::traffic::geom::Rect;
 use hilo_dataset::traffic::routes::Movement;
 use hilo_dataset::traffic::signal::Light;
 use hilo_dataset::traffic::{ActorState, Traffic, TrafficConfig, class_model};
@@ -17,16 +18,6 @@ use std::collections::{BTreeMap, BTreeSet};
 
 fn scene() -> Scene {
     Scene::default_fixture().expect("default scene")
-}
-
-fn rect(a: &ActorState, shrink: f32) -> Rect {
-    let b = a.box3;
-    Rect {
-        center: b.center.truncate(),
-        dir: b.heading(),
-        half_l: 0.5 * b.length_m - shrink,
-        half_w: 0.5 * b.width_m - shrink,
-    }
 }
 
 type Frames = Vec<(f64, Vec<ActorState>, BTreeMap<(usize, Movement), Light>)>;
@@ -86,21 +77,7 @@ fn sane(seed: u64, seconds: f64) {
             }
         }
         max_count = max_count.max(actors.len());
-        // No overlaps (1 cm tolerance for touching).
-        for i in 0..actors.len() {
-            for j in i + 1..actors.len() {
-                assert!(
-                    !rect(&actors[i], 0.01).overlaps(&rect(&actors[j], 0.01)),
-                    "t = {t:.2}: {:?} {} and {:?} {} overlap\n{:?}\n{:?}",
-                    actors[i].class,
-                    actors[i].id,
-                    actors[j].class,
-                    actors[j].id,
-                    actors[i].box3,
-                    actors[j].box3
-                );
-            }
-        }
+        footprints::assert_apart(&format!("t = {t:.2}"), actors);
         for a in actors {
             classes.insert(a.class);
             let m = class_model(a.class);

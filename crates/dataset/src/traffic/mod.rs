@@ -124,6 +124,39 @@ fn invalid(field: &str, value: impl std::fmt::Display, why: &str) -> DatasetErro
     DatasetError::setting(format!("traffic.{field}"), value, why)
 }
 
+/// Checks a class mix named `field`: known classes, pedestrians refused (`pedestrian_why`),
+/// finite shares ≥ 0. Returns the shares' sum.
+fn check_class_mix(field: &str, mix: &BTreeMap<String, f64>, pedestrian_why: &str) -> Result<f64, DatasetError> {
+    let mut total = 0.0;
+    for (name, w) in mix {
+        let f = format!("{field}.{name}");
+        let c: Class =
+            name.parse().map_err(|_| invalid(&f, w, "unknown class (car, truck, bus, motorcycle, golf_cart)"))?;
+        if c == Class::Pedestrian {
+            return Err(invalid(&f, w, pedestrian_why));
+        }
+        if !(w.is_finite() && *w >= 0.0) {
+            return Err(invalid(&f, w, "must be a finite number ≥ 0"));
+        }
+        total += w;
+    }
+    Ok(total)
+}
+
+/// A class drawn from a checked class mix by its relative shares; None only when rounding
+/// leaves the draw past the last share.
+fn draw_from(rng: &mut ChaCha8Rng, mix: &BTreeMap<String, f64>) -> Option<Class> {
+    let total: f64 = mix.values().sum();
+    let mut u = rng.random::<f64>() * total;
+    for (name, w) in mix {
+        if u < *w {
+            return name.parse().ok();
+        }
+        u -= w;
+    }
+    None
+}
+
 impl TrafficConfig {
     /// Checks every field; errors name the field and value.
     pub fn validate(&self, layout: &Layout) -> Result<(), DatasetError> {
@@ -161,21 +194,8 @@ impl TrafficConfig {
             }
             nonneg(&format!("approach_vehicles_per_hour.{arm}"), *v)?;
         }
-        let mut total = 0.0;
-        for (name, w) in &self.class_mix {
-            let c: Class = name.parse().map_err(|_| {
-                invalid(&format!("class_mix.{name}"), w, "unknown class (car, truck, bus, motorcycle, golf_cart)")
-            })?;
-            if c == Class::Pedestrian {
-                return Err(invalid(
-                    &format!("class_mix.{name}"),
-                    w,
-                    "pedestrians have their own rate, pedestrians_per_hour",
-                ));
-            }
-            nonneg(&format!("class_mix.{name}"), *w)?;
-            total += w;
-        }
+        let total =
+            check_class_mix("class_mix", &self.class_mix, "pedestrians have their own rate, pedestrians_per_hour")?;
         if total <= 0.0 && self.vehicles_per_hour > 0.0 {
             return Err(invalid("class_mix", "{…}", "needs at least one class with a positive share"));
         }

@@ -64,15 +64,6 @@ const JAYWALK_CORRIDOR_M: f32 = 1.2;
 pub const PARKED_ID_BASE: u32 = 1 << 31;
 
 impl ParkingConfig {
-    /// The parked classes with a positive share, and the shares.
-    fn classes(&self) -> Vec<(Class, f64)> {
-        self.class_mix
-            .iter()
-            .filter(|(_, w)| **w > 0.0)
-            .filter_map(|(name, w)| name.parse::<Class>().ok().map(|c| (c, *w)))
-            .collect()
-    }
-
     /// Checks every field against the layout; errors name the field and value.
     pub(super) fn validate(&self, layout: &Layout) -> Result<(), DatasetError> {
         let f = |n: &str| format!("parking.{n}");
@@ -96,19 +87,12 @@ impl ParkingConfig {
                 "no arm of the scene has a parking lane (set arms[].parking_lane_width_m in the scene file)",
             ));
         };
-        let mut total = 0.0;
-        for (name, w) in &self.class_mix {
+        if check_class_mix(&f("class_mix"), &self.class_mix, "pedestrians do not park")? <= 0.0 {
+            return Err(invalid(&f("class_mix"), "{…}", "needs at least one class with a positive share"));
+        }
+        for (name, w) in self.class_mix.iter().filter(|(_, w)| **w > 0.0) {
             let field = f(&format!("class_mix.{name}"));
-            let c: Class = name
-                .parse()
-                .map_err(|_| invalid(&field, w, "unknown class (car, truck, bus, motorcycle, golf_cart)"))?;
-            if !(w.is_finite() && *w >= 0.0) {
-                return Err(invalid(&field, w, "must be a finite number ≥ 0"));
-            }
-            if c == Class::Pedestrian {
-                return Err(invalid(&field, w, "pedestrians do not park"));
-            }
-            if *w > 0.0 {
+            if let Ok(c) = name.parse::<Class>() {
                 let m = class_model(c);
                 if m.length.3 + 2.0 * BAY_GAP_M > self.bay_length_m {
                     return Err(invalid(
@@ -131,10 +115,6 @@ impl ParkingConfig {
                     ));
                 }
             }
-            total += w;
-        }
-        if total <= 0.0 {
-            return Err(invalid(&f("class_mix"), "{…}", "needs at least one class with a positive share"));
         }
         Ok(())
     }
@@ -209,7 +189,6 @@ pub(super) fn bays(layout: &Layout, cfg: &ParkingConfig) -> Vec<Bay> {
 #[derive(Debug)]
 pub(super) struct Parking {
     cfg: ParkingConfig,
-    classes: Vec<(Class, f64)>,
     bays: Vec<Bay>,
     rng: ChaCha8Rng,
     next_id: u32,
@@ -221,8 +200,7 @@ impl Parking {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         // Its own stream: the moving traffic's draws are the same with parking as without.
         rng.set_stream(1);
-        let mut p =
-            Parking { cfg: cfg.clone(), classes: cfg.classes(), bays: bays(layout, cfg), rng, next_id: PARKED_ID_BASE };
+        let mut p = Parking { cfg: cfg.clone(), bays: bays(layout, cfg), rng, next_id: PARKED_ID_BASE };
         for k in 0..p.bays.len() {
             let taken = p.rng.random::<f64>() < p.cfg.occupancy;
             if taken {
@@ -251,16 +229,9 @@ impl Parking {
 
     /// A new vehicle in bay `k`.
     fn occupy(&mut self, k: usize) {
-        let total: f64 = self.classes.iter().map(|c| c.1).sum();
-        let mut u = self.rng.random::<f64>() * total;
-        let mut class = self.classes.last().map_or(Class::Car, |c| c.0);
-        for (c, w) in &self.classes {
-            if u < *w {
-                class = *c;
-                break;
-            }
-            u -= w;
-        }
+        let mix = &self.cfg.class_mix;
+        let last = || mix.iter().rev().find(|(_, w)| **w > 0.0).and_then(|(name, _)| name.parse().ok());
+        let class = draw_from(&mut self.rng, mix).or_else(last).unwrap_or(Class::Car);
         let m = class_model(class);
         let (l, w, h) =
             (sample(&mut self.rng, m.length), sample(&mut self.rng, m.width), sample(&mut self.rng, m.height));

@@ -152,15 +152,7 @@ impl Traffic {
     }
 
     pub(super) fn draw_class(&mut self) -> Class {
-        let total: f64 = self.cfg.class_mix.values().sum();
-        let mut u = self.rng.random::<f64>() * total;
-        for (name, w) in &self.cfg.class_mix {
-            if u < *w {
-                return name.parse().unwrap_or(Class::Car);
-            }
-            u -= w;
-        }
-        Class::Car
+        draw_from(&mut self.rng, &self.cfg.class_mix).unwrap_or(Class::Car)
     }
 }
 

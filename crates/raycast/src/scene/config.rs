@@ -101,7 +101,8 @@ pub struct ArmConfig {
     pub speed_limit_kph: f32,
 }
 
-fn is_zero(v: &f32) -> bool {
+/// Serde's test for a width left at its default of none.
+pub(crate) fn is_zero(v: &f32) -> bool {
     *v == 0.0
 }
 fn d_arm_length() -> f32 {

@@ -46,7 +46,7 @@ pub struct ArmLayout {
     pub median_half_width_m: f32,
     /// Width of the parking lane inside each road edge, between the outermost lane and the
     /// curb (0: none).
-    #[serde(default, skip_serializing_if = "is_zero")]
+    #[serde(default, skip_serializing_if = "super::config::is_zero")]
     pub parking_lane_m: f32,
     pub lanes: Vec<Lane>,
     /// Stop line across the inbound lanes, `[median side, curb side]`.
@@ -245,10 +245,6 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
     }
     layout
-}
-
-fn is_zero(v: &f32) -> bool {
-    *v == 0.0
 }
 
 /// Resolves the configured ROIs against the layout.
