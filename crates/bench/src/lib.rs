@@ -713,26 +713,12 @@ fn product_rate(device: &candle_core::Device, n: usize) -> candle_core::Result<f
 /// The fused layers `--variant fused=V` keeps on: `on` (all), `off` (none), or names joined by
 /// `+` (`conv+bn_relu`).
 fn fused_layers(v: &serde_json::Value) -> Result<Vec<hilo_fusion::cpu::Layer>> {
-    use hilo_fusion::cpu::Layer;
+    use hilo_fusion::cpu::{Layer, parse_layers};
     match v {
-        serde_json::Value::Bool(true) => return Ok(Layer::ALL.to_vec()),
-        serde_json::Value::Bool(false) => return Ok(Vec::new()),
-        _ => {}
-    }
-    let s = v.as_str().unwrap_or_default();
-    match s {
-        "on" | "all" => Ok(Layer::ALL.to_vec()),
-        "off" | "none" => Ok(Vec::new()),
-        _ => s
-            .split('+')
-            .map(|name| {
-                Layer::ALL.into_iter().find(|l| l.name() == name).ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "variant fused = {v}: unknown layer {name:?} (on, off, or any of conv+bn_relu+loss)"
-                    )
-                })
-            })
-            .collect(),
+        serde_json::Value::Bool(true) => Ok(Layer::ALL.to_vec()),
+        serde_json::Value::Bool(false) => Ok(Vec::new()),
+        serde_json::Value::String(s) => parse_layers(s).map_err(|e| anyhow::anyhow!("variant fused = {v}: {e}")),
+        _ => anyhow::bail!("variant fused = {v}: expected on, off, or layers joined by + (conv+bn_relu+loss)"),
     }
 }
 

@@ -45,6 +45,19 @@ pub struct TrainArgs {
     pub batch: Option<usize>,
     #[arg(long)]
     pub seed: Option<u64>,
+    /// hilo's fused layers (custom ops with their own backward pass): `on`, `off` (every layer
+    /// the composite of candle's operations it is tested against), or some of
+    /// `conv+bn_relu+loss`. run.json records anything but `on`; a run resumes only with its own.
+    #[arg(long, default_value = "on", value_parser = parse_fused)]
+    pub fused: FusedLayers,
+}
+
+/// The value of `--fused`: the fused layers to keep on.
+#[derive(Clone, Debug)]
+pub struct FusedLayers(pub Vec<hilo_detector::cpu::Layer>);
+
+fn parse_fused(s: &str) -> std::result::Result<FusedLayers, String> {
+    hilo_detector::cpu::parse_layers(s).map(FusedLayers)
 }
 
 /// Every fusion plugin hilo ships (the umbrella crate's list).
@@ -73,6 +86,7 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
         cfg.seed = s;
     }
     let cfg = cfg.validate().context("--batch, --samples or the training schedule")?;
+    hilo_detector::cpu::set_fused(&args.fused.0);
     let det = det.validate()?;
     det.check_memory(cfg.batch, hilo_core::machine::memory_bytes())?;
     // Held from before the data is loaded, so a second training of the folder is refused at once.

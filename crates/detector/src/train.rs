@@ -288,6 +288,17 @@ pub struct RunInfo {
     /// never resumed on other data.
     #[serde(default)]
     pub data: String,
+    /// The fused layers the run trained with when not all of them (`hilo train --fused`, see
+    /// [`hilo_fusion::cpu::parse_layers`]); absent when all were on. A run resumes only with
+    /// the same set: the fused and composite paths differ in the last bits.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fused: Option<String>,
+}
+
+/// The process's fused layers as a run records them: None when all are on.
+fn fused_set() -> Option<String> {
+    let on = crate::cpu::fused_layers();
+    (on.len() != crate::cpu::Layer::ALL.len()).then(|| crate::cpu::layers_name(&on))
 }
 
 /// A fingerprint of training frames: their sample tokens and point and box counts.
@@ -697,6 +708,7 @@ pub fn train(
         dropped_points: 0,
         dropped_pillars: 0,
         data: frames_fingerprint(frames),
+        fused: fused_set(),
     };
     // A run folder whose run never took a step (refused or stopped before its first
     // checkpoint) holds nothing to lose: it is taken over, so a corrected rerun is not blocked.
@@ -707,6 +719,16 @@ pub fn train(
                 "{} holds a run with other settings (detector {}); use another --out or delete it",
                 run.display(),
                 old.detector.name
+            )));
+        }
+        if old.fused != info.fused {
+            let name = |f: &Option<String>| f.clone().unwrap_or_else(|| "on".into());
+            return Err(DetectorError::Config(format!(
+                "{} holds a run trained with fused layers {} (now {}); resume it with --fused {}, or use another --out",
+                run.display(),
+                name(&old.fused),
+                name(&info.fused),
+                name(&old.fused)
             )));
         }
         if old.data != info.data {

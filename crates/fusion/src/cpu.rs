@@ -37,6 +37,39 @@ impl Layer {
     }
 }
 
+/// A set of fused layers as `hilo train --fused` and `hilo bench train --variant fused=` name it:
+/// `on` (all), `off` (none, every layer its composite), or layer names joined by `+`
+/// (`conv+bn_relu`).
+pub fn parse_layers(s: &str) -> Result<Vec<Layer>, String> {
+    match s {
+        "on" | "all" => Ok(Layer::ALL.to_vec()),
+        "off" | "none" => Ok(Vec::new()),
+        _ => {
+            let mut layers = Vec::new();
+            for name in s.split('+') {
+                let layer = Layer::ALL.into_iter().find(|l| l.name() == name).ok_or_else(|| {
+                    format!("unknown fused layer {name:?} in {s:?} (on, off, or any of conv+bn_relu+loss)")
+                })?;
+                if !layers.contains(&layer) {
+                    layers.push(layer);
+                }
+            }
+            Ok(layers)
+        }
+    }
+}
+
+/// The name of a set of fused layers, the inverse of [`parse_layers`]: `on`, `off`, or the
+/// layers' names joined by `+` in [`Layer::ALL`]'s order.
+pub fn layers_name(layers: &[Layer]) -> String {
+    let on: Vec<Layer> = Layer::ALL.into_iter().filter(|l| layers.contains(l)).collect();
+    match on.len() {
+        0 => "off".into(),
+        n if n == Layer::ALL.len() => "on".into(),
+        _ => on.iter().map(|l| l.name()).collect::<Vec<_>>().join("+"),
+    }
+}
+
 /// The fused layers that are on, one bit per [`Layer`]; all by default.
 static FUSED: AtomicU8 = AtomicU8::new(7);
 
@@ -46,7 +79,7 @@ pub fn fused(layer: Layer) -> bool {
 }
 
 /// Turns on the fused `layers` and off the others, for the whole process: a benchmark's
-/// before/after lever; training keeps them all on.
+/// before/after lever, and `hilo train --fused` (a training records the set in its run.json).
 pub fn set_fused(layers: &[Layer]) {
     FUSED.store(layers.iter().fold(0, |m, l| m | *l as u8), Ordering::Relaxed);
 }
