@@ -722,6 +722,13 @@ fn fused_layers(v: &serde_json::Value) -> Result<Vec<hilo_fusion::cpu::Layer>> {
     }
 }
 
+/// One `--variant` of `hilo bench train`: `key=value` with a JSON (or bare word) value.
+pub fn parse_variant(s: &str) -> std::result::Result<(String, serde_json::Value), String> {
+    let (k, v) = s.split_once('=').ok_or_else(|| format!("{s:?}: expected key=value"))?;
+    let v = serde_json::from_str(v).unwrap_or_else(|_| serde_json::Value::String(v.to_owned()));
+    Ok((k.to_owned(), v))
+}
+
 /// `hilo bench train`'s `--variant` levers applied to a preset's detector config and schedule;
 /// returns the sparse convolutions' backward pass (None: the device's default), whether the
 /// optimizer updates in place and whether the fused layers are on.

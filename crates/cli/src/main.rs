@@ -199,7 +199,7 @@ enum BenchCommand {
         /// `batch=N`, `replicas=N`, `sync_batch_norm=true|false`, `sparse_backward=gather|scatter`,
         /// `optimizer=fused|composite`, `fused=on|off|conv+bn_relu+loss`, `head_dilation=N`, `layers=N`,
         /// `blocks=[{"stride":2,"channels":32,"layers":2},...]` (repeatable).
-        #[arg(long = "variant", value_parser = parse_variant)]
+        #[arg(long = "variant", value_parser = hilo::bench::parse_variant)]
         variants: Vec<(String, serde_json::Value)>,
         #[arg(long)]
         json: bool,
@@ -216,13 +216,6 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
-}
-
-/// `key=value` with a JSON (or bare word) value.
-fn parse_variant(s: &str) -> std::result::Result<(String, serde_json::Value), String> {
-    let (k, v) = s.split_once('=').ok_or_else(|| format!("{s:?}: expected key=value"))?;
-    let v = serde_json::from_str(v).unwrap_or_else(|_| serde_json::Value::String(v.to_owned()));
-    Ok((k.to_owned(), v))
 }
 
 /// Loads the named scene (or junction of a road network) or the embedded default.

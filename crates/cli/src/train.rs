@@ -45,19 +45,11 @@ pub struct TrainArgs {
     pub batch: Option<usize>,
     #[arg(long)]
     pub seed: Option<u64>,
-    /// hilo's fused layers (custom ops with their own backward pass): `on`, `off` (every layer
-    /// the composite of candle's operations it is tested against), or some of
-    /// `conv+bn_relu+loss`. run.json records anything but `on`; a run resumes only with its own.
-    #[arg(long, default_value = "on", value_parser = parse_fused)]
-    pub fused: FusedLayers,
-}
-
-/// The value of `--fused`: the fused layers to keep on.
-#[derive(Clone, Debug)]
-pub struct FusedLayers(pub Vec<hilo_detector::cpu::Layer>);
-
-fn parse_fused(s: &str) -> std::result::Result<FusedLayers, String> {
-    hilo_detector::cpu::parse_layers(s).map(FusedLayers)
+    /// Fused layers: `on`, `off` (every layer the composite of candle's operations it is tested
+    /// against) or some of `conv+bn_relu+loss`; run.json records any but `on`, and a run
+    /// resumes only with its own.
+    #[arg(long, default_value = "on")]
+    pub fused: hilo_detector::cpu::LayerSet,
 }
 
 /// Every fusion plugin hilo ships (the umbrella crate's list).

@@ -59,6 +59,19 @@ pub fn parse_layers(s: &str) -> Result<Vec<Layer>, String> {
     }
 }
 
+/// A set of fused layers as a command line gives it (`hilo train --fused`), read by
+/// [`parse_layers`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LayerSet(pub Vec<Layer>);
+
+impl std::str::FromStr for LayerSet {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        parse_layers(s).map(LayerSet)
+    }
+}
+
 /// The name of a set of fused layers, the inverse of [`parse_layers`]: `on`, `off`, or the
 /// layers' names joined by `+` in [`Layer::ALL`]'s order.
 pub fn layers_name(layers: &[Layer]) -> String {
