@@ -27,6 +27,12 @@ fn nan() -> f64 {
     f64::NAN
 }
 
+/// The verdict's replicates per group: the seeds, or the training-traffic draws when there are
+/// several (each the mean of its seeds, [`crate::verdict::draw_units`]).
+pub(crate) fn replicates(prof: &Profile) -> usize {
+    if prof.traffic_draws > 1 { prof.traffic_draws } else { prof.seeds }
+}
+
 /// A detector's place among its group's: seeds of draw 0 first (0 is seed 0 on the study's own
 /// traffic, whose learning curve and pictures the report shows), then those of each further
 /// training-traffic draw.
@@ -308,7 +314,7 @@ pub fn assemble(
         verdict(prof, registry, &summaries, &det_scores, &planted, scenes.len(), margins);
     crate::verdict::budget_gate(&mut claims, &learning_curves);
     let cost = |name: &str| summaries.iter().find(|c| c.name == name).map(|c| c.cost_usd);
-    let radar_value = crate::verdict::radar_value(&claims, &cost);
+    let radar_value = crate::verdict::radar_value(&claims, &cost, replicates(prof));
     let ranking_changed = ranking_changes(&learning_curves, &prof.presets);
     let cost_reduction = cost_reduction(&summaries);
     let report = Report {
@@ -536,7 +542,7 @@ fn verdict(
     };
     let mut comparisons = design.comparisons();
     let mut claims = design.claims();
-    adjust(&mut claims, &mut comparisons, 0.05, margins);
+    adjust(&mut claims, &mut comparisons, crate::verdict::ALPHA, margins);
     let mut calibration = calibrate(&design, &planted, DROP);
     calibration.traffic_draws = crate::verdict::METRICS
         .iter()

@@ -55,12 +55,32 @@ fn radar_worth(reports: &[(ShardRecord, Report)]) -> Vec<RadarWorth> {
     for (s, r) in reports {
         let cost = |name: &str| r.configurations.iter().find(|c| c.name == name).map(|c| c.cost_usd);
         out.extend(
-            crate::verdict::radar_value(&r.claims, &cost)
+            crate::verdict::radar_value(&r.claims, &cost, crate::assemble::replicates(&r.profile))
                 .into_iter()
                 .map(|value| RadarWorth { study: s.name.clone(), value }),
         );
     }
     out
+}
+
+/// The comparison's cell for the design that would find
+/// [`RADAR_TARGET_MDE`](crate::verdict::RADAR_TARGET_MDE): "–" for a velocity error, "reached"
+/// when the study's own MDE is at most the target.
+fn design_cell(w: &crate::verdict::RadarValue) -> String {
+    if crate::verdict::lower_is_better(&w.metric) || !w.mde.is_finite() {
+        return "–".into();
+    }
+    if w.mde <= crate::verdict::RADAR_TARGET_MDE {
+        return "reached".into();
+    }
+    match &w.design {
+        Some(d) => format!("{} replicates, {} scenes (MDE {:.3})", d.replicates, d.val_scenes, d.mde),
+        None => format!(
+            "out of reach within {} replicates and {} scenes",
+            crate::stats::MAX_DESIGN_REPLICATES,
+            crate::stats::MAX_DESIGN_SCENES
+        ),
+    }
 }
 
 /// One study of the sweep: its design and its test's measured calibration.
@@ -462,8 +482,12 @@ pub fn markdown(c: &Comparison) -> String {
         s.push_str(
             "\n## What the radar is worth, per study\n\nThe rig with the radar (fused) against the cheapest \
              LiDAR-only rig, each study's own test (95% interval), and per $1,000 the radar rig costs more \
-             (for a velocity error, m/s: below 0 the radar lowers it).\n\n\
-             | study | metric | radar adds | per $1,000 | extra cost (USD) | verdict |\n|---|---|---:|---:|---:|---|\n",
+             (for a velocity error, m/s: below 0 the radar lowers it). `MDE`: the smallest true effect the \
+             study's design finds with 80% power; `design for 0.015`: for an accuracy metric, the fewest \
+             replicates per group (seeds, or training-traffic draws) and then validation scenes projected \
+             to find 0.015, from the study's own variance components.\n\n\
+             | study | metric | radar adds | MDE | design for 0.015 | per $1,000 | extra cost (USD) | verdict |\n\
+             |---|---|---:|---:|---|---:|---:|---|\n",
         );
         for RadarWorth { study, value: w } in &c.radar_worth {
             let study = match &w.condition {
@@ -472,12 +496,14 @@ pub fn markdown(c: &Comparison) -> String {
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {:+.3} [{:+.3}, {:+.3}] | {} | {:.0} | {} |",
+                "| {} | {} | {:+.3} [{:+.3}, {:+.3}] | {} | {} | {} | {:.0} | {} |",
                 esc(&study),
                 w.metric,
                 w.estimate,
                 w.lo,
                 w.hi,
+                if w.mde.is_finite() { format!("{:.3}", w.mde) } else { "–".into() },
+                design_cell(w),
                 w.per_1000_usd.map_or("–".into(), |v| format!("{v:+.4}")),
                 w.extra_cost_usd,
                 verdict_word(w.verdict)
@@ -556,8 +582,23 @@ mod tests {
         assert!(markdown(&c).contains("## What the radar is worth, per study"));
         // The report's own table is the same rows.
         assert_eq!(r.radar_value.len(), rows.len());
-        assert!(r.radar_value.iter().zip(&c.radar_worth).all(|(v, w)| *v == w.value));
+        // (This report predates the MDE and the design: those are checked against the claims.)
+        let old = |v: &crate::verdict::RadarValue| crate::verdict::RadarValue { mde: 0.0, design: None, ..v.clone() };
+        assert!(r.radar_value.iter().zip(&c.radar_worth).all(|(v, w)| old(v) == old(&w.value)));
         assert!(markdown(&c).contains("| clear (fog) | mAP |"));
+        // Each value's MDE is its claim row's; the default profile's design, dominated by the
+        // scenes (their bootstrap s.e. four times the seeds'), reaches 0.015 by more validation
+        // scenes at its own three seeds, within the caps, and a design one scene smaller does not.
+        for (w, (_, row)) in c.radar_worth.iter().zip(&rows) {
+            assert_eq!(w.value.mde, row.mde);
+            let Some(d) = &w.value.design else {
+                assert!(crate::verdict::lower_is_better(&w.value.metric) || w.value.mde <= 0.015, "{w:?}");
+                continue;
+            };
+            assert!(d.mde <= 0.015 && d.val_scenes > r.validation_scenes, "{d:?}");
+            assert!(d.val_scenes < crate::stats::MAX_DESIGN_SCENES && d.replicates >= r.seeds, "{d:?}");
+        }
+        assert!(markdown(&c).contains(" scenes (MDE 0.01"));
     }
 
     #[test]

@@ -269,6 +269,65 @@ pub fn mde(se: f64, df: f64, alpha: f64, power: f64) -> f64 {
     }
 }
 
+/// A design that finds a difference of `target` with 80% power at α = 0.05, projected from a
+/// test's variance components ([`design_for_mde`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PowerDesign {
+    /// The difference to detect.
+    pub target: f64,
+    /// Replicates per group: seeds, or training-traffic draws when the study has several.
+    pub replicates: usize,
+    /// Validation scenes.
+    pub val_scenes: usize,
+    /// The projected minimum detectable effect of that design (≤ `target`).
+    pub mde: f64,
+}
+
+/// Most replicates per group [`design_for_mde`] considers: each is a full set of trainings.
+pub const MAX_DESIGN_REPLICATES: usize = 10;
+/// Most validation scenes it considers.
+pub const MAX_DESIGN_SCENES: usize = 2_000;
+
+/// The cheapest design (fewest replicates per group, then fewest validation scenes, never
+/// fewer of either than `t`'s) whose minimum detectable effect at `alpha` and `power` is at
+/// most `target`, projected from `t`'s two variance components: the scene bootstrap's shrinks
+/// as 1/scenes, the seeds' as 1/replicates. The degrees of freedom follow by
+/// Welch–Satterthwaite: the scenes' are scenes − 1, the seeds' the share of `t`'s df that the
+/// scenes leave (so `t`'s own design projects to `t`'s MDE), growing as replicates − 1 (a pooled
+/// variance's degrees). The bootstrap's share also holds seed-by-scene noise that more
+/// replicates would shrink; leaving it fixed errs towards more scenes. None when `t` is not estimable, or no design up to
+/// [`MAX_DESIGN_REPLICATES`] and [`MAX_DESIGN_SCENES`] reaches `target`.
+pub fn design_for_mde(t: &Test, replicates: usize, target: f64, alpha: f64, power: f64) -> Option<PowerDesign> {
+    if !(t.estimable && t.df.is_finite() && replicates > 1 && target > 0.0 && t.scenes > 1) {
+        return None;
+    }
+    let (vs, vd) = (t.se_scenes.powi(2), t.se_seeds.powi(2));
+    // The seeds' df: (vs + vd)²/df = vs²/(V − 1) + vd²/d, solved for d (unbounded when the
+    // scenes alone account for df).
+    let rest = (vs + vd).powi(2) / t.df - vs.powi(2) / (t.scenes as f64 - 1.0).max(1.0);
+    let df_seeds = if rest > 0.0 { vd.powi(2) / rest } else { f64::INFINITY };
+    let projected = |n: usize, v: usize| {
+        let (vs2, vd2) = (vs * t.scenes as f64 / v as f64, vd * replicates as f64 / n as f64);
+        let df = satterthwaite(&[(vs2, (v - 1) as f64), (vd2, df_seeds * (n - 1) as f64 / (replicates - 1) as f64)]);
+        mde((vs2 + vd2).sqrt(), df, alpha, power)
+    };
+    for n in replicates..=MAX_DESIGN_REPLICATES.max(replicates) {
+        // (A NaN projection reaches nothing.)
+        let reaches = |v: usize| projected(n, v) <= target;
+        if !reaches(MAX_DESIGN_SCENES.max(t.scenes)) {
+            continue;
+        }
+        // The projected MDE falls as the scenes grow: the first that reaches the target.
+        let (mut lo, mut hi) = (t.scenes, MAX_DESIGN_SCENES.max(t.scenes));
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if reaches(mid) { hi = mid } else { lo = mid + 1 }
+        }
+        return Some(PowerDesign { target, replicates: n, val_scenes: lo, mde: projected(n, lo) });
+    }
+    None
+}
+
 /// Where a difference's interval lies against the paper's number.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -572,6 +631,60 @@ mod tests {
         // 5 of 20: the textbook interval [0.0866, 0.4910].
         let (lo, hi) = binomial_interval(5, 20, 0.95);
         assert!((lo - 0.0866).abs() < 1e-4 && (hi - 0.4910).abs() < 1e-4, "{lo} {hi}");
+    }
+
+    /// The design for a target MDE: at the test's own design it projects the test's MDE; in
+    /// the scene-dominated regime the scenes it asks for follow the closed form
+    /// V·(MDE/target)², and one scene fewer falls short; seed variance that no number of scenes
+    /// can beat asks for more replicates; an unreachable target gives None.
+    #[test]
+    fn the_design_for_a_target_mde_is_the_cheapest_that_reaches_it() {
+        let t = |se_scenes: f64, se_seeds: f64, df: f64| Test {
+            estimate: 0.0,
+            lo: f64::NAN,
+            hi: f64::NAN,
+            se: (se_scenes.powi(2) + se_seeds.powi(2)).sqrt(),
+            se_scenes,
+            se_seeds,
+            p: f64::NAN,
+            p_adjusted: f64::NAN,
+            seeds_a: 3,
+            seeds_b: 3,
+            scenes: 20,
+            estimable: true,
+            df,
+        };
+        // Its own design: reached already when the target is its MDE.
+        let own = t(0.008, 0.006, 30.0);
+        let m = mde(own.se, own.df, 0.05, 0.8);
+        let d = design_for_mde(&own, 3, m + 1e-12, 0.05, 0.8).unwrap();
+        assert_eq!((d.replicates, d.val_scenes), (3, 20));
+        assert!((d.mde - m).abs() < 1e-12, "{} vs {m}", d.mde);
+        // Scenes only: se ∝ 1/√V with df = V − 1; 2.8·0.01 = 0.028 at 20 scenes, so 0.015 needs
+        // about 20·(0.028/0.015)² ≈ 70 (a little more for the t's tails).
+        let scenes_only = t(0.01, 0.0, 19.0);
+        let d = design_for_mde(&scenes_only, 3, 0.015, 0.05, 0.8).unwrap();
+        assert_eq!(d.replicates, 3);
+        let closed = 20.0 * (mde(0.01, 1e5, 0.05, 0.8) / 0.015).powi(2);
+        assert!(d.val_scenes as f64 >= closed && (d.val_scenes as f64) < closed * 1.06, "{} vs {closed}", d.val_scenes);
+        assert!(d.mde <= 0.015);
+        let fewer = Test {
+            scenes: d.val_scenes - 1,
+            se_scenes: 0.01 * (20.0 / (d.val_scenes - 1) as f64).sqrt(),
+            ..scenes_only.clone()
+        };
+        let fewer = Test { df: (fewer.scenes - 1) as f64, ..fewer };
+        assert!(mde(fewer.se_scenes, fewer.df, 0.05, 0.8) > 0.015);
+        // Seeds alone exceed the target's variance: more replicates, then the scenes.
+        let seedy = t(0.002, 0.008, 8.0);
+        let d = design_for_mde(&seedy, 3, 0.015, 0.05, 0.8).unwrap();
+        assert!(d.replicates > 3 && d.mde <= 0.015, "{d:?}");
+        // With normal tails it needs 3·0.008²/(0.015/2.8016)² = 6.7 replicates; the t's tails at
+        // the seeds' few degrees ask for a little more.
+        assert!((7..=9).contains(&d.replicates), "{d:?}");
+        // Unreachable within the caps, and a test that cannot be projected.
+        assert_eq!(design_for_mde(&t(0.0, 0.05, 4.0), 3, 0.015, 0.05, 0.8), None);
+        assert_eq!(design_for_mde(&Test { estimable: false, ..own }, 3, 0.015, 0.05, 0.8), None);
     }
 
     #[test]

@@ -45,12 +45,27 @@ pub struct RadarValue {
     /// `estimate` per $1,000 of `extra_cost_usd` (None when it costs nothing more).
     pub per_1000_usd: Option<f64>,
     pub verdict: Verdict,
+    /// The smallest true difference this design finds with 80% power.
+    #[serde(default = "nan")]
+    pub mde: f64,
+    /// For an accuracy metric: the cheapest design projected to find [`RADAR_TARGET_MDE`]
+    /// ([`crate::stats::design_for_mde`]); None for a velocity error, or out of reach.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub design: Option<crate::stats::PowerDesign>,
 }
+
+/// The verdict's significance level.
+pub const ALPHA: f64 = 0.05;
+
+/// The radar effect on an accuracy metric (mAP, AP) a study should be able to find: half the
+/// paper's +3.1 points of fusion gain.
+pub const RADAR_TARGET_MDE: f64 = 0.015;
 
 /// The radar's value in every weather the claims were judged in: each tested row of
 /// `radar_adds` and `radar_adds_velocity` (and of their `@<condition>` copies), priced by `cost`
-/// (a configuration's cost by name).
-pub fn radar_value(claims: &[Claim], cost: &dyn Fn(&str) -> Option<f64>) -> Vec<RadarValue> {
+/// (a configuration's cost by name), with the design that would find [`RADAR_TARGET_MDE`] from
+/// `replicates` per group (seeds, or training-traffic draws when there are several).
+pub fn radar_value(claims: &[Claim], cost: &dyn Fn(&str) -> Option<f64>, replicates: usize) -> Vec<RadarValue> {
     let priced = ["radar_adds", "radar_adds_velocity"];
     let side = |v: &[(String, String)]| v.first().and_then(|(c, _)| cost(c));
     let mut out = Vec::new();
@@ -69,6 +84,10 @@ pub fn radar_value(claims: &[Claim], cost: &dyn Fn(&str) -> Option<f64>) -> Vec<
                 extra_cost_usd: extra,
                 per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
                 verdict: row.verdict,
+                mde: row.mde,
+                design: (!lower_is_better(&row.metric))
+                    .then(|| crate::stats::design_for_mde(&row.test, replicates, RADAR_TARGET_MDE, ALPHA, 0.8))
+                    .flatten(),
             });
         }
     }

@@ -392,6 +392,25 @@ fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
         report.radar_value.iter().map(|v| (v.condition.as_deref(), v.metric.as_str())).collect();
     assert!(worth.contains(&(None, "mAP")) && worth.contains(&(Some("fog"), "mAP")), "{worth:?}");
     assert!(report.radar_value.iter().all(|v| v.extra_cost_usd > 0.0));
+    // The design that would find the target MDE: only for accuracy, never a smaller one than
+    // this study's, and reaching the target.
+    for v in &report.radar_value {
+        match (&v.design, hilo_study::verdict::lower_is_better(&v.metric)) {
+            (Some(_), true) => panic!("a design for a velocity error: {v:?}"),
+            (Some(d), false) => assert!(
+                d.mde <= hilo_study::verdict::RADAR_TARGET_MDE
+                    && d.replicates >= report.seeds
+                    && d.val_scenes >= report.validation_scenes,
+                "{d:?}"
+            ),
+            (None, _) => {}
+        }
+    }
+    let short = report.radar_value.iter().any(|v| !hilo_study::verdict::lower_is_better(&v.metric) && v.mde > 0.015);
+    assert_eq!(
+        short,
+        std::fs::read_to_string(out.join("report.md")).unwrap().contains("The design that would find 0.015")
+    );
     assert!(report.comparisons.iter().all(|c| !c.a.contains("fog") && !c.b.contains("fog")));
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(
