@@ -152,6 +152,20 @@ pub struct Test {
     /// written before the field existed).
     #[serde(default)]
     pub df: f64,
+    /// The seed variance as this test scaled it (by Σ w², `seed_term`): the pooled variance of
+    /// full scores, the part of it the scene bootstrap already carries, and its degrees of
+    /// freedom Σ(n_g − 1). [`design_for_mde`] projects from them; NaN and 0 in reports written
+    /// before the fields existed.
+    #[serde(default = "nan")]
+    pub seed_full: f64,
+    #[serde(default = "nan")]
+    pub seed_within: f64,
+    #[serde(default)]
+    pub seed_df: f64,
+}
+
+fn nan() -> f64 {
+    f64::NAN
 }
 
 /// Fewer validation scenes than this: a scene bootstrap has too few distinct resamples.
@@ -232,6 +246,9 @@ pub fn test(
         scenes,
         estimable,
         df: if estimable { df } else { f64::NAN },
+        seed_full: seed.variance * seed_term,
+        seed_within: seed.within * seed_term,
+        seed_df: seed.df as f64,
     }
 }
 
@@ -290,26 +307,32 @@ pub const MAX_DESIGN_SCENES: usize = 2_000;
 
 /// The cheapest design (fewest replicates per group, then fewest validation scenes, never
 /// fewer of either than `t`'s) whose minimum detectable effect at `alpha` and `power` is at
-/// most `target`, projected from `t`'s two variance components: the scene bootstrap's shrinks
-/// as 1/scenes, the seeds' as 1/replicates. The degrees of freedom follow by
-/// Welch–Satterthwaite: the scenes' are scenes − 1, the seeds' the share of `t`'s df that the
-/// scenes leave (so `t`'s own design projects to `t`'s MDE), growing as replicates − 1 (a pooled
-/// variance's degrees). The bootstrap's share also holds seed-by-scene noise that more
-/// replicates would shrink; leaving it fixed errs towards more scenes. None when `t` is not estimable, or no design up to
-/// [`MAX_DESIGN_REPLICATES`] and [`MAX_DESIGN_SCENES`] reaches `target`.
+/// most `target`, projected from `t`'s variance components by the rule [`test`] applies: the
+/// scene bootstrap's variance shrinks as 1/scenes; the seed variance's own part (full scores'
+/// variance net of the scene luck each seed carries) as 1/replicates, and that scene luck as
+/// 1/(replicates · scenes); the degrees of freedom are Welch–Satterthwaite's over the three, the
+/// seeds' growing as replicates − 1. At `t`'s own design it is `t`'s MDE. With more scenes the
+/// scene luck in the seed variance fades, and its degrees of freedom with it no longer fall
+/// short of Σ(n_g − 1). None when `t` is not estimable or predates the seed fields, or when no
+/// design up to [`MAX_DESIGN_REPLICATES`] and [`MAX_DESIGN_SCENES`] reaches `target`.
 pub fn design_for_mde(t: &Test, replicates: usize, target: f64, alpha: f64, power: f64) -> Option<PowerDesign> {
-    if !(t.estimable && t.df.is_finite() && replicates > 1 && target > 0.0 && t.scenes > 1) {
+    let fields = t.seed_full.is_finite() && t.seed_within.is_finite() && t.seed_df > 0.0;
+    if !(t.estimable && fields && replicates > 1 && target > 0.0 && t.scenes > 1) {
         return None;
     }
-    let (vs, vd) = (t.se_scenes.powi(2), t.se_seeds.powi(2));
-    // The seeds' df: (vs + vd)²/df = vs²/(V − 1) + vd²/d, solved for d (unbounded when the
-    // scenes alone account for df).
-    let rest = (vs + vd).powi(2) / t.df - vs.powi(2) / (t.scenes as f64 - 1.0).max(1.0);
-    let df_seeds = if rest > 0.0 { vd.powi(2) / rest } else { f64::INFINITY };
+    let seed_own = (t.seed_full - t.seed_within).max(0.0);
     let projected = |n: usize, v: usize| {
-        let (vs2, vd2) = (vs * t.scenes as f64 / v as f64, vd * replicates as f64 / n as f64);
-        let df = satterthwaite(&[(vs2, (v - 1) as f64), (vd2, df_seeds * (n - 1) as f64 / (replicates - 1) as f64)]);
-        mde((vs2 + vd2).sqrt(), df, alpha, power)
+        let (per_n, per_v) = (replicates as f64 / n as f64, t.scenes as f64 / v as f64);
+        let scenes = t.se_scenes.powi(2) * per_v;
+        let within = t.seed_within * per_n * per_v;
+        let full = seed_own * per_n + within;
+        let (df_scenes, df_seeds) = ((v - 1) as f64, t.seed_df * (n - 1) as f64 / (replicates - 1) as f64);
+        let df = if seed_own > 0.0 {
+            satterthwaite(&[(scenes, df_scenes), (full, df_seeds), (-within, df_scenes * df_seeds)])
+        } else {
+            df_scenes
+        };
+        mde((scenes + seed_own * per_n).sqrt(), df, alpha, power)
     };
     for n in replicates..=MAX_DESIGN_REPLICATES.max(replicates) {
         // (A NaN projection reaches nothing.)
@@ -611,6 +634,9 @@ mod tests {
             scenes: 20,
             estimable: true,
             df,
+            seed_full: f64::NAN,
+            seed_within: f64::NAN,
+            seed_df: 0.0,
         };
         // Estimate 0, SE 0.01, margin 0.02: both one-sided t are 2; 1 − Φ(2) = 0.022750 for a
         // large df, 1 − T₁₀(2) = 0.036694.
@@ -636,55 +662,71 @@ mod tests {
     /// The design for a target MDE: at the test's own design it projects the test's MDE; in
     /// the scene-dominated regime the scenes it asks for follow the closed form
     /// V·(MDE/target)², and one scene fewer falls short; seed variance that no number of scenes
-    /// can beat asks for more replicates; an unreachable target gives None.
+    /// can beat asks for more replicates; the scene luck in the seed variance, which leaves the
+    /// test's own seeds under two degrees of freedom, fades with the scenes, so three seeds do;
+    /// an unreachable target, a test that cannot be projected and one that predates the seed
+    /// fields give None.
     #[test]
     fn the_design_for_a_target_mde_is_the_cheapest_that_reaches_it() {
-        let t = |se_scenes: f64, se_seeds: f64, df: f64| Test {
-            estimate: 0.0,
-            lo: f64::NAN,
-            hi: f64::NAN,
-            se: (se_scenes.powi(2) + se_seeds.powi(2)).sqrt(),
-            se_scenes,
-            se_seeds,
-            p: f64::NAN,
-            p_adjusted: f64::NAN,
-            seeds_a: 3,
-            seeds_b: 3,
-            scenes: 20,
-            estimable: true,
-            df,
+        // 3 seeds a group, 20 scenes; the seed variance as `test` scales it for 3 against 3.
+        let t = |se_scenes: f64, seed_own: f64, seed_within: f64, seed_df: f64| {
+            let (vs, full) = (se_scenes.powi(2), seed_own + seed_within);
+            let df = if seed_own > 0.0 {
+                satterthwaite(&[(vs, 19.0), (full, seed_df), (-seed_within, 19.0 * seed_df)])
+            } else {
+                19.0
+            };
+            Test {
+                estimate: 0.0,
+                lo: f64::NAN,
+                hi: f64::NAN,
+                se: (vs + seed_own).sqrt(),
+                se_scenes,
+                se_seeds: seed_own.sqrt(),
+                p: f64::NAN,
+                p_adjusted: f64::NAN,
+                seeds_a: 3,
+                seeds_b: 3,
+                scenes: 20,
+                estimable: true,
+                df,
+                seed_full: full,
+                seed_within,
+                seed_df,
+            }
         };
+        let own_mde = |t: &Test| mde(t.se, t.df, 0.05, 0.8);
         // Its own design: reached already when the target is its MDE.
-        let own = t(0.008, 0.006, 30.0);
-        let m = mde(own.se, own.df, 0.05, 0.8);
-        let d = design_for_mde(&own, 3, m + 1e-12, 0.05, 0.8).unwrap();
+        let own = t(0.008, 0.006f64.powi(2), 0.003f64.powi(2), 20.0);
+        let d = design_for_mde(&own, 3, own_mde(&own) + 1e-12, 0.05, 0.8).unwrap();
         assert_eq!((d.replicates, d.val_scenes), (3, 20));
-        assert!((d.mde - m).abs() < 1e-12, "{} vs {m}", d.mde);
+        assert!((d.mde - own_mde(&own)).abs() < 1e-12, "{} vs {}", d.mde, own_mde(&own));
         // Scenes only: se ∝ 1/√V with df = V − 1; 2.8·0.01 = 0.028 at 20 scenes, so 0.015 needs
         // about 20·(0.028/0.015)² ≈ 70 (a little more for the t's tails).
-        let scenes_only = t(0.01, 0.0, 19.0);
+        let scenes_only = t(0.01, 0.0, 0.0, 20.0);
         let d = design_for_mde(&scenes_only, 3, 0.015, 0.05, 0.8).unwrap();
         assert_eq!(d.replicates, 3);
         let closed = 20.0 * (mde(0.01, 1e5, 0.05, 0.8) / 0.015).powi(2);
         assert!(d.val_scenes as f64 >= closed && (d.val_scenes as f64) < closed * 1.06, "{} vs {closed}", d.val_scenes);
         assert!(d.mde <= 0.015);
-        let fewer = Test {
-            scenes: d.val_scenes - 1,
-            se_scenes: 0.01 * (20.0 / (d.val_scenes - 1) as f64).sqrt(),
-            ..scenes_only.clone()
-        };
-        let fewer = Test { df: (fewer.scenes - 1) as f64, ..fewer };
-        assert!(mde(fewer.se_scenes, fewer.df, 0.05, 0.8) > 0.015);
-        // Seeds alone exceed the target's variance: more replicates, then the scenes.
-        let seedy = t(0.002, 0.008, 8.0);
+        let fewer = d.val_scenes - 1;
+        assert!(mde(0.01 * (20.0 / fewer as f64).sqrt(), (fewer - 1) as f64, 0.05, 0.8) > 0.015);
+        // Seeds alone exceed the target's variance: more replicates, then the scenes. With
+        // normal tails 3·0.008²/(0.015/2.8016)² = 6.7 replicates; the t's tails at the seeds'
+        // 4·(n − 1) degrees ask for a little more.
+        let seedy = t(0.002, 0.008f64.powi(2), 0.0, 8.0);
         let d = design_for_mde(&seedy, 3, 0.015, 0.05, 0.8).unwrap();
-        assert!(d.replicates > 3 && d.mde <= 0.015, "{d:?}");
-        // With normal tails it needs 3·0.008²/(0.015/2.8016)² = 6.7 replicates; the t's tails at
-        // the seeds' few degrees ask for a little more.
-        assert!((7..=9).contains(&d.replicates), "{d:?}");
-        // Unreachable within the caps, and a test that cannot be projected.
-        assert_eq!(design_for_mde(&t(0.0, 0.05, 4.0), 3, 0.015, 0.05, 0.8), None);
-        assert_eq!(design_for_mde(&Test { estimable: false, ..own }, 3, 0.015, 0.05, 0.8), None);
+        assert!((7..=9).contains(&d.replicates) && d.mde <= 0.015, "{d:?}");
+        // Scene luck: each seed's bootstrap variance nearly all of the seed variance, so the
+        // test's own df is under 2; with more scenes it fades, and three seeds reach the target.
+        let lucky = t(0.0165, 1.8e-5, 1e-3, 20.0);
+        assert!(lucky.df < 2.0, "{}", lucky.df);
+        let d = design_for_mde(&lucky, 3, 0.015, 0.05, 0.8).unwrap();
+        assert!(d.replicates == 3 && d.mde <= 0.015, "{d:?}");
+        // Unreachable within the caps, not estimable, or written before the seed fields.
+        assert_eq!(design_for_mde(&t(0.0, 0.05f64.powi(2), 0.0, 4.0), 3, 0.015, 0.05, 0.8), None);
+        assert_eq!(design_for_mde(&Test { estimable: false, ..own.clone() }, 3, 0.015, 0.05, 0.8), None);
+        assert_eq!(design_for_mde(&Test { seed_df: 0.0, ..own }, 3, 0.015, 0.05, 0.8), None);
     }
 
     #[test]
