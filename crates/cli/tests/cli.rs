@@ -235,8 +235,8 @@ fn a_lidar_only_configuration_is_placed_for_its_own_coverage() {
 }
 
 /// A radar rig placed `given` a LiDAR-only rig keeps its LiDARs at their poses and places the
-/// radar, proven optimal for the rest and never above the rig placed for itself; a `given`
-/// naming no configuration above it is refused.
+/// radar, proven optimal for the rest and never above the rig placed for itself, whether the
+/// given rig stands above or below it in the file; a chain, itself or no configuration is refused.
 #[test]
 fn a_configuration_given_another_keeps_its_sensors() {
     let dir = tempfile::tempdir().unwrap();
@@ -264,13 +264,31 @@ fn a_configuration_given_another_keeps_its_sensors() {
     assert!(given["proven_optimal"].as_bool().unwrap(), "{given}");
     assert!(given["method"].as_str().unwrap().contains("given"), "{given}");
     assert!(given["objective"].as_f64().unwrap() <= alone["objective"].as_f64().unwrap() + 1e-6);
+    // A configuration below may be the given one: it is placed first, and the files are the same.
     let study = coarse_study(
         dir.path(),
-        "[[configurations]]\nname = \"r\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"later\"\n[[configurations]]\nname = \"later\"\nsensors = { \"lidar-16\" = 2 }\n",
+        "[[configurations]]\nname = \"2x lidar-16 + radar\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"2x lidar-16\"\n[[configurations]]\nname = \"2x lidar-16\"\nsensors = { \"lidar-16\" = 2 }\n",
     );
-    let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("q")).output().unwrap();
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && err.contains("given") && err.contains("later") && err.contains("above"), "{err}");
+    let below = dir.path().join("q");
+    place_ok(&study, &below);
+    for f in ["2x_lidar_16.json", "2x_lidar_16_radar.json"] {
+        let (a, b) = (json(&out.join(f)), json(&below.join(f)));
+        assert_eq!((&a["sensors"], &a["objective"]), (&b["sensors"], &b["objective"]), "{f}");
+    }
+    // A chain (given a rig that is given another in turn), itself, or no configuration: refused.
+    for (confs, needle) in [
+        (
+            "name = \"a\"\nsensors = { \"lidar-16\" = 1 }\n[[configurations]]\nname = \"b\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"a\"\n[[configurations]]\nname = \"c\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"b\"\n",
+            "in turn",
+        ),
+        ("name = \"a\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"a\"\n", "no other configuration"),
+        ("name = \"a\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"nowhere\"\n", "no other configuration"),
+    ] {
+        let study = coarse_study(dir.path(), &format!("[[configurations]]\n{confs}"));
+        let o = hilo().arg("place").arg(&study).arg("--out").arg(dir.path().join("r")).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains("given") && err.contains(needle), "{needle}: {err}");
+    }
 }
 
 /// With the calibrated objective and a radar worth nothing to the detectors, the budget buys

@@ -46,7 +46,7 @@ use std::time::Instant;
 
 pub mod file;
 pub mod search;
-pub use search::{greedy, swaps, upper_bound};
+pub use search::{greedy, greedy_given, swaps, upper_bound};
 
 /// The largest calibrated IP (non-zeros of its coverage rows) handed to CBC by default
 /// (`[placement] calibrated_cbc_max_nonzeros`). CBC checks its time limit only between
@@ -403,10 +403,28 @@ pub fn solve(
     max_nonzeros: usize,
     warm: &Outcome,
 ) -> Result<Outcome, PlacementError> {
+    solve_given(inst, limit, w, (time_limit_s, max_nonzeros), warm, &[])
+}
+
+/// [`solve`] keeping the options of `fixed` (a feasible part of a selection, all of them in
+/// `warm`, as [`greedy_given`] makes it): swaps never take them out and CBC holds them at 1, so a
+/// proven result is optimal over every selection that holds them. The submodular bound of a
+/// large instance bounds every selection, those holding them among them.
+pub fn solve_given(
+    inst: &Instance,
+    limit: &Limit,
+    w: &Weights,
+    (time_limit_s, max_nonzeros): (f64, usize),
+    warm: &Outcome,
+    fixed: &[usize],
+) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
     w.check()?;
     check_instance(inst, w)?;
-    let local = swaps(inst, limit, w, warm, time_limit_s).no_worse_than(warm, 1e-12);
+    if let Some(o) = fixed.iter().find(|o| !warm.selection.contains(o)) {
+        return Err(PlacementError::Solver(format!("the warm start lacks the given option {o}")));
+    }
+    let local = swaps(inst, limit, w, warm, time_limit_s, fixed).no_worse_than(warm, 1e-12);
     let nz = nonzeros(inst, w);
     if nz > max_nonzeros {
         return Ok(Outcome {
@@ -415,7 +433,7 @@ pub fn solve(
             ..local
         });
     }
-    let out = cbc(inst, limit, w, time_limit_s, &local)?;
+    let out = cbc(inst, limit, w, time_limit_s, &local, fixed)?;
     let out = Outcome { method: format!("{} ({nz} non-zeros)", out.method), ..out };
     if out.proven_optimal || out.bound <= local.bound {
         return Ok(Outcome { solve_seconds: start.elapsed().as_secs_f64(), ..out });
@@ -429,13 +447,15 @@ pub fn solve(
     })
 }
 
-/// The calibrated IP by CBC within `time_limit_s`, warm-started from `warm`.
+/// The calibrated IP by CBC within `time_limit_s`, warm-started from `warm`, the options of
+/// `fixed` held at 1.
 fn cbc(
     inst: &Instance,
     limit: &Limit,
     w: &Weights,
     time_limit_s: f64,
     warm: &Outcome,
+    fixed: &[usize],
 ) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
     let tau = inst.tau();
@@ -479,6 +499,9 @@ fn cbc(
         problem.add_constraint((v - cover).leq(0.0));
     }
     crate::mip::add_limit(&mut problem, inst, limit, &x);
+    for &o in fixed {
+        problem.add_constraint(Expression::from(x[o]).geq(1.0));
+    }
     let mut problem = problem.with_time_limit(time_limit_s.max(1.0));
     let chosen: std::collections::HashSet<usize> = warm.selection.iter().copied().collect();
     let mut init: Vec<(Variable, f64)> =
@@ -613,6 +636,43 @@ mod tests {
         }
     }
 
+    /// Given a sensor: CBC keeps it and equals brute force over the selections that hold it;
+    /// without CBC, greedy and swaps keep it and the bound is never below that optimum.
+    #[test]
+    fn the_calibrated_ip_keeps_the_given_sensor() {
+        for seed in 0..6 {
+            let inst = random_instance(seed);
+            let w = Weights { lidar: 0.3, radar: 0.1, lidar_two_views: 0.4, ..Weights::default() };
+            let Some(fixed) = (0..inst.options.len()).find(|&o| inst.options[o].ty == 0) else { continue };
+            for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
+                let n = inst.options.len();
+                let best = (0u32..1 << n)
+                    .map(|mask| (0..n).filter(|o| mask & (1 << o) != 0).collect::<Vec<_>>())
+                    .filter(|s| s.contains(&fixed) && inst.check(&limit, s).is_ok())
+                    .map(|s| evaluate(&inst, &s, &w))
+                    .fold(0.0, f64::max);
+                let g = greedy_given(&inst, &limit, &w, &[fixed]);
+                assert!(g.selection.contains(&fixed) && g.objective <= best + 1e-9, "seed {seed}");
+                let out = solve_given(&inst, &limit, &w, (30.0, CBC_MAX_NONZEROS), &g, &[fixed]).unwrap();
+                assert!(out.selection.contains(&fixed) && inst.check(&limit, &out.selection).is_ok());
+                assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
+                let local = solve_given(&inst, &limit, &w, (30.0, 0), &g, &[fixed]).unwrap();
+                assert!(local.selection.contains(&fixed) && local.objective <= best + 1e-9, "seed {seed}");
+                assert!(local.bound >= best - 1e-9, "seed {seed}: bound {} below {best}", local.bound);
+            }
+            let free = greedy(&inst, &Limit::Counts(vec![2, 1]), &w);
+            assert!(
+                solve_given(&inst, &Limit::Counts(vec![2, 1]), &w, (30.0, 0), &free, &[n_missing(&free, &inst)])
+                    .is_err_and(|e| e.to_string().contains("given option"))
+            );
+        }
+    }
+
+    /// An option a selection lacks.
+    fn n_missing(o: &Outcome, inst: &Instance) -> usize {
+        (0..inst.options.len()).find(|x| !o.selection.contains(x)).unwrap_or(0)
+    }
+
     /// Without CBC: greedy meets the minimum counts, swaps never lose, and the submodular
     /// bound (from the empty selection and from the swaps' result) is never below the optimum
     /// found by brute force.
@@ -649,7 +709,7 @@ mod tests {
                 let best = brute(&inst, &limit, &w);
                 let g = greedy(&inst, &limit, &w);
                 assert!(inst.check(&limit, &g.selection).is_ok(), "seed {seed} {limit:?}: {:?}", g.selection);
-                let s = swaps(&inst, &limit, &w, &g, 30.0);
+                let s = swaps(&inst, &limit, &w, &g, 30.0, &[]);
                 assert!(inst.check(&limit, &s.selection).is_ok(), "seed {seed} {limit:?}: {:?}", s.selection);
                 assert!(s.objective >= g.objective - 1e-12 && s.objective <= best + 1e-9);
                 assert!((s.objective - evaluate(&inst, &s.selection, &w)).abs() < 1e-9, "incremental sums drift");

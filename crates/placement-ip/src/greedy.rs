@@ -31,8 +31,13 @@ fn relaxed(inst: &Instance, sel: &[usize]) -> f64 {
 }
 
 pub fn greedy(inst: &Instance, limit: &Limit) -> Outcome {
+    greedy_given(inst, limit, &[])
+}
+
+/// [`greedy`] from the options of `fixed` (a feasible part of a selection), which it keeps.
+pub fn greedy_given(inst: &Instance, limit: &Limit, fixed: &[usize]) -> Outcome {
     let start = Instant::now();
-    let mut sel: Vec<usize> = Vec::new();
+    let mut sel: Vec<usize> = fixed.to_vec();
     let budget = matches!(limit, Limit::Budget { .. });
     loop {
         let f0 = evaluate_with(inst, &sel, &mut Scratch::new(inst.n_targets()));

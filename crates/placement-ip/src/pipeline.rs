@@ -219,12 +219,91 @@ pub fn solve_given(
         other => other.clone(),
     };
     inst.check(&partial, fixed).map_err(|e| PlacementError::instance("the given sensors", e.to_string()))?;
-    let mut out = crate::mip::solve_fixing(inst, limit, Formulation::Strengthened, time_limit_s, None, fixed)?;
+    let start = std::time::Instant::now();
+    if let Some(sel) = enumerate_completions(inst, limit, fixed) {
+        let method = format!("every completion of {} given sensor(s) evaluated", fixed.len());
+        return Ok(Outcome::new(inst, sel, f64::INFINITY, true, start.elapsed().as_secs_f64(), &method));
+    }
+    let g = crate::greedy::greedy_given(inst, limit, fixed);
+    let out =
+        crate::mip::solve_fixing(inst, limit, Formulation::Strengthened, time_limit_s, Some(&g.selection), fixed)?
+            .no_worse_than(&g, 1e-9);
     if let Some(o) = fixed.iter().find(|o| !out.selection.contains(o)) {
         return Err(PlacementError::Solver(format!("CBC dropped the given option {o}")));
     }
-    out.method = format!("CBC, strengthened formulation, {} given sensor(s) fixed", fixed.len());
-    Ok(out)
+    let method = format!("CBC, strengthened formulation, {} given sensor(s) fixed", fixed.len());
+    Ok(Outcome { method, solve_seconds: start.elapsed().as_secs_f64(), ..out })
+}
+
+/// The most completions [`solve_given`] evaluates one by one instead of handing the problem to
+/// CBC: a radar added to fixed LiDARs has a few hundred.
+pub const MAX_COMPLETIONS: f64 = 200_000.0;
+
+/// Under fixed counts, the best selection holding `fixed` by evaluating every completion (at
+/// most the remaining count of each type, one sensor per mount), when there are at most
+/// [`MAX_COMPLETIONS`] of them; None otherwise or under other limits. The objective only grows
+/// with a sensor, so this is the optimum over every selection that holds `fixed`.
+fn enumerate_completions(inst: &Instance, limit: &Limit, fixed: &[usize]) -> Option<Vec<usize>> {
+    let Limit::Counts(counts) = limit else { return None };
+    let taken: std::collections::HashSet<u32> = fixed.iter().map(|&o| inst.options[o].mount).collect();
+    // Per type: the options still open and how many more it may hold.
+    let mut open: Vec<(Vec<usize>, usize)> = Vec::new();
+    for (t, &n) in counts.iter().enumerate() {
+        let have = fixed.iter().filter(|&&o| inst.options[o].ty == t).count();
+        let more = (n as usize).saturating_sub(have);
+        let opts: Vec<usize> = (0..inst.options.len())
+            .filter(|&o| inst.options[o].ty == t && !taken.contains(&inst.options[o].mount))
+            .collect();
+        if more > 0 && !opts.is_empty() {
+            open.push((opts, more));
+        }
+    }
+    // Subsets of at most k of n, per type, multiplied.
+    let subsets = |n: usize, k: usize| -> f64 {
+        let mut c = 1.0;
+        let mut total = 1.0;
+        for i in 0..k.min(n) {
+            c *= (n - i) as f64 / (i + 1) as f64;
+            total += c;
+        }
+        total
+    };
+    if open.iter().map(|(o, k)| subsets(o.len(), *k)).product::<f64>() > MAX_COMPLETIONS {
+        return None;
+    }
+    let mut all: Vec<Vec<usize>> = vec![fixed.to_vec()];
+    for (opts, k) in &open {
+        let mut next = Vec::new();
+        for base in &all {
+            extend_subsets(inst, base, opts, 0, *k, &mut next);
+        }
+        all = next;
+    }
+    use rayon::prelude::*;
+    all.into_par_iter()
+        .map(|mut s| {
+            s.sort_unstable();
+            (crate::instance::evaluate(inst, &s), s)
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+        .map(|x| x.1)
+}
+
+/// Pushes `base` with every subset of at most `k` of `opts[from..]` that keeps one sensor per mount.
+fn extend_subsets(inst: &Instance, base: &[usize], opts: &[usize], from: usize, k: usize, out: &mut Vec<Vec<usize>>) {
+    out.push(base.to_vec());
+    if k == 0 {
+        return;
+    }
+    for i in from..opts.len() {
+        let o = opts[i];
+        if base.iter().any(|&x| inst.options[x].mount == inst.options[o].mount) {
+            continue;
+        }
+        let mut b = base.to_vec();
+        b.push(o);
+        extend_subsets(inst, &b, opts, i + 1, k - 1, out);
+    }
 }
 
 /// [`solve`] from a greedy outcome the caller already has (`greedy(inst, limit)`), so a caller

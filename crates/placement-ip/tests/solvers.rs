@@ -320,7 +320,8 @@ fn a_free_sensor_type_is_bounded_by_its_options_in_the_exact_search() {
 }
 
 /// Placement given fixed sensors: it keeps them, and its objective is the best of every
-/// feasible selection that holds them (every subset of the options enumerated), proven; an
+/// feasible selection that holds them (every subset of the options enumerated), proven, by the
+/// completions' enumeration under fixed counts and by CBC under a total; an
 /// infeasible given set (two options on one mount, more of a type than the limit) is refused.
 #[test]
 fn a_placement_given_fixed_sensors_keeps_them_and_is_optimal_for_the_rest() {
@@ -346,6 +347,9 @@ fn a_placement_given_fixed_sensors_keeps_them_and_is_optimal_for_the_rest() {
         assert!(out.selection.contains(&lidar), "seed {seed}: the given sensor was dropped");
         assert!(inst.check(limit, &out.selection).is_ok());
         assert!(out.proven_optimal, "seed {seed}");
+        // Fixed counts: every completion evaluated; a total: CBC with the sensor held at 1.
+        let path = if matches!(limit, Limit::Counts(_)) { "every completion" } else { "CBC" };
+        assert!(out.method.contains(path), "seed {seed}: {}", out.method);
         assert!((out.objective - best).abs() < 1e-6 * best.abs().max(1.0), "seed {seed}: {} vs {best}", out.objective);
         // Never better than the free optimum.
         assert!(out.objective <= exhaustive(&inst, limit, 10_000_000).unwrap().objective + 1e-9);

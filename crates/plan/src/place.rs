@@ -8,7 +8,7 @@ use crate::study::{Configuration, Study};
 use glam::{Vec2, Vec3};
 use hilo_placement_ip::greedy::greedy;
 use hilo_placement_ip::pipeline::{ObjectiveKind, Prepared, instance, prepare, solve_from};
-use hilo_placement_ip::{Instance, Limit, Modality, PlacedSensor, Placement};
+use hilo_placement_ip::{Instance, Limit, Modality, Outcome, PlacedSensor, Placement};
 use hilo_raycast::scene::config::RoiKind;
 use hilo_raycast::{QueryRegion, World};
 use std::collections::{HashMap, HashSet};
@@ -176,7 +176,15 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
     let mut road_users: Option<Vec<f64>> = None;
     // And the LiDAR points every LiDAR option puts on them, counted once per (type, candidate).
     let mut points = PointCache::default();
-    for conf in &study.file.configurations {
+    // The configurations placed given another after the others (the study file's check allows
+    // no chains), so each finds its given rig placed; the result is in the file's order.
+    let confs = &study.file.configurations;
+    let order: Vec<usize> = (0..confs.len())
+        .filter(|&i| confs[i].given.is_none())
+        .chain((0..confs.len()).filter(|&i| confs[i].given.is_some()))
+        .collect();
+    for &ci in &order {
+        let conf = &confs[ci];
         // A configuration of one modality is placed for that modality's coverage
         // (`Instance::requires`): the paper's both-modality objective would be zero for it.
         let types = conf.type_names();
@@ -189,12 +197,13 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
             None => None,
         };
         let (g, o) = match (cfg.objective, &cfg.calibration, given) {
-            (_, _, Some(fixed)) => {
-                let g = greedy(&inst, &limit);
+            (ObjectiveKind::Paper, _, Some(fixed)) => {
+                let g = hilo_placement_ip::greedy::greedy_given(&inst, &limit, &fixed);
                 let o = hilo_placement_ip::pipeline::solve_given(&inst, &limit, &fixed, cfg.time_limit_s)?;
                 (g, o)
             }
-            (ObjectiveKind::Calibrated, Some(w), None) => {
+            (ObjectiveKind::Calibrated, Some(w), fixed) => {
+                let fixed = fixed.unwrap_or_default();
                 if w.reads_road_users() {
                     if road_users.is_none() {
                         let traffic = crate::road_users::TrainingTraffic::new(study)?;
@@ -205,15 +214,20 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
                 if w.reads_points() {
                     inst.points = points.rows(study, &world, &prep, &inst)?;
                 }
-                let g = hilo_placement_ip::calibrated::greedy(&inst, &limit, w);
-                let o = hilo_placement_ip::calibrated::solve(
+                let g = hilo_placement_ip::calibrated::greedy_given(&inst, &limit, w, &fixed);
+                let o = hilo_placement_ip::calibrated::solve_given(
                     &inst,
                     &limit,
                     w,
-                    cfg.time_limit_s,
-                    cfg.calibrated_cbc_max_nonzeros,
+                    (cfg.time_limit_s, cfg.calibrated_cbc_max_nonzeros),
                     &g,
+                    &fixed,
                 )?;
+                let o = if fixed.is_empty() {
+                    o
+                } else {
+                    Outcome { method: format!("{}, {} given sensor(s) fixed", o.method, fixed.len()), ..o }
+                };
                 (g, o)
             }
             _ => {
@@ -265,7 +279,15 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         out.lidar_hits.push(hits);
         out.radar_covered.push(radar);
     }
-    let Out { placements, lidar_hits, radar_covered } = out;
+    // Back to the file's order: the k-th placed is configuration order[k].
+    let mut at = vec![0; order.len()];
+    for (k, &ci) in order.iter().enumerate() {
+        at[ci] = k;
+    }
+    let Out { placements, mut lidar_hits, mut radar_covered } = out;
+    let placements = at.iter().map(|&k| placements[k].clone()).collect();
+    let lidar_hits = at.iter().map(|&k| std::mem::take(&mut lidar_hits[k])).collect();
+    let radar_covered = at.iter().map(|&k| std::mem::take(&mut radar_covered[k])).collect();
     Ok(Placed { prepared: prep, placements, lidar_hits, radar_covered })
 }
 

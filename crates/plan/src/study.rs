@@ -439,8 +439,9 @@ pub struct Configuration {
     pub min: BTreeMap<String, u32>,
     #[serde(default)]
     pub max: BTreeMap<String, u32>,
-    /// An earlier configuration whose placed sensors this one keeps, at their poses, placing
-    /// only the rest: a rig and the same rig with a radar added then differ by the radar alone.
+    /// Another configuration whose placed sensors this one keeps, at their poses, placing only
+    /// the rest: a rig and the same rig with a radar added then differ by the radar alone. It is
+    /// placed first wherever it stands in the file, and is not placed given another in turn.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub given: Option<String>,
 }
@@ -651,9 +652,18 @@ impl Study {
             }
             if let Some(g) = &c.given {
                 let value = format!("{g:?}");
-                let Some(base) = file.configurations[..i].iter().find(|o| &o.name == g) else {
-                    return Err(at("given", &value, "names no configuration above this one"));
+                let Some(base) =
+                    file.configurations.iter().enumerate().find(|(j, o)| *j != i && &o.name == g).map(|x| x.1)
+                else {
+                    return Err(at("given", &value, "names no other configuration of this study"));
                 };
+                if base.given.is_some() {
+                    return Err(at(
+                        "given",
+                        &value,
+                        "names a configuration placed given another in turn; name the one at the bottom",
+                    ));
+                }
                 // The given rig's sensors must fit this one: counts of its types at most this one's.
                 let fits = base.budget_usd.is_none()
                     && base.sensors.iter().all(|(t, n)| match c.budget_usd {
@@ -665,14 +675,6 @@ impl Study {
                         "given",
                         &value,
                         "must be a configuration of fixed counts whose sensors this one can hold (each of its types, as many)",
-                    ));
-                }
-                if file.placement.objective == hilo_placement_ip::pipeline::ObjectiveKind::Calibrated {
-                    return Err(at(
-                        "given",
-                        &value,
-                        "placing given another configuration's sensors takes the paper's objective; \
-                         [placement] objective = \"calibrated\" does not support it",
                     ));
                 }
             }

@@ -302,7 +302,15 @@ fn fingerprint(study: &Study, profile: &Profile, settings: &ValidationSettings) 
     // The study's weather conditions are no part of the validation (its placements are recorded
     // in the study's own weather), so a profile that runs them defines the same validation.
     let pjson = serde_json::to_string(&Profile { conditions: Some(0), ..profile.clone() })?;
-    let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, study.file.configurations);
+    // A configuration's `given` is no part of it either: the set places every configuration for
+    // itself (and a folder made before a study named one still opens).
+    let configurations: Vec<_> = study
+        .file
+        .configurations
+        .iter()
+        .map(|c| hilo_plan::study::Configuration { given: None, ..c.clone() })
+        .collect();
+    let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, configurations);
     // What changes the trainings (not the set) joins the fingerprint only when present, so
     // folders made before the validation read these sections still open.
     let mut trains = String::new();

@@ -143,8 +143,11 @@ fn best_addition(st: &State, limit: &Limit, per_dollar: bool, allowed: impl Fn(u
         .map(|(_, g, o)| (g, o))
 }
 
-fn greedy_run<'a>(inst: &'a Instance, limit: &Limit, w: &Weights, per_dollar: bool) -> State<'a> {
+fn greedy_run<'a>(inst: &'a Instance, limit: &Limit, w: &Weights, per_dollar: bool, fixed: &[usize]) -> State<'a> {
     let mut st = State::new(inst, w);
+    for &o in fixed {
+        st.add(o);
+    }
     let min = minimum(inst, limit);
     // First each type's minimum count (by gain, or the first option of the type if none gains).
     for (t, &n) in min.iter().enumerate() {
@@ -167,10 +170,15 @@ fn greedy_run<'a>(inst: &'a Instance, limit: &Limit, w: &Weights, per_dollar: bo
 /// Greedy by marginal gain (per dollar under a budget, and also by plain gain there, the better
 /// kept) until nothing more fits or helps, after each type's minimum count.
 pub fn greedy(inst: &Instance, limit: &Limit, w: &Weights) -> Outcome {
+    greedy_given(inst, limit, w, &[])
+}
+
+/// [`greedy`] from the options of `fixed` (a feasible part of a selection), which it keeps.
+pub fn greedy_given(inst: &Instance, limit: &Limit, w: &Weights, fixed: &[usize]) -> Outcome {
     let start = Instant::now();
-    let mut st = greedy_run(inst, limit, w, matches!(limit, Limit::Budget { .. }));
+    let mut st = greedy_run(inst, limit, w, matches!(limit, Limit::Budget { .. }), fixed);
     if matches!(limit, Limit::Budget { .. }) {
-        let plain = greedy_run(inst, limit, w, false);
+        let plain = greedy_run(inst, limit, w, false, fixed);
         if plain.f > st.f + 1e-12 {
             st = plain;
         }
@@ -182,7 +190,8 @@ pub fn greedy(inst: &Instance, limit: &Limit, w: &Weights) -> Outcome {
 
 /// Swaps from `from` (one chosen option out, one other in, the best such swap each round) while
 /// one raises the objective, until `deadline_s` seconds have passed; then adds what still fits.
-pub fn swaps(inst: &Instance, limit: &Limit, w: &Weights, from: &Outcome, deadline_s: f64) -> Outcome {
+/// The options of `fixed` (all in `from`) are never swapped out.
+pub fn swaps(inst: &Instance, limit: &Limit, w: &Weights, from: &Outcome, deadline_s: f64, fixed: &[usize]) -> Outcome {
     let start = Instant::now();
     let mut st = State::new(inst, w);
     for &o in &from.selection {
@@ -191,7 +200,7 @@ pub fn swaps(inst: &Instance, limit: &Limit, w: &Weights, from: &Outcome, deadli
     let min = minimum(inst, limit);
     while start.elapsed().as_secs_f64() < deadline_s {
         let mut best: Option<(f64, usize, usize)> = None;
-        for r in st.sel.clone() {
+        for r in st.sel.clone().into_iter().filter(|r| !fixed.contains(r)) {
             let loss = st.loss(r);
             let ty = inst.options[r].ty;
             // Dropping r would break a minimum count: only a sensor of its type may replace it.
