@@ -213,15 +213,12 @@ pub fn test(
     // The scene bootstrap's estimate has about scenes − 1 degrees; the within part is pooled
     // over every seed's deviation, each a bootstrap over the scenes.
     let df_scenes = scenes.saturating_sub(1) as f64;
-    let df = if var_seeds > 0.0 {
-        satterthwaite(&[
-            (var_scenes, df_scenes),
-            (seed.variance * seed_term, seed.df as f64),
-            (-seed.within * seed_term, df_scenes * seed.df as f64),
-        ])
-    } else {
-        df_scenes
-    };
+    let df = difference_df(
+        (var_scenes, df_scenes),
+        var_seeds,
+        (seed.variance * seed_term, seed.within * seed_term),
+        seed.df as f64,
+    );
     let estimable = scenes >= MIN_SCENES && se.is_finite() && seed.df > 0 && diffs.len() >= 20 && df.is_finite();
     let (lo, hi, p) = match (estimable, t_dist(df)) {
         (true, Some(t)) if se > 0.0 => {
@@ -249,6 +246,19 @@ pub fn test(
         seed_full: seed.variance * seed_term,
         seed_within: seed.within * seed_term,
         seed_df: seed.df as f64,
+    }
+}
+
+/// The degrees of freedom of a difference's standard error, by Welch–Satterthwaite over the
+/// scene bootstrap's variance (`var_scenes` with `df_scenes`), the seed variance of full scores
+/// (`full`, with `df_seeds`) and, taken out of it, the scene luck each seed carries (`within`,
+/// with df_scenes · df_seeds); the scenes' alone when `seed_net`, the seed variance net of that
+/// luck, is not positive.
+fn difference_df((var_scenes, df_scenes): (f64, f64), seed_net: f64, (full, within): (f64, f64), df_seeds: f64) -> f64 {
+    if seed_net > 0.0 {
+        satterthwaite(&[(var_scenes, df_scenes), (full, df_seeds), (-within, df_scenes * df_seeds)])
+    } else {
+        df_scenes
     }
 }
 
@@ -327,11 +337,7 @@ pub fn design_for_mde(t: &Test, replicates: usize, target: f64, alpha: f64, powe
         let within = t.seed_within * per_n * per_v;
         let full = seed_own * per_n + within;
         let (df_scenes, df_seeds) = ((v - 1) as f64, t.seed_df * (n - 1) as f64 / (replicates - 1) as f64);
-        let df = if seed_own > 0.0 {
-            satterthwaite(&[(scenes, df_scenes), (full, df_seeds), (-within, df_scenes * df_seeds)])
-        } else {
-            df_scenes
-        };
+        let df = difference_df((scenes, df_scenes), seed_own, (full, within), df_seeds);
         mde((scenes + seed_own * per_n).sqrt(), df, alpha, power)
     };
     for n in replicates..=MAX_DESIGN_REPLICATES.max(replicates) {
@@ -617,11 +623,11 @@ mod tests {
         assert!(u > 0.10, "understated standard error not caught: false-positive rate {u}");
     }
 
-    /// TOST, the minimum detectable effect and the binomial interval against closed forms.
-    #[test]
-    fn tost_mde_and_binomial_interval_match_closed_forms() {
-        let t = |estimate: f64, se: f64, df: f64| Test {
-            estimate,
+    /// A test of 3 against 3 seeds over 20 scenes with estimate 0, standard error `se` (all of it
+    /// the seeds') and `df` degrees of freedom; its interval, p-values and seed parts unknown.
+    fn test_of(se: f64, df: f64) -> Test {
+        Test {
+            estimate: 0.0,
             lo: f64::NAN,
             hi: f64::NAN,
             se,
@@ -637,7 +643,13 @@ mod tests {
             seed_full: f64::NAN,
             seed_within: f64::NAN,
             seed_df: 0.0,
-        };
+        }
+    }
+
+    /// TOST, the minimum detectable effect and the binomial interval against closed forms.
+    #[test]
+    fn tost_mde_and_binomial_interval_match_closed_forms() {
+        let t = |estimate: f64, se: f64, df: f64| Test { estimate, ..test_of(se, df) };
         // Estimate 0, SE 0.01, margin 0.02: both one-sided t are 2; 1 − Φ(2) = 0.022750 for a
         // large df, 1 − T₁₀(2) = 0.036694.
         assert!((tost_p(&t(0.0, 0.01, 100_000.0), 0.02) - 0.022750).abs() < 1e-4);
@@ -671,28 +683,14 @@ mod tests {
         // 3 seeds a group, 20 scenes; the seed variance as `test` scales it for 3 against 3.
         let t = |se_scenes: f64, seed_own: f64, seed_within: f64, seed_df: f64| {
             let (vs, full) = (se_scenes.powi(2), seed_own + seed_within);
-            let df = if seed_own > 0.0 {
-                satterthwaite(&[(vs, 19.0), (full, seed_df), (-seed_within, 19.0 * seed_df)])
-            } else {
-                19.0
-            };
+            let df = difference_df((vs, 19.0), seed_own, (full, seed_within), seed_df);
             Test {
-                estimate: 0.0,
-                lo: f64::NAN,
-                hi: f64::NAN,
-                se: (vs + seed_own).sqrt(),
                 se_scenes,
                 se_seeds: seed_own.sqrt(),
-                p: f64::NAN,
-                p_adjusted: f64::NAN,
-                seeds_a: 3,
-                seeds_b: 3,
-                scenes: 20,
-                estimable: true,
-                df,
                 seed_full: full,
                 seed_within,
                 seed_df,
+                ..test_of((vs + seed_own).sqrt(), df)
             }
         };
         let own_mde = |t: &Test| mde(t.se, t.df, 0.05, 0.8);
