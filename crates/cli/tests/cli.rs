@@ -275,13 +275,36 @@ fn a_configuration_given_another_keeps_its_sensors() {
         let (a, b) = (json(&out.join(f)), json(&below.join(f)));
         assert_eq!((&a["sensors"], &a["objective"]), (&b["sensors"], &b["objective"]), "{f}");
     }
-    // A chain (given a rig that is given another in turn), itself, or no configuration: refused.
+    // A chain, written top down: each keeps the whole rig below it, the second radar is placed
+    // given both LiDARs and the first radar, apart from it (on a structure without a radar).
+    let study = coarse_study(
+        dir.path(),
+        "[[configurations]]\nname = \"two radars\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 2 }\ngiven = \"2x lidar-16 + radar\"\napart = true\n[[configurations]]\nname = \"2x lidar-16 + radar\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"2x lidar-16\"\n[[configurations]]\nname = \"2x lidar-16\"\nsensors = { \"lidar-16\" = 2 }\n",
+    );
+    let chain = dir.path().join("chain");
+    place_ok(&study, &chain);
+    let two = json(&chain.join("two_radars.json"));
+    assert_eq!(poses(&two, "lidar-16"), poses(&lidars, "lidar-16"));
+    let first = poses(&given, "radar-4d");
+    let both = poses(&two, "radar-4d");
+    assert!(both.len() == 2 && both.contains(&first[0]), "{both:?} keeps {first:?}");
+    assert!(two["proven_optimal"].as_bool().unwrap(), "{two}");
+    let radar_structures: Vec<&str> = two["sensors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|s| s["type"] == "radar-4d")
+        .map(|s| s["structure"].as_str().unwrap())
+        .collect();
+    assert_ne!(radar_structures[0], radar_structures[1], "{two}");
+    // A cycle, itself, or no configuration: refused.
     for (confs, needle) in [
         (
-            "name = \"a\"\nsensors = { \"lidar-16\" = 1 }\n[[configurations]]\nname = \"b\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"a\"\n[[configurations]]\nname = \"c\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\ngiven = \"b\"\n",
-            "in turn",
+            "name = \"a\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"b\"\n[[configurations]]\nname = \"b\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"a\"\n",
+            "cycle of given configurations: a → b → a",
         ),
         ("name = \"a\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"a\"\n", "no other configuration"),
+        ("name = \"a\"\nsensors = { \"lidar-16\" = 2 }\napart = true\n", "name one with `given`"),
         ("name = \"a\"\nsensors = { \"lidar-16\" = 2 }\ngiven = \"nowhere\"\n", "no other configuration"),
     ] {
         let study = coarse_study(dir.path(), &format!("[[configurations]]\n{confs}"));

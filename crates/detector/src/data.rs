@@ -223,6 +223,13 @@ impl LoadStats {
                 share(self.radar_clutter_points, of)
             ));
         }
+        if self.radar_paired_points > 0 {
+            notes.push(format!(
+                "radar points paired with another radar's for their full ground velocity: {} of {of} ({:.1}%)",
+                self.radar_paired_points,
+                share(self.radar_paired_points, of)
+            ));
+        }
         notes
     }
 }

@@ -1,6 +1,7 @@
 //! Sweep stacking in the loader: the key frame's sweep and the ones before it, each point with
 //! its sweep's time lag, newest first; empty sweeps; a gap longer than the lag limit ends the
-//! stack; the LiDAR's sweeps likewise, the sweeps it did not scan left out of its chain.
+//! stack; the LiDAR's sweeps likewise, the sweeps it did not scan left out of its chain; one
+//! radar's points pass radar pairing unchanged.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -121,6 +122,15 @@ fn radar_sweeps_stack_with_their_time_lags() {
         assert_eq!((&one.sample_token, &one.lidar, &one.radar), (&f.sample_token, &f.lidar, &f.radar));
     }
     assert!(load_split_frame(&ds, "val", &opts, 3).unwrap().is_none());
+    // One radar: pairing its detections with another radar's (the fusion presets' input) pairs
+    // none, and every frame is the one loaded without it.
+    let paired = LoadOptions { radar_pairs: Some(hilo_fusion::config::RadarPairConfig::default()), ..opts };
+    let (p4, ps) = load_split(&ds, "val", &paired).unwrap();
+    assert_eq!(ps.radar_paired_points, 0);
+    assert_eq!(
+        p4.iter().map(|f| (&f.lidar, &f.radar)).collect::<Vec<_>>(),
+        f4.iter().map(|f| (&f.lidar, &f.radar)).collect::<Vec<_>>()
+    );
     // LiDAR sweeps the same way, each point with its sweep's lag; the sweeps without LiDAR are
     // not in its chain. At 0.5 s: its own, 0.4 s, 0.2 s, then the key frame at 0 s (lag 0.5).
     let lidar_tags = |f: &hilo_detector::data::Frame| -> Vec<(f32, f32)> {

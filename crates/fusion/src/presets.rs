@@ -3,8 +3,8 @@
 //! crates, on top of these.
 
 use crate::config::{
-    Assignment, DecodeConfig, DetectorConfig, InputConfig, LossNorm, Preset, RadarClutterConfig, TrainConfig,
-    VelocityTarget,
+    Assignment, DecodeConfig, DetectorConfig, InputConfig, LossNorm, Preset, RadarClutterConfig, RadarPairConfig,
+    TrainConfig, VelocityTarget,
 };
 use crate::grid::BevGrid;
 use crate::layout::SparseConfig;
@@ -23,6 +23,14 @@ pub fn default_input() -> InputConfig {
         radar_clutter: Some(RadarClutterConfig::default()),
         ..InputConfig::default()
     }
+}
+
+/// What every fusion preset reads: [`default_input`], and on a rig of two or more radars each
+/// detection that another radar sees too carrying the full ground velocity the two radial
+/// velocities give ([`RadarPairConfig`]'s defaults). With one radar no detection is paired, so
+/// the input is [`default_input`]'s, point for point.
+pub fn fusion_input() -> InputConfig {
+    InputConfig { radar_pairs: Some(RadarPairConfig::default()), ..default_input() }
 }
 
 /// `centerpoint`: PointPillars' pillar encoder (32 channels), a backbone at strides 2/4/8

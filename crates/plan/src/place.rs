@@ -70,6 +70,18 @@ fn given_options(
         .collect()
 }
 
+/// Drops the options that would stand a sensor on a structure holding one of `given` of its
+/// type (a configuration placed `apart`), keeping the given sensors' own options.
+fn keep_apart(inst: &mut Instance, prep: &Prepared, given: &[PlacedSensor]) {
+    let taken: HashSet<(&str, &str)> = given.iter().map(|s| (s.ty.as_str(), s.structure.as_str())).collect();
+    let types: Vec<String> = inst.types.iter().map(|t| t.name.clone()).collect();
+    inst.options.retain(|o| {
+        let c = &prep.candidates[o.candidate as usize];
+        let ty = types[o.ty].as_str();
+        !taken.contains(&(ty, c.structure.as_str())) || given.iter().any(|s| s.ty == ty && s.candidate_id == c.id)
+    });
+}
+
 /// The sensors an instance's selection places (type, candidate, structure, pose).
 pub fn placed(inst: &Instance, prep: &Prepared, sel: &[usize]) -> Vec<PlacedSensor> {
     sel.iter()
@@ -176,13 +188,13 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
     let mut road_users: Option<Vec<f64>> = None;
     // And the LiDAR points every LiDAR option puts on them, counted once per (type, candidate).
     let mut points = PointCache::default();
-    // The configurations placed given another after the others (the study file's check allows
-    // no chains), so each finds its given rig placed; the result is in the file's order.
+    // Each configuration after the one it is placed given (by depth in its chain; the study
+    // file's check refuses cycles), so it finds its given rig placed; the result is in the
+    // file's order.
     let confs = &study.file.configurations;
-    let order: Vec<usize> = (0..confs.len())
-        .filter(|&i| confs[i].given.is_none())
-        .chain((0..confs.len()).filter(|&i| confs[i].given.is_some()))
-        .collect();
+    let depths = crate::study::given_depths(confs);
+    let mut order: Vec<usize> = (0..confs.len()).collect();
+    order.sort_by_key(|&i| depths[i]);
     for &ci in &order {
         let conf = &confs[ci];
         // A configuration of one modality is placed for that modality's coverage
@@ -190,8 +202,12 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         let types = conf.type_names();
         let mut inst = instance(&prep, catalog, &types, cfg.p_min)?;
         let limit = limit_for(conf, &types);
+        if conf.apart
+            && let Some(base) = conf.given.as_ref().and_then(|g| out.placements.iter().find(|p| &p.name == g))
+        {
+            keep_apart(&mut inst, &prep, &base.sensors);
+        }
         check_limit(study, conf, &inst, &limit, &prep)?;
-        // The study file's check refuses `given` with the calibrated objective.
         let given = match &conf.given {
             Some(name) => Some(given_options(&inst, &prep, conf, name, &out.placements, &study.source)?),
             None => None,

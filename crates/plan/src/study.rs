@@ -423,7 +423,7 @@ impl Default for VerdictSettings {
 }
 
 /// One sensor configuration to place.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Configuration {
     pub name: String,
@@ -441,9 +441,34 @@ pub struct Configuration {
     pub max: BTreeMap<String, u32>,
     /// Another configuration whose placed sensors this one keeps, at their poses, placing only
     /// the rest: a rig and the same rig with a radar added then differ by the radar alone. It is
-    /// placed first wherever it stands in the file, and is not placed given another in turn.
+    /// placed first wherever it stands in the file; it may be placed given another in turn (a
+    /// chain: LiDARs, then a radar, then a second radar), never in a cycle.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub given: Option<String>,
+    /// With `given`: each sensor placed beyond the given rig's stands on a mounting structure
+    /// that holds none of the given rig's sensors of its type (a second radar on another pole,
+    /// so that two lines of sight meet a road user, not one pole's two headings).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub apart: bool,
+}
+
+/// The derived form, with `apart` only when set: the plan's content hashes and the validation's
+/// fingerprint read this text, so a study that does not set it keeps its hashes.
+impl std::fmt::Debug for Configuration {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("Configuration");
+        d.field("name", &self.name)
+            .field("sensors", &self.sensors)
+            .field("budget_usd", &self.budget_usd)
+            .field("types", &self.types)
+            .field("min", &self.min)
+            .field("max", &self.max)
+            .field("given", &self.given);
+        if self.apart {
+            d.field("apart", &self.apart);
+        }
+        d.finish()
+    }
 }
 
 impl Configuration {
@@ -476,6 +501,44 @@ pub const WEATHERS_KEY: &str = "weathers";
 
 /// A file-name-safe form of a name: lowercase ASCII letters and digits, runs of anything else
 /// as one `_`.
+/// The cycle that configuration `i`'s `given` links close, as "a → b → a" (None: they end at a
+/// configuration given nothing, or at a name no configuration has, which the check refuses on
+/// its own).
+fn given_cycle(confs: &[Configuration], i: usize) -> Option<String> {
+    let mut path = vec![i];
+    let mut at = i;
+    while let Some(next) = confs[at].given.as_ref().and_then(|g| confs.iter().position(|c| &c.name == g)) {
+        if let Some(k) = path.iter().position(|&j| j == next) {
+            let names: Vec<&str> =
+                path[k..].iter().chain(std::iter::once(&next)).map(|&j| confs[j].name.as_str()).collect();
+            return Some(names.join(" → "));
+        }
+        path.push(next);
+        at = next;
+    }
+    None
+}
+
+/// Each configuration's depth in its chain of `given` links (0: given nothing), for placing
+/// every configuration after the one it keeps. The chains are acyclic (the check refuses a
+/// cycle); a link to an unknown name counts as the bottom.
+pub fn given_depths(confs: &[Configuration]) -> Vec<usize> {
+    (0..confs.len())
+        .map(|i| {
+            let mut depth = 0;
+            let mut at = i;
+            while let Some(next) = confs[at].given.as_ref().and_then(|g| confs.iter().position(|c| &c.name == g)) {
+                depth += 1;
+                at = next;
+                if depth > confs.len() {
+                    break;
+                }
+            }
+            depth
+        })
+        .collect()
+}
+
 pub fn slug(name: &str) -> String {
     let s: String =
         name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect();
@@ -650,6 +713,9 @@ impl Study {
                     "every sensor count is 0; a configuration needs a sensor",
                 ));
             }
+            if c.apart && c.given.is_none() {
+                return Err(at("apart", &"true", "places sensors apart from a given rig's; name one with `given`"));
+            }
             if let Some(g) = &c.given {
                 let value = format!("{g:?}");
                 let Some(base) =
@@ -657,12 +723,9 @@ impl Study {
                 else {
                     return Err(at("given", &value, "names no other configuration of this study"));
                 };
-                if base.given.is_some() {
-                    return Err(at(
-                        "given",
-                        &value,
-                        "names a configuration placed given another in turn; name the one at the bottom",
-                    ));
+                // A chain is placed from its bottom up; a cycle has no bottom.
+                if let Some(cycle) = given_cycle(&file.configurations, i) {
+                    return Err(at("given", &value, &format!("closes a cycle of given configurations: {cycle}")));
                 }
                 // The given rig's sensors must fit this one: counts of its types at most this one's.
                 let fits = base.budget_usd.is_none()

@@ -516,8 +516,11 @@ fn verdict(
     scenes: usize,
     margins: crate::verdict::Margins,
 ) -> (Vec<Comparison>, Vec<Claim>, Calibration) {
-    let conf_roles: Vec<(String, f64, bool)> =
-        summaries.iter().map(|s| (s.name.clone(), s.cost_usd, s.has_radar)).collect();
+    // How many radars each rig has (a report written before `radar_mounts` says only whether).
+    let conf_roles: Vec<(String, f64, usize)> = summaries
+        .iter()
+        .map(|s| (s.name.clone(), s.cost_usd, if s.has_radar { s.radar_mounts.len().max(1) } else { 0 }))
+        .collect();
     let conditions: BTreeMap<String, String> =
         summaries.iter().filter_map(|s| Some((s.name.clone(), s.condition.clone()?))).collect();
     let roles = PresetRoles::of(prof, registry);

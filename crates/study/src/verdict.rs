@@ -385,8 +385,10 @@ pub struct Curve {
 #[derive(Clone, Copy, Debug)]
 pub struct Design<'a> {
     pub scores: &'a [DetectorScores],
-    /// Configurations with cost and whether they have a radar.
-    pub configurations: &'a [(String, f64, bool)],
+    /// Configurations with cost and how many radars they have. The paper's roles (the rig
+    /// under study, the dearest radar rig, the mid-resolution one) are rigs of one radar; a rig
+    /// of several radars placed given the rig under study is what a second radar adds.
+    pub configurations: &'a [(String, f64, usize)],
     /// The weather condition of each configuration recorded in one (`[[conditions]]`), by name;
     /// the others are in the study's own weather.
     pub conditions: &'a BTreeMap<String, String>,
@@ -519,15 +521,16 @@ impl Design<'_> {
         claim(id, statement, rows, missing)
     }
 
-    /// The cheapest configuration with a radar, the dearest with a radar, the dearest without.
+    /// The cheapest configuration with one radar, the dearest with one radar, the dearest
+    /// without.
     fn roles(&self) -> (Option<&str>, Option<&str>, Option<&str>) {
-        let by_cost = |radar: bool| {
-            let mut v: Vec<&(String, f64, bool)> = self.configurations.iter().filter(|c| c.2 == radar).collect();
+        let by_cost = |radars: usize| {
+            let mut v: Vec<&(String, f64, usize)> = self.configurations.iter().filter(|c| c.2 == radars).collect();
             v.sort_by(|a, b| a.1.total_cmp(&b.1));
             v
         };
-        let radar = by_cost(true);
-        let lidar = by_cost(false);
+        let radar = by_cost(1);
+        let lidar = by_cost(0);
         (radar.first().map(|c| c.0.as_str()), radar.last().map(|c| c.0.as_str()), lidar.last().map(|c| c.0.as_str()))
     }
 
@@ -553,16 +556,16 @@ impl Design<'_> {
         })
     }
 
-    /// The rig under study: the cheapest configuration with a radar (the cheapest of all when
+    /// The rig under study: the cheapest configuration with one radar (the cheapest of all when
     /// none has one).
-    fn under_study(&self) -> Option<&(String, f64, bool)> {
+    fn under_study(&self) -> Option<&(String, f64, usize)> {
         let cheapest =
-            |radar: bool| self.configurations.iter().filter(|c| c.2 || !radar).min_by(|a, b| a.1.total_cmp(&b.1));
+            |radar: bool| self.configurations.iter().filter(|c| c.2 == 1 || !radar).min_by(|a, b| a.1.total_cmp(&b.1));
         cheapest(true).or_else(|| cheapest(false))
     }
 
     /// The configurations recorded in `condition` (None: the study's own weather).
-    fn in_condition(&self, condition: Option<&str>) -> Vec<(String, f64, bool)> {
+    fn in_condition(&self, condition: Option<&str>) -> Vec<(String, f64, usize)> {
         self.configurations
             .iter()
             .filter(|c| self.conditions.get(&c.0).map(String::as_str) == condition)
@@ -624,6 +627,7 @@ impl Design<'_> {
         claims.extend(here.claims_confounds());
         claims.extend(here.claims_fusion());
         claims.extend(here.claims_pooled());
+        claims.extend(here.claims_second_radar());
         for cond in self.condition_names() {
             let confs = self.in_condition(Some(cond));
             let there = Design { configurations: &confs, ..*self };
@@ -706,7 +710,7 @@ impl Design<'_> {
 
     /// The cheapest and the dearest LiDAR-only configuration.
     fn lidar_only_rigs(&self) -> (Option<&str>, Option<&str>) {
-        let mut v: Vec<&(String, f64, bool)> = self.configurations.iter().filter(|c| !c.2).collect();
+        let mut v: Vec<&(String, f64, usize)> = self.configurations.iter().filter(|c| c.2 == 0).collect();
         v.sort_by(|a, b| a.1.total_cmp(&b.1));
         (v.first().map(|c| c.0.as_str()), v.last().map(|c| c.0.as_str()))
     }
@@ -728,7 +732,7 @@ impl Design<'_> {
         let same_poses = cheap
             .and_then(|c| self.given.get(c))
             .map(String::as_str)
-            .filter(|g| self.configurations.iter().any(|x| x.0 == *g && !x.2));
+            .filter(|g| self.configurations.iter().any(|x| x.0 == *g && x.2 == 0));
         let without_radar = same_poses.or(match (cheap, lidar_cheap) {
             (Some(c), Some(l)) if cost(l) < cost(c) => Some(l),
             _ => None,
@@ -762,6 +766,48 @@ impl Design<'_> {
             _ => claim("second_viewpoint", st2, vec![], Some("needs two LiDAR-only configurations".into())),
         };
         vec![c1, c1v, c2]
+    }
+
+    /// What a second radar adds: the rig placed given the rig under study (its LiDARs and its
+    /// radar at the same poses) with more radars, against it, both with the fusion preset, in
+    /// accuracy and in velocity error. Two lines of sight measure a road user's full ground
+    /// velocity where one measures its radial part (the fusion presets pair the radars'
+    /// detections, `input.radar_pairs`).
+    fn claims_second_radar(&self) -> Vec<Claim> {
+        let (cheap, _, _) = self.roles();
+        let (fusion, _) = self.fusion_and_lidar();
+        let more = cheap.and_then(|c| {
+            self.configurations
+                .iter()
+                .filter(|x| x.2 > 1 && self.given.get(&x.0).is_some_and(|g| g == c))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|x| x.0.as_str())
+        });
+        let st = "A second radar, fused, adds accuracy to the rig under study, its LiDARs and radar at the same poses";
+        let stv = "A second radar, fused, lowers the velocity error of the rig under study, its LiDARs and radar at \
+                   the same poses";
+        let needs =
+            "needs a configuration of more radars placed given the rig under study (`given`), and a fusion preset";
+        match (cheap, more, fusion) {
+            (Some(c), Some(m), Some(f)) => {
+                let rows = ["mAP", "pedestrian AP"]
+                    .iter()
+                    .filter_map(|metric| {
+                        self.cmp(metric, (c, f), (m, f)).map(|t| {
+                            with(row(metric, format!("{f} on {m} − {f} on {c}"), None, t), &[(c, f)], &[(m, f)])
+                        })
+                    })
+                    .collect();
+                vec![
+                    claim("second_radar_adds", st, rows, None),
+                    self.velocity_claim("second_radar_velocity", stv, (c, f), (m, f)),
+                ]
+            }
+            _ => vec![
+                claim("second_radar_adds", st, vec![], Some(needs.into())),
+                claim("second_radar_velocity", stv, vec![], Some(needs.into())),
+            ],
+        }
     }
 
     /// Fusion against the LiDAR-only counterpart on the cheap rig, and the early-fusion ablation.
@@ -869,7 +915,7 @@ impl Design<'_> {
         let mid = self
             .configurations
             .iter()
-            .filter(|x| x.2 && Some(x.0.as_str()) != cheap && Some(x.0.as_str()) != dear_radar)
+            .filter(|x| x.2 == 1 && Some(x.0.as_str()) != cheap && Some(x.0.as_str()) != dear_radar)
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|x| x.0.as_str());
         let c6 = self.pooled_claim(
@@ -1171,7 +1217,11 @@ mod tests {
         }
 
         /// A design of `scores` over `configurations`, 20 scenes, 95% intervals.
-        fn design<'a>(&'a self, scores: &'a [DetectorScores], configurations: &'a [(String, f64, bool)]) -> Design<'a> {
+        fn design<'a>(
+            &'a self,
+            scores: &'a [DetectorScores],
+            configurations: &'a [(String, f64, usize)],
+        ) -> Design<'a> {
             Design {
                 scores,
                 configurations,
@@ -1220,9 +1270,9 @@ mod tests {
             ("64+R", "lf", 0.62),
         ]);
         let configurations = vec![
-            ("2x16+R".to_string(), 10_000.0, true),
-            ("64".to_string(), 20_750.0, false),
-            ("64+R".to_string(), 22_750.0, true),
+            ("2x16+R".to_string(), 10_000.0, 1),
+            ("64".to_string(), 20_750.0, 0),
+            ("64+R".to_string(), 22_750.0, 1),
         ];
         let roles = Roles::new(true);
         let d = roles.design(&scores, &configurations);
@@ -1246,7 +1296,7 @@ mod tests {
                 assert!(seen.insert((r.metric.clone(), r.a.clone(), r.b.clone())), "{} repeats a row", c.id);
             }
         }
-        assert_eq!(claims.len(), 11);
+        assert_eq!(claims.len(), 13);
         let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap();
         // The confounds: the one LiDAR-only rig costs more than the radar rig, so it is not the
         // radar rig's LiDARs without the radar and the radar's claims are not tested; two
@@ -1279,7 +1329,7 @@ mod tests {
             ("64+R", "cp", 0.60),
             ("64+R", "lf", 0.62),
         ]);
-        let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("64+R".to_string(), 22_750.0, true)];
+        let configurations = vec![("2x16+R".to_string(), 10_000.0, 1), ("64+R".to_string(), 22_750.0, 1)];
         let roles = Roles::new(true);
         let d = roles.design(&scores, &configurations);
         let (mut claims, mut comps) = (d.claims(), d.comparisons());
@@ -1328,9 +1378,9 @@ mod tests {
         let scores =
             seeded(&[("2x16+R", "cp", 0.70), ("2x16+R", "lf", 0.75), ("2x16", "cp", 0.71), ("1x16", "cp", 0.50)]);
         let configurations = vec![
-            ("2x16+R".to_string(), 10_000.0, true),
-            ("2x16".to_string(), 8_000.0, false),
-            ("1x16".to_string(), 4_000.0, false),
+            ("2x16+R".to_string(), 10_000.0, 1),
+            ("2x16".to_string(), 8_000.0, 0),
+            ("1x16".to_string(), 4_000.0, 0),
         ];
         let by = |claims: &[Claim]| claims.iter().find(|c| c.id == "radar_adds").unwrap().clone();
         // Without `given`: the cheapest LiDAR-only rig.
@@ -1368,7 +1418,7 @@ mod tests {
             scores.push(with_visible("2x16+R", "lf2", s, 0.66 + j, 0.80 + j));
             scores.push(with_visible("64", "cp", s, 0.60 + j, 0.70 + j));
         }
-        let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("64".to_string(), 20_750.0, false)];
+        let configurations = vec![("2x16+R".to_string(), 10_000.0, 1), ("64".to_string(), 20_750.0, 0)];
         let d = roles.design(&scores, &configurations);
         let mut claims = d.claims();
         adjust(&mut claims, &mut [], 0.05, MARGINS);
@@ -1421,7 +1471,7 @@ mod tests {
             if !car_finite {
                 scores[0].scores.get_mut("car AVE").unwrap().full = f64::NAN;
             }
-            let configurations = vec![("2x16+R".to_string(), 10_000.0, true), ("2x16".to_string(), 8_000.0, false)];
+            let configurations = vec![("2x16+R".to_string(), 10_000.0, 1), ("2x16".to_string(), 8_000.0, 0)];
             let roles = Roles::new(false);
             let d = roles.design(&scores, &configurations);
             let (mut claims, mut comps) = (d.claims(), d.comparisons());
@@ -1446,6 +1496,57 @@ mod tests {
         assert_eq!(partial.rows.iter().map(|r| r.metric.as_str()).collect::<Vec<_>>(), ["mAVE"]);
     }
 
+    /// A rig of two radars placed given the rig under study is judged as what the second radar
+    /// adds (fused on both, accuracy and velocity), and takes none of the one-radar roles: the
+    /// rig under study, the dearest radar rig and the mid-resolution one stay rigs of one radar,
+    /// though it costs between them. Without the `given` link it is not tested.
+    #[test]
+    fn a_second_radar_is_judged_against_the_rig_it_was_placed_given() {
+        let mut scores = Vec::new();
+        for s in 0..3 {
+            let j = 0.004 * s as f64;
+            for (rig, cp, lf, v) in [
+                ("2x16+R", 0.70, 0.72, 1.5),
+                ("2x16+2R", 0.70, 0.75, 0.5),
+                ("64+R", 0.60, 0.62, 1.5),
+                ("2x16", 0.69, 0.0, 1.6),
+            ] {
+                scores.push(det_v(rig, "cp", s, cp + j, 1.6 + j));
+                if lf > 0.0 {
+                    scores.push(det_v(rig, "lf", s, lf + j, v + j));
+                }
+            }
+        }
+        let configurations = vec![
+            ("2x16+R".to_string(), 10_000.0, 1),
+            ("2x16+2R".to_string(), 12_000.0, 2),
+            ("64+R".to_string(), 22_750.0, 1),
+            ("2x16".to_string(), 8_000.0, 0),
+        ];
+        let mut roles = Roles::new(false);
+        roles.given.insert("2x16+2R".into(), "2x16+R".into());
+        let d = roles.design(&scores, &configurations);
+        let claims = d.claims();
+        let by = |id: &str| claims.iter().find(|c| c.id == id).unwrap().clone();
+        let adds = by("second_radar_adds");
+        assert_eq!(adds.rows[0].a, vec![("2x16+R".to_string(), "lf".to_string())]);
+        assert_eq!(adds.rows[0].b, vec![("2x16+2R".to_string(), "lf".to_string())]);
+        assert!((adds.rows[0].test.estimate - 0.03).abs() < 1e-9, "{:?}", adds.rows[0].test);
+        let v = by("second_radar_velocity");
+        assert!((v.rows[0].test.estimate + 1.0).abs() < 1e-9, "{:?}", v.rows[0].test);
+        // The one-radar roles: the rig under study is still 2x16+R, the dearest 64+R, and no
+        // mid-resolution radar rig is left for the pooled claim.
+        assert!(by("vs_lidar_radar").rows.iter().all(|r| r.a.iter().all(|(c, _)| c == "64+R")));
+        assert!(by("vs_mid_lidar_radar").not_tested.is_some());
+        assert!(by("radar_adds").rows[0].b.iter().all(|(c, _)| c == "2x16+R"));
+        // Without the link the two-radar rig compares nothing.
+        roles.given.clear();
+        let d = roles.design(&scores, &configurations);
+        let claims = d.claims();
+        let c = claims.iter().find(|c| c.id == "second_radar_adds").unwrap();
+        assert!(c.rows.is_empty() && c.not_tested.as_deref().is_some_and(|m| m.contains("given")));
+    }
+
     /// A weather condition's configurations are judged apart: the study's claims and
     /// comparisons read the configurations in its own weather only (a fog copy of the cheap rig
     /// costs the same and is never taken for it), and each condition gets the radar's claims
@@ -1464,11 +1565,11 @@ mod tests {
             scores.push(det_v("64", "cp", s, 0.60 + j, 1.6 + j));
         }
         let configurations = vec![
-            ("2x16+R".to_string(), 10_000.0, true),
-            ("64".to_string(), 20_750.0, false),
-            ("2x16".to_string(), 8_000.0, false),
-            ("2x16+R in fog".to_string(), 10_000.0, true),
-            ("2x16 in fog".to_string(), 8_000.0, false),
+            ("2x16+R".to_string(), 10_000.0, 1),
+            ("64".to_string(), 20_750.0, 0),
+            ("2x16".to_string(), 8_000.0, 0),
+            ("2x16+R in fog".to_string(), 10_000.0, 1),
+            ("2x16 in fog".to_string(), 8_000.0, 0),
         ];
         let mut roles = Roles::new(false);
         roles.conditions = BTreeMap::from([

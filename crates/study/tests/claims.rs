@@ -25,13 +25,13 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
     assert_eq!(roles.counterpart["l4dr-like"], "centerpoint");
     assert_eq!(roles.counterpart["pointpillars-lr"], "pointpillars");
     // Every preset on every rig (ablations too), three seeds, scores that differ by preset.
-    let rigs: Vec<(String, f64, bool)> = study
+    let rigs: Vec<(String, f64, usize)> = study
         .file
         .configurations
         .iter()
         .map(|c| {
             let cost = c.sensors.iter().map(|(t, n)| study.catalog.get(t).unwrap().price_usd() * *n as f64).sum();
-            (c.name.clone(), cost, c.sensors.contains_key("radar-4d"))
+            (c.name.clone(), cost, c.sensors.get("radar-4d").copied().unwrap_or(0) as usize)
         })
         .collect();
     let mut scores = Vec::new();

@@ -303,11 +303,13 @@ fn fingerprint(study: &Study, profile: &Profile, settings: &ValidationSettings) 
     // in the study's own weather), so a profile that runs them defines the same validation.
     let pjson = serde_json::to_string(&Profile { conditions: Some(0), ..profile.clone() })?;
     // A configuration's `given` is no part of it either: the set places every configuration for
-    // itself (and a folder made before a study named one still opens).
+    // itself (and a folder made before a study named one still opens), and leaves out those
+    // placed `apart` from a given rig ([`set::set_configurations`]).
     let configurations: Vec<_> = study
         .file
         .configurations
         .iter()
+        .filter(|c| !c.apart)
         .map(|c| hilo_plan::study::Configuration { given: None, ..c.clone() })
         .collect();
     let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, configurations);

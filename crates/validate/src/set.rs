@@ -126,8 +126,12 @@ pub fn set_configurations(study: &Study) -> Vec<Configuration> {
         min: BTreeMap::new(),
         max: BTreeMap::new(),
         given: None,
+        apart: false,
     };
-    let mut out: Vec<Configuration> = study.file.configurations.clone();
+    // A configuration placed apart from a given rig's sensors is a variant of that rig's
+    // placement; the set places every configuration for itself, and draws its own rigs of two
+    // radars below.
+    let mut out: Vec<Configuration> = study.file.configurations.iter().filter(|c| !c.apart).cloned().collect();
     for l in &lidars {
         out.push(counts(format!("1x {l}"), &[(l, 1)]));
     }
@@ -163,6 +167,7 @@ pub fn set_configurations(study: &Study) -> Vec<Configuration> {
             min: BTreeMap::new(),
             max: BTreeMap::new(),
             given: None,
+            apart: false,
         });
     }
     let mut seen = BTreeSet::new();

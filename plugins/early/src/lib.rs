@@ -138,6 +138,7 @@ impl EarlyFusion {
 pub fn l4dr_like() -> DetectorConfig {
     DetectorConfig {
         name: "l4dr-like".into(),
+        input: hilo_fusion::presets::fusion_input(),
         fusion: "early".into(),
         fusion_config: serde_json::json!({ "channels": 32, "aggregation": "modality_max", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_pixel" } }),
         ..centerpoint()
@@ -151,6 +152,7 @@ pub fn l4dr_like() -> DetectorConfig {
 pub fn lirafusion_like() -> DetectorConfig {
     DetectorConfig {
         name: "lirafusion-like".into(),
+        input: hilo_fusion::presets::fusion_input(),
         fusion: "early".into(),
         fusion_config: serde_json::json!({ "channels": 32, "aggregation": "modality_mean", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_channel" } }),
         ..centerpoint()

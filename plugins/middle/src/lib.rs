@@ -53,6 +53,7 @@ pub fn build(c: MiddleConfig, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
 pub fn bi_lrfusion_like() -> DetectorConfig {
     DetectorConfig {
         name: "bi-lrfusion-like".into(),
+        input: hilo_fusion::presets::fusion_input(),
         fusion: "middle".into(),
         fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "bidirectional" }),
         ..centerpoint()
@@ -65,6 +66,7 @@ pub fn bi_lrfusion_like() -> DetectorConfig {
 pub fn middle_attention() -> DetectorConfig {
     DetectorConfig {
         name: "middle-attention".into(),
+        input: hilo_fusion::presets::fusion_input(),
         fusion: "middle".into(),
         fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "attention" }),
         ..centerpoint()

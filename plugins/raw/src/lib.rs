@@ -46,6 +46,7 @@ pub fn build(c: RawConfig, vb: VarBuilder) -> Result<Box<dyn Fusion>> {
 pub fn pointpillars_lr() -> DetectorConfig {
     DetectorConfig {
         name: "pointpillars-lr".into(),
+        input: hilo_fusion::presets::fusion_input(),
         fusion: "raw".into(),
         fusion_config: serde_json::json!({ "channels": 48 }),
         ..pointpillars()
