@@ -499,8 +499,6 @@ pub const LIST_KEYS: [&str; 2] = ["scenes", "catalogs"];
 /// The study-file key of a sweep over weather conditions: a table of named conditions.
 pub const WEATHERS_KEY: &str = "weathers";
 
-/// A file-name-safe form of a name: lowercase ASCII letters and digits, runs of anything else
-/// as one `_`.
 /// The cycle that configuration `i`'s `given` links close, as "a → b → a" (None: they end at a
 /// configuration given nothing, or at a name no configuration has, which the check refuses on
 /// its own).
@@ -539,6 +537,8 @@ pub fn given_depths(confs: &[Configuration]) -> Vec<usize> {
         .collect()
 }
 
+/// A file-name-safe form of a name: lowercase ASCII letters and digits, runs of anything else
+/// as one `_`.
 pub fn slug(name: &str) -> String {
     let s: String =
         name.chars().map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_lowercase() } else { '_' }).collect();

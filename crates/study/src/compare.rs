@@ -587,9 +587,8 @@ mod tests {
         // Each value's MDE is its claim row's. Each accuracy effect gets the design that finds
         // 0.015, never smaller than the study's, or is said to be out of reach: on this report
         // (the radar placed given the LiDARs), pedestrian AP in clear weather is found by the
-        // study's own design (MDE 0.012), mAP in fog needs more seeds and scenes, pedestrian AP in
-        // fog only more scenes, and mAP in clear weather (seed s.e. 0.010) is out of reach within
-        // the caps.
+        // study's own design (MDE 0.012), mAP in clear weather and in fog needs more seeds and
+        // scenes, pedestrian AP in fog only more scenes.
         let mut reached = Vec::new();
         for (w, (_, row)) in c.radar_worth.iter().zip(&rows) {
             let v = &w.value;
@@ -609,13 +608,19 @@ mod tests {
         assert_eq!(
             reached,
             [
+                (None, "mAP", (true, true)),
                 (None, "pedestrian AP", (false, false)),
                 (Some("fog"), "mAP", (true, true)),
                 (Some("fog"), "pedestrian AP", (false, true))
             ]
         );
         let md = markdown(&c);
-        assert!(md.contains("| clear (fog) | mAP |") && md.contains("out of reach within 10 replicates"), "{md}");
+        assert!(md.contains("| clear (fog) | mAP |") && md.contains(" scenes (MDE 0.015)"), "{md}");
+        assert!(md.contains("| reached |"), "{md}");
+        // An effect no design within the caps finds says so.
+        let mut beyond = c.clone();
+        beyond.radar_worth[0].value.design = None;
+        assert!(markdown(&beyond).contains("out of reach within 10 replicates and 2000 scenes"));
     }
 
     #[test]
