@@ -522,15 +522,17 @@ impl Design<'_> {
     }
 
     /// The cheapest configuration with one radar, the dearest with one radar, the dearest
-    /// without.
+    /// without (with no rig of one radar, as when every radar rig is budgeted, the rigs with
+    /// any radars take the radar roles).
     fn roles(&self) -> (Option<&str>, Option<&str>, Option<&str>) {
-        let by_cost = |radars: usize| {
-            let mut v: Vec<&(String, f64, usize)> = self.configurations.iter().filter(|c| c.2 == radars).collect();
+        let by_cost = |keep: &dyn Fn(usize) -> bool| {
+            let mut v: Vec<&(String, f64, usize)> = self.configurations.iter().filter(|c| keep(c.2)).collect();
             v.sort_by(|a, b| a.1.total_cmp(&b.1));
             v
         };
-        let radar = by_cost(1);
-        let lidar = by_cost(0);
+        let one = by_cost(&|n| n == 1);
+        let radar = if one.is_empty() { by_cost(&|n| n > 0) } else { one };
+        let lidar = by_cost(&|n| n == 0);
         (radar.first().map(|c| c.0.as_str()), radar.last().map(|c| c.0.as_str()), lidar.last().map(|c| c.0.as_str()))
     }
 
@@ -556,12 +558,13 @@ impl Design<'_> {
         })
     }
 
-    /// The rig under study: the cheapest configuration with one radar (the cheapest of all when
-    /// none has one).
+    /// The rig under study: the cheapest configuration with one radar (with none, the cheapest
+    /// with any radars; the cheapest of all when none has one).
     fn under_study(&self) -> Option<&(String, f64, usize)> {
-        let cheapest =
-            |radar: bool| self.configurations.iter().filter(|c| c.2 == 1 || !radar).min_by(|a, b| a.1.total_cmp(&b.1));
-        cheapest(true).or_else(|| cheapest(false))
+        let cheapest = |keep: &dyn Fn(usize) -> bool| {
+            self.configurations.iter().filter(|c| keep(c.2)).min_by(|a, b| a.1.total_cmp(&b.1))
+        };
+        cheapest(&|n| n == 1).or_else(|| cheapest(&|n| n > 0)).or_else(|| cheapest(&|_| true))
     }
 
     /// The configurations recorded in `condition` (None: the study's own weather).
@@ -1539,6 +1542,11 @@ mod tests {
         assert!(by("vs_lidar_radar").rows.iter().all(|r| r.a.iter().all(|(c, _)| c == "64+R")));
         assert!(by("vs_mid_lidar_radar").not_tested.is_some());
         assert!(by("radar_adds").rows[0].b.iter().all(|(c, _)| c == "2x16+R"));
+        // Rigs of several radars alone (budgeted ones, say) take the radar roles.
+        let several = vec![("2x16+2R".to_string(), 12_000.0, 2), ("2x16".to_string(), 8_000.0, 0)];
+        let d = roles.design(&scores, &several);
+        let c = d.claims().into_iter().find(|c| c.id == "radar_adds").unwrap();
+        assert!(c.rows[0].b.iter().all(|(r, _)| r == "2x16+2R"), "{:?}", c.rows);
         // Without the link the two-radar rig compares nothing.
         roles.given.clear();
         let d = roles.design(&scores, &configurations);
