@@ -47,7 +47,13 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
             .all(|e| e["class_ap"].as_object().unwrap().len() == 6 && e["visible_only"]["mean_ap"].is_number())
     );
     assert_eq!(json["ground_truth"], "common");
-    assert_eq!(json["claims"].as_array().unwrap().len(), 11);
+    assert_eq!(json["claims"].as_array().unwrap().len(), 13);
+    // The tiny profile's two rigs hold no rig of two radars: the second radar's claims say why
+    // they are not tested.
+    for id in ["second_radar_adds", "second_radar_velocity"] {
+        let c = json["claims"].as_array().unwrap().iter().find(|c| c["id"] == id).unwrap();
+        assert!(c["not_tested"].as_str().is_some_and(|m| m.contains("given")), "{c}");
+    }
     // Velocity: mAVE and each class's AVE per detector, and the velocity claim tested on them
     // on the same rig; the radar's own claim needs a LiDAR-only rig cheaper than the radar rig,
     // and the tiny profile's only one is the 64-beam LiDAR.
