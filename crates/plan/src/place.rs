@@ -74,10 +74,10 @@ fn given_options(
 /// type (a configuration placed `apart`), keeping the given sensors' own options.
 fn keep_apart(inst: &mut Instance, prep: &Prepared, given: &[PlacedSensor]) {
     let taken: HashSet<(&str, &str)> = given.iter().map(|s| (s.ty.as_str(), s.structure.as_str())).collect();
-    let types: Vec<String> = inst.types.iter().map(|t| t.name.clone()).collect();
+    let types = &inst.types;
     inst.options.retain(|o| {
         let c = &prep.candidates[o.candidate as usize];
-        let ty = types[o.ty].as_str();
+        let ty = types[o.ty].name.as_str();
         !taken.contains(&(ty, c.structure.as_str())) || given.iter().any(|s| s.ty == ty && s.candidate_id == c.id)
     });
 }

@@ -499,42 +499,34 @@ pub const LIST_KEYS: [&str; 2] = ["scenes", "catalogs"];
 /// The study-file key of a sweep over weather conditions: a table of named conditions.
 pub const WEATHERS_KEY: &str = "weathers";
 
-/// The cycle that configuration `i`'s `given` links close, as "a → b → a" (None: they end at a
-/// configuration given nothing, or at a name no configuration has, which the check refuses on
-/// its own).
-fn given_cycle(confs: &[Configuration], i: usize) -> Option<String> {
+/// The configurations configuration `i`'s `given` links pass through, `i` first, and the
+/// position in that path the last link returns to when they close a cycle. A link to a name
+/// no configuration has ends the path (the check refuses it on its own).
+fn given_chain(confs: &[Configuration], i: usize) -> (Vec<usize>, Option<usize>) {
     let mut path = vec![i];
     let mut at = i;
     while let Some(next) = confs[at].given.as_ref().and_then(|g| confs.iter().position(|c| &c.name == g)) {
         if let Some(k) = path.iter().position(|&j| j == next) {
-            let names: Vec<&str> =
-                path[k..].iter().chain(std::iter::once(&next)).map(|&j| confs[j].name.as_str()).collect();
-            return Some(names.join(" → "));
+            return (path, Some(k));
         }
         path.push(next);
         at = next;
     }
-    None
+    (path, None)
+}
+
+/// The cycle that configuration `i`'s `given` links close, as "a → b → a" (None: they end).
+fn given_cycle(confs: &[Configuration], i: usize) -> Option<String> {
+    let (path, back) = given_chain(confs, i);
+    let k = back?;
+    let names: Vec<&str> = path[k..].iter().chain(std::iter::once(&path[k])).map(|&j| confs[j].name.as_str()).collect();
+    Some(names.join(" → "))
 }
 
 /// Each configuration's depth in its chain of `given` links (0: given nothing), for placing
-/// every configuration after the one it keeps. The chains are acyclic (the check refuses a
-/// cycle); a link to an unknown name counts as the bottom.
+/// every configuration after the one it keeps (the check refuses cycles).
 pub fn given_depths(confs: &[Configuration]) -> Vec<usize> {
-    (0..confs.len())
-        .map(|i| {
-            let mut depth = 0;
-            let mut at = i;
-            while let Some(next) = confs[at].given.as_ref().and_then(|g| confs.iter().position(|c| &c.name == g)) {
-                depth += 1;
-                at = next;
-                if depth > confs.len() {
-                    break;
-                }
-            }
-            depth
-        })
-        .collect()
+    (0..confs.len()).map(|i| given_chain(confs, i).0.len() - 1).collect()
 }
 
 /// A file-name-safe form of a name: lowercase ASCII letters and digits, runs of anything else

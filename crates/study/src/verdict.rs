@@ -509,6 +509,18 @@ impl Design<'_> {
 
     /// A claim of B − A on each of [`VELOCITY_METRICS`] that both sides have (not tested when
     /// neither has: detectors scored before velocity errors were).
+    /// B − A on mAP and pedestrian AP, each group a (configuration, preset), with no paper
+    /// number; a metric either side lacks is left out.
+    fn accuracy_rows(&self, a: (&str, &str), b: (&str, &str)) -> Vec<ClaimRow> {
+        ["mAP", "pedestrian AP"]
+            .iter()
+            .filter_map(|m| {
+                self.cmp(m, a, b)
+                    .map(|t| with(row(m, format!("{} on {} − {} on {}", b.1, b.0, a.1, a.0), None, t), &[a], &[b]))
+            })
+            .collect()
+    }
+
     fn velocity_claim(&self, id: &str, statement: &str, a: (&str, &str), b: (&str, &str)) -> Claim {
         let rows: Vec<ClaimRow> = VELOCITY_METRICS
             .iter()
@@ -525,14 +537,8 @@ impl Design<'_> {
     /// without (with no rig of one radar, as when every radar rig is budgeted, the rigs with
     /// any radars take the radar roles).
     fn roles(&self) -> (Option<&str>, Option<&str>, Option<&str>) {
-        let by_cost = |keep: &dyn Fn(usize) -> bool| {
-            let mut v: Vec<&(String, f64, usize)> = self.configurations.iter().filter(|c| keep(c.2)).collect();
-            v.sort_by(|a, b| a.1.total_cmp(&b.1));
-            v
-        };
-        let one = by_cost(&|n| n == 1);
-        let radar = if one.is_empty() { by_cost(&|n| n > 0) } else { one };
-        let lidar = by_cost(&|n| n == 0);
+        let radar = self.radar_role_rigs();
+        let lidar = self.by_cost(&|n| n == 0);
         (radar.first().map(|c| c.0.as_str()), radar.last().map(|c| c.0.as_str()), lidar.last().map(|c| c.0.as_str()))
     }
 
@@ -561,10 +567,21 @@ impl Design<'_> {
     /// The rig under study: the cheapest configuration with one radar (with none, the cheapest
     /// with any radars; the cheapest of all when none has one).
     fn under_study(&self) -> Option<&(String, f64, usize)> {
-        let cheapest = |keep: &dyn Fn(usize) -> bool| {
-            self.configurations.iter().filter(|c| keep(c.2)).min_by(|a, b| a.1.total_cmp(&b.1))
-        };
-        cheapest(&|n| n == 1).or_else(|| cheapest(&|n| n > 0)).or_else(|| cheapest(&|_| true))
+        self.radar_role_rigs().first().copied().or_else(|| self.by_cost(&|_| true).first().copied())
+    }
+
+    /// The rigs that take the radar roles, cheapest first: those of one radar, or with none of
+    /// one radar (every radar rig budgeted, say), those with any radars.
+    fn radar_role_rigs(&self) -> Vec<&(String, f64, usize)> {
+        let one = self.by_cost(&|n| n == 1);
+        if one.is_empty() { self.by_cost(&|n| n > 0) } else { one }
+    }
+
+    /// The configurations whose radar count `keep` accepts, cheapest first (stable on ties).
+    fn by_cost(&self, keep: &dyn Fn(usize) -> bool) -> Vec<&(String, f64, usize)> {
+        let mut v: Vec<&(String, f64, usize)> = self.configurations.iter().filter(|c| keep(c.2)).collect();
+        v.sort_by(|a, b| a.1.total_cmp(&b.1));
+        v
     }
 
     /// The configurations recorded in `condition` (None: the study's own weather).
@@ -713,8 +730,7 @@ impl Design<'_> {
 
     /// The cheapest and the dearest LiDAR-only configuration.
     fn lidar_only_rigs(&self) -> (Option<&str>, Option<&str>) {
-        let mut v: Vec<&(String, f64, usize)> = self.configurations.iter().filter(|c| c.2 == 0).collect();
-        v.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let v = self.by_cost(&|n| n == 0);
         (v.first().map(|c| c.0.as_str()), v.last().map(|c| c.0.as_str()))
     }
 
@@ -741,21 +757,14 @@ impl Design<'_> {
             _ => None,
         });
         let (fusion, lidar) = self.fusion_and_lidar();
-        let rows = |a: (&str, &str), b: (&str, &str)| -> Vec<ClaimRow> {
-            ["mAP", "pedestrian AP"]
-                .iter()
-                .filter_map(|m| {
-                    self.cmp(m, a, b)
-                        .map(|t| with(row(m, format!("{} on {} − {} on {}", b.1, b.0, a.1, a.0), None, t), &[a], &[b]))
-                })
-                .collect()
-        };
         let st1 = "A radar, fused, adds accuracy to the cheapest LiDAR-only rig";
         let needs = "needs a configuration with radar, a LiDAR-only one that costs less (its LiDARs without the \
                      radar), a fusion and a LiDAR-only preset";
         let st1 = if same_poses.is_some() { format!("{st1}, its LiDARs at the same poses") } else { st1.to_owned() };
         let c1 = match (cheap, without_radar, fusion, lidar) {
-            (Some(c), Some(l), Some(f), Some(lp)) => claim("radar_adds", &st1, rows((l, lp), (c, f)), None),
+            (Some(c), Some(l), Some(f), Some(lp)) => {
+                claim("radar_adds", &st1, self.accuracy_rows((l, lp), (c, f)), None)
+            }
             _ => claim("radar_adds", &st1, vec![], Some(needs.into())),
         };
         let st1v = "A radar, fused, lowers the velocity error of the cheapest LiDAR-only rig";
@@ -765,7 +774,9 @@ impl Design<'_> {
         };
         let st2 = "Two viewpoints of cheap LiDARs beat one high-resolution LiDAR, both without radar";
         let c2 = match (lidar_cheap, lidar_dear, lidar) {
-            (Some(c), Some(d), Some(lp)) if c != d => claim("second_viewpoint", st2, rows((d, lp), (c, lp)), None),
+            (Some(c), Some(d), Some(lp)) if c != d => {
+                claim("second_viewpoint", st2, self.accuracy_rows((d, lp), (c, lp)), None)
+            }
             _ => claim("second_viewpoint", st2, vec![], Some("needs two LiDAR-only configurations".into())),
         };
         vec![c1, c1v, c2]
@@ -792,20 +803,10 @@ impl Design<'_> {
         let needs =
             "needs a configuration of more radars placed given the rig under study (`given`), and a fusion preset";
         match (cheap, more, fusion) {
-            (Some(c), Some(m), Some(f)) => {
-                let rows = ["mAP", "pedestrian AP"]
-                    .iter()
-                    .filter_map(|metric| {
-                        self.cmp(metric, (c, f), (m, f)).map(|t| {
-                            with(row(metric, format!("{f} on {m} − {f} on {c}"), None, t), &[(c, f)], &[(m, f)])
-                        })
-                    })
-                    .collect();
-                vec![
-                    claim("second_radar_adds", st, rows, None),
-                    self.velocity_claim("second_radar_velocity", stv, (c, f), (m, f)),
-                ]
-            }
+            (Some(c), Some(m), Some(f)) => vec![
+                claim("second_radar_adds", st, self.accuracy_rows((c, f), (m, f)), None),
+                self.velocity_claim("second_radar_velocity", stv, (c, f), (m, f)),
+            ],
             _ => vec![
                 claim("second_radar_adds", st, vec![], Some(needs.into())),
                 claim("second_radar_velocity", stv, vec![], Some(needs.into())),
