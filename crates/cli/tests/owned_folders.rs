@@ -72,12 +72,22 @@ fn simulate(placement: &Path, out: &Path) -> Output {
     hilo().arg("simulate").args(SMALL).arg("--placement").arg(placement).arg("--out").arg(out).output().unwrap()
 }
 
-/// Holds an advisory lock on `dir` as another hilo run would.
-fn hold(dir: &Path) -> std::fs::File {
+/// Holds an advisory lock on `dir` as another hilo run would, until dropped.
+fn hold(dir: &Path) -> Held {
     std::fs::create_dir_all(dir).unwrap();
     let f = std::fs::File::open(dir).unwrap();
     f.try_lock().unwrap();
-    f
+    Held(f)
+}
+
+/// A lock that is released when dropped even if a child of another test, forked meanwhile,
+/// still holds a copy of the descriptor for the instant before its `exec`.
+struct Held(std::fs::File);
+
+impl Drop for Held {
+    fn drop(&mut self) {
+        self.0.unlock().unwrap();
+    }
 }
 
 fn mkfifo(p: &Path) {

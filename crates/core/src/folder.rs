@@ -36,14 +36,26 @@ pub enum Mode {
 /// this process) is dropped.
 #[derive(Debug)]
 pub struct Claim {
-    _lock: Arc<std::fs::File>,
+    _lock: Arc<Lock>,
+}
+
+/// The folder's open description holding the flock. Dropping it unlocks explicitly: closing
+/// the descriptor alone would leave the lock held while a child forked meanwhile (by any thread
+/// of this process) still has its copy, for the instant before its `exec`.
+#[derive(Debug)]
+struct Lock(std::fs::File);
+
+impl Drop for Lock {
+    fn drop(&mut self) {
+        let _ = self.0.unlock();
+    }
 }
 
 /// A folder's (device, inode): the same folder under any of its paths.
 type FolderId = (u64, u64);
 
 /// The folders this process holds, for nested claims.
-static HELD: Mutex<Vec<(FolderId, Weak<std::fs::File>)>> = Mutex::new(Vec::new());
+static HELD: Mutex<Vec<(FolderId, Weak<Lock>)>> = Mutex::new(Vec::new());
 
 /// Creates `dir` (and its parents) if missing, refuses it when another hilo run holds it (see
 /// [`Mode`]) or when a symbolic link lies anywhere inside it, and holds it until the returned
@@ -89,7 +101,7 @@ pub fn claim(dir: &Path, mode: Mode) -> Result<Claim, FileError> {
         }
         Err(std::fs::TryLockError::Error(e)) => return Err(FileError::io(dir, e)),
     }
-    let lock = Arc::new(lock);
+    let lock = Arc::new(Lock(lock));
     held.push((id, Arc::downgrade(&lock)));
     drop(held);
     refuse_links(dir)?;
@@ -178,6 +190,9 @@ mod tests {
         let a = claim(&out, Mode::Shared).unwrap();
         drop(a);
         assert!(claim(&out, Mode::Exclusive).is_err(), "a whole run waits for every stage");
+        // Unlock, not only close: another test's child, forked at this instant, would hold a
+        // copy of the descriptor and with it the lock.
+        other.unlock().unwrap();
         drop(other);
         // Nested claims in one process share the lock, and it is free again only after the last.
         let outer = claim(&out, Mode::Exclusive).unwrap();
