@@ -170,8 +170,17 @@ fn no_candidate_of_any_site_is_inside_its_geometry() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
     let mut scenes = vec![dir.join("intersection.toml")];
     scenes.extend(
-        ["t_junction", "skewed", "five_leg", "urban_canyon", "fabriksgatan", "three_arm_grid"]
-            .map(|s| dir.join(format!("sites/{s}.toml"))),
+        [
+            "t_junction",
+            "skewed",
+            "five_leg",
+            "urban_canyon",
+            "arterial_parking",
+            "fabriksgatan",
+            "three_arm_grid",
+            "braunschweig",
+        ]
+        .map(|s| dir.join(format!("sites/{s}.toml"))),
     );
     // The default steps, and a pole step that lands on the arm's height (6 m) wherever the
     // lowest pole candidate starts.

@@ -58,6 +58,67 @@ fn traffic_lights_put_poles_only_at_their_corners() {
     build(&imp.config, &path);
 }
 
+/// Braunschweig's signalised junction of two dual carriageways (OpenStreetMap through SUMO's
+/// `netconvert`, `fixtures/opendrive/braunschweig/`): each arm's two one-way roads become one
+/// divided arm, its heading the mean of the source's two carriageway directions at the junction.
+#[test]
+fn a_junction_of_dual_carriageways_has_one_divided_arm_per_road() {
+    let path = fixture("braunschweig.xodr");
+    let imp = import_file(&path, &JunctionPick::id("1")).unwrap();
+    let arms = &imp.config.arms;
+    assert_eq!(arms.len(), 4, "{arms:?}");
+    // The source's (plain edge file's) first segment of each carriageway from the junction:
+    // (outbound from, to) and (inbound to, from), in the file's metres.
+    let outward = |a: [f32; 2], b: [f32; 2]| (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees();
+    let sources = [
+        (outward([667.56, 630.86], [688.47, 573.89]), outward([680.27, 633.86], [697.40, 583.69])),
+        (outward([680.27, 633.86], [795.92, 677.81]), outward([674.26, 647.56], [713.92, 661.39])),
+        (outward([661.98, 644.53], [632.34, 639.49]), outward([667.56, 630.86], [628.17, 626.33])),
+        (outward([674.26, 647.56], [662.72, 675.46]), outward([661.98, 644.53], [652.81, 670.46])),
+    ];
+    for (out_deg, in_deg) in sources {
+        let mean = out_deg + 0.5 * turn(in_deg, out_deg);
+        let a = arms
+            .iter()
+            .find(|a| turn(a.heading_deg, mean).abs() <= 2.0)
+            .unwrap_or_else(|| panic!("no arm within 2 degrees of {mean}: {arms:?}"));
+        assert_eq!((a.lanes_in, a.lanes_out), (2, 2), "{}", a.name);
+        assert!((a.lane_width_m - 3.2).abs() < 1e-3, "{}: {}", a.name, a.lane_width_m);
+        // The carriageways' centre lines lie 9-14 m apart in the source: medians of 2-8.5 m.
+        assert!((2.0..=8.5).contains(&a.median_width_m), "{}: median {}", a.name, a.median_width_m);
+        assert!(a.name.contains(" / "), "{}", a.name);
+        let note = imp
+            .notes
+            .iter()
+            .find(|n| n.contains("one divided arm") && a.name.starts_with(n.split(" (in)").next().unwrap()));
+        assert!(note.is_some_and(|n| n.contains(&format!("{:.2} m", a.median_width_m))), "{note:?}");
+    }
+    // Every one of the 16 lights is read (netconvert's rounded stop-line `s` stays on its road),
+    // and they stand at every approach: a pole at each corner.
+    assert!(imp.notes.iter().any(|n| n.contains("16 traffic lights")), "{:?}", imp.notes);
+    assert!(!imp.notes.iter().any(|n| n.contains("skipped")), "{:?}", imp.notes);
+    assert_eq!(imp.config.signal_poles.len(), 4);
+    assert_eq!(
+        imp.config.origin.crs.as_deref(),
+        Some("+proj=utm +zone=32 +ellps=WGS84 +datum=WGS84 +units=m +no_defs")
+    );
+    build(&imp.config, &path);
+}
+
+/// A signal past its road's end (as a file rounded to fewer digits writes the stop line) is
+/// skipped by the reader; the import says so instead of silently placing fewer poles.
+#[test]
+fn skipped_signals_are_counted_in_the_notes() {
+    let path = fixture("braunschweig.xodr");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let road = text.find("<road name=\"\" length=\"182.7860").expect("road 92's length");
+    let at = road + text[road..].find("s=\"182.7860\"").unwrap();
+    // The four lights of road 92, moved 1 cm past its end.
+    let moved = format!("{}{}", &text[..at], text[at..].replacen("s=\"182.7860\"", "s=\"182.7960\"", 4));
+    let imp = import_str(&moved, &path, &JunctionPick::id("1")).unwrap();
+    assert!(imp.notes.iter().any(|n| n.contains("4 of the file's 16 signals were skipped")), "{:?}", imp.notes);
+}
+
 #[test]
 fn every_junction_of_a_town_is_a_site() {
     let path = fixture("multi_intersections.xodr");

@@ -54,6 +54,7 @@ fn imported_sites_equal_a_fresh_import() {
     for (site, map, junction) in [
         ("fabriksgatan.toml", "fixtures/opendrive/fabriksgatan_traffic_lights.xodr", "4"),
         ("three_arm_grid.toml", "fixtures/opendrive/multi_intersections.xodr", "150"),
+        ("braunschweig.toml", "fixtures/opendrive/braunschweig.xodr", "1"),
     ] {
         let imported = import_file(&root().join(map), &JunctionPick::id(junction)).unwrap();
         let fresh = scene_toml(&imported, Path::new(map)).unwrap();

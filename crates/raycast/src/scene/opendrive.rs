@@ -7,6 +7,11 @@
 //!   where it meets the junction: its driving lanes that lead into the junction (inbound) and
 //!   out of it (outbound), their mean width, the width of its `median` lanes (a raised median)
 //!   and of its widest `sidewalk` lane, and its name (`road <id>` where the road has none);
+//! - **divided roads**: a one-way road into the junction and a one-way road out of it that
+//!   leave it side by side (within 25°, the inbound one on the left looking outward, as
+//!   right-hand traffic drives) are one arm, the gap between their carriageways its median.
+//!   Maps derived from OpenStreetMap (by SUMO's `netconvert`, say) draw every dual carriageway
+//!   so;
 //! - **mounting structures**: a signal pole at each corner between neighbouring arms that has a
 //!   traffic light (a dynamic `<signal>`) nearer to it than to any other corner, with its mast
 //!   arm over the junction; at every corner when the file has no traffic light at this junction;
@@ -98,16 +103,17 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         err("junction", format!("{pick:?}"), format!("{reason}; the file's junctions with lanes: {}", known()))
     })?;
     let centre = centres[&junction];
-    let approaches = approaches(&net, &lanes_of[&junction], Vec2::new(centre[0] as f32, centre[1] as f32));
+    let mut notes = Vec::new();
+    let approaches =
+        join_divided(approaches(&net, &lanes_of[&junction], Vec2::new(centre[0] as f32, centre[1] as f32)), &mut notes);
     if approaches.len() < 2 {
         return Err(err(
             "junction",
             format!("{junction:?}"),
-            format!("{} road(s) lead into it; a junction to study has two or more", approaches.len()),
+            format!("{} arm(s) lead into it; a junction to study has two or more", approaches.len()),
         ));
     }
-    let mut notes = Vec::new();
-    let mut arms: Vec<ArmConfig> = approaches.values().map(|a| arm(&net, a, &mut notes)).collect();
+    let mut arms: Vec<ArmConfig> = approaches.iter().map(|a| arm(&net, a, &mut notes)).collect();
     arms.sort_by(|a, b| a.heading_deg.rem_euclid(360.0).total_cmp(&b.heading_deg.rem_euclid(360.0)));
     notes.push(format!(
         "{} arms, each straight along its road's heading at the junction, {ARM_LENGTH_M} m long (the file's roads bend or end elsewhere)",
@@ -137,6 +143,14 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         roi: default_rois(),
         meshes: Vec::new(),
     };
+    let written = signals_written(xml);
+    if written > net.signals().len() {
+        notes.push(format!(
+            "{} of the file's {written} signals were skipped: off their road (an `s` past the road's end, as a \
+             rounded file can write) or incomplete",
+            written - net.signals().len()
+        ));
+    }
     let lights = traffic_lights(&net, &centres, &junction);
     config.signal_poles = corner_poles(&config, &lights);
     notes.push(if lights.is_empty() {
@@ -197,12 +211,12 @@ fn approaches(net: &xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, c: Vec2) 
         }
         let a = out.entry(road.od_id().to_owned()).or_insert_with(|| Approach {
             name: if road.name().is_empty() { format!("road {}", road.od_id()) } else { road.name().to_owned() },
-            road: road.id(),
-            section,
+            roads: vec![(road.id(), section)],
             lanes_in: 0,
             lanes_out: 0,
             widths: Vec::new(),
             out: Vec::new(),
+            median_m: None,
         });
         if into {
             a.lanes_in += 1;
@@ -215,19 +229,77 @@ fn approaches(net: &xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, c: Vec2) 
     out
 }
 
+/// The widest angle between the two carriageways of one divided arm, in degrees.
+const DIVIDED_MAX_DEG: f32 = 25.0;
+
+/// Joins each one-way road into the junction to the one-way road out of it that leaves beside
+/// it (see the module doc), nearest in direction first; the gap between the two carriageways'
+/// driving lanes becomes the arm's median. Roads that pair with none stay arms of their own.
+fn join_divided(approaches: BTreeMap<String, Approach>, notes: &mut Vec<String>) -> Vec<Approach> {
+    let dir = |a: &Approach| a.out.iter().fold(Vec2::ZERO, |s, (_, d)| s + *d).normalize_or_zero();
+    let centre = |a: &Approach| a.out.iter().fold(Vec2::ZERO, |s, (p, _)| s + *p) / a.out.len().max(1) as f32;
+    let width = |a: &Approach| a.widths.iter().sum::<f32>();
+    let mut all: Vec<Option<Approach>> = approaches.into_values().map(Some).collect();
+    let mut pairs = Vec::new();
+    for (i, a) in all.iter().enumerate() {
+        let Some(a) = a.as_ref().filter(|a| a.lanes_in > 0 && a.lanes_out == 0) else { continue };
+        for (j, b) in all.iter().enumerate() {
+            let Some(b) = b.as_ref().filter(|b| b.lanes_out > 0 && b.lanes_in == 0) else { continue };
+            let (da, db) = (dir(a), dir(b));
+            let angle = da.angle_to(db).abs().to_degrees();
+            let d = (da + db).normalize_or_zero();
+            // The inbound carriageway's offset to the left of the outbound one, across the arm.
+            let across = (centre(a) - centre(b)).dot(d.perp());
+            let median = across - 0.5 * (width(a) + width(b));
+            if angle <= DIVIDED_MAX_DEG && median >= 0.0 {
+                pairs.push((angle, i, j, median));
+            }
+        }
+    }
+    pairs.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)).then(x.2.cmp(&y.2)));
+    let mut joined = Vec::new();
+    for (_, i, j, median) in pairs {
+        if all[i].is_none() || all[j].is_none() {
+            continue;
+        }
+        let (Some(mut a), Some(b)) = (all[i].take(), all[j].take()) else { continue };
+        notes.push(format!(
+            "{} (in) and {} (out): one divided arm, the {median:.2} m between their carriageways its median",
+            a.name, b.name
+        ));
+        a.name = format!("{} / {}", a.name, b.name);
+        a.roads.extend(b.roads);
+        a.lanes_out = b.lanes_out;
+        a.widths.extend(b.widths);
+        a.out.extend(b.out);
+        a.median_m = Some(median);
+        joined.push(a);
+    }
+    joined.extend(all.into_iter().flatten());
+    joined
+}
+
 /// An approach as an arm: its lanes, their mean width, and its section's medians and sidewalks
 /// (a note where it has no sidewalk).
 fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmConfig {
-    let same = |l: &&xodr::Lane| road_of(net, l).is_some_and(|(r, s)| r.id() == a.road && s == a.section);
-    let of = |kind: xodr::LaneType| net.lanes().iter().filter(same).filter(move |l| l.kind == kind).map(|l| l.width);
-    let sidewalk = of(xodr::LaneType::Sidewalk).fold(0.0f32, f32::max);
-    let median: f32 = of(xodr::LaneType::Median).sum();
-    let dir = a.out.iter().fold(Vec2::ZERO, |s, d| s + *d).normalize_or_zero();
+    let of = |kind: xodr::LaneType, road: xodr::RoadId, section: usize| {
+        net.lanes()
+            .iter()
+            .filter(move |l| road_of(net, l).is_some_and(|(r, s)| r.id() == road && s == section))
+            .filter(move |l| l.kind == kind)
+            .map(|l| l.width)
+    };
+    let widest = |kind| a.roads.iter().flat_map(|&(r, s)| of(kind, r, s)).fold(0.0f32, f32::max);
+    let sidewalk = widest(xodr::LaneType::Sidewalk);
+    // A divided arm's median is the gap between its carriageways; a road's own median lanes.
+    let median: f32 =
+        a.median_m.unwrap_or_else(|| a.roads.iter().flat_map(|&(r, s)| of(xodr::LaneType::Median, r, s)).sum());
+    let dir = a.out.iter().fold(Vec2::ZERO, |s, (_, d)| s + *d).normalize_or_zero();
     if sidewalk == 0.0 {
         notes.push(format!("{}: no sidewalk lane in the file; none modelled", a.name));
     }
     // A parking lane, the widest of the section's, within what a scene file accepts.
-    let parking = of(xodr::LaneType::Parking).fold(0.0f32, f32::max);
+    let parking = widest(xodr::LaneType::Parking);
     let parking_lane_width_m = if parking > 0.0 { round(parking.clamp(1.8, 3.0), 0.01) } else { 0.0 };
     if parking > 0.0 && parking_lane_width_m != round(parking, 0.01) {
         notes.push(format!(
@@ -286,16 +358,24 @@ fn traffic_lights(net: &xodr::RoadNetwork, centres: &BTreeMap<String, [f64; 2]>,
         .collect()
 }
 
-/// An approach being gathered: its road and the lane section that meets the junction, its
-/// driving lanes by direction, their widths, and each lane's outward direction.
+/// How many `<signal>` elements the text holds (not `<signals>` or `<signalReference>`).
+fn signals_written(xml: &str) -> usize {
+    xml.match_indices("<signal")
+        .filter(|(i, m)| xml[i + m.len()..].starts_with(|c: char| c.is_whitespace() || c == '>' || c == '/'))
+        .count()
+}
+
+/// An approach being gathered: its roads (two for a divided arm) and the lane section of each
+/// that meets the junction, its driving lanes by direction, their widths, each lane's end
+/// nearer the junction and outward direction, and a divided arm's median.
 struct Approach {
     name: String,
-    road: xodr::RoadId,
-    section: usize,
+    roads: Vec<(xodr::RoadId, usize)>,
     lanes_in: u32,
     lanes_out: u32,
     widths: Vec<f32>,
-    out: Vec<Vec2>,
+    out: Vec<(Vec2, Vec2)>,
+    median_m: Option<f32>,
 }
 
 /// `v` to the nearest multiple of `step` (never -0, which TOML would print as `-0.0`).
@@ -326,11 +406,11 @@ fn pick_junction(pick: &JunctionPick, centres: &BTreeMap<String, [f64; 2]>) -> R
     }
 }
 
-/// The unit direction, away from the junction centre `c`, of a lane's centre line at its end
-/// nearer `c`: from that end to the point 25 m (or the lane's length) along it.
-fn outward(center: &xodr::Polyline, c: Vec2) -> Vec2 {
+/// A lane centre line's end nearer the junction centre `c`, and its unit direction away from
+/// `c` there: from that end to the point 25 m (or the lane's length) along it.
+fn outward(center: &xodr::Polyline, c: Vec2) -> (Vec2, Vec2) {
     let pts = center.points();
-    let (Some(first), Some(last)) = (pts.first(), pts.last()) else { return Vec2::ZERO };
+    let (Some(first), Some(last)) = (pts.first(), pts.last()) else { return (c, Vec2::ZERO) };
     let v = |p: &xodr::Point| Vec2::new(p.x, p.y);
     let len = center.length();
     let d = len.min(25.0);
@@ -339,7 +419,7 @@ fn outward(center: &xodr::Polyline, c: Vec2) -> Vec2 {
     } else {
         (v(last), v(&center.point_at(len - d)))
     };
-    (far - near).normalize_or_zero()
+    (near, (far - near).normalize_or_zero())
 }
 
 /// Signal poles at the corners between neighbouring arms: at each corner with a light in
@@ -435,4 +515,72 @@ pub fn import_to(file: &Path, pick: &JunctionPick, out: &Path) -> Result<Importe
     crate::Scene::from_config(imported.config.clone(), file.parent().unwrap_or(Path::new(".")), file)?;
     write_scene(&imported, file, out)?;
     Ok(imported)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// A one-way carriageway of `lanes` 3.2 m lanes leaving the junction (at the origin) along
+    /// `deg`, its end 10 m out along the arm's axis (the nearest multiple of 90 degrees) and `off`
+    /// metres to the left of it; inbound when `into`.
+    fn carriageway(name: &str, deg: f32, off: f32, lanes: u32, into: bool) -> (String, Approach) {
+        let d = Vec2::from_angle(deg.to_radians());
+        let axis = Vec2::from_angle(((deg / 90.0).round() * 90.0).to_radians());
+        let near = 10.0 * axis + off * axis.perp();
+        let a = Approach {
+            name: name.into(),
+            roads: Vec::new(),
+            lanes_in: if into { lanes } else { 0 },
+            lanes_out: if into { 0 } else { lanes },
+            widths: vec![3.2; lanes as usize],
+            out: vec![(near, d); lanes as usize],
+            median_m: None,
+        };
+        (name.into(), a)
+    }
+
+    fn join(list: Vec<(String, Approach)>) -> (Vec<Approach>, Vec<String>) {
+        let mut notes = Vec::new();
+        (join_divided(list.into_iter().collect(), &mut notes), notes)
+    }
+
+    #[test]
+    fn side_by_side_one_way_roads_join_with_their_gap_as_the_median() {
+        // Centres 10 m apart, each carriageway 6.4 m wide: a 3.6 m median; a few degrees apart.
+        let (arms, notes) = join(vec![carriageway("in", 88.0, 5.0, 2, true), carriageway("out", 92.0, -5.0, 2, false)]);
+        assert_eq!(arms.len(), 1, "{notes:?}");
+        assert_eq!((arms[0].lanes_in, arms[0].lanes_out, arms[0].name.as_str()), (2, 2, "in / out"));
+        assert!((arms[0].median_m.unwrap() - 3.6).abs() < 0.05, "{:?}", arms[0].median_m);
+        assert!(notes[0].contains("3.6"), "{notes:?}");
+        // Each pairs with its own neighbour, not the one across the junction.
+        let (arms, _) = join(vec![
+            carriageway("n in", 90.0, 5.0, 2, true),
+            carriageway("n out", 90.0, -5.0, 2, false),
+            carriageway("s in", -90.0, 5.0, 1, true),
+            carriageway("s out", -90.0, -5.0, 1, false),
+        ]);
+        let mut names: Vec<&str> = arms.iter().map(|a| a.name.as_str()).collect();
+        names.sort_unstable();
+        assert_eq!(names, ["n in / n out", "s in / s out"]);
+    }
+
+    #[test]
+    fn roads_that_are_not_one_divided_arm_stay_apart() {
+        for (list, why) in [
+            // Inbound on the right looking outward: left-hand traffic, or two other roads.
+            (vec![carriageway("in", 90.0, -5.0, 2, true), carriageway("out", 90.0, 5.0, 2, false)], "sides"),
+            // Overlapping carriageways: no gap between them.
+            (vec![carriageway("in", 90.0, 2.0, 2, true), carriageway("out", 90.0, -2.0, 2, false)], "overlap"),
+            // 40 degrees apart: two arms.
+            (vec![carriageway("in", 70.0, 5.0, 2, true), carriageway("out", 110.0, -5.0, 2, false)], "angle"),
+            // Two inbound roads.
+            (vec![carriageway("a", 90.0, 5.0, 2, true), carriageway("b", 90.0, -5.0, 2, true)], "direction"),
+        ] {
+            let (arms, notes) = join(list);
+            assert_eq!(arms.len(), 2, "{why}: {notes:?}");
+            assert!(notes.is_empty() && arms.iter().all(|a| a.median_m.is_none()), "{why}");
+        }
+    }
 }
