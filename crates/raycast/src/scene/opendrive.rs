@@ -236,7 +236,6 @@ const DIVIDED_MAX_DEG: f32 = 25.0;
 /// it (see the module doc), nearest in direction first; the gap between the two carriageways'
 /// driving lanes becomes the arm's median. Roads that pair with none stay arms of their own.
 fn join_divided(approaches: BTreeMap<String, Approach>, notes: &mut Vec<String>) -> Vec<Approach> {
-    let dir = |a: &Approach| a.out.iter().fold(Vec2::ZERO, |s, (_, d)| s + *d).normalize_or_zero();
     let centre = |a: &Approach| a.out.iter().fold(Vec2::ZERO, |s, (p, _)| s + *p) / a.out.len().max(1) as f32;
     let width = |a: &Approach| a.widths.iter().sum::<f32>();
     let mut all: Vec<Option<Approach>> = approaches.into_values().map(Some).collect();
@@ -245,7 +244,7 @@ fn join_divided(approaches: BTreeMap<String, Approach>, notes: &mut Vec<String>)
         let Some(a) = a.as_ref().filter(|a| a.lanes_in > 0 && a.lanes_out == 0) else { continue };
         for (j, b) in all.iter().enumerate() {
             let Some(b) = b.as_ref().filter(|b| b.lanes_out > 0 && b.lanes_in == 0) else { continue };
-            let (da, db) = (dir(a), dir(b));
+            let (da, db) = (a.direction(), b.direction());
             let angle = da.angle_to(db).abs().to_degrees();
             let d = (da + db).normalize_or_zero();
             // The inbound carriageway's offset to the left of the outbound one, across the arm.
@@ -294,7 +293,7 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmCon
     // A divided arm's median is the gap between its carriageways; a road's own median lanes.
     let median: f32 =
         a.median_m.unwrap_or_else(|| a.roads.iter().flat_map(|&(r, s)| of(xodr::LaneType::Median, r, s)).sum());
-    let dir = a.out.iter().fold(Vec2::ZERO, |s, (_, d)| s + *d).normalize_or_zero();
+    let dir = a.direction();
     if sidewalk == 0.0 {
         notes.push(format!("{}: no sidewalk lane in the file; none modelled", a.name));
     }
@@ -376,6 +375,13 @@ struct Approach {
     widths: Vec<f32>,
     out: Vec<(Vec2, Vec2)>,
     median_m: Option<f32>,
+}
+
+impl Approach {
+    /// The mean outward direction of its lanes.
+    fn direction(&self) -> Vec2 {
+        self.out.iter().fold(Vec2::ZERO, |s, (_, d)| s + *d).normalize_or_zero()
+    }
 }
 
 /// `v` to the nearest multiple of `step` (never -0, which TOML would print as `-0.0`).
