@@ -290,6 +290,9 @@ pub fn calibrated_member(
     let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
     let mut inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
     inst.road_users = ctx.all.road_users.clone();
+    if w.reads_points() {
+        inst.points = ctx.point_rows(&inst)?;
+    }
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
     let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, pc.calibrated_cbc_max_nonzeros, &g)?;
@@ -456,6 +459,18 @@ impl<'a> Context<'a> {
         })
     }
 
+    /// The point counts of `inst`'s LiDAR options on the road users of the training traffic (the
+    /// `lidar_points` term's, over the frames the occupancy predictors read, with their k).
+    fn point_rows(&self, inst: &Instance) -> Result<hilo_placement_ip::instance::PointRows> {
+        let (study, prep) = (self.study, self.prep);
+        let lidar_of = |o: usize| {
+            let opt = &inst.options[o];
+            let c = &prep.candidates[opt.candidate as usize];
+            study.catalog.lidar(&inst.types[opt.ty].name).ok().map(|l| (l.clone(), c.pose))
+        };
+        self.traffic.rows(&self.world, inst.options.len(), lidar_of, self.min_points)
+    }
+
     fn member(&mut self, k: usize, kind: &str, conf: &str, sensors: Vec<PlacedSensor>, proven: bool) -> Result<Member> {
         let (study, prep, all) = (self.study, self.prep, &self.all);
         let mut own_types: Vec<String> = sensors.iter().map(|s| s.ty.clone()).collect();
@@ -534,5 +549,38 @@ impl<'a> Context<'a> {
             prediction: None,
         };
         Ok(Member { slug, kind: kind.to_owned(), configuration: conf.to_owned(), placement, predictors })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// The coarse validation scene (the default junction on 3 m cells, few candidate mounts).
+    fn coarse() -> Study {
+        let text = include_str!("../../../fixtures/validation-coarse.toml");
+        Study::parse(text, std::path::Path::new("."), "validation-coarse.toml").unwrap()
+    }
+
+    /// A fit that weighs the point-count term places its recommendation with the counts of every
+    /// LiDAR option (it was refused for want of them), and the rig it buys scores, by its own
+    /// count, what the solve claimed of it (the two differ by the dropout draws alone) and at
+    /// least what a rig placed for saturated coverage scores.
+    #[test]
+    fn a_recommendation_weighing_points_is_placed_with_the_counts() {
+        let study = coarse();
+        // Far more points than the default k, so that the term does not saturate.
+        let v = &ValidationSettings { min_points: 100, ..study.file.validation.clone() };
+        let budget = budget_configuration(&study).unwrap();
+        let points = calibrated::Weights { lidar_points: 1.0, ..calibrated::Weights::default() };
+        let m = calibrated_member(&study, v, &points, &budget, 0).unwrap();
+        let own = m.predictors[LIDAR_POINTS_CAPPED].unwrap();
+        assert!(m.placement.cost_usd <= budget.budget_usd.unwrap() + 1e-6);
+        assert!(m.placement.objective > 0.05, "{}", m.placement.objective);
+        assert!((own - m.placement.objective).abs() < 0.01, "{own} vs {}", m.placement.objective);
+        let coverage = calibrated::Weights { lidar: 1.0, ..calibrated::Weights::default() };
+        let other = calibrated_member(&study, v, &coverage, &budget, 1).unwrap();
+        assert!(other.predictors[LIDAR_POINTS_CAPPED].unwrap() <= own + 0.005, "{:?}", other.predictors);
     }
 }
