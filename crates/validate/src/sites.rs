@@ -201,10 +201,10 @@ fn fixed_weights(fit: &crate::calibrate::Fit) -> hilo_placement_ip::calibrated::
     hilo_placement_ip::calibrated::Weights::from_array(std::array::from_fn(|f| w[f]))
 }
 
-/// The objective to ship (`calibration.toml`): the fit across all sites, or, when one of its
-/// terms alone ranked the held-out sites better on average (a baseline computable from the
-/// placement alone), that term with its own fit across sites; with the ranges of its features
-/// over every site's placements.
+/// The objective to ship (`calibration.toml`): the fit across all sites, or, when one placement
+/// term alone (any feature the fit may choose, a baseline computable from the placement alone)
+/// ranked the held-out sites better on average, that term with its own fit across sites; with
+/// the ranges of its features over every site's placements.
 fn shipped(
     sites: &[(&str, &ValidationReport)],
     groups: &[Vec<Row>],
