@@ -503,7 +503,7 @@ fn md_weather(md: &mut String, r: &Report) {
             )
         }
     );
-    for v in &r.radar_value {
+    for v in r.radar_value.iter().filter(|v| !v.second) {
         let weather = match &v.condition {
             None => format!("{own} (the study's)"),
             Some(name) => match r.conditions.iter().find(|c| &c.name == name) {
@@ -526,15 +526,46 @@ fn md_weather(md: &mut String, r: &Report) {
         );
     }
     md.push('\n');
+    md_second_radar(md, r);
     md_radar_power(md, r);
+}
+
+/// What a second radar adds and costs: the `second_radar_adds` and `second_radar_velocity`
+/// claims, priced like the radar's.
+fn md_second_radar(md: &mut String, r: &Report) {
+    let second: Vec<&crate::verdict::RadarValue> = r.radar_value.iter().filter(|v| v.second).collect();
+    if second.is_empty() {
+        return;
+    }
+    md.push_str(
+        "A second radar: the rig of more radars placed given the rig under study (its LiDARs and radar at the same poses) against it, both fused (the `second_radar_adds` and `second_radar_velocity` claims), per $1,000 of what the added radars cost.\n\n| metric | second radar adds [95%] | MDE | per $1,000 | extra cost | verdict |\n|---|---|---:|---:|---:|---|\n",
+    );
+    for v in second {
+        let _ = writeln!(
+            md,
+            "| {} | {:+.3} [{:+.3}, {:+.3}] | {} | {} | {} | {} |",
+            v.metric,
+            v.estimate,
+            v.lo,
+            v.hi,
+            if v.mde.is_finite() { format!("{:.3}", v.mde) } else { "–".into() },
+            v.per_1000_usd.map_or("–".into(), |x| format!("{x:+.4}")),
+            dollars(&v.extra_cost_usd),
+            verdict_word(v.verdict)
+        );
+    }
+    md.push('\n');
 }
 
 /// What design would find a radar effect of [`RADAR_TARGET_MDE`](crate::verdict::RADAR_TARGET_MDE)
 /// on each accuracy metric whose MDE is larger, projected from this study's variance components.
 fn md_radar_power(md: &mut String, r: &Report) {
     let target = crate::verdict::RADAR_TARGET_MDE;
-    let short: Vec<&crate::verdict::RadarValue> =
-        r.radar_value.iter().filter(|v| !crate::verdict::lower_is_better(&v.metric) && v.mde > target).collect();
+    let short: Vec<&crate::verdict::RadarValue> = r
+        .radar_value
+        .iter()
+        .filter(|v| !v.second && !crate::verdict::lower_is_better(&v.metric) && v.mde > target)
+        .collect();
     if short.is_empty() {
         return;
     }

@@ -35,12 +35,18 @@ pub struct RadarValue {
     /// The weather condition; None: the study's own weather.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub condition: Option<String>,
+    /// A second radar's value (the `second_radar_adds` and `second_radar_velocity` claims): the
+    /// rig placed given the rig under study with more radars, against it. False: the radar's.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub second: bool,
     pub metric: String,
-    /// The rig with the radar, fused, minus the LiDAR-only rig, and its 95% interval.
+    /// The rig with the radar, fused, minus the LiDAR-only rig (for a second radar: minus the
+    /// rig under study), and its 95% interval.
     pub estimate: f64,
     pub lo: f64,
     pub hi: f64,
-    /// What the rig with the radar costs over the LiDAR-only one (USD).
+    /// What the rig with the radar costs over the LiDAR-only one (for a second radar: over the
+    /// rig under study), USD.
     pub extra_cost_usd: f64,
     /// `estimate` per $1,000 of `extra_cost_usd` (None when it costs nothing more).
     pub per_1000_usd: Option<f64>,
@@ -62,36 +68,46 @@ pub const ALPHA: f64 = 0.05;
 pub const RADAR_TARGET_MDE: f64 = 0.015;
 
 /// The radar's value in every weather the claims were judged in: each tested row of
-/// `radar_adds` and `radar_adds_velocity` (and of their `@<condition>` copies), priced by `cost`
+/// `radar_adds` and `radar_adds_velocity` (and of their `@<condition>` copies), then of
+/// `second_radar_adds` and `second_radar_velocity` (what a second radar adds), priced by `cost`
 /// (a configuration's cost by name), with the design that would find [`RADAR_TARGET_MDE`] from
 /// `replicates` per group (seeds, or training-traffic draws when there are several).
 pub fn radar_value(claims: &[Claim], cost: &dyn Fn(&str) -> Option<f64>, replicates: usize) -> Vec<RadarValue> {
-    let priced = ["radar_adds", "radar_adds_velocity"];
     let side = |v: &[(String, String)]| v.first().and_then(|(c, _)| cost(c));
     let mut out = Vec::new();
-    for c in claims.iter().filter(|c| c.not_tested.is_none()) {
-        if !priced.contains(&c.id.split('@').next().unwrap_or_default()) {
-            continue;
-        }
-        for row in &c.rows {
-            let Some(extra) = side(&row.b).zip(side(&row.a)).map(|(b, a)| b - a) else { continue };
-            out.push(RadarValue {
-                condition: c.condition.clone(),
-                metric: row.metric.clone(),
-                estimate: row.test.estimate,
-                lo: row.test.lo,
-                hi: row.test.hi,
-                extra_cost_usd: extra,
-                per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
-                verdict: row.verdict,
-                mde: row.mde,
-                design: (!lower_is_better(&row.metric))
-                    .then(|| crate::stats::design_for_mde(&row.test, replicates, RADAR_TARGET_MDE, ALPHA, 0.8))
-                    .flatten(),
-            });
-        }
+    for (second, priced) in [(false, ["radar_adds", "radar_adds_velocity"]), (true, SECOND_RADAR_CLAIMS)] {
+        out.extend(claims.iter().filter(|c| c.not_tested.is_none()).flat_map(|c| {
+            let id = c.id.split('@').next().unwrap_or_default();
+            let rows = if priced.contains(&id) { &c.rows[..] } else { &[] };
+            rows.iter().filter_map(move |row| {
+                let extra = side(&row.b).zip(side(&row.a)).map(|(b, a)| b - a)?;
+                Some(priced_row(c, row, second, extra, replicates))
+            })
+        }));
     }
     out
+}
+
+/// The claims of what a second radar adds, in accuracy and in velocity error.
+pub const SECOND_RADAR_CLAIMS: [&str; 2] = ["second_radar_adds", "second_radar_velocity"];
+
+/// One claim row of the radar's (or a second radar's) effect, priced by `extra` USD.
+fn priced_row(c: &Claim, row: &ClaimRow, second: bool, extra: f64, replicates: usize) -> RadarValue {
+    RadarValue {
+        condition: c.condition.clone(),
+        second,
+        metric: row.metric.clone(),
+        estimate: row.test.estimate,
+        lo: row.test.lo,
+        hi: row.test.hi,
+        extra_cost_usd: extra,
+        per_1000_usd: (extra > 0.0).then(|| 1000.0 * row.test.estimate / extra),
+        verdict: row.verdict,
+        mde: row.mde,
+        design: (!lower_is_better(&row.metric))
+            .then(|| crate::stats::design_for_mde(&row.test, replicates, RADAR_TARGET_MDE, ALPHA, 0.8))
+            .flatten(),
+    }
 }
 
 /// Whether a metric is an error, where a smaller value is the better one.
@@ -1538,6 +1554,22 @@ mod tests {
         assert!((adds.rows[0].test.estimate - 0.03).abs() < 1e-9, "{:?}", adds.rows[0].test);
         let v = by("second_radar_velocity");
         assert!((v.rows[0].test.estimate + 1.0).abs() < 1e-9, "{:?}", v.rows[0].test);
+        // Priced by what the second radar costs ($2,000), after the radar's own rows.
+        let cost = |n: &str| configurations.iter().find(|c| c.0 == n).map(|c| c.1);
+        let value = radar_value(&claims, &cost, 3);
+        let first = value.iter().position(|v| v.second).unwrap();
+        assert!(first > 0 && value[first..].iter().all(|v| v.second) && !value[..first].iter().any(|v| v.second));
+        let priced: Vec<&ClaimRow> = adds.rows.iter().chain(&v.rows).collect();
+        assert_eq!(value[first..].len(), priced.len());
+        for (p, row) in value[first..].iter().zip(priced) {
+            assert_eq!(
+                (p.metric.as_str(), p.estimate, p.verdict),
+                (row.metric.as_str(), row.test.estimate, row.verdict)
+            );
+            assert!((p.extra_cost_usd - 2000.0).abs() < 1e-9, "{p:?}");
+            assert!((p.per_1000_usd.unwrap() - row.test.estimate / 2.0).abs() < 1e-12, "{p:?}");
+        }
+        assert!(value[..first].iter().all(|p| (p.extra_cost_usd - 2000.0).abs() < 1e-9 && p.condition.is_none()));
         // The one-radar roles: the rig under study is still 2x16+R, the dearest 64+R, and no
         // mid-resolution radar rig is left for the pooled claim.
         assert!(by("vs_lidar_radar").rows.iter().all(|r| r.a.iter().all(|(c, _)| c == "64+R")));
