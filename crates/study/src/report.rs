@@ -511,23 +511,26 @@ fn md_weather(md: &mut String, r: &Report) {
                 None => name.clone(),
             },
         };
-        let _ = writeln!(
-            md,
-            "| {} | {} | {:+.3} [{:+.3}, {:+.3}] | {} | {} | {} | {} |",
-            esc(&weather),
-            v.metric,
-            v.estimate,
-            v.lo,
-            v.hi,
-            if v.mde.is_finite() { format!("{:.3}", v.mde) } else { "–".into() },
-            v.per_1000_usd.map_or("–".into(), |x| format!("{x:+.4}")),
-            dollars(&v.extra_cost_usd),
-            verdict_word(v.verdict)
-        );
+        let _ = writeln!(md, "| {} | {} |", esc(&weather), value_cells(v));
     }
     md.push('\n');
     md_second_radar(md, r);
     md_radar_power(md, r);
+}
+
+/// A priced radar effect's cells: metric, estimate [95%], MDE, per $1,000, extra cost, verdict.
+fn value_cells(v: &crate::verdict::RadarValue) -> String {
+    format!(
+        "{} | {:+.3} [{:+.3}, {:+.3}] | {} | {} | {} | {}",
+        v.metric,
+        v.estimate,
+        v.lo,
+        v.hi,
+        if v.mde.is_finite() { format!("{:.3}", v.mde) } else { "–".into() },
+        v.per_1000_usd.map_or("–".into(), |x| format!("{x:+.4}")),
+        dollars(&v.extra_cost_usd),
+        verdict_word(v.verdict)
+    )
 }
 
 /// What a second radar adds and costs: the `second_radar_adds` and `second_radar_velocity`
@@ -541,18 +544,7 @@ fn md_second_radar(md: &mut String, r: &Report) {
         "A second radar: the rig of more radars placed given the rig under study (its LiDARs and radar at the same poses) against it, both fused (the `second_radar_adds` and `second_radar_velocity` claims), per $1,000 of what the added radars cost.\n\n| metric | second radar adds [95%] | MDE | per $1,000 | extra cost | verdict |\n|---|---|---:|---:|---:|---|\n",
     );
     for v in second {
-        let _ = writeln!(
-            md,
-            "| {} | {:+.3} [{:+.3}, {:+.3}] | {} | {} | {} | {} |",
-            v.metric,
-            v.estimate,
-            v.lo,
-            v.hi,
-            if v.mde.is_finite() { format!("{:.3}", v.mde) } else { "–".into() },
-            v.per_1000_usd.map_or("–".into(), |x| format!("{x:+.4}")),
-            dollars(&v.extra_cost_usd),
-            verdict_word(v.verdict)
-        );
+        let _ = writeln!(md, "| {} |", value_cells(v));
     }
     md.push('\n');
 }
