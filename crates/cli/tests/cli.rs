@@ -315,11 +315,13 @@ fn a_configuration_given_another_keeps_its_sensors() {
 }
 
 /// With the calibrated objective and a radar worth nothing to the detectors, the budget buys
-/// LiDARs only; the paper's objective spends it on radars. Without weights it is refused.
+/// LiDARs only, and a rig that may hold a radar holds none, which `hilo place` says; the paper's
+/// objective spends the budget on radars. Without weights it is refused.
 #[test]
 fn a_calibrated_objective_that_prices_radar_at_zero_buys_lidars() {
     let dir = tempfile::tempdir().unwrap();
-    let budget = "[[configurations]]\nname = \"budget\"\nbudget_usd = 12000.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n";
+    let budget = "[[configurations]]\nname = \"budget\"\nbudget_usd = 12000.0\ntypes = [\"lidar-16\", \"radar-4d\"]\n\
+                  [[configurations]]\nname = \"rig\"\nsensors = { \"lidar-16\" = 2, \"radar-4d\" = 1 }\n";
     let text = |objective: &str| {
         format!(
             "[placement]\ncell_m = 3.0\ntime_limit_s = 20.0\n{objective}\n[placement.candidates]\npole_step_m = 1.5\narm_step_m = 3.0\n{budget}"
@@ -335,6 +337,14 @@ fn a_calibrated_objective_that_prices_radar_at_zero_buys_lidars() {
     };
     let calibrated = types("calibrated", "objective = \"calibrated\"\ncalibration = { lidar = 0.6, radar = 0.0 }");
     assert!(calibrated.iter().all(|t| t == "lidar-16") && calibrated.len() == 3, "{calibrated:?}");
+    let rig = json(&dir.path().join("calibrated").join("rig.json"));
+    assert!(rig["sensors"].as_array().unwrap().iter().all(|s| s["type"] == "lidar-16"), "{rig}");
+    let o =
+        hilo().arg("place").arg(dir.path().join("calibrated.toml")).arg("--out").arg(dir.path().join("again")).output();
+    let o = o.unwrap();
+    let said = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(said.contains("holds 0 of the 1 radar-4d it may"), "{said}");
+    assert!(!said.contains("of the 2 lidar-16"), "{said}");
     let paper = types("paper", "");
     assert!(paper.iter().any(|t| t == "radar-4d"), "{paper:?}");
     let study = dir.path().join("bad.toml");

@@ -291,6 +291,9 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         if let Some(pr) = &p.prediction {
             progress(&format!("{:<24} predicted mAP {:.3} [{:.3}, {:.3}]; {}", "", pr.map, pr.lo, pr.hi, pr.advice));
         }
+        for line in unfilled(&p, &limit, &types) {
+            progress(&format!("{:<24} {line}", ""));
+        }
         out.placements.push(p);
         out.lidar_hits.push(hits);
         out.radar_covered.push(radar);
@@ -305,6 +308,22 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
     let lidar_hits = at.iter().map(|&k| std::mem::take(&mut lidar_hits[k])).collect();
     let radar_covered = at.iter().map(|&k| std::mem::take(&mut radar_covered[k])).collect();
     Ok(Placed { prepared: prep, placements, lidar_hits, radar_covered })
+}
+
+/// For a configuration of sensor counts (each an upper limit), the types of which `p` holds
+/// fewer than it may: the objective gains nothing from more of them (a calibrated objective that
+/// weighs radar 0 places no radar), which a user who named the rig should be told.
+fn unfilled(p: &Placement, limit: &Limit, types: &[String]) -> Vec<String> {
+    let Limit::Counts(counts) = limit else { return Vec::new() };
+    types
+        .iter()
+        .zip(counts)
+        .filter_map(|(ty, &n)| {
+            let held = p.sensors.iter().filter(|s| &s.ty == ty).count();
+            (held < n as usize)
+                .then(|| format!("holds {held} of the {n} {ty} it may: this objective gains nothing from more"))
+        })
+        .collect()
 }
 
 /// Refuses what no solver can satisfy: a budget that buys no sensor, more sensors of a type than
