@@ -818,15 +818,13 @@ impl Design<'_> {
                    the same poses";
         let needs =
             "needs a configuration of more radars placed given the rig under study (`given`), and a fusion preset";
+        let [adds, velocity] = SECOND_RADAR_CLAIMS;
         match (cheap, more, fusion) {
             (Some(c), Some(m), Some(f)) => vec![
-                claim("second_radar_adds", st, self.accuracy_rows((c, f), (m, f)), None),
-                self.velocity_claim("second_radar_velocity", stv, (c, f), (m, f)),
+                claim(adds, st, self.accuracy_rows((c, f), (m, f)), None),
+                self.velocity_claim(velocity, stv, (c, f), (m, f)),
             ],
-            _ => vec![
-                claim("second_radar_adds", st, vec![], Some(needs.into())),
-                claim("second_radar_velocity", stv, vec![], Some(needs.into())),
-            ],
+            _ => vec![claim(adds, st, vec![], Some(needs.into())), claim(velocity, stv, vec![], Some(needs.into()))],
         }
     }
 
