@@ -152,11 +152,7 @@ impl PointCache {
             .filter(|&o| inst.modality(o) == Modality::Lidar && !self.rows.contains_key(&key(o)))
             .collect();
         if let Some(tp) = &self.traffic {
-            let lidar_of = |i: usize| {
-                let o = missing[i];
-                let c = &prep.candidates[inst.options[o].candidate as usize];
-                study.catalog.lidar(&inst.types[inst.options[o].ty].name).ok().map(|l| (l.clone(), c.pose))
-            };
+            let lidar_of = |i: usize| option_lidar(study, prep, inst, missing[i]);
             let new = tp.rows(world, missing.len(), lidar_of, study.file.validation.min_points)?;
             self.k = new.k;
             self.weights = new.weights;
@@ -167,6 +163,19 @@ impl PointCache {
         let rows = (0..inst.options.len()).map(|o| self.rows.get(&key(o)).cloned().unwrap_or_default()).collect();
         Ok(hilo_placement_ip::instance::PointRows { k: self.k, weights: self.weights.clone(), rows })
     }
+}
+
+/// Option `o` of `inst` as a LiDAR: its spec and the pose of its candidate mount (None for a
+/// radar), as the point-count term casts it.
+pub fn option_lidar(
+    study: &Study,
+    prep: &Prepared,
+    inst: &Instance,
+    o: usize,
+) -> Option<(hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose)> {
+    let opt = &inst.options[o];
+    let c = &prep.candidates[opt.candidate as usize];
+    study.catalog.lidar(&inst.types[opt.ty].name).ok().map(|l| (l.clone(), c.pose))
 }
 
 /// Places every configuration; `progress` hears one line per configuration.

@@ -462,12 +462,7 @@ impl<'a> Context<'a> {
     /// The point counts of `inst`'s LiDAR options on the road users of the training traffic (the
     /// `lidar_points` term's, over the frames the occupancy predictors read, with their k).
     fn point_rows(&self, inst: &Instance) -> Result<hilo_placement_ip::instance::PointRows> {
-        let (study, prep) = (self.study, self.prep);
-        let lidar_of = |o: usize| {
-            let opt = &inst.options[o];
-            let c = &prep.candidates[opt.candidate as usize];
-            study.catalog.lidar(&inst.types[opt.ty].name).ok().map(|l| (l.clone(), c.pose))
-        };
+        let lidar_of = |o: usize| hilo_plan::place::option_lidar(self.study, self.prep, inst, o);
         self.traffic.rows(&self.world, inst.options.len(), lidar_of, self.min_points)
     }
 
