@@ -123,6 +123,7 @@ fn validation_json() -> String {
             let t = Trained {
                 preset: "centerpoint".into(),
                 map: vec![map],
+                draw: Vec::new(),
                 map_mean: map,
                 map_at_b: vec![map],
                 map_at_b_mean: map,
@@ -147,6 +148,7 @@ fn validation_json() -> String {
         budget_spearman: agreement,
         budget_kendall: agreement,
         seed_spearman: None,
+        draw_spearman: None,
         calibrated: None,
         recommendation: None,
         transfer: None,

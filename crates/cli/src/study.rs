@@ -276,9 +276,13 @@ pub struct ValidateArgs {
     /// Placements in the set (overrides `validation.placements`).
     #[arg(long)]
     pub placements: Option<usize>,
-    /// Trainings per placement (overrides `validation.seeds`).
+    /// Trainings per placement and traffic draw (overrides `validation.seeds`).
     #[arg(long)]
     pub seeds: Option<usize>,
+    /// Training-traffic draws per placement (overrides `validation.traffic_draws`): each
+    /// placement's training scenes recorded again with other traffic, `--seeds` trainings on each.
+    #[arg(long, value_parser = hilo_study::profile::draws_arg)]
+    pub traffic_draws: Option<usize>,
     /// The budget b in samples (overrides `validation.samples`): trained to 2b, scored at b and 2b.
     #[arg(long)]
     pub samples: Option<usize>,
@@ -308,7 +312,8 @@ pub struct ValidateArgs {
     /// placement's dataset.
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "train", "resume", "transfer"])]
     pub simulate: Option<String>,
-    /// One stage of the validation in --out: this training (`<placement>/<preset>-seed<k>`).
+    /// One stage of the validation in --out: this training (`<placement>/<preset>-seed<k>`, or
+    /// `<placement>/<preset>-draw<d>-seed<k>` on a later training-traffic draw).
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "resume", "transfer"])]
     pub train: Option<String>,
     /// Run what remains of the validation in --out with the study, profile and settings it
@@ -407,6 +412,9 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     }
     if let Some(n) = args.seeds {
         settings.seeds = n;
+    }
+    if let Some(n) = args.traffic_draws {
+        settings.traffic_draws = n;
     }
     if let Some(n) = args.samples {
         settings.samples = n;

@@ -225,9 +225,42 @@ fn untimed(v: &mut serde_json::Value) {
     }
 }
 
-/// The validation written as a Snakefile names a job per placement's dataset and per training,
+/// A dataset's box annotations (sample time, translation), of its training and of its
+/// validation scenes.
+fn annotations_by_split(data: &std::path::Path) -> (Vec<String>, Vec<String>) {
+    let table = |name: &str| json(&data.join("v1.0-trainval").join(name));
+    let val: Vec<serde_json::Value> = table("splits.json")["val"].as_array().unwrap().clone();
+    let scene_val: std::collections::BTreeMap<String, bool> = table("scene.json")
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| (s["token"].as_str().unwrap().to_owned(), val.contains(&s["name"])))
+        .collect();
+    let sample: std::collections::BTreeMap<String, (bool, u64)> = table("sample.json")
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| {
+            let on_val = scene_val[s["scene_token"].as_str().unwrap()];
+            (s["token"].as_str().unwrap().to_owned(), (on_val, s["timestamp"].as_u64().unwrap()))
+        })
+        .collect();
+    let (mut train, mut valid) = (Vec::new(), Vec::new());
+    for a in table("sample_annotation.json").as_array().unwrap() {
+        let (on_val, t) = sample[a["sample_token"].as_str().unwrap()];
+        let row = format!("{t} {}", a["translation"]);
+        if on_val { valid.push(row) } else { train.push(row) }
+    }
+    train.sort();
+    valid.sort();
+    (train, valid)
+}
+
+/// The validation written as a Snakefile names a job per placement's datasets and per training,
 /// each a `hilo validate` stage of the folder; run one by one, as the engine runs them, then the
-/// last step, they give the validation of one process apart from timing fields.
+/// last step, they give the validation of one process apart from timing fields. Two
+/// training-traffic draws: each placement is recorded on both (the validation scenes shared)
+/// and trained on each, and the report sets draw 0 against draw 1.
 #[test]
 fn a_validation_run_stage_by_stage_as_its_snakefile_says_equals_one_process() {
     let dir = tempfile::tempdir().unwrap();
@@ -237,7 +270,7 @@ fn a_validation_run_stage_by_stage_as_its_snakefile_says_equals_one_process() {
         let o = hilo()
             .arg("validate")
             .arg(&study)
-            .args(["--profile", "tiny", "--seeds", "1", "--samples", "4", "--out"])
+            .args(["--profile", "tiny", "--seeds", "1", "--traffic-draws", "2", "--samples", "4", "--out"])
             .arg(out)
             .args(extra)
             .output()
@@ -260,7 +293,30 @@ fn a_validation_run_stage_by_stage_as_its_snakefile_says_equals_one_process() {
     let (members, trainings) = (stage("--simulate"), stage("--train"));
     let r = json(&one.join("validation.json"));
     assert_eq!(members.len(), r["members"].as_array().unwrap().len());
-    assert_eq!(trainings.len(), members.len(), "one seed per placement");
+    assert_eq!(trainings.len(), 2 * members.len(), "one seed per placement and draw");
+    assert_eq!(trainings.iter().filter(|t| t.contains("-draw1-seed0")).count(), members.len(), "{trainings:?}");
+    for (m, t) in r["members"].as_array().unwrap().iter().map(|m| (&m[0], &m[1])) {
+        assert_eq!(t["draw"], serde_json::json!([0, 1]), "{}", m["slug"]);
+        let (a, b) = (t["map"][0].as_f64().unwrap(), t["map"][1].as_f64().unwrap());
+        assert!((t["map_mean"].as_f64().unwrap() - (a + b) / 2.0).abs() < 1e-12, "{t}");
+        // Each draw its own training scenes, the validation scenes shared.
+        let slug = m["slug"].as_str().unwrap();
+        let folders: Vec<std::path::PathBuf> = std::fs::read_dir(one.join("data"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.file_name().unwrap().to_str().unwrap().starts_with(&format!("{slug}-")))
+            .collect();
+        assert_eq!(folders.len(), 2, "{slug}: {folders:?}");
+        let (train0, val0) = annotations_by_split(&folders[0]);
+        let (train1, val1) = annotations_by_split(&folders[1]);
+        assert!(!val0.is_empty() && !train0.is_empty(), "{slug}");
+        assert_eq!(val0, val1, "{slug}: the draws share their validation scenes");
+        assert_ne!(train0, train1, "{slug}: the draws' training scenes differ");
+    }
+    assert!(r["seed_spearman"].is_null(), "one seed per draw: no seed pair");
+    assert!(r["draw_spearman"]["n"].as_u64().unwrap() as usize == members.len(), "{}", r["draw_spearman"]);
+    let md = std::fs::read_to_string(one.join("validation.md")).unwrap();
+    assert!(md.contains("draw 0 against draw 1"), "{md}");
     assert_eq!(
         snake.matches("\nrule ").count(),
         1 + 1 + members.len() + trainings.len(),

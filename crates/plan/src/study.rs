@@ -223,8 +223,15 @@ pub struct ValidationSettings {
     pub lidar_preset: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fusion_preset: Option<String>,
-    /// Trainings per placement.
+    /// Trainings per placement and training-traffic draw.
     pub seeds: usize,
+    /// Training-traffic draws: each placement's training scenes recorded again with other
+    /// traffic (its validation scenes shared, so every training is scored on the same scenes),
+    /// and `seeds` trainings on each. With two or more, the report sets draw 0 against draw 1
+    /// as it sets seed 0 against seed 1: how far a placement's measured accuracy depends on the
+    /// traffic its detector happened to train on.
+    #[serde(default = "one_draw", skip_serializing_if = "is_one_draw")]
+    pub traffic_draws: usize,
     /// The budget b: detectors train to 2b samples and are scored at b and at 2b.
     pub samples: usize,
     /// k of the occupancy predictor: a road user counts when hit by at least k LiDAR points.
@@ -241,10 +248,19 @@ impl Default for ValidationSettings {
             lidar_preset: None,
             fusion_preset: None,
             seeds: 2,
+            traffic_draws: 1,
             samples: 6_000,
             min_points: 5,
         }
     }
+}
+
+fn one_draw() -> usize {
+    1
+}
+
+fn is_one_draw(n: &usize) -> bool {
+    *n == 1
 }
 
 impl ValidationSettings {
@@ -294,6 +310,9 @@ impl ValidationSettings {
         }
         if !(1..=20).contains(&self.seeds) {
             return Err(bad("seeds", self.seeds.to_string(), "give 1 to 20".into()));
+        }
+        if !(1..=10).contains(&self.traffic_draws) {
+            return Err(bad("traffic_draws", self.traffic_draws.to_string(), "give 1 to 10".into()));
         }
         // Detectors train to 2b: b is bounded so that 2b is a schedule (and cannot overflow).
         let most = hilo_detector::config::limits::SAMPLES / 2;

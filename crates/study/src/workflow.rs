@@ -361,12 +361,14 @@ pub fn validation_snakefile(plan: &ValidationPlan, profile: &Profile, wf: &Workf
             out: ".".into(),
         });
     }
-    for (m, d) in plan.members.iter().zip(&data) {
+    for (mi, m) in plan.members.iter().enumerate() {
         let slug = shell_word(&m.slug)?;
+        // One job records the placement's dataset on every training-traffic draw.
+        let draws = (0..plan.settings.traffic_draws as u64).map(|d| data[plan.data_index(mi, d)].clone());
         rules.push(Rule {
             name: rule_name(&["simulate", slug]),
             inputs: vec![set.clone()],
-            outputs: vec![d.clone()],
+            outputs: draws.collect(),
             resources: simulate(all_frames),
             gpu: false,
             log: format!("simulate-{slug}"),

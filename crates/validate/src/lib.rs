@@ -87,6 +87,7 @@ pub(crate) mod testing {
         let t = Trained {
             preset: String::new(),
             map: vec![map],
+            draw: Vec::new(),
             map_mean: map,
             map_at_b: vec![map],
             map_at_b_mean: map,
@@ -114,6 +115,7 @@ pub(crate) mod testing {
             budget_spearman: none,
             budget_kendall: none,
             seed_spearman: None,
+            draw_spearman: None,
             calibrated: None,
             recommendation: None,
             transfer: None,
@@ -148,16 +150,20 @@ pub use hilo_plan::study::ValidationSettings;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Trained {
     pub preset: String,
-    /// mAP per seed at 2b, and its mean.
+    /// mAP per training at 2b (draw 0's seeds, then each later training-traffic draw's), and
+    /// its mean.
     pub map: Vec<f64>,
+    /// The training-traffic draw of each training in `map` (empty: all on draw 0).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub draw: Vec<u64>,
     pub map_mean: f64,
     /// mAP per seed at b.
     pub map_at_b: Vec<f64>,
     pub map_at_b_mean: f64,
     pub pedestrian_ap_mean: f64,
-    /// Per class, AP averaged over seeds at 2b.
+    /// Per class, AP averaged over trainings at 2b.
     pub class_ap: BTreeMap<String, f64>,
-    /// mAP and pedestrian AP at 2b (mean over seeds) under each scene-bootstrap replicate.
+    /// mAP and pedestrian AP at 2b (mean over trainings) under each scene-bootstrap replicate.
     pub map_replicates: Vec<f64>,
     pub pedestrian_replicates: Vec<f64>,
     pub train_s: f64,
@@ -194,6 +200,11 @@ pub struct ValidationReport {
     /// predictor could rank the set, given the training's own noise (None with one seed).
     #[serde(default)]
     pub seed_spearman: Option<Agreement>,
+    /// Two training-traffic draws of the same placements (draw 0 against draw 1, each the mean
+    /// of its seeds): the ceiling once the traffic a detector trained on varies too (None with
+    /// one draw).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draw_spearman: Option<Agreement>,
     /// The calibrated objective, fitted on the set and scored by cross-fitting.
     #[serde(default)]
     pub calibrated: Option<calibrate::Calibrated>,
@@ -271,7 +282,8 @@ pub struct ValidationPlan {
     pub members: Vec<Member>,
     /// The set stage's folder (`set/<h>/`), its `set.json` written last.
     pub set_dir: PathBuf,
-    /// Per member, its dataset stage.
+    /// Per training-traffic draw, per member, its dataset stage ([`ValidationPlan::data_index`]):
+    /// draw 0 first, whose validation scenes every draw shares.
     pub data: Vec<DataStage>,
     /// Every training, `configuration` the member's index.
     pub jobs: Vec<Job>,
@@ -282,6 +294,17 @@ pub struct ValidationPlan {
 impl ValidationPlan {
     pub fn set_file(&self) -> PathBuf {
         self.set_dir.join("set.json")
+    }
+
+    /// The index in `data` of member `member`'s dataset on training-traffic draw `draw`.
+    pub fn data_index(&self, member: usize, draw: u64) -> usize {
+        draw as usize * self.members.len() + member
+    }
+
+    /// How progress names that dataset: the member's slug, with the draw after draw 0.
+    fn data_name(&self, member: usize, draw: u64) -> String {
+        let slug = &self.members[member].slug;
+        if draw == 0 { slug.clone() } else { format!("{slug} (traffic draw {draw})") }
     }
 
     fn member(&self, slug: &str) -> Result<usize> {
@@ -380,19 +403,35 @@ pub fn plan(
             m
         }
     };
-    // 2. A dataset per member, the study's traffic; 3. trainings.
-    let data: Vec<DataStage> = members
-        .iter()
-        .map(|m| {
-            let h = stage_hash("data", &[&set_hash, &m.slug, &format!("{:?}", profile.dataset)]);
-            DataStage { dir: out.join("data").join(format!("{}-{}", m.slug, short(&h))), hash: h }
-        })
-        .collect();
+    // 2. Datasets per member and training-traffic draw, the study's traffic; 3. trainings.
+    let mut data = Vec::new();
+    for draw in 0..settings.traffic_draws as u64 {
+        for m in &members {
+            data.push(member_data(out, &set_hash, &m.slug, &profile.dataset, draw)?.0);
+        }
+    }
     let jobs = jobs(study, &members, &data, registry, profile, settings, out)?;
     Ok(ValidationPlan { out: out.to_owned(), members, set_dir, data, jobs, settings: settings.clone() })
 }
 
-/// Records one member's dataset (skipped when done).
+/// The dataset stage of a placement named `slug` on training-traffic draw `draw` (draw 0 the
+/// study's own traffic; another draw records the training scenes with other traffic and keeps
+/// the validation scenes), `decides` what else names it, with the dataset settings it records.
+pub(crate) fn member_data(
+    out: &Path,
+    decides: &str,
+    slug: &str,
+    dataset: &hilo_core::Valid<hilo_dataset::simulate::SimulateConfig>,
+    draw: u64,
+) -> Result<(DataStage, hilo_core::Valid<hilo_dataset::simulate::SimulateConfig>)> {
+    let dataset =
+        hilo_dataset::simulate::SimulateConfig { train_traffic_draw: draw, ..(**dataset).clone() }.validate()?;
+    let h = stage_hash("data", &[decides, slug, &format!("{dataset:?}")]);
+    let name = if draw == 0 { slug.to_owned() } else { format!("{slug}-draw{draw}") };
+    Ok((DataStage { dir: out.join("data").join(format!("{name}-{}", short(&h))), hash: h }, dataset))
+}
+
+/// Records one member's datasets, one per training-traffic draw (each skipped when done).
 pub fn simulate(
     study: &Study,
     profile: &Profile,
@@ -401,15 +440,30 @@ pub fn simulate(
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<()> {
     let i = plan.member(slug)?;
-    let (m, d) = (&plan.members[i], &plan.data[i]);
-    if d.done().exists() {
-        return Ok(());
-    }
+    let m = &plan.members[i];
     let ppath = plan.set_dir.join(format!("{}.json", m.slug));
-    hilo_plan::stages::record_dataset(study, &m.placement, &ppath, &profile.dataset, d, &m.slug, progress).map(|_| ())
+    for draw in 0..plan.settings.traffic_draws as u64 {
+        let d = &plan.data[plan.data_index(i, draw)];
+        if d.done().exists() {
+            continue;
+        }
+        let dataset = hilo_dataset::simulate::SimulateConfig { train_traffic_draw: draw, ..(*profile.dataset).clone() }
+            .validate()?;
+        hilo_plan::stages::record_dataset(
+            study,
+            &m.placement,
+            &ppath,
+            &dataset,
+            d,
+            &plan.data_name(i, draw),
+            progress,
+        )?;
+    }
+    Ok(())
 }
 
-/// Trains the jobs of one member (all of them, or the one named `only`), skipping those done.
+/// Trains the jobs of one member (all of them, or the one named `only`), skipping those done:
+/// each draw's on that draw's dataset.
 pub fn train(
     registry: &Registry,
     profile: &Profile,
@@ -418,10 +472,21 @@ pub fn train(
     only: Option<&str>,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<Vec<(Job, hilo_plan::stages::JobOutput)>> {
-    let mine: Vec<&Job> =
-        plan.jobs.iter().filter(|j| j.configuration == member && only.is_none_or(|id| j.id == id)).collect();
-    let label = format!("training on {} ({} of {})", plan.members[member].slug, member + 1, plan.members.len());
-    train_on(registry, profile, &plan.data[member].dir, mine, &label, progress)
+    let mut outs = Vec::new();
+    for draw in 0..plan.settings.traffic_draws as u64 {
+        let di = plan.data_index(member, draw);
+        let mine: Vec<&Job> = plan
+            .jobs
+            .iter()
+            .filter(|j| j.configuration == member && j.data == di && only.is_none_or(|id| j.id == id))
+            .collect();
+        if mine.is_empty() {
+            continue;
+        }
+        let label = format!("training on {} ({} of {})", plan.data_name(member, draw), member + 1, plan.members.len());
+        outs.extend(train_on(registry, profile, &plan.data[di].dir, mine, &label, progress)?);
+    }
+    Ok(outs)
 }
 
 /// Trains `jobs` on the dataset in `data` (skipping those done), telling `progress` their share
@@ -516,7 +581,11 @@ fn jobs(
         let p = registry.preset(preset)?;
         let detector_cfg = hilo_plan::plan::patched_detector(study, preset, &p.detector, &profile.dataset)?;
         let schedule = hilo_plan::plan::scheduled(study, preset, &p.train)?;
-        for seed in 0..settings.seeds as u64 {
+        let trainings =
+            (0..settings.traffic_draws as u64).flat_map(|d| (0..settings.seeds as u64).map(move |s| (d, s)));
+        for (draw, seed) in trainings {
+            let di = draw as usize * members.len() + mi;
+            let stage = data.get(di).ok_or(StudyError::Internal("a validation job without its draw's dataset"))?;
             let mut tc = TrainConfig { seed, replicas: 1, sync_batch_norm: false, ..schedule.clone() };
             tc.samples = 2 * settings.samples;
             if let Some(s) = profile.sampling.filter(|_| !named_sampling) {
@@ -526,15 +595,17 @@ fn jobs(
             tc.keep = vec![at_b];
             let detector = serde_json::to_string(&detector_cfg)?;
             let schedule = serde_json::to_string(&tc)?;
-            let h = stage_hash("run", &[&data[mi].hash, &detector, &schedule]);
-            let name = format!("{preset}-seed{seed}-{}", short(&h));
+            let h = stage_hash("run", &[&stage.hash, &detector, &schedule]);
+            let trained =
+                if draw == 0 { format!("{preset}-seed{seed}") } else { format!("{preset}-draw{draw}-seed{seed}") };
+            let name = format!("{trained}-{}", short(&h));
             let detector = detector_cfg.clone().validate()?;
             detector.check_memory(tc.batch, memory)?;
             jobs.push(Job {
-                id: format!("{}/{preset}-seed{seed}", m.slug),
+                id: format!("{}/{trained}", m.slug),
                 configuration: mi,
-                data: mi,
-                draw: 0,
+                data: di,
+                draw,
                 preset: preset.to_owned(),
                 seed,
                 run: out.join("runs").join(&m.slug).join(&name),
@@ -585,8 +656,8 @@ impl Scorer {
         Ok(Scorer { common, cfg, scenes, draws, min_points: settings.min_points })
     }
 
-    /// One placement's trained accuracy (its jobs' detections, one per seed) and the occupancy
-    /// predictors of its dataset.
+    /// One placement's trained accuracy (its jobs' detections, one per training) and the
+    /// occupancy predictors of its dataset (`data`: draw 0's; every draw has its validation scenes).
     pub(crate) fn trained(
         &self,
         data: &Path,
@@ -606,10 +677,12 @@ impl Scorer {
         let (mut mr, mut pr) = (vec![0.0; draws.len()], vec![0.0; draws.len()]);
         let n = outs.len() as f64;
         let preset = outs.first().map(|(j, _)| j.preset.clone()).unwrap_or_default();
-        for (_, o) in outs {
+        let mut draw = Vec::new();
+        for (j, o) in outs {
             let r = rescore(&o.predictions)?;
             let full = r.full(cfg);
             map.push(full.0);
+            draw.push(j.draw);
             ped.push(full.2.get("pedestrian").copied().unwrap_or(f64::NAN));
             for (k, v) in &full.2 {
                 *class_ap.entry(k.clone()).or_default() += v / n;
@@ -630,6 +703,7 @@ impl Scorer {
             map_at_b_mean: mean(&at_b),
             pedestrian_ap_mean: mean(&ped),
             map,
+            draw: if draw.iter().all(|&d| d == 0) { Vec::new() } else { draw },
             map_at_b: at_b,
             class_ap,
             map_replicates: mr,
@@ -651,6 +725,7 @@ fn score(
 ) -> Result<ValidationReport> {
     let scorer = Scorer::new(&data[0].dir, profile, settings, &study.file.evaluation)?;
     let mut trained = Vec::new();
+    // Draw 0's datasets come first; every draw shares their validation scenes.
     for ((m, d), outs) in members.iter_mut().zip(data).zip(outputs) {
         let (t, occupancy) = scorer.trained(&d.dir, &outs)?;
         m.predictors.extend(occupancy);
@@ -670,12 +745,14 @@ fn score(
         budget_spearman,
         budget_kendall,
         seed_spearman,
+        draw_spearman: None,
         calibrated: None,
         recommendation: None,
         transfer: None,
         // Set by the caller, who knows when the run began.
         seconds: 0.0,
     };
+    report.draw_spearman = draw_spearman(&report.members);
     report.calibrated = calibrate::calibrate(&report, settings.seed);
     Ok(report)
 }
@@ -734,12 +811,49 @@ fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, A
         .collect();
     let at_b: Vec<f64> = members.iter().map(|(_, t)| t.map_at_b_mean).collect();
     let (budget_spearman, budget_kendall) = agreement(&at_b, &acc, &map_t, 0.95, 99);
-    let seeds = members.iter().all(|(_, t)| t.map.len() >= 2) && !members.is_empty();
-    let seed_spearman = seeds.then(|| {
-        let (a, b): (Vec<f64>, Vec<f64>) = members.iter().map(|(_, t)| (t.map[0], t.map[1])).unzip();
+    // Seed 0 against seed 1, both on draw 0's traffic.
+    let pairs: Option<Vec<(f64, f64)>> = members
+        .iter()
+        .map(|(_, t)| {
+            let mut on_first = t.map.iter().enumerate().filter(|(i, _)| t.draw_of(*i) == 0).map(|(_, v)| *v);
+            Some((on_first.next()?, on_first.next()?))
+        })
+        .collect();
+    let seed_spearman = pairs.filter(|p| !p.is_empty()).map(|p| {
+        let (a, b): (Vec<f64>, Vec<f64>) = p.into_iter().unzip();
         agreement(&a, &b, &vec![b.clone(); draws.max(1)], 0.95, 98).0
     });
     (rows, budget_spearman, budget_kendall, seed_spearman)
+}
+
+/// Draw 0 against draw 1 (each placement's mean over its seeds on each): how well any predictor
+/// could rank the set, given the traffic a detector happened to train on as well as its seed
+/// (None with one draw). Its interval is over placements alone.
+fn draw_spearman(members: &[(Member, Trained)]) -> Option<Agreement> {
+    let means: Option<Vec<(f64, f64)>> =
+        members.iter().map(|(_, t)| Some((t.draw_mean(0)?, t.draw_mean(1)?))).collect();
+    let (a, b): (Vec<f64>, Vec<f64>) = means.filter(|m| !m.is_empty())?.into_iter().unzip();
+    let resamples = members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0).max(1);
+    Some(agreement(&a, &b, &vec![b.clone(); resamples], 0.95, 97).0)
+}
+
+impl Trained {
+    /// The training-traffic draw of training `i` of `map`.
+    pub fn draw_of(&self, i: usize) -> u64 {
+        self.draw.get(i).copied().unwrap_or(0)
+    }
+
+    /// mAP at 2b averaged over the trainings on draw `draw` (None when it has none).
+    pub fn draw_mean(&self, draw: u64) -> Option<f64> {
+        let on: Vec<f64> =
+            self.map.iter().enumerate().filter(|(i, _)| self.draw_of(*i) == draw).map(|(_, v)| *v).collect();
+        (!on.is_empty()).then(|| on.iter().sum::<f64>() / on.len() as f64)
+    }
+
+    /// The training-traffic draws its trainings used.
+    pub fn draws(&self) -> usize {
+        (0..self.map.len()).map(|i| self.draw_of(i)).collect::<std::collections::BTreeSet<_>>().len()
+    }
 }
 
 /// Reads `<out>/validation.json`, computes the placement predictors again with this build (a
@@ -762,6 +876,7 @@ fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationRepo
         *m = a;
     }
     (r.predictors, r.budget_spearman, r.budget_kendall, r.seed_spearman) = agreements(&r.members);
+    r.draw_spearman = draw_spearman(&r.members);
     let before = r.calibrated.as_ref().map(calibrate::weights);
     r.calibrated = calibrate::calibrate(&r, r.settings.seed);
     // A recommendation trained for other weights is not this fit's.
@@ -889,13 +1004,17 @@ pub fn markdown(r: &ValidationReport) -> String {
         r.members.iter().filter(|(m, _)| m.predictors.get(set::PAPER_OBJECTIVE).is_some_and(|v| v.is_none())).count();
     s.push_str("# Does the objective predict accuracy?\n\n");
     s.push_str(&format!(
-        "{} placements of {} ({} of one modality), each trained {} time(s) at {} samples (scored at b = {} and 2b), \
+        "{} placements of {} ({} of one modality), each trained {} time(s){} at {} samples (scored at b = {} and 2b), \
          profile `{}` ({} validation scenes), {:.0} s. Rank agreement of each predictor with the mean trained mAP and \
          pedestrian AP; 95% intervals from {} bootstrap replicates over placements and validation scenes.\n\n",
         r.members.len(),
         r.study,
         lidar_only,
         r.settings.seeds,
+        match r.settings.traffic_draws {
+            1 => String::new(),
+            d => format!(" on each of {d} training-traffic draws (the validation scenes shared)"),
+        },
         2 * r.settings.samples,
         r.settings.samples,
         r.profile,
@@ -932,6 +1051,14 @@ pub fn markdown(r: &ValidationReport) -> String {
             fmt_agreement(a)
         ));
     }
+    if let Some(a) = &r.draw_spearman {
+        s.push_str(&format!(
+            "The traffic's share: every placement's detectors trained on another draw of training traffic (draw 0 \
+             against draw 1, each the mean of its seeds, scored on the same validation scenes) rank the set at \
+             Spearman ρ {} — the ceiling for a predictor of a placement measured on one draw of traffic.\n\n",
+            fmt_agreement(a)
+        ));
+    }
     if let Some(c) = &r.calibrated {
         s.push_str(&calibrated_markdown(r, c));
     }
@@ -942,7 +1069,7 @@ pub fn markdown(r: &ValidationReport) -> String {
         s.push_str(&recommend::markdown(rec));
     }
     s.push_str("## Every placement\n\n");
-    s.push_str("| placement | kind | sensors | cost (USD) | paper objective | LiDAR coverage | occupancy | detector | mAP at b | mAP at 2b (seeds) | pedestrian AP |\n|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|\n");
+    s.push_str("| placement | kind | sensors | cost (USD) | paper objective | LiDAR coverage | occupancy | detector | mAP at b | mAP at 2b (trainings) | pedestrian AP |\n|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|\n");
     for (m, t) in &r.members {
         let p = |k: &str| m.predictors.get(k).copied().flatten();
         let sensors: BTreeMap<&str, usize> = m.placement.sensors.iter().fold(BTreeMap::new(), |mut a, x| {
@@ -962,11 +1089,20 @@ pub fn markdown(r: &ValidationReport) -> String {
             t.preset,
             t.map_at_b_mean,
             t.map_mean,
-            t.map.iter().map(|v| format!("{v:.3}")).collect::<Vec<_>>().join(", "),
+            trainings(t),
             t.pedestrian_ap_mean
         ));
     }
     s
+}
+
+/// A member's mAP per training at 2b: seeds joined by commas, training-traffic draws by slashes.
+fn trainings(t: &Trained) -> String {
+    let mut by_draw: BTreeMap<u64, Vec<String>> = BTreeMap::new();
+    for (i, v) in t.map.iter().enumerate() {
+        by_draw.entry(t.draw_of(i)).or_default().push(format!("{v:.3}"));
+    }
+    by_draw.values().map(|v| v.join(", ")).collect::<Vec<_>>().join(" / ")
 }
 
 /// Whether a member is a recommendation added to the set ([`absorb`]) rather than drawn.
@@ -1143,7 +1279,7 @@ fn scatter(out: &Path, stem: &str, r: &ValidationReport, name: &str) -> Result<b
     let chart = XY {
         title: &title,
         x_label: name,
-        y_label: "mAP (mean over seeds; bars: seed range)",
+        y_label: "mAP (mean over trainings; bars: their range)",
         x: (xmin - pad(xmin, xmax), xmax + pad(xmin, xmax)),
         y: ((ymin - pad(ymin, ymax)).max(0.0), (ymax + pad(ymin, ymax)).min(1.0)),
         series: &series,
@@ -1172,4 +1308,54 @@ pub fn sites(paths: &[PathBuf], out: &Path, seed: u64) -> Result<sites::SitesRep
                   # rig's mAP, with how far the study's junction lies from these sites.\n";
     hilo_core::fs::write_atomic(&out.join("calibration.toml"), format!("{header}{toml}").as_bytes())?;
     Ok(r)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    /// Members whose trainings are `map` on `draw` (in that order).
+    fn trained(map: &[(u64, f64)]) -> Trained {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(0);
+        let (_, mut t) = testing::member(0, BTreeMap::new(), 0.0, 20, &mut rng);
+        t.map = map.iter().map(|x| x.1).collect();
+        t.draw = map.iter().map(|x| x.0).collect();
+        t
+    }
+
+    /// Seeds pair within draw 0, draws pair by their seeds' means; a set of one draw has no draw
+    /// agreement, and the trainings read per draw.
+    #[test]
+    fn seeds_pair_within_a_draw_and_draws_by_their_means() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        // Draw 0 orders the placements one way, draw 1 the opposite way; seed 0 and seed 1 of
+        // draw 0 agree exactly.
+        let members: Vec<(Member, Trained)> = (0..8)
+            .map(|i| {
+                let (m, _) = testing::member(i, BTreeMap::new(), 0.0, 20, &mut rng);
+                let (up, down) = (0.1 * i as f64, 0.8 - 0.1 * i as f64);
+                (m, trained(&[(0, up), (0, up + 0.01), (1, down), (1, down + 0.02)]))
+            })
+            .collect();
+        let (_, _, _, seed) = agreements(&members);
+        assert!((seed.unwrap().value - 1.0).abs() < 1e-12);
+        let draw = draw_spearman(&members).unwrap();
+        assert!((draw.value + 1.0).abs() < 1e-12, "{draw:?}");
+        assert_eq!(draw.n, 8);
+        let t = &members[2].1;
+        assert_eq!(t.draws(), 2);
+        assert!((t.draw_mean(1).unwrap() - 0.61).abs() < 1e-12);
+        assert_eq!(t.draw_mean(2), None);
+        assert_eq!(trainings(t), "0.200, 0.210 / 0.600, 0.620");
+        // One draw: no draw agreement; one seed per draw: no seed pair (draw 1 is no second seed).
+        let one: Vec<(Member, Trained)> =
+            members.iter().map(|(m, t)| (m.clone(), Trained { draw: Vec::new(), ..t.clone() })).collect();
+        assert_eq!(draw_spearman(&one), None);
+        let single: Vec<(Member, Trained)> =
+            members.iter().map(|(m, t)| (m.clone(), trained(&[(0, t.map[0]), (1, t.map[2])]))).collect();
+        assert_eq!(agreements(&single).3, None);
+        assert!(draw_spearman(&single).is_some());
+    }
 }

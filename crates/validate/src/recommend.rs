@@ -11,10 +11,9 @@
 //! what decides it, so a rerun resumes.
 
 use super::set::{Member, calibrated_member};
-use super::{Scorer, Trained, ValidationReport, calibrate, jobs, train_on};
+use super::{Scorer, Trained, ValidationReport, calibrate, jobs, member_data, train_on};
 use hilo_detector::Registry;
 use hilo_plan::error::Result;
-use hilo_plan::plan::{DataStage, short, stage_hash};
 use hilo_plan::profile::Profile;
 use hilo_plan::stages::Progress;
 use hilo_plan::study::Study;
@@ -73,23 +72,37 @@ pub fn recommend(
     let pjson = member.placement.to_json()?;
     let ppath = out.join("recommendation").join(format!("{}.json", member.slug));
     hilo_core::fs::write_atomic(&ppath, pjson.as_bytes())?;
-    let h = stage_hash("data", &[&pjson, &member.slug, &format!("{:?}", profile.dataset)]);
-    let data = DataStage { dir: out.join("data").join(format!("{}-{}", member.slug, short(&h))), hash: h };
-    if !data.done().exists() {
-        hilo_plan::stages::record_dataset(
-            study,
-            &member.placement,
-            &ppath,
-            &profile.dataset,
-            &data,
-            &member.slug,
-            progress,
-        )?;
+    // Its datasets, one per training-traffic draw, and its trainings on each, as a member's.
+    let mut data = Vec::new();
+    for draw in 0..r.settings.traffic_draws.max(1) as u64 {
+        let (stage, dataset) = member_data(out, &pjson, &member.slug, &profile.dataset, draw)?;
+        if !stage.done().exists() {
+            hilo_plan::stages::record_dataset(
+                study,
+                &member.placement,
+                &ppath,
+                &dataset,
+                &stage,
+                &member.slug,
+                progress,
+            )?;
+        }
+        data.push(stage);
     }
-    let all =
-        jobs(study, std::slice::from_ref(&member), std::slice::from_ref(&data), registry, profile, &r.settings, out)?;
-    let label = format!("training the recommendation {}", member.slug);
-    let outs = train_on(registry, profile, &data.dir, all.iter().collect(), &label, progress)?;
+    let all = jobs(study, std::slice::from_ref(&member), &data, registry, profile, &r.settings, out)?;
+    let mut outs = Vec::new();
+    for (di, d) in data.iter().enumerate() {
+        let label = format!("training the recommendation {}", member.slug);
+        outs.extend(train_on(
+            registry,
+            profile,
+            &d.dir,
+            all.iter().filter(|j| j.data == di).collect(),
+            &label,
+            progress,
+        )?);
+    }
+    let data = &data[0];
     let scorer = Scorer::new(&data.dir, profile, &r.settings, &study.file.evaluation)?;
     let (trained, occupancy) = scorer.trained(&data.dir, &outs)?;
     let mut member = member;
