@@ -279,8 +279,7 @@ pub struct ValidateArgs {
     /// Trainings per placement and traffic draw (overrides `validation.seeds`).
     #[arg(long)]
     pub seeds: Option<usize>,
-    /// Training-traffic draws per placement (overrides `validation.traffic_draws`): each
-    /// placement's training scenes recorded again with other traffic, `--seeds` trainings on each.
+    /// Training-traffic draws per placement, `--seeds` trainings on each (overrides `validation.traffic_draws`).
     #[arg(long, value_parser = hilo_study::profile::draws_arg)]
     pub traffic_draws: Option<usize>,
     /// The budget b in samples (overrides `validation.samples`): trained to 2b, scored at b and 2b.
@@ -312,8 +311,7 @@ pub struct ValidateArgs {
     /// placement's dataset.
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "train", "resume", "transfer"])]
     pub simulate: Option<String>,
-    /// One stage of the validation in --out: this training (`<placement>/<preset>-seed<k>`, or
-    /// `<placement>/<preset>-draw<d>-seed<k>` on a later training-traffic draw).
+    /// One stage of the validation in --out: this training (`<placement>/<preset>[-draw<d>]-seed<k>`).
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "resume", "transfer"])]
     pub train: Option<String>,
     /// Run what remains of the validation in --out with the study, profile and settings it
@@ -410,12 +408,8 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     if let Some(n) = args.placements {
         settings.placements = n;
     }
-    if let Some(n) = args.seeds {
-        settings.seeds = n;
-    }
-    if let Some(n) = args.traffic_draws {
-        settings.traffic_draws = n;
-    }
+    settings.seeds = args.seeds.unwrap_or(settings.seeds);
+    settings.traffic_draws = args.traffic_draws.unwrap_or(settings.traffic_draws);
     if let Some(n) = args.samples {
         settings.samples = n;
     }
