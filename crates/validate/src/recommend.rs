@@ -90,9 +90,9 @@ pub fn recommend(
         data.push(stage);
     }
     let all = jobs(study, std::slice::from_ref(&member), &data, registry, profile, &r.settings, out)?;
+    let label = format!("training the recommendation {}", member.slug);
     let mut outs = Vec::new();
     for (di, d) in data.iter().enumerate() {
-        let label = format!("training the recommendation {}", member.slug);
         outs.extend(train_on(
             registry,
             profile,
