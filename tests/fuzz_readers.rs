@@ -128,6 +128,7 @@ fn validation_json() -> String {
                 map_at_b: vec![map],
                 map_at_b_mean: map,
                 pedestrian_ap_mean: map,
+                pedestrian_ap: vec![map],
                 class_ap: [("car".to_owned(), map)].into(),
                 map_replicates: vec![map; 4],
                 pedestrian_replicates: vec![map; 4],

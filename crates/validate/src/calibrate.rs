@@ -368,10 +368,11 @@ pub struct Transfer {
     pub rmse: f64,
 }
 
-/// Each member's mAP under scene-bootstrap replicate k, for each k every member has.
+/// Each member's mAP under replicate k, for each k every member has: its validation scenes and
+/// its trainings (seeds and training-traffic draws) resampled ([`crate::resample`]).
 pub(crate) fn replicates(r: &ValidationReport) -> Vec<Vec<f64>> {
-    let n = r.members.iter().map(|(_, t)| t.map_replicates.len()).min().unwrap_or(0);
-    (0..n).map(|k| r.members.iter().map(|(_, t)| t.map_replicates[k]).collect()).collect()
+    let trained: Vec<&crate::Trained> = r.members.iter().map(|(_, t)| t).collect();
+    crate::resample::map_replicates(&trained, r.settings.seed)
 }
 
 /// The first of [`FEATURES`] that some member of `r` lacks (a set scored by a build from before

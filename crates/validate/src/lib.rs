@@ -10,7 +10,7 @@
 //! rig has a radar, its LiDAR-only counterpart with the same head otherwise) to 2b samples,
 //! keeping the weights at b, scores both on the common ground truth under the study's scene
 //! bootstrap, and reports Spearman's ρ and Kendall's τ of every predictor with mAP and
-//! pedestrian AP, with intervals from a bootstrap over placements and scenes ([`rank`]),
+//! pedestrian AP, with intervals from a bootstrap over placements, scenes and trainings ([`rank`], [`resample`]),
 //! and τ between the accuracies at b and 2b (does the budget rank placements as longer
 //! training would?).
 //!
@@ -47,6 +47,7 @@ pub mod calibrate;
 pub mod occupancy;
 pub mod rank;
 pub mod recommend;
+pub mod resample;
 pub mod set;
 pub mod sites;
 
@@ -92,6 +93,7 @@ pub(crate) mod testing {
             map_at_b: vec![map],
             map_at_b_mean: map,
             pedestrian_ap_mean: map,
+            pedestrian_ap: Vec::new(),
             class_ap: BTreeMap::new(),
             map_replicates: (0..replicates).map(|_| map + rng.random_range(-0.005..0.005)).collect(),
             pedestrian_replicates: vec![map; replicates],
@@ -161,6 +163,10 @@ pub struct Trained {
     pub map_at_b: Vec<f64>,
     pub map_at_b_mean: f64,
     pub pedestrian_ap_mean: f64,
+    /// Pedestrian AP at 2b per training, in the order of `map` (empty in sets from before it
+    /// was recorded).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub pedestrian_ap: Vec<f64>,
     /// Per class, AP averaged over trainings at 2b.
     pub class_ap: BTreeMap<String, f64>,
     /// mAP and pedestrian AP at 2b (mean over trainings) under each scene-bootstrap replicate.
@@ -714,6 +720,7 @@ impl Scorer {
             map_mean: mean(&map),
             map_at_b_mean: mean(&at_b),
             pedestrian_ap_mean: mean(&ped),
+            pedestrian_ap: ped,
             map,
             draw: if draw.iter().all(|&d| d == 0) { Vec::new() } else { draw },
             map_at_b: at_b,
@@ -770,15 +777,12 @@ fn score(
 }
 
 /// Every predictor's agreement with mAP and pedestrian AP, the budget's (mAP at b against 2b),
-/// with intervals from the members' scene-bootstrap replicates, and seed 0's with seed 1's
+/// with intervals from the members' scenes and trainings resampled ([`resample`]), and seed 0's with seed 1's
 /// (intervals over placements alone).
 fn agreements(members: &[(Member, Trained)]) -> (Vec<PredictorRow>, Agreement, Agreement, Option<Agreement>) {
-    let draws = members.iter().map(|(_, t)| t.map_replicates.len().min(t.pedestrian_replicates.len())).min();
-    let draws = draws.unwrap_or(0);
-    let transpose = |f: &dyn Fn(&Trained) -> &Vec<f64>| -> Vec<Vec<f64>> {
-        (0..draws).map(|r| members.iter().map(|(_, t)| f(t)[r]).collect()).collect()
-    };
-    let (map_t, ped_t) = (transpose(&|t| &t.map_replicates), transpose(&|t| &t.pedestrian_replicates));
+    let trained: Vec<&Trained> = members.iter().map(|(_, t)| t).collect();
+    let (map_t, ped_t) = (resample::map_replicates(&trained, 0), resample::pedestrian_replicates(&trained, 0));
+    let draws = map_t.len().min(ped_t.len());
     let acc: Vec<f64> = members.iter().map(|(_, t)| t.map_mean).collect();
     let ped: Vec<f64> = members.iter().map(|(_, t)| t.pedestrian_ap_mean).collect();
     let mut names: Vec<String> =
@@ -1013,7 +1017,7 @@ pub fn markdown(r: &ValidationReport) -> String {
     s.push_str(&format!(
         "{} placements of {} ({} of one modality), each trained {} time(s){} at {} samples (scored at b = {} and 2b), \
          profile `{}` ({} validation scenes), {:.0} s. Rank agreement of each predictor with the mean trained mAP and \
-         pedestrian AP; 95% intervals from {} bootstrap replicates over placements and validation scenes.\n\n",
+         pedestrian AP; 95% intervals from {} bootstrap replicates over {}.\n\n",
         r.members.len(),
         r.study,
         lidar_only,
@@ -1028,6 +1032,7 @@ pub fn markdown(r: &ValidationReport) -> String {
         r.validation_scenes,
         r.seconds,
         r.resamples,
+        resample::units(&r.members.iter().map(|(_, t)| t).collect::<Vec<&Trained>>()),
     ));
     s.push_str("| predictor | ρ with mAP | τ with mAP | ρ with pedestrian AP | τ with pedestrian AP | placements |\n|---|---:|---:|---:|---:|---:|\n");
     for p in &r.predictors {

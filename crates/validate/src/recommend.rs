@@ -134,7 +134,7 @@ fn rival(study: &Study, r: &ValidationReport, rec: &Trained, budget_usd: f64) ->
                 && m.placement.cost_usd <= budget_usd + 1e-6
         })
         .max_by(|a, b| a.1.map_mean.total_cmp(&b.1.map_mean))?;
-    let mut d: Vec<f64> = rec.map_replicates.iter().zip(&t.map_replicates).map(|(a, b)| a - b).collect();
+    let mut d = crate::resample::difference_replicates(rec, t, r.settings.seed);
     d.sort_by(f64::total_cmp);
     Some(Rival {
         placement: m.slug.clone(),
@@ -191,8 +191,8 @@ pub fn markdown(r: &Recommendation) -> String {
     match &r.rival {
         Some(v) => s.push_str(&format!(
             "The best configuration of the study at equal or lower cost, {} ({:.0} USD, placed for the paper's \
-             objective: {}), measured {:.3}: the recommendation {} by {:+.3} mAP [{:+.3}, {:+.3}] (95%, scene \
-             bootstrap of seed means){}.\n\n",
+             objective: {}), measured {:.3}: the recommendation {} by {:+.3} mAP [{:+.3}, {:+.3}] (95%, scenes \
+             and trainings resampled, the traffic draws jointly){}.\n\n",
             v.configuration,
             v.cost_usd,
             v.placement,

@@ -106,6 +106,10 @@ pub struct SitesReport {
     /// ranked the held-out sites better, with its prediction model and the sites' ranges.
     pub shipped: hilo_placement_ip::calibrated::file::CalibrationFile,
     pub seed: u64,
+    /// What the intervals resample: placements and scenes, and the trainings of the sites
+    /// that have several (seeds, training-traffic draws; [`crate::resample`]).
+    #[serde(default)]
+    pub resampled: String,
 }
 
 /// The objective fitted on every site, as `[placement] calibration` takes it.
@@ -490,7 +494,25 @@ pub fn leave_one_site_out(sites: &[(&str, &ValidationReport)], seed: u64) -> Res
         best_placement_baseline_spearman,
         placement_difference,
         seed,
+        resampled: resampled(sites),
     })
+}
+
+/// The bootstrap's units in words: placements and validation scenes, and each placement's
+/// trainings at the sites that record several.
+fn resampled(sites: &[(&str, &ValidationReport)]) -> String {
+    let several: Vec<String> = sites
+        .iter()
+        .filter(|(_, r)| r.members.iter().any(|(_, t)| t.map.len() > 1))
+        .map(|(name, r)| {
+            let draws = r.members.iter().any(|(_, t)| t.draw.iter().any(|d| *d != 0));
+            format!("{name} ({})", if draws { "traffic draws, then seeds" } else { "seeds" })
+        })
+        .collect();
+    match several.is_empty() {
+        true => "placements and validation scenes (one training per placement: not the trainings)".into(),
+        false => format!("placements, validation scenes and the trainings of {}", several.join(", ")),
+    }
 }
 
 /// `sites.md`: per held-out site the calibrated objective's ranking beside the baselines, then
@@ -500,8 +522,9 @@ pub fn markdown(r: &SitesReport) -> String {
     s.push_str(&format!(
         "Leave one site out over {} sites: each site's placements ranked by the objective fitted on the others \
          (features chosen by the leave-one-site-out error among the fitting sites), 95% intervals from the \
-         bootstrap over placements and validation scenes.\n\n",
-        r.sites.len()
+         bootstrap over {}.\n\n",
+        r.sites.len(),
+        r.resampled
     ));
     s.push_str("| held-out site | profile, commit | placements | ρ [95%] | τ [95%] | ρ, better half | mean error | RMSE | inside 95% interval | best baseline here (ρ) |\n|---|---|---:|---|---|---|---:|---:|---:|---|\n");
     for h in &r.held_out {
@@ -529,7 +552,7 @@ pub fn markdown(r: &SitesReport) -> String {
     s.push_str(&format!(
         "\nMean ρ over held-out sites: calibrated {:+.2}; the best baseline, **{}**, {:+.2} (chosen as the best \
          mean over these sites, with hindsight). Calibrated − baseline: **{}** (paired bootstrap over every site's \
-         placements and scenes, on the placements where the baseline is defined).\n\n",
+         placements, scenes and trainings, on the placements where the baseline is defined).\n\n",
         r.mean_spearman,
         r.best_baseline,
         r.best_baseline_spearman,
