@@ -21,7 +21,8 @@ fn json(path: &std::path::Path) -> serde_json::Value {
 fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     let dir = tempfile::tempdir().unwrap();
     let study = dir.path().join("coarse.toml");
-    std::fs::write(&study, COARSE).unwrap();
+    // Two rigs near the budget, for the recommendation's regret.
+    std::fs::write(&study, COARSE.replace("placements = 12\n", "placements = 12\nnear_budget = 2\n")).unwrap();
     let out = dir.path().join("validation");
     let run = |extra: &[&str]| {
         let o = hilo()
@@ -87,6 +88,20 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     let rival = &rec["rival"];
     assert!((rival["difference"].as_f64().unwrap() - (measured - rival["map_mean"].as_f64().unwrap())).abs() < 1e-12);
     assert!(rival["cost_usd"].as_f64().unwrap() <= rec["budget_usd"].as_f64().unwrap() + 1e-6);
+    // Its regret among the rigs within ±10% of the budget, the two drawn there among them.
+    let budget = rec["budget_usd"].as_f64().unwrap();
+    let near: Vec<&serde_json::Value> = r["members"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|m| (m[0]["placement"]["cost_usd"].as_f64().unwrap() - budget).abs() <= 0.1 * budget + 1e-6)
+        .collect();
+    let kinds: Vec<&str> = near.iter().map(|m| m[0]["kind"].as_str().unwrap()).collect();
+    assert!(kinds.contains(&"near-budget-greedy") && kinds.contains(&"near-budget-random"), "{kinds:?}");
+    let g = &rec["regret"];
+    assert_eq!(g["rigs"].as_array().unwrap().len(), near.len(), "{g}");
+    let best = near.iter().map(|m| m[1]["map_mean"].as_f64().unwrap()).fold(f64::NEG_INFINITY, f64::max);
+    assert!((g["regret"].as_f64().unwrap() - (best - measured).max(0.0)).abs() < 1e-12, "{g}");
     let md = std::fs::read_to_string(out.join("validation.md")).unwrap();
     assert!(md.contains("## The calibrated recommendation, trained"), "{md}");
     // --refit with the same fit keeps the recommendation; --recommend again resumes it.

@@ -232,6 +232,12 @@ pub struct ValidationSettings {
     /// traffic its detector happened to train on.
     #[serde(default = "one_draw", skip_serializing_if = "is_one_draw")]
     pub traffic_draws: usize,
+    /// Rigs drawn near the budget: this many more placements whose cost lies within ±10% of
+    /// the study's budget, of type counts drawn among those the budget allows, alternately at
+    /// greedy and at random poses. With a calibrated recommendation they are what its regret
+    /// is measured against (0: none).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub near_budget: usize,
     /// The budget b: detectors train to 2b samples and are scored at b and at 2b.
     pub samples: usize,
     /// k of the occupancy predictor: a road user counts when hit by at least k LiDAR points.
@@ -249,6 +255,7 @@ impl Default for ValidationSettings {
             fusion_preset: None,
             seeds: 2,
             traffic_draws: 1,
+            near_budget: 0,
             samples: 6_000,
             min_points: 5,
         }
@@ -261,6 +268,10 @@ fn one_draw() -> usize {
 
 fn is_one_draw(n: &usize) -> bool {
     *n == 1
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 impl ValidationSettings {
@@ -310,6 +321,9 @@ impl ValidationSettings {
         }
         if !(1..=20).contains(&self.seeds) {
             return Err(bad("seeds", self.seeds.to_string(), "give 1 to 20".into()));
+        }
+        if self.near_budget > 100 {
+            return Err(bad("near_budget", self.near_budget.to_string(), "give 0 to 100".into()));
         }
         if !(1..=10).contains(&self.traffic_draws) {
             return Err(bad("traffic_draws", self.traffic_draws.to_string(), "give 1 to 10".into()));

@@ -33,6 +33,23 @@ pub struct Rival {
     pub hi: f64,
 }
 
+/// The recommendation's regret among the set's rigs within ±10% of its budget: the best
+/// measured mAP among them and it, less its own.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Regret {
+    /// The members compared (every member of the set within ±10% of the budget).
+    pub rigs: Vec<String>,
+    /// The best of them, and its mAP.
+    pub best: String,
+    pub best_map: f64,
+    /// max(0, best − recommendation), with its 95% interval: under each replicate (scenes and
+    /// each rig's trainings resampled) the best rig is found again, so the interval carries
+    /// which rig wins as well as by how much.
+    pub regret: f64,
+    pub lo: f64,
+    pub hi: f64,
+}
+
 /// The calibrated recommendation, trained and scored.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Recommendation {
@@ -46,6 +63,9 @@ pub struct Recommendation {
     /// Whether the measured mAP lies inside that interval.
     pub inside: bool,
     pub rival: Option<Rival>,
+    /// Against the rigs near the budget (None when the set has none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub regret: Option<Regret>,
 }
 
 /// Places, simulates, trains and scores the calibrated recommendation of `r` (resuming what
@@ -108,6 +128,7 @@ pub fn recommend(
     let mut member = member;
     member.predictors.extend(occupancy);
     let rival = rival(study, r, &trained, budget_usd);
+    let regret = regret(r, &trained, budget_usd);
     Ok(Some(Recommendation {
         budget_usd,
         inside: (lo..=hi).contains(&trained.map_mean),
@@ -117,6 +138,7 @@ pub fn recommend(
         lo,
         hi,
         rival,
+        regret,
     }))
 }
 
@@ -142,6 +164,32 @@ fn rival(study: &Study, r: &ValidationReport, rec: &Trained, budget_usd: f64) ->
         cost_usd: m.placement.cost_usd,
         map_mean: t.map_mean,
         difference: rec.map_mean - t.map_mean,
+        lo: crate::rank::percentile(&d, 0.025),
+        hi: crate::rank::percentile(&d, 0.975),
+    })
+}
+
+/// The regret of the recommendation `rec` among the members of `r` that cost within ±10% of
+/// `budget_usd` (None when none does).
+pub fn regret(r: &ValidationReport, rec: &Trained, budget_usd: f64) -> Option<Regret> {
+    let near: Vec<&(Member, Trained)> = r
+        .members
+        .iter()
+        .filter(|(m, _)| (m.placement.cost_usd - budget_usd).abs() <= 0.1 * budget_usd + 1e-6)
+        .collect();
+    let (bm, bt) = near.iter().max_by(|a, b| a.1.map_mean.total_cmp(&b.1.map_mean))?;
+    let mut all: Vec<&Trained> = vec![rec];
+    all.extend(near.iter().map(|(_, t)| t));
+    let mut d: Vec<f64> = crate::resample::map_replicates(&all, r.settings.seed)
+        .iter()
+        .map(|rep| (rep[1..].iter().copied().fold(f64::NEG_INFINITY, f64::max) - rep[0]).max(0.0))
+        .collect();
+    d.sort_by(f64::total_cmp);
+    Some(Regret {
+        rigs: near.iter().map(|(m, _)| m.slug.clone()).collect(),
+        best: bm.slug.clone(),
+        best_map: bt.map_mean,
+        regret: (bt.map_mean - rec.map_mean).max(0.0),
         lo: crate::rank::percentile(&d, 0.025),
         hi: crate::rank::percentile(&d, 0.975),
     })
@@ -205,5 +253,61 @@ pub fn markdown(r: &Recommendation) -> String {
         )),
         None => s.push_str("No configuration of the study costs as little as the budget.\n\n"),
     }
+    if let Some(g) = &r.regret {
+        s.push_str(&format!(
+            "Against the {} placements of the set within ±10% of the budget, the best measured is {} ({:.3});              the recommendation's regret (the best of them and it, less its own mAP) is {:.3} mAP [{:.3}, {:.3}]              (95%; under each resample of scenes and trainings the best rig is found again).\n\n",
+            g.rigs.len(),
+            g.best,
+            g.best_map,
+            g.regret,
+            g.lo,
+            g.hi
+        ));
+    }
     s
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::testing;
+    use rand::SeedableRng;
+    use std::collections::BTreeMap;
+
+    /// Rigs near a $20,000 budget measuring `maps` at costs `costs`.
+    fn set(maps: &[f64], costs: &[f64]) -> ValidationReport {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(2);
+        let members = maps
+            .iter()
+            .zip(costs)
+            .enumerate()
+            .map(|(i, (&map, &cost))| {
+                let (mut m, t) = testing::member(i, BTreeMap::new(), map, 200, &mut rng);
+                m.placement.cost_usd = cost;
+                (m, t)
+            })
+            .collect();
+        testing::report(members, 200, "s.toml", "quick")
+    }
+
+    /// The regret is the best near-budget rig's lead, or 0 when the recommendation is best;
+    /// rigs outside ±10% of the budget are not compared; a set without any gives none.
+    #[test]
+    fn regret_compares_the_rigs_within_a_tenth_of_the_budget() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(9);
+        let (_, rec) = testing::member(99, BTreeMap::new(), 0.60, 200, &mut rng);
+        // 0.90 costs $23,000 (15% over): left out. The best within the band is 0.64.
+        let r = set(&[0.50, 0.64, 0.90, 0.55], &[18_500.0, 21_900.0, 23_000.0, 20_000.0]);
+        let g = regret(&r, &rec, 20_000.0).unwrap();
+        assert_eq!(g.rigs, ["p0", "p1", "p3"]);
+        assert_eq!(g.best, "p1");
+        assert!((g.regret - 0.04).abs() < 1e-12);
+        // The replicates move each mAP by under ±0.005: the interval is 0.04 ± 0.01.
+        assert!(g.lo > 0.029 && g.hi < 0.051 && g.lo <= g.regret && g.regret <= g.hi, "{g:?}");
+        let (_, best) = testing::member(98, BTreeMap::new(), 0.70, 200, &mut rng);
+        let g = regret(&r, &best, 20_000.0).unwrap();
+        assert_eq!((g.regret, g.lo, g.hi), (0.0, 0.0, 0.0));
+        assert_eq!(regret(&r, &rec, 40_000.0), None);
+    }
 }

@@ -6,7 +6,10 @@
 //! two radars, the budgeted optimum at the cost of the dearest configuration), the optimum and
 //! greedy's answer; then, in turn over the count configurations, the optimum with one sensor
 //! moved (another mount, yaw or tilt) and a random selection, until the set has the size asked.
-//! Candidates offer every tilt of the `[validation]` section, so poses differ in tilt too.
+//! With `near_budget = N`, N more rigs whose cost lies within ±10% of the budget: type counts
+//! drawn among every count the budget's band allows ([`counts_near`]), placed alternately by
+//! greedy and at random; the recommendation's regret is measured against the set's rigs in that
+//! band. Candidates offer every tilt of the `[validation]` section, so poses differ in tilt too.
 //! Same seed, same set.
 
 use super::ValidationSettings;
@@ -29,8 +32,8 @@ use std::collections::{BTreeMap, BTreeSet};
 pub struct Member {
     /// File-name-safe and unique: `m<k>-<kind>-<configuration slug>`.
     pub slug: String,
-    /// optimum (proven), best-found (a solve stopped at its time limit), greedy, perturbed or
-    /// random.
+    /// optimum (proven), best-found (a solve stopped at its time limit), greedy, perturbed,
+    /// random, near-budget-greedy or near-budget-random.
     pub kind: String,
     pub configuration: String,
     pub placement: Placement,
@@ -248,6 +251,15 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
             push(kind, &confs[*ci].name, placed(inst, &prep, &sel), false, &mut drawn);
         }
     }
+    if v.near_budget > 0
+        && let Some(conf) = budget_configuration(study)
+    {
+        let ctypes = conf.type_names();
+        let inst = instance(&prep, &study.catalog, &ctypes, pc.p_min)?;
+        for (kind, sel) in near_budget(&inst, &limit_for(&conf, &ctypes), v.near_budget, &mut rng) {
+            push(kind, &conf.name, placed(&inst, &prep, &sel), false, &mut drawn);
+        }
+    }
     if drawn.len() < v.placements {
         return Err(StudyError::setting(
             &study.source,
@@ -353,6 +365,75 @@ pub fn recompute_from(study: &Study, v: &ValidationSettings, members: &[Member],
             Ok(Member { predictors, ..m.clone() })
         })
         .collect()
+}
+
+/// Every count of each type (within the limit's minimum and maximum, one sensor per mount)
+/// whose cost lies within ±10% of a budget limit's dollars; none under another limit.
+pub fn counts_near(inst: &Instance, limit: &Limit) -> Vec<Vec<u32>> {
+    let Limit::Budget { usd, min, max } = limit else { return Vec::new() };
+    let mounts = inst.options.iter().map(|o| o.mount).collect::<BTreeSet<u32>>().len() as u32;
+    let (lo, hi) = (0.9 * usd, 1.1 * usd);
+    let mut out = Vec::new();
+    let mut counts = vec![0u32; inst.types.len()];
+    fn walk(
+        inst: &Instance,
+        t: usize,
+        (min, max, mounts): (&[u32], &[u32], u32),
+        (lo, hi, cost): (f64, f64, f64),
+        counts: &mut Vec<u32>,
+        out: &mut Vec<Vec<u32>>,
+    ) {
+        if t == counts.len() {
+            if cost >= lo && cost > 0.0 {
+                out.push(counts.clone());
+            }
+            return;
+        }
+        let used: u32 = counts[..t].iter().sum();
+        let price = inst.types[t].price_usd;
+        let first = min.get(t).copied().unwrap_or(0);
+        let last = max.get(t).copied().unwrap_or(u32::MAX).min(mounts.saturating_sub(used));
+        let mut n = first;
+        while n <= last && cost + n as f64 * price <= hi {
+            counts[t] = n;
+            walk(inst, t + 1, (min, max, mounts), (lo, hi, cost + n as f64 * price), counts, out);
+            if price <= 0.0 {
+                break;
+            }
+            n += 1;
+        }
+        counts[t] = 0;
+    }
+    walk(inst, 0, (min, max, mounts), (lo, hi, 0.0), &mut counts, &mut out);
+    out
+}
+
+/// `n` rigs whose cost lies within ±10% of the budget: type counts drawn without repetition
+/// until each has been used (then again), each placed alternately by greedy and at random.
+fn near_budget(inst: &Instance, limit: &Limit, n: usize, rng: &mut impl Rng) -> Vec<(&'static str, Vec<usize>)> {
+    let all = counts_near(inst, limit);
+    let mut out = Vec::new();
+    let mut pool: Vec<usize> = Vec::new();
+    let mut attempts = 0;
+    while out.len() < n && !all.is_empty() && attempts < 20 * n {
+        attempts += 1;
+        if pool.is_empty() {
+            pool = (0..all.len()).collect();
+        }
+        let counts = all[pool.swap_remove(rng.random_range(0..pool.len()))].clone();
+        let size = counts.iter().sum::<u32>() as usize;
+        let limit = Limit::Counts(counts);
+        let (kind, sel) = if out.len().is_multiple_of(2) {
+            ("near-budget-greedy", Some(greedy(inst, &limit).selection))
+        } else {
+            ("near-budget-random", random(inst, &limit, rng))
+        };
+        // Greedy stops when no sensor adds coverage: keep only rigs of the counts drawn.
+        if let Some(sel) = sel.filter(|s| s.len() == size) {
+            out.push((kind, sel));
+        }
+    }
+    out
 }
 
 /// The optimum with one sensor moved to another option of its type (another mount, or the same
@@ -556,6 +637,69 @@ mod tests {
     fn coarse() -> Study {
         let text = include_str!("../../../fixtures/validation-coarse.toml");
         Study::parse(text, std::path::Path::new("."), "validation-coarse.toml").unwrap()
+    }
+
+    /// The counts near a budget are every count vector a brute force over a box finds within
+    /// ±10% of the dollars, no more sensors than mounts, each type within its minimum and
+    /// maximum; and the rigs drawn near the coarse scene's budget cost that much, have the
+    /// counts drawn, and alternate greedy and random poses.
+    #[test]
+    fn rigs_near_the_budget_cost_within_a_tenth_of_it() {
+        let ty = |name: &str, modality, price_usd| hilo_placement_ip::instance::SensorType {
+            name: name.into(),
+            modality,
+            price_usd,
+        };
+        let types =
+            vec![ty("a", Modality::Lidar, 4000.0), ty("b", Modality::Lidar, 7500.0), ty("r", Modality::Radar, 2750.0)];
+        let options = (0..7)
+            .map(|m| hilo_placement_ip::instance::SensorOption {
+                ty: m % 3,
+                candidate: m as u32,
+                mount: m as u32 / 2,
+                row: vec![],
+            })
+            .collect();
+        let inst =
+            Instance { weights: vec![], types, options, p_min: 0.5, road_users: vec![], points: Default::default() };
+        let limit = Limit::Budget { usd: 22_750.0, min: vec![0, 0, 1], max: vec![u32::MAX, 2, u32::MAX] };
+        let mut brute = Vec::new();
+        for a in 0..10u32 {
+            for b in 0..10u32 {
+                for r in 0..10u32 {
+                    let cost = 4000.0 * a as f64 + 7500.0 * b as f64 + 2750.0 * r as f64;
+                    if (cost - 22_750.0).abs() <= 2275.0 && a + b + r <= 4 && b <= 2 && r >= 1 {
+                        brute.push(vec![a, b, r]);
+                    }
+                }
+            }
+        }
+        let mut found = counts_near(&inst, &limit);
+        found.sort();
+        assert_eq!(found, brute);
+        assert!(!brute.is_empty());
+        assert!(counts_near(&inst, &Limit::Counts(vec![1, 1, 1])).is_empty());
+
+        let study = coarse();
+        let v = &study.file.validation;
+        let pc = settings_with_tilts(&study, v).unwrap();
+        let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc).unwrap();
+        let conf = budget_configuration(&study).unwrap();
+        let ctypes = conf.type_names();
+        let inst = instance(&prep, &study.catalog, &ctypes, pc.p_min).unwrap();
+        let limit = limit_for(&conf, &ctypes);
+        let usd = conf.budget_usd.unwrap();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let rigs = near_budget(&inst, &limit, 6, &mut rng);
+        assert_eq!(rigs.len(), 6);
+        for (i, (kind, sel)) in rigs.iter().enumerate() {
+            assert!((inst.cost(sel) - usd).abs() <= 0.1 * usd + 1e-6, "{kind}: {}", inst.cost(sel));
+            assert_eq!(*kind, if i % 2 == 0 { "near-budget-greedy" } else { "near-budget-random" });
+            let mounts: BTreeSet<u32> = sel.iter().map(|&o| inst.options[o].mount).collect();
+            assert_eq!(mounts.len(), sel.len(), "one sensor per mount");
+        }
+        let mut again = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        assert_eq!(near_budget(&inst, &limit, 6, &mut again), rigs);
     }
 
     /// A fit that weighs the point-count term places its recommendation with the counts of every
