@@ -890,9 +890,19 @@ fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationRepo
     r.draw_spearman = draw_spearman(&r.members);
     let before = r.calibrated.as_ref().map(calibrate::weights);
     r.calibrated = calibrate::calibrate(&r, r.settings.seed);
-    // A recommendation trained for other weights is not this fit's.
+    // A recommendation trained for other weights is not this fit's; one kept is compared
+    // again (the set's rigs and this build's intervals).
     if r.calibrated.as_ref().map(calibrate::weights) != before {
         r.recommendation = None;
+    }
+    if let Some(rec) = &r.recommendation {
+        let (rival, regret) = (
+            recommend::rival(study, &r, &rec.trained, rec.budget_usd),
+            recommend::regret(&r, &rec.trained, rec.budget_usd),
+        );
+        if let Some(rec) = &mut r.recommendation {
+            (rec.rival, rec.regret) = (rival, regret);
+        }
     }
     Ok(r)
 }

@@ -3,8 +3,10 @@
 //! of the set was (same detector rule, seeds and budget) and scored on the common ground
 //! truth; its measured mAP is set beside the calibrated prediction's 95% interval and beside
 //! the best configuration of the study at equal or lower cost (its optimum under the paper's
-//! objective, a member of the set), with the difference's interval from the scene bootstrap
-//! (the same draws for both, over the means of their seeds; the seeds' spread is shown apart).
+//! objective, a member of the set), with the difference's interval from resampled scenes and
+//! trainings (the same scenes and traffic draws for both, each one's seeds apart:
+//! [`crate::resample::difference_replicates`]), and against the set's rigs within ±10% of the
+//! budget, its regret. `--refit` compares a kept recommendation again.
 //!
 //! Its stages live beside the set's: `recommendation/<member>.json` (the placement),
 //! `data/<member>-<h>/`, `runs/<member>/…`, `results/<member>/…`, each named by the hash of
@@ -27,7 +29,7 @@ pub struct Rival {
     pub configuration: String,
     pub cost_usd: f64,
     pub map_mean: f64,
-    /// Recommendation minus rival, mAP, and its 95% scene-bootstrap interval.
+    /// Recommendation minus rival, mAP, and its 95% interval (scenes and trainings resampled).
     pub difference: f64,
     pub lo: f64,
     pub hi: f64,
@@ -144,7 +146,7 @@ pub fn recommend(
 
 /// The best-measured optimum (or best-found placement) of the study's own configurations that
 /// costs no more than the budget.
-fn rival(study: &Study, r: &ValidationReport, rec: &Trained, budget_usd: f64) -> Option<Rival> {
+pub(crate) fn rival(study: &Study, r: &ValidationReport, rec: &Trained, budget_usd: f64) -> Option<Rival> {
     let own: Vec<&str> =
         study.file.configurations.iter().filter(|c| c.budget_usd.is_none()).map(|c| c.name.as_str()).collect();
     let (m, t) = r
