@@ -257,7 +257,9 @@ pub fn markdown(r: &Recommendation) -> String {
     }
     if let Some(g) = &r.regret {
         s.push_str(&format!(
-            "Against the {} placements of the set within ±10% of the budget, the best measured is {} ({:.3});              the recommendation's regret (the best of them and it, less its own mAP) is {:.3} mAP [{:.3}, {:.3}]              (95%; under each resample of scenes and trainings the best rig is found again).\n\n",
+            "Against the {} placements of the set within ±10% of the budget, the best measured is {} ({:.3}); \
+             the recommendation's regret (the best of them and it, less its own mAP) is {:.3} mAP [{:.3}, {:.3}] \
+             (95%; under each resample of scenes and trainings the best rig is found again).\n\n",
             g.rigs.len(),
             g.best,
             g.best_map,
