@@ -578,7 +578,7 @@ pub fn markdown(r: &SitesReport) -> String {
         r.pooled.intercept
     ));
     s.push_str(&format!(
-        "`calibration.toml` (beside this file; `calibration_file = \"calibration.toml\"` in a study file) ships {}          (mean held-out ρ {:+.2}), with its prediction of a rig's mAP and the range of its terms over these sites.\n\n",
+        "`calibration.toml` (beside this file; `calibration_file = \"calibration.toml\"` in a study file) ships {} (mean held-out ρ {:+.2}), with its prediction of a rig's mAP and the range of its terms over these sites.\n\n",
         r.shipped.choice, r.shipped.held_out_spearman
     ));
     s.push_str("## The fits\n\n| held-out site | fitted on | intercept | weights | inner leave-one-site-out RMSE | between-site s.d. |\n|---|---|---:|---|---:|---:|\n");
