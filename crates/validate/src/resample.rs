@@ -41,13 +41,8 @@ struct Accuracy<'a> {
 
 /// mAP replicates of `trained` (one per placement), scenes and trainings resampled together.
 pub fn map_replicates(trained: &[&Trained], seed: u64) -> Replicates {
-    let acc: Vec<Accuracy> = trained
-        .iter()
-        .map(|t| Accuracy {
-            trainings: t.map.iter().enumerate().map(|(i, v)| (t.draw_of(i), *v)).collect(),
-            scene: &t.map_replicates,
-        })
-        .collect();
+    let acc: Vec<Accuracy> =
+        trained.iter().map(|t| Accuracy { trainings: trainings(t, &t.map), scene: &t.map_replicates }).collect();
     resample(&acc, seed)
 }
 
@@ -58,10 +53,7 @@ pub fn pedestrian_replicates(trained: &[&Trained], seed: u64) -> Replicates {
         .iter()
         .map(|t| {
             let per = if t.pedestrian_ap.len() == t.map.len() { t.pedestrian_ap.as_slice() } else { &[] };
-            Accuracy {
-                trainings: per.iter().enumerate().map(|(i, v)| (t.draw_of(i), *v)).collect(),
-                scene: &t.pedestrian_replicates,
-            }
+            Accuracy { trainings: trainings(t, per), scene: &t.pedestrian_replicates }
         })
         .collect();
     resample(&acc, seed)
@@ -74,10 +66,11 @@ pub fn pedestrian_replicates(trained: &[&Trained], seed: u64) -> Replicates {
 /// draws differ are resampled independently instead.
 pub fn difference_replicates(a: &Trained, b: &Trained, seed: u64) -> Vec<f64> {
     let n_reps = a.map_replicates.len().min(b.map_replicates.len());
-    let (da, db) = (
-        by_draw(&a.map.iter().enumerate().map(|(i, v)| (a.draw_of(i), *v)).collect::<Vec<_>>()),
-        by_draw(&b.map.iter().enumerate().map(|(i, v)| (b.draw_of(i), *v)).collect::<Vec<_>>()),
+    let (ta, tb) = (
+        Accuracy { trainings: trainings(a, &a.map), scene: &[] },
+        Accuracy { trainings: trainings(b, &b.map), scene: &[] },
     );
+    let (da, db) = (by_draw(&ta.trainings), by_draw(&tb.trainings));
     let finite = a.map.iter().chain(&b.map).all(|v| v.is_finite());
     let joint = da.keys().eq(db.keys());
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x6469_6666_5f74_7261);
@@ -89,12 +82,8 @@ pub fn difference_replicates(a: &Trained, b: &Trained, seed: u64) -> Vec<f64> {
                 return scene;
             }
             if !joint {
-                let one = |t: &Trained, rng: &mut rand_chacha::ChaCha8Rng| {
-                    let trainings: Vec<(u64, f64)> =
-                        t.map.iter().enumerate().map(|(i, v)| (t.draw_of(i), *v)).collect();
-                    if trainings.len() < 2 { 0.0 } else { offset(&Accuracy { trainings, scene: &[] }, &none, rng) }
-                };
-                return scene + one(a, &mut rng) - one(b, &mut rng);
+                let mut one = |t: &Accuracy| if t.trainings.len() < 2 { 0.0 } else { offset(t, &none, &mut rng) };
+                return scene + one(&ta) - one(&tb);
             }
             let draws: Vec<&u64> = da.keys().collect();
             let pick: Vec<&u64> = (0..draws.len()).map(|_| draws[rng.random_range(0..draws.len())]).collect();
@@ -106,19 +95,31 @@ pub fn difference_replicates(a: &Trained, b: &Trained, seed: u64) -> Vec<f64> {
             } else {
                 da.values().chain(db.values()).map(Vec::len).max().unwrap_or(1)
             };
-            let scale = if units > 1 { (units as f64 / (units as f64 - 1.0)).sqrt() } else { 0.0 };
-            scene + (mean(&drawn) - full) * scale
+            scene + (mean(&drawn) - full) * correction(units)
         })
         .collect()
 }
 
-/// What a set's replicates resample, for a report: "placements, validation scenes and …".
-pub fn units(trained: &[&Trained]) -> &'static str {
+/// What the replicates resample when every placement has one training.
+pub const ONE_TRAINING: &str = "placements and validation scenes (one training per placement: not the trainings)";
+
+/// Which trainings a set's replicates resample: none (one training per placement), "seeds",
+/// or "traffic draws, then seeds".
+pub fn trainings_resampled(trained: &[&Trained]) -> Option<&'static str> {
     let draws = trained.iter().any(|t| t.draw.iter().any(|d| *d != 0));
     match (trained.iter().any(|t| t.map.len() > 1), draws) {
-        (false, _) => "placements and validation scenes (one training per placement: not the trainings)",
-        (true, false) => "placements, validation scenes and each placement's seeds",
-        (true, true) => "placements, validation scenes and each placement's trainings (traffic draws, then seeds)",
+        (false, _) => None,
+        (true, false) => Some("seeds"),
+        (true, true) => Some("traffic draws, then seeds"),
+    }
+}
+
+/// What a set's replicates resample, for a report: "placements, validation scenes and …".
+pub fn units(trained: &[&Trained]) -> String {
+    match trainings_resampled(trained) {
+        None => ONE_TRAINING.into(),
+        Some("seeds") => "placements, validation scenes and each placement's seeds".into(),
+        Some(k) => format!("placements, validation scenes and each placement's trainings ({k})"),
     }
 }
 
@@ -176,8 +177,18 @@ fn offset(a: &Accuracy, shift: &BTreeMap<u64, f64>, rng: &mut impl Rng) -> f64 {
         })
         .collect();
     let units = if draws > 1 { draws } else { centred.first().map_or(1, Vec::len) };
-    let scale = if units > 1 { (units as f64 / (units as f64 - 1.0)).sqrt() } else { 0.0 };
-    (mean(&drawn) - full) * scale
+    (mean(&drawn) - full) * correction(units)
+}
+
+/// √(n/(n − 1)): the bootstrap's variance of a mean of n units made the mean's (0 for one
+/// unit, which has nothing to resample).
+fn correction(units: usize) -> f64 {
+    if units > 1 { (units as f64 / (units as f64 - 1.0)).sqrt() } else { 0.0 }
+}
+
+/// `(draw, value)` per training of `t`, `values` in the order of its `map`.
+fn trainings(t: &Trained, values: &[f64]) -> Vec<(u64, f64)> {
+    values.iter().enumerate().map(|(i, v)| (t.draw_of(i), *v)).collect()
 }
 
 /// The mean of `v` resampled with replacement.

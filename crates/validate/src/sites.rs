@@ -503,14 +503,13 @@ pub fn leave_one_site_out(sites: &[(&str, &ValidationReport)], seed: u64) -> Res
 fn resampled(sites: &[(&str, &ValidationReport)]) -> String {
     let several: Vec<String> = sites
         .iter()
-        .filter(|(_, r)| r.members.iter().any(|(_, t)| t.map.len() > 1))
-        .map(|(name, r)| {
-            let draws = r.members.iter().any(|(_, t)| t.draw.iter().any(|d| *d != 0));
-            format!("{name} ({})", if draws { "traffic draws, then seeds" } else { "seeds" })
+        .filter_map(|(name, r)| {
+            let trained: Vec<&crate::Trained> = r.members.iter().map(|(_, t)| t).collect();
+            crate::resample::trainings_resampled(&trained).map(|k| format!("{name} ({k})"))
         })
         .collect();
     match several.is_empty() {
-        true => "placements and validation scenes (one training per placement: not the trainings)".into(),
+        true => crate::resample::ONE_TRAINING.into(),
         false => format!("placements, validation scenes and the trainings of {}", several.join(", ")),
     }
 }
