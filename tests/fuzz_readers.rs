@@ -152,6 +152,7 @@ fn validation_json() -> String {
         draw_spearman: None,
         calibrated: None,
         recommendation: None,
+        frozen: Vec::new(),
         transfer: None,
         seconds: 1.0,
     })

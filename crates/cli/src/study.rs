@@ -285,30 +285,31 @@ pub struct ValidateArgs {
     /// The budget b in samples (overrides `validation.samples`): trained to 2b, scored at b and 2b.
     #[arg(long)]
     pub samples: Option<usize>,
-    /// Only compute the placement predictors and fit the calibrated objective again from
-    /// --out's validation.json (no simulation, no training; the study must be the one validated).
+    /// Only recompute the predictors and refit from --out's validation.json (no simulation, no training).
     #[arg(long)]
     pub refit: bool,
     /// Refit as --refit does, then place the rig the calibrated objective buys under the
     /// study's budget and simulate, train and score it as the set was (resumes from --out).
     #[arg(long, conflicts_with = "refit")]
     pub recommend: bool,
+    /// With --recommend: place and predict with this calibration's frozen weights (from `validate --sites`).
+    #[arg(long, value_name = "CALIBRATION_TOML", requires = "recommend", conflicts_with = "absorb")]
+    pub calibration: Option<PathBuf>,
+    /// With --calibration: the budget in USD (the study's budgeted configuration's when omitted).
+    #[arg(long, requires = "calibration")]
+    pub budget: Option<f64>,
     /// Add --out's trained recommendation to the placement set and fit again; with
     /// --recommend, then place and train the rig the new fit buys (one more turn of the loop).
     #[arg(long, conflicts_with = "refit")]
     pub absorb: bool,
-    /// Predict every placement of --out's finished set (its recorded predictors; after --refit or
-    /// --recommend when given) with the calibrated objective of another finished validation (its
-    /// `validation.json`), its weights frozen: does the fit carry to traffic, rigs and trainings
-    /// it never saw?
+    /// Predict --out's finished set (after --refit or --recommend when given) with the calibrated
+    /// objective of another finished validation (its `validation.json`), its weights frozen.
     #[arg(long, value_name = "VALIDATION_JSON")]
     pub transfer: Option<PathBuf>,
-    /// Draw the placement set, then write the validation as a workflow for this engine
-    /// (`snakemake`) into --out instead of running it.
+    /// Draw the placement set, then write the validation as a workflow (`snakemake`) into --out.
     #[arg(long, value_enum, conflicts_with_all = ["refit", "recommend", "absorb", "transfer"])]
     pub workflow: Option<Engine>,
-    /// One stage of the validation in --out (as its Snakefile runs it): record this
-    /// placement's dataset.
+    /// One stage of the validation in --out (as its Snakefile runs it): record this placement's dataset.
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "train", "resume", "transfer"])]
     pub simulate: Option<String>,
     /// One stage of the validation in --out: this training (`<placement>/<preset>[-draw<d>]-seed<k>`).
@@ -318,9 +319,8 @@ pub struct ValidateArgs {
     /// records (the Snakefile's last step: scores, fit, recommendation).
     #[arg(long, conflicts_with_all = ["refit", "recommend", "absorb", "workflow", "transfer"])]
     pub resume: bool,
-    /// Leave one site out over these finished validations (each a site's validation.json; at
-    /// least three): the calibrated objective fitted on the other sites ranks each site's
-    /// placements, beside baselines that need no fit. Writes sites.json and sites.md into --out.
+    /// Leave one site out over these finished validations (each a site's validation.json, three or
+    /// more), beside baselines that need no fit; writes sites.json, sites.md and calibration.toml.
     #[arg(long, value_name = "VALIDATION_JSON", num_args = 1.., conflicts_with_all = ["study", "refit", "recommend", "absorb", "workflow", "transfer", "resume", "simulate", "train"])]
     pub sites: Vec<PathBuf>,
 }
@@ -389,14 +389,13 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
             let registry = crate::train::registry()?;
             let profile = hilo_study::profile(report.profile.parse()?, &study, &registry)?;
             let mut reporter = Reporter::new();
-            report.recommendation = hilo_study::validation::recommend::recommend(
-                &study,
-                &registry,
-                &profile,
-                &report,
-                &args.out,
-                &mut |p| reporter.study(p),
-            )?;
+            let mut on = |p: hilo_study::Progress| reporter.study(p);
+            use hilo_study::validation::recommend;
+            if let Some(path) = &args.calibration {
+                recommend::frozen(&study, &registry, &profile, &mut report, (path, args.budget), &args.out, &mut on)?;
+            } else {
+                report.recommendation = recommend::recommend(&study, &registry, &profile, &report, &args.out, &mut on)?;
+            }
         }
         wrote(hilo_study::validation::write(&args.out, &report)?);
         return Ok(());

@@ -134,6 +134,81 @@ fn a_tiny_validation_trains_the_set_and_the_calibrated_recommendation() {
     refuses_what_would_fit_the_wrong_thing(&study, &out);
     leaves_each_site_out(dir.path(), &out.join("validation.json"));
     places_with_the_sites_calibration(dir.path(), &study);
+    recommends_with_a_frozen_calibration(dir.path(), &study, &out);
+}
+
+/// The buying decision with a calibration fitted elsewhere: `--recommend --calibration FILE
+/// [--budget USD]` places the rig the file's frozen weights buy at this junction, trains it as the
+/// set's members were, and keeps it beside the others (one per file and budget, in order of
+/// budget), with the file's prediction and the regret among the set's rigs near its budget; a
+/// rerun resumes to the same result, --refit keeps them, and a bad budget or file is refused by
+/// name with nothing changed.
+fn recommends_with_a_frozen_calibration(dir: &std::path::Path, study: &std::path::Path, out: &std::path::Path) {
+    let file = dir.join("loso").join("calibration.toml");
+    let frozen = |extra: &[&str]| {
+        let o = hilo()
+            .arg("validate")
+            .arg(study)
+            .args(["--profile", "tiny", "--seeds", "1", "--samples", "4", "--out"])
+            .arg(out)
+            .args(["--recommend", "--calibration"])
+            .arg(&file)
+            .args(extra)
+            .output()
+            .unwrap();
+        (o.status.success(), String::from_utf8_lossy(&o.stderr).to_string())
+    };
+    let (ok, err) = frozen(&[]);
+    assert!(ok, "{err}");
+    let budget = json(&out.join("validation.json"))["frozen"][0]["budget_usd"].as_f64().unwrap();
+    let low = format!("{:.0}", 0.6 * budget);
+    let (ok, err) = frozen(&["--budget", low.as_str()]);
+    assert!(ok, "{err}");
+    let r = json(&out.join("validation.json"));
+    let recs = r["frozen"].as_array().unwrap();
+    assert_eq!(recs.len(), 2, "{recs:?}");
+    assert!(recs[0]["budget_usd"].as_f64().unwrap() < recs[1]["budget_usd"].as_f64().unwrap());
+    assert!((recs[0]["budget_usd"].as_f64().unwrap() - low.parse::<f64>().unwrap()).abs() < 1e-9);
+    for rec in recs {
+        assert!(rec["member"]["kind"].as_str().unwrap().starts_with("frozen"), "{rec}");
+        assert!(rec["member"]["placement"]["cost_usd"].as_f64().unwrap() <= rec["budget_usd"].as_f64().unwrap() + 1e-6);
+        assert_eq!(rec["frozen"]["file"].as_str().unwrap(), file.display().to_string());
+        assert_eq!(rec["frozen"]["fitted_on"].as_array().unwrap().len(), 3);
+        let (p, lo, hi) =
+            (rec["predicted"].as_f64().unwrap(), rec["lo"].as_f64().unwrap(), rec["hi"].as_f64().unwrap());
+        assert!(lo < p && p < hi, "{rec}");
+        assert_eq!(rec["trained"]["map"].as_array().unwrap().len(), 1, "trained as the members were: one seed");
+    }
+    let md = std::fs::read_to_string(out.join("validation.md")).unwrap();
+    assert_eq!(md.matches("## A calibration fitted elsewhere, frozen").count(), 2, "{md}");
+    // A rerun at the same budget resumes to the same rig and numbers, in place of the old one.
+    let (ok, err) = frozen(&["--budget", low.as_str()]);
+    assert!(ok, "{err}");
+    let again = json(&out.join("validation.json"));
+    assert_eq!(again["frozen"], r["frozen"]);
+    let o = hilo().arg("validate").arg(study).arg("--out").arg(out).arg("--refit").output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(json(&out.join("validation.json"))["frozen"].as_array().unwrap().len(), 2);
+    let before = std::fs::read(out.join("validation.json")).unwrap();
+    let (ok, err) = frozen(&["--budget", "0"]);
+    assert!(!ok && err.contains("--budget 0") && err.contains("positive"), "{err}");
+    let bad = dir.join("bad-calibration.toml");
+    std::fs::write(&bad, "fitted_on = 3\n").unwrap();
+    let o = hilo()
+        .arg("validate")
+        .arg(study)
+        .arg("--out")
+        .arg(out)
+        .arg("--recommend")
+        .arg("--calibration")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("bad-calibration.toml") && err.contains("fitted_on"), "{err}");
+    let o = hilo().arg("validate").arg(study).arg("--out").arg(out).args(["--budget", "9000"]).output().unwrap();
+    assert!(!o.status.success(), "--budget without --calibration is refused");
+    assert_eq!(std::fs::read(out.join("validation.json")).unwrap(), before, "validation.json unchanged");
 }
 
 /// The user's path at a junction no validation has seen: a study file naming the calibration

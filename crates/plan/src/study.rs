@@ -616,7 +616,7 @@ fn apply_calibration(
 }
 
 /// Reads a calibration file; the error names the file and what is wrong in it.
-fn load_calibration(path: &Path) -> Result<hilo_placement_ip::calibrated::file::CalibrationFile> {
+pub fn load_calibration(path: &Path) -> Result<hilo_placement_ip::calibrated::file::CalibrationFile> {
     let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
         .map_err(|e| StudyError::from(hilo_core::fs::FileError::io(path, e)))?;
     hilo_placement_ip::calibrated::file::CalibrationFile::from_toml(&text).map_err(|message| {

@@ -102,6 +102,12 @@ pub(crate) mod testing {
         (m, t)
     }
 
+    /// The coarse validation fixture's study (`fixtures/validation-coarse.toml`).
+    pub fn study() -> hilo_plan::study::Study {
+        let text = include_str!("../../../fixtures/validation-coarse.toml");
+        hilo_plan::study::Study::parse(text, std::path::Path::new("."), "validation-coarse.toml").unwrap()
+    }
+
     /// The report of `members` (study and profile named as given), nothing scored or fitted.
     pub fn report(members: Vec<(Member, Trained)>, resamples: usize, study: &str, profile: &str) -> ValidationReport {
         let none = Agreement { value: f64::NAN, lo: f64::NAN, hi: f64::NAN, n: 0 };
@@ -120,6 +126,7 @@ pub(crate) mod testing {
             draw_spearman: None,
             calibrated: None,
             recommendation: None,
+            frozen: Vec::new(),
             transfer: None,
             seconds: 0.0,
         }
@@ -217,6 +224,10 @@ pub struct ValidationReport {
     /// The rig it buys under the study's budget, trained.
     #[serde(default)]
     pub recommendation: Option<recommend::Recommendation>,
+    /// The rigs calibrations fitted at other junctions buy here, their weights frozen, trained
+    /// (`hilo validate --recommend --calibration FILE [--budget USD]`), in order of budget.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frozen: Vec<recommend::Recommendation>,
     /// The calibrated objective of another validation set predicting this one, its weights
     /// frozen (`hilo validate --transfer`).
     #[serde(default)]
@@ -573,6 +584,11 @@ pub fn run(
     let mut report = score(study, profile, settings, plan.members, added, &plan.data, outputs)?;
     // 5. The rig the calibrated objective buys, trained as the members were.
     report.recommendation = recommend::recommend(study, registry, profile, &report, out, progress)?;
+    // Frozen recommendations trained in this folder before stay, compared with the set again.
+    if out.join("validation.json").exists() {
+        report.frozen = read(out)?.frozen;
+        recommend::compare_again(study, &mut report);
+    }
     report.seconds = t0.elapsed().as_secs_f64();
     Ok(report)
 }
@@ -767,6 +783,7 @@ fn score(
         draw_spearman: None,
         calibrated: None,
         recommendation: None,
+        frozen: Vec::new(),
         transfer: None,
         // Set by the caller, who knows when the run began.
         seconds: 0.0,
@@ -895,15 +912,7 @@ fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationRepo
     if r.calibrated.as_ref().map(calibrate::weights) != before {
         r.recommendation = None;
     }
-    if let Some(rec) = &r.recommendation {
-        let (rival, regret) = (
-            recommend::rival(study, &r, &rec.trained, rec.budget_usd),
-            recommend::regret(&r, &rec.trained, rec.budget_usd),
-        );
-        if let Some(rec) = &mut r.recommendation {
-            (rec.rival, rec.regret) = (rival, regret);
-        }
-    }
+    recommend::compare_again(study, &mut r);
     Ok(r)
 }
 
@@ -1087,7 +1096,7 @@ pub fn markdown(r: &ValidationReport) -> String {
     if let Some(t) = &r.transfer {
         s.push_str(&transfer_markdown(t));
     }
-    if let Some(rec) = &r.recommendation {
+    for rec in r.recommendation.iter().chain(&r.frozen) {
         s.push_str(&recommend::markdown(rec));
     }
     s.push_str("## Every placement\n\n");

@@ -12,10 +12,10 @@
 //! `data/<member>-<h>/`, `runs/<member>/…`, `results/<member>/…`, each named by the hash of
 //! what decides it, so a rerun resumes.
 
-use super::set::{Member, calibrated_member};
+use super::set::{Member, budget_configuration, calibrated_member, frozen_member};
 use super::{Scorer, Trained, ValidationReport, calibrate, jobs, member_data, train_on};
 use hilo_detector::Registry;
-use hilo_plan::error::Result;
+use hilo_plan::error::{Result, StudyError};
 use hilo_plan::profile::Profile;
 use hilo_plan::stages::Progress;
 use hilo_plan::study::Study;
@@ -52,6 +52,18 @@ pub struct Regret {
     pub hi: f64,
 }
 
+/// Where a recommendation placed by a calibration fitted at other junctions came from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Frozen {
+    /// The calibration file, as given.
+    pub file: String,
+    /// The validations it was fitted on, and which objective it ships (its `fitted_on`, `choice`).
+    pub fitted_on: Vec<String>,
+    pub choice: String,
+    /// How far the rig lies from what the fit saw.
+    pub advice: String,
+}
+
 /// The calibrated recommendation, trained and scored.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Recommendation {
@@ -68,6 +80,9 @@ pub struct Recommendation {
     /// Against the rigs near the budget (None when the set has none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub regret: Option<Regret>,
+    /// Placed and predicted by a calibration file fitted elsewhere (None: by the set's own fit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frozen: Option<Frozen>,
 }
 
 /// Places, simulates, trains and scores the calibrated recommendation of `r` (resuming what
@@ -86,11 +101,125 @@ pub fn recommend(
     if c.weights.iter().all(|w| *w == 0.0) {
         return Ok(None);
     }
-    let Some(budget) = super::set::budget_configuration(study) else { return Ok(None) };
+    let Some(budget) = budget_configuration(study) else { return Ok(None) };
     let Some(budget_usd) = budget.budget_usd else { return Ok(None) };
     progress(Progress::Stage("validation: placing the calibrated recommendation"));
     let member = calibrated_member(study, &r.settings, &calibrate::weights(c), &budget, r.members.len())?;
-    let Some((predicted, lo, hi)) = calibrate::predict(r, &member) else { return Ok(None) };
+    let Some(predicted) = calibrate::predict(r, &member) else { return Ok(None) };
+    let (member, trained) = train_member(study, registry, profile, r, member, out, progress)?;
+    Ok(Some(compared(study, r, member, trained, budget_usd, predicted, None)))
+}
+
+/// The rig the calibration file at `path` (fitted at other junctions, its weights frozen) buys
+/// at this study's junction under `budget_usd` (the study's budgeted configuration when None,
+/// whose sensor types and bounds it keeps), trained and scored as the set's members were, set
+/// beside the file's prediction and the set's rigs near that budget, and kept among `r`'s frozen
+/// recommendations ([`keep_frozen`]). Resumes what `out` holds. An error that names the file for
+/// a bad calibration file, and one when the study has no budgeted configuration or the budget
+/// is not positive.
+pub fn frozen(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    r: &mut ValidationReport,
+    (path, budget_usd): (&Path, Option<f64>),
+    out: &Path,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<()> {
+    let file = hilo_plan::study::load_calibration(path)?;
+    if file.weights.named().iter().all(|(_, w)| *w == 0.0) {
+        let path = path.display();
+        return Err(StudyError::setting(&path.to_string(), "weights", "0 for every term", "nothing to place for"));
+    }
+    let Some(mut conf) = budget_configuration(study) else {
+        return Err(StudyError::setting(
+            &study.source,
+            "configurations",
+            "no budget_usd",
+            "a frozen calibration buys under a budget: give the study a budgeted configuration",
+        ));
+    };
+    if let Some(usd) = budget_usd {
+        if !(usd.is_finite() && usd > 0.0) {
+            let reason = "give a positive number of USD".into();
+            return Err(StudyError::Argument { flag: "--budget", value: usd.to_string(), reason });
+        }
+        conf.name = format!("budget {usd:.0} USD");
+        conf.budget_usd = Some(usd);
+    }
+    let usd = conf.budget_usd.unwrap_or_default();
+    progress(Progress::Stage("validation: placing the frozen calibration's recommendation"));
+    let (member, p) = frozen_member(study, &r.settings, &file, &conf, r.members.len())?;
+    let (member, trained) = train_member(study, registry, profile, r, member, out, progress)?;
+    let info = Frozen {
+        file: path.display().to_string(),
+        fitted_on: file.fitted_on.clone(),
+        choice: file.choice.clone(),
+        advice: p.advice,
+    };
+    let rec = compared(study, r, member, trained, usd, (p.map, p.lo, p.hi), Some(info));
+    keep_frozen(r, rec);
+    Ok(())
+}
+
+/// Puts `rec` among `r`'s frozen recommendations, in place of one from the same file at the same
+/// budget; they stand in order of budget.
+fn keep_frozen(r: &mut ValidationReport, rec: Recommendation) {
+    let file = |x: &Recommendation| x.frozen.as_ref().map(|f| f.file.clone());
+    r.frozen.retain(|f| !(f.budget_usd == rec.budget_usd && file(f) == file(&rec)));
+    r.frozen.push(rec);
+    r.frozen.sort_by(|a, b| a.budget_usd.total_cmp(&b.budget_usd));
+}
+
+/// Every recommendation of `r` compared again with the set's rigs (its rival and regret), as
+/// after a refit with this build's intervals.
+pub fn compare_again(study: &Study, r: &mut ValidationReport) {
+    let again =
+        |rec: &Recommendation| (rival(study, r, &rec.trained, rec.budget_usd), regret(r, &rec.trained, rec.budget_usd));
+    let own = r.recommendation.as_ref().map(again);
+    let frozen: Vec<_> = r.frozen.iter().map(again).collect();
+    let recs = r.recommendation.iter_mut().zip(own).chain(r.frozen.iter_mut().zip(frozen));
+    for (rec, (rival, regret)) in recs {
+        (rec.rival, rec.regret) = (rival, regret);
+    }
+}
+
+/// The recommendation `member`, trained, set beside its prediction `(mAP, lo, hi)` and the set.
+fn compared(
+    study: &Study,
+    r: &ValidationReport,
+    member: Member,
+    trained: Trained,
+    budget_usd: f64,
+    (predicted, lo, hi): (f64, f64, f64),
+    frozen: Option<Frozen>,
+) -> Recommendation {
+    Recommendation {
+        budget_usd,
+        inside: (lo..=hi).contains(&trained.map_mean),
+        rival: rival(study, r, &trained, budget_usd),
+        regret: regret(r, &trained, budget_usd),
+        member,
+        trained,
+        predicted,
+        lo,
+        hi,
+        frozen,
+    }
+}
+
+/// Records `member`'s placement, simulates its datasets (one per training-traffic draw), trains
+/// it as every member of the set was and scores it: the member with its occupancy predictors,
+/// and its trained accuracy.
+fn train_member(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    r: &ValidationReport,
+    mut member: Member,
+    out: &Path,
+    progress: &mut (dyn FnMut(Progress) + Send),
+) -> Result<(Member, Trained)> {
     let pjson = member.placement.to_json()?;
     let ppath = out.join("recommendation").join(format!("{}.json", member.slug));
     hilo_core::fs::write_atomic(&ppath, pjson.as_bytes())?;
@@ -127,21 +256,8 @@ pub fn recommend(
     let data = &data[0];
     let scorer = Scorer::new(&data.dir, profile, &r.settings, &study.file.evaluation)?;
     let (trained, occupancy) = scorer.trained(&data.dir, &outs)?;
-    let mut member = member;
     member.predictors.extend(occupancy);
-    let rival = rival(study, r, &trained, budget_usd);
-    let regret = regret(r, &trained, budget_usd);
-    Ok(Some(Recommendation {
-        budget_usd,
-        inside: (lo..=hi).contains(&trained.map_mean),
-        member,
-        trained,
-        predicted,
-        lo,
-        hi,
-        rival,
-        regret,
-    }))
+    Ok((member, trained))
 }
 
 /// The best-measured optimum (or best-found placement) of the study's own configurations that
@@ -207,9 +323,20 @@ pub fn markdown(r: &Recommendation) -> String {
         counts.into_iter().map(|(t, n)| format!("{n}× {t}")).collect()
     };
     let seeds: Vec<String> = r.trained.map.iter().map(|v| format!("{v:.3}")).collect();
-    let mut s = String::from("## The calibrated recommendation, trained\n\n");
+    let (mut s, objective) = match &r.frozen {
+        None => ("## The calibrated recommendation, trained\n\n".to_owned(), "the calibrated objective".to_owned()),
+        Some(f) => (
+            format!("## A calibration fitted elsewhere, frozen: its recommendation at {:.0} USD\n\n", r.budget_usd),
+            format!(
+                "the calibration `{}` (fitted on {} other sites, its weights frozen; it ships {})",
+                f.file,
+                f.fitted_on.len(),
+                f.choice.split(':').next().unwrap_or_default()
+            ),
+        ),
+    };
     s.push_str(&format!(
-        "Under a budget of {:.0} USD the calibrated objective buys {} ({:.0} USD; {}). Trained as every placement \
+        "Under a budget of {:.0} USD {objective} buys {} ({:.0} USD; {}). Trained as every placement \
          above ({}; mAP by seed {}): measured mAP {:.3}, predicted {:.3} [{:.3}, {:.3}] — {} the 95% prediction interval.\n\n",
         r.budget_usd,
         sensors.join(" + "),
@@ -223,6 +350,9 @@ pub fn markdown(r: &Recommendation) -> String {
         r.hi,
         if r.inside { "inside" } else { "outside" }
     ));
+    if let Some(f) = &r.frozen {
+        s.push_str(&format!("The rig lies {}.\n\n", f.advice));
+    }
     let p = &r.member.placement;
     s.push_str(&format!(
         "Placed by {}: {}.\n\n",
@@ -313,5 +443,62 @@ mod tests {
         let g = regret(&r, &best, 20_000.0).unwrap();
         assert_eq!((g.regret, g.lo, g.hi), (0.0, 0.0, 0.0));
         assert_eq!(regret(&r, &rec, 40_000.0), None);
+    }
+
+    /// A frozen recommendation at `usd` from `file`, measuring `map`.
+    fn frozen_at(usd: f64, file: &str, map: f64, rng: &mut impl rand::Rng) -> Recommendation {
+        let (member, trained) = testing::member(90, BTreeMap::new(), map, 200, rng);
+        let info = Frozen {
+            file: file.into(),
+            fitted_on: vec!["a.json".into(), "b.json".into(), "c.json".into(), "d.json".into()],
+            choice: "LiDAR points alone: it ranked the held-out sites at +0.8".into(),
+            advice: "within what the fit saw on 4 sites (the farthest feature 0.4 s.d. from their mean)".into(),
+        };
+        let r = set(&[0.5], &[usd]);
+        compared(&testing::study(), &r, member, trained, usd, (0.6, 0.5, 0.7), Some(info))
+    }
+
+    /// Frozen recommendations stand in order of budget; one from the same file at the same budget
+    /// replaces the old, another file's stays beside it; a comparison again recomputes every
+    /// one's regret against the set (and the set's own recommendation's), and each is written
+    /// with the file, the number of sites it was fitted on and the advice.
+    #[test]
+    fn frozen_recommendations_are_kept_by_file_and_budget_and_compared_again() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(4);
+        let mut r = set(&[0.50, 0.64, 0.55], &[18_500.0, 21_900.0, 10_000.0]);
+        keep_frozen(&mut r, frozen_at(20_000.0, "x.toml", 0.60, &mut rng));
+        keep_frozen(&mut r, frozen_at(10_000.0, "x.toml", 0.40, &mut rng));
+        keep_frozen(&mut r, frozen_at(20_000.0, "y.toml", 0.61, &mut rng));
+        keep_frozen(&mut r, frozen_at(20_000.0, "x.toml", 0.62, &mut rng));
+        let got: Vec<(f64, String, f64)> = r
+            .frozen
+            .iter()
+            .map(|f| (f.budget_usd, f.frozen.as_ref().unwrap().file.clone(), f.trained.map_mean))
+            .collect();
+        let want = [(10_000.0, "x.toml", 0.40), (20_000.0, "y.toml", 0.61), (20_000.0, "x.toml", 0.62)];
+        assert_eq!(got.len(), 3);
+        for ((b, f, m), (wb, wf, wm)) in got.iter().zip(want) {
+            assert_eq!((*b, f.as_str()), (wb, wf));
+            assert!((m - wm).abs() < 1e-12);
+        }
+        // The set's rigs near $20,000 were compared when each was made: drop them, then compare again.
+        for f in &mut r.frozen {
+            f.regret = None;
+        }
+        compare_again(&testing::study(), &mut r);
+        let g = r.frozen[2].regret.as_ref().unwrap();
+        assert_eq!((g.rigs.clone(), g.best.as_str()), (vec!["p0".to_owned(), "p1".to_owned()], "p1"));
+        assert!((g.regret - 0.02).abs() < 1e-12, "{g:?}");
+        assert_eq!(r.frozen[0].regret.as_ref().unwrap().rigs, ["p2"]);
+        let md = markdown(&r.frozen[0]);
+        assert!(md.starts_with("## A calibration fitted elsewhere, frozen: its recommendation at 10000 USD"), "{md}");
+        assert!(
+            md.contains(
+                "the calibration `x.toml` (fitted on 4 other sites, its weights frozen; it ships LiDAR points alone)"
+            ),
+            "{md}"
+        );
+        assert!(md.contains("The rig lies within what the fit saw on 4 sites"), "{md}");
+        assert!(markdown(&frozen_at(1.0, "z", 0.1, &mut rng)).contains("predicted 0.600 [0.500, 0.700]"));
     }
 }

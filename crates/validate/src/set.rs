@@ -295,6 +295,37 @@ pub fn calibrated_member(
     conf: &Configuration,
     k: usize,
 ) -> Result<Member> {
+    Ok(buy(study, v, w, w.reads_points(), conf, k, "calibrated", |_, _| ())?.0)
+}
+
+/// The rig a calibration file's frozen weights buy under `conf` at this study's junction (a file
+/// `hilo validate --sites` fitted at other junctions), as [`calibrated_member`] places it but of
+/// kind `frozen` (`frozen-best-found`), with the file's prediction of its mAP and how far the rig
+/// lies from the sites it was fitted on.
+pub fn frozen_member(
+    study: &Study,
+    v: &ValidationSettings,
+    file: &calibrated::file::CalibrationFile,
+    conf: &Configuration,
+    k: usize,
+) -> Result<(Member, calibrated::file::Prediction)> {
+    let points = file.weights.reads_points() || file.prediction.features.iter().any(|f| f == "lidar_points");
+    buy(study, v, &file.weights, points, conf, k, "frozen", |inst, sel| file.predict(inst, sel))
+}
+
+/// Places the rig the weights `w` buy under `conf` (member `k`, of `kind` or `<kind>-best-found`)
+/// and hands its instance and selection to `then`; `points`: the instance needs the point counts.
+#[allow(clippy::too_many_arguments)]
+fn buy<T>(
+    study: &Study,
+    v: &ValidationSettings,
+    w: &calibrated::Weights,
+    points: bool,
+    conf: &Configuration,
+    k: usize,
+    kind: &str,
+    then: impl FnOnce(&Instance, &[usize]) -> T,
+) -> Result<(Member, T)> {
     w.check()?;
     let pc = settings_with_tilts(study, v)?;
     let prep = prepare(&study.scene, &study.catalog, &study.type_names(), &pc)?;
@@ -302,15 +333,16 @@ pub fn calibrated_member(
     let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
     let mut inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
     inst.road_users = ctx.all.road_users.clone();
-    if w.reads_points() {
+    if points {
         inst.points = ctx.point_rows(&inst)?;
     }
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
     let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, pc.calibrated_cbc_max_nonzeros, &g)?;
+    let extra = then(&inst, &o.selection);
     let sensors = placed(&inst, &prep, &o.selection);
-    let kind = if o.proven_optimal { "calibrated" } else { "calibrated-best-found" };
-    let mut m = ctx.member(k, kind, &conf.name, sensors, o.proven_optimal)?;
+    let kind = if o.proven_optimal { kind.to_owned() } else { format!("{kind}-best-found") };
+    let mut m = ctx.member(k, &kind, &conf.name, sensors, o.proven_optimal)?;
     // The placement records the solve of the objective it was placed for, but not its time: the
     // placement names the recommendation's dataset and runs (a content hash), so it must be the
     // same bytes whenever the same rig is bought.
@@ -319,7 +351,7 @@ pub fn calibrated_member(
     m.placement.gap = o.gap;
     m.placement.greedy_objective = g.objective;
     m.placement.method = o.method;
-    Ok(m)
+    Ok((m, extra))
 }
 
 /// The members' placement predictors computed again by this build (a set drawn by an older one
@@ -635,8 +667,7 @@ mod tests {
 
     /// The coarse validation scene (the default junction on 3 m cells, few candidate mounts).
     fn coarse() -> Study {
-        let text = include_str!("../../../fixtures/validation-coarse.toml");
-        Study::parse(text, std::path::Path::new("."), "validation-coarse.toml").unwrap()
+        crate::testing::study()
     }
 
     /// The counts near a budget are every count vector a brute force over a box finds within
@@ -721,5 +752,28 @@ mod tests {
         let coverage = calibrated::Weights { lidar: 1.0, ..calibrated::Weights::default() };
         let other = calibrated_member(&study, v, &coverage, &budget, 1).unwrap();
         assert!(other.predictors[LIDAR_POINTS_CAPPED].unwrap() <= own + 0.005, "{:?}", other.predictors);
+    }
+
+    /// A calibration file's frozen weights buy the rig the calibrated objective with those
+    /// weights buys (the same poses), of kind `frozen`; the file's prediction is its intercept plus
+    /// its coefficient times the term at that rig, which is the solve's objective over the weight
+    /// and the rig's own point-count predictor within the dropout draws.
+    #[test]
+    fn a_frozen_calibration_buys_what_its_weights_buy_and_predicts_from_the_term() {
+        let study = coarse();
+        let v = &ValidationSettings { min_points: 100, ..study.file.validation.clone() };
+        let budget = budget_configuration(&study).unwrap();
+        let file =
+            calibrated::file::CalibrationFile::from_toml(include_str!("../../../fixtures/calibration-sites.toml"))
+                .unwrap();
+        let (m, p) = frozen_member(&study, v, &file, &budget, 7).unwrap();
+        let same = calibrated_member(&study, v, &file.weights, &budget, 7).unwrap();
+        assert_eq!(m.placement.sensors, same.placement.sensors);
+        assert!(m.kind.starts_with("frozen") && m.slug.starts_with("m07-frozen"), "{}", m.slug);
+        let (b, x) = (file.prediction.coefficients[0], p.features["lidar_points"]);
+        assert!((p.map - (file.prediction.intercept + b * x)).abs() < 1e-12, "{p:?}");
+        assert!(p.lo < p.map && p.map < p.hi, "{p:?}");
+        assert!((b * x - m.placement.objective).abs() < 1e-9 * b, "{} vs {}", b * x, m.placement.objective);
+        assert!((x - m.predictors[LIDAR_POINTS_CAPPED].unwrap()).abs() < 0.01, "{x} vs {:?}", m.predictors);
     }
 }
