@@ -397,6 +397,7 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
                 report.recommendation = recommend::recommend(&study, &registry, &profile, &report, &args.out, &mut on)?;
             }
         }
+        hilo_study::validation::recommend::pictures(&study, &args.out, &report)?;
         wrote(hilo_study::validation::write(&args.out, &report)?);
         return Ok(());
     }

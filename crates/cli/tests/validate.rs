@@ -178,9 +178,14 @@ fn recommends_with_a_frozen_calibration(dir: &std::path::Path, study: &std::path
             (rec["predicted"].as_f64().unwrap(), rec["lo"].as_f64().unwrap(), rec["hi"].as_f64().unwrap());
         assert!(lo < p && p < hi, "{rec}");
         assert_eq!(rec["trained"]["map"].as_array().unwrap().len(), 1, "trained as the members were: one seed");
+        let png = format!("recommendation/{}.png", rec["member"]["slug"].as_str().unwrap());
+        assert!(std::fs::read(out.join(&png)).unwrap().starts_with(b"\x89PNG"), "{png}");
     }
     let md = std::fs::read_to_string(out.join("validation.md")).unwrap();
     assert_eq!(md.matches("## A calibration fitted elsewhere, frozen").count(), 2, "{md}");
+    // Every recommendation drawn: the two frozen ones, and the set's own (trained again by the rerun above).
+    let own = usize::from(!r["recommendation"].is_null());
+    assert_eq!(md.matches("![Its mounts on the site](recommendation/").count(), 2 + own, "{md}");
     // A rerun at the same budget resumes to the same rig and numbers, in place of the old one.
     let (ok, err) = frozen(&["--budget", low.as_str()]);
     assert!(ok, "{err}");

@@ -410,14 +410,7 @@ pub fn coverage_png(
     let cands: Vec<(Vec2, (u8, u8, u8))> =
         prep.candidates.iter().map(|k| (k.pose.position.truncate(), (120, 120, 120))).collect();
     c.dots(&cands, 1.2);
-    for s in &p.sensors {
-        let pos = Vec3::from(s.position_m).truncate();
-        let col = if s.modality == Modality::Lidar { (0, 160, 60) } else { (220, 0, 0) };
-        let tip = pos + Vec2::from_angle(s.pose.yaw) * 12.0;
-        c.line(&[pos, tip], col, 0.5);
-        c.dots(&[(pos, (0, 0, 0))], 7.0);
-        c.dots(&[(pos, col)], 5.5);
-    }
+    draw_sensors(&mut c, p);
     c.legend(&[
         ((40, 200, 80), "cell hit by a LiDAR ray"),
         ((230, 60, 60), "cell covered by a radar"),
@@ -427,6 +420,50 @@ pub fn coverage_png(
         ((220, 0, 0), "chosen radar, heading"),
     ]);
     c.png()
+}
+
+/// Margin around the sensors in [`mounts_png`], metres.
+pub const MOUNTS_MARGIN_M: f32 = 20.0;
+
+/// The placement's sensors on the study's site picture, each with its heading and, beside each
+/// mount, the sensors it holds (no coverage: it needs only the placement, so any placement a
+/// report holds can be drawn again). The window is the sensors' bounding box widened by
+/// [`MOUNTS_MARGIN_M`] on every side, within the scene's ground, at 16 px per metre.
+pub fn mounts_png(study: &Study, p: &Placement) -> Result<Vec<u8>> {
+    let g = study.scene.ground;
+    let xy: Vec<Vec2> = p.sensors.iter().map(|s| Vec3::from(s.position_m).truncate()).collect();
+    let (lo, hi) = xy.iter().fold((g.max, g.min), |(lo, hi), q| (lo.min(*q), hi.max(*q)));
+    let (lo, hi) = if xy.is_empty() { (g.min, g.max) } else { (lo - MOUNTS_MARGIN_M, hi + MOUNTS_MARGIN_M) };
+    let mut c = crate::render::scene_canvas_within(&study.scene, lo.max(g.min), hi.min(g.max), 16.0)?;
+    draw_sensors(&mut c, p);
+    // One label per mount: the sensors on it, by type.
+    let mut mounts: Vec<(Vec2, std::collections::BTreeMap<&str, usize>)> = Vec::new();
+    for (s, q) in p.sensors.iter().zip(&xy) {
+        match mounts.iter_mut().find(|(m, _)| m.distance(*q) < 0.5) {
+            Some((_, types)) => *types.entry(s.ty.as_str()).or_default() += 1,
+            None => mounts.push((*q, [(s.ty.as_str(), 1)].into())),
+        }
+    }
+    for (q, types) in &mounts {
+        let text: Vec<String> =
+            types.iter().map(|(t, n)| if *n > 1 { format!("{n}× {t}") } else { (*t).to_owned() }).collect();
+        let (x, y) = c.px(*q);
+        c.text((x + 8.0, y + 6.0), &text.join(", "), 14.0, (0, 0, 0));
+    }
+    c.legend(&[((0, 160, 60), "LiDAR, heading"), ((220, 0, 0), "radar, heading")]);
+    c.png()
+}
+
+/// Each sensor of `p` as a disc at its mount with a line along its heading.
+fn draw_sensors(c: &mut crate::render::Canvas, p: &Placement) {
+    for s in &p.sensors {
+        let pos = Vec3::from(s.position_m).truncate();
+        let col = if s.modality == Modality::Lidar { (0, 160, 60) } else { (220, 0, 0) };
+        let tip = pos + Vec2::from_angle(s.pose.yaw) * 12.0;
+        c.line(&[pos, tip], col, 0.5);
+        c.dots(&[(pos, (0, 0, 0))], 7.0);
+        c.dots(&[(pos, col)], 5.5);
+    }
 }
 
 /// Writes `<dir>/<slug>.json` and `<slug>.png` for every placement.

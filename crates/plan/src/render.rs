@@ -108,6 +108,11 @@ pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
 }
 
 impl Canvas {
+    /// The pixel (column, row) of a point on the ground, in metres.
+    pub fn px(&self, p: Vec2) -> (f32, f32) {
+        self.view.px(p)
+    }
+
     /// PNG bytes of the picture.
     pub fn png(&self) -> Result<Vec<u8>> {
         self.pm.encode_png().map_err(|e| StudyError::Picture { what: "a PNG".into(), message: e.to_string() })
@@ -324,9 +329,13 @@ pub fn scan_png(scene: &Scene, points: ScanPoints, sensor: Vec2, road_users: &[B
 }
 
 pub fn scene_canvas(scene: &Scene, px_per_m: f32) -> Result<Canvas> {
-    let g = scene.ground;
-    let view = View { min: g.min, max: g.max, scale: px_per_m };
-    let size = (g.max - g.min) * px_per_m;
+    scene_canvas_within(scene, scene.ground.min, scene.ground.max, px_per_m)
+}
+
+/// The scene drawn as [`scene_canvas`] draws it, in the window from `min` to `max` (metres).
+pub fn scene_canvas_within(scene: &Scene, min: Vec2, max: Vec2, px_per_m: f32) -> Result<Canvas> {
+    let view = View { min, max, scale: px_per_m };
+    let size = (max - min) * px_per_m;
     let pm = Pixmap::new(size.x.ceil() as u32, size.y.ceil() as u32).ok_or_else(|| StudyError::Picture {
         what: "the scene".into(),
         message: format!("{:.0}x{:.0} px is empty or too large", size.x, size.y),

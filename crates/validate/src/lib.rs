@@ -24,7 +24,10 @@
 //! within one set shares that set's traffic and junction and may have chosen the objective's
 //! form from its residuals; `--transfer` predicts the placements of a second set (other seeds)
 //! with the first set's weights frozen ([`calibrate::transfer`]), and `--sites` holds each of
-//! several junctions' validations out in turn, fitting on the others ([`sites`]). It runs in one process ([`run`]) or as a
+//! several junctions' validations out in turn, fitting on the others ([`sites`]); a calibration
+//! `--sites` wrote without this junction buys, its weights frozen, the rig a user at a new
+//! junction would buy, trained here beside the set's rigs near its budget
+//! ([`recommend::frozen`]). It runs in one process ([`run`]) or as a
 //! workflow engine's jobs ([`plan`] draws the set and names the stages, [`simulate`] and
 //! [`train_job`] run one each, `hilo_study::workflow::validation_snakefile` writes them); its stage
 //! folders are named by hashes that include the code, so a run is resumed by the same build
@@ -39,7 +42,8 @@
 //! data/<member>-<h>/                     a member's dataset (the study's traffic)
 //! runs/<member>/<preset>-seed<k>-<h>/    a trained detector
 //! results/<member>/…json                 its detections at 2b and at b
-//! recommendation/<member>.json           the calibrated recommendation (then data/, runs/, results/)
+//! recommendation/<member>.json, .png     a recommendation (the set's own, or a frozen calibration's)
+//!                                        and its mounts on the site (then data/, runs/, results/)
 //! validation.json, validation.md, validation-*.png/svg
 //! ```
 
@@ -589,6 +593,7 @@ pub fn run(
         report.frozen = read(out)?.frozen;
         recommend::compare_again(study, &mut report);
     }
+    recommend::pictures(study, out, &report)?;
     report.seconds = t0.elapsed().as_secs_f64();
     Ok(report)
 }

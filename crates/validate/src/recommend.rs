@@ -162,6 +162,18 @@ pub fn frozen(
     Ok(())
 }
 
+/// Draws every recommendation of `r` (the set's own and the frozen ones) on the study's site:
+/// `out/recommendation/<member>.png`, which the report's sections show; the paths written.
+pub fn pictures(study: &Study, out: &Path, r: &ValidationReport) -> Result<Vec<std::path::PathBuf>> {
+    let mut wrote = Vec::new();
+    for rec in r.recommendation.iter().chain(&r.frozen) {
+        let path = out.join("recommendation").join(format!("{}.png", rec.member.slug));
+        hilo_core::fs::write_atomic(&path, &hilo_plan::place::mounts_png(study, &rec.member.placement)?)?;
+        wrote.push(path);
+    }
+    Ok(wrote)
+}
+
 /// Puts `rec` among `r`'s frozen recommendations, in place of one from the same file at the same
 /// budget; they stand in order of budget.
 fn keep_frozen(r: &mut ValidationReport, rec: Recommendation) {
@@ -353,6 +365,7 @@ pub fn markdown(r: &Recommendation) -> String {
     if let Some(f) = &r.frozen {
         s.push_str(&format!("The rig lies {}.\n\n", f.advice));
     }
+    s.push_str(&format!("![Its mounts on the site](recommendation/{}.png)\n\n", r.member.slug));
     let p = &r.member.placement;
     s.push_str(&format!(
         "Placed by {}: {}.\n\n",
@@ -500,5 +513,54 @@ mod tests {
         );
         assert!(md.contains("The rig lies within what the fit saw on 4 sites"), "{md}");
         assert!(markdown(&frozen_at(1.0, "z", 0.1, &mut rng)).contains("predicted 0.600 [0.500, 0.700]"));
+        assert!(md.contains("![Its mounts on the site](recommendation/p90.png)"), "{md}");
+    }
+
+    /// Every recommendation is drawn on the site: a LiDAR's disc in the LiDAR colour at its mount
+    /// (16 px per metre, north up, the sensors' box widened by 20 m), a radar's in the radar
+    /// colour, and the picture of a rig without them (the whole ground, 16 px per metre) shows
+    /// neither colour there.
+    #[test]
+    fn each_recommendation_is_drawn_with_its_sensors_at_their_mounts() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let study = testing::study();
+        let sensor = |modality: &str, x: f64, y: f64| {
+            serde_json::json!({"type": "t", "modality": modality, "candidate_id": 0, "structure": "s",
+                "pose": {"position": [x, y, 6.0], "yaw": 0.0, "pitch": 0.0, "roll": 0.0},
+                "position_m": [x, y, 6.0], "yaw_deg": 0.0, "pitch_deg": 0.0})
+        };
+        let mut r = set(&[0.5], &[20_000.0]);
+        let mut rec = frozen_at(20_000.0, "x.toml", 0.6, &mut rng);
+        rec.member.placement.sensors =
+            serde_json::from_value(serde_json::json!([sensor("lidar", 20.0, 30.0), sensor("radar", -25.0, -15.0)]))
+                .unwrap();
+        rec.member.slug = "with".into();
+        keep_frozen(&mut r, rec);
+        let mut bare = frozen_at(10_000.0, "x.toml", 0.6, &mut rng);
+        bare.member.slug = "bare".into();
+        keep_frozen(&mut r, bare);
+        let dir = tempfile::tempdir().unwrap();
+        let wrote = pictures(&study, dir.path(), &r).unwrap();
+        assert_eq!(wrote.len(), 2);
+        let g = study.scene.ground;
+        let at = |slug: &str, x: f32, y: f32| {
+            let pm = tiny_skia::Pixmap::decode_png(
+                &std::fs::read(dir.path().join(format!("recommendation/{slug}.png"))).unwrap(),
+            )
+            .unwrap();
+            // The window's top-left corner: the sensors' box (x −25…20, y −15…30) widened by 20 m.
+            let (x0, y1) = if slug == "with" { (-45.0, 50.0) } else { (g.min.x, g.max.y) };
+            let (px, py) = (((x - x0) * 16.0) as u32, ((y1 - y) * 16.0) as u32);
+            let c = pm.pixel(px, py).unwrap();
+            (c.red(), c.green(), c.blue())
+        };
+        // The disc's colours (0, 160, 60) and (220, 0, 0), the heading line drawn over them.
+        let lidar = |(r, g, b): (u8, u8, u8)| r < 30 && g > 130 && b < 80;
+        let radar = |(r, g, b): (u8, u8, u8)| r > 190 && g < 30 && b < 30;
+        assert!(lidar(at("with", 20.0, 30.0)), "{:?}", at("with", 20.0, 30.0));
+        assert!(radar(at("with", -25.0, -15.0)), "{:?}", at("with", -25.0, -15.0));
+        for (x, y) in [(20.0, 30.0), (-25.0, -15.0)] {
+            assert!(!lidar(at("bare", x, y)) && !radar(at("bare", x, y)), "{:?}", at("bare", x, y));
+        }
     }
 }
