@@ -584,13 +584,14 @@ pub fn run(
     // 4. Scores on the common ground truth, predictors of the traffic, agreement.
     progress(Progress::Stage("validation: scoring"));
     // Recommendations an earlier run added to the set stay in it.
-    let added = absorbed(study, out, settings, plan.members.len())?;
+    let prev = out.join("validation.json").exists().then(|| read(out)).transpose()?;
+    let added = absorbed(study, prev.as_ref(), settings, plan.members.len())?;
     let mut report = score(study, profile, settings, plan.members, added, &plan.data, outputs)?;
     // 5. The rig the calibrated objective buys, trained as the members were.
     report.recommendation = recommend::recommend(study, registry, profile, &report, out, progress)?;
     // Frozen recommendations trained in this folder before stay, compared with the set again.
-    if out.join("validation.json").exists() {
-        report.frozen = read(out)?.frozen;
+    if let Some(prev) = prev {
+        report.frozen = prev.frozen;
         recommend::compare_again(study, &mut report);
     }
     recommend::pictures(study, out, &report)?;
@@ -944,16 +945,17 @@ pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {
     refit_report(study, r)
 }
 
-/// The recommendations an earlier run of the validation in `out` added to its set
-/// ([`absorb`]): the members of its `validation.json` after the `drawn` placements of the
-/// set, with their predictors computed again by this build; none without an earlier record.
-fn absorbed(study: &Study, out: &Path, settings: &ValidationSettings, drawn: usize) -> Result<Vec<(Member, Trained)>> {
-    let path = out.join("validation.json");
-    if !path.exists() {
-        return Ok(Vec::new());
-    }
-    let prev = read(out)?;
-    let extra: Vec<(Member, Trained)> = prev.members.into_iter().skip(drawn).collect();
+/// The recommendations an earlier run of the validation added to its set ([`absorb`]): the
+/// members of its report `prev` after the `drawn` placements of the set, with their
+/// predictors computed again by this build; none without an earlier report.
+fn absorbed(
+    study: &Study,
+    prev: Option<&ValidationReport>,
+    settings: &ValidationSettings,
+    drawn: usize,
+) -> Result<Vec<(Member, Trained)>> {
+    let Some(prev) = prev else { return Ok(Vec::new()) };
+    let extra: Vec<(Member, Trained)> = prev.members.iter().skip(drawn).cloned().collect();
     let members: Vec<Member> = extra.iter().map(|(m, _)| m.clone()).collect();
     let again = set::recompute_from(study, settings, &members, drawn)?;
     Ok(again.into_iter().zip(extra).map(|(m, (_, t))| (m, t)).collect())
