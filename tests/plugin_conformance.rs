@@ -58,6 +58,26 @@ fn the_registry_names_each_fusion_presets_counterpart_and_the_studys_pair() {
     assert_eq!(hilo_fusion::Registry::with_builtin().primary(), None);
 }
 
+/// Every preset that reads the radar reads its boxes' velocity from the Doppler (and only
+/// those: a LiDAR-only preset has no radar to read); the patch the docs give turns it off, and
+/// the preset's JSON then equals the one without the step.
+#[test]
+fn every_radar_preset_reads_the_doppler_and_a_null_patch_turns_it_off() {
+    let registry = hilo::registry().unwrap();
+    for name in registry.detector_names().into_iter().chain(registry.ablation_names()) {
+        let det = &registry.preset(&name).unwrap().detector;
+        let reads = det.decode.radar_velocity.is_some();
+        assert_eq!(reads, registry.uses_radar(det), "{name}");
+        if reads {
+            let off = det.with_patch(&serde_json::json!({ "decode": { "radar_velocity": null } })).unwrap();
+            assert_eq!(off.decode.radar_velocity, None, "{name}");
+            let json = serde_json::to_string(&off.decode).unwrap();
+            assert!(!json.contains("radar_velocity"), "{name}: {json}");
+            assert!(!format!("{:?}", off.decode).contains("radar_velocity"), "{name}");
+        }
+    }
+}
+
 /// The JSON files the project ships in `fixtures/<folder>/` (at least one), parsed, and the
 /// registry of every preset they must apply to.
 fn shipped(folder: &str) -> (Vec<(std::path::PathBuf, serde_json::Value)>, hilo_fusion::Registry) {

@@ -72,6 +72,7 @@ pub fn synthetic_frame(seed: u64, boxes: &[GtBox], lidar: bool, radar: bool) -> 
         scene: "synthetic".into(),
         lidar: lp,
         radar: rp,
+        radar_origin: Vec::new(),
         boxes: boxes.to_vec(),
     }
 }

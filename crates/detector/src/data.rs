@@ -102,6 +102,19 @@ pub fn drop_radar_clutter(
     radar: &mut Vec<[f32; RADAR_FEATURES]>,
     cfg: &RadarClutterConfig,
 ) -> usize {
+    let keep = radar_kept(lidar, radar, cfg);
+    let before = radar.len();
+    let mut k = keep.iter();
+    radar.retain(|_| k.next().copied().unwrap_or(true));
+    before - radar.len()
+}
+
+/// Which radar detections [`drop_radar_clutter`] keeps (true), in their order.
+pub fn radar_kept(
+    lidar: &[[f32; LIDAR_FEATURES]],
+    radar: &[[f32; RADAR_FEATURES]],
+    cfg: &RadarClutterConfig,
+) -> Vec<bool> {
     let r = cfg.lidar_radius_m;
     let bucket = |x: f32, y: f32| ((x / r).floor() as i64, (y / r).floor() as i64);
     let mut buckets: HashMap<(i64, i64), Vec<[f32; 2]>> = HashMap::new();
@@ -118,19 +131,21 @@ pub fn drop_radar_clutter(
             })
         })
     };
-    let before = radar.len();
-    radar.retain(|p| p[4].abs() > cfg.max_speed_mps || near_lidar(p[0], p[1]));
-    before - radar.len()
+    radar.iter().map(|p| p[4].abs() > cfg.max_speed_mps || near_lidar(p[0], p[1])).collect()
 }
 
 /// One sample.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Frame {
     pub sample_token: String,
     /// Name of the scene the sample belongs to.
     pub scene: String,
     pub lidar: Vec<[f32; LIDAR_FEATURES]>,
     pub radar: Vec<[f32; RADAR_FEATURES]>,
+    /// Each radar point's sensor position (local frame, m) where it is known: frames loaded
+    /// from a dataset have one per point; augmentation moves them with the points; a frame
+    /// with pasted instances, or built by hand, has none (empty).
+    pub radar_origin: Vec<[f32; 3]>,
     pub boxes: Vec<GtBox>,
 }
 
@@ -437,7 +452,10 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
         if let Some(c) = &opts.radar_clutter {
             // Against the frame's own LiDAR sweep: older sweeps' points lie where road users were.
             let own: Vec<[f32; LIDAR_FEATURES]> = lidar.iter().filter(|p| p[4] == 0.0).copied().collect();
-            let dropped = drop_radar_clutter(&own, &mut radar, c);
+            let keep = radar_kept(&own, &radar, c);
+            let dropped = keep.iter().filter(|k| !**k).count();
+            (radar, radar_origin) =
+                radar.into_iter().zip(radar_origin).zip(keep).filter(|(_, k)| *k).map(|(pair, _)| pair).unzip();
             stats.radar_points -= dropped;
             stats.radar_clutter_points += dropped;
         }
@@ -464,7 +482,8 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
             });
         }
         let scene = scene_name.get(s.scene_token.as_str()).copied().unwrap_or_default().to_owned();
-        frames.push(Frame { sample_token: s.token.clone(), scene, lidar, radar, boxes });
+        let radar_origin = radar_origin.iter().map(|&(_, at)| at).collect();
+        frames.push(Frame { sample_token: s.token.clone(), scene, lidar, radar, radar_origin, boxes });
     }
     Ok((frames, stats))
 }
@@ -500,6 +519,10 @@ pub fn augment(aug: &Augmentation, f: &Frame, rng: &mut impl Rng) -> Frame {
         if !radial {
             (p[8], p[9]) = (vx * s, vy * s);
         }
+    }
+    for o in &mut out.radar_origin {
+        let (x, y) = xy(o[0], o[1]);
+        *o = [x * s, y * s, o[2] * s];
     }
     for b in &mut out.boxes {
         let (x, y) = xy(b.center[0], b.center[1]);
@@ -611,6 +634,7 @@ mod tests {
             scene: "s".into(),
             lidar: Vec::new(),
             radar: radar.clone(),
+            radar_origin: Vec::new(),
             boxes: Vec::new(),
         };
         let aug = Augmentation { rotate_deg: 90.0, ..Augmentation::none() };
@@ -665,6 +689,7 @@ mod tests {
             scene: "a".into(),
             lidar: Vec::new(),
             radar: vec![radar_point([10.0, 5.0, 1.0], 3.0, v_r, [lx, ly], 0.0)],
+            radar_origin: Vec::new(),
             boxes: vec![GtBox { class: 0, center: [10.0, 5.0, 1.0], wlh: [1.9, 4.6, 1.6], yaw: 0.3, velocity }],
         };
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
@@ -689,6 +714,7 @@ mod tests {
             scene: "a".into(),
             lidar: vec![[10.0, 5.0, 1.0, 0.2, 0.0]],
             radar: Vec::new(),
+            radar_origin: Vec::new(),
             boxes: vec![GtBox {
                 class: 0,
                 center: [10.0, 5.0, 1.0],

@@ -145,6 +145,7 @@ fn probe(cfg: &DetectorConfig) -> HostBatch {
         scene: String::new(),
         lidar: vec![[0.1, 0.1, 0.5, 0.5, 0.0]],
         radar: vec![crate::data::radar_point([0.1, 0.1, 0.5], 0.0, 0.0, [1.0, 0.0], 0.0)],
+        radar_origin: Vec::new(),
         boxes: Vec::new(),
     };
     HostBatch::new(cfg, &[f], true, 0)

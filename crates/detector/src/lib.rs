@@ -2,8 +2,9 @@
 //! [`Detector`] is a fusion stage from the registry, the shared BEV backbone and a head
 //! ([`detector`]); frames are loaded from a dataset and augmented ([`data`], [`paste`]);
 //! targets, losses and decoding ([`targets`], [`loss`], [`decode`]); training with
-//! checkpoints and exact resume ([`train`]); inference ([`infer`]); and [`conformance`], the
-//! suite every plugin passes.
+//! checkpoints and exact resume ([`train`]); inference ([`infer`]), with the boxes' velocity
+//! read from the radar's Doppler where the detector asks for it ([`doppler`]); and
+//! [`conformance`], the suite every plugin passes.
 //!
 //! What the network reads is part of the detector (`InputConfig`): LiDAR without its static
 //! background ([`train::learn_background`]), radar without its static clutter, and the radar's
@@ -22,6 +23,7 @@ pub mod conformance;
 pub mod data;
 pub mod decode;
 pub mod detector;
+pub mod doppler;
 pub mod error;
 pub mod infer;
 pub mod loss;

@@ -139,6 +139,8 @@ impl PasteDb {
             scene: f.scene.clone(),
             lidar: f.lidar.iter().filter(|p| !clear([p[0], p[1], p[2]])).copied().collect(),
             radar: f.radar.iter().filter(|p| !clear([p[0], p[1], p[2]])).copied().collect(),
+            // The pasted instances' radars are not this frame's: no origins.
+            radar_origin: Vec::new(),
             boxes,
         };
         for i in chosen {
@@ -231,7 +233,7 @@ mod tests {
                 ));
             }
         }
-        Frame { sample_token: "s".into(), scene: "a".into(), lidar, radar, boxes }
+        Frame { sample_token: "s".into(), scene: "a".into(), lidar, radar, radar_origin: Vec::new(), boxes }
     }
 
     #[test]

@@ -998,7 +998,7 @@ mod tests {
             .iter()
             .map(|&c| GtBox { class: c, center: [0.0; 3], wlh: [1.0; 3], yaw: 0.0, velocity: [0.0; 2] })
             .collect();
-        Frame { sample_token: String::new(), scene: String::new(), lidar: vec![], radar: vec![], boxes }
+        Frame { boxes, ..Frame::default() }
     }
 
     fn bits(t: &Tensor) -> Vec<u32> {

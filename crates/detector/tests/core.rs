@@ -57,7 +57,14 @@ fn frame(seed: u64, boxes: &[GtBox]) -> Frame {
             ]);
         }
     }
-    Frame { sample_token: format!("s{seed}"), scene: "s".into(), lidar, radar: Vec::new(), boxes: boxes.to_vec() }
+    Frame {
+        sample_token: format!("s{seed}"),
+        scene: "s".into(),
+        lidar,
+        radar: Vec::new(),
+        radar_origin: Vec::new(),
+        boxes: boxes.to_vec(),
+    }
 }
 
 fn car(x: f32, y: f32, yaw: f32) -> GtBox {
@@ -240,8 +247,7 @@ fn unknown_velocity_is_masked_out_of_the_loss() {
 fn empty_clouds_and_frames_without_boxes_give_finite_losses() {
     let cfg = small("centerpoint");
     let det = build(&cfg, &Registry::with_builtin(), &Device::Cpu, 0).unwrap();
-    let empty =
-        Frame { sample_token: "e".into(), scene: "s".into(), lidar: Vec::new(), radar: Vec::new(), boxes: Vec::new() };
+    let empty = Frame { sample_token: "e".into(), scene: "s".into(), ..Frame::default() };
     for frames in [vec![empty.clone()], vec![frame(3, &[]), empty]] {
         let b = HostBatch::new(&cfg, &frames, false, 0);
         let (cls, reg) = det.forward(&b, true).unwrap();
@@ -498,8 +504,7 @@ fn synchronised_replicas_train_as_one_batch() {
     assert!(d_unsynced > 100.0 * d_synced, "unsynchronised replicas too close to the batch: {d_unsynced}");
 
     // A replica with an empty frame takes part with no rows.
-    let empty =
-        Frame { sample_token: "e".into(), scene: "s".into(), lidar: Vec::new(), radar: Vec::new(), boxes: Vec::new() };
+    let empty = Frame { sample_token: "e".into(), scene: "s".into(), ..Frame::default() };
     let with_empty = [replicas[0].clone(), HostBatch::new(&cfg, std::slice::from_ref(&empty), false, 1)];
     let r = run(&with_empty, &ReplicaPools::threads(2).unwrap(), true);
     assert!(r.1.is_finite() && r.0.iter().flatten().flatten().all(|g| g.is_finite()));

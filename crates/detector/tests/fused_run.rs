@@ -44,7 +44,7 @@ fn frame(seed: u64) -> Frame {
         let (u, v, h) = (rng.random_range(-2.3..2.3), rng.random_range(-0.95..0.95), rng.random_range(0.0..1.6));
         lidar.push([car.center[0] + c * u - s * v, car.center[1] + s * u + c * v, h, 0.6, 0.0]);
     }
-    Frame { sample_token: format!("s{seed}"), scene: "s".into(), lidar, radar: Vec::new(), boxes: vec![car] }
+    Frame { sample_token: format!("s{seed}"), scene: "s".into(), lidar, boxes: vec![car], ..Frame::default() }
 }
 
 fn train(

@@ -76,6 +76,7 @@ fn simulate(scene: &Scene, world: &World, seed: u64, n: usize, every: usize, bg:
                 scene: seed.to_string(),
                 lidar: lidar_pts,
                 radar: radar_pts,
+                radar_origin: Vec::new(),
                 boxes,
             };
             Sim { frame, lidar_sources, radar_sources, actor_ids: actors.iter().map(|a| a.id).collect() }

@@ -1,7 +1,7 @@
 //! Sweep stacking in the loader: the key frame's sweep and the ones before it, each point with
 //! its sweep's time lag, newest first; empty sweeps; a gap longer than the lag limit ends the
 //! stack; the LiDAR's sweeps likewise, the sweeps it did not scan left out of its chain; one
-//! radar's points pass radar pairing unchanged.
+//! radar's points pass radar pairing unchanged; each radar point carries its radar's position.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -107,6 +107,11 @@ fn radar_sweeps_stack_with_their_time_lags() {
     assert_eq!(f6[0].radar.len(), 1);
     assert_eq!(f6[2].radar.iter().map(|p| p[3]).collect::<Vec<_>>(), vec![15.0]);
     assert_eq!(s4.older_sweep_points, 4);
+    // Every radar point knows its radar's position (what the Doppler step corrects the
+    // elevation with), older sweeps' too.
+    for f in f1.iter().chain(&f6) {
+        assert_eq!(f.radar_origin, vec![[0.0, 0.0, 5.0]; f.radar.len()]);
+    }
     // One frame alone is the split's frame at that index, sweeps and all; past the end, none.
     let opts = LoadOptions {
         background: None,

@@ -101,6 +101,9 @@ impl Check for DetectorConfig {
     fn check(&self) -> std::result::Result<(), FusionError> {
         self.grid.validate()?;
         self.input.validate()?;
+        if let Some(r) = &self.decode.radar_velocity {
+            r.validate()?;
+        }
         let bad = |field: String, value: &dyn std::fmt::Display, reason: String| {
             Err(FusionError::field(format!("detector {}: {field}", self.name), value, reason))
         };
@@ -658,18 +661,92 @@ impl std::fmt::Debug for Augmentation {
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DecodeConfig {
     pub score_threshold: f32,
     pub max_per_frame: usize,
     /// BEV IoU above which the weaker of two same-class boxes is suppressed (Inside only).
     pub nms_iou: f32,
+    /// Each decoded box's velocity from the Doppler of the radar detections inside it, where
+    /// they measure it well (`None`: the head's velocity stands; see `hilo_detector::doppler`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radar_velocity: Option<RadarVelocityConfig>,
 }
 
 impl Default for DecodeConfig {
     fn default() -> Self {
-        DecodeConfig { score_threshold: 0.05, max_per_frame: 200, nms_iou: 0.2 }
+        DecodeConfig { score_threshold: 0.05, max_per_frame: 200, nms_iou: 0.2, radar_velocity: None }
+    }
+}
+
+/// As derived, but the radar velocity step appears only when set, so a detector without it
+/// keeps the text it had before the step existed.
+impl std::fmt::Debug for DecodeConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("DecodeConfig");
+        d.field("score_threshold", &self.score_threshold)
+            .field("max_per_frame", &self.max_per_frame)
+            .field("nms_iou", &self.nms_iou);
+        if let Some(r) = &self.radar_velocity {
+            d.field("radar_velocity", r);
+        }
+        d.finish()
+    }
+}
+
+/// How a box's velocity is read from the radar detections inside it. A road user moves along
+/// its heading, so each detection's radial velocity v_r = s (u · h), with u its unit line of
+/// sight and h the box's heading, gives the speed s; detections whose ground line of sight is
+/// more than `max_angle_deg` off the heading (or its reverse) are left out, since their
+/// speed's error grows as 1 / cos of that angle.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RadarVelocityConfig {
+    /// The box's footprint is widened by this on every side (bird's-eye view), m: a radar
+    /// detection's position is noisy, and the radar and the LiDAR sample a moving road user a
+    /// few tens of milliseconds apart.
+    pub margin_m: f32,
+    // The defaults (1.0 m, 60°, one detection) were chosen on the training split of the default
+    // study's cheap rig (docs/measurements.md, "The radar's Doppler read into the boxes"):
+    // margins of 0.25–1.0 m and angles of 30–75° were swept.
+    /// Largest angle between a detection's ground line of sight and the box's heading axis, deg.
+    pub max_angle_deg: f32,
+    /// Fewest such detections a box needs; with fewer the head's velocity stands.
+    pub min_detections: usize,
+    /// The classes whose velocity is read (those that move along their heading).
+    pub classes: Vec<Class>,
+}
+
+impl Default for RadarVelocityConfig {
+    fn default() -> Self {
+        RadarVelocityConfig {
+            margin_m: 1.0,
+            max_angle_deg: 60.0,
+            min_detections: 1,
+            classes: vec![Class::Car, Class::Truck, Class::Bus, Class::Motorcycle, Class::GolfCart],
+        }
+    }
+}
+
+impl RadarVelocityConfig {
+    pub fn validate(&self) -> std::result::Result<(), FusionError> {
+        let field = |name: &str, v: &dyn std::fmt::Display, why: &str| {
+            Err(FusionError::field(format!("decode.radar_velocity.{name}"), v, why))
+        };
+        if !(self.margin_m >= 0.0 && self.margin_m <= 5.0) {
+            return field("margin_m", &self.margin_m, "must be in [0, 5] m");
+        }
+        if !(self.max_angle_deg > 0.0 && self.max_angle_deg <= 85.0) {
+            return field("max_angle_deg", &self.max_angle_deg, "must be in (0, 85] degrees");
+        }
+        if self.min_detections == 0 {
+            return field("min_detections", &self.min_detections, "must be at least 1");
+        }
+        if self.classes.is_empty() {
+            return field("classes", &"[]", "must name at least one class");
+        }
+        Ok(())
     }
 }
 

@@ -4,7 +4,7 @@
 
 use crate::config::{
     Assignment, DecodeConfig, DetectorConfig, InputConfig, LossNorm, Preset, RadarClutterConfig, RadarPairConfig,
-    TrainConfig, VelocityTarget,
+    RadarVelocityConfig, TrainConfig, VelocityTarget,
 };
 use crate::grid::BevGrid;
 use crate::layout::SparseConfig;
@@ -31,6 +31,16 @@ pub fn default_input() -> InputConfig {
 /// the input is [`default_input`]'s, point for point.
 pub fn fusion_input() -> InputConfig {
     InputConfig { radar_pairs: Some(RadarPairConfig::default()), ..default_input() }
+}
+
+/// What every fusion preset decodes: `base`'s settings, and each vehicle box's velocity read from
+/// the Doppler of the radar detections inside it where they measure it
+/// ([`RadarVelocityConfig`]'s defaults; `hilo_detector::doppler`). The head's velocity stands
+/// for the boxes no radar detection measures (outside every radar's field, across its line of
+/// sight, or unseen). A study or `hilo train` turns the step off with the patch
+/// `{"decode": {"radar_velocity": null}}`.
+pub fn fusion_decode(base: &DecodeConfig) -> DecodeConfig {
+    DecodeConfig { radar_velocity: Some(RadarVelocityConfig::default()), ..base.clone() }
 }
 
 /// `centerpoint`: PointPillars' pillar encoder (32 channels), a backbone at strides 2/4/8

@@ -139,6 +139,7 @@ pub fn l4dr_like() -> DetectorConfig {
     DetectorConfig {
         name: "l4dr-like".into(),
         input: hilo_fusion::presets::fusion_input(),
+        decode: hilo_fusion::presets::fusion_decode(&centerpoint().decode),
         fusion: "early".into(),
         fusion_config: serde_json::json!({ "channels": 32, "aggregation": "modality_max", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_pixel" } }),
         ..centerpoint()
@@ -153,6 +154,7 @@ pub fn lirafusion_like() -> DetectorConfig {
     DetectorConfig {
         name: "lirafusion-like".into(),
         input: hilo_fusion::presets::fusion_input(),
+        decode: hilo_fusion::presets::fusion_decode(&centerpoint().decode),
         fusion: "early".into(),
         fusion_config: serde_json::json!({ "channels": 32, "aggregation": "modality_mean", "early": true, "middle": { "lidar_channels": 32, "out_channels": 32, "op": "gated_channel" } }),
         ..centerpoint()

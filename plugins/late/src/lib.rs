@@ -69,6 +69,7 @@ pub fn late() -> DetectorConfig {
     DetectorConfig {
         name: "late".into(),
         input: hilo_fusion::presets::fusion_input(),
+        decode: hilo_fusion::presets::fusion_decode(&base.decode),
         fusion: "late".into(),
         fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "backbone": base.backbone, "head_channels": base.head_channels }),
         ..base

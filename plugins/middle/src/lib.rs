@@ -54,6 +54,7 @@ pub fn bi_lrfusion_like() -> DetectorConfig {
     DetectorConfig {
         name: "bi-lrfusion-like".into(),
         input: hilo_fusion::presets::fusion_input(),
+        decode: hilo_fusion::presets::fusion_decode(&centerpoint().decode),
         fusion: "middle".into(),
         fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "bidirectional" }),
         ..centerpoint()
@@ -67,6 +68,7 @@ pub fn middle_attention() -> DetectorConfig {
     DetectorConfig {
         name: "middle-attention".into(),
         input: hilo_fusion::presets::fusion_input(),
+        decode: hilo_fusion::presets::fusion_decode(&centerpoint().decode),
         fusion: "middle".into(),
         fusion_config: serde_json::json!({ "lidar_channels": 32, "radar_channels": 16, "out_channels": 32, "op": "attention" }),
         ..centerpoint()

@@ -47,6 +47,7 @@ pub fn pointpillars_lr() -> DetectorConfig {
     DetectorConfig {
         name: "pointpillars-lr".into(),
         input: hilo_fusion::presets::fusion_input(),
+        decode: hilo_fusion::presets::fusion_decode(&pointpillars().decode),
         fusion: "raw".into(),
         fusion_config: serde_json::json!({ "channels": 48 }),
         ..pointpillars()
