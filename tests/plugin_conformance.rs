@@ -59,8 +59,9 @@ fn the_registry_names_each_fusion_presets_counterpart_and_the_studys_pair() {
 }
 
 /// Every preset that reads the radar reads its boxes' velocity from the Doppler (and only
-/// those: a LiDAR-only preset has no radar to read); the patch the docs give turns it off, and
-/// the preset's JSON then equals the one without the step.
+/// those: a LiDAR-only preset has no radar to read); the patch the docs give (`false`, or
+/// null) turns it off, and the preset's JSON then equals the one without the step; `true` is
+/// the defaults; a misspelt field is named with the ones expected.
 #[test]
 fn every_radar_preset_reads_the_doppler_and_a_null_patch_turns_it_off() {
     let registry = hilo::registry().unwrap();
@@ -69,8 +70,15 @@ fn every_radar_preset_reads_the_doppler_and_a_null_patch_turns_it_off() {
         let reads = det.decode.radar_velocity.is_some();
         assert_eq!(reads, registry.uses_radar(det), "{name}");
         if reads {
-            let off = det.with_patch(&serde_json::json!({ "decode": { "radar_velocity": null } })).unwrap();
+            let off = det.with_patch(&serde_json::json!({ "decode": { "radar_velocity": false } })).unwrap();
             assert_eq!(off.decode.radar_velocity, None, "{name}");
+            let null = det.with_patch(&serde_json::json!({ "decode": { "radar_velocity": null } })).unwrap();
+            assert_eq!(null, off, "{name}");
+            let on = off.with_patch(&serde_json::json!({ "decode": { "radar_velocity": true } })).unwrap();
+            assert_eq!(&on, det, "{name}: true is the defaults");
+            let typo = det.with_patch(&serde_json::json!({ "decode": { "radar_velocity": { "margn_m": 2.0 } } }));
+            let e = typo.unwrap_err().to_string();
+            assert!(e.contains("decode.radar_velocity") && e.contains("margn_m") && e.contains("margin_m"), "{e}");
             let json = serde_json::to_string(&off.decode).unwrap();
             assert!(!json.contains("radar_velocity"), "{name}: {json}");
             assert!(!format!("{:?}", off.decode).contains("radar_velocity"), "{name}");

@@ -191,7 +191,7 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
             .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     let mut bar = crate::progress::Reporter::new();
     let total = frames.len();
-    let (dets, per_frame) = hilo_detector::infer::detect_frames(&det, &frames, args.batch, &mut |n| {
+    let ((dets, per_frame), read) = hilo_detector::infer::detect_counted(&det, &frames, args.batch, &mut |n| {
         bar.task("detect", n, total, "frames")
     })?;
     bar.finish();
@@ -199,11 +199,12 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     let json = hilo_eval::boxes::submission_json(&hilo_eval::boxes::from_detections(&dets), meta);
     hilo_core::fs::write_atomic(&args.out, serde_json::to_string(&json)?.as_bytes())?;
     eprintln!(
-        "{} ({}) on {} frames: {:.1} ms per frame; wrote {}",
+        "{} ({}) on {} frames: {:.1} ms per frame{}; wrote {}",
         info.detector.name,
         args.run.display(),
         frames.len(),
         per_frame * 1e3,
+        read.note(),
         args.out.display()
     );
     Ok(())

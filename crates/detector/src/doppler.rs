@@ -40,6 +40,16 @@ pub struct DopplerCount {
     pub read: usize,
 }
 
+impl DopplerCount {
+    /// What `hilo detect` says of it: nothing when no box was of a class the step reads.
+    pub fn note(&self) -> String {
+        if self.boxes == 0 {
+            return String::new();
+        }
+        format!("; velocity read from the radar's Doppler for {} of {} boxes it reads", self.read, self.boxes)
+    }
+}
+
 impl std::ops::AddAssign for DopplerCount {
     fn add_assign(&mut self, o: DopplerCount) {
         self.boxes += o.boxes;

@@ -670,7 +670,9 @@ pub struct DecodeConfig {
     pub nms_iou: f32,
     /// Each decoded box's velocity from the Doppler of the radar detections inside it, where
     /// they measure it well (`None`: the head's velocity stands; see `hilo_detector::doppler`).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    /// Read from a table of its fields, or `false` (off; what a TOML study file can write, having
+    /// no null) or `true` (the defaults).
+    #[serde(skip_serializing_if = "Option::is_none", deserialize_with = "radar_velocity_or_flag")]
     pub radar_velocity: Option<RadarVelocityConfig>,
 }
 
@@ -726,6 +728,20 @@ impl Default for RadarVelocityConfig {
             min_detections: 1,
             classes: vec![Class::Car, Class::Truck, Class::Bus, Class::Motorcycle, Class::GolfCart],
         }
+    }
+}
+
+/// `decode.radar_velocity`: a table of [`RadarVelocityConfig`]'s fields, `true` (its defaults),
+/// `false` or null (off). A wrong field keeps serde's own message (the unknown field and the
+/// ones expected).
+fn radar_velocity_or_flag<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Option<RadarVelocityConfig>, D::Error> {
+    use serde::de::Error;
+    match serde_json::Value::deserialize(d)? {
+        serde_json::Value::Null | serde_json::Value::Bool(false) => Ok(None),
+        serde_json::Value::Bool(true) => Ok(Some(RadarVelocityConfig::default())),
+        v => serde_json::from_value(v).map(Some).map_err(D::Error::custom),
     }
 }
 

@@ -37,8 +37,9 @@ pub fn fusion_input() -> InputConfig {
 /// the Doppler of the radar detections inside it where they measure it
 /// ([`RadarVelocityConfig`]'s defaults; `hilo_detector::doppler`). The head's velocity stands
 /// for the boxes no radar detection measures (outside every radar's field, across its line of
-/// sight, or unseen). A study or `hilo train` turns the step off with the patch
-/// `{"decode": {"radar_velocity": null}}`.
+/// sight, or unseen). A patch turns the step off: `{"decode": {"radar_velocity": false}}` for
+/// `hilo train --detector-patch`, `decode = { radar_velocity = false }` under a study's
+/// `[detector_patch]`.
 pub fn fusion_decode(base: &DecodeConfig) -> DecodeConfig {
     DecodeConfig { radar_velocity: Some(RadarVelocityConfig::default()), ..base.clone() }
 }
