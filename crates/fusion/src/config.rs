@@ -701,7 +701,9 @@ impl std::fmt::Debug for DecodeConfig {
 /// its heading, so each detection's radial velocity v_r = s (u · h), with u its unit line of
 /// sight and h the box's heading, gives the speed s; detections whose ground line of sight is
 /// more than `max_angle_deg` off the heading (or its reverse) are left out, since their
-/// speed's error grows as 1 / cos of that angle.
+/// speed's error grows as 1 / cos of that angle. The defaults (1.0 m, 60°, one detection) were
+/// chosen on the training split of the default study's cheap rig, over margins of 0.25–1.0 m
+/// and angles of 30–75° (docs/measurements.md, "The radar's Doppler read into the boxes").
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RadarVelocityConfig {
@@ -709,9 +711,6 @@ pub struct RadarVelocityConfig {
     /// detection's position is noisy, and the radar and the LiDAR sample a moving road user a
     /// few tens of milliseconds apart.
     pub margin_m: f32,
-    // The defaults (1.0 m, 60°, one detection) were chosen on the training split of the default
-    // study's cheap rig (docs/measurements.md, "The radar's Doppler read into the boxes"):
-    // margins of 0.25–1.0 m and angles of 30–75° were swept.
     /// Largest angle between a detection's ground line of sight and the box's heading axis, deg.
     pub max_angle_deg: f32,
     /// Fewest such detections a box needs; with fewer the head's velocity stands.
