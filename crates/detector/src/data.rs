@@ -22,7 +22,7 @@ use hilo_dataset::Dataset;
 use hilo_dataset::background::BackgroundModel;
 use hilo_dataset::tables::SampleData;
 pub use hilo_fusion::config::{
-    Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, RadarPairConfig,
+    Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, RadarPairConfig, is_radial,
     radar_point,
 };
 pub use hilo_fusion::pillars::{Pillars, pillarize};
@@ -513,7 +513,7 @@ pub fn augment(aug: &Augmentation, f: &Frame, rng: &mut impl Rng) -> Frame {
         let (lx, ly) = xy(p[5], p[6]);
         // A paired detection's velocity vector (`pair_radar_velocities`) turns as a vector; a
         // radial one is rebuilt from v_r and the line of sight, bit for bit as before.
-        let radial = p[8] == p[4] * p[5] && p[9] == p[4] * p[6];
+        let radial = is_radial(p);
         let (vx, vy) = xy(p[8], p[9]);
         *p = radar_point([x * s, y * s, p[2] * s], p[3], p[4] * s, [lx, ly], p[7]);
         if !radial {

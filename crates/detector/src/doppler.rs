@@ -27,6 +27,7 @@
 //! road user's rotation (a turning vehicle's detections differ by ω × r).
 
 use crate::data::Frame;
+use crate::data::is_radial;
 use glam::{Vec2, Vec3};
 use hilo_core::Detection;
 use hilo_fusion::config::RadarVelocityConfig;
@@ -76,7 +77,7 @@ pub fn read_velocities(cfg: &RadarVelocityConfig, frame: &Frame, dets: &mut [Det
             if p[7] != 0.0 || off.dot(h).abs() > half_l || off.dot(across).abs() > half_w {
                 continue;
             }
-            if p[8] != p[4] * p[5] || p[9] != p[4] * p[6] {
+            if !is_radial(p) {
                 // Paired: the full ground velocity, at any angle to the heading.
                 speeds.push((Vec2::new(p[8], p[9]).dot(h), 1.0));
                 continue;

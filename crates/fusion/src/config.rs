@@ -420,6 +420,13 @@ pub fn radar_point(xyz: [f32; 3], rcs_dbsm: f32, v_r: f32, los: [f32; 2], lag_s:
     [xyz[0], xyz[1], xyz[2], rcs_dbsm, v_r, los[0], los[1], lag_s, v_r * los[0], v_r * los[1]]
 }
 
+/// Whether a radar point's velocity vector (features 8 and 9) is its radial one, v_r times the
+/// line of sight, as [`radar_point`] builds it; otherwise a second radar gave it the full ground
+/// velocity (`InputConfig::radar_pairs`).
+pub fn is_radial(p: &[f32; RADAR_FEATURES]) -> bool {
+    p[8] == p[4] * p[5] && p[9] == p[4] * p[6]
+}
+
 /// What a detector reads from a dataset.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
