@@ -529,29 +529,35 @@ mod tests {
         let e = load(d.path()).unwrap_err().to_string();
         assert!(e.contains("c.toml") && e.contains("studies of one scene and catalog each"), "{e}");
     }
-    /// The velocity study (`fixtures/velocity-study.toml`): the default study, its configurations
-    /// and traffic, with every detector's footprint velocity head and every schedule keeping the
-    /// site in three draws of four (the rest of the augmentation the preset's).
+    /// The default study keeps the site in three training draws of four and gives every
+    /// detector the footprint velocity head; `fixtures/turned-study.toml` is the same study with
+    /// the presets' own head and augmentation: the same configurations, traffic and datasets, and
+    /// a schedule equal to the preset's.
     #[test]
-    fn the_velocity_fixture_changes_the_heads_and_the_draws_only() {
+    fn the_turned_fixture_changes_the_heads_and_the_draws_only() {
         let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
-        let Loaded::Study(v) = load(&fixtures.join("velocity-study.toml")).unwrap() else { panic!("not a study") };
+        let Loaded::Study(v) = load(&fixtures.join("turned-study.toml")).unwrap() else { panic!("not a study") };
         let default = Study::load(&fixtures.join("study.toml")).unwrap();
         assert_eq!(v.file.configurations, default.file.configurations);
         assert_eq!((&v.scene_hash, &v.catalog_hash), (&default.scene_hash, &default.catalog_hash));
         assert_eq!(format!("{:?}", v.dataset), format!("{:?}", default.dataset));
-        let patch = v.file.detector_patch.as_ref().unwrap();
-        assert_eq!(
-            (patch["velocity_target"].as_str(), patch["velocity_weight"].as_f64()),
-            (Some("footprint"), Some(1.0))
-        );
+        let head = |s: &Study| {
+            let patch = s.file.detector_patch.as_ref().unwrap();
+            (patch["velocity_target"].as_str().map(str::to_owned), patch["velocity_weight"].as_f64())
+        };
+        assert_eq!(head(&default), (Some("footprint".to_owned()), Some(1.0)));
+        assert_eq!(head(&v), (Some("positives".to_owned()), Some(0.2)));
         let preset = hilo_detector::train::TrainConfig::default();
-        let t = crate::plan::scheduled(&v, "centerpoint", &preset).unwrap();
-        assert_eq!(t.augmentation.keep_site_p, 0.75);
-        assert_eq!(
-            (t.augmentation.rotate_deg, t.augmentation.flip_p),
-            (preset.augmentation.rotate_deg, preset.augmentation.flip_p)
-        );
+        let kept = crate::plan::scheduled(&default, "centerpoint", &preset).unwrap();
+        assert_eq!(kept.augmentation.keep_site_p, 0.75);
+        let turned = crate::plan::scheduled(&v, "centerpoint", &preset).unwrap();
+        assert_eq!(format!("{:?}", turned.augmentation), format!("{:?}", preset.augmentation));
+        for t in [&kept, &turned] {
+            assert_eq!(
+                (t.augmentation.rotate_deg, t.augmentation.flip_p),
+                (preset.augmentation.rotate_deg, preset.augmentation.flip_p)
+            );
+        }
     }
 
     /// The realism sweep (`fixtures/realism-study.toml`): the default study with the paper's

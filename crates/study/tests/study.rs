@@ -550,7 +550,7 @@ fn a_train_schedule_reaches_every_job_and_is_checked() {
         assert_eq!(p.detector, q.detector);
         assert_ne!(p.run, q.run, "{}: a rescheduled run has a folder of its own", p.id);
     }
-    // The augmentation's site-keeping share (fixtures/velocity-study.toml): the other
+    // The augmentation's site-keeping share (the default study's): the other
     // augmentation fields keep the preset's.
     let site = plan(&format!("{TWO_CONFIGS}\n[train_schedule.augmentation]\nkeep_site_p = 0.75\n")).unwrap();
     for (p, q) in site.jobs.iter().zip(&plain.jobs) {
