@@ -20,7 +20,18 @@ fn main() {
         format!("-dirty-{h:016x}")
     };
     println!("cargo:rustc-env=HILO_GIT_COMMIT={commit}{dirty}");
-    for p in ["../../.git/HEAD", "../../.git/index", "../../crates", "../../plugins", "../../src", "../../Cargo.lock"] {
+    // HEAD names a branch, whose commit lives under refs/: a commit or an amend changes that
+    // file, not HEAD. (Not packed-refs: a path that does not exist reruns this script on every
+    // build, and packing a branch's ref removes its file from refs/, which is a change there.)
+    for p in [
+        "../../.git/HEAD",
+        "../../.git/index",
+        "../../.git/refs",
+        "../../crates",
+        "../../plugins",
+        "../../src",
+        "../../Cargo.lock",
+    ] {
         println!("cargo:rerun-if-changed={p}");
     }
 }
