@@ -377,16 +377,16 @@ pub fn validate(args: &ValidateArgs) -> Result<()> {
     }
     if args.refit || args.recommend || args.absorb {
         let study = load_study(args.study.as_deref())?;
+        let registry = crate::train::registry()?;
         let mut report = if args.absorb {
-            hilo_study::validation::absorb(&study, &args.out)?
+            hilo_study::validation::absorb(&study, &registry, &args.out)?
         } else {
-            hilo_study::validation::refit(&study, &args.out)?
+            hilo_study::validation::refit(&study, &registry, &args.out)?
         };
         if let Some(source) = &args.transfer {
             report.transfer = Some(hilo_study::validation::transfer(&report, source)?);
         }
         if args.recommend {
-            let registry = crate::train::registry()?;
             let profile = hilo_study::profile(report.profile.parse()?, &study, &registry)?;
             let mut reporter = Reporter::new();
             let mut on = |p: hilo_study::Progress| reporter.study(p);

@@ -302,10 +302,27 @@ fn refuses_what_would_fit_the_wrong_thing(study: &std::path::Path, out: &std::pa
     let other = out.parent().unwrap().join("other-traffic.toml");
     std::fs::write(&other, format!("{COARSE}\n[dataset]\nseed = 99\n")).unwrap();
     refused(&["--refit".as_ref()], &other, &["other-traffic.toml", "is not the one validated there"]);
+    // Training sections join the study only where they change what the validation trains: the
+    // presets' own velocity head and augmentation written out open the folder, the footprint
+    // head does not.
+    let trains = |name: &str, target: &str, weight: f64, keep: f64| {
+        let path = out.parent().unwrap().join(name);
+        let extra = format!(
+            "\n[detector_patch]\nvelocity_target = \"{target}\"\nvelocity_weight = {weight:?}\n\
+             [train_schedule.augmentation]\nkeep_site_p = {keep:?}\n"
+        );
+        std::fs::write(&path, std::fs::read_to_string(study).unwrap() + &extra).unwrap();
+        path
+    };
+    let footprint = trains("footprint.toml", "footprint", 1.0, 0.75);
+    refused(&["--refit".as_ref()], &footprint, &["footprint.toml", "is not the one validated there"]);
     let mut edited = json(&own);
     edited["members"][3][1]["map_mean"] = 7.5.into();
     std::fs::write(&copy, serde_json::to_vec(&edited).unwrap()).unwrap();
     refused(&["--transfer".as_ref(), copy.as_os_str()], study, &["copy.json", "map_mean = 7.5", "[0, 1]"]);
+    let own_settings = trains("own-settings.toml", "positives", 0.2, 0.0);
+    let o = hilo().arg("validate").arg(&own_settings).arg("--out").arg(out).arg("--refit").output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
 /// Drops what measures time (`seconds`, `*_s`, `*_seconds`): it differs between any two runs.

@@ -341,7 +341,12 @@ impl ValidationPlan {
 /// What defines the validation of `study` at `profile` with `settings`: the study's defining
 /// sections as text (what the placement set depends on), and the fingerprint of all of it
 /// with the scene and catalog.
-fn fingerprint(study: &Study, profile: &Profile, settings: &ValidationSettings) -> Result<(String, String)> {
+fn fingerprint(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    settings: &ValidationSettings,
+) -> Result<(String, String)> {
     let sjson = serde_json::to_string(settings)?;
     // The study's weather conditions are no part of the validation (its placements are recorded
     // in the study's own weather), so a profile that runs them defines the same validation.
@@ -357,27 +362,56 @@ fn fingerprint(study: &Study, profile: &Profile, settings: &ValidationSettings) 
         .map(|c| hilo_plan::study::Configuration { given: None, ..c.clone() })
         .collect();
     let defining = format!("{:?}{:?}{:?}", study.file.placement, study.file.dataset, configurations);
-    // What changes the trainings (not the set) joins the fingerprint only when present, so
-    // folders made before the validation read these sections still open.
+    // What changes the trainings (not the set) joins the fingerprint only when it changes what
+    // the validation trains, so folders made before the validation read these sections, and a
+    // study file that writes out the presets' own settings, still open.
     let mut trains = String::new();
-    if let Some(p) = &study.file.detector_patch {
-        trains.push_str(&format!(" detector_patch: {p:?}"));
-    }
-    if let Some(t) = &study.file.train_schedule {
-        trains.push_str(&format!(" train_schedule: {t:?}"));
+    if changes_trainings(study, registry, profile, settings)? {
+        if let Some(p) = &study.file.detector_patch {
+            trains.push_str(&format!(" detector_patch: {p:?}"));
+        }
+        if let Some(t) = &study.file.train_schedule {
+            trains.push_str(&format!(" train_schedule: {t:?}"));
+        }
     }
     let fingerprint = hash(&[&format!("{defining}{trains}"), &sjson, &pjson, &study.scene_hash, &study.catalog_hash]);
     Ok((defining, fingerprint))
+}
+
+/// Whether the study's `[detector_patch]` or `[train_schedule]` makes the validation's presets
+/// (its LiDAR-only and its fusion preset) train otherwise than as the presets do.
+fn changes_trainings(
+    study: &Study,
+    registry: &Registry,
+    profile: &Profile,
+    settings: &ValidationSettings,
+) -> Result<bool> {
+    if study.file.detector_patch.is_none() && study.file.train_schedule.is_none() {
+        return Ok(false);
+    }
+    for radar in [false, true] {
+        // Settings recorded before the presets were resolved: the sections count as given.
+        let Ok(name) = settings.preset_for(radar) else { return Ok(true) };
+        let p = registry.preset(name)?;
+        let det = hilo_plan::plan::patched_detector(study, name, &p.detector, &profile.dataset)?;
+        let train = hilo_plan::plan::scheduled(study, name, &p.train)?;
+        if serde_json::to_value(&det)? != serde_json::to_value(&p.detector)?
+            || serde_json::to_value(&train)? != serde_json::to_value(&p.train)?
+        {
+            return Ok(true);
+        }
+    }
+    Ok(false)
 }
 
 /// Refuses `study` for work on the finished validation in `out` (`--refit`, `--absorb`) unless
 /// it is the study validated there: its scene, catalog, placement, traffic, configurations and
 /// training sections, under the recorded profile and settings. Another study's predictors
 /// would be fitted against trainings they did not produce.
-fn check_same_study(study: &Study, out: &Path) -> std::result::Result<(), StudyError> {
+fn check_same_study(study: &Study, registry: &Registry, out: &Path) -> std::result::Result<(), StudyError> {
     let r: FolderRecord = read_json(&out.join("validation-folder.json"), limit::TABLE)?;
     let (Some(profile), Some(settings)) = (&r.profile, &r.settings) else { return Ok(()) };
-    if fingerprint(study, profile, settings)?.1 != r.fingerprint {
+    if fingerprint(study, registry, profile, settings)?.1 != r.fingerprint {
         return Err(StudyError::folder(
             out,
             format!(
@@ -403,7 +437,7 @@ pub fn plan(
 ) -> Result<ValidationPlan> {
     let settings = &settings.resolved(registry, &study.source)?;
     let sjson = serde_json::to_string(settings)?;
-    let (defining, fingerprint) = fingerprint(study, profile, settings)?;
+    let (defining, fingerprint) = fingerprint(study, registry, profile, settings)?;
     claim(out, &fingerprint, study, profile, settings)?;
     // 1. The set.
     let set_hash = stage_hash("validation-set", &[&defining, &sjson, &study.scene_hash, &study.catalog_hash]);
@@ -893,8 +927,8 @@ impl Trained {
 /// Reads `<out>/validation.json`, computes the placement predictors again with this build (a
 /// validation run by an older build gains the predictors added since) and fits the calibrated
 /// objective again: no simulation, no training.
-pub fn refit(study: &Study, out: &Path) -> Result<ValidationReport> {
-    check_same_study(study, out)?;
+pub fn refit(study: &Study, registry: &Registry, out: &Path) -> Result<ValidationReport> {
+    check_same_study(study, registry, out)?;
     refit_report(study, read(out)?)
 }
 
@@ -930,8 +964,8 @@ fn refit_report(study: &Study, mut r: ValidationReport) -> Result<ValidationRepo
 /// eight sensors had one to four); each rig added is evidence where the optimiser goes. It stays in `validation.json`
 /// (its placement, dataset and trainings in `recommendation/`, `data/`, `runs/`), and a rerun of
 /// the validation keeps it. An error when no recommendation was trained.
-pub fn absorb(study: &Study, out: &Path) -> Result<ValidationReport> {
-    check_same_study(study, out)?;
+pub fn absorb(study: &Study, registry: &Registry, out: &Path) -> Result<ValidationReport> {
+    check_same_study(study, registry, out)?;
     let mut r = read(out)?;
     let Some(rec) = r.recommendation.take() else {
         return Err(StudyError::NotReady {
