@@ -597,9 +597,10 @@ mod tests {
         assert!(markdown(&c).contains("| clear (a second radar) | mAP |"));
         // Each value's MDE is its claim row's. Each accuracy effect gets the design that finds
         // 0.015, never smaller than the study's, or is said to be out of reach: on this report
-        // (the radar placed given the LiDARs), pedestrian AP in clear weather is found by the
-        // study's own design (MDE 0.012), mAP in clear weather and in fog needs more seeds and
-        // scenes, pedestrian AP in fog only more scenes.
+        // (the radar placed given the LiDARs, the site kept in training), pedestrian AP in clear
+        // weather is found by the study's own design (MDE 0.014), pedestrian AP in fog by more
+        // scenes, and mAP, whose seed variance alone exceeds the target within the caps, by no
+        // design in clear weather or in fog.
         let mut reached = Vec::new();
         for (w, (_, row)) in c.radar_worth.iter().zip(&rows) {
             let v = &w.value;
@@ -618,14 +619,12 @@ mod tests {
                 None => assert!(v.mde > 0.015, "{w:?}"),
             }
         }
-        assert_eq!(
-            reached,
-            [
-                (None, "mAP", (true, true)),
-                (None, "pedestrian AP", (false, false)),
-                (Some("fog"), "mAP", (true, true)),
-                (Some("fog"), "pedestrian AP", (false, true))
-            ]
+        assert_eq!(reached, [(None, "pedestrian AP", (false, false)), (Some("fog"), "pedestrian AP", (false, true))]);
+        let beyond_caps: Vec<_> =
+            c.radar_worth.iter().filter(|w| !w.value.second && w.value.design.is_none()).map(|w| &w.value).collect();
+        assert!(
+            beyond_caps.iter().filter(|v| v.metric == "mAP").count() == 2 && beyond_caps.iter().all(|v| v.mde > 0.015),
+            "{beyond_caps:?}"
         );
         let md = markdown(&c);
         assert!(md.contains("| clear (fog) | mAP |") && md.contains(" scenes (MDE 0.015)"), "{md}");
