@@ -620,12 +620,16 @@ mod tests {
             }
         }
         assert_eq!(reached, [(None, "pedestrian AP", (false, false)), (Some("fog"), "pedestrian AP", (false, true))]);
-        let beyond_caps: Vec<_> =
-            c.radar_worth.iter().filter(|w| !w.value.second && w.value.design.is_none()).map(|w| &w.value).collect();
-        assert!(
-            beyond_caps.iter().filter(|v| v.metric == "mAP").count() == 2 && beyond_caps.iter().all(|v| v.mde > 0.015),
-            "{beyond_caps:?}"
-        );
+        // The accuracy effects no design finds (the loop above holds each one's MDE above 0.015).
+        let beyond_caps: Vec<_> = c
+            .radar_worth
+            .iter()
+            .map(|w| &w.value)
+            .filter(|v| !v.second && v.design.is_none() && !crate::verdict::lower_is_better(&v.metric))
+            .map(|v| (v.condition.as_deref(), v.metric.as_str()))
+            .collect();
+        assert_eq!(beyond_caps, [(None, "mAP"), (Some("fog"), "mAP")]);
+        assert!(c.radar_worth.iter().all(|w| w.value.design.is_some() || w.value.mde > 0.015));
         let md = markdown(&c);
         assert!(md.contains("| clear (fog) | mAP |") && md.contains(" scenes (MDE 0.015)"), "{md}");
         assert!(md.contains("| reached |"), "{md}");
