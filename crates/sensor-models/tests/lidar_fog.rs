@@ -1,5 +1,6 @@
 //! Fog's echo against its sources: Hahner et al.'s soft-target channel against a brute-force
-//! sum and its far-field closed form; the echo's peak against a fine scan; and scans in fog
+//! sum, its far-field closed form and the tables of their published implementation; the echo's
+//! peak against a fine scan; and scans in fog
 //! reporting the fog's echo exactly where the lidar equation's closed form says it outshines a
 //! wall, at two visibilities, in each return mode.
 
@@ -103,6 +104,57 @@ fn the_echos_peak_is_the_maximum_of_a_fine_scan() {
                     && c.power(f64::from(lo) + half - 0.011) < 0.5 * best
             );
         }
+    }
+}
+
+/// Hahner et al.'s own numbers for free fog (the echo's peak with no hard target in front of
+/// it), from the lookup tables their published simulation ships
+/// (github.com/MartinHahner/LiDAR_fog_sim, commit 1cb9e072, `integral_lookup_tables`, entry
+/// r₀ = 200 m; CC BY-NC 4.0, quoted here as reference values): (α per m; the peak's range
+/// coordinate on their 0.1 m grid, unshifted; the same shifted by c·τ_H/2 so that a hard
+/// target's peak reads at its range, which is what hilo reports; the soft-target integral at
+/// that grid point, in seconds: their P_R_fog_soft / (C_A·P₀·β)).
+const HAHNER_TABLES: [(f64, f64, f64, f64); 4] = [
+    (0.005, 4.702351175587793, 1.704426595587793, 4.567987868107191e-09),
+    (0.02, 4.702351175587793, 1.704426595587793, 4.346567239173599e-09),
+    (0.06, 4.602301150575287, 1.6043765705752868, 3.815637193358727e-09),
+    (0.1, 4.602301150575287, 1.6043765705752868, 3.36208322143135e-09),
+];
+
+/// The echo against Hahner et al.'s published implementation, at four visibilities (599, 150,
+/// 50 and 30 m). Their integral runs over the pulse's time t, hilo's over its range u = c·t/2,
+/// so theirs times c/2 is hilo's P(R) / (π·β). Their peak is the best point of a grid of
+/// 0.10005 m (2,000 points over 200 m): hilo's peak lies within half a step of it, and its
+/// power is at least the grid's best and above it by no more than a grid's half step costs.
+#[test]
+fn the_echo_equals_hahner_et_al_s_published_tables() {
+    const C: f64 = 299_792_458.0;
+    let grid_m = 200.0 / 1999.0;
+    for (alpha, peak_r, reported_r, integral_s) in HAHNER_TABLES {
+        let visibility = 20f64.ln() / alpha;
+        let c = FogChannel::hahner(visibility, alpha);
+        let theirs = integral_s * C / 2.0;
+        let ours = c.power(peak_r) / (std::f64::consts::PI * c.beta_per_m_sr);
+        assert!(
+            (ours / theirs - 1.0).abs() < 1e-4,
+            "α {alpha}: P({peak_r}) / πβ = {ours:.7} against their {theirs:.7}"
+        );
+        assert!((peak_r - reported_r - c.pulse_m / 2.0).abs() < 1e-9, "their shift is c·τ_H/2");
+        let e = FogEcho::new(&c);
+        assert!(
+            (f64::from(e.range_m) - reported_r).abs() <= 0.5 * grid_m,
+            "α {alpha}: peak reported at {} m against their {reported_r} m",
+            e.range_m
+        );
+        let peak = f64::from(e.power) / (std::f64::consts::PI * c.beta_per_m_sr);
+        eprintln!(
+            "α {alpha} (V {visibility:.0} m): P/πβ at their peak {ours:.6} against {theirs:.6}; peak {peak:.6} reported at {:.3} m against their {reported_r:.3} m",
+            e.range_m
+        );
+        assert!(
+            peak >= theirs * (1.0 - 1e-4) && peak <= theirs * 1.002,
+            "α {alpha}: peak {peak:.7} against {theirs:.7}"
+        );
     }
 }
 
