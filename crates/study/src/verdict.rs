@@ -355,9 +355,14 @@ pub struct Calibration {
     pub pairs: usize,
     pub false_positives: usize,
     pub false_positive_rate: f64,
-    /// The rate's exact 95% binomial interval.
+    /// The rate's exact 95% binomial interval (every pair an independent trial).
     #[serde(default)]
     pub false_positive_interval: (f64, f64),
+    /// The rate's 95% interval with the groups resampled: pairs of one group share its seeds,
+    /// so they are not independent trials ([`crate::stats::cluster_rate_interval`]). The
+    /// reading takes the envelope of the two. None in reports written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub false_positive_interval_groups: Option<(f64, f64)>,
     /// Whether each A/A pair was tested with a seed variance pooled over the other groups only
     /// (leave one group out), so that the test cannot be calibrated by the pairs it judges.
     #[serde(default)]
@@ -994,8 +999,8 @@ impl Design<'_> {
     /// A/A pairs: for every group, each pair of its seeds, each tested with a seed variance
     /// pooled over the other groups ([`held_out_aa`]), so the variance is never estimated from
     /// the pair it judges. (Rigs are placed each for itself, so two rigs' LiDAR data are not
-    /// the same and no pair across rigs is an A/A pair.)
-    pub fn aa_pairs(&self) -> Vec<Test> {
+    /// the same and no pair across rigs is an A/A pair.) One list per group.
+    pub fn aa_pairs(&self) -> Vec<Vec<Test>> {
         let mut groups: BTreeMap<(&str, &str), Vec<&Scores>> = BTreeMap::new();
         for d in self.scores {
             if let Some(s) = d.scores.get("mAP") {
@@ -1331,7 +1336,7 @@ mod tests {
         // Every adjusted p is at least the raw one.
         assert!(comps.iter().all(|c| c.test.p_adjusted >= c.test.p - 1e-15));
         // A/A: 6 groups × 3 pairs of seeds.
-        assert_eq!(d.aa_pairs().len(), 6 * 3);
+        assert_eq!(d.aa_pairs().iter().map(Vec::len).collect::<Vec<_>>(), vec![3; 6]);
     }
 
     /// A difference shown within the margin is equivalent, not undecided; a claim whose sign
