@@ -1,8 +1,7 @@
 //! Fog's echo against its sources: Hahner et al.'s soft-target channel against a brute-force
 //! sum, its far-field closed form and the tables of their published implementation; the echo's
-//! peak against a fine scan; and scans in fog
-//! reporting the fog's echo exactly where the lidar equation's closed form says it outshines a
-//! wall, at two visibilities, in each return mode.
+//! peak against a fine scan; and scans in fog reporting the fog's echo exactly where the lidar
+//! equation's closed form says it outshines a wall, at two visibilities, in each return mode.
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 

@@ -6,7 +6,7 @@
 //! ran in this process (the two give the same report: results are kept in sample order and JSON
 //! numbers round-trip exactly).
 
-use crate::stats::{Scores, Test, scene_draws};
+use crate::stats::{Scores, scene_draws};
 use crate::verdict::{Calibration, Claim, Comparison, Curve, Design, DetectorScores, Margins, PresetRoles, adjust};
 use hilo_core::fs::{limit, read_json};
 use hilo_detector::Registry;
@@ -631,11 +631,10 @@ fn drop_share(pred: &Predictions, share: f64, seed: u64) -> Predictions {
 /// The test's false-positive rate on A/A pairs and its power on a planted degradation.
 fn calibrate(design: &Design, planted: &[DetectorScores], share: f64) -> Calibration {
     let alpha = 0.05;
-    let groups_aa = design.aa_pairs();
-    let significant = |g: &[Test]| g.iter().filter(|t| t.estimable && t.p < alpha).count();
-    let clusters: Vec<(usize, usize)> = groups_aa.iter().map(|g| (significant(g), g.len())).collect();
-    let aa: Vec<&Test> = groups_aa.iter().flatten().collect();
-    let fp = clusters.iter().map(|c| c.0).sum();
+    // Per group of A/A pairs: (significant, pairs).
+    let clusters: Vec<(usize, usize)> =
+        design.aa_pairs().iter().map(|g| (g.iter().filter(|t| t.estimable && t.p < alpha).count(), g.len())).collect();
+    let (fp, pairs) = clusters.iter().fold((0, 0), |(f, n), c| (f + c.0, n + c.1));
     let sv = design.seed_variance("mAP");
     // Per (configuration, preset): the detectors' scores, and the same with boxes dropped.
     type Arms<'a> = (Vec<&'a Scores>, Vec<&'a Scores>);
@@ -658,18 +657,18 @@ fn calibrate(design: &Design, planted: &[DetectorScores], share: f64) -> Calibra
         .map(|(a, b)| crate::stats::compare(a, b, sv, design.scenes, design.level))
         .collect();
     let found = tests.iter().filter(|t| t.estimable && t.p < alpha && t.estimate < 0.0).count();
-    let interval = crate::stats::binomial_interval(fp, aa.len(), 0.95);
+    let interval = crate::stats::binomial_interval(fp, pairs, 0.95);
     let by_groups = crate::stats::cluster_rate_interval(&clusters, 0.95, 10_000, 0xaa);
     let envelope = by_groups.map_or(interval, |g| (interval.0.min(g.0), interval.1.max(g.1)));
     Calibration {
         alpha,
-        pairs: aa.len(),
+        pairs,
         false_positives: fp,
-        false_positive_rate: fp as f64 / aa.len().max(1) as f64,
+        false_positive_rate: fp as f64 / pairs.max(1) as f64,
         false_positive_interval: interval,
         false_positive_interval_groups: by_groups,
         held_out: true,
-        reading: (!aa.is_empty()).then(|| crate::verdict::CalibrationReading::of(envelope, alpha)),
+        reading: (pairs > 0).then(|| crate::verdict::CalibrationReading::of(envelope, alpha)),
         planted_drop_share: share,
         planted_pairs: tests.len(),
         planted_mean_effect: tests.iter().map(|t| t.estimate).sum::<f64>() / tests.len().max(1) as f64,
