@@ -9,7 +9,9 @@ Every study extends fixtures/study.toml. The effects and where each comes from:
 - lidar_tables, lidar_range: one of the datasheet LiDARs' changes (beam tables; range by
   reflectivity from the lidar equation), taken from fixtures/sensors-datasheet.toml.
 - lidar_range_beam: lidar_range and the beams' width and return mode (`beam`), which needs the
-  lidar equation to decide which partial hits are seen: compare it with lidar_range.
+  lidar equation to decide which partial hits are seen: compare it with lidar_range. The quick
+  and default profiles cast rays of no width unless told, so this study and `all` set
+  `[dataset] lidar_beam_width = true`.
 - radar_azimuth, radar_resolution, radar_multipath, radar_side_lobes, radar_false_alarms,
   radar_vegetation, radar_aspect: one of the datasheet radars' effects (their azimuth tables;
   `doppler_resolution_mps`; both multipath losses; `side_lobe_level_db`; the false alarms and
@@ -138,12 +140,13 @@ def main():
     with open(sheet_path, "rb") as f:
         sheet = tomllib.load(f)
     base = os.path.join(FIXTURES, "study.toml")
-    studies = {"ideal": study(base, paper_path, []), "all": study(base, sheet_path, list(RIG.values()))}
+    width = "lidar_beam_width = true"
+    studies = {"ideal": study(base, paper_path, []), "all": study(base, sheet_path, [*RIG.values(), width])}
     for effect in ["lidar_tables", "lidar_range", "lidar_range_beam", "radar_azimuth", *RADAR_EFFECTS]:
         path = os.path.join(out, "catalogs", effect + ".toml")
         with open(path, "w") as f:
             f.write(catalog(one_effect(paper, sheet, effect)))
-        studies[effect] = study(base, path, [])
+        studies[effect] = study(base, path, [width] if effect == "lidar_range_beam" else [])
     for effect, line in RIG.items():
         studies[effect] = study(base, paper_path, [line])
     for name, text in studies.items():

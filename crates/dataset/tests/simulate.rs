@@ -515,3 +515,46 @@ fn an_unsynchronised_rig_scans_each_sensor_at_its_own_instant() {
     }
     assert!(format!("{skewed:?}").contains("time_sync_error_s: 0.02, rolling_shutter: true"));
 }
+
+/// `lidar_beam_width = false` casts a wide-beam LiDAR as rays of no width: its scans equal, to
+/// the bit, those of the same entry without its `beam`; left unset or true, the width is cast
+/// (other points), and the setting enters the fingerprint only when given.
+#[test]
+fn a_thin_beam_setting_scans_as_the_entry_without_its_beam() {
+    let scene = Scene::default_fixture().unwrap();
+    let w = world(&scene);
+    let beam = hilo_sensor_models::Beam {
+        horizontal_mrad: 3.0,
+        vertical_mrad: 1.5,
+        returns: hilo_sensor_models::ReturnMode::Strongest,
+        separation_m: 1.0,
+        rings: 2,
+    };
+    let with_beam = |b: Option<hilo_sensor_models::Beam>| -> Vec<RigSensor> {
+        rig(&scene)
+            .into_iter()
+            .map(|mut s| {
+                if let hilo_sensor_models::SensorSpec::Lidar(l) = &mut s.spec {
+                    l.beam = b;
+                    l.detection_range = Some(hilo_sensor_models::DetectionRange { range_m: 100.0, reflectivity: 0.8 });
+                }
+                s
+            })
+            .collect()
+    };
+    let (wide, none) = (with_beam(Some(beam)), with_beam(None));
+    let base = SimulateConfig { scenes: 1, seconds: 0.2, val_scenes: 1, val_seconds: 1.0, ..cfg() };
+    let run = |rig: &[RigSensor], width: Option<bool>| {
+        let c = SimulateConfig { lidar_beam_width: width, ..base.clone() }.validate().unwrap();
+        simulate_scene(&scene, &w, rig, &c, &train(0)).unwrap()
+    };
+    let thin = run(&none, None);
+    assert_eq!(run(&wide, Some(false)).frames[0].lidar, thin.frames[0].lidar);
+    let cast = run(&wide, None);
+    assert_ne!(cast.frames[0].lidar, thin.frames[0].lidar);
+    assert_eq!(run(&wide, Some(true)).frames[0].lidar, cast.frames[0].lidar);
+    assert_eq!(cast.frames[0].radar, thin.frames[0].radar, "the radar casts as before");
+    assert!(!format!("{base:?}").contains("lidar_beam_width"));
+    let off = SimulateConfig { lidar_beam_width: Some(false), ..base };
+    assert!(format!("{off:?}").contains("lidar_beam_width: false"));
+}

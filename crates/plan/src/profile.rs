@@ -194,6 +194,25 @@ pub fn default_presets(registry: &Registry) -> Vec<String> {
 /// `tiny` (seconds; for tests).
 pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<Profile> {
     let base = study.dataset.clone().into_inner();
+    // The LiDARs' beam width costs about twenty times a thin ray's casting and moved nothing
+    // measurable in the realism ablation (docs/realism.md): the paper profile casts it, the
+    // others cast rays of no width unless the study's `[dataset]` says.
+    let beams = beam_lidars(study);
+    let thin = |d: &SimulateConfig| {
+        let unset = d.lidar_beam_width.is_none() && !beams.is_empty();
+        SimulateConfig { lidar_beam_width: if unset { Some(false) } else { d.lidar_beam_width }, ..d.clone() }
+    };
+    let wide = SimulateConfig {
+        lidar_beam_width: base.lidar_beam_width.or((!beams.is_empty()).then_some(true)),
+        ..base.clone()
+    };
+    let beam_note = match (beams.is_empty(), study.dataset.lidar_beam_width) {
+        (false, None) => format!(
+            "; the beams' width of {} (rays of no width here; `lidar_beam_width = true` under `[dataset]` casts it)",
+            beams.join(", ")
+        ),
+        _ => String::new(),
+    };
     // Every detector and every ablation the plugins register, for the paper profile: the
     // default profile's presets first (the verdict takes the first fusion preset as the one
     // under study), then the others in registration order.
@@ -204,7 +223,8 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
     let p = match name {
         ProfileName::Quick => Profile {
             name,
-            dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..base }.validate()?,
+            dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..thin(&base) }
+                .validate()?,
             presets: default.iter().take(1).cloned().collect(),
             ablations: vec![],
             configurations: Some(2),
@@ -217,11 +237,11 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
             trainings_at_once: 2,
             tradeoff_cell_m: Some(2.0),
             conditions: Some(0),
-            leaves_out: "the study's configurations after its first two, its weather conditions, the fusion detectors, a third seed and longer training: the default profile adds them".into(),
+            leaves_out: format!("the study's configurations after its first two, its weather conditions, the fusion detectors, a third seed and longer training: the default profile adds them{beam_note}"),
         },
         ProfileName::Default => Profile {
             name,
-            dataset: study.dataset.clone(),
+            dataset: thin(&base).validate()?,
             presets: default.clone(),
             ablations: registry.primary().map(|(fusion, _)| registry.ablations_of(fusion)).unwrap_or_default(),
             configurations: Some(5),
@@ -234,11 +254,12 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
             trainings_at_once: 2,
             tradeoff_cell_m: None,
             conditions: Some(1),
-            leaves_out: "the study's configurations after its first five, its weather conditions after the first, the other detector presets (pointpillars, pointpillars-lr, l4dr-like, bi-lrfusion-like, late) and the l4dr-like ablation, and each preset's default schedule (6,000 samples here against 30,000 for centerpoint, 24,000 for lirafusion-like, 12,000 for the others): `--profile paper` adds them; 6,000 samples leave every detector short of its plateau (the learning curves show it)".into(),
+            leaves_out: format!("the study's configurations after its first five, its weather conditions after the first, the other detector presets (pointpillars, pointpillars-lr, l4dr-like, bi-lrfusion-like, late) and the l4dr-like ablation, and each preset's default schedule (6,000 samples here against 30,000 for centerpoint, 24,000 for lirafusion-like, 12,000 for the others){beam_note}: `--profile paper` adds them; 6,000 samples leave every detector short of its plateau (the learning curves show it)"),
         },
         ProfileName::Paper => Profile {
             name,
-            dataset: SimulateConfig { scenes: 30, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, val_scenes: 20, ..base }.validate()?,
+            dataset: SimulateConfig { scenes: 30, seconds: 20.0, rate_hz: 20.0, sweep_rate_hz: 20.0, val_scenes: 20, ..wide }
+                .validate()?,
             presets: detectors,
             ablations,
             configurations: None,
@@ -255,7 +276,8 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
         },
         ProfileName::Tiny => Profile {
             name,
-            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..base }.validate()?,
+            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..thin(&base) }
+                .validate()?,
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             ablations: vec![],
             configurations: Some(2),
@@ -272,6 +294,16 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
         },
     };
     Ok(p)
+}
+
+/// The LiDARs of the study's configurations whose catalog entry gives a beam width, by name.
+pub fn beam_lidars(study: &Study) -> Vec<String> {
+    let mut used: Vec<String> = study.file.configurations.iter().flat_map(|c| c.type_names()).collect();
+    used.sort();
+    used.dedup();
+    used.into_iter()
+        .filter(|n| matches!(study.catalog.get(n), Ok(hilo_sensor_models::SensorSpec::Lidar(l)) if l.beam.is_some()))
+        .collect()
 }
 
 #[cfg(test)]
@@ -324,6 +356,54 @@ mod tests {
                 "{before} (said of the profile's own detectors: `--presets centerpoint,pointpillars` chose them here)"
             )
         );
+    }
+
+    /// The beams' width: the paper profile casts it, the others rays of no width, unless the
+    /// study's `[dataset]` says; a study whose LiDARs give no width is left as it was (its
+    /// datasets' fingerprints unchanged), and what the profile leaves out says so.
+    #[test]
+    fn the_beams_width_is_the_paper_profiles_unless_the_study_says() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
+        let registry = Registry::with_builtin();
+        let tmp = tempfile::tempdir().unwrap();
+        let parse = |extra: &str| {
+            let (base, catalog) = (dir.join("study.toml"), dir.join("sensors-datasheet.toml"));
+            let f = tmp.path().join("s.toml");
+            std::fs::write(&f, format!("extends = {base:?}\ncatalog = {catalog:?}\n{extra}")).unwrap();
+            Study::load(&f).unwrap()
+        };
+        let field = parse("");
+        assert_eq!(beam_lidars(&field), ["lidar-16", "lidar-32", "lidar-64"]);
+        let width = |s: &Study, name| profile(name, s, &registry).unwrap().dataset.lidar_beam_width;
+        for name in [ProfileName::Tiny, ProfileName::Quick, ProfileName::Default] {
+            assert_eq!(width(&field, name), Some(false), "{name}");
+        }
+        assert_eq!(width(&field, ProfileName::Paper), Some(true));
+        let default = profile(ProfileName::Default, &field, &registry).unwrap();
+        assert!(
+            default.leaves_out.contains("the beams' width of lidar-16, lidar-32, lidar-64"),
+            "{}",
+            default.leaves_out
+        );
+        let paper = profile(ProfileName::Paper, &field, &registry).unwrap();
+        assert!(!paper.leaves_out.contains("width"));
+        // The study's own choice stands in every profile, and is not called left out.
+        for (extra, want) in
+            [("[dataset]\nlidar_beam_width = true", true), ("[dataset]\nlidar_beam_width = false", false)]
+        {
+            let s = parse(extra);
+            for name in ProfileName::ALL {
+                let p = profile(name, &s, &registry).unwrap();
+                assert_eq!(p.dataset.lidar_beam_width, Some(want), "{extra} {name}");
+                assert!(!p.leaves_out.contains("beams' width"), "{}", p.leaves_out);
+            }
+        }
+        // The paper's sensors give no width: every profile leaves the setting unset.
+        let ideal = Study::parse(include_str!("../../../fixtures/study.toml"), &dir, "s.toml").unwrap();
+        assert!(beam_lidars(&ideal).is_empty());
+        for name in ProfileName::ALL {
+            assert_eq!(width(&ideal, name), None, "{name}");
+        }
     }
 
     #[test]

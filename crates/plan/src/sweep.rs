@@ -653,6 +653,15 @@ mod tests {
         assert!(!all.catalog.radar("radar-4d").unwrap().effects.is_ideal());
         assert!(all.catalog.lidar("lidar-16").unwrap().detection_range.is_some());
         assert!(all.catalog.lidar("lidar-16").unwrap().beam.is_some());
+        // The width is cast at any profile where the study asks for it, and only there.
+        assert_eq!((all.dataset.lidar_beam_width, beam.dataset.lidar_beam_width), (Some(true), Some(true)));
+        assert!(
+            w.shards.iter().filter(|s| !["all", "lidar_range_beam"].contains(&s.name.as_str())).all(|s| s
+                .study
+                .dataset
+                .lidar_beam_width
+                .is_none())
+        );
         // It refuses a folder that holds something.
         let again = std::process::Command::new("python3").arg(&script).arg(&out).output().unwrap();
         assert!(!again.status.success());

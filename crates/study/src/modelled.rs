@@ -55,9 +55,15 @@ pub fn modelled(study: &Study, dataset: &SimulateConfig) -> Vec<Modelled> {
             Some(format!("{} ({mode}, {} × {} mrad)", l.name, b.horizontal_mrad, b.vertical_mrad))
         })
         .collect();
+    // A profile that casts rays of no width leaves the catalog's beams out ([`SimulateConfig`]).
+    let thin = dataset.lidar_beam_width == Some(false) && !beams.is_empty();
     push(
         "LiDAR beam width and return mode (partial hits, mixed pixels)",
-        which(beams.iter().map(String::as_str).collect()),
+        if thin {
+            (false, format!("rays of no width in this profile (the catalog's: {})", beams.join(", ")))
+        } else {
+            which(beams.iter().map(String::as_str).collect())
+        },
     );
     // Fog's own echo: the conditions that ask for it, for the LiDARs with a detection range.
     let ranged: Vec<&str> = lidars.iter().filter(|l| l.detection_range.is_some()).map(|l| l.name.as_str()).collect();
@@ -165,5 +171,33 @@ mod tests {
         assert_eq!(by("rig clock offsets"), "5 ms (1σ)");
         assert_eq!(by("fog's echo"), "dense fog, echo (lidar-16, lidar-32, lidar-64)");
         assert_eq!(by("parked cars"), "60% of bays taken, 30 min mean stay");
+        // A profile that casts rays of no width says the catalog's widths are not modelled.
+        let thin = SimulateConfig { lidar_beam_width: Some(false), ..(*s.dataset).clone() };
+        let m = modelled(&s, &thin);
+        let beam = m.iter().find(|e| e.effect.starts_with("LiDAR beam width")).unwrap();
+        assert!(!beam.on);
+        assert!(
+            beam.detail.starts_with("rays of no width in this profile (the catalog's: lidar-16 (strongest"),
+            "{beam:?}"
+        );
+        assert_eq!(m.iter().filter(|e| !e.on).count(), 1);
+    }
+
+    /// The field study: everything a setting models is on at the default profile but the beams'
+    /// width, which the paper profile adds.
+    #[test]
+    fn the_field_study_models_every_field_effect_but_the_beams_width_at_the_default_profile() {
+        let s = Study::load(&fixture("field-study.toml")).unwrap();
+        let registry = hilo_detector::Registry::with_builtin();
+        for (name, off) in [
+            (hilo_plan::profile::ProfileName::Default, vec!["LiDAR beam width", "fog's echo", "parked cars"]),
+            (hilo_plan::profile::ProfileName::Paper, vec!["fog's echo", "parked cars"]),
+        ] {
+            let p = hilo_plan::profile::profile(name, &s, &registry).unwrap();
+            let m = modelled(&s, &p.dataset);
+            let not: Vec<&str> = m.iter().filter(|e| !e.on).map(|e| e.effect.as_str()).collect();
+            assert_eq!(not.len(), off.len(), "{name}: {not:?}");
+            assert!(not.iter().zip(&off).all(|(a, b)| a.starts_with(b)), "{name}: {not:?}");
+        }
     }
 }
