@@ -198,20 +198,19 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
     // measurable in the realism ablation (docs/realism.md): the paper profile casts it, the
     // others cast rays of no width unless the study's `[dataset]` says.
     let beams = beam_lidars(study);
-    let thin = |d: &SimulateConfig| {
-        let unset = d.lidar_beam_width.is_none() && !beams.is_empty();
-        SimulateConfig { lidar_beam_width: if unset { Some(false) } else { d.lidar_beam_width }, ..d.clone() }
-    };
-    let wide = SimulateConfig {
-        lidar_beam_width: base.lidar_beam_width.or((!beams.is_empty()).then_some(true)),
+    let decided = base.lidar_beam_width.is_none() && !beams.is_empty();
+    let cast = |width: bool| SimulateConfig {
+        lidar_beam_width: if decided { Some(width) } else { base.lidar_beam_width },
         ..base.clone()
     };
-    let beam_note = match (beams.is_empty(), study.dataset.lidar_beam_width) {
-        (false, None) => format!(
+    let (thin, wide) = (cast(false), cast(true));
+    let beam_note = if decided {
+        format!(
             "; the beams' width of {} (rays of no width here; `lidar_beam_width = true` under `[dataset]` casts it)",
             beams.join(", ")
-        ),
-        _ => String::new(),
+        )
+    } else {
+        String::new()
     };
     // Every detector and every ablation the plugins register, for the paper profile: the
     // default profile's presets first (the verdict takes the first fusion preset as the one
@@ -223,7 +222,7 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
     let p = match name {
         ProfileName::Quick => Profile {
             name,
-            dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..thin(&base) }
+            dataset: SimulateConfig { scenes: 4, seconds: 10.0, rate_hz: 10.0, val_scenes: 6, val_seconds: 10.0, ..thin.clone() }
                 .validate()?,
             presets: default.iter().take(1).cloned().collect(),
             ablations: vec![],
@@ -241,7 +240,7 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
         },
         ProfileName::Default => Profile {
             name,
-            dataset: thin(&base).validate()?,
+            dataset: thin.clone().validate()?,
             presets: default.clone(),
             ablations: registry.primary().map(|(fusion, _)| registry.ablations_of(fusion)).unwrap_or_default(),
             configurations: Some(5),
@@ -276,7 +275,7 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
         },
         ProfileName::Tiny => Profile {
             name,
-            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..thin(&base) }
+            dataset: SimulateConfig { scenes: 2, seconds: 1.5, rate_hz: 10.0, val_scenes: 5, val_seconds: 1.0, ..thin.clone() }
                 .validate()?,
             presets: vec!["centerpoint".into(), "pointpillars-lr".into()],
             ablations: vec![],
@@ -298,10 +297,9 @@ pub fn profile(name: ProfileName, study: &Study, registry: &Registry) -> Result<
 
 /// The LiDARs of the study's configurations whose catalog entry gives a beam width, by name.
 pub fn beam_lidars(study: &Study) -> Vec<String> {
-    let mut used: Vec<String> = study.file.configurations.iter().flat_map(|c| c.type_names()).collect();
-    used.sort();
-    used.dedup();
-    used.into_iter()
+    study
+        .type_names()
+        .into_iter()
         .filter(|n| matches!(study.catalog.get(n), Ok(hilo_sensor_models::SensorSpec::Lidar(l)) if l.beam.is_some()))
         .collect()
 }

@@ -26,10 +26,7 @@ bounce, clock drift";
 /// The effects of the sensors the study's configurations use, under its dataset settings
 /// `dataset` (the profile's: the study's `[dataset]` with the profile's sizes).
 pub fn modelled(study: &Study, dataset: &SimulateConfig) -> Vec<Modelled> {
-    let mut used: Vec<String> = study.file.configurations.iter().flat_map(|c| c.type_names()).collect();
-    used.sort();
-    used.dedup();
-    let sensors: Vec<&SensorSpec> = used.iter().filter_map(|n| study.catalog.get(n).ok()).collect();
+    let sensors: Vec<&SensorSpec> = study.type_names().iter().filter_map(|n| study.catalog.get(n).ok()).collect();
     let lidars: Vec<_> =
         sensors.iter().filter_map(|s| if let SensorSpec::Lidar(l) = s { Some(l) } else { None }).collect();
     let radars: Vec<_> =
