@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
-"""Writes the realism ablation: the default study with each modelled effect switched on alone,
-none, and all together, as a directory of study files (a sweep):
+"""Writes the realism ablation: the default study on the paper's sensors with each modelled
+effect switched on alone, none, and all together, as a directory of study files (a sweep):
     python3 scripts/realism-ablation.py OUT
     hilo study OUT --profile quick --presets centerpoint,lirafusion-like --out ablation
 
-Every study extends fixtures/study.toml. The effects and where each comes from:
+Every study extends fixtures/paper-sensors-study.toml (the default study on the paper's
+sensors). The effects and where each comes from:
 - ideal: the paper's sensors (fixtures/sensors.toml), a perfect rig.
 - lidar_tables, lidar_range: one of the datasheet LiDARs' changes (beam tables; range by
   reflectivity from the lidar equation), taken from fixtures/sensors-datasheet.toml.
@@ -139,7 +140,7 @@ def main():
         paper = tomllib.load(f)
     with open(sheet_path, "rb") as f:
         sheet = tomllib.load(f)
-    base = os.path.join(FIXTURES, "study.toml")
+    base = os.path.join(FIXTURES, "paper-sensors-study.toml")
     width = "lidar_beam_width = true"
     studies = {"ideal": study(base, paper_path, []), "all": study(base, sheet_path, [*RIG.values(), width])}
     for effect in ["lidar_tables", "lidar_range", "lidar_range_beam", "radar_azimuth", *RADAR_EFFECTS]:

@@ -9,8 +9,8 @@ and a sweep study over all four, so each datasheet change is measured alone:
   (`elevations_deg`) for the LiDARs that have one there; ranges as the paper's.
 - OUT/sensors-range.toml: fixtures/sensors.toml with the datasheet file's `max_range_m` and
   `detection_range` (the lidar equation); beams spread as the paper's.
-The study files extend fixtures/study.toml; the sweep lists the paper's catalog, the two above
-and the datasheet catalog. OUT must not exist yet or be empty.
+The study files extend fixtures/paper-sensors-study.toml; the sweep lists the paper's catalog,
+the two above and the datasheet catalog. OUT must not exist yet or be empty.
 """
 import os
 import re
@@ -71,7 +71,7 @@ def main():
     for path, text in [(catalogs["tables"], tables), (catalogs["range"], ranges)]:
         with open(path, "w") as f:
             f.write(text)
-    base = os.path.abspath(os.path.join(FIXTURES, "study.toml"))
+    base = os.path.abspath(os.path.join(FIXTURES, "paper-sensors-study.toml"))
     for variant, catalog in catalogs.items():
         with open(os.path.join(out, variant + ".toml"), "w") as f:
             f.write(f"extends = {base!r}\ncatalog = {catalog!r}\n".replace("'", '"'))

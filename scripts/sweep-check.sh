@@ -16,7 +16,7 @@ if cmp -s "$WORK/list.toml" "$WORK/dear.toml"; then
   echo "fixtures/sensors.toml has no 'price_usd = 4000.0' line to change" >&2
   exit 1
 fi
-{ echo 'catalogs = ["list.toml", "dear.toml"]'; cat fixtures/study.toml; } > "$WORK/sweep.toml"
+{ echo 'catalogs = ["list.toml", "dear.toml"]'; cat fixtures/paper-sensors-study.toml; } > "$WORK/sweep.toml"
 
 echo "+ hilo study sweep.toml --profile $PROFILE (one process)"
 start=$(date +%s)

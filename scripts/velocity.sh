@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Velocity from LiDAR sweeps and the radar's Doppler: the default study's cheap rig
-# (2x lidar-16 + radar) recorded with LiDAR sweeps between its key frames, `centerpoint` and
-# `lirafusion-like` at their default schedules, each as its preset (single-frame LiDAR) and with
+# Velocity from LiDAR sweeps and the radar's Doppler: the default study's cheap rig on the
+# paper's sensors (2x lidar-16 + radar) recorded with LiDAR sweeps between its key frames,
+# `centerpoint` and `lirafusion-like` at their default schedules, each as its preset (single-frame LiDAR) and with
 # fixtures/patches/ten-sweeps.json (ten LiDAR sweeps, 0.9 s, velocity loss weighted 2.0, 20
 # points per pillar); prints mAP, NDS, mAVE, and car and pedestrian velocity error per run and seed.
 #
@@ -16,8 +16,8 @@ SEEDS=${3:-1}
 samples=()
 [ -n "${4:-}" ] && samples=(--samples "$4")
 mkdir -p "$OUT/runs"
-sed 's/^sweep_rate_hz = 10.0 .*$/sweep_rate_hz = 10.0\nlidar_sweeps = true/' fixtures/study.toml > "$OUT/study.toml"
-grep -q '^lidar_sweeps = true$' "$OUT/study.toml" || { echo "fixtures/study.toml has no sweep_rate_hz line to extend" >&2; exit 1; }
+sed 's/^sweep_rate_hz = 10.0 .*$/sweep_rate_hz = 10.0\nlidar_sweeps = true/' fixtures/paper-sensors-study.toml > "$OUT/study.toml"
+grep -q '^lidar_sweeps = true$' "$OUT/study.toml" || { echo "fixtures/paper-sensors-study.toml has no sweep_rate_hz line to extend" >&2; exit 1; }
 "$HILO" place "$OUT/study.toml" --out "$OUT/placements" > "$OUT/place.log" 2>&1
 "$HILO" simulate "$OUT/study.toml" --placement "$OUT/placements/2x_lidar_16_radar.json" --out "$OUT/data" > "$OUT/simulate.log" 2>&1
 for seed in $(seq 0 $((SEEDS - 1))); do

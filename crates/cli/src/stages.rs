@@ -10,7 +10,8 @@ use hilo_study::place::{place_all, prepare_study, write_placements};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
-/// The embedded default study: the paper's configurations on the default intersection.
+/// The embedded default study: the paper's configurations on the default intersection, on field
+/// sensors (its catalog, `sensors-datasheet.toml`, is embedded too).
 pub const DEFAULT_STUDY_TOML: &str = include_str!("../../../fixtures/study.toml");
 
 /// The source the embedded default study is reported under.
@@ -24,8 +25,7 @@ pub fn load_study(path: Option<&Path>) -> Result<Study> {
             let abs = std::fs::canonicalize(p).with_context(|| format!("study file {}", p.display()))?;
             Study::load(&abs).with_context(|| format!("loading study {}", p.display()))
         }
-        None => Study::parse(DEFAULT_STUDY_TOML, Path::new("."), EMBEDDED_STUDY)
-            .context("loading the embedded default study"),
+        None => Study::parse_embedded(DEFAULT_STUDY_TOML, EMBEDDED_STUDY).context("loading the embedded default study"),
     }
 }
 

@@ -105,7 +105,7 @@ fn load(path: Option<&Path>) -> Result<Loaded> {
 
 /// The embedded default study, as a folder that recorded it reopens it.
 fn default_study() -> hilo_study::Result<Study> {
-    Study::parse(crate::stages::DEFAULT_STUDY_TOML, Path::new("."), EMBEDDED_STUDY)
+    Study::parse_embedded(crate::stages::DEFAULT_STUDY_TOML, EMBEDDED_STUDY)
 }
 
 /// The study and plan a folder records, checked against the study file as it is now.

@@ -23,7 +23,9 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
         "## The paper's claims",
         "## Configurations",
         "## What the simulation models",
-        "| radar side lobes | no |",
+        // The default study runs on field sensors, and the tiny profile casts rays of no width.
+        "| radar side lobes | yes | radar-4d |",
+        "| LiDAR beam width and return mode (partial hits, mixed pixels) | no | rays of no width in this profile",
         "## Accuracy",
         "## Is the difference real?",
         "## Calibration of the test",
@@ -130,8 +132,9 @@ fn tiny_study_runs_every_stage_and_writes_the_report() {
     assert!(!o.status.success() && err.contains("holds another study"), "{err}");
     assert_eq!(before, std::fs::read(out.join("report.json")).unwrap());
     // A validation of this study in its `validation/` folder joins the report (the committed
-    // quick validation of the embedded study stands in for `hilo validate --out study/validation`);
-    // one of another study is named and left out.
+    // quick validation of the embedded study, made when it ran on the paper's sensors, stands in
+    // for `hilo validate --out study/validation`: a report matches a validation by the study's
+    // name); one of another study is named and left out.
     let quick = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/validation-quick/validation.json");
     let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(quick).unwrap()).unwrap();
     std::fs::create_dir_all(out.join("validation")).unwrap();
@@ -263,7 +266,7 @@ fn a_junction_of_an_opendrive_map_is_imported_and_studied() {
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("name one"));
     // The study.
     let study = dir.path().join("study.toml");
-    let fixture = include_str!("../../../fixtures/study.toml");
+    let fixture = include_str!("../../../fixtures/paper-sensors-study.toml");
     std::fs::write(&study, format!("scene = {:?}\n{fixture}\n[junction]\nid = \"150\"\n", map.display().to_string()))
         .unwrap();
     let out = dir.path().join("out");

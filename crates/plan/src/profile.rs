@@ -314,8 +314,7 @@ mod tests {
     /// when it runs none, so such a profile's JSON (and a folder's fingerprint) is unchanged.
     #[test]
     fn the_conditions_field_reads_every_form_it_was_written_in() {
-        let study =
-            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
+        let study = Study::parse_embedded(include_str!("../../../fixtures/study.toml"), "s.toml").unwrap();
         let registry = Registry::with_builtin();
         let quick = profile(ProfileName::Quick, &study, &registry).unwrap();
         let json = serde_json::to_value(&quick).unwrap();
@@ -340,8 +339,7 @@ mod tests {
     /// it speaks of the profile's own.
     #[test]
     fn chosen_presets_replace_the_profiles_and_say_so() {
-        let study =
-            Study::parse(include_str!("../../../fixtures/study.toml"), std::path::Path::new("."), "s.toml").unwrap();
+        let study = Study::parse_embedded(include_str!("../../../fixtures/study.toml"), "s.toml").unwrap();
         let registry = Registry::with_builtin();
         let mut p = profile(ProfileName::Quick, &study, &registry).unwrap();
         let before = p.leaves_out.clone();
@@ -397,7 +395,7 @@ mod tests {
             }
         }
         // The paper's sensors give no width: every profile leaves the setting unset.
-        let ideal = Study::parse(include_str!("../../../fixtures/study.toml"), &dir, "s.toml").unwrap();
+        let ideal = Study::load(&dir.join("paper-sensors-study.toml")).unwrap();
         assert!(beam_lidars(&ideal).is_empty());
         for name in ProfileName::ALL {
             assert_eq!(width(&ideal, name), None, "{name}");

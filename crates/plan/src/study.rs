@@ -7,6 +7,7 @@ use hilo_core::{FieldError, Valid};
 use hilo_dataset::simulate::SimulateConfig;
 use hilo_placement_ip::pipeline::PlacementConfig;
 use hilo_raycast::Scene;
+use hilo_sensor_models::spec::EMBEDDED_CATALOGS;
 use hilo_sensor_models::{Catalog, SensorSpec};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -368,6 +369,18 @@ impl ValidationSettings {
     }
 }
 
+/// The catalog an embedded study names: one of the catalogs hilo embeds, by file name.
+fn embedded_catalog(name: &Path, source: &str) -> Result<Catalog> {
+    match name.to_str().and_then(Catalog::embedded) {
+        Some(c) => Ok(c?),
+        None => {
+            let names = EMBEDDED_CATALOGS.map(|(n, _)| n).join(", ");
+            let why = format!("names no catalog hilo embeds ({names}); an embedded study reads no files");
+            Err(StudyError::setting(source, "catalog", format!("{name:?}"), why))
+        }
+    }
+}
+
 /// The key of a study file that names the study it builds on.
 pub const EXTENDS_KEY: &str = "extends";
 
@@ -659,9 +672,20 @@ impl Study {
         Study::parse(&text, path.parent().unwrap_or(Path::new(".")), &path.display().to_string())
     }
 
-    /// A study from TOML text whose relative paths resolve against `dir` (the embedded default
-    /// study passes its text and `.`).
+    /// A study from TOML text whose relative paths resolve against `dir`.
     pub fn parse(text: &str, dir: &Path, source: &str) -> Result<Study> {
+        Study::build(Study::parse_file(text, source)?, dir, source, false)
+    }
+
+    /// The embedded default study (or another embedded one): its `catalog` names one of the
+    /// catalogs hilo embeds (`sensors.toml`, `sensors-datasheet.toml`), not a file; any other
+    /// relative path resolves against the working folder.
+    pub fn parse_embedded(text: &str, source: &str) -> Result<Study> {
+        Study::build(Study::parse_file(text, source)?, Path::new("."), source, true)
+    }
+
+    /// The study file of TOML text, before its settings are checked.
+    fn parse_file(text: &str, source: &str) -> Result<StudyFile> {
         if let Ok(table) = toml::from_str::<toml::Table>(text) {
             if let Some(key) = LIST_KEYS.iter().chain(&[WEATHERS_KEY]).find(|k| table.contains_key(**k)) {
                 return Err(StudyError::from(hilo_core::fs::FileError::Content {
@@ -673,17 +697,21 @@ impl Study {
             }
             refuse_non_finite(&table, source)?;
         }
-        let file: StudyFile = toml::from_str(text).map_err(|e| {
+        toml::from_str(text).map_err(|e| {
             StudyError::from(hilo_core::fs::FileError::Content {
                 path: PathBuf::from(source),
                 message: format!("invalid study: {e}"),
             })
-        })?;
-        Study::from_file(file, dir, source)
+        })
     }
 
     /// A study from its parsed file: validates it and loads its scene and catalog.
-    pub fn from_file(mut file: StudyFile, dir: &Path, source: &str) -> Result<Study> {
+    pub fn from_file(file: StudyFile, dir: &Path, source: &str) -> Result<Study> {
+        Study::build(file, dir, source, false)
+    }
+
+    /// [`Study::from_file`], its catalog an embedded one when `embedded`.
+    fn build(mut file: StudyFile, dir: &Path, source: &str, embedded: bool) -> Result<Study> {
         let bad = |field: String, value: &dyn std::fmt::Display, reason: String| {
             StudyError::setting(source, field, value, reason)
         };
@@ -804,6 +832,7 @@ impl Study {
         };
         check_traffic(&dataset.traffic, &scene, source)?;
         let catalog = match &file.catalog {
+            Some(p) if embedded => embedded_catalog(p, source)?,
             Some(p) => Catalog::load(&resolve(p))?,
             None => Catalog::default_catalog()?,
         };
@@ -879,7 +908,7 @@ mod tests {
 
     fn parse(extra: &str) -> Result<Study> {
         let text = format!("{}\n{extra}", include_str!("../../../fixtures/study.toml"));
-        Study::parse(&text, Path::new("."), "s.toml")
+        Study::parse_embedded(&text, "s.toml")
     }
 
     /// `[evaluation]` ranges override the nuScenes ones class by class; an unknown class, a range
@@ -956,6 +985,47 @@ mod tests {
             let e = parse(&extra).err().map(|e| e.to_string()).unwrap_or_default();
             assert!(e.contains(needle) && e.contains("s.toml"), "{extra:?}: {e}");
         }
+    }
+
+    /// The embedded default study reads its catalog among the embedded ones: the same study as
+    /// `fixtures/study.toml` read from its folder; a catalog hilo does not embed is refused by
+    /// name, not looked for in the working folder.
+    #[test]
+    fn the_embedded_default_study_is_the_fixture_with_its_catalog_embedded() {
+        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
+        let file = Study::load(&fixtures.join("study.toml")).unwrap();
+        let embedded = parse("").unwrap();
+        assert_eq!(embedded.catalog_hash, file.catalog_hash);
+        assert_eq!(format!("{:?}", embedded.dataset), format!("{:?}", file.dataset));
+        assert_eq!(embedded.file.configurations, file.file.configurations);
+        let paper = Study::load(&fixtures.join("paper-sensors-study.toml")).unwrap();
+        assert_ne!(embedded.catalog_hash, paper.catalog_hash);
+        let text = include_str!("../../../fixtures/study.toml");
+        let mine = text.replace("catalog = \"sensors-datasheet.toml\"", "catalog = \"mine.toml\"");
+        let e = Study::parse_embedded(&mine, "s.toml").unwrap_err().to_string();
+        assert!(e.contains("catalog") && e.contains("mine.toml") && e.contains("sensors-datasheet.toml"), "{e}");
+    }
+
+    /// The paper-sensors study is the default study with every field setting off: the same file
+    /// but for the catalog, the `[dataset]` settings of a field rig, and the validation scenes
+    /// the field sensors need; a setting changed in one and not the other fails.
+    #[test]
+    fn the_paper_sensors_study_is_the_default_but_its_sensors() {
+        let table = |name: &str| -> toml::Table {
+            let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures").join(name);
+            toml::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+        };
+        let (mut field, paper) = (table("study.toml"), table("paper-sensors-study.toml"));
+        assert_eq!(
+            field.remove("catalog").and_then(|c| c.as_str().map(str::to_owned)).as_deref(),
+            Some("sensors-datasheet.toml")
+        );
+        let dataset = field.get_mut("dataset").and_then(|d| d.as_table_mut()).unwrap();
+        for key in ["calibration_error", "time_sync_error_s", "rolling_shutter", "vehicle_paint", "foliage"] {
+            assert!(dataset.remove(key).is_some(), "{key}");
+        }
+        assert_eq!(dataset.insert("val_scenes".into(), 20.into()), Some(30.into()));
+        assert_eq!(field, paper);
     }
 
     /// `calibration_file` places with the shipped calibration: the calibrated objective with

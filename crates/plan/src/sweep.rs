@@ -530,14 +530,15 @@ mod tests {
         assert!(e.contains("c.toml") && e.contains("studies of one scene and catalog each"), "{e}");
     }
     /// The default study keeps the site in three training draws of four and gives every
-    /// detector the footprint velocity head; `fixtures/turned-study.toml` is the same study with
+    /// detector the footprint velocity head; `fixtures/turned-study.toml` is the same study (on
+    /// the paper's sensors, `paper-sensors-study.toml`) with
     /// the presets' own head and augmentation: the same configurations, traffic and datasets, and
     /// a schedule equal to the preset's.
     #[test]
     fn the_turned_fixture_changes_the_heads_and_the_draws_only() {
         let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
         let Loaded::Study(v) = load(&fixtures.join("turned-study.toml")).unwrap() else { panic!("not a study") };
-        let default = Study::load(&fixtures.join("study.toml")).unwrap();
+        let default = Study::load(&fixtures.join("paper-sensors-study.toml")).unwrap();
         assert_eq!(v.file.configurations, default.file.configurations);
         assert_eq!((&v.scene_hash, &v.catalog_hash), (&default.scene_hash, &default.catalog_hash));
         assert_eq!(format!("{:?}", v.dataset), format!("{:?}", default.dataset));
@@ -593,7 +594,9 @@ mod tests {
         assert_eq!(names.len(), 17, "{names:?}");
         let get = |n: &str| &w.shards.iter().find(|s| s.name == n).unwrap().study;
         let ideal = get("ideal");
-        let default = Study::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/study.toml")).unwrap();
+        let default =
+            Study::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/paper-sensors-study.toml"))
+                .unwrap();
         assert_eq!(ideal.catalog_hash, default.catalog_hash, "ideal is the paper's catalog");
         let sensors = |s: &Study| s.catalog.sensors().to_vec();
         // What each radar effect sets, and nothing else.

@@ -12,6 +12,14 @@ use std::path::{Path, PathBuf};
 /// The default catalog: the paper's Table I.
 pub const DEFAULT_CATALOG_TOML: &str = include_str!("../../../fixtures/sensors.toml");
 
+/// The datasheet catalog (`fixtures/sensors-datasheet.toml`): the same sensors with published beam
+/// tables and the field radar's effects; the embedded default study names it.
+pub const DATASHEET_CATALOG_TOML: &str = include_str!("../../../fixtures/sensors-datasheet.toml");
+
+/// The catalogs hilo embeds, by the file name a study gives for them.
+pub const EMBEDDED_CATALOGS: [(&str, &str); 2] =
+    [("sensors.toml", DEFAULT_CATALOG_TOML), ("sensors-datasheet.toml", DATASHEET_CATALOG_TOML)];
+
 /// A spinning multi-beam LiDAR.
 #[derive(Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -691,6 +699,12 @@ impl Catalog {
     /// The embedded default catalog (the paper's Table I).
     pub fn default_catalog() -> Result<Self, SensorError> {
         Self::from_toml_str(DEFAULT_CATALOG_TOML, Path::new("<embedded>/fixtures/sensors.toml"))
+    }
+
+    /// The embedded catalog of that file name ([`EMBEDDED_CATALOGS`]), None for any other name.
+    pub fn embedded(name: &str) -> Option<Result<Self, SensorError>> {
+        let (name, text) = EMBEDDED_CATALOGS.iter().find(|(n, _)| *n == name)?;
+        Some(Self::from_toml_str(text, &Path::new("<embedded>/fixtures").join(name)))
     }
 
     pub fn sensors(&self) -> &[SensorSpec] {

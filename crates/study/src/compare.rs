@@ -554,11 +554,12 @@ mod tests {
 
     /// The radar's worth is the `radar_adds` and `radar_adds_velocity` claims' rows, in the
     /// study's weather and in each condition, priced by the configurations they compare: on the
-    /// committed default-study report (clear and fog), the radar rig's extra cost is the
-    /// radar's price, and each metric's value per $1,000 is its estimate scaled by it.
+    /// committed default-study report on the paper's sensors (clear and fog), the radar rig's
+    /// extra cost is the radar's price, and each metric's value per $1,000 is its estimate
+    /// scaled by it.
     #[test]
     fn the_radar_is_priced_by_what_its_rig_costs_more() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/example-report/report.json");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/paper-sensors-report/report.json");
         let r: Report = hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE).unwrap();
         let shard = ShardRecord { name: "clear".into(), scene: None, catalog: None, fingerprint: String::new() };
         let record = SweepRecord { source: "s.toml".into(), profile: "default".into(), shards: vec![shard.clone()] };

@@ -136,8 +136,8 @@ mod tests {
     }
 
     #[test]
-    fn the_default_study_models_no_field_effect_and_the_field_study_all() {
-        let s = Study::load(&fixture("study.toml")).unwrap();
+    fn the_paper_sensors_study_models_no_field_effect_and_a_field_study_all() {
+        let s = Study::load(&fixture("paper-sensors-study.toml")).unwrap();
         let m = modelled(&s, &s.dataset);
         assert_eq!(m.len(), 17);
         // The paper's 16-beam sensor has its published table; nothing else is on.
@@ -149,7 +149,7 @@ mod tests {
             &f,
             format!(
                 "extends = {:?}\ncatalog = {:?}\nscene = {:?}\n[dataset.traffic.parking]\noccupancy = 0.6\n[dataset]\nrolling_shutter = true\ntime_sync_error_s = 0.005\nvehicle_paint = \"fleet\"\nfoliage = {{ gap_probability = 0.3, sway_m = 0.1 }}\ncalibration_error = {{ rotation_deg = 0.2, translation_m = 0.02 }}\n[[conditions]]\nname = \"dense fog, echo\"\nweather = {{ fog_visibility_m = 60.0, fog_backscatter = true }}\nconfigurations = [\"2x lidar-16\"]\n",
-                fixture("study.toml"),
+                fixture("paper-sensors-study.toml"),
                 fixture("sensors-datasheet.toml"),
                 fixture("sites/arterial_parking.toml")
             ),
@@ -180,11 +180,13 @@ mod tests {
         assert_eq!(m.iter().filter(|e| !e.on).count(), 1);
     }
 
-    /// The field study: everything a setting models is on at the default profile but the beams'
-    /// width, which the paper profile adds.
+    /// The default study, read from its file or embedded: everything a setting models is on at
+    /// the default profile but the beams' width, which the paper profile adds.
     #[test]
-    fn the_field_study_models_every_field_effect_but_the_beams_width_at_the_default_profile() {
-        let s = Study::load(&fixture("field-study.toml")).unwrap();
+    fn the_default_study_models_every_field_effect_but_the_beams_width_at_the_default_profile() {
+        let s = Study::load(&fixture("study.toml")).unwrap();
+        let embedded = Study::parse_embedded(include_str!("../../../fixtures/study.toml"), "s.toml").unwrap();
+        assert_eq!(format!("{:?}", modelled(&embedded, &embedded.dataset)), format!("{:?}", modelled(&s, &s.dataset)));
         let registry = hilo_detector::Registry::with_builtin();
         for (name, off) in [
             (hilo_plan::profile::ProfileName::Default, vec!["LiDAR beam width", "fog's echo", "parked cars"]),

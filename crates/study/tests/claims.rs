@@ -16,7 +16,7 @@ fn the_paper_profile_maps_each_claim_to_the_presets_it_names() {
     hilo_fusion_early::register(&mut registry).unwrap();
     registry.set_primary("lirafusion-like").unwrap();
     let text = include_str!("../../../fixtures/study.toml");
-    let study = Study::parse(text, std::path::Path::new("."), "<embedded>/fixtures/study.toml").unwrap();
+    let study = Study::parse_embedded(text, "<embedded>/fixtures/study.toml").unwrap();
     let prof = profile(hilo_study::ProfileName::Paper, &study, &registry).unwrap();
     assert_eq!(&prof.presets[..2], &["centerpoint".to_string(), "lirafusion-like".to_string()]);
     assert!(prof.ablations.contains(&"lirafusion-like-no-early".to_string()));
