@@ -4,12 +4,17 @@ use anyhow::{Context, Result};
 use hilo_dataset::simulate::SimulateConfig;
 use std::path::Path;
 
-/// `hilo bench simulate`: the dataset of the default study's first configuration (the paper's
-/// 2 × 16-beam LiDAR + radar), placed optimally, written at the given scale.
+/// `hilo bench simulate`: the dataset of a study's first configuration (the default study's:
+/// the paper's 2 × 16-beam LiDAR + radar), placed optimally, written at the given scale.
 #[derive(serde::Serialize, Debug)]
 pub struct SimulateBench {
+    /// The study file (or the embedded default's name).
+    pub study: String,
     pub configuration: String,
     pub sensors: Vec<String>,
+    /// The rig's LiDAR channels whose beams are cast with their width (a catalog `beam`, and the
+    /// study's `lidar_beam_width` not false): about twenty times the ray casting of a thin ray.
+    pub beam_width_cast: Vec<String>,
     pub scenes: usize,
     pub seconds_per_scene: f64,
     pub rate_hz: f64,
@@ -71,9 +76,15 @@ pub fn bench(
     let out = keep.map(Path::to_path_buf).unwrap_or_else(|| tmp.path().join("data"));
     let summary = hilo_study::rig::simulate(study, first, &path, &cfg, &out, "v1.0-trainval", progress)?;
     let rig = hilo_study::rig::rig(first, &study.catalog, &study.scene, &path)?;
+    let wide = |s: &&hilo_dataset::simulate::RigSensor| match &s.spec {
+        hilo_sensor_models::SensorSpec::Lidar(l) => l.beam.is_some() && cfg.lidar_beam_width != Some(false),
+        hilo_sensor_models::SensorSpec::Radar(_) => false,
+    };
     Ok(SimulateBench {
+        study: study.source.clone(),
         configuration: first.name.clone(),
         sensors: rig.iter().map(|s| s.channel.clone()).collect(),
+        beam_width_cast: rig.iter().filter(wide).map(|s| s.channel.clone()).collect(),
         scenes,
         seconds_per_scene: seconds,
         rate_hz,

@@ -154,9 +154,11 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
-    /// Dataset generation at the paper's scale (37 scenes x 20 s x 20 Hz) for the default
-    /// study's 2 x 16-beam LiDAR + radar: frames/s and MB written.
+    /// Dataset generation at the paper's scale (37 scenes x 20 s x 20 Hz) for a study's first
+    /// configuration (the default study's 2 x 16-beam LiDAR + radar): frames/s and MB written.
     Simulate {
+        /// Study TOML; the embedded default (field sensors, the beams' width cast) when omitted.
+        study: Option<PathBuf>,
         #[arg(long, default_value_t = 37)]
         scenes: usize,
         #[arg(long, default_value_t = 20.0)]
@@ -340,8 +342,8 @@ fn bench(command: BenchCommand) -> Result<()> {
         BenchCommand::Eval { frames, max_pred, repeats, json } => {
             emit(&hilo::bench::eval(frames as usize, max_pred, repeats.max(1))?, json, None)
         }
-        BenchCommand::Simulate { scenes, seconds, rate_hz, keep, json } => {
-            let study = stages::load_study(None)?;
+        BenchCommand::Simulate { study, scenes, seconds, rate_hz, keep, json } => {
+            let study = stages::load_study(study.as_deref())?;
             let cfg = hilo_dataset::simulate::SimulateConfig {
                 scenes,
                 seconds,

@@ -152,6 +152,37 @@ fn bench_sensors_json_reports_frame_times_and_model_error() {
     assert!((e - s).abs() < 0.1 * e, "model {e} vs simulation {s}");
 }
 
+/// `hilo bench simulate STUDY` benches the study's first configuration and names the LiDARs
+/// whose beams' width it casts: a datasheet LiDAR's, unless the study says `lidar_beam_width =
+/// false`; the paper's catalog gives no width.
+#[test]
+fn bench_simulate_names_the_lidars_whose_beams_width_it_casts() {
+    let dir = tempfile::tempdir().unwrap();
+    let sheet = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/sensors-datasheet.toml");
+    let rig = "[[configurations]]\nname = \"one\"\nsensors = { \"lidar-16\" = 1, \"radar-4d\" = 1 }\n";
+    let study = coarse_study(dir.path(), rig);
+    let coarse = std::fs::read_to_string(&study).unwrap();
+    let bench = |name: &str, head: &str, tail: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, format!("{head}{coarse}{tail}")).unwrap();
+        let o = hilo()
+            .args(["bench", "simulate"])
+            .arg(&p)
+            .args(["--scenes", "1", "--seconds", "0.2", "--rate-hz", "10", "--json"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!((v["configuration"].as_str(), v["frames"].as_u64()), (Some("one"), Some(2)), "{v}");
+        assert!(v["study"].as_str().unwrap().ends_with(name), "{v}");
+        v["beam_width_cast"].as_array().unwrap().iter().map(|c| c.as_str().unwrap().to_owned()).collect::<Vec<_>>()
+    };
+    let catalog = format!("catalog = {:?}\n", sheet.display().to_string());
+    assert_eq!(bench("sheet.toml", &catalog, ""), ["LIDAR_0"]);
+    assert!(bench("thin.toml", &catalog, "[dataset]\nlidar_beam_width = false\n").is_empty());
+    assert!(bench("paper.toml", "", "").is_empty());
+}
+
 /// A coarse study (3 m cells, fewer mounts) so the test runs in seconds.
 /// The solver's time limit is far above what these instances take on an idle machine, so that
 /// "proven optimal" does not depend on how busy the machine is (tests run side by side).
