@@ -46,6 +46,19 @@ fn dir_bytes(root: &Path) -> u64 {
     total
 }
 
+/// The dataset settings the bench writes: the study's, at the given scale, with no validation
+/// scenes and radar sweeps at the key-frame rate.
+pub fn config(study: &hilo_study::Study, scenes: usize, seconds: f64, rate_hz: f64) -> SimulateConfig {
+    SimulateConfig {
+        scenes,
+        seconds,
+        rate_hz,
+        val_scenes: 0,
+        sweep_rate_hz: rate_hz,
+        ..study.dataset.clone().into_inner()
+    }
+}
+
 /// Places `study`'s configurations, then writes its first one's dataset at the given scale
 /// (into `keep`, or a temporary folder); `progress` hears the key frames written.
 pub fn bench(
@@ -64,15 +77,7 @@ pub fn bench(
     let placement_seconds = t0.elapsed().as_secs_f64();
     let first = placed.placements.first().context("the study has no configuration")?;
     let path = tmp.path().join("placements").join(format!("{}.json", hilo_study::study::slug(&first.name)));
-    let cfg = SimulateConfig {
-        scenes,
-        seconds,
-        rate_hz,
-        val_scenes: 0,
-        sweep_rate_hz: rate_hz,
-        ..study.dataset.clone().into_inner()
-    }
-    .validate()?;
+    let cfg = config(study, scenes, seconds, rate_hz).validate()?;
     let out = keep.map(Path::to_path_buf).unwrap_or_else(|| tmp.path().join("data"));
     let summary = hilo_study::rig::simulate(study, first, &path, &cfg, &out, "v1.0-trainval", progress)?;
     let rig = hilo_study::rig::rig(first, &study.catalog, &study.scene, &path)?;

@@ -344,14 +344,7 @@ fn bench(command: BenchCommand) -> Result<()> {
         }
         BenchCommand::Simulate { study, scenes, seconds, rate_hz, keep, json } => {
             let study = stages::load_study(study.as_deref())?;
-            let cfg = hilo_dataset::simulate::SimulateConfig {
-                scenes,
-                seconds,
-                rate_hz,
-                val_scenes: 0,
-                ..study.dataset.clone().into_inner()
-            };
-            let total = cfg.total_frames();
+            let total = hilo::bench::simulate::config(&study, scenes, seconds, rate_hz).total_frames();
             let reporter = std::sync::Mutex::new(progress::Reporter::new());
             let report = hilo::bench::simulate::bench(&study, scenes, seconds, rate_hz, keep.as_deref(), &|done| {
                 if let Ok(mut r) = reporter.lock() {
