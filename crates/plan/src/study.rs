@@ -946,6 +946,19 @@ mod tests {
         }
         let e = parse("[dataset.traffic.parking]\n").err().map(|e| e.to_string()).unwrap_or_default();
         assert!(e.contains("parking_lane_width_m"), "{e}");
+        // A demand level in place of the rates; beside a rate of its own it is refused.
+        let with = |rate: &str| {
+            let text = include_str!("../../../fixtures/study.toml").replacen(
+                "vehicles_per_hour = 500.0",
+                &format!("demand = \"peak\"\n{rate}"),
+                1,
+            );
+            Study::parse_embedded(&text, "s.toml")
+        };
+        let s = with("").unwrap();
+        assert_eq!(s.dataset.traffic.demand, Some(hilo_dataset::traffic::Demand::Peak));
+        let e = with("vehicles_per_hour = 600.0").err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("s.toml") && e.contains("traffic.vehicles_per_hour") && e.contains("600"), "{e}");
         let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
         let s = Study::load(&fixtures.join("parking-study.toml")).unwrap();
         assert_eq!(s.dataset.traffic.parking.as_ref().map(|p| p.occupancy), Some(0.7));

@@ -25,6 +25,7 @@
 //!
 //! The traffic depends only on the scene, the [`TrafficConfig`] and the seed.
 
+pub mod demand;
 pub mod geom;
 mod obstacles;
 mod parking;
@@ -34,6 +35,7 @@ mod spawn;
 mod step;
 
 use crate::error::DatasetError;
+pub use demand::Demand;
 use geom::{Rect, point_segment_distance};
 use glam::Vec2;
 use hilo_core::{Box3, Class};
@@ -52,6 +54,11 @@ use std::collections::BTreeMap;
 #[derive(Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields, default)]
 pub struct TrafficConfig {
+    /// A named level of demand ([`Demand`]): sets each approach's vehicle rate from its
+    /// capacity and the pedestrian rate, in place of `vehicles_per_hour` and
+    /// `pedestrians_per_hour` (per-approach overrides still apply). None: the rates as written.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub demand: Option<Demand>,
     /// Vehicle arrivals per approach (Poisson).
     pub vehicles_per_hour: f64,
     /// Per-approach overrides by arm name.
@@ -83,6 +90,7 @@ impl Default for TrafficConfig {
             .map(|(k, v)| (k.to_string(), v))
             .collect();
         TrafficConfig {
+            demand: None,
             vehicles_per_hour: 500.0,
             approach_vehicles_per_hour: BTreeMap::new(),
             left_share: 0.2,
@@ -98,11 +106,14 @@ impl Default for TrafficConfig {
     }
 }
 
-/// The derived form, with `parking` only when it is set: the Debug form that stage hashes take
-/// is the same as before parking existed for a study without it.
+/// The derived form, with `demand` and `parking` only when they are set: the Debug form that
+/// stage hashes take is the same as before either existed for a study without them.
 impl std::fmt::Debug for TrafficConfig {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut d = f.debug_struct("TrafficConfig");
+        if let Some(level) = &self.demand {
+            d.field("demand", level);
+        }
         d.field("vehicles_per_hour", &self.vehicles_per_hour)
             .field("approach_vehicles_per_hour", &self.approach_vehicles_per_hour)
             .field("left_share", &self.left_share)
@@ -158,6 +169,11 @@ fn draw_from(rng: &mut ChaCha8Rng, mix: &BTreeMap<String, f64>) -> Option<Class>
 }
 
 impl TrafficConfig {
+    /// Pedestrian arrivals per crosswalk and direction: the level's when `demand` is set.
+    pub fn pedestrian_rate(&self) -> f64 {
+        self.demand.map_or(self.pedestrians_per_hour, Demand::pedestrians_per_hour)
+    }
+
     /// Checks every field; errors name the field and value.
     pub fn validate(&self, layout: &Layout) -> Result<(), DatasetError> {
         let nonneg = |f: &str, v: f64| {
@@ -165,6 +181,25 @@ impl TrafficConfig {
         };
         nonneg("vehicles_per_hour", self.vehicles_per_hour)?;
         nonneg("pedestrians_per_hour", self.pedestrians_per_hour)?;
+        if let Some(level) = self.demand {
+            let d = TrafficConfig::default();
+            for (f, v, default) in [
+                ("vehicles_per_hour", self.vehicles_per_hour, d.vehicles_per_hour),
+                ("pedestrians_per_hour", self.pedestrians_per_hour, d.pedestrians_per_hour),
+            ] {
+                if v != default {
+                    return Err(invalid(
+                        f,
+                        v,
+                        &format!(
+                            "demand = \"{}\" sets this rate; give either the level or the rates \
+                             (approach_vehicles_per_hour may refine a level)",
+                            level.name()
+                        ),
+                    ));
+                }
+            }
+        }
         nonneg("warmup_s", self.warmup_s)?;
         for (f, v) in
             [("left_share", self.left_share), ("right_share", self.right_share), ("jaywalk_share", self.jaywalk_share)]
@@ -468,25 +503,28 @@ impl Traffic {
             layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay)).collect();
         let plan = SignalPlan::new(&cfg.signal, &dirs, &speeds, &bays);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let level = cfg.demand.map(|d| demand::level_rates(layout, &routes, &plan, cfg, d));
         let approach_rate: Vec<f64> = layout
             .arms
             .iter()
             .enumerate()
             .map(|(i, a)| {
+                let base = level.as_ref().map_or(cfg.vehicles_per_hour, |l| l[i].vehicles_per_hour);
                 if routes.iter().any(|r| r.approach == i) {
-                    cfg.approach_vehicles_per_hour.get(&a.name).copied().unwrap_or(cfg.vehicles_per_hour)
+                    cfg.approach_vehicles_per_hour.get(&a.name).copied().unwrap_or(base)
                 } else {
                     0.0
                 }
             })
             .collect();
+        let pedestrians_per_hour = cfg.pedestrian_rate();
         let next_arrival_v = approach_rate.iter().map(|&q| next_arrival(&mut rng, 0.0, q)).collect();
         let mut ped_sources = pedestrian_sources(layout);
         for src in &mut ped_sources {
             let rate = if src.jaywalk {
-                cfg.pedestrians_per_hour * cfg.jaywalk_share
+                pedestrians_per_hour * cfg.jaywalk_share
             } else {
-                cfg.pedestrians_per_hour * (1.0 - cfg.jaywalk_share)
+                pedestrians_per_hour * (1.0 - cfg.jaywalk_share)
             };
             src.next_arrival_s = next_arrival(&mut rng, 0.0, rate);
         }
@@ -533,6 +571,17 @@ impl Traffic {
 
     pub fn routes(&self) -> &[Route] {
         &self.routes
+    }
+
+    /// Vehicle arrivals per hour of each approach (by arm), as the traffic runs them.
+    pub fn approach_rates(&self) -> &[f64] {
+        &self.approach_rate
+    }
+
+    /// Vehicles that have arrived but not yet found room to enter their lane: a queue beyond
+    /// the scene's end of the arm, which grows without bound when demand exceeds capacity.
+    pub fn waiting_to_enter(&self) -> usize {
+        self.pending.iter().map(Vec::len).sum()
     }
 
     pub fn signal(&self) -> &SignalPlan {

@@ -37,6 +37,16 @@ pub enum Light {
     Red,
 }
 
+/// The intervals of one arm's phase, as [`SignalPlan::phase`] reports them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Phase {
+    pub left_s: f64,
+    pub green_s: f64,
+    pub yellow_s: f64,
+    pub all_red_s: f64,
+    pub opposed: bool,
+}
+
 #[derive(Clone, Debug)]
 struct Group {
     arms: Vec<usize>,
@@ -104,6 +114,19 @@ impl SignalPlan {
 
     pub fn cycle_s(&self) -> f64 {
         self.cycle_s
+    }
+
+    /// The phase that serves arm `arm`: its intervals, and whether an opposing arm runs with it
+    /// (its left turns are then permissive after the protected interval).
+    pub fn phase(&self, arm: usize) -> Phase {
+        let g = &self.groups[self.group_of_arm[arm]];
+        Phase {
+            left_s: g.left_s,
+            green_s: g.green_s,
+            yellow_s: g.yellow_s,
+            all_red_s: g.all_red_s,
+            opposed: g.arms.len() > 1,
+        }
     }
 
     /// The group running at `t` and the time since its start.

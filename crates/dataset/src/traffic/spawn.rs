@@ -99,10 +99,11 @@ impl Traffic {
         // Pedestrians.
         let ped = class_model(Class::Pedestrian);
         for k in 0..self.ped_sources.len() {
+            let per_hour = self.cfg.pedestrian_rate();
             let rate = if self.ped_sources[k].jaywalk {
-                self.cfg.pedestrians_per_hour * self.cfg.jaywalk_share
+                per_hour * self.cfg.jaywalk_share
             } else {
-                self.cfg.pedestrians_per_hour * (1.0 - self.cfg.jaywalk_share)
+                per_hour * (1.0 - self.cfg.jaywalk_share)
             };
             while self.ped_sources[k].next_arrival_s <= now {
                 self.ped_sources[k].next_arrival_s =
