@@ -65,6 +65,18 @@ fn scene_info_summarises_the_default_scene() {
     // 39.6 m x 39.6 m junction box with crosswalks, less the four corner notches.
     let area = central["area_m2"].as_f64().unwrap();
     assert!(area > 1000.0 && area < 1600.0, "{area}");
+    // The demand levels each arm would run at, the peak above the off-peak everywhere.
+    let rates = |level: &str| -> Vec<f64> {
+        v["demand"][level]["approaches"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| a["vehicles_per_hour"].as_f64().unwrap())
+            .collect()
+    };
+    let (off, peak) = (rates("off_peak"), rates("peak"));
+    assert_eq!((off.len(), peak.len()), (4, 4));
+    assert!(off.iter().zip(&peak).all(|(o, p)| *o > 100.0 && p > o), "{off:?} {peak:?}");
 }
 
 #[test]

@@ -4,9 +4,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use hilo_dataset::traffic::demand::{Demand, LOST_TIME_S, SATURATION_FLOW_VPHPL, level_rates};
+use hilo_dataset::traffic::demand::{Demand, LOST_TIME_S, SATURATION_FLOW_VPHPL, levels_of};
 use hilo_dataset::traffic::routes::build_routes;
-use hilo_dataset::traffic::signal::SignalPlan;
+use hilo_dataset::traffic::signal::{SignalPlan, plan_for};
 use hilo_dataset::traffic::{Traffic, TrafficConfig};
 use hilo_raycast::Scene;
 use hilo_raycast::scene::layout::LaneKind;
@@ -28,11 +28,7 @@ fn sites() -> Vec<(String, Scene)> {
 }
 
 fn plan(scene: &Scene, cfg: &TrafficConfig) -> SignalPlan {
-    let l = &scene.layout;
-    let dirs: Vec<_> = l.arms.iter().map(|a| a.dir).collect();
-    let speeds: Vec<_> = l.arms.iter().map(|a| a.speed_limit_mps).collect();
-    let bays: Vec<_> = l.arms.iter().map(|a| a.lanes.iter().any(|x| x.kind == LaneKind::LeftTurnBay)).collect();
-    SignalPlan::new(&cfg.signal, &dirs, &speeds, &bays)
+    plan_for(&scene.layout, &cfg.signal)
 }
 
 #[test]
@@ -40,9 +36,8 @@ fn every_site_s_approaches_are_loaded_to_the_level() {
     let cfg = TrafficConfig::default();
     for (name, scene) in sites() {
         let routes = build_routes(&scene.layout);
-        let p = plan(&scene, &cfg);
-        let off = level_rates(&scene.layout, &routes, &p, &cfg, Demand::OffPeak);
-        let peak = level_rates(&scene.layout, &routes, &p, &cfg, Demand::Peak);
+        let off = levels_of(&scene.layout, &cfg, Demand::OffPeak);
+        let peak = levels_of(&scene.layout, &cfg, Demand::Peak);
         for (o, k) in off.iter().zip(&peak) {
             eprintln!(
                 "{name:>18} {:>10}: off_peak {:6.0} veh/h ({} at {:.3}), peak {:6.0} veh/h ({} at {:.3})",

@@ -499,6 +499,26 @@ pub fn scene_summary(scene: &Scene) -> serde_json::Value {
         "mounting_structures": scene.mounts.iter().map(|m| json!({"name": m.name, "pole_height_m": m.pole_height_m, "arm_length_m": m.arm_length_m, "arm_height_m": m.arm_height_m})).collect::<Vec<_>>(),
         "rois": rois,
         "assumed": scene.assumed,
+        "demand": demand_summary(scene),
+    })
+}
+
+/// Each approach's vehicles per hour at the demand levels, under the default turning shares and
+/// signal timing (a study's own `[dataset.traffic]` may differ), with the lane group that sets it.
+fn demand_summary(scene: &Scene) -> serde_json::Value {
+    use hilo_dataset::traffic::{Demand, TrafficConfig, demand::levels_of};
+    let cfg = TrafficConfig::default();
+    let level = |d: Demand| {
+        let rows: Vec<_> = levels_of(&scene.layout, &cfg, d)
+            .into_iter()
+            .map(|a| json!({"arm": a.arm, "vehicles_per_hour": a.vehicles_per_hour.round(), "critical": a.critical}))
+            .collect();
+        json!({"pedestrians_per_hour": d.pedestrians_per_hour(), "approaches": rows})
+    };
+    json!({
+        "at": "default turning shares and signal timing",
+        "off_peak": level(Demand::OffPeak),
+        "peak": level(Demand::Peak),
     })
 }
 

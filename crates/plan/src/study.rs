@@ -960,6 +960,12 @@ mod tests {
         let e = with("vehicles_per_hour = 600.0").err().map(|e| e.to_string()).unwrap_or_default();
         assert!(e.contains("s.toml") && e.contains("traffic.vehicles_per_hour") && e.contains("600"), "{e}");
         let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures");
+        for (file, level) in [
+            ("peak-study.toml", hilo_dataset::traffic::Demand::Peak),
+            ("off-peak-study.toml", hilo_dataset::traffic::Demand::OffPeak),
+        ] {
+            assert_eq!(Study::load(&fixtures.join(file)).unwrap().dataset.traffic.demand, Some(level), "{file}");
+        }
         let s = Study::load(&fixtures.join("parking-study.toml")).unwrap();
         assert_eq!(s.dataset.traffic.parking.as_ref().map(|p| p.occupancy), Some(0.7));
         assert!(s.scene.layout.arms.iter().all(|a| a.parking_lane_m == 2.4));

@@ -21,9 +21,14 @@
 //!
 //! What it leaves out: right turns slowed by pedestrians, heavy vehicles' longer headways, lane
 //! utilisation that is not even, sneakers at the end of the green, and spill-back from a full
-//! left-turn bay. All of these lower the real capacity a little, so a `peak` level runs slightly
-//! hotter in the model than its nominal v/c; the traffic test checks that the default junction
-//! still carries it.
+//! left-turn bay. In this model the first matters most: its right turners wait out a crosswalk's
+//! pedestrians far longer than drivers do (304 right turns an hour from a flooded lane with no
+//! pedestrians, 48 with 90 per crosswalk and direction; HCM's adjustment keeps about three
+//! quarters), and its permissive lefts find few gaps. So over many cycles a level runs hotter
+//! than its nominal v/c: at the default junction's peak, queues beyond the arms' ends grow from
+//! the fifth minute on (`tests/demand.rs`, the ignored test, prints the figures). A scene
+//! records 20 s after a 45 s warm-up, less than a cycle of build-up, so datasets do not reach
+//! that state.
 
 use super::TrafficConfig;
 use super::routes::{Movement, Route};
@@ -253,6 +258,14 @@ pub fn level_rates(
             ApproachLoad { arm: arm.name.clone(), vehicles_per_hour: r, critical, volume_to_capacity: x }
         })
         .collect()
+}
+
+/// Each approach's rate at `demand` on `layout` under the turning shares and signal timing of
+/// `cfg`: what `Traffic` runs for a study with that level.
+pub fn levels_of(layout: &Layout, cfg: &TrafficConfig, demand: Demand) -> Vec<ApproachLoad> {
+    let routes = super::routes::build_routes(layout);
+    let plan = super::signal::plan_for(layout, &cfg.signal);
+    level_rates(layout, &routes, &plan, cfg, demand)
 }
 
 #[cfg(test)]

@@ -23,6 +23,11 @@
 //! centreline, heading along its tangent). The sensors see boxes, so none of this changes what a
 //! detector has to learn beyond the mix of poses and speeds, which the model covers.
 //!
+//! Arrivals are the study's rates, or a named demand level's ([`Demand`]), which [`demand`] derives
+//! from each approach's capacity. Turning vehicles wait out the pedestrians on the crosswalk they
+//! cross longer than drivers do, so over many signal cycles an approach's outermost lane
+//! saturates below that capacity ([`demand`] says by how much); a scene's 20 s do not reach it.
+//!
 //! The traffic depends only on the scene, the [`TrafficConfig`] and the seed.
 
 pub mod demand;
@@ -39,7 +44,7 @@ pub use demand::Demand;
 use geom::{Rect, point_segment_distance};
 use glam::Vec2;
 use hilo_core::{Box3, Class};
-use hilo_raycast::scene::layout::{ArmLayout, LaneKind, Layout};
+use hilo_raycast::scene::layout::{ArmLayout, Layout};
 pub use parking::{BayState, PARKED_ID_BASE, ParkingConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -497,11 +502,8 @@ impl Traffic {
     pub fn new(layout: &Layout, ground_z: f32, cfg: &TrafficConfig, seed: u64) -> Result<Traffic, DatasetError> {
         cfg.validate(layout)?;
         let routes = build_routes(layout);
-        let dirs: Vec<Vec2> = layout.arms.iter().map(|a| a.dir).collect();
         let speeds: Vec<f32> = layout.arms.iter().map(|a| a.speed_limit_mps).collect();
-        let bays: Vec<bool> =
-            layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay)).collect();
-        let plan = SignalPlan::new(&cfg.signal, &dirs, &speeds, &bays);
+        let plan = signal::plan_for(layout, &cfg.signal);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let level = cfg.demand.map(|d| demand::level_rates(layout, &routes, &plan, cfg, d));
         let approach_rate: Vec<f64> = layout

@@ -6,6 +6,7 @@
 
 use super::routes::Movement;
 use glam::Vec2;
+use hilo_raycast::scene::layout::{LaneKind, Layout};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -24,6 +25,14 @@ impl Default for SignalConfig {
     fn default() -> Self {
         SignalConfig { green_s: 24.0, protected_left_s: 8.0, yellow_s: None, all_red_s: 2.0 }
     }
+}
+
+/// The plan of a layout's arms: directions, speed limits and left-turn bays from the layout.
+pub fn plan_for(layout: &Layout, cfg: &SignalConfig) -> SignalPlan {
+    let dirs: Vec<Vec2> = layout.arms.iter().map(|a| a.dir).collect();
+    let speeds: Vec<f32> = layout.arms.iter().map(|a| a.speed_limit_mps).collect();
+    let bays: Vec<bool> = layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay)).collect();
+    SignalPlan::new(cfg, &dirs, &speeds, &bays)
 }
 
 /// What a signal head shows a movement.
