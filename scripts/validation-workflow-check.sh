@@ -47,9 +47,10 @@ done
 # validations equal those of one process's.
 for set in one wf; do
   echo "+ hilo validate --out $set/loso --sites (${sites[*]})"
+  # From inside the set's folder: sites.json records the paths it was given.
   files=()
-  for site in "${sites[@]}"; do files+=("$WORK/$set/$site/validation.json"); done
-  "$HILO" validate --out "$WORK/$set/loso" --sites "${files[@]}" 2> "$WORK/$set-loso.log" \
+  for site in "${sites[@]}"; do files+=("$site/validation.json"); done
+  (cd "$WORK/$set" && "$HILO" validate --out loso --sites "${files[@]}") 2> "$WORK/$set-loso.log" \
     || { tail -20 "$WORK/$set-loso.log"; exit 1; }
 done
 python3 scripts/compare-reports.py "$WORK/one/loso/sites.json" "$WORK/wf/loso/sites.json"
