@@ -4,9 +4,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use hilo_dataset::traffic::demand::{Demand, LOST_TIME_S, SATURATION_FLOW_VPHPL, levels_of};
+use hilo_dataset::traffic::demand::{Demand, SATURATION_FLOW_VPHPL, effective_green_share, levels_of};
 use hilo_dataset::traffic::routes::build_routes;
-use hilo_dataset::traffic::signal::{SignalPlan, plan_for};
+use hilo_dataset::traffic::signal::plan_for;
 use hilo_dataset::traffic::{Traffic, TrafficConfig};
 use hilo_raycast::Scene;
 use hilo_raycast::scene::layout::LaneKind;
@@ -27,8 +27,18 @@ fn sites() -> Vec<(String, Scene)> {
     v.iter().map(|p| (p.file_stem().unwrap().to_string_lossy().into_owned(), Scene::load(p).unwrap())).collect()
 }
 
-fn plan(scene: &Scene, cfg: &TrafficConfig) -> SignalPlan {
-    plan_for(&scene.layout, &cfg.signal)
+/// One approach, `north`, flooded with `per_hour` arrivals of the given turning shares and
+/// pedestrian rate, the others empty: a queue that never runs out, to measure discharge.
+fn flooded_north(per_hour: f64, pedestrians_per_hour: f64, left_share: f64, right_share: f64) -> TrafficConfig {
+    let mut cfg = TrafficConfig {
+        vehicles_per_hour: 0.0,
+        pedestrians_per_hour,
+        left_share,
+        right_share,
+        ..TrafficConfig::default()
+    };
+    cfg.approach_vehicles_per_hour.insert("north".into(), per_hour);
+    cfg
 }
 
 #[test]
@@ -90,20 +100,13 @@ fn run(scene: &Scene, cfg: &TrafficConfig, seed: u64, seconds: f64) -> (BTreeMap
 #[test]
 fn a_flooded_approach_discharges_at_the_saturation_flow() {
     let scene = Scene::default_fixture().unwrap();
-    let mut cfg = TrafficConfig {
-        vehicles_per_hour: 0.0,
-        pedestrians_per_hour: 0.0,
-        left_share: 0.0,
-        right_share: 0.0,
-        ..TrafficConfig::default()
-    };
-    cfg.approach_vehicles_per_hour.insert("north".into(), 4000.0);
+    let cfg = flooded_north(4000.0, 0.0, 0.0, 0.0);
     let seconds = 600.0;
     let (crossed, _) = run(&scene, &cfg, 9, seconds);
     let north = scene.layout.arms.iter().position(|a| a.name == "north").unwrap();
     let lanes = scene.layout.arms[north].lanes.iter().filter(|l| l.kind == LaneKind::Inbound).count() as f64;
-    let p = plan(&scene, &cfg).phase(north);
-    let g = (p.green_s + p.yellow_s + p.all_red_s - LOST_TIME_S) / plan(&scene, &cfg).cycle_s();
+    let plan = plan_for(&scene.layout, &cfg.signal);
+    let g = effective_green_share(&plan.phase(north), plan.cycle_s());
     let per_lane_green_hour = crossed["Through"] as f64 * 3600.0 / seconds / lanes / g;
     eprintln!(
         "{} through vehicles in {seconds} s: {per_lane_green_hour:.0} per lane and hour of green",
@@ -174,15 +177,7 @@ fn the_model_s_long_run_limits() {
     let scene = Scene::default_fixture().unwrap();
     let mut rights = Vec::new();
     for ped in [0.0, 30.0, 90.0, 200.0] {
-        let mut cfg = TrafficConfig {
-            vehicles_per_hour: 0.0,
-            pedestrians_per_hour: ped,
-            jaywalk_share: 0.0,
-            left_share: 0.0,
-            right_share: 1.0,
-            ..TrafficConfig::default()
-        };
-        cfg.approach_vehicles_per_hour.insert("north".into(), 3000.0);
+        let cfg = TrafficConfig { jaywalk_share: 0.0, ..flooded_north(3000.0, ped, 0.0, 1.0) };
         let seconds = 900.0;
         let per_hour = run(&scene, &cfg, 3, seconds).0.values().sum::<usize>() as f64 * 3600.0 / seconds;
         eprintln!(

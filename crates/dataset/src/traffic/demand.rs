@@ -31,8 +31,8 @@
 //! that state.
 
 use super::TrafficConfig;
-use super::routes::{Movement, Route};
-use super::signal::SignalPlan;
+use super::routes::{Movement, Route, spawned_movement};
+use super::signal::{Phase, SignalPlan};
 use hilo_raycast::scene::layout::{LaneKind, Layout};
 use serde::{Deserialize, Serialize};
 
@@ -120,18 +120,11 @@ struct Approach {
 }
 
 fn shares(cfg: &TrafficConfig, routes: &[Route], arm: usize) -> Shares {
-    let has = |m: Movement| routes.iter().any(|r| r.approach == arm && r.movement == m);
     let (l, r) = (cfg.left_share, cfg.right_share);
     let t = (1.0 - l - r).max(0.0);
     let mut out = Shares::default();
     for (m, share) in [(Movement::Left, l), (Movement::Right, r), (Movement::Through, t)] {
-        let to = if has(m) {
-            m
-        } else if has(Movement::Through) {
-            Movement::Through
-        } else {
-            continue;
-        };
+        let Some(to) = spawned_movement(routes, arm, m) else { continue };
         match to {
             Movement::Left => out.left += share,
             Movement::Through => out.through += share,
@@ -139,6 +132,12 @@ fn shares(cfg: &TrafficConfig, routes: &[Route], arm: usize) -> Shares {
         }
     }
     out
+}
+
+/// The effective green of a phase as a share of the cycle: green + yellow + all-red less the
+/// lost time.
+pub fn effective_green_share(p: &Phase, cycle_s: f64) -> f64 {
+    ((p.green_s + p.yellow_s + p.all_red_s - LOST_TIME_S) / cycle_s.max(1e-9)).max(0.0)
 }
 
 /// Permissive left-turn capacity (veh/h) against an opposing flow of `v_o` veh/h that runs only
@@ -226,7 +225,7 @@ pub fn level_rates(
                 shares: shares(cfg, routes, i),
                 lanes: arm.lanes.iter().filter(|l| l.kind == LaneKind::Inbound).count(),
                 bay: arm.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay),
-                g: ((p.green_s + p.yellow_s + p.all_red_s - LOST_TIME_S) / cycle).max(0.0),
+                g: effective_green_share(&p, cycle),
                 g_left: ((p.left_s - 0.5 * LOST_TIME_S) / cycle).max(0.0),
                 opposed: p.opposed,
                 opposing: plan.opposing(i),

@@ -49,7 +49,7 @@ pub use parking::{BayState, PARKED_ID_BASE, ParkingConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Exp, Normal};
-use routes::{DS, Movement, Path, Route, build_routes, crosswalk_width, cw0, junction_conflicts};
+use routes::{DS, Movement, Path, Route, build_routes, crosswalk_width, cw0, junction_conflicts, spawned_movement};
 use serde::{Deserialize, Serialize};
 use signal::{Light, SignalConfig, SignalPlan};
 use spawn::pedestrian_sources;
@@ -177,6 +177,13 @@ impl TrafficConfig {
     /// Pedestrian arrivals per crosswalk and direction: the level's when `demand` is set.
     pub fn pedestrian_rate(&self) -> f64 {
         self.demand.map_or(self.pedestrians_per_hour, Demand::pedestrians_per_hour)
+    }
+
+    /// Arrivals per hour of one pedestrian source: its share of [`Self::pedestrian_rate`], the
+    /// jaywalkers' or the crosswalk users'.
+    fn pedestrian_source_rate(&self, jaywalk: bool) -> f64 {
+        let share = if jaywalk { self.jaywalk_share } else { 1.0 - self.jaywalk_share };
+        self.pedestrian_rate() * share
     }
 
     /// Checks every field; errors name the field and value.
@@ -519,16 +526,10 @@ impl Traffic {
                 }
             })
             .collect();
-        let pedestrians_per_hour = cfg.pedestrian_rate();
         let next_arrival_v = approach_rate.iter().map(|&q| next_arrival(&mut rng, 0.0, q)).collect();
         let mut ped_sources = pedestrian_sources(layout);
         for src in &mut ped_sources {
-            let rate = if src.jaywalk {
-                pedestrians_per_hour * cfg.jaywalk_share
-            } else {
-                pedestrians_per_hour * (1.0 - cfg.jaywalk_share)
-            };
-            src.next_arrival_s = next_arrival(&mut rng, 0.0, rate);
+            src.next_arrival_s = next_arrival(&mut rng, 0.0, cfg.pedestrian_source_rate(src.jaywalk));
         }
         let n_routes = routes.len();
         let conflicts = junction_conflicts(&routes, 3.2);

@@ -158,6 +158,14 @@ fn lanes(arm: &ArmLayout, kind: LaneKind) -> Vec<hilo_raycast::scene::layout::La
     arm.lanes.iter().copied().filter(|l| l.kind == kind).collect()
 }
 
+/// The movement a vehicle that wants `want` from approach `arm` makes: its own where the
+/// junction offers it, else straight on; None where the approach has neither (the vehicle is not
+/// spawned). Spawning and the demand levels' capacity analysis both follow this rule.
+pub fn spawned_movement(routes: &[Route], arm: usize, want: Movement) -> Option<Movement> {
+    let has = |m: Movement| routes.iter().any(|r| r.approach == arm && r.movement == m);
+    [want, Movement::Through].into_iter().find(|&m| has(m))
+}
+
 /// Every route of the layout.
 pub fn build_routes(layout: &Layout) -> Vec<Route> {
     let mut routes = Vec::new();

@@ -18,25 +18,14 @@ impl Traffic {
                 } else {
                     Movement::Through
                 };
-                let mut cands: Vec<usize> = self
+                let Some(movement) = spawned_movement(&self.routes, ap, want) else { continue };
+                let cands: Vec<usize> = self
                     .routes
                     .iter()
                     .enumerate()
-                    .filter(|(_, r)| r.approach == ap && r.movement == want)
+                    .filter(|(_, r)| r.approach == ap && r.movement == movement)
                     .map(|(k, _)| k)
                     .collect();
-                if cands.is_empty() {
-                    cands = self
-                        .routes
-                        .iter()
-                        .enumerate()
-                        .filter(|(_, r)| r.approach == ap && r.movement == Movement::Through)
-                        .map(|(k, _)| k)
-                        .collect();
-                }
-                if cands.is_empty() {
-                    continue;
-                }
                 let route = cands[self.rng.random_range(0..cands.len())];
                 let class = self.draw_class();
                 let m = class_model(class);
@@ -99,12 +88,7 @@ impl Traffic {
         // Pedestrians.
         let ped = class_model(Class::Pedestrian);
         for k in 0..self.ped_sources.len() {
-            let per_hour = self.cfg.pedestrian_rate();
-            let rate = if self.ped_sources[k].jaywalk {
-                per_hour * self.cfg.jaywalk_share
-            } else {
-                per_hour * (1.0 - self.cfg.jaywalk_share)
-            };
+            let rate = self.cfg.pedestrian_source_rate(self.ped_sources[k].jaywalk);
             while self.ped_sources[k].next_arrival_s <= now {
                 self.ped_sources[k].next_arrival_s =
                     next_arrival(&mut self.rng, self.ped_sources[k].next_arrival_s, rate);
