@@ -24,7 +24,8 @@
 //! within one set shares that set's traffic and junction and may have chosen the objective's
 //! form from its residuals; `--transfer` predicts the placements of a second set (other seeds)
 //! with the first set's weights frozen ([`calibrate::transfer`]), and `--sites` holds each of
-//! several junctions' validations out in turn, fitting on the others ([`sites`]); a calibration
+//! several junctions' validations out in turn, fitting on the others ([`sites`]), each held-out
+//! ρ set beside its site's noise ceiling ([`ceiling`]); a calibration
 //! `--sites` wrote without this junction buys, its weights frozen, the rig a user at a new
 //! junction would buy, trained here beside the set's rigs near its budget
 //! ([`recommend::frozen`]). It runs in one process ([`run`]) or as a
@@ -48,6 +49,7 @@
 //! ```
 
 pub mod calibrate;
+pub mod ceiling;
 pub mod occupancy;
 pub mod rank;
 pub mod recommend;
@@ -1129,6 +1131,15 @@ pub fn markdown(r: &ValidationReport) -> String {
              against draw 1, each the mean of its seeds, scored on the same validation scenes) rank the set at \
              Spearman ρ {} — the ceiling for a predictor of a placement measured on one draw of traffic.\n\n",
             fmt_agreement(a)
+        ));
+    }
+    let trained: Vec<&Trained> = r.members.iter().map(|(_, t)| t).collect();
+    if let Some(c) = ceiling::ceiling(&trained, r.settings.seed) {
+        s.push_str(&format!(
+            "The ceiling for the mean of every placement's trainings: {} — the Spearman–Brown reliability of the \
+             mean of the parts, square-rooted: the most any predictor can agree with the measured mAP \
+             (its assumptions: `hilo_validate::ceiling`).\n\n",
+            c.describe()
         ));
     }
     if let Some(c) = &r.calibrated {

@@ -80,6 +80,10 @@ pub struct HeldOutSite {
     /// Measured values inside their 95% prediction interval.
     pub covered: usize,
     pub baselines: Vec<Baseline>,
+    /// What a perfect predictor of the site's accuracy could reach, given how much its
+    /// trainings disagree (None with one training per placement).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ceiling: Option<crate::ceiling::Ceiling>,
 }
 
 /// The leave-one-site-out validation.
@@ -351,6 +355,7 @@ fn hold_out(
             .iter()
             .map(|b| Baseline { predictor: b.clone(), spearman: agreement(&values(r, b), &acc, &reps, 0.95, seed).0 })
             .collect(),
+        ceiling: crate::ceiling::ceiling(&r.members.iter().map(|(_, t)| t).collect::<Vec<_>>(), seed),
         predicted,
         spearman,
         kendall,
@@ -525,7 +530,7 @@ pub fn markdown(r: &SitesReport) -> String {
         r.sites.len(),
         r.resampled
     ));
-    s.push_str("| held-out site | profile, commit | placements | ρ [95%] | τ [95%] | ρ, better half | mean error | RMSE | inside 95% interval | best baseline here (ρ) |\n|---|---|---:|---|---|---|---:|---:|---:|---|\n");
+    s.push_str("| held-out site | profile, commit | placements | ρ [95%] | ceiling [95%] | τ [95%] | ρ, better half | mean error | RMSE | inside 95% interval | best baseline here (ρ) |\n|---|---|---:|---|---|---|---|---:|---:|---:|---|\n");
     for h in &r.held_out {
         let best = h
             .baselines
@@ -533,12 +538,13 @@ pub fn markdown(r: &SitesReport) -> String {
             .filter(|b| b.spearman.value.is_finite())
             .max_by(|a, b| a.spearman.value.total_cmp(&b.spearman.value));
         s.push_str(&format!(
-            "| {} | {}, {} | {} | {} | {} | {} | {:+.3} | {:.3} | {} of {} | {} |\n",
+            "| {} | {}, {} | {} | {} | {} | {} | {} | {:+.3} | {:.3} | {} of {} | {} |\n",
             h.site,
             h.profile,
             &h.commit[..h.commit.len().min(7)],
             h.predicted.len(),
             crate::fmt_agreement(&h.spearman),
+            h.ceiling.as_ref().map_or("–".into(), |c| c.describe()),
             crate::fmt_agreement(&h.kendall),
             crate::fmt_agreement(&h.better_half_spearman),
             h.mean_error,
@@ -546,6 +552,30 @@ pub fn markdown(r: &SitesReport) -> String {
             h.covered,
             h.predicted.len(),
             best.map_or("–".into(), |b| format!("{} ({:+.2})", b.predictor, b.spearman.value)),
+        ));
+    }
+    if r.held_out.iter().any(|h| h.ceiling.is_some()) {
+        let short: Vec<&str> = r
+            .held_out
+            .iter()
+            .filter(|h| h.ceiling.as_ref().is_some_and(|c| h.spearman.hi < c.lo))
+            .map(|h| h.site.as_str())
+            .collect();
+        s.push_str(&format!(
+            "\nThe ceiling is the ρ a perfect predictor of a placement's accuracy could reach against the mean of its \
+             trainings: two parts of them (draws, each the mean of its seeds, or seeds where there is one draw) rank \
+             the placements at the ρ given last, and the square root of the Spearman–Brown reliability of their mean \
+             is the most any predictor can agree with it (interval: placements drawn with replacement; the validation \
+             scenes are taken as given, and with one draw the traffic's share of the noise is not seen, so the ceiling \
+             is then an upper bound). {}\n",
+            if short.is_empty() {
+                "No held-out ρ's interval lies wholly below its site's ceiling interval.".to_owned()
+            } else {
+                format!(
+                    "Held-out ρ whose interval lies wholly below the ceiling's, short of what the trainings' noise allows: {}.",
+                    short.join(", ")
+                )
+            }
         ));
     }
     s.push_str(&format!(
@@ -750,6 +780,37 @@ mod tests {
         for n in [crate::set::HIT_SHARE_TRAINING, crate::set::LIDAR_POINTS_CAPPED, LIDARS, LIDAR_SATURATED] {
             assert!(!needs_simulation(n), "{n}");
         }
+    }
+
+    /// Sites trained twice on each of two draws get a ceiling near 1 (the trainings disagree
+    /// little); a site whose accuracy none of the features explains ranks far below it and is
+    /// named as short of its ceiling, the others are not; one training per placement gives none.
+    #[test]
+    fn a_held_out_rho_below_its_ceiling_is_named() {
+        let g = |cl: f64, _: f64| 0.1 + 0.6 * cl;
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let mut sites = [site(25, 1, g), site(25, 2, g), site(25, 3, g), site(25, 4, |_, _| 0.0)];
+        let single = leave_one_site_out(&sites.iter().map(|s| ("x", s)).collect::<Vec<_>>(), 2).unwrap();
+        assert!(single.held_out.iter().all(|h| h.ceiling.is_none()));
+        for (k, s) in sites.iter_mut().enumerate() {
+            for (_, t) in &mut s.members {
+                // The unexplained site: accuracy of its own, the same in every training.
+                let base = if k == 3 { rng.random_range(0.2..0.6) } else { t.map_mean };
+                t.map = (0..4).map(|_| base + rng.random_range(-0.02..0.02)).collect();
+                t.draw = vec![0, 0, 1, 1];
+                t.map_mean = t.map.iter().sum::<f64>() / 4.0;
+            }
+        }
+        let named: Vec<(&str, &ValidationReport)> = ["a", "b", "c", "d"].into_iter().zip(sites.iter()).collect();
+        let r = leave_one_site_out(&named, 2).unwrap();
+        for h in &r.held_out {
+            let c = h.ceiling.as_ref().unwrap();
+            assert_eq!((c.parts.as_str(), c.count, c.n), ("draws", 2, 25));
+            assert!(c.value > 0.95 && c.lo > 0.85, "{}: {c:?}", h.site);
+        }
+        assert!(r.held_out[3].spearman.value < 0.6, "{:?}", r.held_out[3].spearman);
+        let md = markdown(&r);
+        assert!(md.contains("short of what the trainings' noise allows: d."), "{md}");
     }
 
     /// Same inputs and seed, same report.
