@@ -261,12 +261,24 @@ impl TrafficPoints {
         Ok(hilo_placement_ip::instance::PointRows { k: f64::from(k.max(1)), weights, rows })
     }
 
+    /// Per evaluated class (in the order of [`hilo_core::Class::ALL`]), the LiDAR points of
+    /// `lidars` on each counted road user of every frame, frame by frame.
+    pub fn counts(&self, world: &hilo_raycast::World, lidars: &[RigLidar]) -> Result<Vec<Vec<usize>>> {
+        let mut out = vec![Vec::new(); self.classes];
+        for (fr, points) in self.frames.iter().zip(self.points(world, lidars)?) {
+            for &(a, c) in &fr.users {
+                out[c].push(points.get(&a).copied().unwrap_or(0));
+            }
+        }
+        Ok(out)
+    }
+
     /// (mean of min(1, n / k), share with n ≥ k), class-balanced, for the LiDARs `lidars`.
     pub fn shares(&self, world: &hilo_raycast::World, lidars: &[RigLidar], k: u32) -> Result<(f64, f64)> {
         let mut sum = vec![(0.0, 0.0, 0usize); self.classes];
-        for (fr, points) in self.frames.iter().zip(self.points(world, lidars)?) {
-            for &(a, c) in &fr.users {
-                let n = points.get(&a).copied().unwrap_or(0) as f64;
+        for (c, counts) in self.counts(world, lidars)?.into_iter().enumerate() {
+            for n in counts {
+                let n = n as f64;
                 sum[c].0 += (n / f64::from(k.max(1))).min(1.0);
                 sum[c].1 += if n >= f64::from(k) { 1.0 } else { 0.0 };
                 sum[c].2 += 1;
