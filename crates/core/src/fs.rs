@@ -161,6 +161,18 @@ pub fn read_text_bounded(path: &Path, max: u64) -> std::io::Result<String> {
     Ok(text)
 }
 
+/// The files directly in `dir` whose name ends in `.<ext>`, sorted by name (a study sweep's
+/// folder, the site library).
+pub fn files_with_extension(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, FileError> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| FileError::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == ext))
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
 /// Whether a folder holds a file (or anything but a folder) at any depth; a missing folder
 /// holds none.
 pub fn holds_file(dir: &Path) -> bool {
@@ -205,6 +217,20 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         d
+    }
+
+    #[test]
+    fn files_with_an_extension_are_the_plain_files_sorted_by_name() {
+        let d = dir();
+        for f in ["z.toml", "a.toml", "b.txt", "toml", "c.toml.bak"] {
+            std::fs::write(d.join(f), b"").unwrap();
+        }
+        std::fs::create_dir_all(d.join("m.toml")).unwrap();
+        let got = files_with_extension(&d, "toml").unwrap();
+        assert_eq!(got, vec![d.join("a.toml"), d.join("z.toml")]);
+        let missing = d.join("none");
+        let e = files_with_extension(&missing, "toml").unwrap_err();
+        assert_eq!(e.path(), missing.as_path());
     }
 
     #[test]

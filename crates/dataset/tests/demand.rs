@@ -18,12 +18,7 @@ fn root() -> PathBuf {
 }
 
 fn sites() -> Vec<(String, Scene)> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("fixtures/sites"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
-        .collect();
-    v.sort();
+    let v = hilo_core::fs::files_with_extension(&root().join("fixtures/sites"), "toml").unwrap();
     v.iter().map(|p| (p.file_stem().unwrap().to_string_lossy().into_owned(), Scene::load(p).unwrap())).collect()
 }
 

@@ -166,12 +166,7 @@ fn weathers(v: toml::Value, table: &toml::Table, source: &str) -> Result<Vec<(St
 
 /// Every `*.toml` directly in `dir` (sorted by name) as a study of one scene and catalog.
 fn directory(dir: &Path) -> Result<Sweep> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|e| hilo_core::fs::FileError::io(dir, e))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "toml"))
-        .collect();
-    files.sort();
+    let files = hilo_core::fs::files_with_extension(dir, "toml")?;
     if files.is_empty() {
         return Err(StudyError::folder(dir, "a directory of studies holds no *.toml file"));
     }

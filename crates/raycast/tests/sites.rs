@@ -15,13 +15,7 @@ fn root() -> PathBuf {
 }
 
 fn sites() -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("fixtures/sites"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
-        .collect();
-    v.sort();
-    v
+    hilo_core::fs::files_with_extension(&root().join("fixtures/sites"), "toml").unwrap()
 }
 
 #[test]
