@@ -88,8 +88,10 @@ fn rho(rows: &[(Terms, f64)], term: &str) -> f64 {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sites = std::env::args().skip(1).map(|d| site(Path::new(&d))).collect::<Result<Vec<_>, _>>()?;
-    let Some(first) = sites.first() else { return Err("give one or more site folders".into()) };
-    let terms: Vec<String> = first.1[0]
+    let Some(first) = sites.iter().find_map(|s| s.1.first()) else {
+        return Err("give one or more site folders whose sets hold members".into());
+    };
+    let terms: Vec<String> = first
         .0
         .keys()
         .filter(|t| sites.iter().all(|(_, rows)| rows.iter().all(|r| r.0.contains_key(*t))))
