@@ -35,17 +35,20 @@ fn summaries(counts: &[Vec<usize>]) -> Terms {
     };
     let mut t = Terms::new();
     for k in [5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0, 640.0] {
-        t.insert(format!("points capped at {k}"), mean(per_class(&|n| (n / k).min(1.0)).into_iter()));
+        let capped = per_class(&|n| (n / k).min(1.0));
+        t.insert(format!("points capped at {k}"), mean(capped.iter().copied()));
         t.insert(format!("share with {k} points"), mean(per_class(&|n| f64::from(u8::from(n >= k))).into_iter()));
+        if k == 5.0 || k == 20.0 {
+            let worst = capped.iter().copied().fold(f64::INFINITY, f64::min);
+            t.insert(format!("worst class, points capped at {k}"), worst);
+        }
+        if k == 20.0 {
+            for ((c, _), v) in seen.iter().zip(&capped) {
+                t.insert(format!("{}, points capped at 20", names[*c].name()), *v);
+            }
+        }
     }
     t.insert("mean ln(1 + points)".into(), mean(per_class(&|n| n.ln_1p()).into_iter()));
-    for k in [5.0, 20.0] {
-        let worst = per_class(&|n| (n / k).min(1.0)).into_iter().fold(f64::INFINITY, f64::min);
-        t.insert(format!("worst class, points capped at {k}"), worst);
-    }
-    for ((c, _), v) in seen.iter().zip(per_class(&|n| (n / 20.0).min(1.0))) {
-        t.insert(format!("{}, points capped at 20", names[*c].name()), v);
-    }
     t
 }
 
@@ -98,23 +101,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .cloned()
         .collect();
     let fmt = |r: f64| if r.is_nan() { "—".to_owned() } else { format!("{r:+.2}") };
+    // ρ per term and site, computed once for the table and the nested choice.
+    let rhos: Vec<Vec<f64>> = terms.iter().map(|t| sites.iter().map(|s| rho(&s.1, t)).collect()).collect();
     println!("| summary | {} | mean |", sites.iter().map(|s| s.0.as_str()).collect::<Vec<_>>().join(" | "));
     println!("|---|{}---:|", "---:|".repeat(sites.len()));
-    for t in &terms {
-        let r: Vec<f64> = sites.iter().map(|s| rho(&s.1, t)).collect();
+    for (t, r) in terms.iter().zip(&rhos) {
         let cells: Vec<String> = r.iter().map(|&x| fmt(x)).collect();
         println!("| {t} | {} | {} |", cells.join(" | "), fmt(mean(r.iter().copied())));
     }
     println!("\n| held out | chosen on the others | its mean ρ there | ρ at the held-out site |\n|---|---|---:|---:|");
     let mut held = Vec::new();
-    for (h, (name, rows)) in sites.iter().enumerate() {
-        let others = |t: &String| mean(sites.iter().enumerate().filter(|(i, _)| *i != h).map(|(_, s)| rho(&s.1, t)));
-        let Some(best) = terms.iter().filter(|t| !others(t).is_nan()).max_by(|a, b| others(a).total_cmp(&others(b)))
+    for (h, (name, _)) in sites.iter().enumerate() {
+        let others: Vec<f64> =
+            rhos.iter().map(|r| mean(r.iter().enumerate().filter(|(i, _)| *i != h).map(|(_, x)| *x))).collect();
+        let Some(best) =
+            (0..terms.len()).filter(|&t| !others[t].is_nan()).max_by(|&a, &b| others[a].total_cmp(&others[b]))
         else {
             continue;
         };
-        held.push(rho(rows, best));
-        println!("| {name} | {best} | {} | {} |", fmt(others(best)), fmt(rho(rows, best)));
+        held.push(rhos[best][h]);
+        println!("| {name} | {} | {} | {} |", terms[best], fmt(others[best]), fmt(rhos[best][h]));
     }
     println!("\nMean held-out ρ of the nested choice: {}", fmt(mean(held.into_iter())));
     Ok(())
