@@ -15,6 +15,11 @@
 //! What it leaves out: a road user's extent (only the centre's cell counts) and occlusion by
 //! other road users (which depends on the instant, not on the cell; the occupancy predictors of
 //! `hilo validate` count it from the simulated scans).
+//!
+//! [`TrafficPoints`] scans sampled key frames of the same traffic with a rig's LiDARs, as the
+//! dataset would: the points on each road user ([`TrafficPoints::counts`], the point term) and
+//! where they fall on it ([`TrafficPoints::per_user`]; [`TrafficPoints::extent`] sums, LiDAR by
+//! LiDAR, the share of its footprint they span, [`footprint_extent`]).
 
 use crate::error::Result;
 use crate::study::Study;
@@ -188,10 +193,7 @@ impl TrafficPoints {
             .map(|fr| {
                 let mut points: BTreeMap<u32, usize> = BTreeMap::new();
                 for (k, spec, pose) in lidars {
-                    let seed =
-                        hilo_dataset::simulate::derive_seed(self.seed, &[2, fr.stream, fr.index as u64, *k as u64]);
-                    let scan = hilo_sensor_models::simulate_lidar(spec, pose, world, Some(&fr.actors), seed)
-                        .map_err(|e| crate::error::StudyError::step(format!("LiDAR {k} on a training key frame"), e))?;
+                    let scan = self.scan(world, fr, *k, spec, pose)?;
                     for (a, n) in scan.points_per_actor() {
                         *points.entry(a).or_default() += n;
                     }
@@ -273,6 +275,65 @@ impl TrafficPoints {
         Ok(out)
     }
 
+    /// Per evaluated class (in the order of [`hilo_core::Class::ALL`]), `summary` of each counted
+    /// road user of every frame, frame by frame: the road user as the rays see it and the points
+    /// of `lidars` on it, in the scene frame, each with the index into `lidars` of the LiDAR
+    /// that returned it. The points are those [`TrafficPoints::counts`] counts.
+    pub fn per_user<T>(
+        &self,
+        world: &hilo_raycast::World,
+        lidars: &[RigLidar],
+        summary: impl Fn(&hilo_raycast::Actor, &[(usize, glam::Vec3)]) -> T,
+    ) -> Result<Vec<Vec<T>>> {
+        let mut out: Vec<Vec<T>> = (0..self.classes).map(|_| Vec::new()).collect();
+        for fr in &self.frames {
+            let mut points: BTreeMap<u32, Vec<(usize, glam::Vec3)>> = BTreeMap::new();
+            for (l, (k, spec, pose)) in lidars.iter().enumerate() {
+                let scan = self.scan(world, fr, *k, spec, pose)?;
+                for (p, s) in scan.points_local().iter().zip(&scan.sources) {
+                    if let Some(a) = s.actor() {
+                        points.entry(a).or_default().push((l, glam::Vec3::new(p.x, p.y, p.z)));
+                    }
+                }
+            }
+            for &(a, c) in &fr.users {
+                let Some(actor) = fr.actors.actors().iter().find(|x| x.id == a) else { continue };
+                out[c].push(summary(actor, points.get(&a).map_or(&[], Vec::as_slice)));
+            }
+        }
+        Ok(out)
+    }
+
+    /// LiDAR `k` of a rig on frame `fr`, seeded as the dataset seeds it.
+    fn scan(
+        &self,
+        world: &hilo_raycast::World,
+        fr: &Frame,
+        k: usize,
+        spec: &hilo_sensor_models::LidarSpec,
+        pose: &hilo_sensor_models::SensorPose,
+    ) -> Result<hilo_sensor_models::LidarScan> {
+        let seed = hilo_dataset::simulate::derive_seed(self.seed, &[2, fr.stream, fr.index as u64, k as u64]);
+        hilo_sensor_models::simulate_lidar(spec, pose, world, Some(&fr.actors), seed)
+            .map_err(|e| crate::error::StudyError::step(format!("LiDAR {k} on a training key frame"), e))
+    }
+
+    /// The class-balanced mean over counted road users of min(1, Σ_l e_l), e_l the share of the
+    /// road user's footprint that LiDAR l's points span ([`footprint_extent`]): how much of each
+    /// road user's length and width the rig shows a detector, one LiDAR's view at a time. Summed
+    /// over LiDARs and capped, like the point count, so an IP could hold it.
+    pub fn extent(&self, world: &hilo_raycast::World, lidars: &[RigLidar]) -> Result<f64> {
+        let per_class = self.per_user(world, lidars, |a, points| {
+            (0..lidars.len())
+                .map(|l| footprint_extent(a, points.iter().filter(|p| p.0 == l).map(|p| p.1)))
+                .sum::<f64>()
+                .min(1.0)
+        })?;
+        let seen: Vec<f64> =
+            per_class.iter().filter(|c| !c.is_empty()).map(|c| c.iter().sum::<f64>() / c.len() as f64).collect();
+        Ok(seen.iter().sum::<f64>() / seen.len().max(1) as f64)
+    }
+
     /// (mean of min(1, n / k), share with n ≥ k), class-balanced, for the LiDARs `lidars`.
     pub fn shares(&self, world: &hilo_raycast::World, lidars: &[RigLidar], k: u32) -> Result<(f64, f64)> {
         let mut sum = vec![(0.0, 0.0, 0usize); self.classes];
@@ -291,6 +352,32 @@ impl TrafficPoints {
             seen.iter().map(|s| s.1 / s.2 as f64).sum::<f64>() / n,
         ))
     }
+}
+
+/// The share of a road user's footprint that `points` (scene frame) span: in its own frame,
+/// the product over its length and its width of min(1, the points' spread along that axis / the
+/// axis's size); a pedestrian's capsule counts as a square of its diameter. 0 below two points.
+/// One face seen end-on spans its width but none of its length, so a view along a road user
+/// scores less than a view of its corner with the same points: where the centre and heading
+/// sit is what a detector must regress, and the points' extent is what shows it.
+pub fn footprint_extent(actor: &hilo_raycast::Actor, points: impl Iterator<Item = glam::Vec3>) -> f64 {
+    let (centre, size, yaw) = match actor.shape {
+        hilo_raycast::ActorShape::Box(b) => (b.center.truncate(), glam::Vec2::new(b.length_m, b.width_m), b.yaw),
+        hilo_raycast::ActorShape::Capsule(c) => (c.center, glam::Vec2::splat(2.0 * c.radius), 0.0),
+    };
+    let to_local = glam::Mat2::from_angle(-yaw);
+    let (mut lo, mut hi, mut n) = (glam::Vec2::INFINITY, glam::Vec2::NEG_INFINITY, 0usize);
+    for p in points {
+        let q = to_local * (p.truncate() - centre);
+        lo = lo.min(q);
+        hi = hi.max(q);
+        n += 1;
+    }
+    if n < 2 || size.min_element() <= 0.0 {
+        return 0.0;
+    }
+    let share = ((hi - lo) / size).min(glam::Vec2::ONE);
+    f64::from(share.x) * f64::from(share.y)
 }
 
 #[cfg(test)]
@@ -489,5 +576,51 @@ mod tests {
                 assert!(want > 0.05, "the rig sees its road users: {want}");
             }
         }
+    }
+
+    #[test]
+    fn footprint_extent_has_its_closed_forms() {
+        use glam::{Vec2, Vec3};
+        let yaw = 0.5f32;
+        let b = hilo_core::Box3::new(Vec3::new(3.0, -2.0, 0.8), 4.0, 2.0, 1.6, yaw);
+        let car = hilo_raycast::Actor::from_box(1, hilo_core::Class::Car, b);
+        // A point at (x, y) of the car's own frame, in the scene frame.
+        let at = |x: f32, y: f32| (b.center.truncate() + glam::Mat2::from_angle(yaw) * Vec2::new(x, y)).extend(1.0);
+        let e = |p: &[Vec3]| footprint_extent(&car, p.iter().copied());
+        let close = |a: f64, b: f64| assert!((a - b).abs() < 1e-5, "{a} against {b}");
+        close(e(&[at(2.0, 1.0), at(-2.0, -1.0)]), 1.0);
+        close(e(&[at(2.0, 1.0), at(2.0, -1.0), at(2.0, 0.0)]), 0.0); // the front face end-on
+        close(e(&[at(2.0, 1.0), at(0.0, 1.0), at(2.0, -1.0)]), 0.5); // a corner: half the length
+        close(e(&[at(1.0, 0.5), at(0.0, 0.0)]), 0.25 * 0.25);
+        close(e(&[at(9.0, 9.0), at(-9.0, -9.0)]), 1.0); // capped on both axes
+        close(e(&[at(1.0, 1.0)]), 0.0);
+        close(e(&[]), 0.0);
+        let walker = hilo_raycast::Actor::from_box(2, hilo_core::Class::Pedestrian, b);
+        let r = 1.0; // half the smaller planar size
+        let pts = [Vec3::new(3.0 - r, -2.0 - r, 1.0), Vec3::new(3.0 + r, -2.0 + r, 1.0)];
+        close(footprint_extent(&walker, pts.into_iter()), 1.0);
+        close(footprint_extent(&walker, pts.into_iter().map(|p| p * Vec3::new(1.0, 0.0, 1.0) - Vec3::Y * 2.0)), 0.0);
+    }
+
+    #[test]
+    fn the_extent_grows_with_the_rig_and_stays_a_share() {
+        let study = small_study(1);
+        let traffic = TrainingTraffic::new(&study).unwrap();
+        let points = TrafficPoints::new(&traffic, 5).unwrap();
+        let world =
+            hilo_raycast::world::World::build(&study.scene, &hilo_raycast::world::QueryRegion::everything()).unwrap();
+        let spec = hilo_sensor_models::Catalog::default_catalog().unwrap().lidar("lidar-16").unwrap().clone();
+        let pose = |m: usize| {
+            let m = &study.scene.mounts[m];
+            let p = m.base + m.arm_dir * (0.5 * m.arm_length_m);
+            let z = study.scene.ground.z_m + m.arm_height_m + 0.4;
+            hilo_sensor_models::SensorPose::new(p.extend(z), (-p.y).atan2(-p.x), 0.17, 0.0)
+        };
+        let poses = [pose(0), pose(2)];
+        let one = points.extent(&world, &[(0, spec.clone(), poses[0])]).unwrap();
+        let two = points.extent(&world, &[(0, spec.clone(), poses[0]), (1, spec, poses[1])]).unwrap();
+        assert!(one > 0.05 && one <= 1.0, "{one}");
+        assert!(two >= one && two <= 1.0, "{one} then {two}");
+        assert_eq!(points.extent(&world, &[]).unwrap(), 0.0);
     }
 }

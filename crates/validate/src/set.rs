@@ -84,6 +84,10 @@ pub const LIDAR_BEAMS: &str = "LiDAR beams";
 /// n ≥ k, on every [`TRAFFIC_EVERY`]-th key frame of the training scenes.
 pub const LIDAR_POINTS_CAPPED: &str = "LiDAR points on road users, capped at k (training traffic)";
 pub const HIT_SHARE_TRAINING: &str = "road users hit by k LiDAR points (training traffic)";
+/// The share of each counted road user's footprint that the rig's LiDARs span, one LiDAR at a
+/// time, summed and capped at 1 ([`hilo_plan::road_users::TrafficPoints::extent`]), on the same
+/// frames: the geometry of the points rather than their number.
+pub const LIDAR_EXTENT: &str = "road users' footprint spanned by each LiDAR's points, summed (training traffic)";
 /// Key frames of the training traffic between two the occupancy predictors read.
 pub const TRAFFIC_EVERY: usize = 20;
 
@@ -626,6 +630,7 @@ impl<'a> Context<'a> {
         let (capped, hit) = self.traffic.shares(&self.world, &lidars, self.min_points)?;
         predictors.insert(LIDAR_POINTS_CAPPED.to_owned(), Some(capped));
         predictors.insert(HIT_SHARE_TRAINING.to_owned(), Some(hit));
+        predictors.insert(LIDAR_EXTENT.to_owned(), Some(self.traffic.extent(&self.world, &lidars)?));
         // The calibrated objective's coverage terms, one at a time (the point-count term is the
         // rig's own count above: the same sum with the rig's dropout draws).
         for (k, name) in TERMS.iter().enumerate().filter(|(_, n)| **n != LIDAR_POINTS_CAPPED) {

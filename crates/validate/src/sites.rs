@@ -404,7 +404,6 @@ fn paired_difference(
     baseline: &str,
     seed: u64,
 ) -> Agreement {
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let data: Vec<(Paired, Vec<Vec<f64>>)> = sites
         .iter()
         .zip(held)
@@ -417,14 +416,32 @@ fn paired_difference(
             (p, replicates(r))
         })
         .collect();
-    let whole: Vec<Paired> = data
+    paired_bootstrap(&data, seed)
+}
+
+/// (Mean over `sites` of predictor `a`'s Spearman ρ with measured mAP) − (the same of `b`'s),
+/// both recorded predictors and neither fitted, over the placements where `b` is defined, with
+/// the interval of [`leave_one_site_out`]'s paired bootstrap (placements, scenes and trainings
+/// resampled, the same draw for both): do two placement-only predictors rank the sites apart?
+pub fn predictor_difference(sites: &[&ValidationReport], a: &str, b: &str, seed: u64) -> Agreement {
+    let data: Vec<(Paired, Vec<Vec<f64>>)> = sites
         .iter()
-        .map(|(p, _)| Paired {
-            calibrated: p.calibrated.clone(),
-            baseline: p.baseline.clone(),
-            accuracy: p.accuracy.clone(),
+        .map(|r| {
+            let p = Paired {
+                calibrated: values(r, a),
+                baseline: values(r, b),
+                accuracy: r.members.iter().map(|(_, t)| t.map_mean).collect(),
+            };
+            (p, replicates(r))
         })
         .collect();
+    paired_bootstrap(&data, seed)
+}
+
+/// The paired bootstrap over `data` (per site, its paired values and its accuracy replicates).
+fn paired_bootstrap(data: &[(Paired, Vec<Vec<f64>>)], seed: u64) -> Agreement {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let whole: Vec<Paired> = data.iter().map(|(p, _)| p.clone()).collect();
     let value = mean_difference(&whole).unwrap_or(f64::NAN);
     let mut diffs = Vec::with_capacity(REPLICATES);
     for _ in 0..REPLICATES {
@@ -755,6 +772,23 @@ mod tests {
         assert_eq!(CalibrationFile::from_toml(&f.to_toml().unwrap()).unwrap(), *f);
     }
 
+    /// Two recorded predictors compared without a fit: the one the truth is made of ranks the
+    /// sites clearly above a scattered LiDAR count, a predictor against itself differs by
+    /// exactly 0 in every replicate, and the order of the two flips the sign.
+    #[test]
+    fn two_predictors_are_compared_with_a_paired_interval() {
+        let g = |cl: f64, _: f64| 0.1 + 0.6 * cl;
+        let sites = [site(30, 1, g), site(30, 2, g), site(30, 3, g)];
+        let refs: Vec<&ValidationReport> = sites.iter().collect();
+        let d = predictor_difference(&refs, LIDAR_SATURATED, LIDARS, 7);
+        assert!(d.value > 0.1 && d.lo > 0.0 && d.hi >= d.value, "{d:?}");
+        assert_eq!(d.n, 3);
+        let back = predictor_difference(&refs, LIDARS, LIDAR_SATURATED, 7);
+        assert!((back.value + d.value).abs() < 1e-12, "{back:?} {d:?}");
+        let same = predictor_difference(&refs, LIDARS, LIDARS, 7);
+        assert_eq!((same.value, same.lo, same.hi), (0.0, 0.0, 0.0));
+    }
+
     /// Too few sites, a small site, and a site without one of the fit's features are refused
     /// with the site named and what to do.
     #[test]
@@ -777,7 +811,7 @@ mod tests {
         for n in [HIT_SHARE, POINTS_PER_USER, RADAR_SHARE, "road users hit by k LiDAR points (pedestrian)"] {
             assert!(needs_simulation(n), "{n}");
         }
-        for n in [crate::set::HIT_SHARE_TRAINING, crate::set::LIDAR_POINTS_CAPPED, LIDARS, LIDAR_SATURATED] {
+        for n in [crate::set::HIT_SHARE_TRAINING, crate::set::LIDAR_POINTS_CAPPED, crate::set::LIDAR_EXTENT, LIDARS] {
             assert!(!needs_simulation(n), "{n}");
         }
     }
