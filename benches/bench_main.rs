@@ -173,6 +173,7 @@ fn placement(c: &mut Criterion) {
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
         points: Default::default(),
+        extents: Default::default(),
     };
     let limit = Limit::Counts(vec![2, 1]);
     let exact = hilo::placement::pipeline::solve(&inst, &limit, 60.0).expect("exact");

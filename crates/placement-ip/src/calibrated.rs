@@ -32,6 +32,14 @@
 //! the LiDAR points option o puts on road user j in its frame, occlusion by the frame's other road
 //! users, buildings and poles included ([`crate::instance::PointRows`]). Points add up over
 //! sensors, so the term is exact: z_j ≤ Σ_o n_oj x_o / k, 0 ≤ z_j ≤ 1, like the others.
+//!
+//! The fourteenth (`lidar_extent`) reads the same road users for where the points fall: min(1,
+//! Σ_{o ∈ S} e_oj), e_oj the share of road user j's footprint (length × width, in its own frame)
+//! that option o's points span alone ([`crate::instance::Instance::extents`], in thousandths).
+//! One face seen end-on spans a car's width and none of its length; a corner view spans both.
+//! The shares are summed sensor by sensor, not taken over the union of the points, so the term
+//! keeps the point term's exact form (two LiDARs that each see one face add up to less than
+//! the corner their union shows: the term undervalues such pairs).
 
 use crate::candidates::Modality;
 use crate::error::PlacementError;
@@ -104,6 +112,8 @@ pub struct Weights {
     pub radar_dense_road_users: f64,
     #[serde(default, skip_serializing_if = "is_zero")]
     pub lidar_points: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lidar_extent: f64,
 }
 
 /// The largest weight [`Weights::check`] admits: the objective sums weight × coverage over
@@ -114,7 +124,7 @@ pub const MAX_WEIGHT: f64 = 1e6;
 pub const MIN_WEIGHT_RATIO: f64 = 1e-9;
 
 /// How many terms the calibrated objective has ([`Weights::named`]).
-pub const N_TERMS: usize = 13;
+pub const N_TERMS: usize = 14;
 
 /// Each term's name in a study file and its shape: modality, the multiple k of the threshold
 /// that counts a target fully, whether each sensor's coefficient is capped at 1, what its
@@ -133,6 +143,7 @@ const SHAPES: [(&str, Modality, f64, bool, Source); N_TERMS] = [
     ("lidar_dense_road_users", Modality::Lidar, 2.0, false, Source::RoadUsers),
     ("radar_dense_road_users", Modality::Radar, 2.0, false, Source::RoadUsers),
     ("lidar_points", Modality::Lidar, 1.0, false, Source::Points),
+    ("lidar_extent", Modality::Lidar, 1.0, false, Source::Extent),
 ];
 
 /// What a term sums over: the target cells weighted by their region of interest, the same
@@ -143,6 +154,7 @@ pub(crate) enum Source {
     Regions,
     RoadUsers,
     Points,
+    Extent,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -169,6 +181,7 @@ impl Term {
             Source::Regions => &inst.weights,
             Source::RoadUsers => &inst.road_users,
             Source::Points => &inst.points.weights,
+            Source::Extent => &inst.extents.weights,
         }
     }
 
@@ -177,10 +190,10 @@ impl Term {
     #[inline]
     pub fn for_each(&self, inst: &Instance, o: usize, tau: f64, mut f: impl FnMut(usize, f64)) {
         match self.source {
-            Source::Points => {
-                let k = inst.points.k;
-                for &(j, n) in inst.points.rows.get(o).map_or(&[][..], |r| r.as_slice()) {
-                    f(j as usize, f64::from(n) / k);
+            Source::Points | Source::Extent => {
+                let rows = if self.source == Source::Points { &inst.points } else { &inst.extents };
+                for &(j, n) in rows.rows.get(o).map_or(&[][..], |r| r.as_slice()) {
+                    f(j as usize, f64::from(n) / rows.k);
                 }
             }
             Source::Regions | Source::RoadUsers => {
@@ -229,6 +242,12 @@ impl Weights {
         self.lidar_points > 0.0
     }
 
+    /// Whether the footprint term has a weight (the instance then needs
+    /// [`Instance::extents`]).
+    pub fn reads_extents(&self) -> bool {
+        self.lidar_extent > 0.0
+    }
+
     /// The weights by their names in a study file, in the order of [`Weights::terms`].
     pub fn named(&self) -> [(&'static str, f64); N_TERMS] {
         let v = self.values();
@@ -273,6 +292,7 @@ impl Weights {
             &mut self.lidar_dense_road_users,
             &mut self.radar_dense_road_users,
             &mut self.lidar_points,
+            &mut self.lidar_extent,
         ]
     }
 
@@ -334,6 +354,16 @@ pub fn check_instance(inst: &Instance, w: &Weights) -> Result<(), PlacementError
             format!(
                 "weighs LiDAR points on road users, but the instance has point counts for {} of its {} options",
                 inst.points.rows.len(),
+                inst.options.len()
+            ),
+        ));
+    }
+    if w.reads_extents() && inst.extents.rows.len() != inst.options.len() {
+        return Err(PlacementError::instance(
+            "placement.calibration.lidar_extent",
+            format!(
+                "weighs the footprint LiDAR points span, but the instance has footprint shares for {} of its {} options",
+                inst.extents.rows.len(),
                 inst.options.len()
             ),
         ));
@@ -560,7 +590,21 @@ mod tests {
                 .map(|_| if rng.random::<f32>() < 0.4 { 0.0 } else { rng.random_range(0.0..0.1) })
                 .collect(),
             points: random_points(&mut rng, 12),
+            extents: random_extents(&mut rng, 12),
         }
+    }
+
+    /// The same 30 samples and, per LiDAR option, the share of each one's footprint it spans
+    /// (thousandths, 0.05 to 0.7: two views can fill a sample, one cannot).
+    fn random_extents(rng: &mut rand::rngs::StdRng, options: usize) -> crate::instance::PointRows {
+        let mut r = random_points(rng, options);
+        r.k = crate::instance::EXTENT_UNITS;
+        for row in &mut r.rows {
+            for e in row.iter_mut() {
+                e.1 = rng.random_range(50..700);
+            }
+        }
+        r
     }
 
     /// 30 road-user samples of two classes (class-balanced weights) and, per LiDAR option, the
@@ -613,6 +657,7 @@ mod tests {
                     lidar_two_views_road_users: 0.3,
                     radar_dense_road_users: 0.05,
                     lidar_points: if seed == 7 { 0.4 } else { 0.0 },
+                    lidar_extent: if seed == 3 { 0.6 } else { 0.0 },
                     ..Weights::default()
                 },
                 _ => Weights {
@@ -731,6 +776,7 @@ mod tests {
             p_min: 1.0 - (-1.0f64).exp(),
             road_users: vec![0.3, 0.1],
             points: Default::default(),
+            extents: Default::default(),
         };
         let w = Weights { lidar_road_users: 1.0, ..Weights::default() };
         // Target 0 seen fully holds 0.3 of the 0.4 road users on targets; by region, 1 of 2.
@@ -814,6 +860,52 @@ mod tests {
         assert!(bad.validate().unwrap_err().to_string().contains("sample 999"));
     }
 
+    /// The footprint term is the capped sum of shares by hand: per road-user sample, min(1,
+    /// Σ of the chosen LiDARs' shares), weighted; CBC's optimum of it alone and beside the point
+    /// and coverage terms equals brute force; an instance without shares is refused by name.
+    #[test]
+    fn the_footprint_term_is_the_capped_sum_of_shares() {
+        for seed in 0..6 {
+            let inst = random_instance(400 + seed);
+            inst.validate().unwrap();
+            let e = &inst.extents;
+            for sel in [vec![0], vec![0, 2], vec![0, 1, 2, 4, 6], (0..12).collect()] {
+                let mut share = vec![0.0f64; e.weights.len()];
+                for &o in &sel {
+                    for &(j, c) in &e.rows[o] {
+                        share[j as usize] += f64::from(c) / 1000.0;
+                    }
+                }
+                let by_hand: f64 = share.iter().zip(&e.weights).map(|(s, w)| w * s.min(1.0)).sum::<f64>()
+                    / e.weights.iter().sum::<f64>();
+                let only = Weights { lidar_extent: 1.0, ..Weights::default() };
+                assert!((evaluate(&inst, &sel, &only) - by_hand).abs() < 1e-12, "seed {seed} {sel:?}");
+            }
+            let w = match seed % 3 {
+                0 => Weights { lidar_extent: 1.0, ..Weights::default() },
+                1 => Weights { lidar_extent: 0.7, lidar_points: 0.3, ..Weights::default() },
+                _ => Weights { lidar_extent: 0.5, radar: 0.2, lidar_two_views: 0.2, ..Weights::default() },
+            };
+            for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
+                let g = greedy(&inst, &limit, &w);
+                let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
+                let best = brute(&inst, &limit, &w);
+                assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
+                assert!(out.proven_optimal && g.objective <= best + 1e-9);
+            }
+        }
+        let mut bare = random_instance(1);
+        bare.extents = Default::default();
+        let w = Weights { lidar_extent: 1.0, ..Weights::default() };
+        assert!(w.reads_extents() && !w.reads_points());
+        let limit = Limit::Counts(vec![2, 1]);
+        let err = solve(&bare, &limit, &w, 5.0, CBC_MAX_NONZEROS, &greedy(&bare, &limit, &w)).unwrap_err();
+        assert!(err.to_string().contains("lidar_extent"), "{err}");
+        let mut bad = random_instance(2);
+        bad.extents.rows[0].push((999, 3));
+        assert!(bad.validate().unwrap_err().to_string().contains("footprint entry on sample 999"));
+    }
+
     /// One LiDAR that sees one of two targets fully (a ≈ 4.6 τ) and the other at half the
     /// threshold: its LiDAR coverage term is (1 + 0.5) / 2.
     pub(super) fn one_lidar_two_targets() -> Instance {
@@ -829,6 +921,7 @@ mod tests {
             p_min: 1.0 - (-1.0f64).exp(),
             road_users: Vec::new(),
             points: Default::default(),
+            extents: Default::default(),
         }
     }
 

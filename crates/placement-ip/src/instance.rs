@@ -78,7 +78,16 @@ pub struct Instance {
     /// unless computed): the calibrated objective's point-count term ([`crate::calibrated`]).
     #[serde(default, skip_serializing_if = "PointRows::is_empty")]
     pub points: PointRows,
+    /// The same road users and, per option, the share of each one's footprint (length × width)
+    /// its points span, in thousandths (`k` = 1000; empty unless computed): the calibrated
+    /// objective's footprint term ([`crate::calibrated`]). Shares add up over sensors, capped at
+    /// 1, as points do.
+    #[serde(default, skip_serializing_if = "PointRows::is_empty")]
+    pub extents: PointRows,
 }
+
+/// The units of [`Instance::extents`]: thousandths of a road user's footprint.
+pub const EXTENT_UNITS: f64 = 1000.0;
 
 /// Road users of sampled traffic frames ("samples": one road user in one frame), each with its
 /// weight, and per option the LiDAR points it puts on each sample it hits. A sample counts
@@ -168,20 +177,22 @@ impl Instance {
                 }
             }
         }
-        let pts = &self.points;
-        if !pts.is_empty() {
+        for (what, pts) in [("point", &self.points), ("footprint", &self.extents)] {
+            if pts.is_empty() {
+                continue;
+            }
             if pts.rows.len() != self.options.len() {
-                return bad(format!("point rows for {} of {} options", pts.rows.len(), self.options.len()));
+                return bad(format!("{what} rows for {} of {} options", pts.rows.len(), self.options.len()));
             }
             if !(pts.k.is_finite() && pts.k >= 1.0) {
-                return bad(format!("points that count a road user fully: {} (must be >= 1)", pts.k));
+                return bad(format!("{what} units that count a road user fully: {} (must be >= 1)", pts.k));
             }
             if pts.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
-                return bad("road-user sample weights must be finite and >= 0".into());
+                return bad(format!("{what} rows: road-user sample weights must be finite and >= 0"));
             }
             for (i, row) in pts.rows.iter().enumerate() {
                 if let Some(&(j, _)) = row.iter().find(|(j, _)| *j as usize >= pts.weights.len()) {
-                    return bad(format!("option {i}: points on sample {j} of {}", pts.weights.len()));
+                    return bad(format!("option {i}: {what} entry on sample {j} of {}", pts.weights.len()));
                 }
             }
         }

@@ -164,6 +164,7 @@ pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64
         p_min,
         road_users: Vec::new(),
         points: Default::default(),
+        extents: Default::default(),
     };
     for (ty, name) in types.iter().enumerate() {
         let spec = catalog.get(name)?;

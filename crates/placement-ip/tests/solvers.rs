@@ -50,6 +50,7 @@ fn random_instance(seed: u64) -> Instance {
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
         points: Default::default(),
+        extents: Default::default(),
     }
 }
 
@@ -110,6 +111,7 @@ fn greedy_is_strictly_worse_on_a_constructed_instance() {
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
         points: Default::default(),
+        extents: Default::default(),
     };
     let limit = Limit::Counts(vec![2, 0, 1]);
     let g = greedy(&inst, &limit);
@@ -141,6 +143,7 @@ fn coefficients_are_finite_at_v_one_zero_and_tiny() {
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
         points: Default::default(),
+        extents: Default::default(),
     };
     let o = solve(&inst, &Limit::Counts(vec![1, 0, 1]), Formulation::Plain, 10.0, None).unwrap();
     assert!((o.objective - 2.0).abs() < 1e-9, "{}", o.objective);
@@ -159,6 +162,7 @@ fn a_target_seen_by_one_modality_never_counts() {
         p_min: 0.5,
         road_users: Vec::new(),
         points: Default::default(),
+        extents: Default::default(),
     };
     let sel = [0usize, 1];
     assert!((evaluate(&inst, &sel) - 1.8).abs() < 1e-6);
@@ -289,6 +293,7 @@ fn the_budget_bound_on_sensors_is_a_sum_over_types() {
         p_min: 1.0 - (-1.0f64).exp(),
         road_users: Vec::new(),
         points: Default::default(),
+        extents: Default::default(),
     };
     let limit = Limit::Budget { usd: 300.0, min: vec![], max: vec![u32::MAX, 2] };
     let oracle = exhaustive(&inst, &limit, 1000).unwrap();

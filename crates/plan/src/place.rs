@@ -121,11 +121,18 @@ pub fn prepare_study(study: &Study) -> Result<Prepared> {
     Ok(prepare(&study.scene, &study.catalog, &study.type_names(), &study.placement)?)
 }
 
-/// The calibrated objective's point-count rows, computed once per (type, candidate) over the
-/// study's training traffic ([`crate::road_users::TrafficPoints::rows`]).
+/// The calibrated objective's point-count and footprint rows, each computed once per (type,
+/// candidate) over the study's training traffic ([`crate::road_users::TrafficPoints::rows`],
+/// [`crate::road_users::TrafficPoints::extent_rows`]).
 #[derive(Default)]
 struct PointCache {
     traffic: Option<crate::road_users::TrafficPoints>,
+    points: CachedRows,
+    extents: CachedRows,
+}
+
+#[derive(Default)]
+struct CachedRows {
     k: f64,
     weights: Vec<f64>,
     rows: HashMap<(String, u32), Vec<(u32, u32)>>,
@@ -136,32 +143,39 @@ struct PointCache {
 pub const POINTS_EVERY: usize = 20;
 
 impl PointCache {
+    /// The point rows, or with `extents` the footprint rows, of `inst`'s options.
     fn rows(
         &mut self,
         study: &Study,
         world: &World,
         prep: &Prepared,
         inst: &Instance,
+        extents: bool,
     ) -> Result<hilo_placement_ip::instance::PointRows> {
         if self.traffic.is_none() {
             let traffic = crate::road_users::TrainingTraffic::new(study)?;
             self.traffic = Some(crate::road_users::TrafficPoints::new(&traffic, POINTS_EVERY)?);
         }
+        let cache = if extents { &mut self.extents } else { &mut self.points };
         let key = |o: usize| (inst.types[inst.options[o].ty].name.clone(), inst.options[o].candidate);
         let missing: Vec<usize> = (0..inst.options.len())
-            .filter(|&o| inst.modality(o) == Modality::Lidar && !self.rows.contains_key(&key(o)))
+            .filter(|&o| inst.modality(o) == Modality::Lidar && !cache.rows.contains_key(&key(o)))
             .collect();
         if let Some(tp) = &self.traffic {
             let lidar_of = |i: usize| option_lidar(study, prep, inst, missing[i]);
-            let new = tp.rows(world, missing.len(), lidar_of, study.file.validation.min_points)?;
-            self.k = new.k;
-            self.weights = new.weights;
+            let new = if extents {
+                tp.extent_rows(world, missing.len(), lidar_of)?
+            } else {
+                tp.rows(world, missing.len(), lidar_of, study.file.validation.min_points)?
+            };
+            cache.k = new.k;
+            cache.weights = new.weights;
             for (i, row) in new.rows.into_iter().enumerate() {
-                self.rows.insert(key(missing[i]), row);
+                cache.rows.insert(key(missing[i]), row);
             }
         }
-        let rows = (0..inst.options.len()).map(|o| self.rows.get(&key(o)).cloned().unwrap_or_default()).collect();
-        Ok(hilo_placement_ip::instance::PointRows { k: self.k, weights: self.weights.clone(), rows })
+        let rows = (0..inst.options.len()).map(|o| cache.rows.get(&key(o)).cloned().unwrap_or_default()).collect();
+        Ok(hilo_placement_ip::instance::PointRows { k: cache.k, weights: cache.weights.clone(), rows })
     }
 }
 
@@ -195,7 +209,8 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
     // The road users of the study's traffic on each target, counted once when the calibrated
     // objective weighs them.
     let mut road_users: Option<Vec<f64>> = None;
-    // And the LiDAR points every LiDAR option puts on them, counted once per (type, candidate).
+    // And the LiDAR points every LiDAR option puts on them and the footprint they span, counted
+    // once per (type, candidate).
     let mut points = PointCache::default();
     // Each configuration after the one it is placed given (by depth in its chain; the study
     // file's check refuses cycles), so it finds its given rig placed; the result is in the
@@ -237,7 +252,10 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
                     inst.road_users = road_users.clone().unwrap_or_default();
                 }
                 if w.reads_points() {
-                    inst.points = points.rows(study, &world, &prep, &inst)?;
+                    inst.points = points.rows(study, &world, &prep, &inst, false)?;
+                }
+                if w.reads_extents() {
+                    inst.extents = points.rows(study, &world, &prep, &inst, true)?;
                 }
                 let g = hilo_placement_ip::calibrated::greedy_given(&inst, &limit, w, &fixed);
                 let o = hilo_placement_ip::calibrated::solve_given(

@@ -522,13 +522,17 @@ impl Plan {
 
 /// What of the study's traffic the placements depend on, for their hash: with a calibrated
 /// objective over road users the traffic's settings decide the placements too (and only then,
-/// so other hashes stay), and the point-count term's k (`[validation] min_points`) with them; a
+/// so other hashes stay), and the point-count term's k (`[validation] min_points`) with them (the
+/// footprint term reads the same traffic); a
 /// calibration file's prediction model decides what each placement predicts.
 fn placement_traffic(study: &Study) -> String {
     let file = study.calibration.as_ref().map_or(String::new(), |c| format!(" calibration file {c:?}"));
     file + &match (study.placement.objective, &study.placement.calibration) {
         (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_points() => {
             format!("{:?} points k = {}", study.dataset, study.file.validation.min_points)
+        }
+        (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_extents() => {
+            format!("{:?} footprint", study.dataset)
         }
         (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w)) if w.reads_road_users() => {
             format!("{:?}", study.dataset)

@@ -217,21 +217,79 @@ impl TrafficPoints {
         lidar_of: impl Fn(usize) -> Option<(hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose)> + Sync,
         k: u32,
     ) -> Result<hilo_placement_ip::instance::PointRows> {
-        use rayon::prelude::*;
+        let rows = self.option_rows(options, lidar_of, |spec, pose, fr, seed, ids| {
+            hilo_sensor_models::lidar_points_on(spec, pose, world, &fr.actors, seed, ids)
+                .map(|n| ids.iter().map(|id| n.get(id).map_or(0, |&p| p as u32)).collect())
+        })?;
+        Ok(hilo_placement_ip::instance::PointRows { k: f64::from(k.max(1)), weights: self.sample_weights(), rows })
+    }
+
+    /// The calibrated objective's footprint rows ([`hilo_placement_ip::Instance::extents`]): the
+    /// samples of [`TrafficPoints::rows`], and per option the share of each one's footprint its
+    /// points span ([`footprint_extent`]), in thousandths rounded to the nearest; its points are
+    /// those [`TrafficPoints::rows`] counts.
+    pub fn extent_rows(
+        &self,
+        world: &hilo_raycast::World,
+        options: usize,
+        lidar_of: impl Fn(usize) -> Option<(hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose)> + Sync,
+    ) -> Result<hilo_placement_ip::instance::PointRows> {
+        use hilo_placement_ip::instance::EXTENT_UNITS;
+        let rows = self.option_rows(options, lidar_of, |spec, pose, fr, seed, ids| {
+            let mut on: BTreeMap<u32, Vec<glam::Vec3>> = BTreeMap::new();
+            hilo_sensor_models::lidar_points_on_each(spec, pose, world, &fr.actors, seed, ids, |id, q| {
+                on.entry(id).or_default().push(q)
+            })?;
+            Ok(ids
+                .iter()
+                .map(|id| {
+                    let actor = fr.actors.actors().iter().find(|a| a.id == *id);
+                    match (actor, on.get(id)) {
+                        (Some(a), Some(q)) => (footprint_extent(a, q.iter().copied()) * EXTENT_UNITS).round() as u32,
+                        _ => 0,
+                    }
+                })
+                .collect())
+        })?;
+        Ok(hilo_placement_ip::instance::PointRows { k: EXTENT_UNITS, weights: self.sample_weights(), rows })
+    }
+
+    /// Every counted road user of every frame as a sample, weighted 1 / (its class's samples ×
+    /// classes), frame by frame.
+    fn sample_weights(&self) -> Vec<f64> {
         let mut per_class = vec![0usize; self.classes];
-        let mut first = Vec::with_capacity(self.frames.len());
         for fr in &self.frames {
-            first.push(per_class.iter().sum::<usize>());
             for &(_, c) in &fr.users {
                 per_class[c] += 1;
             }
         }
         let seen = per_class.iter().filter(|&&n| n > 0).count().max(1) as f64;
-        let weights: Vec<f64> = self
-            .frames
-            .iter()
-            .flat_map(|fr| fr.users.iter().map(|&(_, c)| 1.0 / (per_class[c] as f64 * seen)))
-            .collect();
+        self.frames.iter().flat_map(|fr| fr.users.iter().map(|&(_, c)| 1.0 / (per_class[c] as f64 * seen))).collect()
+    }
+
+    /// Per option (its LiDAR from `lidar_of`; none: an empty row), (sample, value) for the
+    /// samples of non-zero value, `value` giving per frame the values of its counted road users
+    /// (`ids`) as a rig's first sensor scans them (`seed`).
+    fn option_rows(
+        &self,
+        options: usize,
+        lidar_of: impl Fn(usize) -> Option<(hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose)> + Sync,
+        value: impl Fn(
+            &hilo_sensor_models::LidarSpec,
+            &hilo_sensor_models::SensorPose,
+            &Frame,
+            u64,
+            &[u32],
+        ) -> std::result::Result<Vec<u32>, hilo_sensor_models::SensorError>
+        + Sync,
+    ) -> Result<Vec<Vec<(u32, u32)>>> {
+        use rayon::prelude::*;
+        let mut first = Vec::with_capacity(self.frames.len());
+        let mut n = 0usize;
+        for fr in &self.frames {
+            first.push(n);
+            n += fr.users.len();
+        }
         // Per frame, the counted road users' ids and the seed a rig's first sensor scans it with.
         let frames: Vec<(Vec<u32>, u64)> = self
             .frames
@@ -241,26 +299,20 @@ impl TrafficPoints {
                 (fr.users.iter().map(|u| u.0).collect(), seed)
             })
             .collect();
-        let rows = (0..options)
+        (0..options)
             .into_par_iter()
             .map(|o| {
                 let Some((spec, pose)) = lidar_of(o) else { return Ok(Vec::new()) };
                 let mut row = Vec::new();
                 for ((fr, &base), (ids, seed)) in self.frames.iter().zip(&first).zip(&frames) {
-                    let n = hilo_sensor_models::lidar_points_on(&spec, &pose, world, &fr.actors, *seed, ids).map_err(
-                        |e| crate::error::StudyError::step(format!("LiDAR option {o} on a training key frame"), e),
-                    )?;
-                    for (i, id) in ids.iter().enumerate() {
-                        match n.get(id) {
-                            Some(&p) if p > 0 => row.push(((base + i) as u32, p as u32)),
-                            _ => {}
-                        }
-                    }
+                    let v = value(&spec, &pose, fr, *seed, ids).map_err(|e| {
+                        crate::error::StudyError::step(format!("LiDAR option {o} on a training key frame"), e)
+                    })?;
+                    row.extend(v.iter().enumerate().filter(|(_, v)| **v > 0).map(|(i, v)| ((base + i) as u32, *v)));
                 }
                 Ok(row)
             })
-            .collect::<Result<Vec<_>>>()?;
-        Ok(hilo_placement_ip::instance::PointRows { k: f64::from(k.max(1)), weights, rows })
+            .collect()
     }
 
     /// Per evaluated class (in the order of [`hilo_core::Class::ALL`]), the LiDAR points of
@@ -545,6 +597,7 @@ mod tests {
             p_min: 0.5,
             road_users: Vec::new(),
             points: rows,
+            extents: tp.extent_rows(&world, 4, lidar).unwrap(),
         };
         inst.validate().unwrap();
         let w = Weights { lidar_points: 1.0, ..Weights::default() };
@@ -574,6 +627,55 @@ mod tests {
             assert!((got - want).abs() < 1e-12, "{sel:?}: {got} against {want}");
             if sel == [0, 1, 2] {
                 assert!(want > 0.05, "the rig sees its road users: {want}");
+            }
+        }
+        // The footprint term: per road user, the options' shares from full scans, each rounded
+        // to thousandths as the rows hold them, summed and capped; the same without rounding
+        // within half a thousandth per LiDAR.
+        let w = Weights { lidar_extent: 1.0, ..Weights::default() };
+        for mask in 1u32..16 {
+            let sel: Vec<usize> = (0..4).filter(|o| mask & (1 << o) != 0).collect();
+            let mut per_class: BTreeMap<usize, (f64, f64, usize)> = BTreeMap::new();
+            for fr in &tp.frames {
+                let mut share: BTreeMap<u32, (f64, f64)> = BTreeMap::new();
+                for &o in sel.iter().filter(|&&o| o < 3) {
+                    let (spec, pose) = lidar(o).unwrap();
+                    let seed = hilo_dataset::simulate::derive_seed(tp.seed, &[2, fr.stream, fr.index as u64, 0]);
+                    let scan =
+                        hilo_sensor_models::simulate_lidar(&spec, &pose, &world, Some(&fr.actors), seed).unwrap();
+                    let pts: Vec<(glam::Vec3, Option<u32>)> = scan
+                        .points_local()
+                        .iter()
+                        .zip(&scan.sources)
+                        .map(|(p, s)| (glam::Vec3::new(p.x, p.y, p.z), s.actor()))
+                        .collect();
+                    for a in fr.actors.actors() {
+                        let e = footprint_extent(a, pts.iter().filter(|p| p.1 == Some(a.id)).map(|p| p.0));
+                        let s = share.entry(a.id).or_default();
+                        s.0 += (e * 1000.0).round() / 1000.0;
+                        s.1 += e;
+                    }
+                }
+                for &(a, c) in &fr.users {
+                    let (r, e) = share.get(&a).copied().unwrap_or_default();
+                    let x = per_class.entry(c).or_default();
+                    x.0 += r.min(1.0);
+                    x.1 += e.min(1.0);
+                    x.2 += 1;
+                }
+            }
+            let classes = per_class.len() as f64;
+            let want = per_class.values().map(|(s, _, n)| s / *n as f64).sum::<f64>() / classes;
+            let exact = per_class.values().map(|(_, s, n)| s / *n as f64).sum::<f64>() / classes;
+            let got = evaluate(&inst, &sel, &w);
+            assert!((got - want).abs() < 1e-12, "{sel:?}: {got} against {want}");
+            assert!((got - exact).abs() <= 5e-4 * sel.len() as f64, "{sel:?}: {got} against {exact}");
+            if sel == [0, 1, 2] {
+                assert!(want > 0.05, "the rig spans its road users: {want}");
+                // A rig's own footprint predictor is the same sum (its dropouts drawn per sensor).
+                let rig: Vec<RigLidar> = (0..3).map(|o| (o, lidar(o).unwrap().0, lidar(o).unwrap().1)).collect();
+                let own = tp.extent(&world, &rig).unwrap();
+                assert!((own - exact).abs() < 0.03, "{own} against {exact}");
             }
         }
     }

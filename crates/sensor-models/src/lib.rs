@@ -36,7 +36,7 @@ pub mod spec;
 pub mod weather;
 
 pub use error::SensorError;
-pub use lidar::{LidarScan, PointSource, lidar_points_on, simulate_lidar};
+pub use lidar::{LidarScan, PointSource, lidar_points_on, lidar_points_on_each, simulate_lidar};
 pub use pose::{CalibrationError, SensorPose};
 pub use probability::{Probe, lidar_expected_returns, radar_detection_probability};
 pub use radar::{RadarScan, simulate_radar};

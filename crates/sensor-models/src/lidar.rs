@@ -37,7 +37,7 @@ use rayon::prelude::*;
 
 pub mod beam;
 mod window;
-pub use window::lidar_points_on;
+pub use window::{lidar_points_on, lidar_points_on_each};
 
 /// What produced a point: the static scene, the ground, or an actor (its id); for a radar
 /// also its artefacts: a road user's multipath ghost, a side lobe, a false alarm.

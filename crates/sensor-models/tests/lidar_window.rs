@@ -13,7 +13,9 @@ use glam::Vec3;
 use hilo_core::{Box3, Class};
 use hilo_raycast::shapes::intersect_box;
 use hilo_raycast::{Actor, ActorSet, QueryRegion, Ray, Scene, World};
-use hilo_sensor_models::{Beam, Catalog, Foliage, LidarSpec, ReturnMode, SensorPose, lidar_points_on, simulate_lidar};
+use hilo_sensor_models::{
+    Beam, Catalog, Foliage, LidarSpec, ReturnMode, SensorPose, lidar_points_on, lidar_points_on_each, simulate_lidar,
+};
 use rand::{Rng, SeedableRng};
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -111,6 +113,17 @@ fn windowed_counts_equal_the_full_scan() {
             let all = full.points_per_actor();
             let want: BTreeMap<u32, usize> = ids.iter().map(|id| (*id, all.get(id).copied().unwrap_or(0))).collect();
             assert_eq!(got, want, "spec {s}, case {case}, pose {pose:?}");
+            // And the points themselves, in the scene frame and the scan's order.
+            let mut each: BTreeMap<u32, Vec<Vec3>> = BTreeMap::new();
+            lidar_points_on_each(spec, &pose, &world, &set, seed, &ids, |id, q| each.entry(id).or_default().push(q))
+                .unwrap();
+            let mut scan: BTreeMap<u32, Vec<Vec3>> = BTreeMap::new();
+            for (q, src) in full.points_local().iter().zip(&full.sources) {
+                if let Some(id) = src.actor().filter(|id| ids.contains(id)) {
+                    scan.entry(id).or_default().push(Vec3::new(q.x, q.y, q.z));
+                }
+            }
+            assert_eq!(each, scan, "spec {s}, case {case}: the points");
             cases += 1;
             on_users += want.values().sum::<usize>();
         }

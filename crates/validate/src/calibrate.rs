@@ -532,9 +532,12 @@ mod tests {
     /// a set scored by this build has them), and its calibrated objective fitted.
     fn complete(mut r: ValidationReport, seed: u64) -> ValidationReport {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        // Features added later draw from a stream of their own, so the others keep their values.
+        let mut later = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 1000);
         for (m, _) in &mut r.members {
             for f in [LIDAR_DENSE, RADAR_DENSE].iter().chain(&TERMS[6..]) {
-                m.predictors.insert(f.to_string(), Some(rng.random_range(0.0..1.0)));
+                let r = if *f == crate::set::LIDAR_EXTENT { &mut later } else { &mut rng };
+                m.predictors.insert(f.to_string(), Some(r.random_range(0.0..1.0)));
             }
         }
         r.calibrated = calibrate(&r, 0);

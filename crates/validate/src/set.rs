@@ -107,6 +107,7 @@ pub const TERMS: [&str; calibrated::N_TERMS] = [
     LIDAR_DENSE_USERS,
     RADAR_DENSE_USERS,
     LIDAR_POINTS_CAPPED,
+    LIDAR_EXTENT,
 ];
 
 /// The calibrated objective with weight 1 on term `k` of [`TERMS`].
@@ -299,7 +300,7 @@ pub fn calibrated_member(
     conf: &Configuration,
     k: usize,
 ) -> Result<Member> {
-    Ok(buy(study, v, w, w.reads_points(), conf, k, "calibrated", |_, _| ())?.0)
+    Ok(buy(study, v, w, (w.reads_points(), w.reads_extents()), conf, k, "calibrated", |_, _| ())?.0)
 }
 
 /// The rig a calibration file's frozen weights buy under `conf` at this study's junction (a file
@@ -313,18 +314,21 @@ pub fn frozen_member(
     conf: &Configuration,
     k: usize,
 ) -> Result<(Member, calibrated::file::Prediction)> {
-    let points = file.weights.reads_points() || file.prediction.features.iter().any(|f| f == "lidar_points");
-    buy(study, v, &file.weights, points, conf, k, "frozen", |inst, sel| file.predict(inst, sel))
+    let reads = |term: &str| file.prediction.features.iter().any(|f| f == term);
+    let needs =
+        (file.weights.reads_points() || reads("lidar_points"), file.weights.reads_extents() || reads("lidar_extent"));
+    buy(study, v, &file.weights, needs, conf, k, "frozen", |inst, sel| file.predict(inst, sel))
 }
 
 /// Places the rig the weights `w` buy under `conf` (member `k`, of `kind` or `<kind>-best-found`)
-/// and hands its instance and selection to `then`; `points`: the instance needs the point counts.
+/// and hands its instance and selection to `then`; `needs`: whether the instance needs the point
+/// counts, and the footprint shares.
 #[allow(clippy::too_many_arguments)]
 fn buy<T>(
     study: &Study,
     v: &ValidationSettings,
     w: &calibrated::Weights,
-    points: bool,
+    needs: (bool, bool),
     conf: &Configuration,
     k: usize,
     kind: &str,
@@ -337,8 +341,12 @@ fn buy<T>(
     let mut ctx = Context::new(study, &prep, &pc, v.min_points)?;
     let mut inst = instance(&prep, &study.catalog, &types, pc.p_min)?;
     inst.road_users = ctx.all.road_users.clone();
-    if points {
+    if needs.0 {
         inst.points = ctx.point_rows(&inst)?;
+    }
+    if needs.1 {
+        let lidar_of = |o: usize| hilo_plan::place::option_lidar(ctx.study, ctx.prep, &inst, o);
+        inst.extents = ctx.traffic.extent_rows(&ctx.world, inst.options.len(), lidar_of)?;
     }
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
@@ -633,7 +641,7 @@ impl<'a> Context<'a> {
         predictors.insert(LIDAR_EXTENT.to_owned(), Some(self.traffic.extent(&self.world, &lidars)?));
         // The calibrated objective's coverage terms, one at a time (the point-count term is the
         // rig's own count above: the same sum with the rig's dropout draws).
-        for (k, name) in TERMS.iter().enumerate().filter(|(_, n)| **n != LIDAR_POINTS_CAPPED) {
+        for (k, name) in TERMS.iter().enumerate().filter(|(_, n)| ![LIDAR_POINTS_CAPPED, LIDAR_EXTENT].contains(*n)) {
             predictors.insert(name.to_string(), Some(calibrated::evaluate(all, &sel_all, &unit_term(k))));
         }
         let cost_usd = sensors
@@ -696,8 +704,15 @@ mod tests {
                 row: vec![],
             })
             .collect();
-        let inst =
-            Instance { weights: vec![], types, options, p_min: 0.5, road_users: vec![], points: Default::default() };
+        let inst = Instance {
+            weights: vec![],
+            types,
+            options,
+            p_min: 0.5,
+            road_users: vec![],
+            points: Default::default(),
+            extents: Default::default(),
+        };
         let limit = Limit::Budget { usd: 22_750.0, min: vec![0, 0, 1], max: vec![u32::MAX, 2, u32::MAX] };
         let mut brute = Vec::new();
         for a in 0..10u32 {
@@ -775,10 +790,36 @@ mod tests {
         let same = calibrated_member(&study, v, &file.weights, &budget, 7).unwrap();
         assert_eq!(m.placement.sensors, same.placement.sensors);
         assert!(m.kind.starts_with("frozen") && m.slug.starts_with("m07-frozen"), "{}", m.slug);
-        let (b, x) = (file.prediction.coefficients[0], p.features["lidar_points"]);
+        // The shipped file predicts from one term: the point count or the footprint spanned.
+        let term = file.prediction.features[0].as_str();
+        let recorded = [("lidar_points", LIDAR_POINTS_CAPPED), ("lidar_extent", LIDAR_EXTENT)]
+            .into_iter()
+            .find_map(|(t, name)| (t == term).then_some(name));
+        assert!(recorded.is_some(), "the shipped file predicts from {term}");
+        let recorded = recorded.unwrap();
+        let (b, x) = (file.prediction.coefficients[0], p.features[term]);
         assert!((p.map - (file.prediction.intercept + b * x)).abs() < 1e-12, "{p:?}");
         assert!(p.lo < p.map && p.map < p.hi, "{p:?}");
         assert!((b * x - m.placement.objective).abs() < 1e-9 * b, "{} vs {}", b * x, m.placement.objective);
-        assert!((x - m.predictors[LIDAR_POINTS_CAPPED].unwrap()).abs() < 0.01, "{x} vs {:?}", m.predictors);
+        assert!((x - m.predictors[recorded].unwrap()).abs() < 0.01, "{x} vs {:?}", m.predictors);
+    }
+
+    /// The footprint term as the objective: the rig it buys spans, by its own recorded
+    /// predictor, what the solve counted (within the sensors' dropout draws), and a rig bought
+    /// for coverage spans no more.
+    #[test]
+    fn the_footprint_term_buys_the_footprint_it_counts() {
+        let study = coarse();
+        let v = &study.file.validation;
+        let budget = budget_configuration(&study).unwrap();
+        let footprint = calibrated::Weights { lidar_extent: 1.0, ..calibrated::Weights::default() };
+        let m = calibrated_member(&study, v, &footprint, &budget, 0).unwrap();
+        let own = m.predictors[LIDAR_EXTENT].unwrap();
+        assert!(m.placement.cost_usd <= budget.budget_usd.unwrap() + 1e-6);
+        assert!(m.placement.objective > 0.05, "{}", m.placement.objective);
+        assert!((own - m.placement.objective).abs() < 0.01, "{own} vs {}", m.placement.objective);
+        let coverage = calibrated::Weights { lidar: 1.0, ..calibrated::Weights::default() };
+        let other = calibrated_member(&study, v, &coverage, &budget, 1).unwrap();
+        assert!(other.predictors[LIDAR_EXTENT].unwrap() <= own + 0.005, "{:?}", other.predictors);
     }
 }

@@ -681,10 +681,17 @@ mod tests {
     /// mAP = `truth(C_L, C_R)` + noise of s.d. ~0.01 (per member, and ±0.005 per scene replicate).
     fn site(n: usize, seed: u64, truth: impl Fn(f64, f64) -> f64) -> ValidationReport {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        // Features added later draw from a stream of their own, so the others keep their values.
+        let mut later = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 1000);
         let members = (0..n)
             .map(|i| {
-                let mut predictors: BTreeMap<String, Option<f64>> =
-                    FEATURES.iter().map(|f| (f.to_string(), Some(rng.random_range(0.0..1.0)))).collect();
+                let mut predictors: BTreeMap<String, Option<f64>> = FEATURES
+                    .iter()
+                    .map(|f| {
+                        let r = if *f == crate::set::LIDAR_EXTENT { &mut later } else { &mut rng };
+                        (f.to_string(), Some(r.random_range(0.0..1.0)))
+                    })
+                    .collect();
                 let (cl, cr) = (rng.random_range(0.3..0.95), rng.random_range(0.0..0.9));
                 predictors.insert(LIDAR_SATURATED.into(), Some(cl));
                 predictors.insert(RADAR_SATURATED.into(), Some(cr));

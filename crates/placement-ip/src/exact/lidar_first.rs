@@ -478,6 +478,7 @@ mod tests {
             p_min: 0.5,
             road_users: Vec::new(),
             points: Default::default(),
+            extents: Default::default(),
         };
         let tau = inst.tau() * (1.0 - 1e-9);
         let lidars: Vec<usize> = (0..12).collect();

@@ -187,6 +187,7 @@ mod tests {
             p_min: 1.0 - (-1.0f64).exp(),
             road_users: Vec::new(),
             points: Default::default(),
+            extents: Default::default(),
         }
     }
 
@@ -225,6 +226,7 @@ mod tests {
             p_min: 1.0 - (-1.0f64).exp(),
             road_users: Vec::new(),
             points: Default::default(),
+            extents: Default::default(),
         };
         // Option 0 alone covers target 0 (−ln 0.1 ≥ 1), not target 1 (−ln 0.7 < 1).
         assert!((crate::instance::evaluate(&inst, &[0]) - 0.9).abs() < 1e-6);

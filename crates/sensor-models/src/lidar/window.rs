@@ -116,16 +116,37 @@ pub fn lidar_points_on(
     seed: u64,
     ids: &[u32],
 ) -> Result<BTreeMap<u32, usize>, SensorError> {
+    let mut counts: BTreeMap<u32, usize> = ids.iter().map(|&id| (id, 0)).collect();
+    lidar_points_on_each(spec, pose, world, actors, seed, ids, |id, _| {
+        if let Some(n) = counts.get_mut(&id) {
+            *n += 1;
+        }
+    })?;
+    Ok(counts)
+}
+
+/// [`lidar_points_on`]'s points themselves: `f(id, point)` for each point on a road user of
+/// `ids`, the point in the scene frame, in the full scan's firing order (the same points
+/// [`crate::simulate_lidar`] returns on them).
+pub fn lidar_points_on_each(
+    spec: &LidarSpec,
+    pose: &SensorPose,
+    world: &World,
+    actors: &ActorSet,
+    seed: u64,
+    ids: &[u32],
+    mut f: impl FnMut(u32, Vec3),
+) -> Result<(), SensorError> {
     super::check_mount(world, Some(actors), pose)?;
     let scanner = Scanner::new(spec, pose, world, Some(actors), seed);
     let beams = scanner.elevations.len();
     let inverse = scanner.rot.inverse();
-    let mut counts: BTreeMap<u32, usize> = ids.iter().map(|&id| (id, 0)).collect();
+    let counts: std::collections::BTreeSet<u32> = ids.iter().copied().collect();
     // Per column, the rings to cast (a ray is cast once however many windows hold it).
     let mut cast = vec![false; scanner.cols * beams];
     let mut cols = vec![false; scanner.cols];
     let spread = scanner.footprint.as_ref().map_or(0.0, |f| f.spread_rad());
-    for a in actors.actors().iter().filter(|a| counts.contains_key(&a.id)) {
+    for a in actors.actors().iter().filter(|a| counts.contains(&a.id)) {
         let (mut lo, mut hi) = a.shape.aabb();
         if actors.span_s() > 0.0 {
             let (l2, h2) = a.moved(actors.span_s()).shape.aabb();
@@ -159,11 +180,11 @@ pub fn lidar_points_on(
         }
     }
     for (index, _) in cast.iter().enumerate().filter(|(_, c)| **c) {
-        for (_, source) in scanner.ray(index / beams, index % beams).into_iter().flatten() {
-            if let Some(n) = source.actor().and_then(|id| counts.get_mut(&id)) {
-                *n += 1;
+        for (p, source) in scanner.ray(index / beams, index % beams).into_iter().flatten() {
+            if let Some(id) = source.actor().filter(|id| counts.contains(id)) {
+                f(id, pose.position + scanner.rot * Vec3::new(p.x, p.y, p.z));
             }
         }
     }
-    Ok(counts)
+    Ok(())
 }
