@@ -348,25 +348,21 @@ pub fn check_instance(inst: &Instance, w: &Weights) -> Result<(), PlacementError
             ),
         ));
     }
-    if w.reads_points() && inst.points.rows.len() != inst.options.len() {
-        return Err(PlacementError::instance(
-            "placement.calibration.lidar_points",
-            format!(
-                "weighs LiDAR points on road users, but the instance has point counts for {} of its {} options",
-                inst.points.rows.len(),
-                inst.options.len()
-            ),
-        ));
-    }
-    if w.reads_extents() && inst.extents.rows.len() != inst.options.len() {
-        return Err(PlacementError::instance(
-            "placement.calibration.lidar_extent",
-            format!(
-                "weighs the footprint LiDAR points span, but the instance has footprint shares for {} of its {} options",
-                inst.extents.rows.len(),
-                inst.options.len()
-            ),
-        ));
+    let rows = [
+        (w.reads_points(), &inst.points, "lidar_points", "LiDAR points on road users", "point counts"),
+        (w.reads_extents(), &inst.extents, "lidar_extent", "the footprint LiDAR points span", "footprint shares"),
+    ];
+    for (reads, rows, term, what, held) in rows {
+        if reads && rows.rows.len() != inst.options.len() {
+            return Err(PlacementError::instance(
+                format!("placement.calibration.{term}"),
+                format!(
+                    "weighs {what}, but the instance has {held} for {} of its {} options",
+                    rows.rows.len(),
+                    inst.options.len()
+                ),
+            ));
+        }
     }
     Ok(())
 }

@@ -17,9 +17,10 @@
 //! `hilo validate` count it from the simulated scans).
 //!
 //! [`TrafficPoints`] scans sampled key frames of the same traffic with a rig's LiDARs, as the
-//! dataset would: the points on each road user ([`TrafficPoints::counts`], the point term) and
-//! where they fall on it ([`TrafficPoints::per_user`]; [`TrafficPoints::extent`] sums, LiDAR by
-//! LiDAR, the share of its footprint they span, [`footprint_extent`]).
+//! dataset would: the points on each road user ([`TrafficPoints::points`]) and
+//! where they fall on it ([`TrafficPoints::per_user`]); [`TrafficPoints::occupancy`] gives a
+//! rig's point term and its footprint term (the share of each road user's footprint the points
+//! span, summed LiDAR by LiDAR: [`footprint_extent`]) from one scan.
 
 use crate::error::Result;
 use crate::study::Study;
@@ -209,7 +210,7 @@ impl TrafficPoints {
     /// option's points on them are counted with [`hilo_sensor_models::lidar_points_on`] (rays cast
     /// only towards the road users, the full scan's counts exactly) as if it were the rig's
     /// first sensor (the dataset seeds a sensor's dropouts by its place in the rig, so a rig's
-    /// own count, [`TrafficPoints::shares`], differs from the term's by those draws alone).
+    /// own count, [`TrafficPoints::occupancy`], differs from the term's by those draws alone).
     pub fn rows(
         &self,
         world: &hilo_raycast::World,
@@ -315,22 +316,10 @@ impl TrafficPoints {
             .collect()
     }
 
-    /// Per evaluated class (in the order of [`hilo_core::Class::ALL`]), the LiDAR points of
-    /// `lidars` on each counted road user of every frame, frame by frame.
-    pub fn counts(&self, world: &hilo_raycast::World, lidars: &[RigLidar]) -> Result<Vec<Vec<usize>>> {
-        let mut out = vec![Vec::new(); self.classes];
-        for (fr, points) in self.frames.iter().zip(self.points(world, lidars)?) {
-            for &(a, c) in &fr.users {
-                out[c].push(points.get(&a).copied().unwrap_or(0));
-            }
-        }
-        Ok(out)
-    }
-
     /// Per evaluated class (in the order of [`hilo_core::Class::ALL`]), `summary` of each counted
     /// road user of every frame, frame by frame: the road user as the rays see it and the points
     /// of `lidars` on it, in the scene frame, each with the index into `lidars` of the LiDAR
-    /// that returned it. The points are those [`TrafficPoints::counts`] counts.
+    /// that returned it. The points are those [`TrafficPoints::points`] counts.
     pub fn per_user<T>(
         &self,
         world: &hilo_raycast::World,
@@ -370,40 +359,46 @@ impl TrafficPoints {
             .map_err(|e| crate::error::StudyError::step(format!("LiDAR {k} on a training key frame"), e))
     }
 
-    /// The class-balanced mean over counted road users of min(1, Σ_l e_l), e_l the share of the
-    /// road user's footprint that LiDAR l's points span ([`footprint_extent`]): how much of each
-    /// road user's length and width the rig shows a detector, one LiDAR's view at a time. Summed
-    /// over LiDARs and capped, like the point count, so an IP could hold it.
-    pub fn extent(&self, world: &hilo_raycast::World, lidars: &[RigLidar]) -> Result<f64> {
+    /// What the LiDARs `lidars` show of the counted road users, class-balanced, from one scan of
+    /// every frame ([`Occupancy`]).
+    pub fn occupancy(&self, world: &hilo_raycast::World, lidars: &[RigLidar], k: u32) -> Result<Occupancy> {
         let per_class = self.per_user(world, lidars, |a, points| {
-            (0..lidars.len())
+            let extent = (0..lidars.len())
                 .map(|l| footprint_extent(a, points.iter().filter(|p| p.0 == l).map(|p| p.1)))
                 .sum::<f64>()
-                .min(1.0)
+                .min(1.0);
+            (points.len() as f64, extent)
         })?;
-        let seen: Vec<f64> =
-            per_class.iter().filter(|c| !c.is_empty()).map(|c| c.iter().sum::<f64>() / c.len() as f64).collect();
-        Ok(seen.iter().sum::<f64>() / seen.len().max(1) as f64)
-    }
-
-    /// (mean of min(1, n / k), share with n ≥ k), class-balanced, for the LiDARs `lidars`.
-    pub fn shares(&self, world: &hilo_raycast::World, lidars: &[RigLidar], k: u32) -> Result<(f64, f64)> {
-        let mut sum = vec![(0.0, 0.0, 0usize); self.classes];
-        for (c, counts) in self.counts(world, lidars)?.into_iter().enumerate() {
-            for n in counts {
-                let n = n as f64;
-                sum[c].0 += (n / f64::from(k.max(1))).min(1.0);
-                sum[c].1 += if n >= f64::from(k) { 1.0 } else { 0.0 };
-                sum[c].2 += 1;
+        // Per class: the sums of min(1, n / k), [n ≥ k] and the extent, and the road users.
+        let mut sum = vec![([0.0f64; 3], 0usize); self.classes];
+        for (c, users) in per_class.into_iter().enumerate() {
+            for (n, extent) in users {
+                sum[c].0[0] += (n / f64::from(k.max(1))).min(1.0);
+                sum[c].0[1] += if n >= f64::from(k) { 1.0 } else { 0.0 };
+                sum[c].0[2] += extent;
+                sum[c].1 += 1;
             }
         }
-        let seen: Vec<_> = sum.iter().filter(|s| s.2 > 0).collect();
-        let n = seen.len().max(1) as f64;
-        Ok((
-            seen.iter().map(|s| s.0 / s.2 as f64).sum::<f64>() / n,
-            seen.iter().map(|s| s.1 / s.2 as f64).sum::<f64>() / n,
-        ))
+        let seen: Vec<_> = sum.iter().filter(|s| s.1 > 0).collect();
+        let mean = |i: usize| seen.iter().map(|s| s.0[i] / s.1 as f64).sum::<f64>() / seen.len().max(1) as f64;
+        Ok(Occupancy { capped: mean(0), hit: mean(1), extent: mean(2) })
     }
+}
+
+/// What a rig's LiDARs show of the counted road users of the sampled training traffic, each a
+/// mean over the road users of a class, averaged over classes as mAP averages them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Occupancy {
+    /// min(1, n / k) for a road user with n LiDAR points: linear in per-sensor terms under a
+    /// cap, the form an IP can hold (the point term).
+    pub capped: f64,
+    /// [n ≥ k]: the share hit by k points.
+    pub hit: f64,
+    /// min(1, Σ_l e_l), e_l the share of the road user's footprint that LiDAR l's points span
+    /// ([`footprint_extent`]): how much of its length and width the rig shows a detector, one
+    /// LiDAR's view at a time; summed and capped like the point count, so an IP can hold it
+    /// (the footprint term).
+    pub extent: f64,
 }
 
 /// The share of a road user's footprint that `points` (scene frame) span: in its own frame,
@@ -548,8 +543,8 @@ mod tests {
             }
         }
         assert!(hit > 3, "the rig sees road users: {hit}");
-        let (capped, share) = tp.shares(&world, &lidars, 5).unwrap();
-        assert!(capped >= share && capped > 0.0 && share <= 1.0, "{capped} {share}");
+        let o = tp.occupancy(&world, &lidars, 5).unwrap();
+        assert!(o.capped >= o.hit && o.capped > 0.0 && o.hit <= 1.0, "{o:?}");
     }
 
     /// The calibrated objective's point-count term over rows from [`TrafficPoints::rows`]
@@ -674,7 +669,7 @@ mod tests {
                 assert!(want > 0.05, "the rig spans its road users: {want}");
                 // A rig's own footprint predictor is the same sum (its dropouts drawn per sensor).
                 let rig: Vec<RigLidar> = (0..3).map(|o| (o, lidar(o).unwrap().0, lidar(o).unwrap().1)).collect();
-                let own = tp.extent(&world, &rig).unwrap();
+                let own = tp.occupancy(&world, &rig, 5).unwrap().extent;
                 assert!((own - exact).abs() < 0.03, "{own} against {exact}");
             }
         }
@@ -719,10 +714,11 @@ mod tests {
             hilo_sensor_models::SensorPose::new(p.extend(z), (-p.y).atan2(-p.x), 0.17, 0.0)
         };
         let poses = [pose(0), pose(2)];
-        let one = points.extent(&world, &[(0, spec.clone(), poses[0])]).unwrap();
-        let two = points.extent(&world, &[(0, spec.clone(), poses[0]), (1, spec, poses[1])]).unwrap();
+        let extent = |rig: &[RigLidar]| points.occupancy(&world, rig, 5).unwrap().extent;
+        let one = extent(&[(0, spec.clone(), poses[0])]);
+        let two = extent(&[(0, spec.clone(), poses[0]), (1, spec, poses[1])]);
         assert!(one > 0.05 && one <= 1.0, "{one}");
         assert!(two >= one && two <= 1.0, "{one} then {two}");
-        assert_eq!(points.extent(&world, &[]).unwrap(), 0.0);
+        assert_eq!(extent(&[]), 0.0);
     }
 }

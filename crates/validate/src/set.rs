@@ -85,7 +85,7 @@ pub const LIDAR_BEAMS: &str = "LiDAR beams";
 pub const LIDAR_POINTS_CAPPED: &str = "LiDAR points on road users, capped at k (training traffic)";
 pub const HIT_SHARE_TRAINING: &str = "road users hit by k LiDAR points (training traffic)";
 /// The share of each counted road user's footprint that the rig's LiDARs span, one LiDAR at a
-/// time, summed and capped at 1 ([`hilo_plan::road_users::TrafficPoints::extent`]), on the same
+/// time, summed and capped at 1 ([`hilo_plan::road_users::Occupancy::extent`]), on the same
 /// frames: the geometry of the points rather than their number.
 pub const LIDAR_EXTENT: &str = "road users' footprint spanned by each LiDAR's points, summed (training traffic)";
 /// Key frames of the training traffic between two the occupancy predictors read.
@@ -635,12 +635,12 @@ impl<'a> Context<'a> {
         predictors.insert(LIDARS.to_owned(), Some(lidars.len() as f64));
         predictors.insert(LIDAR_MOUNTS.to_owned(), Some(structures.len() as f64));
         predictors.insert(LIDAR_BEAMS.to_owned(), Some(lidars.iter().map(|(_, l, _)| f64::from(l.beams)).sum()));
-        let (capped, hit) = self.traffic.shares(&self.world, &lidars, self.min_points)?;
-        predictors.insert(LIDAR_POINTS_CAPPED.to_owned(), Some(capped));
-        predictors.insert(HIT_SHARE_TRAINING.to_owned(), Some(hit));
-        predictors.insert(LIDAR_EXTENT.to_owned(), Some(self.traffic.extent(&self.world, &lidars)?));
-        // The calibrated objective's coverage terms, one at a time (the point-count term is the
-        // rig's own count above: the same sum with the rig's dropout draws).
+        let seen = self.traffic.occupancy(&self.world, &lidars, self.min_points)?;
+        predictors.insert(LIDAR_POINTS_CAPPED.to_owned(), Some(seen.capped));
+        predictors.insert(HIT_SHARE_TRAINING.to_owned(), Some(seen.hit));
+        predictors.insert(LIDAR_EXTENT.to_owned(), Some(seen.extent));
+        // The calibrated objective's coverage terms, one at a time (the point-count and footprint
+        // terms are the rig's own above: the same sums with the rig's dropout draws).
         for (k, name) in TERMS.iter().enumerate().filter(|(_, n)| ![LIDAR_POINTS_CAPPED, LIDAR_EXTENT].contains(*n)) {
             predictors.insert(name.to_string(), Some(calibrated::evaluate(all, &sel_all, &unit_term(k))));
         }
@@ -762,16 +762,23 @@ mod tests {
         let study = coarse();
         // Far more points than the default k, so that the term does not saturate.
         let v = &ValidationSettings { min_points: 100, ..study.file.validation.clone() };
-        let budget = budget_configuration(&study).unwrap();
         let points = calibrated::Weights { lidar_points: 1.0, ..calibrated::Weights::default() };
-        let m = calibrated_member(&study, v, &points, &budget, 0).unwrap();
-        let own = m.predictors[LIDAR_POINTS_CAPPED].unwrap();
+        buys_what_it_counts(&study, v, &points, LIDAR_POINTS_CAPPED);
+    }
+
+    /// The rig `term` (one term's weights) buys under the study's budget scores, by the rig's
+    /// own recorded predictor `recorded`, what the solve claimed of it (the two differ by the
+    /// dropout draws alone), and at least what a rig placed for saturated coverage scores.
+    fn buys_what_it_counts(study: &Study, v: &ValidationSettings, term: &calibrated::Weights, recorded: &str) {
+        let budget = budget_configuration(study).unwrap();
+        let m = calibrated_member(study, v, term, &budget, 0).unwrap();
+        let own = m.predictors[recorded].unwrap();
         assert!(m.placement.cost_usd <= budget.budget_usd.unwrap() + 1e-6);
         assert!(m.placement.objective > 0.05, "{}", m.placement.objective);
         assert!((own - m.placement.objective).abs() < 0.01, "{own} vs {}", m.placement.objective);
         let coverage = calibrated::Weights { lidar: 1.0, ..calibrated::Weights::default() };
-        let other = calibrated_member(&study, v, &coverage, &budget, 1).unwrap();
-        assert!(other.predictors[LIDAR_POINTS_CAPPED].unwrap() <= own + 0.005, "{:?}", other.predictors);
+        let other = calibrated_member(study, v, &coverage, &budget, 1).unwrap();
+        assert!(other.predictors[recorded].unwrap() <= own + 0.005, "{:?}", other.predictors);
     }
 
     /// A calibration file's frozen weights buy the rig the calibrated objective with those
@@ -810,16 +817,7 @@ mod tests {
     #[test]
     fn the_footprint_term_buys_the_footprint_it_counts() {
         let study = coarse();
-        let v = &study.file.validation;
-        let budget = budget_configuration(&study).unwrap();
         let footprint = calibrated::Weights { lidar_extent: 1.0, ..calibrated::Weights::default() };
-        let m = calibrated_member(&study, v, &footprint, &budget, 0).unwrap();
-        let own = m.predictors[LIDAR_EXTENT].unwrap();
-        assert!(m.placement.cost_usd <= budget.budget_usd.unwrap() + 1e-6);
-        assert!(m.placement.objective > 0.05, "{}", m.placement.objective);
-        assert!((own - m.placement.objective).abs() < 0.01, "{own} vs {}", m.placement.objective);
-        let coverage = calibrated::Weights { lidar: 1.0, ..calibrated::Weights::default() };
-        let other = calibrated_member(&study, v, &coverage, &budget, 1).unwrap();
-        assert!(other.predictors[LIDAR_EXTENT].unwrap() <= own + 0.005, "{:?}", other.predictors);
+        buys_what_it_counts(&study, &study.file.validation, &footprint, LIDAR_EXTENT);
     }
 }

@@ -141,12 +141,12 @@ pub fn lidar_points_on_each(
     let scanner = Scanner::new(spec, pose, world, Some(actors), seed);
     let beams = scanner.elevations.len();
     let inverse = scanner.rot.inverse();
-    let counts: std::collections::BTreeSet<u32> = ids.iter().copied().collect();
+    let wanted: std::collections::BTreeSet<u32> = ids.iter().copied().collect();
     // Per column, the rings to cast (a ray is cast once however many windows hold it).
     let mut cast = vec![false; scanner.cols * beams];
     let mut cols = vec![false; scanner.cols];
     let spread = scanner.footprint.as_ref().map_or(0.0, |f| f.spread_rad());
-    for a in actors.actors().iter().filter(|a| counts.contains(&a.id)) {
+    for a in actors.actors().iter().filter(|a| wanted.contains(&a.id)) {
         let (mut lo, mut hi) = a.shape.aabb();
         if actors.span_s() > 0.0 {
             let (l2, h2) = a.moved(actors.span_s()).shape.aabb();
@@ -181,7 +181,7 @@ pub fn lidar_points_on_each(
     }
     for (index, _) in cast.iter().enumerate().filter(|(_, c)| **c) {
         for (p, source) in scanner.ray(index / beams, index % beams).into_iter().flatten() {
-            if let Some(id) = source.actor().filter(|id| counts.contains(id)) {
+            if let Some(id) = source.actor().filter(|id| wanted.contains(id)) {
                 f(id, pose.position + scanner.rot * Vec3::new(p.x, p.y, p.z));
             }
         }
