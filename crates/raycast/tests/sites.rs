@@ -86,3 +86,45 @@ fn buildings_and_trees_on_the_carriageway_are_refused() {
     assert!(cfg.trees.iter().any(|t| t.position[1] == 0.0), "the default has median trees");
     Scene::from_config(cfg, Path::new("."), Path::new("intersection.toml")).unwrap();
 }
+
+/// No sidewalk reaches onto another arm's carriageway: every sidewalk's corners, pulled 1 cm
+/// towards its centre, lie outside every other arm's road. At an acute corner (the skewed
+/// junction's 65°, Braunschweig's 77°) a strip that started at the corner reached up to
+/// `width · cos θ` into the neighbour's outermost lane; it now starts where its outer edge meets
+/// the neighbour's curb, and the corner between the curbs is a triangle.
+#[test]
+fn no_sidewalk_reaches_onto_another_arm_s_carriageway() {
+    use hilo_raycast::scene::layout::point_in_polygon;
+    let mut all = sites();
+    all.push(root().join("fixtures/intersection.toml"));
+    for p in &all {
+        let scene = Scene::load(p).unwrap();
+        let l = &scene.layout;
+        let mut pieces: Vec<(String, Option<usize>, &Vec<glam::Vec2>)> = Vec::new();
+        for (i, arm) in l.arms.iter().enumerate() {
+            for w in &arm.sidewalks {
+                pieces.push((format!("{} sidewalk", arm.name), Some(i), w));
+            }
+        }
+        for (k, w) in l.corner_sidewalks.iter().enumerate() {
+            pieces.push((format!("corner {k}"), None, w));
+        }
+        for (name, own, poly) in pieces {
+            let c = poly.iter().copied().sum::<glam::Vec2>() / poly.len() as f32;
+            for v in poly {
+                let q = *v + (c - *v).normalize_or_zero() * 0.01;
+                for (j, arm) in l.arms.iter().enumerate() {
+                    if Some(j) == own {
+                        continue;
+                    }
+                    assert!(
+                        !point_in_polygon(q, &arm.road),
+                        "{}: {name} reaches onto {}'s carriageway at {q}",
+                        p.display(),
+                        arm.name
+                    );
+                }
+            }
+        }
+    }
+}

@@ -5,7 +5,8 @@
 //! within 35° of straight on, left and right the arms nearest to ±90°. Left turns use the
 //! left-turn bay when the arm has one (entering it by a 30 m taper from the innermost lane),
 //! right turns the outermost lane. Junction connectors are cubic Bézier curves between the
-//! junction-side edges of the two crosswalks; the speed on a route is capped by its curvature
+//! junction-side edges of the two crosswalks, swung wide where a car's body would otherwise clip
+//! a corner ([`ROUTE_HALF_WIDTH_M`]); the speed on a route is capped by its curvature
 //! (lateral acceleration ≤ 2.5 m/s²) with comfortable braking into curves.
 
 use glam::Vec2;
@@ -116,6 +117,35 @@ fn bezier(p0: Vec2, p1: Vec2, p2: Vec2, p3: Vec2, n: usize) -> Vec<Vec2> {
         .collect()
 }
 
+/// Half the width a route keeps clear on either side of its centre line through the junction:
+/// the widest car's half width (the model's cars are up to 2.0 m wide).
+pub const ROUTE_HALF_WIDTH_M: f32 = 1.0;
+
+/// The connector through the junction from `entry` (heading `h`) to `exit` (heading
+/// `exit_dir`): a cubic Bézier whose handles are 0.45 of the chord, lengthened in steps of 0.05
+/// up to 0.9 (the path then follows its lanes farther before it turns, as a driver swings wide)
+/// until a car's body along it stays on the carriageway; the shortest handles that do, or 0.45
+/// where none does.
+fn connector(layout: &Layout, entry: Vec2, h: Vec2, exit: Vec2, exit_dir: Vec2) -> Vec<Vec2> {
+    let chord = (exit - entry).length();
+    let curve = |share: f32| {
+        let c = share * chord;
+        bezier(entry, entry + h * c, exit - exit_dir * c, exit, 24)
+    };
+    let clear = |pts: &[Vec2]| {
+        pts.windows(2).all(|w| {
+            let side = (w[1] - w[0]).normalize_or_zero().perp() * ROUTE_HALF_WIDTH_M;
+            let mid = 0.5 * (w[0] + w[1]);
+            [mid, mid + side, mid - side].iter().all(|&q| layout.on_carriageway(q))
+        })
+    };
+    let first = curve(0.45);
+    if clear(&first) {
+        return first;
+    }
+    (10..=18).map(|k| curve(k as f32 * 0.05)).find(|c| clear(c)).unwrap_or(first)
+}
+
 /// Signed angle from `a` to `b`, radians.
 fn signed_angle(a: Vec2, b: Vec2) -> f32 {
     a.perp_dot(b).atan2(a.dot(b))
@@ -221,9 +251,7 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
                 let entry = stop_line + h * (stop_line.dot(arm.dir) - cw0(arm)).max(0.0);
                 poly.push(entry);
                 let exit_dir = (o.end - o.start).normalize_or(exit.dir);
-                let chord = (o.start - entry).length();
-                let c = 0.45 * chord;
-                let curve = bezier(entry, entry + h * c, o.start - exit_dir * c, o.start, 24);
+                let curve = connector(layout, entry, h, o.start, exit_dir);
                 poly.extend_from_slice(&curve[1..]);
                 poly.push(o.end);
                 let path = Path::from_polyline(&poly);

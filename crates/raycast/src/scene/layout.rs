@@ -5,7 +5,11 @@
 //! (no curb radius); right turns share the outermost through lane (no right-turn bays); roads
 //! are flat at ground height, and only sidewalks and medians are raised (by the curb height).
 //! A parking lane (`parking_lane_width_m`) widens the road on both curb sides of an arm; the
-//! crosswalk crosses it, the stop line does not.
+//! crosswalk crosses it, the stop line does not. Sidewalks run along the curbs from each corner
+//! and meet in a corner piece behind both curbs: a square at a right corner, a rhombus at an
+//! obtuse one; at an acute corner each strip starts where its outer edge meets the neighbour's
+//! curb and the corner piece is a parallelogram along the two curbs, so no sidewalk lies on a
+//! carriageway.
 
 use super::config::{ArmConfig, RoiConfig, RoiKind, SceneConfig};
 use glam::Vec2;
@@ -67,8 +71,28 @@ pub struct Layout {
     pub arms: Vec<ArmLayout>,
     /// The junction box and the crosswalks (the central conflict zone).
     pub central: Vec<Vec2>,
-    /// Sidewalk squares at the corners between neighbouring arms.
+    /// Sidewalk squares at the corners between neighbouring arms (parallelograms along the
+    /// curbs at acute corners).
     pub corner_sidewalks: Vec<Vec<Vec2>>,
+    /// Where a pole stands at each of those corners: the middle of the rhombus spanned by the
+    /// two curbs' outward normals, as wide as the narrower sidewalk (behind both curbs at any
+    /// angle).
+    #[serde(default)]
+    pub corner_posts: Vec<Vec2>,
+}
+
+impl Layout {
+    /// Whether `p` is on the carriageway: on an arm's road or in the junction box, and on
+    /// nothing the scene raises by the curb (a sidewalk, a corner's sidewalk, a median).
+    pub fn on_carriageway(&self, p: Vec2) -> bool {
+        let on_road = point_in_polygon(p, &self.central) || self.arms.iter().any(|a| point_in_polygon(p, &a.road));
+        let raised = self.corner_sidewalks.iter().any(|w| point_in_polygon(p, w))
+            || self.arms.iter().any(|a| {
+                a.sidewalks.iter().any(|w| point_in_polygon(p, w))
+                    || a.median.as_ref().is_some_and(|m| point_in_polygon(p, m))
+            });
+        on_road && !raised
+    }
 }
 
 /// A resolved region of interest.
@@ -129,6 +153,23 @@ fn line_meet(n1: Vec2, c1: f32, n2: Vec2, c2: f32) -> Option<Vec2> {
         return None;
     }
     Some(Vec2::new((c1 * n2.y - c2 * n1.y) / det, (n1.x * c2 - n2.x * c1) / det))
+}
+
+/// The sine of the angle between two neighbouring arms (`a`, then `b` counter-clockwise) when
+/// the corner between them is acute, by more than a hundredth of a degree.
+fn acute_sin(a: Vec2, b: Vec2) -> Option<f32> {
+    let (sin, cos) = (a.perp_dot(b), a.dot(b));
+    (sin > 0.0 && cos > 1.75e-4).then_some(sin)
+}
+
+/// How far along its arm a sidewalk strip of width `sw` starts beyond the corner it shares
+/// with its neighbour: `sw · cot θ` at an acute corner of angle θ (its outer edge then meets
+/// the neighbour's curb), 0 otherwise. `a` is the arm before `b` counter-clockwise.
+fn acute_setback(a: Vec2, b: Vec2, sw: f32, corner: bool) -> f32 {
+    match acute_sin(a, b) {
+        Some(sin) if corner => sw * a.dot(b) / sin,
+        _ => 0.0,
+    }
 }
 
 /// Derives the layout. Arms are handled in counter-clockwise order of heading.
@@ -196,6 +237,12 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         let sw = a.sidewalk_width_m;
         let mut sidewalks = Vec::new();
         if sw > 0.0 {
+            // At an acute corner a strip starting at the corner would reach over the
+            // neighbour's carriageway: it starts where its outer edge meets the neighbour's curb.
+            let next = &frames[(i + 1) % n];
+            let before = &frames[prev];
+            let a_in = a_in + acute_setback(f.dir, next.dir, sw, corners[i].is_some());
+            let a_out = a_out + acute_setback(before.dir, f.dir, sw, corners[prev].is_some());
             sidewalks.push(f.rect(a_in, len, f.edge_in, f.edge_in + sw));
             sidewalks.push(f.rect(a_out, len, f.edge_out - sw, f.edge_out));
         }
@@ -229,12 +276,19 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             layout.central.push(p);
             let sw = f.cfg.sidewalk_width_m.min(g.cfg.sidewalk_width_m);
             if sw > 0.0 {
-                layout.corner_sidewalks.push(vec![
-                    p,
-                    p - g.normal * sw,
-                    p - g.normal * sw + f.normal * sw,
-                    p + f.normal * sw,
-                ]);
+                let rhombus = [p, p - g.normal * sw, p - g.normal * sw + f.normal * sw, p + f.normal * sw];
+                layout.corner_posts.push(rhombus.iter().fold(Vec2::ZERO, |s, q| s + *q) / 4.0);
+                layout.corner_sidewalks.push(match acute_sin(f.dir, g.dir) {
+                    // The parallelogram between the two curbs, out to where each strip's outer
+                    // edge meets the other curb (the square of a right corner, skewed).
+                    Some(sin) => {
+                        let (sw_f, sw_g, cos) = (f.cfg.sidewalk_width_m, g.cfg.sidewalk_width_m, f.dir.dot(g.dir));
+                        let along_f = f.dir * (sw_g / sin).max(sw_f * cos / sin);
+                        let along_g = g.dir * (sw_f / sin).max(sw_g * cos / sin);
+                        vec![p, p + along_f, p + along_f + along_g, p + along_g]
+                    }
+                    None => rhombus.to_vec(),
+                });
             }
         }
     }

@@ -434,12 +434,7 @@ fn outward(center: &xodr::Polyline, c: Vec2) -> (Vec2, Vec2) {
 /// the two arms' edges), its mast arm pointing at the junction centre.
 fn corner_poles(cfg: &SceneConfig, lights: &[Vec2]) -> Vec<SignalPoleConfig> {
     let layout = build_layout(cfg);
-    let corners: Vec<Vec2> = layout
-        .corner_sidewalks
-        .iter()
-        .filter(|c| !c.is_empty())
-        .map(|c| c.iter().fold(Vec2::ZERO, |s, p| s + *p) / c.len() as f32)
-        .collect();
+    let corners = layout.corner_posts;
     let chosen: BTreeSet<usize> = if lights.is_empty() {
         (0..corners.len()).collect()
     } else {
