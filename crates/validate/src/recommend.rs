@@ -149,7 +149,11 @@ pub fn frozen(
     }
     let usd = conf.budget_usd.unwrap_or_default();
     progress(Progress::Stage("validation: placing the frozen calibration's recommendation"));
-    let (member, p) = frozen_member(study, &r.settings, &file, &conf, r.members.len())?;
+    let (mut member, p) = frozen_member(study, &r.settings, &file, &conf, r.members.len())?;
+    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
+        .map_err(|e| StudyError::from(hilo_core::fs::FileError::io(path, e)))?;
+    member.slug = frozen_slug(&member.slug, &text);
+    member.placement.name = member.slug.clone();
     let (member, trained) = train_member(study, registry, profile, r, member, out, progress)?;
     let info = Frozen {
         file: path.display().to_string(),
@@ -172,6 +176,13 @@ pub fn pictures(study: &Study, out: &Path, r: &ValidationReport) -> Result<Vec<s
         wrote.push(path);
     }
     Ok(wrote)
+}
+
+/// A frozen recommendation's name: the member's (`m23-frozen-budget_10000_usd`) and six hex
+/// digits of the calibration file's content, so that two files' rigs at one budget keep their
+/// own placement files and pictures under `recommendation/`, and one file's rig keeps its name.
+fn frozen_slug(slug: &str, calibration_text: &str) -> String {
+    format!("{slug}-{}", &hilo_plan::files::hash(&[calibration_text])[..6])
 }
 
 /// Puts `rec` among `r`'s frozen recommendations, in place of one from the same file at the same
@@ -475,6 +486,16 @@ mod tests {
     /// replaces the old, another file's stays beside it; a comparison again recomputes every
     /// one's regret against the set (and the set's own recommendation's), and each is written
     /// with the file, the number of sites it was fitted on and the advice.
+    #[test]
+    fn two_calibration_files_name_their_rigs_apart_and_one_file_alike() {
+        let a = frozen_slug("m23-frozen-budget_10000_usd", "intercept = 0.1\n");
+        let b = frozen_slug("m23-frozen-budget_10000_usd", "intercept = 0.2\n");
+        assert_ne!(a, b);
+        assert_eq!(a, frozen_slug("m23-frozen-budget_10000_usd", "intercept = 0.1\n"));
+        assert!(a.starts_with("m23-frozen-budget_10000_usd-") && a.len() == "m23-frozen-budget_10000_usd-".len() + 6);
+        assert!(a.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_'), "{a}");
+    }
+
     #[test]
     fn frozen_recommendations_are_kept_by_file_and_budget_and_compared_again() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(4);
