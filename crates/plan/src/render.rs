@@ -370,7 +370,7 @@ pub fn scene_canvas_within(scene: &Scene, min: Vec2, max: Vec2, px_per_m: f32) -
             // Left boundary in driving direction.
             let (a, b) = (lane.start + side, lane.end + side);
             let s_left = ((a + b) * 0.5).dot(arm.normal);
-            let at_median = (s_left.abs() - arm.median_half_width_m).abs() < 1e-3;
+            let at_median = ((s_left - arm.offset_m).abs() - arm.median_half_width_m).abs() < 1e-3;
             if at_median {
                 c.stroke(&[a, b], &yellow, 0.15, None);
             } else {

@@ -59,6 +59,16 @@ fn nan_negative_and_degenerate_values_name_the_field() {
         "name = \"x\"\n[[arms]]\nname = \"a\"\nheading_deg = 0.0\nlane_width_m = 0.0",
         &["arms[0].lane_width_m"],
     );
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[arms]]\nname = \"a\"\nheading_deg = 0.0\noffset_m = 25.0",
+        &["arms[0].offset_m", "25", "within 20 m"],
+    );
+    expect_err(
+        d.path(),
+        "name = \"x\"\n[[arms]]\nname = \"a\"\nheading_deg = 0.0\noffset_m = nan",
+        &["arms[0].offset_m"],
+    );
     expect_err(d.path(), "name = \"x\"\n[ground]\nhalf_size_m = inf", &["ground.half_size_m"]);
     expect_err(
         d.path(),

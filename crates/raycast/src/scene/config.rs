@@ -87,6 +87,11 @@ pub struct ArmConfig {
     /// Raised median width (0 = painted centre line only).
     #[serde(default)]
     pub median_width_m: f32,
+    /// How far the arm's centre line (the middle of its median) lies to the left of the line
+    /// through the junction's centre along `heading_deg`, m (negative: to the right). 0 for a
+    /// road through the centre; an OpenDRIVE import sets it from the file's lanes.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub offset_m: f32,
     /// A parking lane on each curb side, between the outermost lane and the sidewalk, m (0:
     /// none). Vehicles park there when the traffic has a `[traffic.parking]` section.
     #[serde(default, skip_serializing_if = "is_zero")]
@@ -100,6 +105,9 @@ pub struct ArmConfig {
     #[serde(default = "d_speed")]
     pub speed_limit_kph: f32,
 }
+
+/// The farthest an arm's centre line may lie from the junction's centre (`offset_m`).
+pub const MAX_ARM_OFFSET_M: f32 = 20.0;
 
 /// Serde's test for a width left at its default of none.
 pub(crate) fn is_zero(v: &f32) -> bool {
@@ -455,39 +463,7 @@ impl SceneConfig {
             if !names.insert(a.name.as_str()) {
                 return Err(c.err(&f("name"), &a.name, "duplicate arm name"));
             }
-            c.heading(&f("heading_deg"), a.heading_deg)?;
-            c.positive(&f("length_m"), a.length_m)?;
-            c.positive(&f("lane_width_m"), a.lane_width_m)?;
-            c.non_negative(&f("median_width_m"), a.median_width_m)?;
-            c.non_negative(&f("sidewalk_width_m"), a.sidewalk_width_m)?;
-            c.non_negative(&f("curb_height_m"), a.curb_height_m)?;
-            c.positive(&f("crosswalk_width_m"), a.crosswalk_width_m)?;
-            c.positive(&f("speed_limit_kph"), a.speed_limit_kph)?;
-            c.non_negative(&f("left_turn_bay_length_m"), a.left_turn_bay_length_m)?;
-            if a.lanes_in + a.lanes_out == 0 {
-                return Err(c.err(&f("lanes_in"), a.lanes_in, "an arm needs at least one lane"));
-            }
-            for (name, n, most) in
-                [("lanes_in", a.lanes_in, 8), ("lanes_out", a.lanes_out, 8), ("left_turn_lanes", a.left_turn_lanes, 3)]
-            {
-                if n > most {
-                    return Err(c.err(&f(name), n, &format!("more than {most} lanes in one direction: not a road")));
-                }
-            }
-            if !(2.0..=6.0).contains(&a.lane_width_m) {
-                return Err(c.err(&f("lane_width_m"), a.lane_width_m, "a lane is 2 to 6 m wide"));
-            }
-            let park = a.parking_lane_width_m;
-            if !(park == 0.0 || (1.8..=3.0).contains(&park)) {
-                return Err(c.err(&f("parking_lane_width_m"), park, "a parking lane is 1.8 to 3 m wide (0: none)"));
-            }
-            if a.length_m > self.ground.half_size_m {
-                return Err(c.err(
-                    &f("length_m"),
-                    a.length_m,
-                    &format!("the arm runs off the ground (ground.half_size_m = {})", self.ground.half_size_m),
-                ));
-            }
+            check_arm(&c, i, a, self.ground.half_size_m)?;
         }
         if let Some((i, j, along)) = overlapping_arms(&self.arms) {
             let (a, b) = (&self.arms[i], &self.arms[j]);
@@ -592,6 +568,52 @@ impl SceneConfig {
     }
 }
 
+/// The checks of one arm's numbers (`arms[i]`), the ground's half size given.
+fn check_arm(c: &Check, i: usize, a: &ArmConfig, ground_half_m: f32) -> Result<(), RaycastError> {
+    let f = |n: &str| format!("arms[{i}].{n}");
+    c.heading(&f("heading_deg"), a.heading_deg)?;
+    c.positive(&f("length_m"), a.length_m)?;
+    c.positive(&f("lane_width_m"), a.lane_width_m)?;
+    c.non_negative(&f("median_width_m"), a.median_width_m)?;
+    if !(a.offset_m.is_finite() && a.offset_m.abs() <= MAX_ARM_OFFSET_M) {
+        return Err(c.err(
+            &f("offset_m"),
+            a.offset_m,
+            &format!("an arm's centre line lies within {MAX_ARM_OFFSET_M} m of the junction's centre"),
+        ));
+    }
+    c.non_negative(&f("sidewalk_width_m"), a.sidewalk_width_m)?;
+    c.non_negative(&f("curb_height_m"), a.curb_height_m)?;
+    c.positive(&f("crosswalk_width_m"), a.crosswalk_width_m)?;
+    c.positive(&f("speed_limit_kph"), a.speed_limit_kph)?;
+    c.non_negative(&f("left_turn_bay_length_m"), a.left_turn_bay_length_m)?;
+    if a.lanes_in + a.lanes_out == 0 {
+        return Err(c.err(&f("lanes_in"), a.lanes_in, "an arm needs at least one lane"));
+    }
+    for (name, n, most) in
+        [("lanes_in", a.lanes_in, 8), ("lanes_out", a.lanes_out, 8), ("left_turn_lanes", a.left_turn_lanes, 3)]
+    {
+        if n > most {
+            return Err(c.err(&f(name), n, &format!("more than {most} lanes in one direction: not a road")));
+        }
+    }
+    if !(2.0..=6.0).contains(&a.lane_width_m) {
+        return Err(c.err(&f("lane_width_m"), a.lane_width_m, "a lane is 2 to 6 m wide"));
+    }
+    let park = a.parking_lane_width_m;
+    if !(park == 0.0 || (1.8..=3.0).contains(&park)) {
+        return Err(c.err(&f("parking_lane_width_m"), park, "a parking lane is 1.8 to 3 m wide (0: none)"));
+    }
+    if a.length_m > ground_half_m {
+        return Err(c.err(
+            &f("length_m"),
+            a.length_m,
+            &format!("the arm runs off the ground (ground.half_size_m = {})", ground_half_m),
+        ));
+    }
+    Ok(())
+}
+
 /// Two arms whose roadways (lanes, median, sidewalks) still overlap beyond half the shorter
 /// arm's length: neighbours in heading whose facing roadway edges meet farther out than that (or
 /// never, when nearly parallel). Returns (i, j, metres from the centre where they part).
@@ -611,12 +633,14 @@ fn overlapping_arms(arms: &[ArmConfig]) -> Option<(usize, usize, f32)> {
         let (a, b) = (&arms[i], &arms[j]);
         // Arm i's left (inbound) edge and arm j's right (outbound) edge, as offsets from their
         // centre lines, sidewalks included.
-        let left_a = 0.5 * a.median_width_m
+        let left_a = a.offset_m
+            + 0.5 * a.median_width_m
             + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m
             + a.parking_lane_width_m
             + a.sidewalk_width_m;
         let right_b =
-            0.5 * b.median_width_m + b.lanes_out as f32 * b.lane_width_m + b.parking_lane_width_m + b.sidewalk_width_m;
+            0.5 * b.median_width_m + b.lanes_out as f32 * b.lane_width_m + b.parking_lane_width_m + b.sidewalk_width_m
+                - b.offset_m;
         let theta = gap.to_radians();
         // Distance along the arms where the two edges meet: the corner of the junction.
         let along = (left_a + right_b * theta.cos()) / theta.sin().max(1e-6);

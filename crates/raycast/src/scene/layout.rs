@@ -43,10 +43,15 @@ pub struct ArmLayout {
     /// Unit outward direction and its counter-clockwise normal (the inbound side).
     pub dir: Vec2,
     pub normal: Vec2,
-    /// Lateral offsets of the road edges along `normal` (outbound edge is negative).
+    /// Lateral offsets of the road edges along `normal` from the junction's centre (outbound
+    /// edge is the lower).
     pub edge_in_m: f32,
     pub edge_out_m: f32,
-    /// Half the median width: the lanes start this far from the centreline on each side.
+    /// Lateral offset of the arm's centre line (the median's middle) from the junction's centre
+    /// along `normal`: [`ArmConfig::offset_m`].
+    #[serde(default, skip_serializing_if = "super::config::is_zero")]
+    pub offset_m: f32,
+    /// Half the median width: the lanes start this far from the arm's centre line on each side.
     pub median_half_width_m: f32,
     /// Width of the parking lane inside each road edge, between the outermost lane and the
     /// curb (0: none).
@@ -126,19 +131,23 @@ pub fn point_in_polygon(p: Vec2, poly: &[Vec2]) -> bool {
     inside
 }
 
+/// An arm's frame. Lateral offsets (`s_med`, `edge_in`, `edge_out`, the `s` of [`Self::at`])
+/// are measured from the arm's own centre line, which lies `off` metres along `normal` from the
+/// junction's centre.
 struct ArmFrame<'a> {
     cfg: &'a ArmConfig,
     dir: Vec2,
     normal: Vec2,
+    off: f32,
     s_med: f32,
     edge_in: f32,
     edge_out: f32,
 }
 
 impl ArmFrame<'_> {
-    /// Point at distance `a` along the arm and lateral offset `s`.
+    /// Point at distance `a` along the arm and lateral offset `s` from its centre line.
     fn at(&self, a: f32, s: f32) -> Vec2 {
-        self.dir * a + self.normal * s
+        if self.off == 0.0 { self.dir * a + self.normal * s } else { self.dir * a + self.normal * (s + self.off) }
     }
 
     fn rect(&self, a0: f32, a1: f32, s0: f32, s1: f32) -> Vec<Vec2> {
@@ -184,6 +193,7 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
                 cfg: a,
                 dir,
                 normal: dir.perp(),
+                off: a.offset_m,
                 s_med,
                 edge_in: s_med + (a.left_turn_lanes + a.lanes_in) as f32 * a.lane_width_m + a.parking_lane_width_m,
                 edge_out: -(s_med + a.lanes_out as f32 * a.lane_width_m + a.parking_lane_width_m),
@@ -203,7 +213,7 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
                 return None;
             }
             let (a, b) = (&frames[i], &frames[(i + 1) % n]);
-            line_meet(a.normal, a.edge_in, b.normal, b.edge_out)
+            line_meet(a.normal, a.edge_in + a.off, b.normal, b.edge_out + b.off)
                 // Keep only corners on the junction side of both arms.
                 .filter(|p| p.dot(a.dir) > -1.0 && p.dot(b.dir) > -1.0 && p.length() < 200.0)
         })
@@ -251,8 +261,9 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             name: a.name.clone(),
             dir: f.dir,
             normal: f.normal,
-            edge_in_m: f.edge_in,
-            edge_out_m: f.edge_out,
+            edge_in_m: f.edge_in + f.off,
+            edge_out_m: f.edge_out + f.off,
+            offset_m: f.off,
             median_half_width_m: f.s_med,
             parking_lane_m: a.parking_lane_width_m,
             lanes,
@@ -406,6 +417,44 @@ mod tests {
                 assert_eq!(queue.contains(p), lane.kind != LaneKind::Outbound, "{} {:?}", arm.name, lane.kind);
             }
             assert!(!queue.contains(arm.dir * (arm.stop_line_at_m + 80.0)));
+        }
+    }
+
+    /// An arm offset to the left of the junction's centre is the same arm moved sideways: every
+    /// lane, edge, sidewalk and its stop line by the offset along the normal, its road still
+    /// reaching the junction (corners from the moved edges), the other arms' lanes unmoved.
+    #[test]
+    fn an_offset_arm_moves_sideways_whole() {
+        let cfg = default_cfg();
+        let mut moved = cfg.clone();
+        moved.arms[0].offset_m = 1.5;
+        let (a, b) = (build_layout(&cfg), build_layout(&moved));
+        let name = &cfg.arms[0].name;
+        let (x, y) =
+            (a.arms.iter().find(|x| &x.name == name).unwrap(), b.arms.iter().find(|x| &x.name == name).unwrap());
+        assert_eq!(x.lanes.len(), y.lanes.len());
+        for (l0, l1) in x.lanes.iter().zip(&y.lanes) {
+            for (p0, p1) in [(l0.start, l1.start), (l0.end, l1.end)] {
+                assert!(((p1 - p0).dot(x.normal) - 1.5).abs() < 1e-4, "{:?}", l0.kind);
+            }
+        }
+        assert!((y.edge_in_m - x.edge_in_m - 1.5).abs() < 1e-4 && (y.edge_out_m - x.edge_out_m - 1.5).abs() < 1e-4);
+        assert_eq!(y.offset_m, 1.5);
+        for (w0, w1) in x.sidewalks.iter().zip(&y.sidewalks) {
+            assert!(((w1[2] - w0[2]).dot(x.normal) - 1.5).abs() < 1e-4);
+        }
+        // Every lane of the moved arm lies on its road, and the road reaches the junction box.
+        for l in &y.lanes {
+            assert!(point_in_polygon(0.5 * (l.start + l.end), &y.road));
+        }
+        assert!(y.road.iter().any(|p| point_in_polygon(*p + (Vec2::ZERO - *p).normalize() * 0.01, &b.central)));
+        // The other arms' lanes keep their lines (their stop lines follow the moved corners).
+        for (p, q) in a.arms.iter().zip(&b.arms).filter(|(p, _)| &p.name != name) {
+            for (l0, l1) in p.lanes.iter().zip(&q.lanes) {
+                assert!(
+                    (l1.end - l0.end).dot(p.normal).abs() < 1e-4 && (l1.start - l0.start).dot(p.normal).abs() < 1e-4
+                );
+            }
         }
     }
 

@@ -6,7 +6,10 @@
 //! - **arms**: every road that leads into the junction is an arm, straight along its heading
 //!   where it meets the junction: its driving lanes that lead into the junction (inbound) and
 //!   out of it (outbound), their mean width, the width of its `median` lanes (a raised median)
-//!   and of its widest `sidewalk` lane, and its name (`road <id>` where the road has none);
+//!   and of its widest `sidewalk` lane, its name (`road <id>` where the road has none), and its
+//!   offset from the junction's centre (`offset_m`: the middle between the two directions' inner
+//!   edges, about 12 m out), so its lanes stand where the file draws them
+//!   ([`lane_deviations`] measures how near);
 //! - **divided roads**: a one-way road into the junction and a one-way road out of it that
 //!   leave it side by side (within 25°, the inbound one on the left looking outward, as
 //!   right-hand traffic drives) are one arm, the gap between their carriageways its median.
@@ -30,7 +33,9 @@
 //! followed: the one file given is read, with a bound on its size.
 
 use crate::error::RaycastError;
-use crate::scene::config::{ArmConfig, GroundConfig, OriginConfig, RoiConfig, RoiKind, SceneConfig, SignalPoleConfig};
+use crate::scene::config::{
+    ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, OriginConfig, RoiConfig, RoiKind, SceneConfig, SignalPoleConfig,
+};
 use crate::scene::layout::build_layout;
 use glam::Vec2;
 use serde::{Deserialize, Serialize};
@@ -113,7 +118,8 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
             format!("{} arm(s) lead into it; a junction to study has two or more", approaches.len()),
         ));
     }
-    let mut arms: Vec<ArmConfig> = approaches.iter().map(|a| arm(&net, a, &mut notes)).collect();
+    let c = Vec2::new(centre[0] as f32, centre[1] as f32);
+    let mut arms: Vec<ArmConfig> = approaches.iter().map(|a| arm(&net, a, c, &mut notes)).collect();
     arms.sort_by(|a, b| a.heading_deg.rem_euclid(360.0).total_cmp(&b.heading_deg.rem_euclid(360.0)));
     notes.push(format!(
         "{} arms, each straight along its road's heading at the junction, {ARM_LENGTH_M} m long (the file's roads bend or end elsewhere)",
@@ -171,6 +177,83 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
     Ok(Imported { config, junction, notes })
 }
 
+/// How far one of the file's lanes stands from the scene's: see [`lane_deviations`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct LaneDeviation {
+    /// The lane's road (`<road id>`) in the file.
+    pub road: String,
+    /// Whether it leads into the junction (else out of it).
+    pub into: bool,
+    /// The largest lateral distance (m) over the samples from [`FIDELITY_FROM_M`] out to each
+    /// reach asked for.
+    pub worst_m: Vec<f32>,
+}
+
+/// Samples nearer the junction's centre than this lie in its box, where every arm's lanes meet.
+pub const FIDELITY_FROM_M: f32 = 10.0;
+
+/// How far the lanes of `layout` (a scene imported from the OpenDRIVE text `xml`, junction
+/// `junction`, its origin at the file's `origin`) stand from the file's own: for each of the
+/// file's driving lanes that leads into or out of the junction, the largest lateral distance
+/// from a sample of its centre line (the parser's polyline) to the nearest lane of the scene
+/// that runs the same way on the arm the sample lies along, over the samples from
+/// [`FIDELITY_FROM_M`] out to each of `reaches_m` from the junction's centre.
+pub fn lane_deviations(
+    xml: &str,
+    path: &Path,
+    junction: &str,
+    layout: &crate::scene::layout::Layout,
+    origin: Vec2,
+    reaches_m: &[f32],
+) -> Result<Vec<LaneDeviation>, RaycastError> {
+    use crate::scene::layout::LaneKind;
+    let (net, _) =
+        xodr::load_str_with(xml, |name| Err(format!("{name}: hilo reads one file; includes are not followed")))
+            .map_err(|e| RaycastError::Invalid {
+                path: path.to_path_buf(),
+                field: "OpenDRIVE".into(),
+                value: String::new(),
+                reason: e.to_string(),
+            })?;
+    let inside: HashSet<xodr::LaneId> = net
+        .lanes()
+        .iter()
+        .filter(|l| road_of(&net, l).and_then(|(r, _)| r.junction()).is_some_and(|j| j == junction))
+        .map(|l| l.id)
+        .collect();
+    let mut out = Vec::new();
+    for l in net.lanes().iter().filter(|l| l.kind == xodr::LaneType::Driving) {
+        let Some((road, _)) = road_of(&net, l) else { continue };
+        let into = l.successors.iter().any(|s| inside.contains(s));
+        let out_of = l.predecessors.iter().any(|p| inside.contains(p));
+        if road.junction().is_some() || !(into || out_of) {
+            continue;
+        }
+        let mut worst_m = vec![0.0f32; reaches_m.len()];
+        for p in l.center.points() {
+            let q = Vec2::new(p.x, p.y) - origin;
+            let u = q.normalize_or_zero();
+            let Some(arm) = layout.arms.iter().min_by(|a, b| (u - a.dir).length().total_cmp(&(u - b.dir).length()))
+            else {
+                continue;
+            };
+            let d = arm
+                .lanes
+                .iter()
+                .filter(|ln| (ln.kind == LaneKind::Outbound) == out_of)
+                .map(|ln| (q - ln.end).dot(arm.normal).abs())
+                .fold(f32::INFINITY, f32::min);
+            for (w, &reach) in worst_m.iter_mut().zip(reaches_m) {
+                if (FIDELITY_FROM_M..=reach).contains(&q.length()) {
+                    *w = w.max(d);
+                }
+            }
+        }
+        out.push(LaneDeviation { road: road.od_id().to_owned(), into: !out_of, worst_m });
+    }
+    Ok(out)
+}
+
 /// A lane's road and its lane section's index.
 fn road_of<'a>(net: &'a xodr::RoadNetwork, l: &xodr::Lane) -> Option<(&'a xodr::Road, usize)> {
     net.road_lane(l.id).and_then(|rl| net.road(rl.road).map(|r| (r, rl.section)))
@@ -216,6 +299,7 @@ fn approaches(net: &xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, c: Vec2) 
             lanes_out: 0,
             widths: Vec::new(),
             out: Vec::new(),
+            across: Vec::new(),
             median_m: None,
         });
         if into {
@@ -224,7 +308,9 @@ fn approaches(net: &xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, c: Vec2) 
             a.lanes_out += 1;
         }
         a.widths.push(l.width);
-        a.out.push(outward(&l.center, c));
+        let (near, dir, mid) = outward(&l.center, c);
+        a.out.push((near, dir));
+        a.across.push((into, mid, l.width));
     }
     out
 }
@@ -271,6 +357,7 @@ fn join_divided(approaches: BTreeMap<String, Approach>, notes: &mut Vec<String>)
         a.lanes_out = b.lanes_out;
         a.widths.extend(b.widths);
         a.out.extend(b.out);
+        a.across.extend(b.across);
         a.median_m = Some(median);
         joined.push(a);
     }
@@ -280,7 +367,7 @@ fn join_divided(approaches: BTreeMap<String, Approach>, notes: &mut Vec<String>)
 
 /// An approach as an arm: its lanes, their mean width, and its section's medians and sidewalks
 /// (a note where it has no sidewalk).
-fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmConfig {
+fn arm(net: &xodr::RoadNetwork, a: &Approach, c: Vec2, notes: &mut Vec<String>) -> ArmConfig {
     let of = |kind: xodr::LaneType, road: xodr::RoadId, section: usize| {
         net.lanes()
             .iter()
@@ -306,6 +393,14 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmCon
             a.name
         ));
     }
+    let median_width_m = round(median, 0.01);
+    let offset_m = round(centre_line_offset(a, dir, c, median_width_m), 0.01);
+    if offset_m.abs() > MAX_ARM_OFFSET_M {
+        notes.push(format!(
+            "{}: its lanes lie {offset_m} m from the junction's centre; modelled through the centre",
+            a.name
+        ));
+    }
     ArmConfig {
         name: a.name.clone(),
         heading_deg: round(dir.y.atan2(dir.x).to_degrees(), 0.1),
@@ -315,7 +410,8 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, notes: &mut Vec<String>) -> ArmCon
         lane_width_m: round(a.widths.iter().sum::<f32>() / a.widths.len().max(1) as f32, 0.01),
         left_turn_lanes: 0,
         left_turn_bay_length_m: 0.0,
-        median_width_m: round(median, 0.01),
+        median_width_m,
+        offset_m: if offset_m.abs() > MAX_ARM_OFFSET_M { 0.0 } else { offset_m },
         parking_lane_width_m,
         sidewalk_width_m: round(sidewalk, 0.01),
         curb_height_m: CURB_M,
@@ -374,6 +470,9 @@ struct Approach {
     lanes_out: u32,
     widths: Vec<f32>,
     out: Vec<(Vec2, Vec2)>,
+    /// Each lane's direction (into the junction or not), a point of its centre line about 12 m
+    /// from the junction, and its width: where the file puts it across the arm.
+    across: Vec<(bool, Vec2, f32)>,
     median_m: Option<f32>,
 }
 
@@ -381,6 +480,28 @@ impl Approach {
     /// The mean outward direction of its lanes.
     fn direction(&self) -> Vec2 {
         self.out.iter().fold(Vec2::ZERO, |s, (_, d)| s + *d).normalize_or_zero()
+    }
+}
+
+/// How far to the left of the line through the junction's centre `c` along `dir` the file puts
+/// the arm's centre line: the middle between its two directions' inner edges (each lane's centre
+/// about 12 m out, less half its width), or, for a one-way arm, half the median beside its inner
+/// edge.
+fn centre_line_offset(a: &Approach, dir: Vec2, c: Vec2, median_m: f32) -> f32 {
+    let normal = dir.perp();
+    let inner = |into: bool| {
+        let edges = a.across.iter().filter(move |l| l.0 == into).map(|&(_, p, w)| {
+            let s = (p - c).dot(normal);
+            if into { s - 0.5 * w } else { s + 0.5 * w }
+        });
+        if into { edges.fold(f32::INFINITY, f32::min) } else { edges.fold(f32::NEG_INFINITY, f32::max) }
+    };
+    let (inner_in, inner_out) = (inner(true), inner(false));
+    match (inner_in.is_finite(), inner_out.is_finite()) {
+        (true, true) => 0.5 * (inner_in + inner_out),
+        (true, false) => inner_in - 0.5 * median_m,
+        (false, true) => inner_out + 0.5 * median_m,
+        (false, false) => 0.0,
     }
 }
 
@@ -412,20 +533,21 @@ fn pick_junction(pick: &JunctionPick, centres: &BTreeMap<String, [f64; 2]>) -> R
     }
 }
 
-/// A lane centre line's end nearer the junction centre `c`, and its unit direction away from
-/// `c` there: from that end to the point 25 m (or the lane's length) along it.
-fn outward(center: &xodr::Polyline, c: Vec2) -> (Vec2, Vec2) {
+/// A lane centre line's end nearer the junction centre `c`, its unit direction away from `c`
+/// there (from that end to the point 25 m, or the lane's length, along it), and the point
+/// halfway to that one.
+fn outward(center: &xodr::Polyline, c: Vec2) -> (Vec2, Vec2, Vec2) {
     let pts = center.points();
-    let (Some(first), Some(last)) = (pts.first(), pts.last()) else { return (c, Vec2::ZERO) };
+    let (Some(first), Some(last)) = (pts.first(), pts.last()) else { return (c, Vec2::ZERO, c) };
     let v = |p: &xodr::Point| Vec2::new(p.x, p.y);
     let len = center.length();
     let d = len.min(25.0);
-    let (near, far) = if v(first).distance(c) <= v(last).distance(c) {
-        (v(first), v(&center.point_at(d)))
+    let (near, far, mid) = if v(first).distance(c) <= v(last).distance(c) {
+        (v(first), v(&center.point_at(d)), v(&center.point_at(0.5 * d)))
     } else {
-        (v(last), v(&center.point_at(len - d)))
+        (v(last), v(&center.point_at(len - d)), v(&center.point_at(len - 0.5 * d)))
     };
-    (near, (far - near).normalize_or_zero())
+    (near, (far - near).normalize_or_zero(), mid)
 }
 
 /// Signal poles at the corners between neighbouring arms: at each corner with a light in
@@ -537,6 +659,7 @@ mod tests {
             lanes_out: if into { 0 } else { lanes },
             widths: vec![3.2; lanes as usize],
             out: vec![(near, d); lanes as usize],
+            across: vec![(into, near, 3.2); lanes as usize],
             median_m: None,
         };
         (name.into(), a)
