@@ -630,14 +630,20 @@ fn apply_calibration(
 
 /// Reads a calibration file; the error names the file and what is wrong in it.
 pub fn load_calibration(path: &Path) -> Result<hilo_placement_ip::calibrated::file::CalibrationFile> {
+    load_calibration_text(path).map(|(file, _)| file)
+}
+
+/// [`load_calibration`], and the file's text as read (what names the file's content).
+pub fn load_calibration_text(path: &Path) -> Result<(hilo_placement_ip::calibrated::file::CalibrationFile, String)> {
     let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
         .map_err(|e| StudyError::from(hilo_core::fs::FileError::io(path, e)))?;
-    hilo_placement_ip::calibrated::file::CalibrationFile::from_toml(&text).map_err(|message| {
+    let file = hilo_placement_ip::calibrated::file::CalibrationFile::from_toml(&text).map_err(|message| {
         StudyError::from(hilo_core::fs::FileError::Content {
             path: path.to_path_buf(),
             message: format!("not a calibration file (as `hilo validate --sites` writes): {message}"),
         })
-    })
+    })?;
+    Ok((file, text))
 }
 
 /// Refuses a NaN or infinity in a study file's `[detector_patch]` or `[train_schedule]`. JSON

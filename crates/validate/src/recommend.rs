@@ -126,7 +126,7 @@ pub fn frozen(
     out: &Path,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<()> {
-    let file = hilo_plan::study::load_calibration(path)?;
+    let (file, text) = hilo_plan::study::load_calibration_text(path)?;
     if file.weights.named().iter().all(|(_, w)| *w == 0.0) {
         let path = path.display();
         return Err(StudyError::setting(&path.to_string(), "weights", "0 for every term", "nothing to place for"));
@@ -150,8 +150,6 @@ pub fn frozen(
     let usd = conf.budget_usd.unwrap_or_default();
     progress(Progress::Stage("validation: placing the frozen calibration's recommendation"));
     let (mut member, p) = frozen_member(study, &r.settings, &file, &conf, r.members.len())?;
-    let text = hilo_core::fs::read_text_bounded(path, hilo_core::fs::limit::CONFIG)
-        .map_err(|e| StudyError::from(hilo_core::fs::FileError::io(path, e)))?;
     member.slug = frozen_slug(&member.slug, &text);
     member.placement.name = member.slug.clone();
     let (member, trained) = train_member(study, registry, profile, r, member, out, progress)?;
