@@ -99,9 +99,7 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         value,
         reason,
     };
-    let (net, _) =
-        xodr::load_str_with(xml, |name| Err(format!("{name}: hilo reads one file; includes are not followed")))
-            .map_err(|e| err("OpenDRIVE", String::new(), e.to_string()))?;
+    let net = parse(xml, path)?;
     let (lanes_of, centres) = junctions(&net);
     let known = || centres.keys().map(|s| s.as_str()).collect::<Vec<_>>().join(", ");
     let junction = pick_junction(pick, &centres).map_err(|reason| {
@@ -207,28 +205,11 @@ pub fn lane_deviations(
     reaches_m: &[f32],
 ) -> Result<Vec<LaneDeviation>, RaycastError> {
     use crate::scene::layout::LaneKind;
-    let (net, _) =
-        xodr::load_str_with(xml, |name| Err(format!("{name}: hilo reads one file; includes are not followed")))
-            .map_err(|e| RaycastError::Invalid {
-                path: path.to_path_buf(),
-                field: "OpenDRIVE".into(),
-                value: String::new(),
-                reason: e.to_string(),
-            })?;
-    let inside: HashSet<xodr::LaneId> = net
-        .lanes()
-        .iter()
-        .filter(|l| road_of(&net, l).and_then(|(r, _)| r.junction()).is_some_and(|j| j == junction))
-        .map(|l| l.id)
-        .collect();
+    let net = parse(xml, path)?;
+    let inside = junctions(&net).0.remove(junction).unwrap_or_default();
     let mut out = Vec::new();
-    for l in net.lanes().iter().filter(|l| l.kind == xodr::LaneType::Driving) {
-        let Some((road, _)) = road_of(&net, l) else { continue };
-        let into = l.successors.iter().any(|s| inside.contains(s));
-        let out_of = l.predecessors.iter().any(|p| inside.contains(p));
-        if road.junction().is_some() || !(into || out_of) {
-            continue;
-        }
+    for (l, road, _, into) in approach_lanes(&net, &inside) {
+        let out_of = !into;
         let mut worst_m = vec![0.0f32; reaches_m.len()];
         for p in l.center.points() {
             let q = Vec2::new(p.x, p.y) - origin;
@@ -249,9 +230,36 @@ pub fn lane_deviations(
                 }
             }
         }
-        out.push(LaneDeviation { road: road.od_id().to_owned(), into: !out_of, worst_m });
+        out.push(LaneDeviation { road: road.od_id().to_owned(), into, worst_m });
     }
     Ok(out)
+}
+
+/// Reads the OpenDRIVE text `xml` (its `<include>`s refused); `path` names it in errors.
+fn parse(xml: &str, path: &Path) -> Result<xodr::RoadNetwork, RaycastError> {
+    let (net, _) =
+        xodr::load_str_with(xml, |name| Err(format!("{name}: hilo reads one file; includes are not followed")))
+            .map_err(|e| RaycastError::Invalid {
+                path: path.to_path_buf(),
+                field: "OpenDRIVE".into(),
+                value: String::new(),
+                reason: e.to_string(),
+            })?;
+    Ok(net)
+}
+
+/// The driving lanes outside any junction that lead into a lane of `inside` or out of one:
+/// each with its road, its lane section's index and whether it leads in.
+fn approach_lanes<'a>(
+    net: &'a xodr::RoadNetwork,
+    inside: &'a HashSet<xodr::LaneId>,
+) -> impl Iterator<Item = (&'a xodr::Lane, &'a xodr::Road, usize, bool)> + 'a {
+    net.lanes().iter().filter(|l| l.kind == xodr::LaneType::Driving).filter_map(move |l| {
+        let (road, section) = road_of(net, l)?;
+        let into = l.successors.iter().any(|s| inside.contains(s));
+        let out_of = l.predecessors.iter().any(|p| inside.contains(p));
+        (road.junction().is_none() && (into || out_of)).then_some((l, road, section, into))
+    })
 }
 
 /// A lane's road and its lane section's index.
@@ -285,13 +293,7 @@ fn junctions(net: &xodr::RoadNetwork) -> Junctions {
 /// by `<road id>`; `c` is the junction's centre.
 fn approaches(net: &xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, c: Vec2) -> BTreeMap<String, Approach> {
     let mut out: BTreeMap<String, Approach> = BTreeMap::new();
-    for l in net.lanes().iter().filter(|l| l.kind == xodr::LaneType::Driving) {
-        let Some((road, section)) = road_of(net, l) else { continue };
-        let into = l.successors.iter().any(|s| inside.contains(s));
-        let out_of = l.predecessors.iter().any(|p| inside.contains(p));
-        if road.junction().is_some() || !(into || out_of) {
-            continue;
-        }
+    for (l, road, section, into) in approach_lanes(net, inside) {
         let a = out.entry(road.od_id().to_owned()).or_insert_with(|| Approach {
             name: if road.name().is_empty() { format!("road {}", road.od_id()) } else { road.name().to_owned() },
             roads: vec![(road.id(), section)],
