@@ -347,7 +347,7 @@ pub fn placement(cbc_seconds: f64) -> Result<PlacementReport> {
         let types = vec![lidar.to_owned(), "radar-4d".to_owned()];
         let inst = instance(&prep, &catalog, &types, cfg.p_min)?;
         let limit = Limit::Counts(vec![n, 1]);
-        let o = solve(&inst, &limit, cfg.time_limit_s)?;
+        let o = solve(&inst, &limit, cfg.solve_limit())?;
         hilo_seconds = hilo_seconds.max(o.solve_seconds);
         configurations.push(serde_json::json!({"name": label, "objective": o.objective, "proven_optimal": o.proven_optimal, "seconds": o.solve_seconds, "method": o.method}));
         if two16.is_none() {

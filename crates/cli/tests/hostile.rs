@@ -238,6 +238,9 @@ fn weak_inputs_are_refused_naming_the_field_before_the_work_starts() {
     let o = hilo().arg("place").arg(&study).arg("--out").arg(d.join("p")).output().unwrap();
     refused(&o, &["placement.p_min = 1.5", "(0, 1)"]);
     assert!(!String::from_utf8_lossy(&o.stderr).contains("computing visibility"), "refused before the visibility work");
+    std::fs::write(&study, "[placement]\nnode_limit = 0\n[[configurations]]\nname = \"a\"\nsensors = { \"lidar-16\" = 1, \"radar-4d\" = 1 }\n").unwrap();
+    let o = hilo().arg("place").arg(&study).arg("--out").arg(d.join("p")).output().unwrap();
+    refused(&o, &["placement.node_limit = 0", "at least 1 node"]);
     // A catalog rate no sensor has.
     let catalog =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/sensors.toml")).unwrap();

@@ -44,11 +44,9 @@
 use crate::candidates::Modality;
 use crate::error::PlacementError;
 use crate::instance::{Instance, Limit, Outcome, coverage_coef};
+use crate::mip::SolveLimit;
 use good_lp::solvers::coin_cbc::coin_cbc;
-use good_lp::{
-    Expression, ProblemVariables, Solution, SolutionStatus, SolverModel, Variable, WithInitialSolution, WithTimeLimit,
-    variable,
-};
+use good_lp::{Expression, ProblemVariables, SolverModel, Variable, WithInitialSolution, variable};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -416,8 +414,8 @@ pub(crate) fn outcome(
     }
 }
 
-/// Solves the calibrated objective: swaps from `warm` (at most `time_limit_s`), then CBC
-/// warm-started from them within `time_limit_s` when the IP has at most `max_nonzeros`
+/// Solves the calibrated objective: swaps from `warm` (at most the limit's seconds), then CBC
+/// warm-started from them within `solve_limit` (seconds and, optionally, nodes) when the IP has at most `max_nonzeros`
 /// non-zeros (default [`CBC_MAX_NONZEROS`]); otherwise the swaps' selection with the
 /// submodular bound ([`upper_bound`]). Never returns less than the warm start; an unproven
 /// result reports the tighter of the two bounds.
@@ -425,11 +423,11 @@ pub fn solve(
     inst: &Instance,
     limit: &Limit,
     w: &Weights,
-    time_limit_s: f64,
+    solve_limit: impl Into<SolveLimit>,
     max_nonzeros: usize,
     warm: &Outcome,
 ) -> Result<Outcome, PlacementError> {
-    solve_given(inst, limit, w, (time_limit_s, max_nonzeros), warm, &[])
+    solve_given(inst, limit, w, (solve_limit, max_nonzeros), warm, &[])
 }
 
 /// [`solve`] keeping the options of `fixed` (a feasible part of a selection, all of them in
@@ -440,11 +438,13 @@ pub fn solve_given(
     inst: &Instance,
     limit: &Limit,
     w: &Weights,
-    (time_limit_s, max_nonzeros): (f64, usize),
+    (solve_limit, max_nonzeros): (impl Into<SolveLimit>, usize),
     warm: &Outcome,
     fixed: &[usize],
 ) -> Result<Outcome, PlacementError> {
     let start = Instant::now();
+    let solve_limit: SolveLimit = solve_limit.into();
+    let time_limit_s = solve_limit.seconds;
     w.check()?;
     check_instance(inst, w)?;
     if let Some(o) = fixed.iter().find(|o| !warm.selection.contains(o)) {
@@ -459,7 +459,7 @@ pub fn solve_given(
             ..local
         });
     }
-    let out = cbc(inst, limit, w, time_limit_s, &local, fixed)?;
+    let out = cbc(inst, limit, w, solve_limit, &local, fixed)?;
     let out = Outcome { method: format!("{} ({nz} non-zeros)", out.method), ..out };
     if out.proven_optimal || out.bound <= local.bound {
         return Ok(Outcome { solve_seconds: start.elapsed().as_secs_f64(), ..out });
@@ -473,13 +473,13 @@ pub fn solve_given(
     })
 }
 
-/// The calibrated IP by CBC within `time_limit_s`, warm-started from `warm`, the options of
+/// The calibrated IP by CBC within `solve_limit`, warm-started from `warm`, the options of
 /// `fixed` held at 1.
 fn cbc(
     inst: &Instance,
     limit: &Limit,
     w: &Weights,
-    time_limit_s: f64,
+    solve_limit: SolveLimit,
     warm: &Outcome,
     fixed: &[usize],
 ) -> Result<Outcome, PlacementError> {
@@ -528,27 +528,23 @@ fn cbc(
     for &o in fixed {
         problem.add_constraint(Expression::from(x[o]).geq(1.0));
     }
-    let mut problem = problem.with_time_limit(time_limit_s.max(1.0));
     let chosen: std::collections::HashSet<usize> = warm.selection.iter().copied().collect();
     let mut init: Vec<(Variable, f64)> =
         x.iter().enumerate().map(|(o, &v)| (v, if chosen.contains(&o) { 1.0 } else { 0.0 })).collect();
     let s: Vec<Vec<f64>> =
         terms.iter().map(|t| if t.weight > 0.0 { sums(inst, &warm.selection, t, tau) } else { Vec::new() }).collect();
     init.extend(z.iter().map(|&(v, _, ti, j)| (v, (s[ti][j] / terms[ti].k).min(1.0))));
-    problem = problem.with_initial_solution(init);
-    let sol = problem.solve().map_err(|e| PlacementError::Solver(format!("CBC, calibrated objective: {e}")))?;
-    let proven = matches!(sol.status(), SolutionStatus::Optimal);
-    let bound = sol.model().best_possible_value();
-    let selection: Vec<usize> = x.iter().enumerate().filter(|(_, v)| sol.value(**v) > 0.5).map(|(o, _)| o).collect();
-    let out = outcome(
-        inst,
-        selection,
-        w,
-        if bound.is_finite() { bound * scale } else { f64::INFINITY },
-        proven,
-        start,
-        "CBC, calibrated objective",
-    );
+    let problem = problem.with_initial_solution(init);
+    let run = crate::mip::run_cbc(problem, x.len(), solve_limit, "CBC, calibrated objective")?;
+    // Without proof and without an incumbent CBC's columns may break the limit: the warm start stands.
+    let selection =
+        if run.proven || inst.check(limit, &run.selection).is_ok() { run.selection } else { warm.selection.clone() };
+    let method = match &run.stopped {
+        Some(why) => format!("CBC, calibrated objective, {why}"),
+        None => "CBC, calibrated objective".to_owned(),
+    };
+    let bound = if run.bound.is_finite() { run.bound * scale } else { f64::INFINITY };
+    let out = outcome(inst, selection, w, bound, run.proven, start, &method);
     Ok(out.no_worse_than(warm, 1e-12))
 }
 

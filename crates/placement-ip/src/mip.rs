@@ -17,12 +17,82 @@ use crate::candidates::Modality;
 use crate::error::PlacementError;
 use crate::instance::{Instance, Limit, Outcome, coverage_coef};
 use good_lp::solvers::coin_cbc::{CoinCbcProblem, coin_cbc};
-use good_lp::{
-    Expression, ProblemVariables, Solution, SolutionStatus, SolverModel, Variable, WithInitialSolution, WithTimeLimit,
-    variable,
-};
+use good_lp::{Expression, ProblemVariables, SolverModel, Variable, WithInitialSolution, WithTimeLimit, variable};
 use std::collections::BTreeMap;
 use std::time::Instant;
+
+/// What stops a solve that has not proven its optimum: a wall-clock limit (CBC rounds it to
+/// whole seconds) and, optionally, a limit on CBC's branch-and-bound nodes. A solve the node
+/// limit stops returns the same placement on any machine and under any load; one the clock
+/// stops depends on both. A plain number of seconds converts into a limit without nodes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolveLimit {
+    pub seconds: f64,
+    pub nodes: Option<u64>,
+}
+
+impl From<f64> for SolveLimit {
+    fn from(seconds: f64) -> Self {
+        SolveLimit { seconds, nodes: None }
+    }
+}
+
+/// What one CBC run gave: the option variables' values, CBC's bound, whether it proved the
+/// optimum, and, when it did not, what stopped it (for the outcome's method).
+pub(crate) struct CbcRun {
+    pub selection: Vec<usize>,
+    pub bound: f64,
+    pub proven: bool,
+    pub stopped: Option<String>,
+}
+
+/// Runs CBC on `problem`, whose first `n_x` variables are the options' x_o (created before any
+/// other, so they are its first columns), within `limit`. Reads CBC's own status rather than
+/// good_lp's, which takes a stop on the node limit for an error or an optimum. `what` names the
+/// model in errors.
+pub(crate) fn run_cbc(
+    problem: CoinCbcProblem,
+    n_x: usize,
+    limit: SolveLimit,
+    what: &str,
+) -> Result<CbcRun, PlacementError> {
+    let start = Instant::now();
+    let mut problem = problem.with_time_limit(limit.seconds.max(1.0));
+    if let Some(n) = limit.nodes {
+        problem.set_parameter("maxNodes", &n.to_string());
+    }
+    let sol = problem.as_inner().solve();
+    let raw = sol.raw();
+    if raw.is_proven_infeasible() || raw.is_continuous_unbounded() {
+        let ran = start.elapsed().as_secs_f64();
+        // At its time limit without an incumbent CBC may report "infeasible"; say what happened.
+        // CBC does not check the limit inside its root LP, so it may run past it.
+        return Err(PlacementError::Solver(if ran >= 0.95 * limit.seconds.max(1.0) {
+            format!(
+                "{what}: time limit ({:.0} s) reached with no solution found (ran {ran:.0} s: CBC does not check its limit inside the root LP)",
+                limit.seconds
+            )
+        } else {
+            format!("{what}: the model is infeasible or unbounded")
+        }));
+    }
+    let values = raw.col_solution();
+    if values.len() < n_x {
+        return Err(PlacementError::Solver(format!("{what}: {} columns, {n_x} options", values.len())));
+    }
+    let selection = (0..n_x).filter(|&o| values[o] > 0.5).collect();
+    let proven = raw.is_proven_optimal();
+    let stopped = (!proven).then(|| {
+        use coin_cbc::raw::SecondaryStatus as S;
+        match raw.secondary_status() {
+            S::StoppedOnNodes => format!("stopped at the node limit ({})", limit.nodes.unwrap_or(0)),
+            S::StoppedOnTime => format!("stopped at the time limit ({:.0} s)", limit.seconds.max(1.0)),
+            other => format!("stopped ({other:?})"),
+        }
+    });
+    let bound = raw.best_possible_value();
+    Ok(CbcRun { selection, bound: if bound.is_finite() { bound } else { f64::INFINITY }, proven, stopped })
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Formulation {
@@ -181,27 +251,29 @@ pub(crate) fn add_limit(problem: &mut CoinCbcProblem, inst: &Instance, limit: &L
     rows
 }
 
-/// Solves with CBC within `time_limit_s` (CBC rounds to whole seconds), optionally warm-started
-/// from a selection. The objective reported is the exact objective of the selection CBC returns;
-/// the bound is CBC's best possible value.
+/// Solves with CBC within `limit` (seconds, or a [`SolveLimit`] with nodes), optionally
+/// warm-started from a selection. The objective reported is the exact objective of the
+/// selection CBC returns; the bound is CBC's best possible value.
 pub fn solve(
     inst: &Instance,
     limit: &Limit,
     form: Formulation,
-    time_limit_s: f64,
+    solve_limit: impl Into<SolveLimit>,
     warm: Option<&[usize]>,
 ) -> Result<Outcome, PlacementError> {
-    solve_fixing(inst, limit, form, time_limit_s, warm, &[])
+    solve_fixing(inst, limit, form, solve_limit, warm, &[])
 }
 
 /// [`solve`] with the options in `fixed` chosen (x_o = 1): the best placement of the rest given
 /// them, and a bound over every selection that holds them. The caller checks that `fixed` is a
-/// feasible part of a selection ([`crate::pipeline::solve_given`] does).
+/// feasible part of a selection ([`crate::pipeline::solve_given`] does). A selection CBC returns
+/// without proof that breaks the limit (no incumbent when it stopped) is replaced by the warm
+/// start, or refused without one.
 pub fn solve_fixing(
     inst: &Instance,
     limit: &Limit,
     form: Formulation,
-    time_limit_s: f64,
+    solve_limit: impl Into<SolveLimit>,
     warm: Option<&[usize]>,
     fixed: &[usize],
 ) -> Result<Outcome, PlacementError> {
@@ -210,12 +282,12 @@ pub fn solve_fixing(
     for &o in fixed {
         m.problem.add_constraint(Expression::from(m.x[o]).geq(1.0));
     }
-    let mut problem = m.problem.with_time_limit(time_limit_s.max(1.0));
     // Without CBC's preprocessing: stopped by the time limit inside it, its post-processing
     // crashes the process on some instances (SIGSEGV in `CglPreProcess::postProcess`, CBC 2.10;
     // the budgeted problem at the Fabriksgatan site, tests/scene.rs). The default study's
     // placements and trade-off rows are the same without it.
-    problem.set_parameter("preprocess", "off");
+    m.problem.set_parameter("preprocess", "off");
+    let mut problem = m.problem;
     if let Some(sel) = warm {
         let chosen: std::collections::HashSet<usize> = sel.iter().copied().collect();
         let tau = inst.tau() * (1.0 - 1e-9);
@@ -242,28 +314,23 @@ pub fn solve_fixing(
         }
         problem = problem.with_initial_solution(init);
     }
-    let sol = problem.solve().map_err(|e| {
-        let ran = start.elapsed().as_secs_f64();
-        // At its time limit without an incumbent CBC reports "infeasible"; say what happened.
-        // CBC does not check the limit inside its root LP, so it may run past it.
-        if matches!(e, good_lp::ResolutionError::Infeasible) && ran >= 0.95 * time_limit_s.max(1.0) {
-            PlacementError::Solver(format!(
-                "CBC: time limit ({time_limit_s:.0} s) reached with no solution found (ran {ran:.0} s: CBC does not check its limit inside the root LP)"
-            ))
-        } else {
-            PlacementError::Solver(format!("CBC: {e}"))
-        }
-    })?;
-    let status = sol.status();
-    let bound = sol.model().best_possible_value();
-    let selection: Vec<usize> = m.x.iter().enumerate().filter(|(_, v)| sol.value(**v) > 0.5).map(|(o, _)| o).collect();
-    let proven = matches!(status, SolutionStatus::Optimal);
+    let run = run_cbc(problem, m.x.len(), solve_limit.into(), "CBC")?;
     let method = match form {
         Formulation::Plain => "CBC, plain formulation",
         Formulation::Strengthened => "CBC, strengthened formulation",
     };
-    let bound = if bound.is_finite() { bound } else { f64::INFINITY };
-    Ok(Outcome::new(inst, selection, bound, proven, start.elapsed().as_secs_f64(), method))
+    let method = match &run.stopped {
+        Some(why) => format!("{method}, {why}"),
+        None => method.to_owned(),
+    };
+    let selection = match (inst.check(limit, &run.selection), warm) {
+        (Ok(()), _) => run.selection,
+        (Err(_), Some(w)) if !run.proven => w.to_vec(),
+        (Err(e), _) => {
+            return Err(PlacementError::Solver(format!("CBC returned a selection that breaks the limit: {e}")));
+        }
+    };
+    Ok(Outcome::new(inst, selection, run.bound, run.proven, start.elapsed().as_secs_f64(), &method))
 }
 
 /// Writes the model as gzip-compressed MPS (CBC's writer), to `<stem>.mps.gz`; returns that

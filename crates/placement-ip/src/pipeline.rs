@@ -6,7 +6,7 @@ use crate::error::PlacementError;
 use crate::exact::{counts_upper_bound, exact_counts, exact_lidar_first, separable_upper_bound, top_visibilities};
 use crate::greedy::greedy;
 use crate::instance::{Instance, Limit, Outcome, SensorOption, SensorType};
-use crate::mip::{Formulation, solve as solve_mip};
+use crate::mip::{Formulation, SolveLimit, solve as solve_mip};
 use crate::targets::{Target, roi_targets};
 use crate::visibility::{LineOfSight, Visibility, VisibilityConfig, compute_visibility};
 use hilo_core::{Check, Valid};
@@ -23,8 +23,13 @@ pub struct PlacementConfig {
     pub cell_m: f32,
     /// Detection probability a target needs from each modality (the paper: 1 − e⁻¹).
     pub p_min: f64,
-    /// Time limit of CBC when the exact search does not apply.
+    /// Time limit of CBC when the exact search does not apply (and of the exact searches).
     pub time_limit_s: f64,
+    /// Limit on CBC's branch-and-bound nodes. A solve it stops gives the same placement on any
+    /// machine; one the time limit stops depends on the machine's speed and load. None: the
+    /// time limit alone.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub node_limit: Option<u64>,
     pub candidates: CandidateConfig,
     pub visibility: VisibilityConfig,
     /// What the solvers maximise: the paper's objective, or the calibrated one
@@ -54,6 +59,7 @@ impl Default for PlacementConfig {
             cell_m: 1.0,
             p_min: 1.0 - (-1.0f64).exp(),
             time_limit_s: 60.0,
+            node_limit: None,
             candidates: CandidateConfig::default(),
             visibility: VisibilityConfig::default(),
             objective: ObjectiveKind::Paper,
@@ -67,6 +73,11 @@ impl PlacementConfig {
     /// The checked configuration that [`prepare`] takes ([`Check`]).
     pub fn validate(self) -> Result<Valid<PlacementConfig>, PlacementError> {
         Valid::new(self)
+    }
+
+    /// The time and node limits of every solve.
+    pub fn solve_limit(&self) -> SolveLimit {
+        SolveLimit { seconds: self.time_limit_s, nodes: self.node_limit }
     }
 }
 
@@ -85,6 +96,9 @@ impl Check for PlacementConfig {
         }
         if !(self.time_limit_s >= 0.0 && self.time_limit_s <= 86_400.0) {
             return bad("time_limit_s", self.time_limit_s.to_string(), "must be in [0, 86400] seconds");
+        }
+        if self.node_limit == Some(0) {
+            return bad("node_limit", "0".to_owned(), "must be at least 1 node (leave it out for no node limit)");
         }
         match (self.objective, &self.calibration) {
             (ObjectiveKind::Calibrated, None) => {
@@ -200,8 +214,8 @@ pub fn counts_bound(inst: &Instance, counts: &[u32]) -> f64 {
 /// proven bound over the rest); otherwise CBC on the strengthened model, warm-started from
 /// greedy, within the time limit, if the model is small enough. A result that is not proven
 /// optimal carries its bound and gap.
-pub fn solve(inst: &Instance, limit: &Limit, time_limit_s: f64) -> Result<Outcome, PlacementError> {
-    solve_from(inst, limit, time_limit_s, &greedy(inst, limit))
+pub fn solve(inst: &Instance, limit: &Limit, solve_limit: impl Into<SolveLimit>) -> Result<Outcome, PlacementError> {
+    solve_from(inst, limit, solve_limit, &greedy(inst, limit))
 }
 
 /// The best placement that keeps the sensors of `fixed` (option indices) and places the rest
@@ -213,7 +227,7 @@ pub fn solve_given(
     inst: &Instance,
     limit: &Limit,
     fixed: &[usize],
-    time_limit_s: f64,
+    solve_limit: impl Into<SolveLimit>,
 ) -> Result<Outcome, PlacementError> {
     let partial = match limit {
         Limit::Budget { usd, max, .. } => Limit::Budget { usd: *usd, min: Vec::new(), max: max.clone() },
@@ -226,9 +240,8 @@ pub fn solve_given(
         return Ok(Outcome::new(inst, sel, f64::INFINITY, true, start.elapsed().as_secs_f64(), &method));
     }
     let g = crate::greedy::greedy_given(inst, limit, fixed);
-    let out =
-        crate::mip::solve_fixing(inst, limit, Formulation::Strengthened, time_limit_s, Some(&g.selection), fixed)?
-            .no_worse_than(&g, 1e-9);
+    let out = crate::mip::solve_fixing(inst, limit, Formulation::Strengthened, solve_limit, Some(&g.selection), fixed)?
+        .no_worse_than(&g, 1e-9);
     if let Some(o) = fixed.iter().find(|o| !out.selection.contains(o)) {
         return Err(PlacementError::Solver(format!("CBC dropped the given option {o}")));
     }
@@ -310,7 +323,14 @@ fn extend_subsets(inst: &Instance, base: &[usize], opts: &[usize], from: usize, 
 /// [`solve`] from a greedy outcome the caller already has (`greedy(inst, limit)`), so a caller
 /// that also reports the greedy objective does not run greedy twice. Its seconds are counted in
 /// the result's `solve_seconds`.
-pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome) -> Result<Outcome, PlacementError> {
+pub fn solve_from(
+    inst: &Instance,
+    limit: &Limit,
+    solve_limit: impl Into<SolveLimit>,
+    g: &Outcome,
+) -> Result<Outcome, PlacementError> {
+    let solve_limit: SolveLimit = solve_limit.into();
+    let time_limit_s = solve_limit.seconds;
     // The exact searches stop at the time limit too, with their best selection and bound.
     let deadline = (time_limit_s.is_finite() && time_limit_s >= 0.0)
         .then(|| std::time::Instant::now() + std::time::Duration::from_secs_f64(time_limit_s.min(1e7)));
@@ -367,7 +387,13 @@ pub fn solve_from(inst: &Instance, limit: &Limit, time_limit_s: f64, g: &Outcome
             ..fallback
         });
     }
-    let out = solve_mip(inst, limit, Formulation::Strengthened, left, Some(&g.selection))?;
+    let out = solve_mip(
+        inst,
+        limit,
+        Formulation::Strengthened,
+        SolveLimit { seconds: left, ..solve_limit },
+        Some(&g.selection),
+    )?;
     // CBC may stop with something worse than its warm start: never return less than greedy.
     Ok(out.no_worse_than(g, 1e-9))
 }

@@ -373,3 +373,52 @@ fn a_placement_given_fixed_sensors_keeps_them_and_is_optimal_for_the_rest() {
     let e = solve_given(&inst, &Limit::Counts(vec![1, 0, 1]), &lidars, 5.0).unwrap_err().to_string();
     assert!(e.contains("exceeds"), "{e}");
 }
+
+/// A larger random instance (many options, overlapping views) that CBC cannot close at its root.
+fn large_instance(seed: u64) -> Instance {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let n_t = 50;
+    let weights = (0..n_t).map(|_| rng.random_range(0.5..3.0)).collect();
+    let mut options = Vec::new();
+    for ty in [0usize, 2] {
+        for k in 0..10u32 {
+            let mut row = Vec::new();
+            for j in 0..n_t as u32 {
+                if rng.random_bool(0.3) {
+                    row.push((j, rng.random_range(0.05f32..0.95)));
+                }
+            }
+            options.push(SensorOption { ty, candidate: options.len() as u32, mount: k + 100 * ty as u32, row });
+        }
+    }
+    Instance { weights, types: types(), options, ..random_instance(seed) }
+}
+
+/// A solve the node limit stops gives the same selection every time, says so in its method,
+/// keeps the limit, is no worse than its warm start, and its bound holds the optimum.
+#[test]
+fn a_node_limit_stops_cbc_the_same_way_every_time() {
+    use hilo_placement_ip::mip::SolveLimit;
+    let limit = Limit::Counts(vec![3, 0, 2]);
+    let mut stopped = 0;
+    for seed in 0..3u64 {
+        let inst = large_instance(seed);
+        let g = greedy(&inst, &limit);
+        let at = SolveLimit { seconds: 600.0, nodes: Some(1) };
+        let a = solve(&inst, &limit, Formulation::Strengthened, at, Some(&g.selection)).unwrap();
+        let b = solve(&inst, &limit, Formulation::Strengthened, at, Some(&g.selection)).unwrap();
+        assert_eq!(a.selection, b.selection, "seed {seed}");
+        assert_eq!(a.objective.to_bits(), b.objective.to_bits());
+        assert!(inst.check(&limit, &a.selection).is_ok());
+        assert!(a.objective >= g.objective - 1e-9);
+        let full = solve(&inst, &limit, Formulation::Strengthened, 600.0, Some(&g.selection)).unwrap();
+        assert!(full.proven_optimal, "seed {seed}: {}", full.method);
+        assert!(a.objective <= full.objective + 1e-9 && a.bound >= full.objective - 1e-6);
+        if !a.proven_optimal {
+            assert!(a.method.contains("node limit (1)"), "{}", a.method);
+            stopped += 1;
+        }
+    }
+    // The instances are hard enough that one node does not close them all.
+    assert!(stopped > 0);
+}

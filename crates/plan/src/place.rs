@@ -239,7 +239,7 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
         let (g, o) = match (cfg.objective, &cfg.calibration, given) {
             (ObjectiveKind::Paper, _, Some(fixed)) => {
                 let g = hilo_placement_ip::greedy::greedy_given(&inst, &limit, &fixed);
-                let o = hilo_placement_ip::pipeline::solve_given(&inst, &limit, &fixed, cfg.time_limit_s)?;
+                let o = hilo_placement_ip::pipeline::solve_given(&inst, &limit, &fixed, cfg.solve_limit())?;
                 (g, o)
             }
             (ObjectiveKind::Calibrated, Some(w), fixed) => {
@@ -262,7 +262,7 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
                     &inst,
                     &limit,
                     w,
-                    (cfg.time_limit_s, cfg.calibrated_cbc_max_nonzeros),
+                    (cfg.solve_limit(), cfg.calibrated_cbc_max_nonzeros),
                     &g,
                     &fixed,
                 )?;
@@ -275,7 +275,7 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
             }
             _ => {
                 let g = greedy(&inst, &limit);
-                let o = solve_from(&inst, &limit, cfg.time_limit_s, &g)?;
+                let o = solve_from(&inst, &limit, cfg.solve_limit(), &g)?;
                 (g, o)
             }
         };

@@ -190,7 +190,7 @@ fn los_rows(
         let prep = prepare(scene, catalog, &types, &c.validate()?)?;
         let seconds = t.elapsed().as_secs_f64();
         let inst = instance(&prep, catalog, &types, cfg.p_min)?;
-        let o = solve_from(&inst, &limit, cfg.time_limit_s, &greedy(&inst, &limit))?;
+        let o = solve_from(&inst, &limit, cfg.solve_limit(), &greedy(&inst, &limit))?;
         runs.push((k, seconds, prep, inst, o));
     }
     let (_, _, reference, ref_inst, ref_out) =

@@ -222,7 +222,7 @@ pub fn placement_set(study: &Study, v: &ValidationSettings, progress: &mut dyn F
         let inst = instance(&prep, &study.catalog, &ctypes, pc.p_min)?;
         let limit = limit_for(conf, &ctypes);
         let g = greedy(&inst, &limit);
-        let o = solve_from(&inst, &limit, pc.time_limit_s, &g)?;
+        let o = solve_from(&inst, &limit, pc.solve_limit(), &g)?;
         progress(&format!(
             "  {:<28} optimum {:>9.1} ({}), greedy {:>9.1}",
             conf.name,
@@ -350,7 +350,7 @@ fn buy<T>(
     }
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
-    let o = calibrated::solve(&inst, &limit, w, pc.time_limit_s, pc.calibrated_cbc_max_nonzeros, &g)?;
+    let o = calibrated::solve(&inst, &limit, w, pc.solve_limit(), pc.calibrated_cbc_max_nonzeros, &g)?;
     let extra = then(&inst, &o.selection);
     let sensors = placed(&inst, &prep, &o.selection);
     let kind = if o.proven_optimal { kind.to_owned() } else { format!("{kind}-best-found") };
