@@ -415,10 +415,10 @@ pub(crate) fn outcome(
 }
 
 /// Solves the calibrated objective: swaps from `warm` (at most the limit's seconds), then CBC
-/// warm-started from them within `solve_limit` (seconds and, optionally, nodes) when the IP has at most `max_nonzeros`
-/// non-zeros (default [`CBC_MAX_NONZEROS`]); otherwise the swaps' selection with the
-/// submodular bound ([`upper_bound`]). Never returns less than the warm start; an unproven
-/// result reports the tighter of the two bounds.
+/// warm-started from them within `solve_limit` (seconds and, optionally, nodes) when the IP
+/// has at most `max_nonzeros` non-zeros (default [`CBC_MAX_NONZEROS`]); otherwise the swaps'
+/// selection with the submodular bound ([`upper_bound`]). Never returns less than the warm
+/// start; an unproven result reports the tighter of the two bounds.
 pub fn solve(
     inst: &Instance,
     limit: &Limit,
@@ -536,13 +536,10 @@ fn cbc(
     init.extend(z.iter().map(|&(v, _, ti, j)| (v, (s[ti][j] / terms[ti].k).min(1.0))));
     let problem = problem.with_initial_solution(init);
     let run = crate::mip::run_cbc(problem, x.len(), solve_limit, "CBC, calibrated objective")?;
+    let method = run.method("CBC, calibrated objective");
     // Without proof and without an incumbent CBC's columns may break the limit: the warm start stands.
     let selection =
         if run.proven || inst.check(limit, &run.selection).is_ok() { run.selection } else { warm.selection.clone() };
-    let method = match &run.stopped {
-        Some(why) => format!("CBC, calibrated objective, {why}"),
-        None => "CBC, calibrated objective".to_owned(),
-    };
     let bound = if run.bound.is_finite() { run.bound * scale } else { f64::INFINITY };
     let out = outcome(inst, selection, w, bound, run.proven, start, &method);
     Ok(out.no_worse_than(warm, 1e-12))

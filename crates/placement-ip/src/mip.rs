@@ -46,6 +46,16 @@ pub(crate) struct CbcRun {
     pub stopped: Option<String>,
 }
 
+impl CbcRun {
+    /// `base` (the model's name), with what stopped CBC when it proved nothing.
+    pub fn method(&self, base: &str) -> String {
+        match &self.stopped {
+            Some(why) => format!("{base}, {why}"),
+            None => base.to_owned(),
+        }
+    }
+}
+
 /// Runs CBC on `problem`, whose first `n_x` variables are the options' x_o (created before any
 /// other, so they are its first columns), within `limit`. Reads CBC's own status rather than
 /// good_lp's, which takes a stop on the node limit for an error or an optimum. `what` names the
@@ -319,10 +329,7 @@ pub fn solve_fixing(
         Formulation::Plain => "CBC, plain formulation",
         Formulation::Strengthened => "CBC, strengthened formulation",
     };
-    let method = match &run.stopped {
-        Some(why) => format!("{method}, {why}"),
-        None => method.to_owned(),
-    };
+    let method = run.method(method);
     let selection = match (inst.check(limit, &run.selection), warm) {
         (Ok(()), _) => run.selection,
         (Err(_), Some(w)) if !run.proven => w.to_vec(),
