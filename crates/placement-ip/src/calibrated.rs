@@ -629,6 +629,20 @@ mod tests {
             .fold(0.0, f64::max)
     }
 
+    /// CBC's optimum equals brute force under two counts and under a budget; greedy is never
+    /// above it; with `proven`, CBC says it proved it.
+    fn assert_cbc_is_brute_force(inst: &Instance, w: &Weights, seed: u64, proven: bool) {
+        for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
+            let g = greedy(inst, &limit, w);
+            let out = solve(inst, &limit, w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
+            let best = brute(inst, &limit, w);
+            assert!(inst.check(&limit, &out.selection).is_ok(), "seed {seed} {limit:?}: {:?}", out.selection);
+            assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
+            assert!(g.objective <= best + 1e-9, "seed {seed} {limit:?}: greedy {} above {best}", g.objective);
+            assert!(!proven || out.proven_optimal, "seed {seed} {limit:?}: {}", out.method);
+        }
+    }
+
     /// CBC on the calibrated IP equals brute force over every selection, under counts and under
     /// a budget, with both weights, with the radar's at 0 and with the two-view terms;
     /// greedy is never above it.
@@ -659,14 +673,7 @@ mod tests {
                     ..Weights::default()
                 },
             };
-            for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
-                let g = greedy(&inst, &limit, &w);
-                let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
-                let best = brute(&inst, &limit, &w);
-                assert!(inst.check(&limit, &out.selection).is_ok());
-                assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
-                assert!(g.objective <= best + 1e-9);
-            }
+            assert_cbc_is_brute_force(&inst, &w, seed, false);
         }
     }
 
@@ -830,13 +837,7 @@ mod tests {
                 let only = Weights { lidar_points: 1.0, ..Weights::default() };
                 assert!((evaluate(&inst, &sel, &only) - by_hand).abs() < 1e-12, "seed {seed} {sel:?}");
             }
-            for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
-                let g = greedy(&inst, &limit, &w);
-                let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
-                let best = brute(&inst, &limit, &w);
-                assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
-                assert!(out.proven_optimal);
-            }
+            assert_cbc_is_brute_force(&inst, &w, seed, true);
         }
         let mut bare = random_instance(1);
         bare.points = Default::default();
@@ -875,13 +876,7 @@ mod tests {
                 1 => Weights { lidar_extent: 0.7, lidar_points: 0.3, ..Weights::default() },
                 _ => Weights { lidar_extent: 0.5, radar: 0.2, lidar_two_views: 0.2, ..Weights::default() },
             };
-            for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
-                let g = greedy(&inst, &limit, &w);
-                let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
-                let best = brute(&inst, &limit, &w);
-                assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
-                assert!(out.proven_optimal && g.objective <= best + 1e-9);
-            }
+            assert_cbc_is_brute_force(&inst, &w, seed, true);
         }
         let mut bare = random_instance(1);
         bare.extents = Default::default();
