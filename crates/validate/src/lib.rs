@@ -12,7 +12,9 @@
 //! bootstrap, and reports Spearman's ρ and Kendall's τ of every predictor with mAP and
 //! pedestrian AP, with intervals from a bootstrap over placements, scenes and trainings ([`rank`], [`resample`]),
 //! and τ between the accuracies at b and 2b (does the budget rank placements as longer
-//! training would?).
+//! training would?). Rigs of the set whose LiDARs stand at identical poses and that differ only
+//! in their radars are compared pair by pair ([`same_lidars`]): what the radars add, with
+//! nothing of the LiDARs' poses in it, and whether the objective's radar terms say so.
 //!
 //! A calibrated objective ([`calibrate`]) is fitted to these measurements and scored by
 //! cross-fitting; `[placement] objective = "calibrated"` places with it
@@ -54,6 +56,7 @@ pub mod occupancy;
 pub mod rank;
 pub mod recommend;
 pub mod resample;
+pub mod same_lidars;
 pub mod set;
 pub mod sites;
 
@@ -1151,6 +1154,7 @@ pub fn markdown(r: &ValidationReport) -> String {
     for rec in r.recommendation.iter().chain(&r.frozen) {
         s.push_str(&recommend::markdown(rec));
     }
+    s.push_str(&same_lidars::markdown(r));
     s.push_str("## Every placement\n\n");
     s.push_str("| placement | kind | sensors | cost (USD) | paper objective | LiDAR coverage | occupancy | detector | mAP at b | mAP at 2b (trainings) | pedestrian AP |\n|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|\n");
     for (m, t) in &r.members {
