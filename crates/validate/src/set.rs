@@ -787,7 +787,13 @@ mod tests {
     /// and the rig's own point-count predictor within the dropout draws.
     #[test]
     fn a_frozen_calibration_buys_what_its_weights_buy_and_predicts_from_the_term() {
-        let study = coarse();
+        // The two solves must stop at the same point: on the coarse fixture's 5 s the swaps and
+        // CBC stop on the wall clock, which a debug build or a busy machine reaches at another
+        // point each time. A node limit stops CBC the same way every time.
+        let mut study = coarse();
+        let mut pc = study.placement.clone().into_inner();
+        (pc.time_limit_s, pc.node_limit) = (600.0, Some(100));
+        study.placement = pc.validate().unwrap();
         let v = &ValidationSettings { min_points: 100, ..study.file.validation.clone() };
         let budget = budget_configuration(&study).unwrap();
         let file =
