@@ -171,11 +171,17 @@ pub struct LoadOptions<'a> {
     pub radar_pairs: Option<RadarPairConfig>,
     /// LiDAR points closer than this to their own sensor are left out, m (0: none).
     pub lidar_min_range_m: f32,
+    /// Boxes that no LiDAR point of their key frame hit but a radar detection did are kept. True
+    /// for a detector that reads radar; a LiDAR-only detector is not trained to find road users
+    /// only the radar saw (on a radar rig it would otherwise learn from boxes it cannot see, and
+    /// its score at the same LiDAR poses would depend on whether a radar hangs beside them).
+    pub radar_only_boxes: bool,
 }
 
 impl<'a> LoadOptions<'a> {
-    /// The options of a detector's input, with its learned background model.
-    pub fn new(input: &InputConfig, background: Option<&'a BackgroundModel>) -> Self {
+    /// The options of a detector's input, with its learned background model; `uses_radar`:
+    /// whether the detector reads radar ([`LoadOptions::radar_only_boxes`]).
+    pub fn new(input: &InputConfig, background: Option<&'a BackgroundModel>, uses_radar: bool) -> Self {
         LoadOptions {
             background,
             radar_sweeps: input.radar_sweeps,
@@ -184,6 +190,7 @@ impl<'a> LoadOptions<'a> {
             radar_clutter: input.radar_clutter,
             radar_pairs: input.radar_pairs,
             lidar_min_range_m: input.lidar_min_range_m,
+            radar_only_boxes: uses_radar,
         }
     }
 }
@@ -270,7 +277,8 @@ pub fn check_modalities(ds: &Dataset, detector: &str, uses_radar: bool) -> std::
 }
 
 /// Loads the samples of a split (scenes listed in the dataset's `splits.json`), in sample order.
-/// Boxes without any LiDAR or radar point are left out, as the nuScenes loader does.
+/// Boxes that no point of the detector's sensors hit are left out, as nuScenes' loaders do
+/// ([`LoadOptions::radar_only_boxes`]: a LiDAR-only detector keeps the boxes with a LiDAR point).
 pub fn load_split(ds: &Dataset, split: &str, opts: &LoadOptions) -> Result<(Vec<Frame>, LoadStats)> {
     load_samples(ds, split, opts, None)
 }
@@ -464,7 +472,8 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
         let mut boxes = Vec::new();
         for a in anns.get(s.token.as_str()).cloned().unwrap_or_default() {
             let Some(Some(class)) = instance_class.get(a.instance_token.as_str()) else { continue };
-            if a.num_lidar_pts + a.num_radar_pts == 0 {
+            let seen = a.num_lidar_pts > 0 || (opts.radar_only_boxes && a.num_radar_pts > 0);
+            if !seen {
                 continue;
             }
             let k = class.index();

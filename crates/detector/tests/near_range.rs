@@ -45,7 +45,7 @@ fn points_near_their_own_sensor_are_left_out() {
     let ds = Dataset::open(dir.path(), "v1.0-trainval").unwrap();
     let load = |cut: f32| {
         let input = InputConfig { lidar_min_range_m: cut, ..InputConfig::default() };
-        load_split(&ds, "val", &LoadOptions::new(&input, None)).unwrap()
+        load_split(&ds, "val", &LoadOptions::new(&input, None, false)).unwrap()
     };
     let (all, s0) = load(0.0);
     assert_eq!((all[0].lidar.len(), s0.near_points), (32, 0));

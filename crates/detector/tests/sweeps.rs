@@ -84,6 +84,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
             radar_clutter: None,
             radar_pairs: None,
             lidar_min_range_m: 0.0,
+            radar_only_boxes: true,
         };
         load_split(&ds, "val", &opts).unwrap()
     };
@@ -121,6 +122,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
         radar_clutter: None,
         radar_pairs: None,
         lidar_min_range_m: 0.0,
+        radar_only_boxes: true,
     };
     for (i, f) in f4.iter().enumerate() {
         let one = load_split_frame(&ds, "val", &opts, i).unwrap().unwrap();
@@ -151,4 +153,54 @@ fn radar_sweeps_stack_with_their_time_lags() {
     assert_eq!(l9[2].lidar.len(), 1, "the previous LiDAR sweep is 1 s back, beyond the limit");
     // The radar is read as before whatever the LiDAR stacks.
     assert_eq!(l9[1].radar, f1[1].radar);
+}
+
+/// A detector is trained on the boxes its own sensors hit: a box that only a radar detection
+/// hit is kept for a detector that reads radar and left out for a LiDAR-only one; a box that
+/// no sensor hit is left out for both, and a box a LiDAR point hit is kept for both.
+#[test]
+fn a_lidar_only_detector_is_not_given_boxes_only_the_radar_saw() {
+    let dir = tempfile::tempdir().unwrap();
+    let sensors = vec![
+        SensorSetup {
+            channel: "LIDAR_0".into(),
+            modality: SensorModality::Lidar,
+            pose: SensorPose::new(Vec3::new(0.0, 0.0, 6.0), 0.0, 0.0, 0.0),
+        },
+        SensorSetup {
+            channel: "RADAR_0".into(),
+            modality: SensorModality::Radar,
+            pose: SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0),
+        },
+    ];
+    let mut w = DatasetWriter::new(dir.path(), "v1.0-trainval", "t", sensors).unwrap();
+    let ann = |instance: u32, x: f32, lidar: u32, radar: u32| Annotation {
+        instance,
+        class: Class::Car,
+        box3: Box3::new(Vec3::new(x, 0.0, 0.8), 4.6, 1.9, 1.6, 0.0),
+        velocity_mps: Vec2::new(1.0, 0.0),
+        attribute: "vehicle.moving".into(),
+        num_lidar_pts: lidar,
+        num_radar_pts: radar,
+        visibility: 4,
+    };
+    let mut f = frame(1_000_000_000, 0.0);
+    // Instance 1 (x = 5, a LiDAR point and a radar point) is `frame`'s own.
+    f.annotations.push(ann(2, 20.0, 0, 3));
+    f.annotations.push(ann(3, 30.0, 0, 0));
+    f.annotations.push(ann(4, 40.0, 7, 0));
+    let scene = SceneData { name: "val-0000".into(), description: String::new(), frames: vec![f], sweeps: vec![] };
+    w.add_scene(&scene, "x").unwrap();
+    w.write_splits(&std::collections::BTreeMap::from([("val".to_string(), vec!["val-0000".to_string()])])).unwrap();
+    w.finish().unwrap();
+    let ds = Dataset::open(dir.path(), "v1.0-trainval").unwrap();
+    let input = hilo_fusion::config::InputConfig::default();
+    let xs = |uses_radar: bool| -> Vec<f32> {
+        let (frames, _) = load_split(&ds, "val", &LoadOptions::new(&input, None, uses_radar)).unwrap();
+        let mut xs: Vec<f32> = frames[0].boxes.iter().map(|b| b.center[0]).collect();
+        xs.sort_by(f32::total_cmp);
+        xs
+    };
+    assert_eq!(xs(true), vec![5.0, 20.0, 40.0], "fusion: LiDAR-hit and radar-only boxes");
+    assert_eq!(xs(false), vec![5.0, 40.0], "LiDAR-only: the boxes a LiDAR point hit");
 }

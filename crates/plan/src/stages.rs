@@ -129,19 +129,20 @@ pub struct Loaded {
 }
 
 /// Loads dataset stage `di`'s frames once per distinct detector input among `jobs`.
-pub fn load_inputs(plan: &Plan, di: usize, jobs: &[&Job]) -> Result<BTreeMap<String, Loaded>> {
-    load_inputs_from(&plan.data[di].dir, jobs)
+pub fn load_inputs(plan: &Plan, di: usize, jobs: &[&Job], registry: &Registry) -> Result<BTreeMap<String, Loaded>> {
+    load_inputs_from(&plan.data[di].dir, jobs, registry)
 }
 
-/// Loads the frames of the dataset in `dir` once per distinct detector input among `jobs`.
-pub fn load_inputs_from(dir: &std::path::Path, jobs: &[&Job]) -> Result<BTreeMap<String, Loaded>> {
+/// Loads the frames of the dataset in `dir` once per distinct detector input among `jobs` (and
+/// per modality: a LiDAR-only detector's frames keep only the boxes a LiDAR point hit).
+pub fn load_inputs_from(dir: &std::path::Path, jobs: &[&Job], registry: &Registry) -> Result<BTreeMap<String, Loaded>> {
     let ds = hilo_dataset::Dataset::open(dir, "v1.0-trainval")?;
     let mut inputs = BTreeMap::new();
     for j in jobs {
-        let key = input_key(j);
+        let key = input_key(j, registry);
         if let std::collections::btree_map::Entry::Vacant(slot) = inputs.entry(key) {
             let background = learn_background(&ds, "train", &j.detector)?;
-            let lo = LoadOptions::new(&j.detector.input, background.as_ref());
+            let lo = LoadOptions::new(&j.detector.input, background.as_ref(), registry.uses_radar(&j.detector));
             let (train, _) = load_split(&ds, "train", &lo)?;
             let (val, _) = load_split(&ds, "val", &lo)?;
             slot.insert(Loaded { background, train, val });
@@ -150,8 +151,9 @@ pub fn load_inputs_from(dir: &std::path::Path, jobs: &[&Job]) -> Result<BTreeMap
     Ok(inputs)
 }
 
-fn input_key(job: &Job) -> String {
-    serde_json::to_string(&job.detector.input).unwrap_or_default()
+fn input_key(job: &Job, registry: &Registry) -> String {
+    let radar = registry.uses_radar(&job.detector);
+    format!("{radar} {}", serde_json::to_string(&job.detector.input).unwrap_or_default())
 }
 
 /// What detection keeps beside a result file, so a report needs no detector.
@@ -249,8 +251,9 @@ pub fn train_one(plan: &Plan, job: &Job, registry: &Registry, tick: &(dyn Fn(f64
             remedy: "run its simulate stage first".into(),
         });
     }
-    let inputs = load_inputs(plan, job.data, &[job])?;
-    let loaded = inputs.get(&input_key(job)).ok_or(StudyError::Internal("a training's frames were not loaded"))?;
+    let inputs = load_inputs(plan, job.data, &[job], registry)?;
+    let loaded =
+        inputs.get(&input_key(job, registry)).ok_or(StudyError::Internal("a training's frames were not loaded"))?;
     train_job(job, loaded, registry, tick)
 }
 
@@ -278,7 +281,7 @@ pub fn train_jobs(
     tick: &(dyn Fn(&Job, f64) + Sync),
 ) -> Result<Vec<JobOutput>> {
     let todo: Vec<&Job> = jobs.iter().copied().filter(|j| !j.done()).collect();
-    let inputs = if todo.is_empty() { BTreeMap::new() } else { load_inputs_from(dir, &todo)? };
+    let inputs = if todo.is_empty() { BTreeMap::new() } else { load_inputs_from(dir, &todo, registry)? };
     let empty = Loaded { background: None, train: Vec::new(), val: Vec::new() };
     let queue = Mutex::new((0..jobs.len()).collect::<Vec<usize>>());
     let outcomes: Mutex<BTreeMap<usize, Result<JobOutput>>> = Mutex::new(BTreeMap::new());
@@ -289,7 +292,7 @@ pub fn train_jobs(
                 let next = || queue.lock().ok().and_then(|mut q| if q.is_empty() { None } else { Some(q.remove(0)) });
                 while let Some(i) = next() {
                     let job = jobs[i];
-                    let loaded = inputs.get(&input_key(job)).unwrap_or(&empty);
+                    let loaded = inputs.get(&input_key(job, registry)).unwrap_or(&empty);
                     let work = || train_job(job, loaded, registry, &|f| tick(job, f));
                     let r = match &pool {
                         Ok(p) => p.install(work),

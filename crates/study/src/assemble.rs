@@ -255,7 +255,7 @@ pub fn assemble(
             results_by.insert(key.clone(), sorted(rekey(out.predictions, &keys)));
             metas.insert(key, out.meta);
         }
-        if let Some(pic) = jobs.first().map(|job| picture(job, &ds, &keys, &common)).transpose()?.flatten() {
+        if let Some(pic) = jobs.first().map(|job| picture(job, registry, &ds, &keys, &common)).transpose()?.flatten() {
             pictures.insert(conf.name.clone(), pic);
         }
         visible.insert(conf.name.clone(), vis);
@@ -415,6 +415,7 @@ fn class_counts(common: &GroundTruth, base: &DetectionConfig) -> BTreeMap<String
 /// reads it, its sample key and its common ground-truth boxes.
 fn picture(
     job: &Job,
+    registry: &Registry,
     ds: &hilo_dataset::Dataset,
     keys: &BTreeMap<String, String>,
     common: &GroundTruth,
@@ -423,7 +424,7 @@ fn picture(
         Some(_) => Some(read_json(&hilo_detector::train::background_path(&job.run), limit::TABLE)?),
         None => None,
     };
-    let lo = LoadOptions::new(&job.detector.input, background.as_ref());
+    let lo = LoadOptions::new(&job.detector.input, background.as_ref(), registry.uses_radar(&job.detector));
     let Some(f) = load_split_frame(ds, "val", &lo, keys.len() / 2)? else { return Ok(None) };
     let k = keys.get(&f.sample_token).cloned().unwrap_or_default();
     let boxes = common.boxes.get(&k).cloned().unwrap_or_default();

@@ -95,7 +95,9 @@ fn occupancy_agrees_with_a_brute_force_count_of_points_in_boxes() {
     let occ = hilo_study::validation::occupancy::occupancy(&ds, "val", &cfg, k).unwrap();
     // Brute force: points within each box (grown by 0.15 m sideways and on top; from 0.1 m above
     // its bottom, so the ground under it does not count).
-    let (frames, _) = load_split(&ds, "val", &LoadOptions::default()).unwrap();
+    // Every box a sensor hit, as occupancy counts them (radar-only ones too).
+    let all_boxes = LoadOptions { radar_only_boxes: true, ..LoadOptions::default() };
+    let (frames, _) = load_split(&ds, "val", &all_boxes).unwrap();
     let mut brute: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
     for f in &frames {
         for b in &f.boxes {
