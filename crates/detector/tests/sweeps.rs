@@ -32,9 +32,8 @@ fn frame(t_us: u64, radar_tag: f32) -> FrameData {
     FrameData { timestamp_us: t_us, lidar: vec![lidar], radar: vec![vec![rp(radar_tag)]], annotations: vec![ann] }
 }
 
-#[test]
-fn radar_sweeps_stack_with_their_time_lags() {
-    let dir = tempfile::tempdir().unwrap();
+/// A dataset writer for one LiDAR at 6 m and one radar at 5 m above the origin.
+fn writer(dir: &std::path::Path) -> DatasetWriter {
     let sensors = vec![
         SensorSetup {
             channel: "LIDAR_0".into(),
@@ -47,7 +46,13 @@ fn radar_sweeps_stack_with_their_time_lags() {
             pose: SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0),
         },
     ];
-    let mut w = DatasetWriter::new(dir.path(), "v1.0-trainval", "t", sensors).unwrap();
+    DatasetWriter::new(dir, "v1.0-trainval", "t", sensors).unwrap()
+}
+
+#[test]
+fn radar_sweeps_stack_with_their_time_lags() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut w = writer(dir.path());
     let t0 = 1_000_000_000u64;
     // Key frames at 0 and 0.5 s; sweeps at 0.1 (empty), 0.2, 0.3 and 0.4 s; then a key frame at
     // 1.5 s after a one-second gap with no sweep.
@@ -161,19 +166,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
 #[test]
 fn a_lidar_only_detector_is_not_given_boxes_only_the_radar_saw() {
     let dir = tempfile::tempdir().unwrap();
-    let sensors = vec![
-        SensorSetup {
-            channel: "LIDAR_0".into(),
-            modality: SensorModality::Lidar,
-            pose: SensorPose::new(Vec3::new(0.0, 0.0, 6.0), 0.0, 0.0, 0.0),
-        },
-        SensorSetup {
-            channel: "RADAR_0".into(),
-            modality: SensorModality::Radar,
-            pose: SensorPose::new(Vec3::new(0.0, 0.0, 5.0), 0.0, 0.0, 0.0),
-        },
-    ];
-    let mut w = DatasetWriter::new(dir.path(), "v1.0-trainval", "t", sensors).unwrap();
+    let mut w = writer(dir.path());
     let ann = |instance: u32, x: f32, lidar: u32, radar: u32| Annotation {
         instance,
         class: Class::Car,
