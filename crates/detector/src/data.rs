@@ -211,13 +211,18 @@ pub struct LoadStats {
     pub radar_clutter_points: usize,
     /// Radar detections given a full velocity by a second radar.
     pub radar_paired_points: usize,
+    /// Boxes kept (some sensor of the rig hit them).
+    pub boxes: usize,
+    /// Boxes only a radar hit, left out for a detector that reads no radar
+    /// ([`LoadOptions::radar_only_boxes`]; not in `boxes`).
+    pub radar_only_boxes: usize,
 }
 
 impl LoadStats {
     /// What the input rules removed, one line each, as `hilo train` reports them: the LiDAR
     /// points of the static background (when a model was learned) and the radar's static
-    /// clutter (when the rule is on and there were radar points), and the LiDAR points too near
-    /// their sensor (when there were any).
+    /// clutter (when the rule is on and there were radar points), the LiDAR points too near
+    /// their sensor and the boxes left out as only a radar's (when there were any).
     pub fn notes(&self, background: bool, radar_clutter: bool) -> Vec<String> {
         let share = |part: usize, of: usize| 100.0 * part as f64 / of.max(1) as f64;
         let mut notes = Vec::new();
@@ -250,6 +255,14 @@ impl LoadStats {
                 "radar points paired with another radar's for their full ground velocity: {} of {of} ({:.1}%)",
                 self.radar_paired_points,
                 share(self.radar_paired_points, of)
+            ));
+        }
+        if self.radar_only_boxes > 0 {
+            let of = self.boxes + self.radar_only_boxes;
+            notes.push(format!(
+                "boxes only a radar hit, left out (the detector reads no radar): {} of {of} ({:.1}%)",
+                self.radar_only_boxes,
+                share(self.radar_only_boxes, of)
             ));
         }
         notes
@@ -472,10 +485,11 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
         let mut boxes = Vec::new();
         for a in anns.get(s.token.as_str()).cloned().unwrap_or_default() {
             let Some(Some(class)) = instance_class.get(a.instance_token.as_str()) else { continue };
-            let seen = a.num_lidar_pts > 0 || (opts.radar_only_boxes && a.num_radar_pts > 0);
-            if !seen {
+            if a.num_lidar_pts == 0 && !(opts.radar_only_boxes && a.num_radar_pts > 0) {
+                stats.radar_only_boxes += usize::from(a.num_radar_pts > 0);
                 continue;
             }
+            stats.boxes += 1;
             let k = class.index();
             let [w, x, y, z] = a.rotation;
             let yaw = (2.0 * (x * y + w * z)).atan2(1.0 - 2.0 * (y * y + z * z)) as f32;

@@ -188,12 +188,19 @@ fn a_lidar_only_detector_is_not_given_boxes_only_the_radar_saw() {
     w.finish().unwrap();
     let ds = Dataset::open(dir.path(), "v1.0-trainval").unwrap();
     let input = hilo_fusion::config::InputConfig::default();
-    let xs = |uses_radar: bool| -> Vec<f32> {
-        let (frames, _) = load_split(&ds, "val", &LoadOptions::new(&input, None, uses_radar)).unwrap();
+    let xs = |uses_radar: bool| {
+        let (frames, stats) = load_split(&ds, "val", &LoadOptions::new(&input, None, uses_radar)).unwrap();
         let mut xs: Vec<f32> = frames[0].boxes.iter().map(|b| b.center[0]).collect();
         xs.sort_by(f32::total_cmp);
-        xs
+        (xs, stats)
     };
-    assert_eq!(xs(true), vec![5.0, 20.0, 40.0], "fusion: LiDAR-hit and radar-only boxes");
-    assert_eq!(xs(false), vec![5.0, 40.0], "LiDAR-only: the boxes a LiDAR point hit");
+    let (fusion, stats) = xs(true);
+    assert_eq!(fusion, vec![5.0, 20.0, 40.0], "fusion: LiDAR-hit and radar-only boxes");
+    assert_eq!((stats.boxes, stats.radar_only_boxes), (3, 0));
+    assert!(stats.notes(false, false).iter().all(|n| !n.contains("only a radar")));
+    let (lidar_only, stats) = xs(false);
+    assert_eq!(lidar_only, vec![5.0, 40.0], "LiDAR-only: the boxes a LiDAR point hit");
+    assert_eq!((stats.boxes, stats.radar_only_boxes), (2, 1));
+    let notes = stats.notes(false, false);
+    assert!(notes.iter().any(|n| n.contains("boxes only a radar hit") && n.contains("1 of 3 (33.3%)")), "{notes:?}");
 }
