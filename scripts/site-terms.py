@@ -2,6 +2,7 @@
 """Leave-one-site-out rank of a plain least-squares fit over chosen placement terms.
 
     python3 scripts/site-terms.py docs/validation-sites [--terms lidar_dense,radar ...] [--worst SITE]
+        [--classes car,pedestrian]
 
 Reads `<dir>/<site>/validation.json` for every site folder of a `hilo validate --sites` run.
 For each set of terms (comma-separated; several --terms give several rows) it fits mAP =
@@ -14,7 +15,9 @@ radar_dense (coverage at twice the threshold); a radar term is 0 for a rig witho
 It is not hilo's fit: that one also chooses its terms and weighs its sites (with the single term
 lidar_dense both give nearly the same line). It answers one question quickly: does a term help
 the held-out ranking? `--worst SITE` lists that site's members by how far the first term set's
-prediction misranks them. Standard library only.
+prediction misranks them. `--classes` measures each member by the mean AP of those classes
+(from its `class_ap`, the mean over its trainings) in place of its mAP, fit and rank alike.
+Standard library only.
 """
 import argparse
 import json
@@ -30,13 +33,20 @@ TERMS = {
 }
 
 
-def load(folder, site):
+def load(folder, site, classes):
     with open(os.path.join(folder, site, "validation.json")) as f:
         v = json.load(f)
     rows = []
     for member, result in v["members"]:
         p = member["predictors"]
-        rows.append((member["slug"], {k: p.get(name) or 0.0 for k, name in TERMS.items()}, result["map_mean"]))
+        if classes:
+            missing = [c for c in classes if c not in result["class_ap"]]
+            if missing:
+                raise SystemExit(f"{site}/{member['slug']}: no class_ap for {missing}; it has {sorted(result['class_ap'])}")
+            measured = sum(result["class_ap"][c] for c in classes) / len(classes)
+        else:
+            measured = result["map_mean"]
+        rows.append((member["slug"], {k: p.get(name) or 0.0 for k, name in TERMS.items()}, measured))
     return rows
 
 
@@ -90,6 +100,7 @@ def main():
     ap.add_argument("folder")
     ap.add_argument("--terms", action="append", help="comma-separated terms (default: lidar_dense; lidar_dense,radar)")
     ap.add_argument("--worst", help="list this site's members by misrank under the first term set")
+    ap.add_argument("--classes", help="measure by the mean AP of these classes (comma-separated), not mAP")
     args = ap.parse_args()
     sets = [t.split(",") for t in (args.terms or ["lidar_dense", "lidar_dense,radar"])]
     for terms in sets:
@@ -99,7 +110,8 @@ def main():
     sites = sorted(d for d in os.listdir(args.folder) if os.path.isfile(os.path.join(args.folder, d, "validation.json")))
     if len(sites) < 3:
         raise SystemExit(f"{args.folder}: needs at least three site folders with a validation.json, found {sites}")
-    data = {s: load(args.folder, s) for s in sites}
+    classes = args.classes.split(",") if args.classes else []
+    data = {s: load(args.folder, s, classes) for s in sites}
     print("| terms | " + " | ".join(sites) + " | mean |")
     print("|---|" + "---:|" * (len(sites) + 1))
     for terms in sets:
