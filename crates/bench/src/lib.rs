@@ -811,11 +811,7 @@ pub fn train(
         let cfg = cfg.validate().with_context(|| format!("bench train {name}"))?;
         let det_cfg = det_cfg.validate().with_context(|| format!("bench train {name}: detector"))?;
         let background = hilo_detector::train::learn_background(&ds, "train", &det_cfg)?;
-        let (frames, _) = load_split(
-            &ds,
-            "train",
-            &LoadOptions::new(&det_cfg.input, background.as_ref(), registry.uses_radar(&det_cfg)),
-        )?;
+        let (frames, _) = load_split(&ds, "train", &LoadOptions::of(&det_cfg, registry, background.as_ref()))?;
         let det = Detector::new(&det_cfg, registry, &device, 0)?;
         hilo_fusion::layout::Backward::set_default(backward);
         hilo_detector::train::AdamW::set_fused_default(fused_optimizer);

@@ -87,12 +87,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     let background = hilo_detector::train::learn_background(&ds, &args.split, &det).with_context(|| {
         format!("{}: learning the static background of split {:?}", args.data.display(), args.split)
     })?;
-    let (frames, stats) = hilo_detector::data::load_split(
-        &ds,
-        &args.split,
-        &LoadOptions::new(&det.input, background.as_ref(), registry.uses_radar(&det)),
-    )
-    .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
+    let (frames, stats) =
+        hilo_detector::data::load_split(&ds, &args.split, &LoadOptions::of(&det, &registry, background.as_ref()))
+            .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     for note in stats.notes(background.is_some(), det.input.radar_clutter.is_some()) {
         eprintln!("{note}");
     }
@@ -189,12 +186,9 @@ pub fn run_detect(args: &DetectArgs) -> Result<()> {
     let ds = hilo_dataset::Dataset::open(&args.data, &args.version)
         .with_context(|| format!("opening dataset {}", args.data.display()))?;
     hilo_detector::data::check_modalities(&ds, &info.detector.name, det.uses_radar())?;
-    let (frames, _) = hilo_detector::data::load_split(
-        &ds,
-        &args.split,
-        &LoadOptions::new(&det.cfg.input, background.as_ref(), det.uses_radar()),
-    )
-    .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
+    let options = LoadOptions::new(&det.cfg.input, background.as_ref(), det.uses_radar());
+    let (frames, _) = hilo_detector::data::load_split(&ds, &args.split, &options)
+        .with_context(|| format!("{}: split {:?}", args.data.display(), args.split))?;
     let mut bar = crate::progress::Reporter::new();
     let total = frames.len();
     let ((dets, per_frame), read) = hilo_detector::infer::detect_counted(&det, &frames, args.batch, &mut |n| {

@@ -193,6 +193,16 @@ impl<'a> LoadOptions<'a> {
             radar_only_boxes: uses_radar,
         }
     }
+
+    /// The options of detector `cfg`'s input: [`LoadOptions::new`] with whether the registry's
+    /// plugin reads radar.
+    pub fn of(
+        cfg: &hilo_fusion::DetectorConfig,
+        registry: &hilo_fusion::Registry,
+        background: Option<&'a BackgroundModel>,
+    ) -> Self {
+        Self::new(&cfg.input, background, registry.uses_radar(cfg))
+    }
 }
 
 /// What loading dropped or kept, for logs and tests.

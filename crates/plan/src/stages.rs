@@ -142,7 +142,7 @@ pub fn load_inputs_from(dir: &std::path::Path, jobs: &[&Job], registry: &Registr
         let key = input_key(j, registry);
         if let std::collections::btree_map::Entry::Vacant(slot) = inputs.entry(key) {
             let background = learn_background(&ds, "train", &j.detector)?;
-            let lo = LoadOptions::new(&j.detector.input, background.as_ref(), registry.uses_radar(&j.detector));
+            let lo = LoadOptions::of(&j.detector, registry, background.as_ref());
             let (train, _) = load_split(&ds, "train", &lo)?;
             let (val, _) = load_split(&ds, "val", &lo)?;
             slot.insert(Loaded { background, train, val });

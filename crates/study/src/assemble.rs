@@ -424,7 +424,7 @@ fn picture(
         Some(_) => Some(read_json(&hilo_detector::train::background_path(&job.run), limit::TABLE)?),
         None => None,
     };
-    let lo = LoadOptions::new(&job.detector.input, background.as_ref(), registry.uses_radar(&job.detector));
+    let lo = LoadOptions::of(&job.detector, registry, background.as_ref());
     let Some(f) = load_split_frame(ds, "val", &lo, keys.len() / 2)? else { return Ok(None) };
     let k = keys.get(&f.sample_token).cloned().unwrap_or_default();
     let boxes = common.boxes.get(&k).cloned().unwrap_or_default();
