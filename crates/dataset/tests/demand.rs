@@ -160,12 +160,45 @@ fn a_level_refuses_rates_beside_it_and_leaves_the_default_hash_alone() {
     assert!(e.contains("rush") && e.contains("off_peak") && e.contains("peak"), "{e}");
 }
 
+/// Right turners yield to the pedestrians on the crosswalk they turn over as the Highway
+/// Capacity Manual's pedestrian adjustment says drivers do (HCM 2010, ch. 31): a flooded
+/// approach of right turners under 90 pedestrians per crosswalk and direction keeps a share of
+/// its discharge without pedestrians between the manual's two bounds, `1 − OCC` (as many
+/// receiving lanes as turning lanes: turners cannot pass a pedestrian in another lane) and
+/// `1 − 0.6 OCC` (more receiving lanes), with `OCC = v_ped (C / g_p) / 2000` the conflict zone's
+/// pedestrian occupancy. Under the rule this replaces (wait at the stop line while anyone was
+/// near the crossing) the share was 0.16.
+#[test]
+fn right_turners_yield_to_pedestrians_as_the_capacity_manual_adjusts() {
+    let scene = Scene::default_fixture().unwrap();
+    let seconds = 900.0;
+    let rights = |peds: f64| {
+        let cfg = TrafficConfig { jaywalk_share: 0.0, ..flooded_north(3000.0, peds, 0.0, 1.0) };
+        run(&scene, &cfg, 3, seconds).0.values().sum::<usize>() as f64
+    };
+    let (free, with_peds) = (rights(0.0), rights(90.0));
+    let north = scene.layout.arms.iter().position(|a| a.name == "north").unwrap();
+    let plan = plan_for(&scene.layout, &TrafficConfig::default().signal);
+    // The exit crosswalk's pedestrians walk in the green of north's own group.
+    let (cycle, g_p) = (plan.cycle_s(), plan.phase(north).green_s);
+    let occ = 2.0 * 90.0 * (cycle / g_p) / 2000.0;
+    let share = with_peds / free;
+    eprintln!(
+        "right turners in {seconds} s: {free} without pedestrians, {with_peds} with 90 (share {share:.2}); \
+         HCM bounds {:.2}–{:.2} (C {cycle:.0} s, g_p {g_p:.0} s)",
+        1.0 - occ,
+        1.0 - 0.6 * occ
+    );
+    assert!(free > 50.0, "{free}");
+    assert!(share > 1.0 - occ - 0.05 && share < 1.0 - 0.6 * occ + 0.05, "{share:.3}, OCC {occ:.3}");
+}
+
 /// The model's long-run limits, which the docs state (docs/models.md, "Demand levels"): right
-/// turners yield to a crosswalk's pedestrians far longer than field drivers do, so over many
-/// cycles an approach's outermost lane saturates below the analysis's capacity. Scenes record
-/// 20 s after a 45 s warm-up, less than one cycle of queue build-up, so datasets do not reach
-/// this. Slow (20 simulated minutes per row); run with `--ignored --nocapture` to print the
-/// table the docs quote.
+/// turners keep about 0.7 of their discharge under 90 pedestrians an hour, yet over many cycles
+/// queues still build behind right turners at the default rates. Scenes record 20 s after a
+/// 45 s warm-up, less than one cycle of queue build-up, so datasets do not reach this. Slow (20
+/// simulated minutes per row); run with `--ignored --nocapture` to print the table the docs
+/// quote.
 #[test]
 #[ignore]
 fn the_model_s_long_run_limits() {
@@ -180,8 +213,10 @@ fn the_model_s_long_run_limits() {
         );
         rights.push(per_hour);
     }
+    let mut waiting = Vec::new();
     for (name, cfg) in [
         ("default rates", TrafficConfig::default()),
+        ("default rates, no right turns", TrafficConfig { right_share: 0.0, ..TrafficConfig::default() }),
         ("peak", TrafficConfig { demand: Some(Demand::Peak), ..TrafficConfig::default() }),
         (
             "peak, no pedestrians",
@@ -197,8 +232,12 @@ fn the_model_s_long_run_limits() {
                 eprintln!("{name}: after {minute} min, {} vehicles wait to enter", t.waiting_to_enter());
             }
         }
+        waiting.push(t.waiting_to_enter());
     }
-    // The limitation the docs state: under 90 pedestrians an hour, right turners keep less than
-    // half their discharge (HCM's pedestrian adjustment would keep about three quarters).
-    assert!(rights[2] < 0.5 * rights[0], "{rights:?}: update docs/models.md if the model changed");
+    // What the docs state: right turners keep most of their discharge under pedestrians, fewer
+    // the more pedestrians there are; at the default rates a queue still builds over 20 minutes,
+    // and it is the right turners' (none builds without them).
+    let note = "update docs/models.md if the model changed";
+    assert!(rights[2] > 0.6 * rights[0] && rights[3] < rights[1], "{rights:?}: {note}");
+    assert!(waiting[0] > 20 && waiting[1] == 0, "{waiting:?}: {note}");
 }

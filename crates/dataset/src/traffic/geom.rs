@@ -37,6 +37,30 @@ impl Rect {
         }
         true
     }
+
+    /// Whether the interiors of the rectangle and a convex polygon (either winding) overlap:
+    /// the separating-axis test over the rectangle's axes and the polygon's edge normals.
+    pub fn overlaps_convex(&self, poly: &[Vec2]) -> bool {
+        if poly.len() < 3 {
+            return false;
+        }
+        let edges = (0..poly.len()).map(|k| (poly[(k + 1) % poly.len()] - poly[k]).perp());
+        for n in [self.dir, self.dir.perp()].into_iter().chain(edges) {
+            if n.length_squared() == 0.0 {
+                continue;
+            }
+            let c = self.center.dot(n);
+            let (lo, hi) = (c - self.half_extent(n), c + self.half_extent(n));
+            let (plo, phi) = poly.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), q| {
+                let x = q.dot(n);
+                (a.min(x), b.max(x))
+            });
+            if phi <= lo || plo >= hi {
+                return false;
+            }
+        }
+        true
+    }
 }
 
 /// Distance from `p` to the segment `a`–`b`.
@@ -77,6 +101,44 @@ mod tests {
             }
             assert_eq!(a.overlaps(&b), any, "b at ({x}, {y}, {yaw})");
         }
+    }
+
+    #[test]
+    fn overlap_with_a_convex_polygon_matches_a_dense_point_oracle() {
+        // A skewed quadrilateral (a crosswalk of an oblique arm) in both windings.
+        let quad = [Vec2::new(0.0, 0.0), Vec2::new(4.0, 0.0), Vec2::new(6.0, 9.0), Vec2::new(2.0, 9.0)];
+        let in_quad = |p: Vec2| {
+            (0..4).all(|k| {
+                let (a, b) = (quad[k], quad[(k + 1) % 4]);
+                (b - a).perp_dot(p - a) > 0.0
+            })
+        };
+        let mut reversed = quad;
+        reversed.reverse();
+        for (x, y, yaw) in [
+            (-1.5, 4.0, 0.2),
+            (-2.2, 4.0, 0.0),
+            (3.0, -1.2, 0.0),
+            (3.0, -0.6, 0.4),
+            (7.5, 8.0, 1.1),
+            (6.9, 4.0, 1.35),
+            (3.0, 4.0, 2.5),
+            (-1.0, -1.0, 0.78),
+        ] {
+            let b = r(x, y, yaw, 3.0, 1.5);
+            let mut any = false;
+            for i in 0..=60 {
+                for j in 0..=60 {
+                    let p = b.center
+                        + b.dir * (b.half_l * (i as f32 / 30.0 - 1.0) * 0.999)
+                        + b.dir.perp() * (b.half_w * (j as f32 / 30.0 - 1.0) * 0.999);
+                    any |= in_quad(p);
+                }
+            }
+            assert_eq!(b.overlaps_convex(&quad), any, "rectangle at ({x}, {y}, {yaw})");
+            assert_eq!(b.overlaps_convex(&reversed), any, "reversed, rectangle at ({x}, {y}, {yaw})");
+        }
+        assert!(!r(0.0, 0.0, 0.0, 2.0, 2.0).overlaps_convex(&quad[..2]));
     }
 
     #[test]

@@ -49,7 +49,9 @@ pub use parking::{BayState, PARKED_ID_BASE, ParkingConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Exp, Normal};
-use routes::{DS, Movement, Path, Route, build_routes, crosswalk_width, cw0, junction_conflicts, spawned_movement};
+use routes::{
+    Crossing, DS, Movement, Path, Route, build_routes, crosswalk_width, cw0, junction_conflicts, spawned_movement,
+};
 use serde::{Deserialize, Serialize};
 use signal::{Light, SignalConfig, SignalPlan};
 use spawn::pedestrian_sources;

@@ -5,10 +5,18 @@
 use super::*;
 
 impl Traffic {
-    /// The first arc-length distance from `s` at which `me`, moved along `path`, touches `r`
-    /// (samples `lo_k..=hi_k`, refined by bisection).
-    pub(super) fn first_contact(path: &Path, me: &Rect, s: f32, r: &Rect, lo_k: usize, hi_k: usize) -> Option<f32> {
-        let touches = |x: f32| footprint(path, x, me.half_l, me.half_w + MARGIN_M).overlaps(r);
+    /// The first arc-length distance from `s` at which `me`, moved along `path` with `margin`
+    /// metres to spare on each side, touches `r` (samples `lo_k..=hi_k`, refined by bisection).
+    pub(super) fn first_contact(
+        path: &Path,
+        me: &Rect,
+        margin: f32,
+        s: f32,
+        r: &Rect,
+        lo_k: usize,
+        hi_k: usize,
+    ) -> Option<f32> {
+        let touches = |x: f32| footprint(path, x, me.half_l, me.half_w + margin).overlaps(r);
         for k in lo_k..=hi_k {
             if touches(k as f32 * DS) {
                 let (mut lo, mut hi) = (((k as f32 - 1.0) * DS).max(s), k as f32 * DS);
@@ -43,6 +51,11 @@ impl Traffic {
             }
             let mut r = rects[j];
             let mut anticipated = false;
+            // A pedestrian still on the sidewalk is passed as close as the bodies allow: a
+            // turning vehicle's corner may sweep near the curb where someone waits (who, in
+            // turn, waits for the vehicle; see `vehicles_threaten`).
+            let on_sidewalk = !is_ped && matches!(&o.role, Role::Pedestrian { started: false, .. });
+            let margin = if on_sidewalk { 0.0 } else { MARGIN_M };
             // A pedestrian on the road keeps out of the lane just ahead of a moving vehicle.
             if ped_on_road && o.class != Class::Pedestrian && o.v > 0.1 {
                 let ext = 0.5 * (1.0 + 1.5 * o.v);
@@ -87,10 +100,10 @@ impl Traffic {
             }
             let w = ((reach / DS).ceil() as usize) + 4 + if anticipated { (r.half_l / DS) as usize } else { 0 };
             let (lo_k, hi_k) = (kb.saturating_sub(w).max(k0), (kb + w).min(k1));
-            if let Some(gap) = Self::first_contact(path, &me, a.s, &r, lo_k, hi_k) {
+            if let Some(gap) = Self::first_contact(path, &me, margin, a.s, &r, lo_k, hi_k) {
                 // The real footprint bounds how far the road user may move this step.
                 let real = if anticipated {
-                    Self::first_contact(path, &me, a.s, &rects[j], k0, k1).unwrap_or(f32::INFINITY)
+                    Self::first_contact(path, &me, margin, a.s, &rects[j], k0, k1).unwrap_or(f32::INFINITY)
                 } else {
                     gap
                 };
@@ -141,33 +154,49 @@ impl Traffic {
         })
     }
 
-    /// Whether a pedestrian on one of the crosswalks `route` crosses (ahead of the vehicle) is
-    /// close enough to its crossing to reach it before the vehicle has passed.
-    pub(super) fn crosswalk_busy(&self, me: &Agent, route: usize) -> bool {
+    /// Where the vehicle's front waits (an arc length on its route) for the first crosswalk
+    /// ahead with a pedestrian the driver must yield to ([`yields_to`]): one who is in the
+    /// vehicle's path over the crosswalk, or would be while the vehicle crosses it. A pedestrian
+    /// already past that path, walking away, holds nobody. The wait is as near the crosswalk as
+    /// the body stays off it ([`clear_of`]): a right turner pulls into the junction and waits
+    /// at the crosswalk it turns over, as field drivers do. None when no pedestrian holds the
+    /// vehicle, or its body is already over the crosswalk.
+    pub(super) fn crosswalk_wait(&self, me: &Agent, route: usize) -> Option<f32> {
         let r = &self.routes[route];
         let front = me.s + 0.5 * me.length;
-        r.crosswalks.iter().any(|&(arm, s_in, s_out)| {
-            if front > s_in {
-                return false;
+        let m = class_model(me.class);
+        let (half_l, half_w) = (0.5 * me.length, 0.5 * me.width + MARGIN_M);
+        r.crosswalks.iter().filter(|c| c.s_in >= front).find_map(|c| {
+            let wait = clear_of(&r.path, half_l, half_w, c)?;
+            if wait < front - 0.05 {
+                return None;
             }
-            let t_clear = (s_out - s_in + me.length + (s_in - front)) / me.v.max(2.0);
-            let reach = 1.5 + 1.5 * t_clear;
-            self.agents.iter().any(|o| match &o.role {
-                Role::Pedestrian { arm: pa, started: true, far_s, jaywalk: false, .. }
-                    if *pa == arm && o.s < *far_s =>
+            // The speed the vehicle can reach on its way over the crosswalk.
+            let v_max = (0..=((c.s_out + me.length - front) / DS).ceil() as usize)
+                .map(|k| r.v_cap_at(front + k as f32 * DS))
+                .fold(me.v_desired, f32::min)
+                .max(1.0);
+            let t_arrive = time_capped(me.v, m.a, v_max, wait - front);
+            let t_leave = time_capped(me.v, m.a, v_max, c.s_out + me.length - front);
+            let busy = self.agents.iter().any(|o| match &o.role {
+                Role::Pedestrian { arm, started: true, far_s, jaywalk: false, path, .. }
+                    if *arm == c.arm && o.s < *far_s =>
                 {
-                    let c = self.rect(o).center;
-                    let mut s = s_in;
-                    while s <= s_out {
-                        if r.path.at(s).0.distance(c) < reach + 0.5 * me.width {
-                            return true;
-                        }
-                        s += 1.0;
+                    let (p, u) = path.at(o.s);
+                    // The vehicle's path over the crosswalk, along the pedestrian's way.
+                    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                    let mut s = c.s_in;
+                    while s <= c.s_out + 0.5 * DS {
+                        let x = (r.path.at(s.min(c.s_out)).0 - p).dot(u);
+                        (lo, hi) = (lo.min(x), hi.max(x));
+                        s += DS;
                     }
-                    false
+                    let reach = 0.5 * me.width + PED_CLEARANCE_M + 0.5 * o.length;
+                    yields_to(t_arrive, t_leave, lo - reach, hi + reach, o.v.max(o.v_desired))
                 }
                 _ => false,
-            })
+            });
+            busy.then_some(wait)
         })
     }
 
@@ -200,5 +229,90 @@ impl Traffic {
             }
         }
         true
+    }
+}
+
+/// Room a driver leaves between the side of the vehicle and a pedestrian crossing its path.
+const PED_CLEARANCE_M: f32 = 1.0;
+/// The least post-encroachment time a driver accepts against a pedestrian: the time between one
+/// leaving the conflict zone and the other entering it (below 1.5 s, the surrogate-safety
+/// literature's serious conflict).
+const PED_PET_S: f32 = 1.5;
+
+/// Whether a driver who reaches the conflict zone in `t_arrive` s and leaves it in `t_leave` s
+/// yields to a pedestrian at 0 walking at `v` (m/s, > 0) towards and through the zone, which
+/// spans `[lo, hi]` along the pedestrian's way (vehicle, clearance and pedestrian included): yes
+/// unless one of them is out of the zone at least [`PED_PET_S`] before the other enters it. A
+/// pedestrian already beyond `hi` has passed.
+pub(super) fn yields_to(t_arrive: f32, t_leave: f32, lo: f32, hi: f32, v: f32) -> bool {
+    if hi < 0.0 {
+        return false;
+    }
+    let v = v.max(0.3);
+    let (t_in, t_out) = ((lo / v).max(0.0), hi / v);
+    t_out + PED_PET_S > t_arrive && t_in < t_leave + PED_PET_S
+}
+
+/// The farthest position of a vehicle's front along `path` (at most the crosswalk's first
+/// centre-line sample) at which its footprint, `half_l` by `half_w`, keeps off the crosswalk:
+/// mid-turn, a body's outer corner reaches a crosswalk before its centre line does. None if
+/// the body cannot keep off it within 8 m.
+pub(super) fn clear_of(path: &Path, half_l: f32, half_w: f32, c: &Crossing) -> Option<f32> {
+    (0..=32)
+        .map(|k| c.s_in - 0.25 * k as f32)
+        .find(|&front| !footprint(path, front - half_l, half_l, half_w).overlaps_convex(&c.polygon))
+}
+
+/// Time to cover `d` m from speed `v0` at acceleration `a` up to the speed `v_max` (then held).
+pub(super) fn time_capped(v0: f32, a: f32, v_max: f32, d: f32) -> f32 {
+    if d <= 0.0 {
+        return 0.0;
+    }
+    if v0 >= v_max {
+        return d / v0.max(0.1);
+    }
+    let d_acc = (v_max * v_max - v0 * v0) / (2.0 * a);
+    if d <= d_acc { ((v0 * v0 + 2.0 * a * d).sqrt() - v0) / a } else { (v_max - v0) / a + (d - d_acc) / v_max }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{PED_PET_S, time_capped, yields_to};
+
+    #[test]
+    fn a_pedestrian_past_the_vehicle_s_path_holds_nobody() {
+        // Zone 2..6 m ahead of the pedestrian, or already behind them.
+        assert!(!yields_to(3.0, 6.0, -5.0, -0.1, 1.3));
+        // Inside the zone now: hold a vehicle arriving before the pedestrian is out and the
+        // time has passed, not one that arrives long after.
+        assert!(yields_to(0.5, 2.0, -1.0, 1.0, 1.3));
+        assert!(yields_to(1.0 / 1.3 + PED_PET_S - 0.01, 9.0, -1.0, 1.0, 1.3));
+        assert!(!yields_to(1.0 / 1.3 + PED_PET_S + 0.01, 9.0, -1.0, 1.0, 1.3));
+    }
+
+    #[test]
+    fn the_post_encroachment_time_decides_both_ways() {
+        let v = 1.25;
+        // The pedestrian leaves the zone [2.5, 5] at 4 s.
+        let (lo, hi) = (2.5, 5.0);
+        assert!(!yields_to(4.0 + PED_PET_S + 0.01, 9.0, lo, hi, v));
+        assert!(yields_to(4.0 + PED_PET_S - 0.01, 9.0, lo, hi, v));
+        // The pedestrian enters at 2 s: the vehicle must be out by 0.5 s.
+        assert!(!yields_to(0.0, 2.0 - PED_PET_S - 0.01, lo, hi, v));
+        assert!(yields_to(0.0, 2.0 - PED_PET_S + 0.01, lo, hi, v));
+        // A pedestrian who stands still is taken as walking slowly, not as never arriving.
+        assert!(yields_to(1.0, 3.0, 0.5, 1.5, 0.0));
+    }
+
+    #[test]
+    fn capped_travel_times_match_closed_forms() {
+        // From rest at 2 m/s² to 10 m/s: 25 m to reach it, then 10 m/s.
+        assert!((time_capped(0.0, 2.0, 10.0, 16.0) - 4.0).abs() < 1e-6);
+        assert!((time_capped(0.0, 2.0, 10.0, 45.0) - 7.0).abs() < 1e-6);
+        assert!((time_capped(12.0, 2.0, 10.0, 24.0) - 2.0).abs() < 1e-6);
+        assert_eq!(time_capped(3.0, 2.0, 10.0, -1.0), 0.0);
+        // Continuous where the cap is reached.
+        let (a, b) = (time_capped(1.0, 1.5, 6.0, 11.666_666), time_capped(1.0, 1.5, 6.0, 11.666_667));
+        assert!((a - b).abs() < 1e-4, "{a} {b}");
     }
 }

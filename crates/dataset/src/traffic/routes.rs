@@ -96,8 +96,19 @@ pub struct Route {
     pub clear_s: f32,
     /// Curvature speed cap per sample (m/s).
     pub v_cap: Vec<f32>,
-    /// The crosswalks the route crosses: (arm, first and last arc length inside it).
-    pub crosswalks: Vec<(usize, f32, f32)>,
+    /// The crosswalks the route crosses, in order along it.
+    pub crosswalks: Vec<Crossing>,
+}
+
+/// Where a route crosses an arm's crosswalk.
+#[derive(Clone, Debug)]
+pub struct Crossing {
+    pub arm: usize,
+    /// First and last arc length of the route's centre line inside the crosswalk.
+    pub s_in: f32,
+    pub s_out: f32,
+    /// The crosswalk's outline.
+    pub polygon: Vec<Vec2>,
 }
 
 impl Route {
@@ -267,7 +278,8 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
                             .filter(|(_, p)| point_in_polygon(**p, &layout.arms[arm].crosswalk))
                             .map(|(k, _)| k as f32 * DS)
                             .collect();
-                        Some((arm, *inside.first()?, *inside.last()?))
+                        let polygon = layout.arms[arm].crosswalk.clone();
+                        Some(Crossing { arm, s_in: *inside.first()?, s_out: *inside.last()?, polygon })
                     })
                     .collect();
                 routes.push(Route { approach: i, exit: j, movement: m, path, stop_s, clear_s, v_cap, crosswalks });

@@ -113,8 +113,23 @@ impl Traffic {
                 let r = &self.routes[*route];
                 v0 = v0.min(r.v_cap_at(a.s + 0.5 * a.length + 3.0));
                 d.yellow = *yellow_stop;
-                if a.s + 0.5 * a.length <= r.stop_s + 0.05 && self.holds_at_line(i, gap, v_obst, st, &mut d) {
-                    wait_at(r.stop_s - (a.s + 0.5 * a.length) - STOP_LINE_GAP_M + m.s0, &mut gap, &mut v_obst);
+                let front = a.s + 0.5 * a.length;
+                // The vehicle ahead (pedestrians are yielded to at their crosswalks, below).
+                let (ahead, v_ahead) = hits
+                    .iter()
+                    .filter(|h| h.gap.is_finite() && self.agents[h.other].class != Class::Pedestrian)
+                    .map(|h| (h.gap, h.v_along))
+                    .min_by(|x, y| x.0.total_cmp(&y.0))
+                    .unwrap_or((f32::INFINITY, 0.0));
+                if front <= r.stop_s + 0.05 && self.holds_at_line(i, ahead, v_ahead, st, &mut d) {
+                    wait_at(r.stop_s - front - STOP_LINE_GAP_M + m.s0, &mut gap, &mut v_obst);
+                } else if d.yellow != Some(false)
+                    && let Some(edge) = self.crosswalk_wait(a, *route)
+                    && edge - front >= a.v * a.v / (2.0 * m.b) - 0.5
+                {
+                    // Yield to pedestrians at the crosswalk's edge (while the driver can still
+                    // stop comfortably; a vehicle that went on yellow only clears the junction).
+                    wait_at(edge - front - STOP_LINE_GAP_M + m.s0, &mut gap, &mut v_obst);
                 }
             }
             Role::Pedestrian { path, curb_s, far_s, arm, jaywalk, started } => {
@@ -147,8 +162,9 @@ impl Traffic {
     /// Whether vehicle `i`, before its stop line, must hold there: on red; on yellow when it can
     /// stop comfortably or would not reach the line before red; on a permissive green without
     /// an acceptable gap in opposing traffic; for vehicles still in the junction on a crossing
-    /// path or pedestrians near its crossing (while it can still stop); or without room beyond
-    /// the junction. Records the yellow and gap decisions in `d`.
+    /// path (while it can still stop); or without room beyond the junction behind the vehicle
+    /// `gap` ahead. Pedestrians are waited for at their crosswalk's edge instead
+    /// ([`Traffic::crosswalk_wait`]). Records the yellow and gap decisions in `d`.
     fn holds_at_line(&self, i: usize, gap: f32, v_obst: f32, st: f64, d: &mut Decision) -> bool {
         let a = &self.agents[i];
         let m = class_model(a.class);
@@ -185,8 +201,7 @@ impl Traffic {
         // A vehicle that chose to go on yellow is not held by anything but red.
         let can_stop = r.stop_s - front >= a.v * a.v / (2.0 * m.b) - 0.5 && d.yellow != Some(false);
         hold = hold || (can_stop && self.junction_blocked(i, *route));
-        hold = hold || (can_stop && self.crosswalk_busy(a, *route));
-        // Do not enter the junction without room to leave it.
+        // Do not enter the junction without room to leave it behind the vehicle ahead.
         hold || (gap.is_finite()
             && a.s + gap < r.clear_s + 0.5 * a.length + 1.0
             && a.s + gap > r.stop_s - 0.5 * a.length
