@@ -78,6 +78,19 @@ mod tests {
         Rect { center: Vec2::new(x, y), dir: Vec2::from_angle(yaw), half_l: l / 2.0, half_w: w / 2.0 }
     }
 
+    /// Whether any of a dense grid of points inside `b` (just within its edges) passes `test`.
+    fn any_sample(b: &Rect, test: impl Fn(Vec2) -> bool) -> bool {
+        (0..=60).any(|i| {
+            (0..=60).any(|j| {
+                test(
+                    b.center
+                        + b.dir * (b.half_l * (i as f32 / 30.0 - 1.0) * 0.999)
+                        + b.dir.perp() * (b.half_w * (j as f32 / 30.0 - 1.0) * 0.999),
+                )
+            })
+        })
+    }
+
     #[test]
     fn overlap_matches_a_dense_point_oracle() {
         // Brute force: sample points of one rectangle and test containment in the other.
@@ -90,16 +103,7 @@ mod tests {
             [(3.0, 0.5, 1.2), (4.5, 0.0, 0.0), (0.0, 2.2, 0.3), (2.6, 2.0, -0.7), (0.5, 0.5, 2.0), (5.0, 3.0, 0.9)]
         {
             let b = r(x, y, yaw, 3.0, 1.5);
-            let mut any = false;
-            for i in 0..=60 {
-                for j in 0..=60 {
-                    let p = b.center
-                        + b.dir * (b.half_l * (i as f32 / 30.0 - 1.0) * 0.999)
-                        + b.dir.perp() * (b.half_w * (j as f32 / 30.0 - 1.0) * 0.999);
-                    any |= inside(&a, p);
-                }
-            }
-            assert_eq!(a.overlaps(&b), any, "b at ({x}, {y}, {yaw})");
+            assert_eq!(a.overlaps(&b), any_sample(&b, |p| inside(&a, p)), "b at ({x}, {y}, {yaw})");
         }
     }
 
@@ -126,15 +130,7 @@ mod tests {
             (-1.0, -1.0, 0.78),
         ] {
             let b = r(x, y, yaw, 3.0, 1.5);
-            let mut any = false;
-            for i in 0..=60 {
-                for j in 0..=60 {
-                    let p = b.center
-                        + b.dir * (b.half_l * (i as f32 / 30.0 - 1.0) * 0.999)
-                        + b.dir.perp() * (b.half_w * (j as f32 / 30.0 - 1.0) * 0.999);
-                    any |= in_quad(p);
-                }
-            }
+            let any = any_sample(&b, in_quad);
             assert_eq!(b.overlaps_convex(&quad), any, "rectangle at ({x}, {y}, {yaw})");
             assert_eq!(b.overlaps_convex(&reversed), any, "reversed, rectangle at ({x}, {y}, {yaw})");
         }
