@@ -166,7 +166,16 @@ impl Traffic {
         let front = me.s + 0.5 * me.length;
         let m = class_model(me.class);
         let (half_l, half_w) = (0.5 * me.length, 0.5 * me.width + MARGIN_M);
+        // The pedestrians a crosswalk's driver may yield to: started, on it, not jaywalking.
+        let on = |arm: usize| {
+            self.agents.iter().filter(move |o| {
+                matches!(&o.role, Role::Pedestrian { arm: pa, started: true, far_s, jaywalk: false, .. }
+                    if *pa == arm && o.s < *far_s)
+            })
+        };
         r.crosswalks.iter().filter(|c| c.s_in >= front).find_map(|c| {
+            // Nobody on it: nothing to wait for (and no footprint search on every step).
+            on(c.arm).next()?;
             let wait = clear_of(&r.path, half_l, half_w, c)?;
             if wait < front - 0.05 {
                 return None;
@@ -178,10 +187,8 @@ impl Traffic {
                 .max(1.0);
             let t_arrive = time_capped(me.v, m.a, v_max, wait - front);
             let t_leave = time_capped(me.v, m.a, v_max, c.s_out + me.length - front);
-            let busy = self.agents.iter().any(|o| match &o.role {
-                Role::Pedestrian { arm, started: true, far_s, jaywalk: false, path, .. }
-                    if *arm == c.arm && o.s < *far_s =>
-                {
+            let busy = on(c.arm).any(|o| match &o.role {
+                Role::Pedestrian { path, .. } => {
                     let (p, u) = path.at(o.s);
                     // The vehicle's path over the crosswalk, along the pedestrian's way.
                     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -194,7 +201,7 @@ impl Traffic {
                     let reach = 0.5 * me.width + PED_CLEARANCE_M + 0.5 * o.length;
                     yields_to(t_arrive, t_leave, lo - reach, hi + reach, o.v.max(o.v_desired))
                 }
-                _ => false,
+                Role::Vehicle { .. } => false,
             });
             busy.then_some(wait)
         })

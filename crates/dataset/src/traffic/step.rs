@@ -93,12 +93,15 @@ impl Traffic {
     fn decide(&self, i: usize, hits: &[Hit], st: f64) -> Decision {
         let a = &self.agents[i];
         let m = class_model(a.class);
-        let (mut gap, mut v_obst) = hits
-            .iter()
-            .filter(|h| h.gap.is_finite())
-            .map(|h| (h.gap, h.v_along))
-            .min_by(|x, y| x.0.total_cmp(&y.0))
-            .unwrap_or((f32::INFINITY, 0.0));
+        // The nearest obstacle that `keep` admits: its gap and its speed along the path.
+        let nearest = |keep: &dyn Fn(&Hit) -> bool| {
+            hits.iter()
+                .filter(|h| h.gap.is_finite() && keep(h))
+                .map(|h| (h.gap, h.v_along))
+                .min_by(|x, y| x.0.total_cmp(&y.0))
+                .unwrap_or((f32::INFINITY, 0.0))
+        };
+        let (mut gap, mut v_obst) = nearest(&|_| true);
         let mut d = Decision::default();
         let mut v0 = a.v_desired;
         // Wait `g` metres ahead (stop line, curb) if that is nearer than the obstacle.
@@ -114,14 +117,13 @@ impl Traffic {
                 v0 = v0.min(r.v_cap_at(a.s + 0.5 * a.length + 3.0));
                 d.yellow = *yellow_stop;
                 let front = a.s + 0.5 * a.length;
-                // The vehicle ahead (pedestrians are yielded to at their crosswalks, below).
-                let (ahead, v_ahead) = hits
-                    .iter()
-                    .filter(|h| h.gap.is_finite() && self.agents[h.other].class != Class::Pedestrian)
-                    .map(|h| (h.gap, h.v_along))
-                    .min_by(|x, y| x.0.total_cmp(&y.0))
-                    .unwrap_or((f32::INFINITY, 0.0));
-                if front <= r.stop_s + 0.05 && self.holds_at_line(i, ahead, v_ahead, st, &mut d) {
+                // Before the line, the vehicle ahead decides whether there is room beyond the
+                // junction (pedestrians are yielded to at their crosswalks, below).
+                let at_line = front <= r.stop_s + 0.05 && {
+                    let (ahead, v_ahead) = nearest(&|h| self.agents[h.other].class != Class::Pedestrian);
+                    self.holds_at_line(i, ahead, v_ahead, st, &mut d)
+                };
+                if at_line {
                     wait_at(r.stop_s - front - STOP_LINE_GAP_M + m.s0, &mut gap, &mut v_obst);
                 } else if d.yellow != Some(false)
                     && let Some(edge) = self.crosswalk_wait(a, *route)
