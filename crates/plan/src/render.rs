@@ -91,10 +91,13 @@ impl Canvas {
     }
 }
 
+/// A roundabout's island: grass and shrubs.
+const ISLAND: (u8, u8, u8) = (122, 158, 92);
+
 /// Renders the scene top-down at `px_per_m` and returns PNG bytes.
 pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
     let mut c = scene_canvas(scene, px_per_m)?;
-    c.legend(&[
+    let mut keys = vec![
         ((70, 70, 74), "roadway"),
         ((214, 209, 199), "sidewalk"),
         ((176, 168, 150), "median"),
@@ -103,7 +106,11 @@ pub fn scene_png(scene: &Scene, px_per_m: f32) -> Result<Vec<u8>> {
         ((10, 10, 10), "signal pole and mast arm (mounts)"),
         ((240, 200, 40), "signal head"),
         ((230, 50, 40), "ROI (redder: heavier weight)"),
-    ]);
+    ];
+    if scene.layout.ring.is_some() {
+        keys.insert(3, (ISLAND, "roundabout island"));
+    }
+    c.legend(&keys);
     c.png()
 }
 
@@ -409,6 +416,12 @@ pub fn scene_canvas_within(scene: &Scene, min: Vec2, max: Vec2, px_per_m: f32) -
             c.fill(poly, &fill);
             c.outline(poly, &edge, 2.0);
         }
+    }
+    // A roundabout's island, over the ROI it is a hole in.
+    if let Some(ring) = &scene.layout.ring {
+        let (r, g, b) = ISLAND;
+        c.fill(&ring.island, &paint(r, g, b, 255));
+        c.outline(&ring.island, &paint(214, 209, 199, 255), 1.5);
     }
     // Buildings and imported meshes.
     for b in &scene.config.buildings {

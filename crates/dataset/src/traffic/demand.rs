@@ -92,7 +92,7 @@ pub struct ApproachLoad {
     /// Vehicle arrivals per hour, all movements.
     pub vehicles_per_hour: f64,
     /// The most loaded lane group at that rate: `"through"`, `"right"` (the outermost lane),
-    /// `"left"` (the bay, or the innermost lane it shares).
+    /// `"left"` (the bay, or the innermost lane it shares); `"entry"` at a roundabout.
     pub critical: &'static str,
     /// Its volume-to-capacity ratio (the level's, unless the approach carries no traffic).
     pub volume_to_capacity: f64,
@@ -214,6 +214,9 @@ pub fn level_rates(
     cfg: &TrafficConfig,
     demand: Demand,
 ) -> Vec<ApproachLoad> {
+    if !plan.is_signalised() {
+        return ring_rates(layout, routes, cfg, demand);
+    }
     let cycle = plan.cycle_s().max(1e-9);
     let approaches: Vec<Approach> = layout
         .arms
@@ -255,6 +258,88 @@ pub fn level_rates(
         .map(|((arm, a), &r)| {
             let (x, critical) = a.critical(r, opposing_flow(&rates, a));
             ApproachLoad { arm: arm.name.clone(), vehicles_per_hour: r, critical, volume_to_capacity: x }
+        })
+        .collect()
+}
+
+/// Whether arm `i` lies strictly between arms `j` and `k` going counter-clockwise (the layout's
+/// arms are in that order), of `n`.
+fn between_ccw(j: usize, i: usize, k: usize, n: usize) -> bool {
+    let (di, dk) = ((i + n - j) % n, (k + n - j) % n);
+    di > 0 && di < dk
+}
+
+/// The least headway between vehicles circulating on a roundabout's ring in this model (its
+/// Intelligent Driver Model at the ring's curvature speed, about 5.5 m/s), measured by the
+/// roundabout test. The field's is nearer 2 s: like [`SATURATION_FLOW_VPHPL`] at the signal,
+/// the model's queues are slower than real ones.
+pub const RING_MIN_HEADWAY_S: f64 = 3.0;
+/// The headway between two circulating vehicles that an entering driver needs, fitted to the
+/// roundabout test's discharges: the lag it accepts (the larger of its critical gap, 4–6 s, and
+/// the time its body takes to get onto the ring from the yield line plus a second: 5.2 s on
+/// average) and the time the vehicle before takes to clear the merge point (about 1.5 s).
+pub const RING_CRITICAL_S: f64 = 6.7;
+/// The headway at which a queue enters an empty ring, measured by the roundabout test.
+pub const RING_FOLLOW_UP_S: f64 = 3.5;
+
+/// A single-lane roundabout entry's capacity (veh/h) against `v_c` veh/h circulating past it:
+/// Tanner's gap-acceptance formula, `q (1 − Δ q) e^(−q (t_c − Δ)) / (1 − e^(−q t_f))` with the
+/// circulating stream's least headway Δ ([`RING_MIN_HEADWAY_S`]), [`RING_CRITICAL_S`] and
+/// [`RING_FOLLOW_UP_S`] (HCM 6's single-lane formula, `1380 e^(−0.00102 v_c)`, is of this
+/// family with the field's headways).
+pub fn ring_entry_capacity(v_c: f64) -> f64 {
+    let q = v_c / 3600.0;
+    if q < 1e-9 {
+        return 3600.0 / RING_FOLLOW_UP_S;
+    }
+    let free = (1.0 - RING_MIN_HEADWAY_S * q).max(0.0);
+    3600.0 * q * free * (-q * (RING_CRITICAL_S - RING_MIN_HEADWAY_S)).exp() / (1.0 - (-q * RING_FOLLOW_UP_S).exp())
+}
+
+/// At a roundabout, each entry's rate at `demand`: its one lane's capacity is
+/// [`ring_entry_capacity`] against the flow circulating past it, and that flow is the other
+/// entries' vehicles bound past it, so the rates settle by the same damped iteration.
+/// Pedestrians on the crosswalks, who hold entering and exiting drivers here as in the field,
+/// are left out, as at the signal.
+fn ring_rates(layout: &Layout, routes: &[Route], cfg: &TrafficConfig, demand: Demand) -> Vec<ApproachLoad> {
+    let n = layout.arms.len();
+    // passing[j][i]: the share of approach j's arrivals that circulate past entry i.
+    let passing: Vec<Vec<f64>> = (0..n)
+        .map(|j| {
+            let sh = shares(cfg, routes, j);
+            let bound = [(Movement::Left, sh.left), (Movement::Through, sh.through), (Movement::Right, sh.right)]
+                .into_iter()
+                .filter_map(|(m, share)| {
+                    Some((routes.iter().find(|r| r.approach == j && r.movement == m)?.exit, share))
+                })
+                .collect::<Vec<_>>();
+            (0..n).map(|i| bound.iter().filter(|(k, _)| between_ccw(j, i, *k, n)).map(|(_, s)| s).sum()).collect()
+        })
+        .collect();
+    let served: Vec<bool> = (0..n).map(|i| routes.iter().any(|r| r.approach == i)).collect();
+    let vc = demand.volume_to_capacity();
+    let circulating = |rates: &[f64], i: usize| (0..n).map(|j| rates[j] * passing[j][i]).sum::<f64>();
+    let mut rates = vec![0.0; n];
+    for _ in 0..200 {
+        let next: Vec<f64> =
+            (0..n).map(|i| if served[i] { vc * ring_entry_capacity(circulating(&rates, i)) } else { 0.0 }).collect();
+        let change = rates.iter().zip(&next).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        for (r, q) in rates.iter_mut().zip(&next) {
+            *r = 0.5 * (*r + q);
+        }
+        if change < 0.01 {
+            break;
+        }
+    }
+    (0..n)
+        .map(|i| {
+            let cap = ring_entry_capacity(circulating(&rates, i));
+            ApproachLoad {
+                arm: layout.arms[i].name.clone(),
+                vehicles_per_hour: rates[i],
+                critical: "entry",
+                volume_to_capacity: if rates[i] > 0.0 { rates[i] / cap } else { 0.0 },
+            }
         })
         .collect()
 }

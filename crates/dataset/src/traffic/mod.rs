@@ -15,6 +15,11 @@
 //! path within a few seconds; jaywalkers cross mid-block when no vehicle would reach them
 //! before they are across.
 //!
+//! At a roundabout (the layout's ring) no signal runs: entering vehicles yield to the ring's
+//! traffic at the yield line by gap acceptance, drivers
+//! keep its crosswalks clear, and pedestrians cross them whenever no vehicle is about to reach
+//! them, with the right of way once on them.
+//!
 //! Vehicles parked at the curb ([`ParkingConfig`]) stand in bays of the arms' parking lanes and
 //! come and go between scenes (and, rarely, within one).
 //!
@@ -470,6 +475,9 @@ pub struct Traffic {
     /// `conflicts[a][b]`: where on route b a vehicle stops blocking route a (see
     /// [`junction_conflicts`]).
     conflicts: Vec<Vec<Option<f32>>>,
+    /// At a roundabout, `ring[a][b]`: where on route b a circulating vehicle passes route a's
+    /// merge point ([`routes::ring_conflicts`]); empty elsewhere.
+    ring: Vec<Vec<Option<f32>>>,
     plan: SignalPlan,
     ground_z: f32,
     rng: ChaCha8Rng,
@@ -535,10 +543,12 @@ impl Traffic {
         }
         let n_routes = routes.len();
         let conflicts = junction_conflicts(&routes, 3.2);
+        let ring = if layout.ring.is_some() { routes::ring_conflicts(&routes, 2.0) } else { Vec::new() };
         let mut traffic = Traffic {
             cfg: cfg.clone(),
             routes,
             conflicts,
+            ring,
             plan,
             ground_z,
             rng,

@@ -142,6 +142,43 @@ impl Traffic {
         ((o.v * o.v + 2.0 * acc * d).sqrt() - o.v) / acc
     }
 
+    /// At a roundabout, whether driver `me` on `route` at its yield line finds the lag it needs
+    /// in the circulating traffic at its merge point: the larger of `critical_gap_s` and the time
+    /// its own body takes to get onto the ring plus a second. No circulating vehicle may reach
+    /// the merge point sooner (accelerating from its speed up to the ring's curvature caps), and
+    /// one at it holds the entry until its rear is past. Vehicles not yet on the ring yield
+    /// themselves and are not waited for.
+    pub(super) fn ring_gap_ok(&self, me: &Agent, route: usize, critical_gap_s: f32) -> bool {
+        // The lag a driver needs: its critical gap, and at least the time its whole body takes
+        // to get onto the ring from where it is (a bus's is the longer), with a second to spare.
+        let r = &self.routes[route];
+        let front = me.s + 0.5 * me.length;
+        let onto = r.merge_s.unwrap_or(front) - front + me.length + 2.0;
+        let v_ring = r.v_cap_at(r.merge_s.unwrap_or(front)).min(me.v_desired).max(me.v);
+        let need = critical_gap_s.max(time_capped(me.v, class_model(me.class).a, v_ring, onto) + 1.0);
+        self.agents.iter().all(|o| {
+            let Role::Vehicle { route: rb, .. } = &o.role else { return true };
+            let Some(at) = self.ring[route][*rb] else { return true };
+            let front = o.s + 0.5 * o.length;
+            let in_ring = self.routes[*rb].merge_s.is_some_and(|m| front > m);
+            if !in_ring || o.s - 0.5 * o.length > at + 1.0 {
+                return true;
+            }
+            // One at the merge point holds the entry until its rear is past.
+            let d = at - 1.0 - front;
+            if d <= 0.0 {
+                return false;
+            }
+            // The time to reach it respects the ring's curvature speed caps.
+            let r = &self.routes[*rb];
+            let v_max = (0..=(d / DS).ceil() as usize)
+                .map(|k| r.v_cap_at(front + k as f32 * DS))
+                .fold(o.v_desired, f32::min)
+                .max(o.v);
+            time_capped(o.v, class_model(o.class).a, v_max, d) >= need
+        })
+    }
+
     /// Whether a vehicle inside the junction still occupies part of `route`'s path through it.
     pub(super) fn junction_blocked(&self, me: usize, route: usize) -> bool {
         self.agents.iter().enumerate().any(|(j, o)| {

@@ -7,10 +7,12 @@
 //! right turns the outermost lane. Junction connectors are cubic Bézier curves between the
 //! junction-side edges of the two crosswalks, swung wide where a car's body would otherwise clip
 //! a corner ([`ROUTE_HALF_WIDTH_M`]); the speed on a route is capped by its curvature
-//! (lateral acceleration ≤ 2.5 m/s²) with comfortable braking into curves.
+//! (lateral acceleration ≤ 2.5 m/s²) with comfortable braking into curves. At a roundabout a
+//! route curves onto the ring's circulating lane, follows it counter-clockwise and curves off it
+//! ([`ring_conflicts`] says where each route yields to which).
 
 use glam::Vec2;
-use hilo_raycast::scene::layout::{ArmLayout, LaneKind, Layout, point_in_polygon};
+use hilo_raycast::scene::layout::{ArmLayout, Lane, LaneKind, Layout, Ring, arc, point_in_polygon};
 
 /// Route sample spacing.
 pub const DS: f32 = 0.5;
@@ -98,6 +100,9 @@ pub struct Route {
     pub v_cap: Vec<f32>,
     /// The crosswalks the route crosses, in order along it.
     pub crosswalks: Vec<Crossing>,
+    /// At a roundabout, the arc length where the route joins the circulating lane (its merge
+    /// with the traffic it yields to); None at a signalised junction.
+    pub merge_s: Option<f32>,
 }
 
 /// Where a route crosses an arm's crosswalk.
@@ -207,6 +212,95 @@ pub fn spawned_movement(routes: &[Route], arm: usize, want: Movement) -> Option<
     [want, Movement::Through].into_iter().find(|&m| has(m))
 }
 
+/// The longest and widest body the model drives (a bus): a route onto or off a roundabout's
+/// ring keeps all of it on the carriageway.
+const BODY_HALF_L_M: f32 = 6.5;
+const BODY_HALF_W_M: f32 = 1.3;
+
+/// A curve onto or off a roundabout's ring from `p0` (heading `h0`) to `p1` (heading `h1`): of
+/// the cubic Béziers with handles of 0.25 to 0.9 of the chord at either end, the one whose
+/// slowest curvature speed cap is highest among those that keep a bus's whole body on the
+/// carriageway; [`connector`]'s curve where none does.
+fn ring_curve(
+    layout: &Layout,
+    (p0, h0, before): (Vec2, Vec2, &[Vec2]),
+    (p1, h1, after): (Vec2, Vec2, &[Vec2]),
+) -> Vec<Vec2> {
+    let chord = (p1 - p0).length();
+    let len = |pts: &[Vec2]| pts.windows(2).map(|w| (w[1] - w[0]).length()).sum::<f32>();
+    let mut best: Option<(f32, Vec<Vec2>)> = None;
+    for a in 5..=18 {
+        for b in 5..=18 {
+            let (ca, cb) = (a as f32 * 0.05 * chord, b as f32 * 0.05 * chord);
+            let pts = bezier(p0, p0 + h0 * ca, p1 - h1 * cb, p1, 32);
+            // The way there and on, as the route has them, so the body's ends are where they
+            // will be.
+            let mut poly = before[..before.len().saturating_sub(1)].to_vec();
+            poly.extend_from_slice(&pts);
+            poly.extend_from_slice(after.get(1..).unwrap_or_default());
+            let path = Path::from_polyline(&poly);
+            let (from, to) = (len(before), len(before) + len(&pts));
+            let body_on_road = (0..).map(|k| from + k as f32 * DS).take_while(|&s| s <= to).all(|s| {
+                // Its sides every metre, not only its corners: a curb can reach in between.
+                let body = super::footprint(&path, s, BODY_HALF_L_M, BODY_HALF_W_M);
+                let side = body.dir.perp() * BODY_HALF_W_M;
+                (0..=13).all(|k| {
+                    let along = body.center + body.dir * (BODY_HALF_L_M * (k as f32 / 6.5 - 1.0));
+                    layout.on_carriageway(along + side) && layout.on_carriageway(along - side)
+                })
+            });
+            if !body_on_road {
+                continue;
+            }
+            let slowest = speed_caps(&path).into_iter().fold(f32::INFINITY, f32::min);
+            if best.as_ref().is_none_or(|(v, _)| slowest > *v) {
+                best = Some((slowest, pts));
+            }
+        }
+    }
+    best.map_or_else(|| connector(layout, p0, h0, p1, h1), |(_, pts)| pts)
+}
+
+/// How far round the ring (radians) a route joins the circulating lane after its yield line's
+/// bearing: the entry curve's sweep, a third of the way round to the exit where that is less (a
+/// right turn's curves are the tightest). A longer entry merges so tangentially that an
+/// entering and a circulating body can end up side by side.
+const RING_ENTRY_RAD: f32 = 0.5;
+/// How far before the exit lane's bearing a route leaves the circulating lane: exits are drawn
+/// flatter than entries, as roundabout design guides ask, so circulating drivers do not brake
+/// for their exit while they pass the entry before it.
+const RING_EXIT_RAD: f32 = 0.9;
+
+/// The way through a roundabout from `entry` on the approach lane (heading `h`) to `exit` on the
+/// exit lane (heading `exit_dir`): a curve onto the circulating lane's centre line, the lane
+/// counter-clockwise, a curve off it. Returns the points and the index of the merge point.
+fn ring_connector(
+    layout: &Layout,
+    ring: &Ring,
+    entry: Vec2,
+    h: Vec2,
+    exit: Vec2,
+    exit_dir: Vec2,
+) -> (Vec<Vec2>, usize) {
+    let rc = ring.lane_radius_m();
+    let bearing = |p: Vec2| p.y.atan2(p.x);
+    let span = (bearing(exit) - bearing(entry)).rem_euclid(std::f32::consts::TAU);
+    let (a_in, a_out) =
+        (bearing(entry) + RING_ENTRY_RAD.min(span / 3.0), bearing(exit) - RING_EXIT_RAD.min(span / 3.0));
+    let tangent = |a: f32| Vec2::from_angle(a).perp();
+    let on = arc(rc, a_in, a_out);
+    let (m_in, m_out) = (on[0], on[on.len() - 1]);
+    // A bus's length of straight lane before the entry and after the exit, of ring after the
+    // merge and before the diverge.
+    let lead = 2.0 * BODY_HALF_L_M;
+    let (ahead, behind) = (arc(rc, a_in, a_in + lead / rc), arc(rc, a_out - lead / rc, a_out));
+    let mut pts = ring_curve(layout, (entry, h, &[entry - h * lead, entry]), (m_in, tangent(a_in), &ahead));
+    let merge = pts.len() - 1;
+    pts.extend_from_slice(&on[1..on.len() - 1]);
+    pts.extend(ring_curve(layout, (m_out, tangent(a_out), &behind), (exit, exit_dir, &[exit, exit + exit_dir * lead])));
+    (pts, merge)
+}
+
 /// Every route of the layout.
 pub fn build_routes(layout: &Layout) -> Vec<Route> {
     let mut routes = Vec::new();
@@ -253,6 +347,13 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
                 },
             }
             let exit = &layout.arms[j];
+            if let Some(ring) = &layout.ring {
+                for (poly, k) in starts {
+                    let (first, last) = (poly[0], poly[poly.len() - 1]);
+                    routes.push(ring_route(layout, ring, (i, first, last), (j, out[k]), m));
+                }
+                continue;
+            }
             for (mut poly, k) in starts {
                 let o = out[k];
                 let stop_line = *poly.last().unwrap_or(&o.start);
@@ -268,25 +369,72 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
                 let path = Path::from_polyline(&poly);
                 let clear_s = path.length() - (o.end - o.start).length() + crosswalk_width(exit);
                 let v_cap = speed_caps(&path);
-                let crosswalks = [i, j]
-                    .iter()
-                    .filter_map(|&arm| {
-                        let inside: Vec<f32> = path
-                            .points
-                            .iter()
-                            .enumerate()
-                            .filter(|(_, p)| point_in_polygon(**p, &layout.arms[arm].crosswalk))
-                            .map(|(k, _)| k as f32 * DS)
-                            .collect();
-                        let polygon = layout.arms[arm].crosswalk.clone();
-                        Some(Crossing { arm, s_in: *inside.first()?, s_out: *inside.last()?, polygon })
-                    })
-                    .collect();
-                routes.push(Route { approach: i, exit: j, movement: m, path, stop_s, clear_s, v_cap, crosswalks });
+                let crosswalks = crossings(layout, &path, [i, j]);
+                routes.push(Route {
+                    approach: i,
+                    exit: j,
+                    movement: m,
+                    path,
+                    stop_s,
+                    clear_s,
+                    v_cap,
+                    crosswalks,
+                    merge_s: None,
+                });
             }
         }
     }
     routes
+}
+
+/// Where `path` crosses the crosswalks of `arms`, in that order.
+fn crossings(layout: &Layout, path: &Path, arms: [usize; 2]) -> Vec<Crossing> {
+    arms.iter()
+        .filter_map(|&arm| {
+            let inside: Vec<f32> = path
+                .points
+                .iter()
+                .enumerate()
+                .filter(|(_, p)| point_in_polygon(**p, &layout.arms[arm].crosswalk))
+                .map(|(k, _)| k as f32 * DS)
+                .collect();
+            let polygon = layout.arms[arm].crosswalk.clone();
+            Some(Crossing { arm, s_in: *inside.first()?, s_out: *inside.last()?, polygon })
+        })
+        .collect()
+}
+
+/// A route through a roundabout from approach `i`'s lane (`first` to `last`, its yield line) to
+/// exit arm `j`'s lane `o`. The curves on and off the ring start and end a metre beyond the
+/// crosswalks, so they are as flat as the arm allows; the yield line is where the path comes
+/// within half a metre of the ring, and the route leaves the junction where its exit curve
+/// ends.
+fn ring_route(
+    layout: &Layout,
+    ring: &Ring,
+    (i, first, last): (usize, Vec2, Vec2),
+    (j, o): (usize, Lane),
+    m: Movement,
+) -> Route {
+    let (arm, exit) = (&layout.arms[i], &layout.arms[j]);
+    let h = (last - first).normalize_or(-arm.dir);
+    let a_in = arm.crosswalk[1].dot(arm.dir) + 1.0;
+    let entry = first + h * (first.dot(arm.dir) - a_in);
+    let d_out = (o.end - o.start).normalize_or(exit.dir);
+    let leave = o.start + d_out * (exit.crosswalk[1].dot(exit.dir) + 1.0 - o.start.dot(exit.dir));
+    let (curve, merge) = ring_connector(layout, ring, entry, h, leave, d_out);
+    let mut poly = vec![first, entry];
+    poly.extend_from_slice(&curve[1..]);
+    poly.push(o.end);
+    let len = |pts: &[Vec2]| pts.windows(2).map(|w| (w[1] - w[0]).length()).sum::<f32>();
+    let merge_s = len(&poly[..=1 + merge]);
+    let path = Path::from_polyline(&poly);
+    let near = ring.outer_radius_m + 0.5;
+    let stop_s = path.points.iter().position(|p| p.length() <= near).map_or(merge_s, |k| k as f32 * DS);
+    let clear_s = path.length() - (o.end - leave).length();
+    let v_cap = speed_caps(&path);
+    let crosswalks = crossings(layout, &path, [i, j]);
+    Route { approach: i, exit: j, movement: m, path, stop_s, clear_s, v_cap, crosswalks, merge_s: Some(merge_s) }
 }
 
 /// Curvature speed cap per sample with a backward pass for braking into curves.
@@ -312,6 +460,37 @@ fn speed_caps(path: &Path) -> Vec<f32> {
         }
     }
     caps
+}
+
+/// At a roundabout, for each ordered pair of routes (a, b) from different approaches: the arc
+/// length on b where b, already circulating, passes a's merge point (within `clearance_m`), so
+/// a vehicle on a yields to one on b before it. None where b does not pass it, or has not yet
+/// joined the ring there (b then yields to a), and everywhere at a signalised junction.
+pub fn ring_conflicts(routes: &[Route], clearance_m: f32) -> Vec<Vec<Option<f32>>> {
+    routes
+        .iter()
+        .map(|a| {
+            routes
+                .iter()
+                .map(|b| {
+                    let (ma, mb) = (a.merge_s?, b.merge_s?);
+                    if a.approach == b.approach {
+                        return None;
+                    }
+                    let (p, _) = a.path.at(ma);
+                    let (k, d) = b
+                        .path
+                        .points
+                        .iter()
+                        .enumerate()
+                        .map(|(k, q)| (k, q.distance(p)))
+                        .min_by(|x, y| x.1.total_cmp(&y.1))?;
+                    let s = k as f32 * DS;
+                    (d < clearance_m && s > mb).then_some(s)
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// For each ordered pair of routes (a, b): if b's path through the junction comes within

@@ -2,7 +2,8 @@
 //! the groups run in turn, each with an optional protected-left interval, a green for through,
 //! right and permissive left, a yellow and an all-red. Pedestrians get WALK on an arm's
 //! crosswalk while a group that does not contain that arm is green (the crosswalk runs parallel
-//! to that traffic). Right turns on red are not allowed.
+//! to that traffic). Right turns on red are not allowed. A roundabout has no signal
+//! ([`SignalPlan::unsignalised`]).
 
 use super::routes::Movement;
 use glam::Vec2;
@@ -27,8 +28,12 @@ impl Default for SignalConfig {
     }
 }
 
-/// The plan of a layout's arms: directions, speed limits and left-turn bays from the layout.
+/// The plan of a layout's arms: directions, speed limits and left-turn bays from the layout;
+/// none at a roundabout ([`SignalPlan::unsignalised`]).
 pub fn plan_for(layout: &Layout, cfg: &SignalConfig) -> SignalPlan {
+    if layout.ring.is_some() {
+        return SignalPlan::unsignalised();
+    }
     let dirs: Vec<Vec2> = layout.arms.iter().map(|a| a.dir).collect();
     let speeds: Vec<f32> = layout.arms.iter().map(|a| a.speed_limit_mps).collect();
     let bays: Vec<bool> = layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay)).collect();
@@ -121,6 +126,19 @@ impl SignalPlan {
         SignalPlan { groups, group_of_arm, cycle_s: t }
     }
 
+    /// No signal: every movement may always go, yielding as the junction's rules say (at a
+    /// roundabout, to the ring), and pedestrians cross whenever no vehicle is about to reach
+    /// them, with the right of way once on the crosswalk (a zebra crossing).
+    pub fn unsignalised() -> SignalPlan {
+        SignalPlan { groups: Vec::new(), group_of_arm: Vec::new(), cycle_s: 0.0 }
+    }
+
+    /// Whether a signal runs the junction.
+    pub fn is_signalised(&self) -> bool {
+        !self.groups.is_empty()
+    }
+
+    /// The cycle's length (0 without a signal).
     pub fn cycle_s(&self) -> f64 {
         self.cycle_s
     }
@@ -128,7 +146,10 @@ impl SignalPlan {
     /// The phase that serves arm `arm`: its intervals, and whether an opposing arm runs with it
     /// (its left turns are then permissive after the protected interval).
     pub fn phase(&self, arm: usize) -> Phase {
-        let g = &self.groups[self.group_of_arm[arm]];
+        let Some(g) = self.group_of_arm.get(arm).and_then(|&k| self.groups.get(k)) else {
+            // No signal: green all the time, nobody opposing.
+            return Phase { left_s: 0.0, green_s: 1.0, yellow_s: 0.0, all_red_s: 0.0, opposed: false };
+        };
         Phase {
             left_s: g.left_s,
             green_s: g.green_s,
@@ -151,6 +172,9 @@ impl SignalPlan {
 
     /// The light a movement from arm `arm` sees at time `t`.
     pub fn light(&self, arm: usize, m: Movement, t: f64) -> Light {
+        if !self.is_signalised() {
+            return Light::Green { protected: false };
+        }
         let (k, dt) = self.active(t);
         if self.group_of_arm[arm] != k {
             return Light::Red;
@@ -181,6 +205,9 @@ impl SignalPlan {
     /// Whether a pedestrian may start crossing arm `arm` at `t`, and until when the crossing
     /// stays protected from the traffic it runs parallel to (seconds from `t`).
     pub fn walk(&self, arm: usize, t: f64) -> Option<f64> {
+        if !self.is_signalised() {
+            return Some(f64::INFINITY);
+        }
         let (k, dt) = self.active(t);
         if self.group_of_arm[arm] == k {
             return None;
@@ -194,6 +221,7 @@ impl SignalPlan {
 
     /// The arms of the group that opposes `arm` in its own green (the other arm of its pair).
     pub fn opposing(&self, arm: usize) -> Vec<usize> {
-        self.groups[self.group_of_arm[arm]].arms.iter().copied().filter(|&a| a != arm).collect()
+        let Some(g) = self.group_of_arm.get(arm).and_then(|&k| self.groups.get(k)) else { return Vec::new() };
+        g.arms.iter().copied().filter(|&a| a != arm).collect()
     }
 }

@@ -75,10 +75,18 @@ impl Traffic {
         for (i, mine) in hits.iter_mut().enumerate() {
             for hit in mine.iter_mut() {
                 let (gi, j) = (hit.gap, hit.other);
-                if let Some(gj) = original[j].iter().find(|x| x.other == i).map(|x| x.gap) {
+                if let Some((gj, real_j)) = original[j].iter().find(|x| x.other == i).map(|x| (x.gap, x.real_gap)) {
                     let (mi, mj) = (must_go(i, gi), must_go(j, gj));
-                    let i_first =
+                    let mut i_first =
                         if mi != mj { mi } else { gi < gj || (gi == gj && self.agents[i].id < self.agents[j].id) };
+                    // Merging into a roundabout's ring two bodies can stand side by side: the one
+                    // that cannot move without touching the other does not go first.
+                    if self.on_ring(i) && self.on_ring(j) {
+                        let (stuck_i, stuck_j) = (hit.real_gap < 0.05, real_j < 0.05);
+                        if stuck_i != stuck_j {
+                            i_first = stuck_j;
+                        }
+                    }
                     if i_first {
                         hit.gap = f32::INFINITY;
                     }
@@ -86,6 +94,11 @@ impl Traffic {
             }
         }
         hits
+    }
+
+    /// Whether road user `i` is a vehicle on a roundabout's route.
+    fn on_ring(&self, i: usize) -> bool {
+        matches!(&self.agents[i].role, Role::Vehicle { route, .. } if self.routes[*route].merge_s.is_some())
     }
 
     /// Road user `i`'s decision given its obstacles: a virtual obstacle at the stop line or the
@@ -123,9 +136,25 @@ impl Traffic {
                     let (ahead, v_ahead) = nearest(&|h| self.agents[h.other].class != Class::Pedestrian);
                     self.holds_at_line(i, ahead, v_ahead, st, &mut d)
                 };
+                // At a roundabout the entry's crosswalk comes before the yield line.
+                let walk_first = r.crosswalks.first().is_some_and(|c| c.s_in < r.stop_s);
+                // And crosswalks are kept clear: no driver there moves onto one without room
+                // beyond it behind the road user ahead, or a queue's last car would stand on it
+                // and hold its pedestrians (who may be holding the queue's first).
+                if r.merge_s.is_some()
+                    && gap.is_finite()
+                    && v_obst < 2.0
+                    && let Some(c) = r.crosswalks.iter().find(|c| c.s_in >= front - 0.05)
+                    && front + gap - m.s0 - a.length < c.s_out + 0.5
+                    && c.s_in - front >= a.v * a.v / (2.0 * m.b) - 0.5
+                {
+                    wait_at(c.s_in - front - 0.5 + m.s0, &mut gap, &mut v_obst);
+                }
                 if at_line {
                     wait_at(r.stop_s - front - STOP_LINE_GAP_M + m.s0, &mut gap, &mut v_obst);
-                } else if d.yellow != Some(false)
+                }
+                if (!at_line || walk_first)
+                    && d.yellow != Some(false)
                     && let Some(edge) = self.crosswalk_wait(a, *route)
                     && edge - front >= a.v * a.v / (2.0 * m.b) - 0.5
                 {
@@ -190,9 +219,13 @@ impl Traffic {
             }
             Light::Green { protected } => {
                 d.yellow = None;
+                let gap_ok = |route: usize| match r.merge_s {
+                    Some(_) => self.ring_gap_ok(a, route, *critical_gap_s),
+                    None => self.left_gap_ok(route, *critical_gap_s),
+                };
                 if protected || *committed {
                     false
-                } else if self.left_gap_ok(*route, *critical_gap_s) {
+                } else if gap_ok(*route) {
                     d.commit = r.stop_s - front < 3.0;
                     false
                 } else {
@@ -202,9 +235,12 @@ impl Traffic {
         };
         // A vehicle that chose to go on yellow is not held by anything but red.
         let can_stop = r.stop_s - front >= a.v * a.v / (2.0 * m.b) - 0.5 && d.yellow != Some(false);
-        hold = hold || (can_stop && self.junction_blocked(i, *route));
-        // Do not enter the junction without room to leave it behind the vehicle ahead.
-        hold || (gap.is_finite()
+        // At a roundabout the ring's gap is the rule; everyone shares the ring's path.
+        hold = hold || (can_stop && r.merge_s.is_none() && self.junction_blocked(i, *route));
+        // Do not enter the junction without room to leave it behind the vehicle ahead (at a
+        // roundabout the ring's gap is the rule: what crosses the entry's path is circulating).
+        hold || (r.merge_s.is_none()
+            && gap.is_finite()
             && a.s + gap < r.clear_s + 0.5 * a.length + 1.0
             && a.s + gap > r.stop_s - 0.5 * a.length
             && v_obst < 2.0)

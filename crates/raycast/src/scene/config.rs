@@ -32,6 +32,48 @@ pub struct SceneConfig {
     pub roi: Vec<RoiConfig>,
     #[serde(default)]
     pub meshes: Vec<MeshConfig>,
+    /// A roundabout at the centre in place of a junction box ([`RoundaboutConfig`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roundabout: Option<RoundaboutConfig>,
+}
+
+/// A roundabout (`[roundabout]`): the arms meet a one-way circulatory roadway, driven
+/// counter-clockwise, around a raised central island at the junction's centre. Entering traffic
+/// yields at the ring; each arm's crosswalk stands back from the ring by about a car length, so
+/// a driver leaving the ring can stop for a pedestrian without blocking it (FHWA's roundabout
+/// guide, NCHRP Report 672, puts the crosswalk 6 m behind the yield line). No signal runs it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RoundaboutConfig {
+    /// Radius of the raised central island, m.
+    pub island_radius_m: f32,
+    /// Width of the circulatory roadway around the island, m (one lane: 4.5–7 m).
+    #[serde(default = "d_ring_width")]
+    pub ring_width_m: f32,
+    /// Height of what stands on the island (a mound, shrubs), m: it hides the ring's far side
+    /// from a sensor as low as a driver's eye.
+    #[serde(default = "d_island_height")]
+    pub island_height_m: f32,
+    /// How far each arm's crosswalk stands back from the ring's outer edge, m.
+    #[serde(default = "d_setback")]
+    pub crosswalk_setback_m: f32,
+}
+
+fn d_ring_width() -> f32 {
+    6.0
+}
+fn d_island_height() -> f32 {
+    1.0
+}
+fn d_setback() -> f32 {
+    6.0
+}
+
+impl RoundaboutConfig {
+    /// Radius of the ring's outer edge (the inscribed circle), m.
+    pub fn outer_radius_m(&self) -> f32 {
+        self.island_radius_m + self.ring_width_m
+    }
 }
 
 /// World position of the local origin (e.g. a UTM easting/northing and altitude).
@@ -465,7 +507,10 @@ impl SceneConfig {
             }
             check_arm(&c, i, a, self.ground.half_size_m)?;
         }
-        if let Some((i, j, along)) = overlapping_arms(&self.arms) {
+        if let Some(r) = &self.roundabout {
+            check_roundabout(&c, r, &self.arms)?;
+        }
+        if let Some((i, j, along)) = overlapping_arms(&self.arms, self.roundabout.as_ref()) {
             let (a, b) = (&self.arms[i], &self.arms[j]);
             let gap = (b.heading_deg - a.heading_deg).rem_euclid(360.0);
             let how = if gap.min(360.0 - gap) < 1.0 {
@@ -614,10 +659,66 @@ fn check_arm(c: &Check, i: usize, a: &ArmConfig, ground_half_m: f32) -> Result<(
     Ok(())
 }
 
+/// The checks of a roundabout's numbers against its arms: a ring the arms can meet (every
+/// arm's carriageway narrower than the inscribed circle), one lane each way and no left-turn
+/// bays (the ring serves every turn).
+fn check_roundabout(c: &Check, r: &RoundaboutConfig, arms: &[ArmConfig]) -> Result<(), RaycastError> {
+    for (field, v, lo, hi) in [
+        ("roundabout.island_radius_m", r.island_radius_m, 2.0, 60.0),
+        ("roundabout.ring_width_m", r.ring_width_m, 4.0, 8.0),
+        ("roundabout.crosswalk_setback_m", r.crosswalk_setback_m, 2.0, 30.0),
+    ] {
+        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+            return Err(c.err(field, v, &format!("must be in [{lo}, {hi}] m")));
+        }
+    }
+    let curb = arms.iter().map(|a| a.curb_height_m).fold(0.0, f32::max);
+    if !(r.island_height_m.is_finite() && (curb..=5.0).contains(&r.island_height_m)) {
+        return Err(c.err(
+            "roundabout.island_height_m",
+            r.island_height_m,
+            &format!("must be in [{curb}, 5] m (at least the curb's height)"),
+        ));
+    }
+    if arms.len() < 3 {
+        return Err(c.err("arms", arms.len(), "a roundabout needs at least three arms"));
+    }
+    for (i, a) in arms.iter().enumerate() {
+        let f = |n: &str| format!("arms[{i}].{n}");
+        if a.left_turn_lanes > 0 {
+            return Err(c.err(
+                &f("left_turn_lanes"),
+                a.left_turn_lanes,
+                "a roundabout's ring serves every turn: no bays",
+            ));
+        }
+        if a.lanes_in > 1 || a.lanes_out > 1 {
+            return Err(c.err(
+                &f("lanes_in"),
+                format!("{} in, {} out", a.lanes_in, a.lanes_out),
+                "the roundabout model has one circulating lane: one lane each way per arm",
+            ));
+        }
+        let half = a.offset_m.abs()
+            + 0.5 * a.median_width_m
+            + a.lanes_in.max(a.lanes_out) as f32 * a.lane_width_m
+            + a.parking_lane_width_m;
+        if half + 1.0 > r.outer_radius_m() {
+            return Err(c.err(
+                "roundabout.island_radius_m",
+                r.island_radius_m,
+                &format!("arm {:?} is wider than the ring it meets: a larger island_radius_m or ring_width_m", a.name),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Two arms whose roadways (lanes, median, sidewalks) still overlap beyond half the shorter
-/// arm's length: neighbours in heading whose facing roadway edges meet farther out than that (or
-/// never, when nearly parallel). Returns (i, j, metres from the centre where they part).
-fn overlapping_arms(arms: &[ArmConfig]) -> Option<(usize, usize, f32)> {
+/// arm's length (beyond the ring's crosswalks at a roundabout): neighbours in heading whose
+/// facing roadway edges meet farther out than that (or never, when nearly parallel). Returns
+/// (i, j, metres from the centre where they part).
+fn overlapping_arms(arms: &[ArmConfig], ring: Option<&RoundaboutConfig>) -> Option<(usize, usize, f32)> {
     if arms.len() < 2 {
         return None;
     }
@@ -645,7 +746,11 @@ fn overlapping_arms(arms: &[ArmConfig]) -> Option<(usize, usize, f32)> {
         // Distance along the arms where the two edges meet: the corner of the junction.
         let along = (left_a + right_b * theta.cos()) / theta.sin().max(1e-6);
         let along = along.max((right_b + left_a * theta.cos()) / theta.sin().max(1e-6));
-        let limit = 0.5 * a.length_m.min(b.length_m);
+        let limit = match ring {
+            // At a roundabout the arms must part before their crosswalks.
+            Some(r) => r.outer_radius_m() + r.crosswalk_setback_m,
+            None => 0.5 * a.length_m.min(b.length_m),
+        };
         if along > limit {
             return Some((i, j, along));
         }

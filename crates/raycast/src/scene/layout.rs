@@ -10,6 +10,11 @@
 //! obtuse one; at an acute corner each strip starts where its outer edge meets the neighbour's
 //! curb and the corner piece is a parallelogram along the two curbs, so no sidewalk lies on a
 //! carriageway.
+//!
+//! A roundabout (`[roundabout]`) replaces the junction box with a ring around a raised island:
+//! each arm's yield line lies just off the ring and its crosswalk a setback behind it, and each
+//! curb flares onto the ring along an arc tangent to the arm's edge and to the ring ([`Ring`]);
+//! the sidewalks follow the flares and the ring between the arms.
 
 use super::config::{ArmConfig, RoiConfig, RoiKind, SceneConfig};
 use glam::Vec2;
@@ -84,6 +89,45 @@ pub struct Layout {
     /// angle).
     #[serde(default)]
     pub corner_posts: Vec<Vec2>,
+    /// The roundabout's ring, when the scene has one: `central` is then the inscribed circle
+    /// and the arms' stubs out to their crosswalks, and the corners' sidewalks follow the ring.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ring: Option<Ring>,
+}
+
+/// A roundabout's circulatory roadway around its raised island, centred on the origin.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Ring {
+    pub island_radius_m: f32,
+    /// The inscribed circle: the ring's outer edge.
+    pub outer_radius_m: f32,
+    pub island_height_m: f32,
+    /// The island's outline (counter-clockwise).
+    pub island: Vec<Vec2>,
+}
+
+impl Ring {
+    /// The circulating lane's centre line radius.
+    pub fn lane_radius_m(&self) -> f32 {
+        0.5 * (self.island_radius_m + self.outer_radius_m)
+    }
+}
+
+/// Vertices of the polygons that stand for circles and arcs: one every 7.5° or less.
+const ARC_STEP_RAD: f32 = std::f32::consts::PI / 24.0;
+
+/// Points on the circle of radius `r` from angle `a0` counter-clockwise to `a1` (radians), ends
+/// included, at most [`ARC_STEP_RAD`] apart.
+pub fn arc(r: f32, a0: f32, a1: f32) -> Vec<Vec2> {
+    let span = (a1 - a0).rem_euclid(std::f32::consts::TAU);
+    let n = (span / ARC_STEP_RAD).ceil().max(1.0) as usize;
+    (0..=n).map(|k| Vec2::from_angle(a0 + span * k as f32 / n as f32) * r).collect()
+}
+
+/// The circle of radius `r` as a counter-clockwise polygon, vertices [`ARC_STEP_RAD`] apart.
+pub fn circle(r: f32) -> Vec<Vec2> {
+    let n = (std::f32::consts::TAU / ARC_STEP_RAD).round() as usize;
+    (0..n).map(|k| Vec2::from_angle(std::f32::consts::TAU * k as f32 / n as f32) * r).collect()
 }
 
 impl Layout {
@@ -96,7 +140,12 @@ impl Layout {
                 a.sidewalks.iter().any(|w| point_in_polygon(p, w))
                     || a.median.as_ref().is_some_and(|m| point_in_polygon(p, m))
             });
-        on_road && !raised
+        on_road && !raised && !self.on_island(p)
+    }
+
+    /// Whether `p` is on a roundabout's central island.
+    pub fn on_island(&self, p: Vec2) -> bool {
+        self.ring.as_ref().is_some_and(|r| p.length() < r.island_radius_m && point_in_polygon(p, &r.island))
     }
 }
 
@@ -107,12 +156,15 @@ pub struct Roi {
     pub weight: f32,
     /// One or more polygons (counter-clockwise).
     pub polygons: Vec<Vec<Vec2>>,
+    /// Areas inside them that are not part of it (a roundabout's island in the central zone).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub holes: Vec<Vec<Vec2>>,
 }
 
 impl Roi {
-    /// True when `p` lies in any of the ROI's polygons.
+    /// True when `p` lies in any of the ROI's polygons and in none of its holes.
     pub fn contains(&self, p: Vec2) -> bool {
-        self.polygons.iter().any(|poly| point_in_polygon(p, poly))
+        self.polygons.iter().any(|poly| point_in_polygon(p, poly)) && !self.holes.iter().any(|h| point_in_polygon(p, h))
     }
 }
 
@@ -219,16 +271,31 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         })
         .collect();
 
+    let ring = cfg.roundabout.as_ref();
+    let ro = ring.map_or(0.0, |r| r.outer_radius_m());
     let mut layout = Layout::default();
     for (i, f) in frames.iter().enumerate() {
         let a = f.cfg;
         let prev = (i + n - 1) % n;
-        let a_in = corners[i].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
-        let a_out = corners[prev].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
-        let cw0 = a_in.max(a_out) + 0.5;
+        // Where the curbs start (a corner, or the ring), the crosswalk and the stop (or yield)
+        // line, along the arm from the centre.
+        let (a_in, a_out, cw0, stop) = match ring {
+            None => {
+                let a_in = corners[i].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
+                let a_out = corners[prev].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
+                let cw0 = a_in.max(a_out) + 0.5;
+                (a_in, a_out, cw0, cw0 + a.crosswalk_width_m + 1.0)
+            }
+            // The yield line just off the ring, the crosswalk a setback behind it, the curbs
+            // from where the corners' flares meet them.
+            Some(r) => {
+                let cw0 = ro + r.crosswalk_setback_m;
+                (fillet(f, f.edge_in, ro, cw0).along, fillet(f, f.edge_out, ro, cw0).along, cw0, ro + 0.5)
+            }
+        };
         let cw1 = cw0 + a.crosswalk_width_m;
-        let stop = cw1 + 1.0;
-        let len = a.length_m.max(stop + 1.0);
+        let beyond = stop.max(cw1);
+        let len = a.length_m.max(beyond + 1.0);
         let w = a.lane_width_m;
         let mut lanes = Vec::new();
         for k in 0..a.left_turn_lanes {
@@ -242,7 +309,8 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         }
         for k in 0..a.lanes_out {
             let s = -(f.s_med + (k as f32 + 0.5) * w);
-            lanes.push(Lane { kind: LaneKind::Outbound, start: f.at(cw0, s), end: f.at(len, s), width_m: w });
+            let from = if ring.is_some() { stop } else { cw0 };
+            lanes.push(Lane { kind: LaneKind::Outbound, start: f.at(from, s), end: f.at(len, s), width_m: w });
         }
         let sw = a.sidewalk_width_m;
         let mut sidewalks = Vec::new();
@@ -251,12 +319,13 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             // neighbour's carriageway: it starts where its outer edge meets the neighbour's curb.
             let next = &frames[(i + 1) % n];
             let before = &frames[prev];
-            let a_in = a_in + acute_setback(f.dir, next.dir, sw, corners[i].is_some());
-            let a_out = a_out + acute_setback(before.dir, f.dir, sw, corners[prev].is_some());
+            let a_in = a_in + acute_setback(f.dir, next.dir, sw, ring.is_none() && corners[i].is_some());
+            let a_out = a_out + acute_setback(before.dir, f.dir, sw, ring.is_none() && corners[prev].is_some());
             sidewalks.push(f.rect(a_in, len, f.edge_in, f.edge_in + sw));
             sidewalks.push(f.rect(a_out, len, f.edge_out - sw, f.edge_out));
         }
-        let median = (a.median_width_m > 0.0 && stop + 1.0 < len).then(|| f.rect(stop + 1.0, len, -f.s_med, f.s_med));
+        let median =
+            (a.median_width_m > 0.0 && beyond + 1.0 < len).then(|| f.rect(beyond + 1.0, len, -f.s_med, f.s_med));
         layout.arms.push(ArmLayout {
             name: a.name.clone(),
             dir: f.dir,
@@ -276,6 +345,10 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             curb_height_m: a.curb_height_m,
             speed_limit_mps: a.speed_limit_kph / 3.6,
         });
+    }
+    if let Some(r) = ring {
+        ring_central(&mut layout, &frames, r);
+        return layout;
     }
     // Corner sidewalks and the central polygon, walking counter-clockwise.
     for i in 0..n {
@@ -312,6 +385,96 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
     layout
 }
 
+/// The most and least radius of the curb's flare between an arm and a roundabout's ring.
+const FLARE_MAX_M: f32 = 15.0;
+const FLARE_MIN_M: f32 = 2.0;
+
+/// The curb's flare where an arm's edge meets a roundabout's ring: a circular arc tangent to the
+/// edge's line and to the ring's outer circle, outside both (the entry and exit radii of a
+/// roundabout's design), as large as [`FLARE_MAX_M`] while it meets the edge before the crosswalk.
+struct Fillet {
+    centre: Vec2,
+    radius: f32,
+    /// Where it meets the edge's line (along the arm) and the ring.
+    at_edge: Vec2,
+    at_ring: Vec2,
+    along: f32,
+}
+
+/// The flare of arm `f`'s edge at lateral offset `e` (from its centre line) against a ring of
+/// outer radius `ro`, meeting the edge before `cw0` (the crosswalk) where it can.
+fn fillet(f: &ArmFrame, e: f32, ro: f32, cw0: f32) -> Fillet {
+    let lat = e + f.off;
+    let sign = if e >= 0.0 { 1.0 } else { -1.0 };
+    // Along the arm, the centre lies at √((ro + R)² − (|lat| + R)²), linear in R when squared.
+    let until = (cw0 - 0.5).max(0.0);
+    let room = 2.0 * (ro - lat.abs()).max(1e-3);
+    let radius = ((until * until - ro * ro + lat * lat) / room).clamp(FLARE_MIN_M, FLARE_MAX_M);
+    let along = ((ro + radius).powi(2) - (lat.abs() + radius).powi(2)).max(0.0).sqrt();
+    let centre = f.dir * along + f.normal * (lat + sign * radius);
+    Fillet { centre, radius, at_edge: f.dir * along + f.normal * lat, at_ring: centre * (ro / (ro + radius)), along }
+}
+
+/// Points on the circle about `c` from `p0` to `p1` the short way round, ends included.
+fn short_arc(c: Vec2, p0: Vec2, p1: Vec2) -> Vec<Vec2> {
+    let (u0, u1) = (p0 - c, p1 - c);
+    let r = u0.length();
+    let a0 = u0.y.atan2(u0.x);
+    let delta = u0.perp_dot(u1).atan2(u0.dot(u1));
+    let n = (delta.abs() / ARC_STEP_RAD).ceil().max(1.0) as usize;
+    (0..=n).map(|k| c + Vec2::from_angle(a0 + delta * k as f32 / n as f32) * r).collect()
+}
+
+/// A roundabout's central polygon (the inscribed circle, the flares and each arm's stub out to
+/// its crosswalk's far edge), the island, and the sidewalks along the flares and the ring
+/// between the arms, as wide as the narrower of the two arms' sidewalks, with a pole's place in
+/// the middle of each.
+fn ring_central(layout: &mut Layout, frames: &[ArmFrame], r: &super::config::RoundaboutConfig) {
+    let ro = r.outer_radius_m();
+    let n = frames.len();
+    let angle = |p: Vec2| p.y.atan2(p.x);
+    let cw0 = ro + r.crosswalk_setback_m;
+    let flares: Vec<(Fillet, Fillet)> =
+        frames.iter().map(|f| (fillet(f, f.edge_out, ro, cw0), fillet(f, f.edge_in, ro, cw0))).collect();
+    for i in 0..n {
+        let (f, g) = (&frames[i], &frames[(i + 1) % n]);
+        let cw1 = layout.arms[i].crosswalk[1].dot(f.dir);
+        let (out, inn) = (&flares[i].0, &flares[i].1);
+        let next = &flares[(i + 1) % n].0;
+        layout.central.extend(short_arc(out.centre, out.at_ring, out.at_edge));
+        layout.central.extend([f.at(cw1, f.edge_out), f.at(cw1, f.edge_in)]);
+        let flare_in = short_arc(inn.centre, inn.at_edge, inn.at_ring);
+        layout.central.extend_from_slice(&flare_in);
+        let (a0, a1) = (angle(inn.at_ring), angle(next.at_ring));
+        let ring = arc(ro, a0, a1);
+        layout.central.extend_from_slice(&ring[1..ring.len() - 1]);
+        let sw = f.cfg.sidewalk_width_m.min(g.cfg.sidewalk_width_m).min(inn.radius - 0.1).min(next.radius - 0.1);
+        if sw > 0.0 {
+            // The curb from arm i's edge round to the next arm's, then the same offset by the
+            // sidewalk's width (towards the flares' centres, away from the ring's).
+            let flare_next = short_arc(next.centre, next.at_ring, next.at_edge);
+            let toward = |c: Vec2, rad: f32| move |p: Vec2| c + (p - c) * ((rad - sw) / rad);
+            let mut walk = flare_in.clone();
+            walk.extend_from_slice(&ring[1..ring.len() - 1]);
+            walk.extend_from_slice(&flare_next);
+            let mut outer: Vec<Vec2> = flare_in.iter().map(|&p| toward(inn.centre, inn.radius)(p)).collect();
+            outer.extend(ring[1..ring.len() - 1].iter().map(|&p| p * ((ro + sw) / ro)));
+            outer.extend(flare_next.iter().map(|&p| toward(next.centre, next.radius)(p)));
+            walk.extend(outer.into_iter().rev());
+            layout.corner_sidewalks.push(walk);
+            let mid = a0 + 0.5 * (a1 - a0).rem_euclid(std::f32::consts::TAU);
+            layout.corner_posts.push(Vec2::from_angle(mid) * (ro + 0.5 * sw));
+        }
+    }
+    let island = circle(r.island_radius_m);
+    layout.ring = Some(Ring {
+        island_radius_m: r.island_radius_m,
+        outer_radius_m: ro,
+        island_height_m: r.island_height_m,
+        island,
+    });
+}
+
 /// Resolves the configured ROIs against the layout.
 pub fn resolve_rois(rois: &[RoiConfig], layout: &Layout) -> Vec<Roi> {
     rois.iter()
@@ -346,7 +509,11 @@ pub fn resolve_rois(rois: &[RoiConfig], layout: &Layout) -> Vec<Roi> {
                 }
             };
             let polygons = polygons.into_iter().map(ccw).collect();
-            Roi { name: r.name.clone(), weight: r.weight, polygons }
+            let holes = match (&r.kind, &layout.ring) {
+                (RoiKind::Central, Some(ring)) => vec![ring.island.clone()],
+                _ => Vec::new(),
+            };
+            Roi { name: r.name.clone(), weight: r.weight, polygons, holes }
         })
         .collect()
 }

@@ -25,6 +25,8 @@ pub const DEFAULT_SCENE_TOML: &str = include_str!("../../../../fixtures/intersec
 pub enum ObjectKind {
     Sidewalk,
     Median,
+    /// A roundabout's central island: a curb and what grows on it, as one raised block.
+    Island,
     Building,
     TreeTrunk,
     TreeCrown,
@@ -140,19 +142,21 @@ fn plausible(cfg: &SceneConfig, layout: &Layout, file: &Path) -> Result<(), Rayc
     let standing = poles.map(|(f, p)| (f, p, "pole")).chain(lights.map(|(f, p)| (f, p, "pole")));
     for (field, pos, what) in standing.chain(trees.map(|(f, p)| (f, p, "tree"))) {
         let p = Vec2::from(pos);
+        // A roundabout's island is raised ground, like a median.
+        let island = layout.on_island(p);
         let on_road = layout
             .arms
             .iter()
-            .find(|a| inside(p, &a.road) && !a.median.as_ref().is_some_and(|m| inside(p, m)))
+            .find(|a| inside(p, &a.road) && !a.median.as_ref().is_some_and(|m| inside(p, m)) && !island)
             .map(|a| format!("stands on the carriageway of arm {:?}", a.name));
-        let in_box =
-            (layout.central.len() >= 3 && inside(p, &layout.central)).then(|| "stands in the junction box".into());
+        let in_box = (layout.central.len() >= 3 && inside(p, &layout.central) && !island)
+            .then(|| "stands in the junction box".into());
         let in_building = footprints.iter().position(|f| inside(p, f)).map(|k| format!("stands inside buildings[{k}]"));
         if let Some(why) = in_box.or(on_road).or(in_building) {
             return Err(err(
                 field,
                 format!("{pos:?}"),
-                format!("{why}; a {what} stands on a sidewalk, a median or the verge"),
+                format!("{why}; a {what} stands on a sidewalk, a median, an island or the verge"),
             ));
         }
     }
@@ -238,6 +242,10 @@ impl Scene {
         for (k, c) in layout.corner_sidewalks.iter().enumerate() {
             let o = b.object(format!("corner{k}/sidewalk"), ObjectKind::Sidewalk, Material::Concrete);
             b.mesh.push_prism(c, gz, gz + curb, o).map_err(|e| named(e, "arms".into()))?;
+        }
+        if let Some(r) = &layout.ring {
+            let o = b.object("roundabout/island".into(), ObjectKind::Island, Material::Vegetation);
+            b.mesh.push_prism(&r.island, gz, gz + r.island_height_m, o).map_err(|e| named(e, "roundabout".into()))?;
         }
         for (i, bc) in cfg.buildings.iter().enumerate() {
             let name = if bc.name.is_empty() { format!("building{i}") } else { bc.name.clone() };

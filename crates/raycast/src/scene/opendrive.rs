@@ -146,6 +146,7 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         street_lights: Vec::new(),
         roi: default_rois(),
         meshes: Vec::new(),
+        roundabout: None,
     };
     let written = signals_written(xml);
     if written > net.signals().len() {
