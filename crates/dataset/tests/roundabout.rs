@@ -80,8 +80,7 @@ fn an_entry_takes_the_gaps_its_capacity_formula_counts() {
 /// crosswalk and direction) the approaches keep up with their arrivals and no queue grows beyond
 /// the arm; at the default rates (500 veh/h per approach, past this junction's capacity in the
 /// model, and 90 pedestrians) the ring still flows: every approach enters, nobody is stuck.
-/// (The peak level's 200 pedestrians per crosswalk and direction are another matter: see
-/// `docs/models.md`.)
+/// (`docs/models.md` gives 20-minute figures for every level.)
 #[test]
 fn the_ring_keeps_up_off_peak_and_flows_at_the_default_rates() {
     let scene = scene();
