@@ -239,17 +239,8 @@ pub fn level_rates(
     let opposing_flow = |rates: &[f64], a: &Approach| -> f64 {
         a.opposing.iter().map(|&j| rates[j] * (approaches[j].shares.through + approaches[j].shares.right)).sum()
     };
-    let mut rates = vec![0.0; approaches.len()];
-    for _ in 0..200 {
-        let next: Vec<f64> = approaches.iter().map(|a| a.rate_at(vc, opposing_flow(&rates, a))).collect();
-        let change = rates.iter().zip(&next).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-        for (r, n) in rates.iter_mut().zip(&next) {
-            *r = 0.5 * (*r + n);
-        }
-        if change < 0.01 {
-            break;
-        }
-    }
+    let rates =
+        settle(approaches.len(), |rates| approaches.iter().map(|a| a.rate_at(vc, opposing_flow(rates, a))).collect());
     layout
         .arms
         .iter()
@@ -260,6 +251,24 @@ pub fn level_rates(
             ApproachLoad { arm: arm.name.clone(), vehicles_per_hour: r, critical, volume_to_capacity: x }
         })
         .collect()
+}
+
+/// The damped fixed point of `n` approaches' rates, from none: each round moves every rate
+/// halfway to what `next` gives for the current ones, until no rate would move by 0.01 veh/h
+/// (or 200 rounds).
+fn settle(n: usize, next: impl Fn(&[f64]) -> Vec<f64>) -> Vec<f64> {
+    let mut rates = vec![0.0; n];
+    for _ in 0..200 {
+        let next = next(&rates);
+        let change = rates.iter().zip(&next).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        for (r, q) in rates.iter_mut().zip(&next) {
+            *r = 0.5 * (*r + q);
+        }
+        if change < 0.01 {
+            break;
+        }
+    }
+    rates
 }
 
 /// Whether arm `i` lies strictly between arms `j` and `k` going counter-clockwise (the layout's
@@ -319,18 +328,9 @@ fn ring_rates(layout: &Layout, routes: &[Route], cfg: &TrafficConfig, demand: De
     let served: Vec<bool> = (0..n).map(|i| routes.iter().any(|r| r.approach == i)).collect();
     let vc = demand.volume_to_capacity();
     let circulating = |rates: &[f64], i: usize| (0..n).map(|j| rates[j] * passing[j][i]).sum::<f64>();
-    let mut rates = vec![0.0; n];
-    for _ in 0..200 {
-        let next: Vec<f64> =
-            (0..n).map(|i| if served[i] { vc * ring_entry_capacity(circulating(&rates, i)) } else { 0.0 }).collect();
-        let change = rates.iter().zip(&next).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-        for (r, q) in rates.iter_mut().zip(&next) {
-            *r = 0.5 * (*r + q);
-        }
-        if change < 0.01 {
-            break;
-        }
-    }
+    let rates = settle(n, |rates| {
+        (0..n).map(|i| if served[i] { vc * ring_entry_capacity(circulating(rates, i)) } else { 0.0 }).collect()
+    });
     (0..n)
         .map(|i| {
             let cap = ring_entry_capacity(circulating(&rates, i));

@@ -170,11 +170,7 @@ impl Traffic {
                 return false;
             }
             // The time to reach it respects the ring's curvature speed caps.
-            let r = &self.routes[*rb];
-            let v_max = (0..=(d / DS).ceil() as usize)
-                .map(|k| r.v_cap_at(front + k as f32 * DS))
-                .fold(o.v_desired, f32::min)
-                .max(o.v);
+            let v_max = self.routes[*rb].v_cap_over(front, d, o.v_desired).max(o.v);
             time_capped(o.v, class_model(o.class).a, v_max, d) >= need
         })
     }
@@ -218,10 +214,7 @@ impl Traffic {
                 return None;
             }
             // The speed the vehicle can reach on its way over the crosswalk.
-            let v_max = (0..=((c.s_out + me.length - front) / DS).ceil() as usize)
-                .map(|k| r.v_cap_at(front + k as f32 * DS))
-                .fold(me.v_desired, f32::min)
-                .max(1.0);
+            let v_max = r.v_cap_over(front, c.s_out + me.length - front, me.v_desired).max(1.0);
             let t_arrive = time_capped(me.v, m.a, v_max, wait - front);
             let t_leave = time_capped(me.v, m.a, v_max, c.s_out + me.length - front);
             let busy = on(c.arm).any(|o| match &o.role {

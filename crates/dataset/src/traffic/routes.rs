@@ -121,6 +121,13 @@ impl Route {
         let k = ((s / DS).round().max(0.0) as usize).min(self.v_cap.len() - 1);
         self.v_cap[k]
     }
+
+    /// The lowest curvature speed cap from arc length `from` over the next `d` metres (sampled
+    /// every [`DS`], both ends included), and no more than `v`: the fastest a vehicle wanting
+    /// `v` can go all the way.
+    pub fn v_cap_over(&self, from: f32, d: f32, v: f32) -> f32 {
+        (0..=(d / DS).ceil() as usize).map(|k| self.v_cap_at(from + k as f32 * DS)).fold(v, f32::min)
+    }
 }
 
 fn bezier(p0: Vec2, p1: Vec2, p2: Vec2, p3: Vec2, n: usize) -> Vec<Vec2> {
@@ -227,7 +234,7 @@ fn ring_curve(
     (p1, h1, after): (Vec2, Vec2, &[Vec2]),
 ) -> Vec<Vec2> {
     let chord = (p1 - p0).length();
-    let len = |pts: &[Vec2]| pts.windows(2).map(|w| (w[1] - w[0]).length()).sum::<f32>();
+    let len = polyline_length;
     let mut best: Option<(f32, Vec<Vec2>)> = None;
     for a in 5..=18 {
         for b in 5..=18 {
@@ -358,7 +365,7 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
                 let o = out[k];
                 let stop_line = *poly.last().unwrap_or(&o.start);
                 let h = (stop_line - poly[poly.len() - 2]).normalize_or(-arm.dir);
-                let stop_s = poly.windows(2).map(|w| (w[1] - w[0]).length()).sum::<f32>();
+                let stop_s = polyline_length(&poly);
                 // Straight over the own crosswalk to its junction-side edge.
                 let entry = stop_line + h * (stop_line.dot(arm.dir) - cw0(arm)).max(0.0);
                 poly.push(entry);
@@ -385,6 +392,11 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
         }
     }
     routes
+}
+
+/// The length of a polyline, summed segment by segment.
+fn polyline_length(pts: &[Vec2]) -> f32 {
+    pts.windows(2).map(|w| (w[1] - w[0]).length()).sum()
 }
 
 /// Where `path` crosses the crosswalks of `arms`, in that order.
@@ -426,8 +438,7 @@ fn ring_route(
     let mut poly = vec![first, entry];
     poly.extend_from_slice(&curve[1..]);
     poly.push(o.end);
-    let len = |pts: &[Vec2]| pts.windows(2).map(|w| (w[1] - w[0]).length()).sum::<f32>();
-    let merge_s = len(&poly[..=1 + merge]);
+    let merge_s = polyline_length(&poly[..=1 + merge]);
     let path = Path::from_polyline(&poly);
     let near = ring.outer_radius_m + 0.5;
     let stop_s = path.points.iter().position(|p| p.length() <= near).map_or(merge_s, |k| k as f32 * DS);

@@ -133,6 +133,11 @@ impl SignalPlan {
         SignalPlan { groups: Vec::new(), group_of_arm: Vec::new(), cycle_s: 0.0 }
     }
 
+    /// The group that serves arm `arm` (none without a signal).
+    fn group(&self, arm: usize) -> Option<&Group> {
+        self.group_of_arm.get(arm).and_then(|&k| self.groups.get(k))
+    }
+
     /// Whether a signal runs the junction.
     pub fn is_signalised(&self) -> bool {
         !self.groups.is_empty()
@@ -146,7 +151,7 @@ impl SignalPlan {
     /// The phase that serves arm `arm`: its intervals, and whether an opposing arm runs with it
     /// (its left turns are then permissive after the protected interval).
     pub fn phase(&self, arm: usize) -> Phase {
-        let Some(g) = self.group_of_arm.get(arm).and_then(|&k| self.groups.get(k)) else {
+        let Some(g) = self.group(arm) else {
             // No signal: green all the time, nobody opposing.
             return Phase { left_s: 0.0, green_s: 1.0, yellow_s: 0.0, all_red_s: 0.0, opposed: false };
         };
@@ -221,7 +226,7 @@ impl SignalPlan {
 
     /// The arms of the group that opposes `arm` in its own green (the other arm of its pair).
     pub fn opposing(&self, arm: usize) -> Vec<usize> {
-        let Some(g) = self.group_of_arm.get(arm).and_then(|&k| self.groups.get(k)) else { return Vec::new() };
+        let Some(g) = self.group(arm) else { return Vec::new() };
         g.arms.iter().copied().filter(|&a| a != arm).collect()
     }
 }
