@@ -132,3 +132,52 @@ fn every_shipped_schedule_applies_to_every_preset() {
         }
     }
 }
+
+/// With cyclists, every preset of every plugin, the late one's per-modality heads included,
+/// has a seventh class channel, takes a cyclist's box as its positive and decodes only its
+/// own classes; without, six, and the cyclist is no target.
+#[test]
+fn every_preset_detects_cyclists_when_asked() {
+    use hilo_detector::data::{Frame, GtBox};
+    use hilo_detector::detector::{Detector, HostBatch};
+    let registry = hilo::registry().unwrap();
+    let cyclist = GtBox { class: 6, center: [2.0, 1.0, 0.85], wlh: [0.65, 1.75, 1.7], yaw: 0.4, velocity: [4.0, 1.7] };
+    let mut lidar: Vec<[f32; 5]> =
+        (0..200).map(|i| [0.1 * (i % 20) as f32 - 1.0, 0.1 * (i / 20) as f32, 0.0, 0.2, 0.0]).collect();
+    lidar.extend((0..40).map(|i| [2.0 + 0.02 * i as f32, 1.0, 0.3 + 0.03 * i as f32, 0.5, 0.0]));
+    let radar = vec![hilo_detector::data::radar_point([2.0, 1.0, 1.0], -3.0, 2.5, [0.8, 0.6], 0.0)];
+    let frame = Frame {
+        sample_token: "s".into(),
+        scene: "s".into(),
+        lidar,
+        radar,
+        radar_origin: vec![[0.0, 0.0, 5.0]],
+        boxes: vec![cyclist],
+    };
+    for name in registry.detector_names() {
+        for cyclists in [false, true] {
+            let mut cfg = registry.preset(&name).unwrap().detector.clone();
+            cfg.grid = hilo_detector::grid::BevGrid { half_extent_m: 12.8, cell_m: 0.8, max_pillars: 2000, ..cfg.grid };
+            cfg.cyclists = cyclists;
+            let k = cfg.classes().len();
+            assert_eq!(
+                (k, cfg.classes().last().copied()),
+                if cyclists { (7, Some(hilo_core::Class::Bicycle)) } else { (6, Some(hilo_core::Class::GolfCart)) }
+            );
+            let det = Detector::new(&cfg.clone().validate().unwrap(), &registry, &candle_core::Device::Cpu, 0)
+                .unwrap_or_else(|e| panic!("{name}, cyclists {cyclists}: {e}"));
+            let b = HostBatch::new(&cfg, std::slice::from_ref(&frame), true, 0);
+            let heads = det.forward_heads(&b, true).unwrap();
+            for (cls, _) in &heads {
+                assert_eq!(cls.dims()[1], k, "{name}, cyclists {cyclists}");
+            }
+            // The cyclist is a positive of the seventh channel only when there is one.
+            let positives: f32 = b.targets.pos_per_class.iter().sum();
+            assert_eq!(positives > 0.0, cyclists, "{name}, cyclists {cyclists}: {:?}", b.targets.pos_per_class);
+            assert!(det.loss_all(&heads, &b.targets).unwrap().total.to_scalar::<f32>().unwrap().is_finite(), "{name}");
+            for d in det.detect(&b).unwrap().concat() {
+                assert!(cfg.classes().contains(&d.class), "{name}, cyclists {cyclists}: a {} box", d.class);
+            }
+        }
+    }
+}

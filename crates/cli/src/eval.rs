@@ -62,6 +62,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         (None, Some(p)) => read_ground_truth(p)?,
         (None, None) => bail!("give --data or --gt"),
     };
+    // Without a config of its own, ground truth with cyclists evaluates them too.
+    let cyclists = gt.boxes.values().flatten().any(|b| b.detection_name == hilo_core::Class::Bicycle.name());
+    let cfg = if args.config.is_none() && cyclists { cfg.with_cyclists() } else { cfg };
     let pred = read_submission(&args.results, cfg.max_boxes_per_sample)?;
     check_sample_set(&gt, &pred, &args.results)?;
     // The second submission is read and checked before anything is written.

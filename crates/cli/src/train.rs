@@ -1,9 +1,9 @@
 //! `hilo train` and `hilo detect`.
 
 use anyhow::{Context, Result, bail};
-use hilo_detector::Registry;
 use hilo_detector::data::LoadOptions;
 use hilo_detector::train::StepReport;
+use hilo_detector::{DetectorConfig, Registry};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -79,7 +79,9 @@ pub fn run_train(args: &TrainArgs) -> Result<()> {
     }
     let cfg = cfg.validate().context("--batch, --samples or the training schedule")?;
     hilo_detector::cpu::set_fused(&args.fused.0);
-    let det = det.validate()?;
+    // A dataset whose traffic carries cyclists gets a detector that finds them.
+    let cyclists = det.cyclists || ds.classes().contains(&hilo_core::Class::Bicycle);
+    let det = DetectorConfig { cyclists, ..det }.validate()?;
     det.check_memory(cfg.batch, hilo_core::machine::memory_bytes())?;
     // Held from before the data is loaded, so a second training of the folder is refused at once.
     let _claim = hilo_core::folder::claim(&args.out, hilo_core::folder::Mode::Exclusive)?;

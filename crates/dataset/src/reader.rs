@@ -400,6 +400,14 @@ pub struct ClassStats {
 }
 
 impl Dataset {
+    /// The hilo classes the category table lists (the classes the dataset's traffic can carry),
+    /// in [`hilo_core::Class::ALL`] order.
+    pub fn classes(&self) -> Vec<hilo_core::Class> {
+        let listed: Vec<_> =
+            self.tables.category.iter().filter_map(|c| crate::writer::class_of_category(&c.name)).collect();
+        hilo_core::Class::ALL.into_iter().filter(|c| listed.contains(c)).collect()
+    }
+
     /// Each instance's class name (hilo's name where the category maps to one, the category's
     /// name otherwise), by instance token.
     pub fn instance_classes(&self) -> BTreeMap<&str, String> {

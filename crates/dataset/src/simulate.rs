@@ -769,7 +769,7 @@ pub fn write_dataset(
             SensorSetup { channel: s.channel.clone(), modality, pose: s.pose }
         })
         .collect();
-    let mut writer = DatasetWriter::new(root, version, namespace, setups)?;
+    let mut writer = DatasetWriter::new(root, version, namespace, setups)?.with_classes(&cfg.traffic.classes());
     let location = scene.config.name.clone();
     let mut summary = WriteSummary {
         scenes: cfg.scenes + cfg.val_scenes,

@@ -93,6 +93,7 @@ pub fn category_name(c: Class) -> &'static str {
         Class::Motorcycle => "vehicle.motorcycle",
         Class::Pedestrian => "human.pedestrian.adult",
         Class::GolfCart => "vehicle.golf_cart",
+        Class::Bicycle => "vehicle.bicycle",
     }
 }
 
@@ -155,7 +156,25 @@ pub struct DatasetWriter {
     tables: Tables,
 }
 
+/// The category row of class `c`.
+fn category(ns: &str, c: Class) -> Category {
+    Category {
+        token: token(&[ns, "category", category_name(c)]),
+        name: category_name(c).into(),
+        description: format!("hilo class {c}"),
+    }
+}
+
 impl DatasetWriter {
+    /// The category table lists `classes` (in [`Class::ALL`] order) instead of the paper's six:
+    /// a dataset whose traffic may carry cyclists lists `bicycle`, one whose traffic cannot
+    /// does not. An annotation of a class the table lacks is refused when its scene is added.
+    pub fn with_classes(mut self, classes: &[Class]) -> Self {
+        let ns = self.namespace.clone();
+        self.tables.category = Class::ALL.iter().filter(|c| classes.contains(c)).map(|&c| category(&ns, c)).collect();
+        self
+    }
+
     /// `namespace` (e.g. the configuration name) makes tokens unique across datasets.
     pub fn new(root: &Path, version: &str, namespace: &str, sensors: Vec<SensorSetup>) -> Result<Self, DatasetError> {
         let mut seen = std::collections::HashSet::new();
@@ -166,14 +185,7 @@ impl DatasetWriter {
             });
         }
         let ns = namespace.to_owned();
-        let mut t = Tables::default();
-        for c in Class::ALL {
-            t.category.push(Category {
-                token: token(&[&ns, "category", category_name(c)]),
-                name: category_name(c).into(),
-                description: format!("hilo class {c}"),
-            });
-        }
+        let mut t = Tables { category: Class::PAPER.iter().map(|&c| category(&ns, c)).collect(), ..Tables::default() };
         for a in ATTRIBUTES {
             t.attribute.push(Attribute {
                 token: token(&[&ns, "attribute", a]),
@@ -477,12 +489,13 @@ fn add_annotations(t: &mut Tables, ns: &str, scene: &SceneData, sample_tokens: &
         |inst: u32, fi: usize| token(&[ns, "annotation", &scene.name, &inst.to_string(), &sample_tokens[fi]]);
     for (inst, chain) in &chains {
         let first = &scene.frames[chain[0].0].annotations[chain[0].1];
-        let cat = t
-            .category
-            .iter()
-            .find(|c| c.name == category_name(first.class))
-            .map(|c| c.token.clone())
-            .unwrap_or_default();
+        let Some(cat) = t.category.iter().find(|c| c.name == category_name(first.class)).map(|c| c.token.clone())
+        else {
+            return Err(DatasetError::Writer {
+                what: format!("scene {:?}, class {}", scene.name, first.class),
+                reason: "not in the dataset's category table (the writer's classes)".into(),
+            });
+        };
         let inst_token = token(&[ns, "instance", &scene.name, &inst.to_string()]);
         t.instance.push(Instance {
             token: inst_token.clone(),

@@ -22,7 +22,7 @@ use hilo_dataset::Dataset;
 use hilo_dataset::background::BackgroundModel;
 use hilo_dataset::tables::SampleData;
 pub use hilo_fusion::config::{
-    Augmentation, CLASSES, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, RadarPairConfig, is_radial,
+    Augmentation, InputConfig, LIDAR_FEATURES, RADAR_FEATURES, RadarClutterConfig, RadarPairConfig, is_radial,
     radar_point,
 };
 pub use hilo_fusion::pillars::{Pillars, pillarize};
@@ -155,8 +155,8 @@ fn quat_rotate(q: [f64; 4], p: [f64; 3]) -> [f64; 3] {
     r.mul_vec3(glam::DVec3::from(p)).to_array()
 }
 
-/// How [`load_split`] reads frames.
-#[derive(Clone, Copy, Debug, Default)]
+/// How [`load_split`] reads frames. The default reads every class's boxes and nothing else.
+#[derive(Clone, Copy, Debug)]
 pub struct LoadOptions<'a> {
     /// LiDAR points this model calls background are left out.
     pub background: Option<&'a BackgroundModel>,
@@ -176,6 +176,25 @@ pub struct LoadOptions<'a> {
     /// only the radar saw (on a radar rig it would otherwise learn from boxes it cannot see, and
     /// its score at the same LiDAR poses would depend on whether a radar hangs beside them).
     pub radar_only_boxes: bool,
+    /// Boxes of the first this many classes of [`Class::ALL`] are kept (a detector's head
+    /// classes, [`hilo_fusion::DetectorConfig::classes`]); others are not loaded.
+    pub classes: usize,
+}
+
+impl Default for LoadOptions<'_> {
+    fn default() -> Self {
+        LoadOptions {
+            background: None,
+            radar_sweeps: 0,
+            lidar_sweeps: 0,
+            max_sweep_lag_s: 0.0,
+            radar_clutter: None,
+            radar_pairs: None,
+            lidar_min_range_m: 0.0,
+            radar_only_boxes: false,
+            classes: Class::ALL.len(),
+        }
+    }
 }
 
 impl<'a> LoadOptions<'a> {
@@ -191,17 +210,18 @@ impl<'a> LoadOptions<'a> {
             radar_pairs: input.radar_pairs,
             lidar_min_range_m: input.lidar_min_range_m,
             radar_only_boxes: uses_radar,
+            classes: Class::ALL.len(),
         }
     }
 
     /// The options of detector `cfg`'s input: [`LoadOptions::new`] with whether the registry's
-    /// plugin reads radar.
+    /// plugin reads radar, keeping the boxes of the classes its head detects.
     pub fn of(
         cfg: &hilo_fusion::DetectorConfig,
         registry: &hilo_fusion::Registry,
         background: Option<&'a BackgroundModel>,
     ) -> Self {
-        Self::new(&cfg.input, background, registry.uses_radar(cfg))
+        LoadOptions { classes: cfg.classes().len(), ..Self::new(&cfg.input, background, registry.uses_radar(cfg)) }
     }
 }
 
@@ -495,6 +515,9 @@ fn load_samples(ds: &Dataset, split: &str, opts: &LoadOptions, only: Option<usiz
         let mut boxes = Vec::new();
         for a in anns.get(s.token.as_str()).cloned().unwrap_or_default() {
             let Some(Some(class)) = instance_class.get(a.instance_token.as_str()) else { continue };
+            if class.index() >= opts.classes {
+                continue;
+            }
             if a.num_lidar_pts == 0 && !(opts.radar_only_boxes && a.num_radar_pts > 0) {
                 stats.radar_only_boxes += usize::from(a.num_radar_pts > 0);
                 continue;

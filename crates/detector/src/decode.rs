@@ -1,11 +1,11 @@
 //! From head outputs to boxes: heatmap peaks (CenterPoint) or thresholded cells with rotated
 //! BEV non-maximum suppression (PointPillars), over a dense grid or sparse head sites.
 
-use crate::data::CLASSES;
 use crate::grid::BevGrid;
 use crate::layout::{NONE, SparseHost};
 use crate::targets::Assignment;
 use glam::{Vec2, Vec3};
+use hilo_core::Class;
 use hilo_core::{Box3, Detection};
 pub use hilo_fusion::config::DecodeConfig;
 
@@ -124,7 +124,7 @@ pub fn decode(
             (reg(3, i).clamp(-3.0, 3.0).exp(), reg(4, i).clamp(-3.0, 3.5).exp(), reg(5, i).clamp(-3.0, 2.5).exp());
         let d = Detection {
             box3: Box3::new(Vec3::new(x, y, reg(2, i)), l, w, h, reg(6, i).atan2(reg(7, i))),
-            class: CLASSES[k.min(CLASSES.len() - 1)],
+            class: Class::ALL[k.min(Class::ALL.len() - 1)],
             score,
             velocity_mps: Vec2::new(reg(8, i), reg(9, i)),
         };

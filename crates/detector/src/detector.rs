@@ -1,7 +1,7 @@
 //! A detector: a fusion stage (from the registry), the shared BEV backbone and a head; host-side
 //! batches; losses and decoding; checkpoints.
 
-use crate::data::{CLASSES, Frame, GtBox, LIDAR_FEATURES, Pillars, RADAR_FEATURES, pillarize};
+use crate::data::{Frame, GtBox, LIDAR_FEATURES, Pillars, RADAR_FEATURES, pillarize};
 use crate::decode::{Peaks, decode};
 use crate::error::{DetectorError, Result};
 use crate::fusion::{Fusion, FusionInput, FusionOutput, Registry};
@@ -42,7 +42,7 @@ impl HostBatch {
         let mut targets = crate::targets::build(
             &cfg.grid,
             cfg.backbone.out_stride,
-            CLASSES.len(),
+            cfg.classes().len(),
             &boxes,
             cfg.assignment,
             cfg.velocity_target,
@@ -57,7 +57,7 @@ impl HostBatch {
                 cfg.head_level(),
                 s.head_dilation,
             );
-            targets = targets.at_sites(&h.head_sites, CLASSES.len());
+            targets = targets.at_sites(&h.head_sites, cfg.classes().len());
             h
         });
         HostBatch {
@@ -155,24 +155,46 @@ impl Detector {
     pub fn new(cfg: &Valid<DetectorConfig>, registry: &Registry, device: &Device, seed: u64) -> Result<Self> {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, device);
-        let fusion = registry.build(&cfg.fusion, &cfg.fusion_config, vb.pp("fusion"))?;
+        // A plugin that makes its own heads (late fusion) takes their class count from its
+        // config's `classes`; the detector sets it when its classes are not the paper's six.
+        let k = cfg.classes().len();
+        let mut fusion_config = cfg.fusion_config.clone();
+        if k != hilo_core::Class::PAPER.len()
+            && registry.stage(&cfg.fusion) == Some(hilo_fusion::Stage::Late)
+            && let Some(o) = fusion_config.as_object_mut()
+        {
+            o.insert("classes".into(), k.into());
+        }
+        let fusion = registry.build(&cfg.fusion, &fusion_config, vb.pp("fusion"))?;
         let mut det =
             Detector { cfg: (**cfg).clone(), varmap, fusion, backbone: None, head: None, device: device.clone() };
         // The plugin's output, on a probe batch, decides the rest: a map of C channels gets the
         // shared backbone and head; per-modality heads need nothing more.
         let (lidar, radar, layout) = det.tensors(&probe(cfg))?;
         let input = FusionInput { lidar: &lidar, radar: &radar, batch: 1, grid: cfg.grid, layout: &layout };
-        if let FusionOutput::Bev(map) = det.fusion.forward(&input, false)? {
-            let backbone = Backbone::new(map.dim(1)?, &cfg.backbone, vb.pp("backbone"))?;
-            let head = Head::new(
-                backbone.out_channels,
-                cfg.head_channels.max(1),
-                CLASSES.len(),
-                cfg.head_channels > 0,
-                vb.pp("head"),
-            )?;
-            det.backbone = Some(backbone);
-            det.head = Some(head);
+        match det.fusion.forward(&input, false)? {
+            FusionOutput::Bev(map) => {
+                let backbone = Backbone::new(map.dim(1)?, &cfg.backbone, vb.pp("backbone"))?;
+                let head = Head::new(
+                    backbone.out_channels,
+                    cfg.head_channels.max(1),
+                    k,
+                    cfg.head_channels > 0,
+                    vb.pp("head"),
+                )?;
+                det.backbone = Some(backbone);
+                det.head = Some(head);
+            }
+            FusionOutput::Heads(heads) => {
+                if let Some((cls, _)) = heads.iter().find(|(cls, _)| cls.dim(1).ok() != Some(k)) {
+                    return Err(DetectorError::Config(format!(
+                        "fusion plugin {:?} makes heads of {:?} class channels; the detector has {k} ({})",
+                        cfg.fusion,
+                        cls.dims().get(1),
+                        cfg.classes().iter().map(|c| c.name()).collect::<Vec<_>>().join(", ")
+                    )));
+                }
+            }
         }
         seeded_init(&det.varmap, seed)?;
         Ok(det)
@@ -318,7 +340,7 @@ impl Detector {
         let heads = self.forward_heads(b, false)?;
         let n = self.cfg.grid.cells() >> self.cfg.head_level();
         let stride = self.cfg.backbone.out_stride;
-        let k = CLASSES.len();
+        let k = self.cfg.classes().len();
         let mut per_frame: Vec<Vec<Vec<Detection>>> = vec![Vec::new(); b.size];
         for (cls, reg) in heads {
             let cls = cls.flatten_all()?.to_vec1::<f32>()?;

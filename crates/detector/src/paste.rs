@@ -94,7 +94,7 @@ impl PasteDb {
     /// The instances held, per class by name: `car 120, pedestrian 45`.
     pub fn describe(&self) -> String {
         let held: Vec<String> =
-            self.counts().iter().map(|(c, n)| format!("{} {n}", crate::data::CLASSES[*c].name())).collect();
+            self.counts().iter().map(|(c, n)| format!("{} {n}", hilo_core::Class::ALL[*c].name())).collect();
         held.join(", ")
     }
 

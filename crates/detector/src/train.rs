@@ -30,7 +30,7 @@ pub fn epoch_frames(frames: &[Frame], sampling: Sampling, seed: u64) -> Vec<usiz
     match sampling {
         Sampling::Uniform => (0..frames.len()).collect(),
         Sampling::ClassBalanced => {
-            let k = crate::data::CLASSES.len();
+            let k = hilo_core::Class::ALL.len();
             let mut holding: Vec<Vec<usize>> = vec![Vec::new(); k];
             for (i, f) in frames.iter().enumerate() {
                 let mut seen = [false; 16];

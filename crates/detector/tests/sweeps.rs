@@ -90,6 +90,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
             radar_pairs: None,
             lidar_min_range_m: 0.0,
             radar_only_boxes: true,
+            ..LoadOptions::default()
         };
         load_split(&ds, "val", &opts).unwrap()
     };
@@ -128,6 +129,7 @@ fn radar_sweeps_stack_with_their_time_lags() {
         radar_pairs: None,
         lidar_min_range_m: 0.0,
         radar_only_boxes: true,
+        ..LoadOptions::default()
     };
     for (i, f) in f4.iter().enumerate() {
         let one = load_split_frame(&ds, "val", &opts, i).unwrap().unwrap();

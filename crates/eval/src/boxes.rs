@@ -77,7 +77,7 @@ impl EvalBox {
 impl EvalBox {
     /// A detector's box as a submission box of `sample`, with the nuScenes attribute its class
     /// and predicted speed imply (moving above 0.5 m/s for vehicles, 0.3 m/s for pedestrians;
-    /// motorcycles always with a rider).
+    /// motorcycles and bicycles always with a rider).
     pub fn from_detection(sample: &str, d: &Detection) -> Self {
         let b = &d.box3;
         let speed = d.velocity_mps.length();
@@ -89,7 +89,7 @@ impl EvalBox {
                     "pedestrian.standing"
                 }
             }
-            Class::Motorcycle => "cycle.with_rider",
+            Class::Motorcycle | Class::Bicycle => "cycle.with_rider",
             _ => {
                 if speed > 0.5 {
                     "vehicle.moving"
@@ -202,7 +202,7 @@ fn check_box(b: &EvalBox, file: &Path, sample: &str, k: usize, pred: bool) -> Re
         return bad(
             "detection_name",
             format!(
-                "{:?} (not an evaluated class: car, truck, bus, motorcycle, pedestrian, golf_cart)",
+                "{:?} (not an evaluated class: car, truck, bus, motorcycle, pedestrian, golf_cart, bicycle)",
                 b.detection_name
             ),
         );

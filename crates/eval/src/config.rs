@@ -47,6 +47,13 @@ impl Default for DetectionConfig {
 }
 
 impl DetectionConfig {
+    /// The same settings with cyclists evaluated at nuScenes' bicycle range, 40 m, unless
+    /// they set a range for `bicycle` already.
+    pub fn with_cyclists(mut self) -> Self {
+        self.class_range.entry("bicycle".to_owned()).or_insert(40.0);
+        self
+    }
+
     /// Refuses a configuration the metric has no meaning for, naming the field: an empty
     /// threshold list (mAP would be the mean of nothing), `min_recall` or `min_precision`
     /// outside [0, 1) (AP divides by 1 − min_precision and averages the recalls above

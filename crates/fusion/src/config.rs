@@ -47,10 +47,23 @@ pub struct DetectorConfig {
     /// [`VelocityTarget::Positives`]).
     #[serde(default, skip_serializing_if = "VelocityTarget::is_positives")]
     pub velocity_target: VelocityTarget,
+    /// The head also detects cyclists (nuScenes `bicycle`): a seventh heatmap channel after the
+    /// paper's six. A study sets it when its traffic carries cyclists, `hilo train` when the
+    /// dataset's category table lists them; detectors saved before the field existed read false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub cyclists: bool,
 }
 
 fn velocity_weight() -> f64 {
     0.2
+}
+
+impl DetectorConfig {
+    /// The classes of the head's heatmap channels, in channel order: [`Class::PAPER`], and the
+    /// cyclist after them when [`DetectorConfig::cyclists`] is set.
+    pub fn classes(&self) -> &'static [Class] {
+        Class::first(Class::PAPER.len() + usize::from(self.cyclists))
+    }
 }
 
 fn is_velocity_weight(w: &f64) -> bool {
@@ -167,8 +180,8 @@ impl DetectorConfig {
         }
         let out = (side / b.out_stride as f64).powi(2);
         let neck = b.neck_channels as f64 * b.blocks.len() as f64;
-        maps += out * (neck + self.head_channels as f64 * CLASSES.len() as f64 + 64.0) * f32s;
-        weights += 9.0 * neck * self.head_channels as f64 * CLASSES.len() as f64;
+        maps += out * (neck + self.head_channels as f64 * self.classes().len() as f64 + 64.0) * f32s;
+        weights += 9.0 * neck * self.head_channels as f64 * self.classes().len() as f64;
         batch as f64 * (points + maps) + weights * f32s
     }
 
@@ -390,9 +403,6 @@ impl TrainConfig {
         }
     }
 }
-
-/// The detection classes, in head-channel order ([`Class::ALL`]; names by [`Class::name`]).
-pub const CLASSES: [Class; 6] = Class::ALL;
 
 /// LiDAR point features: x, y, z, intensity (local frame), and the time lag of the point's
 /// sweep behind the frame (s; 0 for the frame's own sweep, [`InputConfig::lidar_sweeps`]).

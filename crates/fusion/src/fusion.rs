@@ -59,7 +59,9 @@ pub enum FusionOutput {
     Bev(Tensor),
     /// Late fusion: complete per-modality detectors' head outputs (class logits, regression) at
     /// the head's resolution; each is trained against the same targets, and their boxes are
-    /// merged by [`Fusion::merge`].
+    /// merged by [`Fusion::merge`]. Each head has one class channel per class of
+    /// [`crate::DetectorConfig::classes`]: a plugin of [`Stage::Late`] reads their number from
+    /// its config's `classes` field, which the detector sets when it is not the paper's six.
     Heads(Vec<(Tensor, Tensor)>),
 }
 

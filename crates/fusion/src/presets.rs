@@ -74,6 +74,7 @@ pub fn centerpoint() -> DetectorConfig {
         loss_norm: LossNorm::All,
         velocity_weight: 0.2,
         velocity_target: VelocityTarget::Positives,
+        cyclists: false,
     }
 }
 

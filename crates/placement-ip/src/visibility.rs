@@ -97,6 +97,7 @@ fn probe_of(class: Class) -> Probe {
         Class::Bus => Probe { class, length_m: 12.0, width_m: 2.6, height_m: 3.2 },
         Class::Motorcycle => Probe { class, length_m: 2.2, width_m: 0.8, height_m: 1.4 },
         Class::GolfCart => Probe { class, length_m: 2.5, width_m: 1.3, height_m: 1.8 },
+        Class::Bicycle => Probe { class, length_m: 1.75, width_m: 0.65, height_m: 1.7 },
     }
 }
 

@@ -17,6 +17,7 @@ fn size(class: Class) -> (f32, f32, f32) {
         Class::Motorcycle => (2.2, 0.8, 1.4),
         Class::Pedestrian => (0.6, 0.6, 1.75),
         Class::GolfCart => (2.5, 1.3, 1.8),
+        Class::Bicycle => (1.75, 0.65, 1.7),
     }
 }
 
@@ -78,31 +79,10 @@ pub fn demo_actors(scene: &Scene, n: usize, moving: bool, seed: u64) -> Vec<Acto
 
 /// The actors `dt` seconds later (straight-line motion).
 pub fn advance(actors: &[Actor], dt: f32) -> Vec<Actor> {
-    actors
-        .iter()
-        .map(|a| {
-            let mut a = *a;
-            let d = a.velocity_mps * dt;
-            a.shape = match a.shape {
-                hilo_raycast::ActorShape::Box(b) => hilo_raycast::ActorShape::Box(Box3 { center: b.center + d, ..b }),
-                hilo_raycast::ActorShape::Capsule(c) => {
-                    hilo_raycast::ActorShape::Capsule(hilo_raycast::shapes::Capsule {
-                        center: c.center + d.truncate(),
-                        ..c
-                    })
-                }
-            };
-            a
-        })
-        .collect()
+    actors.iter().map(|a| a.moved(dt)).collect()
 }
 
 /// Box of an actor, for drawing.
 pub fn actor_box(a: &Actor) -> Box3 {
-    match a.shape {
-        hilo_raycast::ActorShape::Box(b) => b,
-        hilo_raycast::ActorShape::Capsule(c) => {
-            Box3::new(c.center.extend(0.5 * (c.z0 + c.z1)), 2.0 * c.radius, 2.0 * c.radius, c.z1 - c.z0, 0.0)
-        }
-    }
+    a.shape.outline()
 }

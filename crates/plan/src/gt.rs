@@ -4,7 +4,7 @@
 //! - **visible-only** (nuScenes'): boxes with at least one point of the rig's sensors; what the
 //!   devkit's `load_gt` and `filter_eval_boxes` keep. A rig is never penalised for the road
 //!   users its sensors miss.
-//! - **common** (the verdict's): every road user of the six classes within the evaluation
+//! - **common** (the verdict's): every road user of the evaluated classes within the evaluation
 //!   ranges of the intersection's centre, whatever the rig saw. Every rig of a study records
 //!   the same traffic, so every rig is scored against the same boxes, and a miss caused by
 //!   coverage or occlusion counts against the rig that was bought.

@@ -620,7 +620,7 @@ impl FolderRecord {
 }
 
 /// A preset's detector config with the study's `[detector_patch]` applied (the preset's own
-/// without one). The patch may not rename the preset or change its fusion plugin (the verdict
+/// without one), detecting cyclists when the dataset's traffic carries them. The patch may not rename the preset or change its fusion plugin (the verdict
 /// reads both), and stacked LiDAR sweeps need datasets that record them.
 pub fn patched_detector(
     study: &Study,
@@ -628,10 +628,15 @@ pub fn patched_detector(
     det: &DetectorConfig,
     dataset: &hilo_dataset::simulate::SimulateConfig,
 ) -> Result<DetectorConfig> {
-    let Some(patch) = &study.file.detector_patch else { return Ok(det.clone()) };
+    // Traffic with cyclists gives every detector the cyclist's head channel.
+    let cyclists = dataset.traffic.classes().contains(&hilo_core::Class::Bicycle);
+    let Some(patch) = &study.file.detector_patch else {
+        return Ok(DetectorConfig { cyclists: det.cyclists || cyclists, ..det.clone() });
+    };
     let bad =
         |reason: String| StudyError::PresetChange { section: "detector_patch", preset: preset.to_owned(), reason };
-    let p = det.with_patch(patch).map_err(|e| bad(e.to_string()))?;
+    let mut p = det.with_patch(patch).map_err(|e| bad(e.to_string()))?;
+    p.cyclists |= cyclists;
     if p.name != det.name || p.fusion != det.fusion {
         return Err(bad(format!(
             "changes the preset's name or fusion plugin ({:?}, {:?} from {:?}, {:?}); patch a preset's settings, not what it is",

@@ -536,8 +536,8 @@ fn demand_summary(scene: &Scene) -> serde_json::Value {
 }
 
 /// Box colours, one per class in [`hilo_core::Class::ALL`] order.
-const CLASS_COLOURS: [(u8, u8, u8); 6] =
-    [(80, 170, 255), (255, 170, 60), (120, 230, 120), (255, 90, 200), (250, 250, 120), (160, 120, 255)];
+const CLASS_COLOURS: [(u8, u8, u8); 7] =
+    [(80, 170, 255), (255, 170, 60), (120, 230, 120), (255, 90, 200), (250, 250, 120), (160, 120, 255), (240, 70, 50)];
 /// Point colours, one per sensor of the frame (greys and pastels, apart from the box colours).
 const SENSOR_COLOURS: [(u8, u8, u8); 6] =
     [(210, 210, 210), (130, 220, 230), (240, 180, 180), (150, 150, 150), (200, 230, 160), (230, 200, 240)];
@@ -617,9 +617,10 @@ pub fn dataset_frame(ds: &hilo_dataset::Dataset, frame: usize) -> Result<FramePi
     for (b, col) in &boxes {
         canvas.boxes(std::slice::from_ref(b), *col);
     }
-    keys.extend(
-        hilo_core::Class::ALL.iter().map(|c| (CLASS_COLOURS[c.index()], format!("{} box (tick: heading)", c.name()))),
-    );
+    // The classes the dataset's category table lists (the paper's six, and cyclists where its
+    // traffic carries them).
+    let listed = t.category.iter().filter_map(|c| hilo_dataset::writer::class_of_category(&c.name));
+    keys.extend(listed.map(|c| (CLASS_COLOURS[c.index()], format!("{} box (tick: heading)", c.name()))));
     let key_refs: Vec<((u8, u8, u8), &str)> = keys.iter().map(|(c, t)| (*c, t.as_str())).collect();
     canvas.legend(&key_refs);
     canvas.scale_bar(20.0);

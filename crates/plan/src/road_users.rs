@@ -60,7 +60,7 @@ pub struct TrainingTraffic {
 impl TrainingTraffic {
     /// Steps the traffic of `study`'s training scenes.
     pub fn new(study: &Study) -> Result<TrainingTraffic> {
-        let ranges = study.file.evaluation.detection_config().class_range;
+        let ranges = study.file.detection_config().class_range;
         let classes = hilo_core::Class::ALL.iter().map(|c| c.name()).filter(|n| ranges.contains_key(*n)).collect();
         let scenes = study
             .dataset
@@ -409,7 +409,9 @@ pub struct Occupancy {
 /// sit is what a detector must regress, and the points' extent is what shows it.
 pub fn footprint_extent(actor: &hilo_raycast::Actor, points: impl Iterator<Item = glam::Vec3>) -> f64 {
     let (centre, size, yaw) = match actor.shape {
-        hilo_raycast::ActorShape::Box(b) => (b.center.truncate(), glam::Vec2::new(b.length_m, b.width_m), b.yaw),
+        hilo_raycast::ActorShape::Box(b) | hilo_raycast::ActorShape::Cyclist(b) => {
+            (b.center.truncate(), glam::Vec2::new(b.length_m, b.width_m), b.yaw)
+        }
         hilo_raycast::ActorShape::Capsule(c) => (c.center, glam::Vec2::splat(2.0 * c.radius), 0.0),
     };
     let to_local = glam::Mat2::from_angle(-yaw);
@@ -458,7 +460,7 @@ mod tests {
         let targets = hilo_placement_ip::targets::roi_targets(&study.scene, cell_m).unwrap();
         let got = road_users(&TrainingTraffic::new(&study).unwrap(), &targets, cell_m).unwrap();
         assert_eq!((got.scenes, got.key_frames), (2, 40));
-        let ranges = study.file.evaluation.detection_config().class_range;
+        let ranges = study.file.detection_config().class_range;
         let mut count: BTreeMap<String, Vec<f64>> = BTreeMap::new();
         let mut off = 0;
         for index in 0..2 {

@@ -155,6 +155,15 @@ impl Default for EvaluationSettings {
     }
 }
 
+impl StudyFile {
+    /// The evaluation's settings: [`EvaluationSettings::detection_config`], with cyclists
+    /// ([`hilo_eval::DetectionConfig::with_cyclists`]) when the traffic carries them.
+    pub fn detection_config(&self) -> hilo_eval::DetectionConfig {
+        let cfg = self.evaluation.detection_config();
+        if self.dataset.traffic.classes().contains(&hilo_core::Class::Bicycle) { cfg.with_cyclists() } else { cfg }
+    }
+}
+
 impl EvaluationSettings {
     /// The devkit's settings with this section's class ranges.
     pub fn detection_config(&self) -> hilo_eval::DetectionConfig {
@@ -168,7 +177,7 @@ impl EvaluationSettings {
     /// Known classes, ranges in (0, `annotate_radius_m`], bins that start at 0 or beyond and
     /// increase; the error names the field and value.
     fn check(&self, annotate_radius_m: f64) -> std::result::Result<(), FieldError> {
-        let known = hilo_eval::DetectionConfig::default().class_names();
+        let known: Vec<String> = hilo_core::Class::ALL.iter().map(|c| c.name().to_owned()).collect();
         for (class, range) in &self.class_range_m {
             let field = format!("evaluation.class_range_m.{class}");
             if !known.contains(class) {
@@ -915,6 +924,28 @@ mod tests {
     fn parse(extra: &str) -> Result<Study> {
         let text = format!("{}\n{extra}", include_str!("../../../fixtures/study.toml"));
         Study::parse_embedded(&text, "s.toml")
+    }
+
+    /// Traffic with cyclists evaluates them at nuScenes' 40 m (or the section's range), and
+    /// every detector of the study gets their head channel; traffic without has neither.
+    #[test]
+    fn cyclists_in_the_traffic_are_evaluated_and_detected() {
+        let plain = parse("").unwrap();
+        let fixture = include_str!("../../../fixtures/study.toml");
+        let mix = "golf_cart = 0.12 }";
+        assert_eq!(fixture.matches(mix).count(), 1);
+        let text = fixture.replace(mix, "golf_cart = 0.12, bicycle = 0.1 }");
+        let with = Study::parse_embedded(&text, "s.toml").unwrap();
+        assert!(!plain.file.detection_config().class_range.contains_key("bicycle"));
+        assert_eq!(with.file.detection_config().class_range["bicycle"], 40.0);
+        let own = format!("{text}\n[evaluation]\nclass_range_m = {{ bicycle = 30.0 }}\n");
+        assert_eq!(Study::parse_embedded(&own, "s.toml").unwrap().file.detection_config().class_range["bicycle"], 30.0);
+        let registry = hilo_detector::Registry::with_builtin();
+        let preset = &registry.preset("centerpoint").unwrap().detector;
+        for (study, cyclists) in [(&plain, false), (&with, true)] {
+            let det = crate::plan::patched_detector(study, "centerpoint", preset, &study.file.dataset).unwrap();
+            assert_eq!(det.cyclists, cyclists);
+        }
     }
 
     /// `[evaluation]` ranges override the nuScenes ones class by class; an unknown class, a range

@@ -18,7 +18,19 @@ pub enum ActorShape {
     Box(Box3),
     /// A vertical capsule (pedestrians).
     Capsule(Capsule),
+    /// A cyclist in its annotated box: the bicycle as a slab as long as the box, as wide as a
+    /// tyre and as high as the wheels, and the rider as an upright capsule from the pedals to
+    /// the top of the box ([`ActorShape::cyclist_parts`]). The slab is solid where a wheel's
+    /// spokes let most beams through, so a side view returns more points than a real bicycle.
+    Cyclist(Box3),
 }
+
+/// A bicycle's wheel height and tyre width, m, and its rider's lowest point (the pedals) above
+/// the ground and half-width.
+const WHEEL_M: f32 = 0.7;
+const TYRE_M: f32 = 0.06;
+const PEDALS_M: f32 = 0.3;
+const RIDER_RADIUS_M: f32 = 0.2;
 
 impl ActorShape {
     /// A pedestrian-like capsule inscribed in `b` (radius = half the smaller planar size).
@@ -32,9 +44,27 @@ impl ActorShape {
         })
     }
 
+    /// A cyclist's bicycle and rider in its annotated box `b` (see [`ActorShape::Cyclist`]);
+    /// each part stays inside `b`.
+    pub fn cyclist_parts(b: &Box3) -> (Box3, Capsule) {
+        let ground = b.center.z - 0.5 * b.height_m;
+        let wheels = WHEEL_M.min(b.height_m);
+        let bicycle = Box3::new(
+            b.center.truncate().extend(ground + 0.5 * wheels),
+            b.length_m,
+            TYRE_M.min(b.width_m),
+            wheels,
+            b.yaw,
+        );
+        let radius = RIDER_RADIUS_M.min(0.5 * b.width_m).min(0.5 * b.length_m);
+        let top = ground + b.height_m;
+        let rider = Capsule { center: b.center.truncate(), z0: (ground + PEDALS_M).min(top), z1: top, radius };
+        (bicycle, rider)
+    }
+
     pub fn aabb(&self) -> (Vec3, Vec3) {
         match self {
-            ActorShape::Box(b) => b.aabb(),
+            ActorShape::Box(b) | ActorShape::Cyclist(b) => b.aabb(),
             ActorShape::Capsule(c) => c.aabb(),
         }
     }
@@ -43,6 +73,22 @@ impl ActorShape {
         match self {
             ActorShape::Box(b) => intersect_box(b, ray, t_max),
             ActorShape::Capsule(c) => c.intersect(ray, t_max),
+            ActorShape::Cyclist(b) => {
+                let (bicycle, rider) = Self::cyclist_parts(b);
+                let frame = intersect_box(&bicycle, ray, t_max);
+                let body = rider.intersect(ray, frame.map_or(t_max, |h| h.0));
+                body.or(frame)
+            }
+        }
+    }
+
+    /// The box a road user is annotated with: its box, or a capsule's bounding box.
+    pub fn outline(&self) -> Box3 {
+        match *self {
+            ActorShape::Box(b) | ActorShape::Cyclist(b) => b,
+            ActorShape::Capsule(c) => {
+                Box3::new(c.center.extend(0.5 * (c.z0 + c.z1)), 2.0 * c.radius, 2.0 * c.radius, c.z1 - c.z0, 0.0)
+            }
         }
     }
 }
@@ -62,9 +108,14 @@ pub struct Actor {
 }
 
 impl Actor {
-    /// The shape hilo uses for a class: capsules for pedestrians, boxes otherwise.
+    /// The shape hilo uses for a class: capsules for pedestrians, a bicycle and rider for
+    /// cyclists, boxes otherwise.
     pub fn from_box(id: u32, class: Class, b: Box3) -> Self {
-        let shape = if class == Class::Pedestrian { ActorShape::capsule_in(&b) } else { ActorShape::Box(b) };
+        let shape = match class {
+            Class::Pedestrian => ActorShape::capsule_in(&b),
+            Class::Bicycle => ActorShape::Cyclist(b),
+            _ => ActorShape::Box(b),
+        };
         let mut a = Actor { id, class, shape, velocity_mps: Vec3::ZERO, reflectivity: 0.0 };
         a.reflectivity = a.material().lidar_reflectivity();
         a
@@ -87,6 +138,7 @@ impl Actor {
         let d = self.velocity_mps * dt;
         let shape = match self.shape {
             ActorShape::Box(b) => ActorShape::Box(Box3 { center: b.center + d, ..b }),
+            ActorShape::Cyclist(b) => ActorShape::Cyclist(Box3 { center: b.center + d, ..b }),
             ActorShape::Capsule(c) => {
                 ActorShape::Capsule(Capsule { center: c.center + d.truncate(), z0: c.z0 + d.z, z1: c.z1 + d.z, ..c })
             }
@@ -98,17 +150,25 @@ impl Actor {
     pub fn contains(&self, p: Vec3) -> bool {
         match &self.shape {
             ActorShape::Box(b) => b.contains(p),
-            ActorShape::Capsule(c) => {
-                let (za, zb) = (c.z0 + c.radius, (c.z1 - c.radius).max(c.z0 + c.radius));
-                let z = p.z.clamp(za, zb);
-                (p - c.center.extend(z)).length() <= c.radius
+            ActorShape::Capsule(c) => capsule_contains(c, p),
+            ActorShape::Cyclist(b) => {
+                let (bicycle, rider) = ActorShape::cyclist_parts(b);
+                bicycle.contains(p) || capsule_contains(&rider, p)
             }
         }
     }
 
+    /// What rays meet: a person for pedestrians and cyclists (the rider is most of what a
+    /// cyclist shows), a vehicle's body otherwise.
     pub fn material(&self) -> Material {
-        if self.class == Class::Pedestrian { Material::Person } else { Material::VehicleBody }
+        if matches!(self.class, Class::Pedestrian | Class::Bicycle) { Material::Person } else { Material::VehicleBody }
     }
+}
+
+fn capsule_contains(c: &Capsule, p: Vec3) -> bool {
+    let (za, zb) = (c.z0 + c.radius, (c.z1 - c.radius).max(c.z0 + c.radius));
+    let z = p.z.clamp(za, zb);
+    (p - c.center.extend(z)).length() <= c.radius
 }
 
 /// The actors of one frame and a BVH over their bounds. Built with [`ActorSet::moving`], the
@@ -137,7 +197,7 @@ impl ActorSet {
         let mut bounds = Vec::with_capacity(actors.len());
         for (i, a) in actors.iter().enumerate() {
             let ok = match a.shape {
-                ActorShape::Box(b) => b.is_valid(),
+                ActorShape::Box(b) | ActorShape::Cyclist(b) => b.is_valid(),
                 ActorShape::Capsule(c) => {
                     c.center.is_finite() && c.z0.is_finite() && c.z1 >= c.z0 && c.radius.is_finite() && c.radius >= 0.0
                 }

@@ -181,14 +181,14 @@ impl<'a> Azimuth<'a> {
     }
 }
 
-/// The aspect term of a road user's RCS, dB: −a·cos 2φ for a vehicle (a box) seen from
-/// `sensor`, φ the angle between the line of sight and its heading; 0 for a pedestrian.
+/// The aspect term of a road user's RCS, dB: −a·cos 2φ for a vehicle (a box) or a cyclist seen
+/// from `sensor`, φ the angle between the line of sight and its heading; 0 for a pedestrian.
 pub fn aspect_db(effects: &RadarEffects, actor: &Actor, sensor: Vec3) -> f32 {
     if effects.rcs_aspect_db == 0.0 {
         return 0.0;
     }
     match &actor.shape {
-        ActorShape::Box(b) => {
+        ActorShape::Box(b) | ActorShape::Cyclist(b) => {
             let los = (b.center - sensor).truncate().normalize_or_zero();
             let heading = Vec2::new(b.yaw.cos(), b.yaw.sin());
             let c = los.dot(heading);

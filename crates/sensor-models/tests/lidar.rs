@@ -125,21 +125,9 @@ fn points_on_actors_are_attributed_and_local_frame_is_consistent() {
             PointSource::Ground => assert!(q.z.abs() < 1e-3, "{q}"),
             PointSource::Actor(id) => {
                 let a = actors.actors().iter().find(|a| a.id == *id).unwrap();
-                let grown = match a.shape {
-                    hilo_raycast::ActorShape::Box(b) => Box3 {
-                        length_m: b.length_m + 0.01,
-                        width_m: b.width_m + 0.01,
-                        height_m: b.height_m + 0.01,
-                        ..b
-                    },
-                    hilo_raycast::ActorShape::Capsule(c) => Box3::new(
-                        c.center.extend(0.5 * (c.z0 + c.z1)),
-                        2.0 * c.radius + 0.01,
-                        2.0 * c.radius + 0.01,
-                        c.z1 - c.z0 + 0.01,
-                        0.0,
-                    ),
-                };
+                let b = a.shape.outline();
+                let grown =
+                    Box3 { length_m: b.length_m + 0.01, width_m: b.width_m + 0.01, height_m: b.height_m + 0.01, ..b };
                 assert!(grown.contains(q), "point {q} not on actor {id}");
             }
             PointSource::Static => panic!("no static geometry here"),

@@ -52,7 +52,8 @@ pub struct Entry {
     /// On the common ground truth (every road user, seen or not), over the classes present.
     pub mean_ap: f64,
     pub nd_score: f64,
-    /// Every one of the six classes (null where the validation split has none).
+    /// Every evaluated class: the paper's six, and cyclists where the traffic carries them
+    /// (null where the validation split has none).
     pub class_ap: BTreeMap<String, Option<f64>>,
     /// Velocity error (m/s, the devkit's mAVE over the classes present) and each class's AVE
     /// (null where the validation split has none), on the common ground truth.
@@ -218,7 +219,7 @@ pub fn assemble(
     // The ground truth every rig is scored on, and what it evaluates.
     let first = hilo_dataset::Dataset::open(&plan.data[0].dir, "v1.0-trainval")?;
     let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
-    let base_cfg = study.file.evaluation.detection_config();
+    let base_cfg = study.file.detection_config();
     let class_boxes = class_counts(&common, &base_cfg);
     let classes: Vec<ClassInfo> = class_boxes
         .iter()

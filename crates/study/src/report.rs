@@ -403,9 +403,14 @@ fn md_header(md: &mut String, r: &Report) {
         d.sweep_rate_hz,
         p.train_samples.map_or("its preset's default".to_owned(), |n| n.to_string())
     );
+    let counted = match r.classes.len() {
+        6 => "six".to_owned(),
+        7 => "seven".to_owned(),
+        n => n.to_string(),
+    };
     let _ = writeln!(
         md,
-        "**Ground truth: common.** Every rig is scored on every road user of the six classes within the evaluation ranges of the intersection's centre at each validation frame, whatever its sensors saw (a miss caused by coverage or occlusion counts against the rig); the nuScenes convention (boxes with at least one point of the rig) is given beside it as *visible-only*. mAP is over the classes present in the validation split: {}.\n",
+        "**Ground truth: common.** Every rig is scored on every road user of the {counted} classes within the evaluation ranges of the intersection's centre at each validation frame, whatever its sensors saw (a miss caused by coverage or occlusion counts against the rig); the nuScenes convention (boxes with at least one point of the rig) is given beside it as *visible-only*. mAP is over the classes present in the validation split: {}.\n",
         r.classes
             .iter()
             .map(|c| format!(

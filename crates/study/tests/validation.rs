@@ -79,7 +79,7 @@ fn the_placement_set_is_deterministic_and_spans_kinds_tilts_and_modalities() {
 /// a brute-force count of the LiDAR points inside each annotated box, on a small dataset.
 #[test]
 fn occupancy_agrees_with_a_brute_force_count_of_points_in_boxes() {
-    use hilo_detector::data::{CLASSES, LoadOptions, load_split};
+    use hilo_detector::data::{LoadOptions, load_split};
     let dir = tempfile::tempdir().unwrap();
     let study = Study::parse(COARSE, dir.path(), "coarse.toml").unwrap();
     let set = placement_set(&study, &settings(), &mut |_| {}).unwrap();
@@ -101,7 +101,7 @@ fn occupancy_agrees_with_a_brute_force_count_of_points_in_boxes() {
     let mut brute: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
     for f in &frames {
         for b in &f.boxes {
-            let class = CLASSES[b.class].name();
+            let class = hilo_core::Class::ALL[b.class].name();
             let range = cfg.class_range[class];
             if (b.center[0] as f64).hypot(b.center[1] as f64) >= range {
                 continue;

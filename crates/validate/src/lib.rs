@@ -720,11 +720,11 @@ impl Scorer {
         data: &Path,
         profile: &Profile,
         settings: &ValidationSettings,
-        evaluation: &hilo_plan::study::EvaluationSettings,
+        detection: &hilo_eval::DetectionConfig,
     ) -> Result<Self> {
         let first = hilo_dataset::Dataset::open(data, "v1.0-trainval")?;
         let (common, _) = ground_truth(&first, "val", GtKind::Common, SampleKey::SceneTime)?;
-        let mut cfg = evaluation.detection_config();
+        let mut cfg = detection.clone();
         let in_gt: std::collections::BTreeSet<&str> =
             common.boxes.values().flatten().map(|b| b.detection_name.as_str()).collect();
         cfg.class_range.retain(|k, _| in_gt.contains(k.as_str()));
@@ -803,7 +803,7 @@ fn score(
     data: &[DataStage],
     outputs: Outputs,
 ) -> Result<ValidationReport> {
-    let scorer = Scorer::new(&data[0].dir, profile, settings, &study.file.evaluation)?;
+    let scorer = Scorer::new(&data[0].dir, profile, settings, &study.file.detection_config())?;
     let mut trained = Vec::new();
     // Draw 0's datasets come first; every draw shares their validation scenes.
     for ((m, d), outs) in members.iter_mut().zip(data).zip(outputs) {

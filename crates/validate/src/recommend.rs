@@ -275,7 +275,7 @@ fn train_member(
         )?);
     }
     let data = &data[0];
-    let scorer = Scorer::new(&data.dir, profile, &r.settings, &study.file.evaluation)?;
+    let scorer = Scorer::new(&data.dir, profile, &r.settings, &study.file.detection_config())?;
     let (trained, occupancy) = scorer.trained(&data.dir, &outs)?;
     member.predictors.extend(occupancy);
     Ok((member, trained))

@@ -8,7 +8,7 @@ use candle_nn::VarBuilder;
 use glam::Vec3;
 use hilo_core::{Box3, Detection};
 use hilo_fusion::config::TrainConfig;
-use hilo_fusion::config::{CLASSES, LIDAR_PILLAR_WIDTH, RADAR_PILLAR_WIDTH};
+use hilo_fusion::config::{LIDAR_PILLAR_WIDTH, RADAR_PILLAR_WIDTH};
 use hilo_fusion::layout::{At, Layout};
 use hilo_fusion::modules::{Backbone, BackboneConfig, Head, PillarNet};
 use hilo_fusion::presets::centerpoint;
@@ -23,12 +23,21 @@ pub struct LateConfig {
     /// Backbone of each modality's detector (its out_stride must be the detector's).
     pub backbone: BackboneConfig,
     pub head_channels: usize,
+    /// Class channels of each head: the paper's six, or seven with cyclists (the detector sets
+    /// it from its own classes when it builds the plugin).
+    pub classes: usize,
 }
 
 impl Default for LateConfig {
     fn default() -> Self {
         let c = centerpoint();
-        LateConfig { lidar_channels: 32, radar_channels: 16, backbone: c.backbone, head_channels: c.head_channels }
+        LateConfig {
+            lidar_channels: 32,
+            radar_channels: 16,
+            classes: c.classes().len(),
+            backbone: c.backbone,
+            head_channels: c.head_channels,
+        }
     }
 }
 
@@ -49,8 +58,7 @@ pub struct LateFusion {
 fn branch(features: usize, channels: usize, c: &LateConfig, vb: VarBuilder) -> Result<Branch> {
     let pfn = PillarNet::new(features, channels, vb.pp("pfn"))?;
     let backbone = Backbone::new(channels, &c.backbone, vb.pp("backbone"))?;
-    let head =
-        Head::new(backbone.out_channels, c.head_channels.max(1), CLASSES.len(), c.head_channels > 0, vb.pp("head"))?;
+    let head = Head::new(backbone.out_channels, c.head_channels.max(1), c.classes, c.head_channels > 0, vb.pp("head"))?;
     Ok(Branch { pfn, backbone, head })
 }
 

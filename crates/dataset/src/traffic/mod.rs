@@ -78,7 +78,8 @@ pub struct TrafficConfig {
     /// Turning shares of arriving vehicles (the rest go straight).
     pub left_share: f64,
     pub right_share: f64,
-    /// Relative frequencies of the vehicle classes (car, truck, bus, motorcycle, golf_cart).
+    /// Relative frequencies of the vehicle classes (car, truck, bus, motorcycle, golf_cart, and
+    /// bicycle: cyclists ride the roadway with the vehicles, none by default).
     pub class_mix: BTreeMap<String, f64>,
     /// Pedestrian arrivals per crosswalk and direction (Poisson).
     pub pedestrians_per_hour: f64,
@@ -153,8 +154,9 @@ fn check_class_mix(field: &str, mix: &BTreeMap<String, f64>, pedestrian_why: &st
     let mut total = 0.0;
     for (name, w) in mix {
         let f = format!("{field}.{name}");
-        let c: Class =
-            name.parse().map_err(|_| invalid(&f, w, "unknown class (car, truck, bus, motorcycle, golf_cart)"))?;
+        let c: Class = name
+            .parse()
+            .map_err(|_| invalid(&f, w, "unknown class (car, truck, bus, motorcycle, golf_cart, bicycle)"))?;
         if c == Class::Pedestrian {
             return Err(invalid(&f, w, pedestrian_why));
         }
@@ -181,6 +183,14 @@ fn draw_from(rng: &mut ChaCha8Rng, mix: &BTreeMap<String, f64>) -> Option<Class>
 }
 
 impl TrafficConfig {
+    /// The classes this traffic can carry, for a dataset's category table: the paper's six, and
+    /// the cyclist when a class mix (moving or parked) gives it a positive share.
+    pub fn classes(&self) -> Vec<Class> {
+        let mixes = std::iter::once(&self.class_mix).chain(self.parking.as_ref().map(|p| &p.class_mix));
+        let extra = |c: Class| mixes.clone().any(|m| m.get(c.name()).is_some_and(|w| *w > 0.0));
+        Class::ALL.into_iter().filter(|&c| Class::PAPER.contains(&c) || extra(c)).collect()
+    }
+
     /// Pedestrian arrivals per crosswalk and direction: the level's when `demand` is set.
     pub fn pedestrian_rate(&self) -> f64 {
         self.demand.map_or(self.pedestrians_per_hour, Demand::pedestrians_per_hour)
@@ -350,6 +360,19 @@ pub fn class_model(c: Class) -> ClassModel {
             headway_s: 1.5,
             s0: 1.5,
             b_max: 5.0,
+        },
+        // A bicycle with its rider: a 1.75 m bicycle, the box up to the rider's head; an urban
+        // cyclist's cruising speed of about 20 km/h, gentle acceleration and braking.
+        Class::Bicycle => ClassModel {
+            length: (1.75, 0.08, 1.6, 1.95),
+            width: (0.65, 0.05, 0.55, 0.8),
+            height: (1.70, 0.08, 1.5, 1.9),
+            v_max: 5.5,
+            a: 1.0,
+            b: 1.5,
+            headway_s: 1.0,
+            s0: 1.5,
+            b_max: 3.5,
         },
         Class::Pedestrian => ClassModel {
             length: (0.55, 0.08, 0.4, 0.75),
@@ -647,7 +670,7 @@ impl Traffic {
                 let (attribute, jaywalking, route) = match &a.role {
                     Role::Vehicle { route, .. } => {
                         let rt = &self.routes[*route];
-                        let attr = if a.class == Class::Motorcycle {
+                        let attr = if matches!(a.class, Class::Motorcycle | Class::Bicycle) {
                             "cycle.with_rider"
                         } else if moving {
                             "vehicle.moving"

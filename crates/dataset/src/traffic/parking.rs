@@ -273,7 +273,11 @@ impl Parking {
                 box3: Box3::new(p.center.extend(ground_z + 0.5 * h), l, w, h, p.dir.y.atan2(p.dir.x)),
                 velocity_mps: Vec2::ZERO,
                 accel_mps2: 0.0,
-                attribute: if p.class == Class::Motorcycle { "cycle.without_rider" } else { "vehicle.parked" },
+                attribute: if matches!(p.class, Class::Motorcycle | Class::Bicycle) {
+                    "cycle.without_rider"
+                } else {
+                    "vehicle.parked"
+                },
                 jaywalking: false,
                 route: None,
             }
