@@ -50,7 +50,7 @@ impl DetectionConfig {
     /// The same settings with cyclists evaluated at nuScenes' bicycle range, 40 m, unless
     /// they set a range for `bicycle` already.
     pub fn with_cyclists(mut self) -> Self {
-        self.class_range.entry("bicycle".to_owned()).or_insert(40.0);
+        self.class_range.entry(hilo_core::Class::Bicycle.name().to_owned()).or_insert(40.0);
         self
     }
 

@@ -620,8 +620,9 @@ impl FolderRecord {
 }
 
 /// A preset's detector config with the study's `[detector_patch]` applied (the preset's own
-/// without one), detecting cyclists when the dataset's traffic carries them. The patch may not rename the preset or change its fusion plugin (the verdict
-/// reads both), and stacked LiDAR sweeps need datasets that record them.
+/// without one), detecting cyclists when the dataset's traffic carries them. The patch may not
+/// rename the preset or change its fusion plugin (the verdict reads both), and stacked LiDAR
+/// sweeps need datasets that record them.
 pub fn patched_detector(
     study: &Study,
     preset: &str,
@@ -629,7 +630,7 @@ pub fn patched_detector(
     dataset: &hilo_dataset::simulate::SimulateConfig,
 ) -> Result<DetectorConfig> {
     // Traffic with cyclists gives every detector the cyclist's head channel.
-    let cyclists = dataset.traffic.classes().contains(&hilo_core::Class::Bicycle);
+    let cyclists = dataset.traffic.carries(hilo_core::Class::Bicycle);
     let Some(patch) = &study.file.detector_patch else {
         return Ok(DetectorConfig { cyclists: det.cyclists || cyclists, ..det.clone() });
     };

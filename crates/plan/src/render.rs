@@ -619,8 +619,9 @@ pub fn dataset_frame(ds: &hilo_dataset::Dataset, frame: usize) -> Result<FramePi
     }
     // The classes the dataset's category table lists (the paper's six, and cyclists where its
     // traffic carries them).
-    let listed = t.category.iter().filter_map(|c| hilo_dataset::writer::class_of_category(&c.name));
-    keys.extend(listed.map(|c| (CLASS_COLOURS[c.index()], format!("{} box (tick: heading)", c.name()))));
+    keys.extend(
+        ds.classes().into_iter().map(|c| (CLASS_COLOURS[c.index()], format!("{} box (tick: heading)", c.name()))),
+    );
     let key_refs: Vec<((u8, u8, u8), &str)> = keys.iter().map(|(c, t)| (*c, t.as_str())).collect();
     canvas.legend(&key_refs);
     canvas.scale_bar(20.0);

@@ -408,12 +408,8 @@ pub struct Occupancy {
 /// scores less than a view of its corner with the same points: where the centre and heading
 /// sit is what a detector must regress, and the points' extent is what shows it.
 pub fn footprint_extent(actor: &hilo_raycast::Actor, points: impl Iterator<Item = glam::Vec3>) -> f64 {
-    let (centre, size, yaw) = match actor.shape {
-        hilo_raycast::ActorShape::Box(b) | hilo_raycast::ActorShape::Cyclist(b) => {
-            (b.center.truncate(), glam::Vec2::new(b.length_m, b.width_m), b.yaw)
-        }
-        hilo_raycast::ActorShape::Capsule(c) => (c.center, glam::Vec2::splat(2.0 * c.radius), 0.0),
-    };
+    let b = actor.shape.outline();
+    let (centre, size, yaw) = (b.center.truncate(), glam::Vec2::new(b.length_m, b.width_m), b.yaw);
     let to_local = glam::Mat2::from_angle(-yaw);
     let (mut lo, mut hi, mut n) = (glam::Vec2::INFINITY, glam::Vec2::NEG_INFINITY, 0usize);
     for p in points {

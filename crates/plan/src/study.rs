@@ -160,7 +160,7 @@ impl StudyFile {
     /// ([`hilo_eval::DetectionConfig::with_cyclists`]) when the traffic carries them.
     pub fn detection_config(&self) -> hilo_eval::DetectionConfig {
         let cfg = self.evaluation.detection_config();
-        if self.dataset.traffic.classes().contains(&hilo_core::Class::Bicycle) { cfg.with_cyclists() } else { cfg }
+        if self.dataset.traffic.carries(hilo_core::Class::Bicycle) { cfg.with_cyclists() } else { cfg }
     }
 }
 

@@ -49,12 +49,8 @@ struct View {
 }
 
 fn view(actor: &hilo_raycast::Actor, points: &[(usize, glam::Vec3)], lidar_xy: &[(f32, f32)]) -> View {
-    let (centre, half, yaw) = match actor.shape {
-        hilo_raycast::ActorShape::Box(b) | hilo_raycast::ActorShape::Cyclist(b) => {
-            ((b.center.x, b.center.y), (0.5 * b.length_m, 0.5 * b.width_m), b.yaw)
-        }
-        hilo_raycast::ActorShape::Capsule(c) => ((c.center.x, c.center.y), (c.radius, c.radius), 0.0),
-    };
+    let b = actor.shape.outline();
+    let (centre, half, yaw) = ((b.center.x, b.center.y), (0.5 * b.length_m, 0.5 * b.width_m), b.yaw);
     let (s, c) = yaw.sin_cos();
     let local: Vec<(f32, f32)> = points
         .iter()

@@ -183,12 +183,16 @@ fn draw_from(rng: &mut ChaCha8Rng, mix: &BTreeMap<String, f64>) -> Option<Class>
 }
 
 impl TrafficConfig {
-    /// The classes this traffic can carry, for a dataset's category table: the paper's six, and
-    /// the cyclist when a class mix (moving or parked) gives it a positive share.
+    /// The classes this traffic can carry, for a dataset's category table ([`Self::carries`]).
     pub fn classes(&self) -> Vec<Class> {
-        let mixes = std::iter::once(&self.class_mix).chain(self.parking.as_ref().map(|p| &p.class_mix));
-        let extra = |c: Class| mixes.clone().any(|m| m.get(c.name()).is_some_and(|w| *w > 0.0));
-        Class::ALL.into_iter().filter(|&c| Class::PAPER.contains(&c) || extra(c)).collect()
+        Class::ALL.into_iter().filter(|&c| self.carries(c)).collect()
+    }
+
+    /// Whether this traffic can carry class `c`: each of the paper's six, and the cyclist when a
+    /// class mix (moving or parked) gives it a positive share.
+    pub fn carries(&self, c: Class) -> bool {
+        let mut mixes = std::iter::once(&self.class_mix).chain(self.parking.as_ref().map(|p| &p.class_mix));
+        Class::PAPER.contains(&c) || mixes.any(|m| m.get(c.name()).is_some_and(|w| *w > 0.0))
     }
 
     /// Pedestrian arrivals per crosswalk and direction: the level's when `demand` is set.
