@@ -29,8 +29,12 @@ pub struct Comparison {
     pub shards: Vec<ShardSummary>,
     /// Every configuration any study holds, in order of first appearance.
     pub configurations: Vec<ConfigAcross>,
-    /// Per preset, the configuration with the highest mean mAP in each study.
+    /// Per preset, the configuration with the highest mean mAP in each study (in the study's
+    /// own weather: a rig recorded again in a condition is not a rig to buy).
     pub leaders: Vec<Leader>,
+    /// Per preset and budget, the best configuration each study holds within the budget.
+    #[serde(default)]
+    pub budgets: Vec<BudgetBest>,
     pub claims: Vec<ClaimAcross>,
     /// Per study and metric, what the radar adds (the `radar_adds` claim) and per $1,000 it
     /// costs: the radar's marginal value per condition when the sweep is over weathers.
@@ -133,6 +137,21 @@ pub struct Lead {
     /// Whether the study's own test (Holm-adjusted) separates the two; None when its report
     /// does not compare them.
     pub significant: Option<bool>,
+}
+
+/// The best configuration within one budget for one preset, per study: what a buyer with this
+/// much to spend gets at each site. The budgets are the costs of the sweep's configurations, so
+/// each one is where a rig first becomes affordable.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct BudgetBest {
+    pub preset: String,
+    pub budget_usd: f64,
+    /// By study name: its best configuration costing at most the budget, against its next best
+    /// within the budget; absent where the study holds none.
+    pub at: BTreeMap<String, Lead>,
+    /// The configuration that is best within the budget at every study of the sweep; None when
+    /// the studies differ or one of them holds none within the budget.
+    pub everywhere: Option<String>,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -299,10 +318,11 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
             preset: p.clone(),
             at: reports
                 .iter()
-                .filter_map(|(s, r)| lead(r, &configurations, &s.name, p).map(|l| (s.name.clone(), l)))
+                .filter_map(|(s, r)| lead(r, &configurations, &s.name, p, f64::INFINITY).map(|l| (s.name.clone(), l)))
                 .collect(),
         })
         .collect();
+    let budgets = budget_leads(reports, &configurations, &presets);
     let mut claims: Vec<ClaimAcross> = Vec::new();
     for (_, r) in reports {
         for c in &r.claims {
@@ -352,16 +372,61 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
         shards,
         configurations,
         leaders,
+        budgets,
         claims,
         radar_worth: radar_worth(reports),
     }
 }
 
-/// The configuration with the highest mean mAP for `preset` in one study, against the next.
-fn lead(r: &Report, configurations: &[ConfigAcross], shard: &str, preset: &str) -> Option<Lead> {
+/// The configurations of a study recorded in one of its weather conditions ("… in fog"): the
+/// same rigs in other weather, not rigs to choose between.
+fn in_conditions(r: &Report) -> Vec<String> {
+    r.conditions.iter().flat_map(|c| c.configurations.iter().map(|b| c.label(b))).collect()
+}
+
+/// Per preset and budget (each distinct cost of a configuration in its study's own weather,
+/// cheapest first), each study's best configuration within the budget.
+fn budget_leads(
+    reports: &[(ShardRecord, Report)],
+    configurations: &[ConfigAcross],
+    presets: &[String],
+) -> Vec<BudgetBest> {
+    let mut costs: Vec<f64> = reports
+        .iter()
+        .flat_map(|(_, r)| {
+            let skip = in_conditions(r);
+            r.configurations.iter().filter(move |c| !skip.contains(&c.name)).map(|c| c.cost_usd).collect::<Vec<_>>()
+        })
+        .filter(|c| c.is_finite())
+        .collect();
+    costs.sort_by(f64::total_cmp);
+    costs.dedup_by(|a, b| (*a - *b).abs() < 0.5);
+    let mut out = Vec::new();
+    for p in presets {
+        for &budget in &costs {
+            let at: BTreeMap<String, Lead> = reports
+                .iter()
+                .filter_map(|(s, r)| lead(r, configurations, &s.name, p, budget).map(|l| (s.name.clone(), l)))
+                .collect();
+            let first = at.values().next().map(|l| l.configuration.clone());
+            let everywhere = first.filter(|f| at.len() == reports.len() && at.values().all(|l| &l.configuration == f));
+            out.push(BudgetBest { preset: p.clone(), budget_usd: budget, at, everywhere });
+        }
+    }
+    out
+}
+
+/// The configuration with the highest mean mAP for `preset` in one study among those in its own
+/// weather costing at most `budget_usd`, against the next.
+fn lead(r: &Report, configurations: &[ConfigAcross], shard: &str, preset: &str, budget_usd: f64) -> Option<Lead> {
+    let skip = in_conditions(r);
     let mut ranked: Vec<(&str, f64)> = configurations
         .iter()
-        .filter_map(|c| c.at.get(shard).and_then(|a| a.map.get(preset)).map(|o| (c.name.as_str(), o.mean)))
+        .filter(|c| !skip.contains(&c.name))
+        .filter_map(|c| {
+            let at = c.at.get(shard).filter(|a| a.cost_usd <= budget_usd + 0.5)?;
+            at.map.get(preset).map(|o| (c.name.as_str(), o.mean))
+        })
         .collect();
     ranked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(b.0)));
     let (best, m) = *ranked.first()?;
@@ -454,29 +519,28 @@ pub fn markdown(c: &Comparison) -> String {
     let _ = writeln!(s, "| detector | {} |", names.join(" | "));
     let _ = writeln!(s, "|---|{}", "---|".repeat(names.len()));
     for l in &c.leaders {
-        let cells: Vec<String> = names
-            .iter()
-            .map(|n| {
-                l.at.get(*n).map_or("–".into(), |x| {
-                    let sig = match x.significant {
-                        Some(true) => "significant",
-                        Some(false) => "not significant",
-                        None => "not compared in its report",
-                    };
-                    match &x.runner_up {
-                        Some(r) => format!(
-                            "{} ({:.3}; +{:.3} over {}, {sig})",
-                            esc(&x.configuration),
-                            x.mean_ap,
-                            x.margin,
-                            esc(r)
-                        ),
-                        None => format!("{} ({:.3})", esc(&x.configuration), x.mean_ap),
-                    }
-                })
-            })
-            .collect();
+        let cells: Vec<String> = names.iter().map(|n| l.at.get(*n).map_or("–".into(), lead_cell)).collect();
         let _ = writeln!(s, "| {} | {} |", l.preset, cells.join(" | "));
+    }
+    if !c.budgets.is_empty() {
+        s.push_str(
+            "\n## Best configuration per budget\n\nWhat each budget buys at each site: per detector, the \
+             configuration with the highest mean mAP among those costing at most the budget (each budget is \
+             the price of one of the sweep's configurations), its margin over the next within the budget, and \
+             whether that study's own test separates the two. The last column names the configuration when \
+             it is best within the budget at every site.\n\n",
+        );
+        let _ = writeln!(s, "| detector | budget | {} | every site |", names.join(" | "));
+        let _ = writeln!(s, "|---|---:|{}---|", "---|".repeat(names.len()));
+        for b in &c.budgets {
+            let cells: Vec<String> = names.iter().map(|n| b.at.get(*n).map_or("–".into(), lead_cell)).collect();
+            let every = match &b.everywhere {
+                Some(name) => esc(name),
+                None if b.at.len() < names.len() => "– (a site holds none within it)".to_owned(),
+                None => "depends on the site".to_owned(),
+            };
+            let _ = writeln!(s, "| {} | {} | {} | {} |", b.preset, dollars(&b.budget_usd), cells.join(" | "), every);
+        }
     }
     if !c.radar_worth.is_empty() {
         s.push_str(
@@ -520,6 +584,19 @@ pub fn markdown(c: &Comparison) -> String {
          with another's. A claim undecided at a site may hide an effect smaller than that study resolves.\n",
     );
     s
+}
+
+/// A study's best configuration, its mean mAP, and its margin over the next.
+fn lead_cell(x: &Lead) -> String {
+    let sig = match x.significant {
+        Some(true) => "significant",
+        Some(false) => "not significant",
+        None => "not compared in its report",
+    };
+    match &x.runner_up {
+        Some(r) => format!("{} ({:.3}; +{:.3} over {}, {sig})", esc(&x.configuration), x.mean_ap, x.margin, esc(r)),
+        None => format!("{} ({:.3})", esc(&x.configuration), x.mean_ap),
+    }
 }
 
 /// Writes `comparison.json` and `comparison.md` into the sweep's folder.
@@ -638,6 +715,95 @@ mod tests {
         let mut beyond = c.clone();
         beyond.radar_worth[0].value.design = None;
         assert!(markdown(&beyond).contains("out of reach within 10 replicates and 2000 scenes"));
+    }
+
+    /// Each budget's best configuration is the brute-force argmax of the report's own entries
+    /// (mean mAP over seeds, among the configurations in the study's own weather that cost at
+    /// most the budget), on two committed reports as two sites; the highest budget's is the
+    /// overall leader; a rig recorded in fog never leads however well it scores; a site without
+    /// a configuration within a budget has no cell and keeps the budget from holding everywhere.
+    #[test]
+    fn each_budget_buys_the_best_configuration_it_affords_at_each_site() {
+        let read = |rel: &str| -> Report {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs").join(rel);
+            hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE).unwrap()
+        };
+        let shard = |n: &str| ShardRecord { name: n.into(), scene: None, catalog: None, fingerprint: String::new() };
+        let mut field = read("example-report/report.json");
+        let paper = read("paper-sensors-report/report.json");
+        // A rig in fog that would lead everything were it a rig to buy.
+        let fog = field.conditions[0].label(&field.conditions[0].configurations[0]);
+        for e in field.entries.iter_mut().filter(|e| e.configuration == fog) {
+            e.mean_ap = 0.99;
+        }
+        let reports = vec![(shard("field"), field.clone()), (shard("paper"), paper.clone())];
+        let record = SweepRecord { source: "s.toml".into(), profile: "default".into(), shards: vec![] };
+        let c = build(&record, &reports);
+        let brute = |r: &Report, preset: &str, budget: f64| -> Option<(String, f64)> {
+            let skip = in_conditions(r);
+            let mut best: Option<(String, f64)> = None;
+            for conf in r.configurations.iter().filter(|x| !skip.contains(&x.name) && x.cost_usd <= budget) {
+                let m: Vec<f64> = r
+                    .entries
+                    .iter()
+                    .filter(|e| e.configuration == conf.name && e.preset == preset && e.mean_ap.is_finite())
+                    .map(|e| e.mean_ap)
+                    .collect();
+                if m.is_empty() {
+                    continue;
+                }
+                let mean = m.iter().sum::<f64>() / m.len() as f64;
+                if best.as_ref().is_none_or(|b| mean > b.1) {
+                    best = Some((conf.name.clone(), mean));
+                }
+            }
+            best
+        };
+        let mut costs: Vec<f64> = [&field, &paper]
+            .iter()
+            .flat_map(|r| {
+                let skip = in_conditions(r);
+                r.configurations.iter().filter(|x| !skip.contains(&x.name)).map(|x| x.cost_usd).collect::<Vec<_>>()
+            })
+            .collect();
+        costs.sort_by(f64::total_cmp);
+        costs.dedup();
+        assert!(costs.len() >= 4, "{costs:?}");
+        assert_eq!(c.budgets.len(), costs.len() * c.leaders.len());
+        let mut checked = 0;
+        for b in &c.budgets {
+            assert!(costs.contains(&b.budget_usd));
+            for (name, r) in [("field", &field), ("paper", &paper)] {
+                let want = brute(r, &b.preset, b.budget_usd);
+                let got = b.at.get(name);
+                assert_eq!(got.map(|l| l.configuration.clone()), want.as_ref().map(|w| w.0.clone()), "{b:?}");
+                if let (Some(g), Some(w)) = (got, want) {
+                    assert!((g.mean_ap - w.1).abs() < 1e-12);
+                    assert!(g.margin >= 0.0 && g.configuration != fog);
+                    checked += 1;
+                }
+            }
+            let both: Vec<&str> = b.at.values().map(|l| l.configuration.as_str()).collect();
+            let same = both.len() == 2 && both[0] == both[1];
+            assert_eq!(b.everywhere.as_deref(), if same { Some(both[0]) } else { None }, "{b:?}");
+        }
+        assert!(checked > 10);
+        for l in &c.leaders {
+            let top = c.budgets.iter().rfind(|b| b.preset == l.preset).unwrap();
+            for (name, x) in &l.at {
+                assert_eq!(x.configuration, top.at[name].configuration, "the whole sweep's budget buys the leader");
+                assert_ne!(x.configuration, fog);
+            }
+        }
+        // The cheapest budget buys nothing at a site without its rig.
+        let cheapest = costs[0];
+        let mut lacking = paper.clone();
+        lacking.configurations.retain(|x| (x.cost_usd - cheapest).abs() > 0.5);
+        let c2 = build(&record, &[(shard("field"), field.clone()), (shard("paper"), lacking)]);
+        let b0 = c2.budgets.iter().find(|b| b.budget_usd == cheapest).unwrap();
+        assert!(!b0.at.contains_key("paper") && b0.everywhere.is_none());
+        let md = markdown(&c2);
+        assert!(md.contains("## Best configuration per budget") && md.contains("a site holds none within it"), "{md}");
     }
 
     #[test]
