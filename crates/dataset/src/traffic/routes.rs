@@ -308,87 +308,136 @@ fn ring_connector(
     (pts, merge)
 }
 
-/// Every route of the layout.
-pub fn build_routes(layout: &Layout) -> Vec<Route> {
-    let mut routes = Vec::new();
+/// One movement's start: the approach arm, the movement, the exit arm, and per route the
+/// inbound polyline (its last point the stop line) with the exit lane (index among the exit
+/// arm's outbound lanes).
+type Starts = (usize, Movement, usize, Vec<(Vec<Vec2>, usize)>);
+
+/// The polyline a vehicle drives on inbound lane `k` of `arm` up to its stop line: for a left
+/// turn from the innermost lane where the arm has a left-turn bay, into the bay by a taper.
+fn start_polyline(arm: &ArmLayout, k: usize, m: Movement) -> Option<Vec<Vec2>> {
+    let ins = lanes(arm, LaneKind::Inbound);
+    let bays = lanes(arm, LaneKind::LeftTurnBay);
+    let l = *ins.get(k)?;
+    match (m, bays.first()) {
+        (Movement::Left, Some(bay)) if k == 0 => {
+            let dir = (l.end - l.start).normalize_or_zero();
+            // The taper ends where the bay starts.
+            let bay_start_on_l0 = l.end - dir * (bay.start - bay.end).length();
+            let taper_start = bay_start_on_l0 - dir * TAPER_M;
+            let mut poly = vec![l.start];
+            if (taper_start - l.start).dot(dir) > 0.0 {
+                poly.push(taper_start);
+            }
+            poly.push(bay.start);
+            poly.push(bay.end);
+            Some(poly)
+        }
+        _ => Some(vec![l.start, l.end]),
+    }
+}
+
+/// hilo's own lane graph, by angle ([`exit_arm`]): every inbound lane goes through to the
+/// outbound lane of its index (or the outermost), the innermost turns left (from its bay where
+/// the arm has one), the outermost turns right into the outermost outbound lane.
+fn rule_starts(layout: &Layout) -> Vec<Starts> {
+    let mut out = Vec::new();
     for (i, arm) in layout.arms.iter().enumerate() {
-        let ins = lanes(arm, LaneKind::Inbound);
-        let bays = lanes(arm, LaneKind::LeftTurnBay);
-        if ins.is_empty() {
+        let n_in = lanes(arm, LaneKind::Inbound).len();
+        if n_in == 0 {
             continue;
         }
         for m in [Movement::Left, Movement::Through, Movement::Right] {
             let Some(j) = exit_arm(layout, i, m) else { continue };
-            let out = lanes(&layout.arms[j], LaneKind::Outbound);
-            if out.is_empty() {
+            let n_out = lanes(&layout.arms[j], LaneKind::Outbound).len();
+            if n_out == 0 {
                 continue;
             }
-            // (inbound polyline, exit lane index) pairs for this movement.
-            let mut starts: Vec<(Vec<Vec2>, usize)> = Vec::new();
-            match m {
-                Movement::Through => {
-                    for (k, l) in ins.iter().enumerate() {
-                        starts.push((vec![l.start, l.end], k.min(out.len() - 1)));
-                    }
-                }
-                Movement::Right => {
-                    let l = ins[ins.len() - 1];
-                    starts.push((vec![l.start, l.end], out.len() - 1));
-                }
-                Movement::Left => match bays.first() {
-                    Some(bay) => {
-                        let l0 = ins[0];
-                        let dir = (l0.end - l0.start).normalize_or_zero();
-                        // The taper ends where the bay starts.
-                        let bay_start_on_l0 = l0.end - dir * (bay.start - bay.end).length();
-                        let taper_start = bay_start_on_l0 - dir * TAPER_M;
-                        let mut poly = vec![l0.start];
-                        if (taper_start - l0.start).dot(dir) > 0.0 {
-                            poly.push(taper_start);
-                        }
-                        poly.push(bay.start);
-                        poly.push(bay.end);
-                        starts.push((poly, 0));
-                    }
-                    None => starts.push((vec![ins[0].start, ins[0].end], 0)),
-                },
+            let pairs: Vec<(usize, usize)> = match m {
+                Movement::Through => (0..n_in).map(|k| (k, k.min(n_out - 1))).collect(),
+                Movement::Right => vec![(n_in - 1, n_out - 1)],
+                Movement::Left => vec![(0, 0)],
+            };
+            let starts = pairs.into_iter().filter_map(|(k, o)| Some((start_polyline(arm, k, m)?, o))).collect();
+            out.push((i, m, j, starts));
+        }
+    }
+    out
+}
+
+/// The movement from arm `i` to arm `j` by the angle between them, as [`exit_arm`] reads it:
+/// through within 35° of straight on, else a left or a right turn by the side it turns to.
+pub fn movement_between(layout: &Layout, i: usize, j: usize) -> Movement {
+    let ang = signed_angle(-layout.arms[i].dir, layout.arms[j].dir);
+    if ang.abs() < 35f32.to_radians() {
+        Movement::Through
+    } else if ang > 0.0 {
+        Movement::Left
+    } else {
+        Movement::Right
+    }
+}
+
+/// The scene's own lane graph ([`Layout::connections`]): one route per connection, in the
+/// order of [`rule_starts`] (by approach, then left, through, right, then lane), so that a lane
+/// graph equal to hilo's own rules gives the same routes in the same order.
+fn connection_starts(layout: &Layout) -> Vec<Starts> {
+    let rank = |m: Movement| [Movement::Left, Movement::Through, Movement::Right].iter().position(|x| *x == m);
+    let mut out: Vec<(usize, Option<usize>, usize, Starts)> = layout
+        .connections
+        .iter()
+        .filter_map(|c| {
+            let m = movement_between(layout, c.from, c.to);
+            let poly = start_polyline(layout.arms.get(c.from)?, c.from_lane, m)?;
+            Some((c.from, rank(m), c.from_lane, (c.from, m, c.to, vec![(poly, c.to_lane)])))
+        })
+        .collect();
+    out.sort_by_key(|x| (x.0, x.1, x.2));
+    out.into_iter().map(|x| x.3).collect()
+}
+
+/// Every route of the layout: one per connection of the scene's lane graph where it has one,
+/// else by hilo's own rules ([`rule_starts`]).
+pub fn build_routes(layout: &Layout) -> Vec<Route> {
+    let mut routes = Vec::new();
+    let starts = if layout.connections.is_empty() { rule_starts(layout) } else { connection_starts(layout) };
+    for (i, m, j, starts) in starts {
+        let (arm, exit) = (&layout.arms[i], &layout.arms[j]);
+        let out = lanes(exit, LaneKind::Outbound);
+        if let Some(ring) = &layout.ring {
+            for (poly, k) in starts {
+                let (first, last) = (poly[0], poly[poly.len() - 1]);
+                routes.push(ring_route(layout, ring, (i, first, last), (j, out[k]), m));
             }
-            let exit = &layout.arms[j];
-            if let Some(ring) = &layout.ring {
-                for (poly, k) in starts {
-                    let (first, last) = (poly[0], poly[poly.len() - 1]);
-                    routes.push(ring_route(layout, ring, (i, first, last), (j, out[k]), m));
-                }
-                continue;
-            }
-            for (mut poly, k) in starts {
-                let o = out[k];
-                let stop_line = *poly.last().unwrap_or(&o.start);
-                let h = (stop_line - poly[poly.len() - 2]).normalize_or(-arm.dir);
-                let stop_s = polyline_length(&poly);
-                // Straight over the own crosswalk to its junction-side edge.
-                let entry = stop_line + h * (stop_line.dot(arm.dir) - cw0(arm)).max(0.0);
-                poly.push(entry);
-                let exit_dir = (o.end - o.start).normalize_or(exit.dir);
-                let curve = connector(layout, entry, h, o.start, exit_dir);
-                poly.extend_from_slice(&curve[1..]);
-                poly.push(o.end);
-                let path = Path::from_polyline(&poly);
-                let clear_s = path.length() - (o.end - o.start).length() + crosswalk_width(exit);
-                let v_cap = speed_caps(&path);
-                let crosswalks = crossings(layout, &path, [i, j]);
-                routes.push(Route {
-                    approach: i,
-                    exit: j,
-                    movement: m,
-                    path,
-                    stop_s,
-                    clear_s,
-                    v_cap,
-                    crosswalks,
-                    merge_s: None,
-                });
-            }
+            continue;
+        }
+        for (mut poly, k) in starts {
+            let Some(&o) = out.get(k) else { continue };
+            let stop_line = *poly.last().unwrap_or(&o.start);
+            let h = (stop_line - poly[poly.len() - 2]).normalize_or(-arm.dir);
+            let stop_s = polyline_length(&poly);
+            // Straight over the own crosswalk to its junction-side edge.
+            let entry = stop_line + h * (stop_line.dot(arm.dir) - cw0(arm)).max(0.0);
+            poly.push(entry);
+            let exit_dir = (o.end - o.start).normalize_or(exit.dir);
+            let curve = connector(layout, entry, h, o.start, exit_dir);
+            poly.extend_from_slice(&curve[1..]);
+            poly.push(o.end);
+            let path = Path::from_polyline(&poly);
+            let clear_s = path.length() - (o.end - o.start).length() + crosswalk_width(exit);
+            let v_cap = speed_caps(&path);
+            let crosswalks = crossings(layout, &path, [i, j]);
+            routes.push(Route {
+                approach: i,
+                exit: j,
+                movement: m,
+                path,
+                stop_s,
+                clear_s,
+                v_cap,
+                crosswalks,
+                merge_s: None,
+            });
         }
     }
     routes

@@ -10,7 +10,7 @@ use crate::ray::Material;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneConfig {
     pub name: String,
@@ -35,6 +35,55 @@ pub struct SceneConfig {
     /// A roundabout at the centre in place of a junction box ([`RoundaboutConfig`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub roundabout: Option<RoundaboutConfig>,
+    /// The junction's lane graph: which inbound lane leads to which outbound lane
+    /// ([`ConnectionConfig`]). Empty (the default), hilo's own rules connect the lanes; an
+    /// imported junction lists its file's connections.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub connections: Vec<ConnectionConfig>,
+}
+
+/// As derived, but without `connections` where there are none: a dataset's fingerprint reads
+/// this text, so a scene without a lane graph keeps the fingerprints it had before scenes could
+/// list one.
+impl std::fmt::Debug for SceneConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("SceneConfig");
+        d.field("name", &self.name)
+            .field("origin", &self.origin)
+            .field("ground", &self.ground)
+            .field("arms", &self.arms)
+            .field("buildings", &self.buildings)
+            .field("trees", &self.trees)
+            .field("signal_poles", &self.signal_poles)
+            .field("street_lights", &self.street_lights)
+            .field("roi", &self.roi)
+            .field("meshes", &self.meshes)
+            .field("roundabout", &self.roundabout);
+        if !self.connections.is_empty() {
+            d.field("connections", &self.connections);
+        }
+        d.finish()
+    }
+}
+
+/// One movement the junction allows (`[[connections]]`): from an inbound lane of one arm to an
+/// outbound lane of another. Lanes count from the arm's centre line outward (0: the innermost,
+/// beside the median), inbound and outbound each on their own. Where a scene lists connections,
+/// vehicles drive these and no others: a turn no connection allows is not made, and a lane
+/// carries the turns its connections give it. Whether a movement is a left turn, a right turn or
+/// through follows from the two arms' headings, as for hilo's own rules. A left turn from the
+/// innermost lane of an arm with a left-turn bay uses the bay.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConnectionConfig {
+    /// The arm the movement comes from, by name.
+    pub from: String,
+    /// Its inbound lane, 0 the innermost.
+    pub from_lane: u32,
+    /// The arm it leaves by, by name (another arm: hilo models no U-turns).
+    pub to: String,
+    /// Its outbound lane, 0 the innermost.
+    pub to_lane: u32,
 }
 
 /// A roundabout (`[roundabout]`): the arms meet a one-way circulatory roadway, driven
@@ -510,6 +559,7 @@ impl SceneConfig {
         if let Some(r) = &self.roundabout {
             check_roundabout(&c, r, &self.arms)?;
         }
+        check_connections(&c, &self.connections, &self.arms, self.roundabout.is_some())?;
         if let Some((i, j, along)) = overlapping_arms(&self.arms, self.roundabout.as_ref()) {
             let (a, b) = (&self.arms[i], &self.arms[j]);
             let gap = (b.heading_deg - a.heading_deg).rem_euclid(360.0);
@@ -655,6 +705,51 @@ fn check_arm(c: &Check, i: usize, a: &ArmConfig, ground_half_m: f32) -> Result<(
             a.length_m,
             &format!("the arm runs off the ground (ground.half_size_m = {})", ground_half_m),
         ));
+    }
+    Ok(())
+}
+
+/// The lane graph's checks: arms that exist, lanes they have, no U-turn, each connection once,
+/// and none at a roundabout (its ring connects every entry to every exit).
+fn check_connections(
+    c: &Check,
+    connections: &[ConnectionConfig],
+    arms: &[ArmConfig],
+    roundabout: bool,
+) -> Result<(), RaycastError> {
+    if roundabout && !connections.is_empty() {
+        return Err(c.err("connections", connections.len(), "a roundabout's ring connects every entry to every exit"));
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    for (k, x) in connections.iter().enumerate() {
+        let f = |n: &str| format!("connections[{k}].{n}");
+        let arm = |field: &str, name: &str| {
+            arms.iter().find(|a| a.name == name).ok_or_else(|| {
+                let known: Vec<&str> = arms.iter().map(|a| a.name.as_str()).collect();
+                c.err(&f(field), name, &format!("no arm of that name; the arms: {}", known.join(", ")))
+            })
+        };
+        let (from, to) = (arm("from", &x.from)?, arm("to", &x.to)?);
+        if from.name == to.name {
+            return Err(c.err(&f("to"), &x.to, "a U-turn: a connection leads to another arm"));
+        }
+        if x.from_lane >= from.lanes_in {
+            return Err(c.err(
+                &f("from_lane"),
+                x.from_lane,
+                &format!("arm {:?} has {} inbound lane(s), counted from 0", from.name, from.lanes_in),
+            ));
+        }
+        if x.to_lane >= to.lanes_out {
+            return Err(c.err(
+                &f("to_lane"),
+                x.to_lane,
+                &format!("arm {:?} has {} outbound lane(s), counted from 0", to.name, to.lanes_out),
+            ));
+        }
+        if !seen.insert(x) {
+            return Err(c.err(&format!("connections[{k}]"), x, "listed twice"));
+        }
     }
     Ok(())
 }

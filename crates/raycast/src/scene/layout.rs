@@ -93,6 +93,21 @@ pub struct Layout {
     /// and the arms' stubs out to their crosswalks, and the corners' sidewalks follow the ring.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ring: Option<Ring>,
+    /// The scene's lane graph ([`super::config::ConnectionConfig`]) by arm index into `arms`;
+    /// empty where hilo's own rules connect the lanes.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub connections: Vec<Connection>,
+}
+
+/// One connection of the lane graph: arm `from`'s inbound lane `from_lane` to arm `to`'s
+/// outbound lane `to_lane` (lanes of each kind counted from the arm's centre line, 0 the
+/// innermost; arms by index into [`Layout::arms`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Connection {
+    pub from: usize,
+    pub from_lane: usize,
+    pub to: usize,
+    pub to_lane: usize,
 }
 
 /// A roundabout's circulatory roadway around its raised island, centred on the origin.
@@ -382,6 +397,19 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         let cw1 = layout.arms[0].crosswalk[1].dot(f.dir);
         layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
     }
+    let index = |name: &str| layout.arms.iter().position(|a| a.name == name);
+    layout.connections = cfg
+        .connections
+        .iter()
+        .filter_map(|c| {
+            Some(Connection {
+                from: index(&c.from)?,
+                from_lane: c.from_lane as usize,
+                to: index(&c.to)?,
+                to_lane: c.to_lane as usize,
+            })
+        })
+        .collect();
     layout
 }
 

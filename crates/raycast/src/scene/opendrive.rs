@@ -20,6 +20,10 @@
 //!   arm over the junction; at every corner when the file has no traffic light at this junction;
 //! - **regions of interest**: the junction box and crosswalks (weight 3) and the approach lanes'
 //!   first 60 m (weight 1), as in hilo's default intersection;
+//! - **lane graph**: which of the arm's inbound lanes leads, through the junction's connecting
+//!   lanes, to which outbound lanes of the other arms (`[[connections]]`, each end read as the
+//!   scene's lane nearest the file's; U-turns left out), so traffic drives the movements the
+//!   file allows and no others;
 //! - **origin**: the junction's centre (the mean of its lanes' centre lines) in the file's
 //!   coordinates, and its geo reference as the CRS where the header gives one.
 //!
@@ -29,7 +33,7 @@
 //! pole height 7 m, no buildings or trees (OpenDRIVE objects carry no heights hilo could trust;
 //! add them to the written scene file). Left out: the roads' curvature and elevation (hilo's arms
 //! are straight and flat), turn bays as their own lanes (they count as inbound lanes), and the
-//! junction's own lane geometry (hilo derives the box from the arms). `<include>`s are not
+//! junction's own lane geometry (hilo derives the box from the arms and draws the turns). `<include>`s are not
 //! followed: the one file given is read, with a bound on its size.
 
 use crate::error::RaycastError;
@@ -147,7 +151,9 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         roi: default_rois(),
         meshes: Vec::new(),
         roundabout: None,
+        connections: Vec::new(),
     };
+    config.connections = connections(&net, &lanes_of[&junction], &config, c, &mut notes);
     let written = signals_written(xml);
     if written > net.signals().len() {
         notes.push(format!(
@@ -421,6 +427,109 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, c: Vec2, notes: &mut Vec<String>) 
         crosswalk_width_m: CROSSWALK_M,
         speed_limit_kph: SPEED_KPH,
     }
+}
+
+/// The junction's lane graph in the scene's terms: each driving lane into the junction, through
+/// its connecting lanes (`inside`), to each driving lane out of it, each end read as the scene's
+/// lane nearest it ([`scene_lane`]); `c` is the junction's centre. U-turns are left out, with a
+/// note.
+fn connections(
+    net: &xodr::RoadNetwork,
+    inside: &HashSet<xodr::LaneId>,
+    config: &SceneConfig,
+    c: Vec2,
+    notes: &mut Vec<String>,
+) -> Vec<crate::scene::config::ConnectionConfig> {
+    let layout = build_layout(config);
+    let mut out = BTreeSet::new();
+    let (mut u_turns, mut unread) = (0, 0);
+    for (l, _, _, into) in approach_lanes(net, inside) {
+        if !into {
+            continue;
+        }
+        let Some(from) = scene_lane(&layout, &l.center, c, false) else {
+            unread += 1;
+            continue;
+        };
+        for exit in exits(net, inside, l) {
+            let Some(to) = scene_lane(&layout, &exit.center, c, true) else {
+                unread += 1;
+                continue;
+            };
+            if from.0 == to.0 {
+                u_turns += 1;
+                continue;
+            }
+            out.insert(crate::scene::config::ConnectionConfig {
+                from: layout.arms[from.0].name.clone(),
+                from_lane: from.1 as u32,
+                to: layout.arms[to.0].name.clone(),
+                to_lane: to.1 as u32,
+            });
+        }
+    }
+    notes.push(format!(
+        "{} connections through the junction from the file's lane graph (its connecting lanes' own curves are not \
+         kept: hilo draws each turn)",
+        out.len()
+    ));
+    if u_turns > 0 {
+        notes.push(format!("{u_turns} U-turn connection(s) of the file left out"));
+    }
+    if unread > 0 {
+        notes.push(format!("{unread} lane(s) of the file's connections match no lane of the scene; left out"));
+    }
+    out.into_iter().collect()
+}
+
+/// The driving lanes outside the junction that lane `l` leads to through the junction's lanes
+/// (`inside`), in the order the file lists them.
+fn exits<'a>(net: &'a xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, l: &xodr::Lane) -> Vec<&'a xodr::Lane> {
+    let mut seen: HashSet<xodr::LaneId> = HashSet::new();
+    let mut stack: Vec<xodr::LaneId> = l.successors.iter().copied().filter(|s| inside.contains(s)).collect();
+    let mut out: Vec<&xodr::Lane> = Vec::new();
+    while let Some(id) = stack.pop() {
+        if !seen.insert(id) {
+            continue;
+        }
+        let Some(lane) = net.lane(id) else { continue };
+        for &next in &lane.successors {
+            if inside.contains(&next) {
+                stack.push(next);
+            } else if let Some(o) = net.lane(next).filter(|o| o.kind == xodr::LaneType::Driving)
+                && !out.iter().any(|x| x.id == o.id)
+            {
+                out.push(o);
+            }
+        }
+    }
+    out
+}
+
+/// The scene's lane nearest a lane of the file (its centre line `center`; `c` the junction's
+/// centre, the scene's origin): on the arm whose direction is nearest the lane's point about
+/// 12 m beyond the junction, the lane running the same way (`outbound` or inbound) whose centre
+/// line stands nearest that point across the arm. The arm's index into the layout and the
+/// lane's among its kind (0 the innermost).
+fn scene_lane(
+    layout: &crate::scene::layout::Layout,
+    center: &xodr::Polyline,
+    c: Vec2,
+    outbound: bool,
+) -> Option<(usize, usize)> {
+    use crate::scene::layout::LaneKind;
+    let q = outward(center, c).2 - c;
+    let u = q.normalize_or_zero();
+    let (i, arm) =
+        layout.arms.iter().enumerate().min_by(|a, b| (u - a.1.dir).length().total_cmp(&(u - b.1.dir).length()))?;
+    let k = arm
+        .lanes
+        .iter()
+        .filter(|ln| (ln.kind == LaneKind::Outbound) == outbound && ln.kind != LaneKind::LeftTurnBay)
+        .enumerate()
+        .min_by(|a, b| (q - a.1.end).dot(arm.normal).abs().total_cmp(&(q - b.1.end).dot(arm.normal).abs()))?
+        .0;
+    Some((i, k))
 }
 
 /// The default intersection's regions of interest: the junction box and crosswalks, and the

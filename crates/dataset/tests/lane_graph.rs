@@ -1,0 +1,229 @@
+//! A scene's lane graph (`[[connections]]`): vehicles drive the movements it lists and no
+//! others, each from its inbound lane to its outbound lane; the imported real junctions list
+//! their OpenDRIVE file's connections, and every connecting lane of the file is followed by one
+//! of the scene's routes (and every route follows one), measured against the parser's own
+//! samples; where a file's lane graph is what hilo's own rules would draw, the routes are the
+//! rules' routes, in their order.
+
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use glam::Vec2;
+use hilo_dataset::traffic::routes::{Movement, Route, build_routes, spawned_movement};
+use hilo_raycast::Scene;
+use hilo_raycast::scene::config::SceneConfig;
+use hilo_raycast::scene::layout::LaneKind;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The imported sites: scene file, map and junction.
+const IMPORTED: [(&str, &str, &str); 3] = [
+    ("fixtures/sites/fabriksgatan.toml", "fixtures/opendrive/fabriksgatan_traffic_lights.xodr", "4"),
+    ("fixtures/sites/three_arm_grid.toml", "fixtures/opendrive/multi_intersections.xodr", "150"),
+    ("fixtures/sites/braunschweig.toml", "fixtures/opendrive/braunschweig.xodr", "1"),
+];
+
+fn same_routes(a: &[Route], b: &[Route]) -> bool {
+    a.len() == b.len()
+        && a.iter().zip(b).all(|(x, y)| {
+            (x.approach, x.exit, x.movement) == (y.approach, y.exit, y.movement) && x.path.points == y.path.points
+        })
+}
+
+#[test]
+fn a_lane_graph_equal_to_the_rules_drives_the_rules_routes() {
+    for (site, _, _) in IMPORTED {
+        let scene = Scene::load(&root().join(site)).unwrap();
+        assert!(!scene.layout.connections.is_empty(), "{site}: no lane graph");
+        let with = build_routes(&scene.layout);
+        let mut rules = scene.layout.clone();
+        rules.connections.clear();
+        let without = build_routes(&rules);
+        assert_eq!(with.len(), scene.layout.connections.len(), "{site}: one route per connection");
+        assert!(same_routes(&with, &without), "{site}: the file's lane graph is the rules' here");
+    }
+}
+
+/// The default intersection with a lane graph of its own: north's traffic may not turn left
+/// and its middle lane only goes straight on; every other arm keeps one left turn from its
+/// innermost lane (by its bay) and one right turn from its outermost.
+#[test]
+fn a_junction_drives_only_the_movements_its_lane_graph_allows() {
+    let text = std::fs::read_to_string(root().join("fixtures/intersection.toml")).unwrap();
+    let arms = ["east", "north", "west", "south"];
+    let mut extra = String::new();
+    let mut listed = Vec::new();
+    for (i, from) in arms.iter().enumerate() {
+        // Driving in from the east (westward), the left turn leads south.
+        let right = arms[(i + 1) % 4];
+        let ahead = arms[(i + 2) % 4];
+        let left = arms[(i + 3) % 4];
+        let mut add = |to: &str, from_lane: u32, to_lane: u32| {
+            extra.push_str(&format!(
+                "\n[[connections]]\nfrom = \"{from}\"\nfrom_lane = {from_lane}\nto = \"{to}\"\nto_lane = {to_lane}\n"
+            ));
+            listed.push((from.to_string(), from_lane, to.to_string(), to_lane));
+        };
+        for k in 0..3 {
+            add(ahead, k, k);
+        }
+        add(right, 2, 2);
+        if *from != "north" {
+            add(left, 0, 0);
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("scene.toml");
+    std::fs::write(&file, format!("{text}{extra}")).unwrap();
+    let scene = Scene::load(&file).unwrap();
+    let layout = &scene.layout;
+    let routes = build_routes(layout);
+    assert_eq!(routes.len(), listed.len());
+    let index = |n: &str| layout.arms.iter().position(|a| a.name == n).unwrap();
+    let north = index("north");
+    assert!(routes.iter().all(|r| !(r.approach == north && r.movement == Movement::Left)));
+    assert_eq!(spawned_movement(&routes, north, Movement::Left), Some(Movement::Through), "no left: straight on");
+    assert_eq!(spawned_movement(&routes, index("east"), Movement::Left), Some(Movement::Left));
+    // Each route starts on its inbound lane (a left turn in its bay) and ends on its outbound lane.
+    for (from, from_lane, to, to_lane) in &listed {
+        let (i, j) = (index(from), index(to));
+        let ins: Vec<_> = layout.arms[i].lanes.iter().filter(|l| l.kind == LaneKind::Inbound).collect();
+        let outs: Vec<_> = layout.arms[j].lanes.iter().filter(|l| l.kind == LaneKind::Outbound).collect();
+        let start = ins[*from_lane as usize].start;
+        let end = outs[*to_lane as usize].end;
+        let found = routes
+            .iter()
+            .filter(|r| r.approach == i && r.exit == j)
+            .any(|r| r.path.points[0].distance(start) < 1e-3 && r.path.points.last().unwrap().distance(end) < 1e-3);
+        assert!(found, "{from} lane {from_lane} -> {to} lane {to_lane}: no route");
+    }
+    // A dataset's fingerprint reads the scene's Debug text: a lane graph is in it, and a scene
+    // without one reads as before scenes could list one.
+    assert!(format!("{:?}", scene.config).contains("connections"));
+    let plain = Scene::load(&root().join("fixtures/intersection.toml")).unwrap();
+    assert!(!format!("{:?}", plain.config).contains("connections"));
+    // The rules would have given north a left turn: the lane graph took it away.
+    let mut rules = layout.clone();
+    rules.connections.clear();
+    assert!(build_routes(&rules).iter().any(|r| r.approach == north && r.movement == Movement::Left));
+}
+
+#[test]
+fn a_lane_graph_that_names_what_the_scene_lacks_is_refused_by_field() {
+    let text = std::fs::read_to_string(root().join("fixtures/intersection.toml")).unwrap();
+    let err = |c: &str| {
+        let t = format!("{text}\n[[connections]]\n{c}\n");
+        SceneConfig::from_toml_str(&t, Path::new("scene.toml")).unwrap_err().to_string()
+    };
+    let e = err("from = \"east\"\nfrom_lane = 0\nto = \"nowhere\"\nto_lane = 0");
+    assert!(e.contains("connections[0].to") && e.contains("nowhere") && e.contains("east, north"), "{e}");
+    let e = err("from = \"east\"\nfrom_lane = 3\nto = \"west\"\nto_lane = 0");
+    assert!(e.contains("connections[0].from_lane") && e.contains("3 inbound lane"), "{e}");
+    let e = err("from = \"east\"\nfrom_lane = 0\nto = \"west\"\nto_lane = 7");
+    assert!(e.contains("connections[0].to_lane"), "{e}");
+    let e = err("from = \"east\"\nfrom_lane = 0\nto = \"east\"\nto_lane = 0");
+    assert!(e.contains("U-turn"), "{e}");
+    let twice = "from = \"east\"\nfrom_lane = 0\nto = \"west\"\nto_lane = 0\n";
+    let e = err(&format!("{twice}\n[[connections]]\n{twice}"));
+    assert!(e.contains("connections[1]") && e.contains("listed twice"), "{e}");
+    let ring = std::fs::read_to_string(root().join("fixtures/sites/roundabout.toml")).unwrap();
+    let t = format!("{ring}\n[[connections]]\nfrom = \"a\"\nfrom_lane = 0\nto = \"b\"\nto_lane = 0\n");
+    let e = SceneConfig::from_toml_str(&t, Path::new("ring.toml")).unwrap_err().to_string();
+    assert!(e.contains("connections") && e.contains("ring"), "{e}");
+}
+
+/// The largest distance from any of `pts` to the polyline `path` (sampled every 0.5 m, so the
+/// nearest sample overstates it by at most 0.25 m).
+fn farthest(pts: &[Vec2], path: &[Vec2]) -> f32 {
+    pts.iter().map(|p| path.iter().map(|q| p.distance(*q)).fold(f32::INFINITY, f32::min)).fold(0.0, f32::max)
+}
+
+/// Every connecting lane of each imported junction (a lane of the junction whose predecessor
+/// is a driving lane into it and whose successor a driving lane out of it) runs within 3 m of
+/// the route that leaves its predecessor's arm for its successor's, over its whole centre line
+/// as the parser samples it; and that route, out to the lane's reach, within 3 m of it. The
+/// connecting lanes' own curves are not hilo's (it draws each turn between straight arms), so
+/// this bounds how far its turns stand from the file's (1.8 m at Fabriksgatan and Braunschweig,
+/// 2.7 m at the grid junction, its left turns the farthest; the figures print).
+#[test]
+fn each_connecting_lane_of_the_file_is_driven_by_a_route() {
+    for (site, map, junction) in IMPORTED {
+        let scene = Scene::load(&root().join(site)).unwrap();
+        let cfg = &scene.config;
+        let origin = Vec2::new(cfg.origin.x_m as f32, cfg.origin.y_m as f32);
+        let routes = build_routes(&scene.layout);
+        let net = xodr::load_str(&std::fs::read_to_string(root().join(map)).unwrap()).unwrap();
+        let in_junction = |id: xodr::LaneId| {
+            net.road_lane(id).and_then(|rl| net.road(rl.road)).and_then(|r| r.junction().map(str::to_owned))
+        };
+        let driving_outside = |id: &xodr::LaneId| {
+            net.lane(*id).is_some_and(|l| l.kind == xodr::LaneType::Driving) && in_junction(*id).is_none()
+        };
+        // The arm a lane outside the junction lies along: its point farthest from the centre.
+        let arm_of = |id: &xodr::LaneId| {
+            let l = net.lane(*id).unwrap();
+            let far = l
+                .center
+                .points()
+                .iter()
+                .map(|p| Vec2::new(p.x, p.y) - origin)
+                .fold(Vec2::ZERO, |a, b| if b.length() > a.length() { b } else { a });
+            let u = far.normalize_or_zero();
+            (0..scene.layout.arms.len())
+                .min_by(|&a, &b| {
+                    (u - scene.layout.arms[a].dir).length().total_cmp(&(u - scene.layout.arms[b].dir).length())
+                })
+                .unwrap()
+        };
+        let mut worst_file = 0.0f32;
+        let mut worst_route = 0.0f32;
+        let mut pairs = HashSet::new();
+        let mut n = 0;
+        for l in net.lanes().iter().filter(|l| l.kind == xodr::LaneType::Driving) {
+            if in_junction(l.id).as_deref() != Some(junction) {
+                continue;
+            }
+            let (Some(from), Some(to)) =
+                (l.predecessors.iter().find(|p| driving_outside(p)), l.successors.iter().find(|s| driving_outside(s)))
+            else {
+                continue;
+            };
+            let (i, j) = (arm_of(from), arm_of(to));
+            if i == j {
+                continue;
+            }
+            let pts: Vec<Vec2> = l.center.points().iter().map(|p| Vec2::new(p.x, p.y) - origin).collect();
+            let best = routes
+                .iter()
+                .filter(|r| r.approach == i && r.exit == j)
+                .map(|r| {
+                    let inside: Vec<Vec2> = r
+                        .path
+                        .points
+                        .iter()
+                        .copied()
+                        .filter(|p| p.length() <= pts.iter().map(|q| q.length()).fold(0.0, f32::max))
+                        .collect();
+                    (farthest(&pts, &r.path.points), farthest(&inside, &pts))
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0));
+            let Some((to_route, to_file)) = best else {
+                panic!("{site}: the file connects {} to {}; no route does", i, j)
+            };
+            worst_file = worst_file.max(to_route);
+            worst_route = worst_route.max(to_file);
+            pairs.insert((i, j));
+            n += 1;
+        }
+        let driven: HashSet<(usize, usize)> = routes.iter().map(|r| (r.approach, r.exit)).collect();
+        println!(
+            "{site}: {n} connecting lanes; file to route at most {worst_file:.2} m, route to file at most {worst_route:.2} m"
+        );
+        assert!(n >= 4, "{site}: {n} connecting lanes");
+        assert_eq!(pairs, driven, "{site}: the arms the file connects are the arms the routes connect");
+        assert!(worst_file <= 3.0 && worst_route <= 3.0, "{site}: {worst_file} / {worst_route}");
+    }
+}
