@@ -20,8 +20,9 @@
 //!   right turn with no exit goes straight, and a through movement with no exit is not spawned.
 //!
 //! What it leaves out: right turns slowed by pedestrians, heavy vehicles' longer headways, lane
-//! utilisation that is not even, sneakers at the end of the green, and spill-back from a full
-//! left-turn bay. In this model the first matters most: its right turners wait out a crosswalk's
+//! utilisation that is not even, sneakers at the end of the green, spill-back from a full
+//! left-turn bay, and a scene's own lane graph (`[[connections]]`) where it gives the lanes
+//! other turns than hilo's rules do: the lane groups above are the rules'. In this model the first matters most: its right turners wait out a crosswalk's
 //! pedestrians far longer than drivers do (304 right turns an hour from a flooded lane with no
 //! pedestrians, 48 with 90 per crosswalk and direction; HCM's adjustment keeps about three
 //! quarters), and its permissive lefts find few gaps. So over many cycles a level runs hotter
