@@ -47,11 +47,13 @@ fn a_lane_graph_equal_to_the_rules_drives_the_rules_routes() {
     }
 }
 
-/// The default intersection with a lane graph of its own: north's traffic may not turn left
-/// and its middle lane only goes straight on; every other arm keeps one left turn from its
-/// innermost lane (by its bay) and one right turn from its outermost.
-#[test]
-fn a_junction_drives_only_the_movements_its_lane_graph_allows() {
+/// A connection as listed: from arm, its lane, to arm, its lane.
+type Listed = (String, u32, String, u32);
+
+/// The default intersection with a lane graph of its own (every lane straight on, the
+/// outermost also right, the innermost also left by its bay) in which the arms `no_left` may
+/// not turn left.
+fn with_lane_graph(no_left: &[&str]) -> (Scene, Vec<Listed>, tempfile::TempDir) {
     let text = std::fs::read_to_string(root().join("fixtures/intersection.toml")).unwrap();
     let arms = ["east", "north", "west", "south"];
     let mut extra = String::new();
@@ -71,14 +73,21 @@ fn a_junction_drives_only_the_movements_its_lane_graph_allows() {
             add(ahead, k, k);
         }
         add(right, 2, 2);
-        if *from != "north" {
+        if !no_left.contains(from) {
             add(left, 0, 0);
         }
     }
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("scene.toml");
     std::fs::write(&file, format!("{text}{extra}")).unwrap();
-    let scene = Scene::load(&file).unwrap();
+    (Scene::load(&file).unwrap(), listed, dir)
+}
+
+/// North's traffic may not turn left; every other arm keeps its left turn from its innermost
+/// lane (by its bay) and every arm its right turn from its outermost.
+#[test]
+fn a_junction_drives_only_the_movements_its_lane_graph_allows() {
+    let (scene, listed, _dir) = with_lane_graph(&["north"]);
     let layout = &scene.layout;
     let routes = build_routes(layout);
     assert_eq!(routes.len(), listed.len());
@@ -109,6 +118,29 @@ fn a_junction_drives_only_the_movements_its_lane_graph_allows() {
     let mut rules = layout.clone();
     rules.connections.clear();
     assert!(build_routes(&rules).iter().any(|r| r.approach == north && r.movement == Movement::Left));
+}
+
+/// The signal runs a protected left only for arms the lane graph turns left from: with no left
+/// turn from north or south (opposing arms, one phase), their phase has no left arrow while east
+/// and west keep theirs; with the left turns of the rules, every phase has one.
+#[test]
+fn a_left_arrow_runs_only_where_the_lane_graph_turns_left() {
+    use hilo_dataset::traffic::TrafficConfig;
+    use hilo_dataset::traffic::signal::plan_for;
+    let cfg = TrafficConfig::default().signal;
+    let (scene, _, _dir) = with_lane_graph(&["north", "south"]);
+    let plan = plan_for(&scene.layout, &cfg);
+    let index = |n: &str| scene.layout.arms.iter().position(|a| a.name == n).unwrap();
+    for (arm, arrow) in [("north", false), ("south", false), ("east", true), ("west", true)] {
+        assert_eq!(plan.phase(index(arm)).left_s > 0.0, arrow, "{arm}");
+    }
+    let (all, _, _dir) = with_lane_graph(&[]);
+    let plan = plan_for(&all.layout, &cfg);
+    let rules = plan_for(&Scene::load(&root().join("fixtures/intersection.toml")).unwrap().layout, &cfg);
+    for a in 0..4 {
+        assert!(plan.phase(a).left_s > 0.0);
+        assert_eq!(plan.phase(a), rules.phase(a));
+    }
 }
 
 #[test]

@@ -29,14 +29,29 @@ impl Default for SignalConfig {
 }
 
 /// The plan of a layout's arms: directions, speed limits and left-turn bays from the layout;
-/// none at a roundabout ([`SignalPlan::unsignalised`]).
+/// none at a roundabout ([`SignalPlan::unsignalised`]). Where the scene lists its own lane graph
+/// ([`Layout::connections`]), an arm's bay gets its protected left only when the graph turns
+/// left from that arm: a junction whose connections allow no left turn there runs no left
+/// arrow for it.
 pub fn plan_for(layout: &Layout, cfg: &SignalConfig) -> SignalPlan {
     if layout.ring.is_some() {
         return SignalPlan::unsignalised();
     }
     let dirs: Vec<Vec2> = layout.arms.iter().map(|a| a.dir).collect();
     let speeds: Vec<f32> = layout.arms.iter().map(|a| a.speed_limit_mps).collect();
-    let bays: Vec<bool> = layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay)).collect();
+    let turns_left = |i: usize| {
+        layout.connections.is_empty()
+            || layout
+                .connections
+                .iter()
+                .any(|c| c.from == i && super::routes::movement_between(layout, c.from, c.to) == Movement::Left)
+    };
+    let bays: Vec<bool> = layout
+        .arms
+        .iter()
+        .enumerate()
+        .map(|(i, a)| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay) && turns_left(i))
+        .collect();
     SignalPlan::new(cfg, &dirs, &speeds, &bays)
 }
 
