@@ -33,8 +33,8 @@
 //! pole height 7 m, no buildings or trees (OpenDRIVE objects carry no heights hilo could trust;
 //! add them to the written scene file). Left out: the roads' curvature and elevation (hilo's arms
 //! are straight and flat), turn bays as their own lanes (they count as inbound lanes), and the
-//! junction's own lane geometry (hilo derives the box from the arms and draws the turns). `<include>`s are not
-//! followed: the one file given is read, with a bound on its size.
+//! junction's own lane geometry (hilo derives the box from the arms and draws the turns).
+//! `<include>`s are not followed: the one file given is read, with a bound on its size.
 
 use crate::error::RaycastError;
 use crate::scene::config::{
@@ -468,11 +468,16 @@ fn connections(
             });
         }
     }
-    notes.push(format!(
-        "{} connections through the junction from the file's lane graph (its connecting lanes' own curves are not \
-         kept: hilo draws each turn)",
-        out.len()
-    ));
+    notes.push(if out.is_empty() {
+        "no connection through the junction read from the file's lane graph: hilo's own rules connect its lanes"
+            .to_owned()
+    } else {
+        format!(
+            "{} connections through the junction from the file's lane graph (its connecting lanes' own curves are \
+             not kept: hilo draws each turn)",
+            out.len()
+        )
+    });
     if u_turns > 0 {
         notes.push(format!("{u_turns} U-turn connection(s) of the file left out"));
     }
