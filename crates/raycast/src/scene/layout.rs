@@ -397,9 +397,14 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         let cw1 = layout.arms[0].crosswalk[1].dot(f.dir);
         layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
     }
-    let index = |name: &str| layout.arms.iter().position(|a| a.name == name);
-    layout.connections = cfg
-        .connections
+    Layout { connections: resolve_connections(cfg, &layout.arms), ..layout }
+}
+
+/// The scene's lane graph with its arms by index into `arms` (a connection naming an arm the
+/// layout lacks, which a checked scene never does, is dropped).
+fn resolve_connections(cfg: &SceneConfig, arms: &[ArmLayout]) -> Vec<Connection> {
+    let index = |name: &str| arms.iter().position(|a| a.name == name);
+    cfg.connections
         .iter()
         .filter_map(|c| {
             Some(Connection {
@@ -409,8 +414,7 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
                 to_lane: c.to_lane as usize,
             })
         })
-        .collect();
-    layout
+        .collect()
 }
 
 /// The most and least radius of the curb's flare between an arm and a roundabout's ring.
