@@ -211,7 +211,6 @@ pub fn lane_deviations(
     origin: Vec2,
     reaches_m: &[f32],
 ) -> Result<Vec<LaneDeviation>, RaycastError> {
-    use crate::scene::layout::LaneKind;
     let net = parse(xml, path)?;
     let inside = junctions(&net).0.remove(junction).unwrap_or_default();
     let mut out = Vec::new();
@@ -220,17 +219,8 @@ pub fn lane_deviations(
         let mut worst_m = vec![0.0f32; reaches_m.len()];
         for p in l.center.points() {
             let q = Vec2::new(p.x, p.y) - origin;
-            let u = q.normalize_or_zero();
-            let Some(arm) = layout.arms.iter().min_by(|a, b| (u - a.dir).length().total_cmp(&(u - b.dir).length()))
-            else {
-                continue;
-            };
-            let d = arm
-                .lanes
-                .iter()
-                .filter(|ln| (ln.kind == LaneKind::Outbound) == out_of)
-                .map(|ln| (q - ln.end).dot(arm.normal).abs())
-                .fold(f32::INFINITY, f32::min);
+            // No lane of that kind on the nearest arm: as far from the file as can be.
+            let d = nearest_lane(layout, q, out_of, true).map_or(f32::INFINITY, |(_, _, d)| d);
             for (w, &reach) in worst_m.iter_mut().zip(reaches_m) {
                 if (FIDELITY_FROM_M..=reach).contains(&q.length()) {
                     *w = w.max(d);
@@ -522,19 +512,32 @@ fn scene_lane(
     c: Vec2,
     outbound: bool,
 ) -> Option<(usize, usize)> {
+    let (i, k, _) = nearest_lane(layout, outward(center, c).2 - c, outbound, false)?;
+    Some((i, k))
+}
+
+/// The scene lane nearest the point `q` (relative to the junction's centre): the arm whose
+/// direction is nearest `q`'s, then among its outbound (or inbound) lanes, turn bays counted
+/// when `bays`, the one whose centre line lies least far across the arm from `q`. Returns the
+/// arm, the lane's index among the lanes counted, and that lateral distance.
+fn nearest_lane(
+    layout: &crate::scene::layout::Layout,
+    q: Vec2,
+    outbound: bool,
+    bays: bool,
+) -> Option<(usize, usize, f32)> {
     use crate::scene::layout::LaneKind;
-    let q = outward(center, c).2 - c;
     let u = q.normalize_or_zero();
     let (i, arm) =
         layout.arms.iter().enumerate().min_by(|a, b| (u - a.1.dir).length().total_cmp(&(u - b.1.dir).length()))?;
-    let k = arm
+    let (k, d) = arm
         .lanes
         .iter()
-        .filter(|ln| (ln.kind == LaneKind::Outbound) == outbound && ln.kind != LaneKind::LeftTurnBay)
+        .filter(|ln| (ln.kind == LaneKind::Outbound) == outbound && (bays || ln.kind != LaneKind::LeftTurnBay))
+        .map(|ln| (q - ln.end).dot(arm.normal).abs())
         .enumerate()
-        .min_by(|a, b| (q - a.1.end).dot(arm.normal).abs().total_cmp(&(q - b.1.end).dot(arm.normal).abs()))?
-        .0;
-    Some((i, k))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    Some((i, k, d))
 }
 
 /// The default intersection's regions of interest: the junction box and crosswalks, and the
