@@ -312,17 +312,22 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
             }
         }
     }
+    // Each study's rigs recorded again in a weather condition, left out of every ranking.
+    let skips: Vec<Vec<String>> = reports.iter().map(|(_, r)| in_conditions(r)).collect();
     let leaders = presets
         .iter()
         .map(|p| Leader {
             preset: p.clone(),
             at: reports
                 .iter()
-                .filter_map(|(s, r)| lead(r, &configurations, &s.name, p, f64::INFINITY).map(|l| (s.name.clone(), l)))
+                .zip(&skips)
+                .filter_map(|((s, r), skip)| {
+                    lead(r, skip, &configurations, &s.name, p, f64::INFINITY).map(|l| (s.name.clone(), l))
+                })
                 .collect(),
         })
         .collect();
-    let budgets = budget_leads(reports, &configurations, &presets);
+    let budgets = budget_leads(reports, &skips, &configurations, &presets);
     let mut claims: Vec<ClaimAcross> = Vec::new();
     for (_, r) in reports {
         for c in &r.claims {
@@ -388,15 +393,14 @@ fn in_conditions(r: &Report) -> Vec<String> {
 /// cheapest first), each study's best configuration within the budget.
 fn budget_leads(
     reports: &[(ShardRecord, Report)],
+    skips: &[Vec<String>],
     configurations: &[ConfigAcross],
     presets: &[String],
 ) -> Vec<BudgetBest> {
     let mut costs: Vec<f64> = reports
         .iter()
-        .flat_map(|(_, r)| {
-            let skip = in_conditions(r);
-            r.configurations.iter().filter(move |c| !skip.contains(&c.name)).map(|c| c.cost_usd).collect::<Vec<_>>()
-        })
+        .zip(skips)
+        .flat_map(|((_, r), skip)| r.configurations.iter().filter(move |c| !skip.contains(&c.name)).map(|c| c.cost_usd))
         .filter(|c| c.is_finite())
         .collect();
     costs.sort_by(f64::total_cmp);
@@ -406,7 +410,10 @@ fn budget_leads(
         for &budget in &costs {
             let at: BTreeMap<String, Lead> = reports
                 .iter()
-                .filter_map(|(s, r)| lead(r, configurations, &s.name, p, budget).map(|l| (s.name.clone(), l)))
+                .zip(skips)
+                .filter_map(|((s, r), skip)| {
+                    lead(r, skip, configurations, &s.name, p, budget).map(|l| (s.name.clone(), l))
+                })
                 .collect();
             let first = at.values().next().map(|l| l.configuration.clone());
             let everywhere = first.filter(|f| at.len() == reports.len() && at.values().all(|l| &l.configuration == f));
@@ -417,9 +424,15 @@ fn budget_leads(
 }
 
 /// The configuration with the highest mean mAP for `preset` in one study among those in its own
-/// weather costing at most `budget_usd`, against the next.
-fn lead(r: &Report, configurations: &[ConfigAcross], shard: &str, preset: &str, budget_usd: f64) -> Option<Lead> {
-    let skip = in_conditions(r);
+/// weather (`skip`: its [`in_conditions`]) costing at most `budget_usd`, against the next.
+fn lead(
+    r: &Report,
+    skip: &[String],
+    configurations: &[ConfigAcross],
+    shard: &str,
+    preset: &str,
+    budget_usd: f64,
+) -> Option<Lead> {
     let mut ranked: Vec<(&str, f64)> = configurations
         .iter()
         .filter(|c| !skip.contains(&c.name))
