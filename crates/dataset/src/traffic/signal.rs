@@ -1,5 +1,5 @@
-//! A fixed-time signal plan. Opposing arms (directions within 20° of opposite) form a group;
-//! the groups run in turn, each with an optional protected-left interval, a green for through,
+//! A fixed-time signal plan. The scene's signal groups, or else opposing arms (directions
+//! within 20° of opposite) paired, form the groups; the groups run in turn, each with an optional protected-left interval, a green for through,
 //! right and permissive left, a yellow and an all-red. Pedestrians get WALK on an arm's
 //! crosswalk while a group that does not contain that arm is green (the crosswalk runs parallel
 //! to that traffic). Right turns on red are not allowed. A roundabout has no signal
@@ -29,15 +29,16 @@ impl Default for SignalConfig {
 }
 
 /// The plan of a layout's arms: directions, speed limits and left-turn bays from the layout;
-/// none at a roundabout ([`SignalPlan::unsignalised`]). Where the scene lists its own lane graph
-/// ([`Layout::connections`]), an arm's bay gets its protected left only when the graph turns
-/// left from that arm: a junction whose connections allow no left turn there runs no left
-/// arrow for it.
+/// none at a roundabout ([`SignalPlan::unsignalised`]). The phases are the scene's own signal
+/// groups ([`Layout::signal_groups`]) where it lists them, else opposing arms paired
+/// ([`opposing_pairs`]); an arm with no inbound lane (an exit) has no phase. Where the scene
+/// lists its own lane graph ([`Layout::connections`]), an arm's bay gets its protected left only
+/// when the graph turns left from that arm: a junction whose connections allow no left turn
+/// there runs no left arrow for it.
 pub fn plan_for(layout: &Layout, cfg: &SignalConfig) -> SignalPlan {
     if layout.ring.is_some() {
         return SignalPlan::unsignalised();
     }
-    let dirs: Vec<Vec2> = layout.arms.iter().map(|a| a.dir).collect();
     let speeds: Vec<f32> = layout.arms.iter().map(|a| a.speed_limit_mps).collect();
     let turns_left = |i: usize| {
         layout.connections.is_empty()
@@ -52,7 +53,39 @@ pub fn plan_for(layout: &Layout, cfg: &SignalConfig) -> SignalPlan {
         .enumerate()
         .map(|(i, a)| a.lanes.iter().any(|l| l.kind == LaneKind::LeftTurnBay) && turns_left(i))
         .collect();
-    SignalPlan::new(cfg, &dirs, &speeds, &bays)
+    let groups = if layout.signal_groups.is_empty() {
+        let dirs: Vec<Vec2> = layout.arms.iter().map(|a| a.dir).collect();
+        let inbound: Vec<bool> =
+            layout.arms.iter().map(|a| a.lanes.iter().any(|l| l.kind != LaneKind::Outbound)).collect();
+        opposing_pairs(&dirs, &inbound)
+    } else {
+        layout.signal_groups.clone()
+    };
+    SignalPlan::new(cfg, &groups, &speeds, &bays)
+}
+
+/// hilo's own phases: each arm with inbound traffic (`inbound`) in arm order, paired with the
+/// first later such arm within 20° of opposite it (`dirs`: the arms' outward directions), if any.
+pub fn opposing_pairs(dirs: &[Vec2], inbound: &[bool]) -> Vec<Vec<usize>> {
+    let n = dirs.len();
+    let mut taken = vec![false; n];
+    let mut groups = Vec::new();
+    for i in 0..n {
+        if taken[i] || !inbound[i] {
+            continue;
+        }
+        let mut arms = vec![i];
+        if let Some(j) =
+            (i + 1..n).find(|&j| !taken[j] && inbound[j] && dirs[i].dot(dirs[j]) < -(20f32.to_radians().cos()))
+        {
+            arms.push(j);
+        }
+        for &a in &arms {
+            taken[a] = true;
+        }
+        groups.push(arms);
+    }
+    groups
 }
 
 /// What a signal head shows a movement.
@@ -101,38 +134,31 @@ pub struct SignalPlan {
 }
 
 impl SignalPlan {
-    /// `dirs`: each arm's outward direction; `speed_mps`: its speed limit; `has_bay`: whether it
-    /// has a left-turn bay.
-    pub fn new(cfg: &SignalConfig, dirs: &[Vec2], speed_mps: &[f32], has_bay: &[bool]) -> SignalPlan {
-        let n = dirs.len();
-        let mut group_of_arm = vec![usize::MAX; n];
-        let mut groups: Vec<Group> = Vec::new();
-        for i in 0..n {
-            if group_of_arm[i] != usize::MAX {
-                continue;
-            }
-            let mut arms = vec![i];
-            if let Some(j) = (i + 1..n)
-                .find(|&j| group_of_arm[j] == usize::MAX && dirs[i].dot(dirs[j]) < -(20f32.to_radians().cos()))
-            {
-                arms.push(j);
-            }
-            let g = groups.len();
-            for &a in &arms {
-                group_of_arm[a] = g;
-            }
-            let v = arms.iter().map(|&a| speed_mps[a]).fold(0.0f32, f32::max) as f64;
-            let yellow_s = cfg.yellow_s.unwrap_or((1.0 + v / (2.0 * 3.05)).max(3.0));
-            let left_s = if arms.iter().any(|&a| has_bay[a]) { cfg.protected_left_s } else { 0.0 };
-            groups.push(Group {
-                arms,
-                left_s,
-                green_s: cfg.green_s,
-                yellow_s,
-                all_red_s: cfg.all_red_s,
-                offset_s: 0.0,
-            });
-        }
+    /// `groups`: the arms of each phase, in the order they run (an arm in none has no signal
+    /// facing it); `speed_mps`: each arm's speed limit; `has_bay`: whether it has a left-turn
+    /// bay that runs a protected left.
+    pub fn new(cfg: &SignalConfig, groups: &[Vec<usize>], speed_mps: &[f32], has_bay: &[bool]) -> SignalPlan {
+        let mut group_of_arm = vec![usize::MAX; speed_mps.len()];
+        let mut groups: Vec<Group> = groups
+            .iter()
+            .enumerate()
+            .map(|(g, arms)| {
+                for &a in arms {
+                    group_of_arm[a] = g;
+                }
+                let v = arms.iter().map(|&a| speed_mps[a]).fold(0.0f32, f32::max) as f64;
+                let yellow_s = cfg.yellow_s.unwrap_or((1.0 + v / (2.0 * 3.05)).max(3.0));
+                let left_s = if arms.iter().any(|&a| has_bay[a]) { cfg.protected_left_s } else { 0.0 };
+                Group {
+                    arms: arms.clone(),
+                    left_s,
+                    green_s: cfg.green_s,
+                    yellow_s,
+                    all_red_s: cfg.all_red_s,
+                    offset_s: 0.0,
+                }
+            })
+            .collect();
         let mut t = 0.0;
         for g in &mut groups {
             g.offset_s = t;

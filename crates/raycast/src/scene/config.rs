@@ -40,11 +40,20 @@ pub struct SceneConfig {
     /// imported junction lists its file's connections.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub connections: Vec<ConnectionConfig>,
+    /// The signal's phases (`signal_groups = [["north", "south"], ["east", "west"]]`): the arms
+    /// whose traffic gets green together, in the order the groups run. A group is one arm, or
+    /// two arms that face each other (headings within 20° of opposite); every arm with an
+    /// inbound lane is in one group. Empty (the default), hilo pairs opposing arms in the order
+    /// of the arms' headings. An imported junction lists the groups its file's controllers give,
+    /// where they form such phases. The intervals (green, protected left, yellow, all-red) are
+    /// the study's (`[traffic.signal]`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub signal_groups: Vec<Vec<String>>,
 }
 
-/// As derived, but without `connections` where there are none: a dataset's fingerprint reads
-/// this text, so a scene without a lane graph keeps the fingerprints it had before scenes could
-/// list one.
+/// As derived, but without `connections` or `signal_groups` where there are none: a dataset's
+/// fingerprint reads this text, so a scene without them keeps the fingerprints it had before
+/// scenes could list them.
 impl std::fmt::Debug for SceneConfig {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut d = f.debug_struct("SceneConfig");
@@ -61,6 +70,9 @@ impl std::fmt::Debug for SceneConfig {
             .field("roundabout", &self.roundabout);
         if !self.connections.is_empty() {
             d.field("connections", &self.connections);
+        }
+        if !self.signal_groups.is_empty() {
+            d.field("signal_groups", &self.signal_groups);
         }
         d.finish()
     }
@@ -560,6 +572,7 @@ impl SceneConfig {
             check_roundabout(&c, r, &self.arms)?;
         }
         check_connections(&c, &self.connections, &self.arms, self.roundabout.is_some())?;
+        check_signal_groups(&c, &self.signal_groups, &self.arms, self.roundabout.is_some())?;
         if let Some((i, j, along)) = overlapping_arms(&self.arms, self.roundabout.as_ref()) {
             let (a, b) = (&self.arms[i], &self.arms[j]);
             let gap = (b.heading_deg - a.heading_deg).rem_euclid(360.0);
@@ -750,6 +763,62 @@ fn check_connections(
         if !seen.insert(x) {
             return Err(c.err(&format!("connections[{k}]"), x, "listed twice"));
         }
+    }
+    Ok(())
+}
+
+/// The signal groups' checks: arms that exist, each in one group, a group of one arm or two
+/// facing each other, every arm with an inbound lane served and none without one, and no
+/// signal at a roundabout.
+fn check_signal_groups(
+    c: &Check,
+    groups: &[Vec<String>],
+    arms: &[ArmConfig],
+    roundabout: bool,
+) -> Result<(), RaycastError> {
+    if groups.is_empty() {
+        return Ok(());
+    }
+    if roundabout {
+        return Err(c.err("signal_groups", groups, "no signal runs a roundabout"));
+    }
+    let mut served = std::collections::BTreeSet::new();
+    for (k, g) in groups.iter().enumerate() {
+        let f = format!("signal_groups[{k}]");
+        if g.is_empty() || g.len() > 2 {
+            return Err(c.err(&f, g, "a group is one arm or two arms facing each other"));
+        }
+        let mut headings = Vec::new();
+        for name in g {
+            let Some(a) = arms.iter().find(|a| &a.name == name) else {
+                let known: Vec<&str> = arms.iter().map(|a| a.name.as_str()).collect();
+                return Err(c.err(&f, name, &format!("no arm of that name; the arms: {}", known.join(", "))));
+            };
+            if a.lanes_in + a.left_turn_lanes == 0 {
+                return Err(c.err(&f, name, "the arm has no inbound lane: no signal faces its traffic"));
+            }
+            if !served.insert(name.as_str()) {
+                return Err(c.err(&f, name, "the arm is in another group too: each arm has one phase"));
+            }
+            headings.push(a.heading_deg);
+        }
+        if let [h0, h1] = headings[..] {
+            let gap = (h1 - h0).rem_euclid(360.0);
+            if (gap - 180.0).abs() >= 20.0 {
+                return Err(c.err(
+                    &f,
+                    g,
+                    &format!(
+                        "the two arms' headings ({h0}° and {h1}°) are {:.0}° from opposite: their traffic would cross on \
+                         green; a group's two arms face each other within 20°",
+                        (gap - 180.0).abs()
+                    ),
+                ));
+            }
+        }
+    }
+    if let Some(a) = arms.iter().find(|a| a.lanes_in + a.left_turn_lanes > 0 && !served.contains(a.name.as_str())) {
+        return Err(c.err("signal_groups", &a.name, "an arm with inbound lanes is in no group: give it a phase"));
     }
     Ok(())
 }

@@ -97,6 +97,10 @@ pub struct Layout {
     /// empty where hilo's own rules connect the lanes.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub connections: Vec<Connection>,
+    /// The scene's signal groups ([`super::config::SceneConfig::signal_groups`]) by arm index
+    /// into `arms`, in the order they run; empty where hilo pairs opposing arms itself.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub signal_groups: Vec<Vec<usize>>,
 }
 
 /// One connection of the lane graph: arm `from`'s inbound lane `from_lane` to arm `to`'s
@@ -397,7 +401,12 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         let cw1 = layout.arms[0].crosswalk[1].dot(f.dir);
         layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
     }
-    Layout { connections: resolve_connections(cfg, &layout.arms), ..layout }
+    let signal_groups = cfg
+        .signal_groups
+        .iter()
+        .map(|g| g.iter().filter_map(|name| layout.arms.iter().position(|a| &a.name == name)).collect())
+        .collect();
+    Layout { connections: resolve_connections(cfg, &layout.arms), signal_groups, ..layout }
 }
 
 /// The scene's lane graph with its arms by index into `arms` (a connection naming an arm the

@@ -24,6 +24,12 @@
 //!   lanes, to which outbound lanes of the other arms (`[[connections]]`, each end read as the
 //!   scene's lane nearest the file's; U-turns left out), so traffic drives the movements the
 //!   file allows and no others;
+//! - **signal phases**: the junction's `<controller>`s, in the order of their `sequence` and
+//!   then of the file, each switching the lights of the arms whose inbound lanes its signals
+//!   govern (controllers over the same arms are one phase), become the scene's `signal_groups`
+//!   where each phase is one arm or two facing arms and every inbound arm has one; otherwise
+//!   (no controller at the junction, or phases hilo could not run) hilo pairs opposing arms, and
+//!   the notes say why. OpenDRIVE carries no timings: the study's intervals run the phases;
 //! - **origin**: the junction's centre (the mean of its lanes' centre lines) in the file's
 //!   coordinates, and its geo reference as the CRS where the header gives one.
 //!
@@ -103,7 +109,7 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         value,
         reason,
     };
-    let net = parse(xml, path)?;
+    let (net, ids) = parse_with_ids(xml, path)?;
     let (lanes_of, centres) = junctions(&net);
     let known = || centres.keys().map(|s| s.as_str()).collect::<Vec<_>>().join(", ");
     let junction = pick_junction(pick, &centres).map_err(|reason| {
@@ -152,8 +158,19 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         meshes: Vec::new(),
         roundabout: None,
         connections: Vec::new(),
+        signal_groups: Vec::new(),
     };
     config.connections = connections(&net, &lanes_of[&junction], &config, c, &mut notes);
+    match controller_groups(&net, &ids, &lanes_of[&junction], &junction, &config, c) {
+        Ok((groups, read)) => {
+            notes.push(format!(
+                "signal groups from the file's {read}: {} (OpenDRIVE gives no timings: the study's intervals run them)",
+                groups.iter().map(|g| format!("[{}]", g.join(", "))).collect::<Vec<_>>().join(" then ")
+            ));
+            config.signal_groups = groups;
+        }
+        Err(why) => notes.push(format!("{why}: hilo pairs opposing arms into phases")),
+    }
     let written = signals_written(xml);
     if written > net.signals().len() {
         notes.push(format!(
@@ -234,15 +251,19 @@ pub fn lane_deviations(
 
 /// Reads the OpenDRIVE text `xml` (its `<include>`s refused); `path` names it in errors.
 fn parse(xml: &str, path: &Path) -> Result<xodr::RoadNetwork, RaycastError> {
-    let (net, _) =
-        xodr::load_str_with(xml, |name| Err(format!("{name}: hilo reads one file; includes are not followed")))
-            .map_err(|e| RaycastError::Invalid {
-                path: path.to_path_buf(),
-                field: "OpenDRIVE".into(),
-                value: String::new(),
-                reason: e.to_string(),
-            })?;
-    Ok(net)
+    Ok(parse_with_ids(xml, path)?.0)
+}
+
+/// [`parse`], with the file's own ids of what it read (the junctions' controllers among them).
+fn parse_with_ids(xml: &str, path: &Path) -> Result<(xodr::RoadNetwork, xodr::Provenance), RaycastError> {
+    xodr::load_str_with(xml, |name| Err(format!("{name}: hilo reads one file; includes are not followed"))).map_err(
+        |e| RaycastError::Invalid {
+            path: path.to_path_buf(),
+            field: "OpenDRIVE".into(),
+            value: String::new(),
+            reason: e.to_string(),
+        },
+    )
 }
 
 /// The driving lanes outside any junction that lead into a lane of `inside` or out of one:
@@ -475,6 +496,75 @@ fn connections(
         notes.push(format!("{unread} lane(s) of the file's connections match no lane of the scene; left out"));
     }
     out.into_iter().collect()
+}
+
+/// The signal groups the junction's controllers give, with what was read: each controller of
+/// the junction (its `<controller>` list), in the order of their `sequence` and then of the
+/// file, switches the lights of the arms whose inbound lanes its signals govern; controllers
+/// over the same arms are one group. `Err` says why the file gives no phases hilo can run: no
+/// controller, a controller over no arm of the scene, groups that share an arm, leave an
+/// inbound arm without a light, or put arms whose traffic crosses on one green.
+fn controller_groups(
+    net: &xodr::RoadNetwork,
+    ids: &xodr::Provenance,
+    inside: &HashSet<xodr::LaneId>,
+    junction: &str,
+    config: &SceneConfig,
+    c: Vec2,
+) -> Result<(Vec<Vec<String>>, String), String> {
+    let layout = build_layout(config);
+    let mut mine: Vec<(Option<u32>, usize, &xodr::ControllerProvenance)> = ids
+        .controllers
+        .iter()
+        .enumerate()
+        .filter_map(|(k, p)| p.junctions.iter().find(|j| j.junction_id == junction).map(|j| (j.sequence, k, p)))
+        .collect();
+    if mine.is_empty() {
+        return Err("the file lists no signal controller for this junction".into());
+    }
+    mine.sort_by_key(|&(seq, k, _)| (seq.unwrap_or(u32::MAX), k));
+    let mut groups: Vec<BTreeSet<usize>> = Vec::new();
+    for &(_, _, p) in &mine {
+        let arms: BTreeSet<usize> = net
+            .controller(p.controller)
+            .into_iter()
+            .flat_map(|ctl| ctl.signals.iter())
+            .filter_map(|control| net.signal(control.signal))
+            .flat_map(|signal| signal.lanes.iter())
+            .filter_map(|&id| net.lane(id))
+            .filter(|l| l.kind == xodr::LaneType::Driving && l.successors.iter().any(|s| inside.contains(s)))
+            .filter_map(|l| scene_lane(&layout, &l.center, c, false).map(|(arm, _)| arm))
+            .collect();
+        if arms.is_empty() {
+            return Err(format!("the file's controller {:?} governs no inbound lane of the scene", p.od_id));
+        }
+        if !groups.contains(&arms) {
+            groups.push(arms);
+        }
+    }
+    let read = format!("{} controller(s) of the junction", mine.len());
+    let mut served = BTreeSet::new();
+    for g in &groups {
+        let names: Vec<&str> = g.iter().map(|&a| layout.arms[a].name.as_str()).collect();
+        if g.len() > 2 {
+            return Err(format!("{read} switch the lights of {} arms at once ({})", g.len(), names.join(", ")));
+        }
+        if let [a, b] = g.iter().copied().collect::<Vec<_>>()[..]
+            && layout.arms[a].dir.dot(layout.arms[b].dir) >= -(20f32.to_radians().cos())
+        {
+            return Err(format!("{read} give one green to arms whose traffic crosses ({})", names.join(", ")));
+        }
+        if let Some(&a) = g.iter().find(|a| !served.insert(**a)) {
+            return Err(format!("{read} give arm {:?} more than one phase", layout.arms[a].name));
+        }
+    }
+    if let Some(a) = layout.arms.iter().enumerate().find(|(i, a)| {
+        a.lanes.iter().any(|l| l.kind != crate::scene::layout::LaneKind::Outbound) && !served.contains(i)
+    }) {
+        return Err(format!("{read} leave arm {:?}'s inbound lanes without a light", a.1.name));
+    }
+    let names = groups.iter().map(|g| g.iter().map(|&a| layout.arms[a].name.clone()).collect()).collect();
+    Ok((names, read))
 }
 
 /// The driving lanes outside the junction that lane `l` leads to through the junction's lanes
