@@ -237,3 +237,37 @@ fn imported_lanes_stand_where_the_file_draws_them() {
         }
     }
 }
+
+/// A junction's `<controller>`s become its signal groups where they form phases hilo can run:
+/// esmini's five junctions each list theirs (every one a phase of one arm or two facing arms);
+/// a `sequence` reorders them; a controller made to switch a crossing arm as well, or lights
+/// of three arms at once, is read as no phasing, and the notes say why.
+#[test]
+fn a_junctions_controllers_are_its_signal_groups_where_they_can_run() {
+    let path = fixture("multi_intersections.xodr");
+    let xml = std::fs::read_to_string(&path).unwrap();
+    let groups = |xml: &str| {
+        let imp = import_str(xml, &path, &JunctionPick::id("150")).unwrap();
+        let note = imp.notes.iter().find(|n| n.contains("phases") || n.contains("signal groups")).cloned();
+        (imp.config.signal_groups, note.unwrap_or_default())
+    };
+    let pair = |a: &str, b: &str| vec![a.to_owned(), b.to_owned()];
+    let (g, note) = groups(&xml);
+    assert_eq!(g, vec![pair("road 242", "road 235"), pair("road 229", "road 230")], "{note}");
+    assert!(note.contains("4 controller(s)"), "{note}");
+    for id in ["146", "148", "152", "154"] {
+        let imp = import_file(&path, &JunctionPick::id(id)).unwrap();
+        let scene = build(&imp.config, &path);
+        assert!(!scene.layout.signal_groups.is_empty(), "junction {id}: {:?}", imp.notes);
+    }
+    // Controller 13 (roads 229 and 230) first by its sequence.
+    let seq = xml
+        .replacen(r#"<controller id="12" type="0"/>"#, r#"<controller id="12" type="0" sequence="2"/>"#, 1)
+        .replacen(r#"<controller id="13" type="0"/>"#, r#"<controller id="13" type="0" sequence="1"/>"#, 1);
+    assert_eq!(groups(&seq).0, vec![pair("road 229", "road 230"), pair("road 242", "road 235")]);
+    // Controller 12 also switching one of road 229's lights: three arms on one green.
+    let three = xml.replacen(r#"<control signalId="18474" type="0" />"#, r#"<control signalId="15440" type="0" />"#, 1);
+    assert_ne!(three, xml);
+    let (g, note) = groups(&three);
+    assert!(g.is_empty() && note.contains("3 arms at once") && note.contains("pairs opposing arms"), "{note}");
+}

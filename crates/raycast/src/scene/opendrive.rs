@@ -501,9 +501,10 @@ fn connections(
 /// The signal groups the junction's controllers give, with what was read: each controller of
 /// the junction (its `<controller>` list), in the order of their `sequence` and then of the
 /// file, switches the lights of the arms whose inbound lanes its signals govern; controllers
-/// over the same arms are one group. `Err` says why the file gives no phases hilo can run: no
-/// controller, a controller over no arm of the scene, groups that share an arm, leave an
-/// inbound arm without a light, or put arms whose traffic crosses on one green.
+/// over the same arms are one group, and one over no inbound lane (pedestrian lights) runs no
+/// vehicle phase. `Err` says why the file gives no phases hilo can run: no controller, none over
+/// an inbound lane, groups that share an arm, leave an inbound arm without a light, or put arms
+/// whose traffic crosses on one green.
 fn controller_groups(
     net: &xodr::RoadNetwork,
     ids: &xodr::Provenance,
@@ -524,6 +525,7 @@ fn controller_groups(
     }
     mine.sort_by_key(|&(seq, k, _)| (seq.unwrap_or(u32::MAX), k));
     let mut groups: Vec<BTreeSet<usize>> = Vec::new();
+    let mut skipped = 0;
     for &(_, _, p) in &mine {
         let arms: BTreeSet<usize> = net
             .controller(p.controller)
@@ -535,14 +537,21 @@ fn controller_groups(
             .filter(|l| l.kind == xodr::LaneType::Driving && l.successors.iter().any(|s| inside.contains(s)))
             .filter_map(|l| scene_lane(&layout, &l.center, c, false).map(|(arm, _)| arm))
             .collect();
+        // A controller of lights over no driving lane into the junction (pedestrian lights,
+        // valid for lane 0 only) runs no vehicle phase.
         if arms.is_empty() {
-            return Err(format!("the file's controller {:?} governs no inbound lane of the scene", p.od_id));
-        }
-        if !groups.contains(&arms) {
+            skipped += 1;
+        } else if !groups.contains(&arms) {
             groups.push(arms);
         }
     }
-    let read = format!("{} controller(s) of the junction", mine.len());
+    if groups.is_empty() {
+        return Err(format!("the file's {} controller(s) of the junction govern no inbound lane", mine.len()));
+    }
+    let read = match skipped {
+        0 => format!("{} controller(s) of the junction", mine.len()),
+        k => format!("{} controller(s) of the junction ({k} over no inbound lane, as pedestrian lights)", mine.len()),
+    };
     let mut served = BTreeSet::new();
     for g in &groups {
         let names: Vec<&str> = g.iter().map(|&a| layout.arms[a].name.as_str()).collect();
