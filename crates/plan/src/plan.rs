@@ -451,6 +451,21 @@ impl Plan {
         lines.join("\n")
     }
 
+    /// Whether the study is complete: every placement and every training done, and its report
+    /// (`report.json` and `report.md`) written after the last of the trainings' outputs. Every
+    /// stage's hash holds the code's commit and the folder holds one study, so such a report is
+    /// the one this code would write again; its datasets are not needed to keep it (they may be
+    /// deleted to free the disk, as a long sweep wants).
+    pub fn complete(&self) -> bool {
+        let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+        let (Some(json), Some(_)) = (modified(&self.out.join("report.json")), modified(&self.out.join("report.md")))
+        else {
+            return false;
+        };
+        self.placement_outputs().iter().all(|p| p.exists())
+            && self.jobs.iter().all(|j| j.outputs().iter().all(|p| modified(p).is_some_and(|t| t <= json)))
+    }
+
     /// The number of stages a workflow file holds for this plan (place, one simulate per
     /// dataset, one train per job, report).
     pub fn stage_count(&self) -> usize {

@@ -5,7 +5,9 @@
 //! the same report; here values pass between stages in memory.
 //!
 //! A stage whose outputs exist is skipped, so an interrupted study resumes and a stage made by
-//! other code or inputs (another hash) is recomputed. The folder records the study
+//! other code or inputs (another hash) is recomputed. A complete study ([`Plan::complete`]: its
+//! report newer than every training) is not run again at all, so a sweep resumes past the
+//! studies it finished even where their datasets were deleted. The folder records the study
 //! (`study.json`); a folder that holds another study is refused and nothing in it is
 //! overwritten.
 
@@ -87,6 +89,14 @@ fn run_plan(
     let t0 = std::time::Instant::now();
     for s in &plan.skipped {
         progress(Progress::Stage(s));
+    }
+    if plan.complete() {
+        let path = plan.out.join("report.json");
+        progress(Progress::Stage(&format!(
+            "complete: {} is newer than every training's output (reused, datasets not needed)",
+            path.display()
+        )));
+        return Ok(hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE)?);
     }
     drop(stages::place(study, plan, progress)?);
     for di in 0..plan.data.len() {

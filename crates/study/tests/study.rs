@@ -481,8 +481,28 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
         .unwrap();
     assert_eq!(report_without_timings(&alone), report_without_timings(&Sweep::shard_out(&out, "dear")));
     // Rerun: everything is done, the comparison is the same; the folder refuses another sweep.
-    let again = hilo_study::run_sweep(&sweep, &registry, &profile, &out, &mut |_| {}).unwrap();
+    // A finished study whose datasets were deleted (to free the disk) is not simulated or
+    // reported again: its report stays, byte for byte.
+    let shard = Sweep::shard_out(&out, "list");
+    let report = std::fs::read(shard.join("report.json")).unwrap();
+    std::fs::remove_dir_all(shard.join("data")).unwrap();
+    let mut lines = Vec::new();
+    let again = hilo_study::run_sweep(&sweep, &registry, &profile, &out, &mut |p| {
+        if let Progress::Stage(s) = p {
+            lines.push(s.to_owned());
+        }
+    })
+    .unwrap();
     assert_eq!(serde_json::to_value(&again).unwrap(), serde_json::to_value(&c).unwrap());
+    assert!(!shard.join("data").exists(), "the finished study's datasets were simulated again");
+    assert_eq!(std::fs::read(shard.join("report.json")).unwrap(), report);
+    assert_eq!(lines.iter().filter(|l| l.starts_with("complete:")).count(), 2, "{lines:?}");
+    // A training made after the report (here: its output touched) makes the report stale.
+    let plan = hilo_study::run::sweep_plans(&sweep, &registry, &profile, &out).unwrap().remove(1);
+    assert!(plan.complete());
+    let results = std::fs::File::options().append(true).open(&plan.jobs[0].results).unwrap();
+    results.set_modified(std::time::SystemTime::now() + std::time::Duration::from_secs(5)).unwrap();
+    assert!(!plan.complete());
     let mut one = sweep.clone();
     one.shards.truncate(1);
     let err = hilo_study::run_sweep(&one, &registry, &profile, &out, &mut |_| {}).unwrap_err();
