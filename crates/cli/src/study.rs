@@ -42,6 +42,12 @@ pub struct StudyArgs {
     /// running it.
     #[arg(long, value_enum)]
     pub workflow: Option<Engine>,
+    /// Delete each study's datasets (its data/ folder, ~8 GB at the default profile) once its
+    /// report is written: a sweep then holds one study's datasets at a time, and a rerun skips
+    /// the studies it finished. `hilo study report` on such a study needs them remade
+    /// (`hilo study simulate`).
+    #[arg(long)]
+    pub drop_datasets: bool,
 }
 
 /// One stage of a study whose folder exists (made by `hilo study --workflow` or a run).
@@ -134,7 +140,7 @@ fn one_study(
     let profile = profile_of(args, study, registry)?;
     match args.workflow {
         None => {
-            let opts = RunOptions { profile, out: args.out.clone() };
+            let opts = RunOptions { profile, out: args.out.clone(), drop_datasets: args.drop_datasets };
             hilo_study::run(study, registry, &opts, &mut |p| reporter.study(p))?;
             Ok(())
         }
@@ -194,7 +200,9 @@ pub fn study(args: &StudyArgs) -> Result<()> {
         };
         return match args.workflow {
             None => {
-                let c = hilo_study::run_sweep(&sweep, &registry, &profile, &args.out, &mut |p| reporter.study(p))?;
+                let c = hilo_study::run_sweep(&sweep, &registry, &profile, &args.out, args.drop_datasets, &mut |p| {
+                    reporter.study(p)
+                })?;
                 eprintln!("{} studies compared: {}", c.shards.len(), args.out.join("comparison.md").display());
                 Ok(())
             }

@@ -29,6 +29,8 @@ use std::sync::Mutex;
 pub struct RunOptions {
     pub profile: Profile,
     pub out: PathBuf,
+    /// Delete the study's datasets once its report is written ([`drop_datasets`]).
+    pub drop_datasets: bool,
 }
 
 /// Runs (or resumes) a study in `opts.out` and writes its report.
@@ -40,16 +42,23 @@ pub fn run(
 ) -> Result<Report> {
     let plan = Plan::new(study, registry, &opts.profile, &opts.out)?;
     plan.claim_folder(study)?;
-    run_plan(study, &plan, registry, progress)
+    let report = run_plan(study, &plan, registry, progress)?;
+    if opts.drop_datasets {
+        drop_datasets(&plan, progress)?;
+    }
+    Ok(report)
 }
 
 /// Runs (or resumes) every study of a sweep, each in its folder under `out` with its own plan
-/// (`profile` gives each study's profile), then writes the comparison across them.
+/// (`profile` gives each study's profile), then writes the comparison across them. With
+/// `drop_datasets`, each study's datasets are deleted once its report is written, so the sweep
+/// holds one study's datasets at a time.
 pub fn run_sweep(
     sweep: &Sweep,
     registry: &Registry,
     profile: &dyn Fn(&Study) -> Result<Profile>,
     out: &Path,
+    drop: bool,
     progress: &mut (dyn FnMut(Progress) + Send),
 ) -> Result<Comparison> {
     let plans = sweep_plans(sweep, registry, profile, out)?;
@@ -57,12 +66,50 @@ pub fn run_sweep(
     for (shard, plan) in sweep.shards.iter().zip(&plans) {
         progress(Progress::Stage(&format!("study {} of the sweep: {}", shard.name, plan.out.display())));
         run_plan(&shard.study, plan, registry, progress)?;
+        if drop {
+            drop_datasets(plan, progress)?;
+        }
     }
     let c = compare::compare(out)?;
     for p in compare::write(out, &c)? {
         progress(Progress::Stage(&format!("comparison: {}", p.display())));
     }
     Ok(c)
+}
+
+/// Deletes the datasets of a complete study ([`Plan::complete`]; an incomplete one keeps them),
+/// returning the bytes freed. Its report, placements and detections stay, and a rerun does not
+/// need them; `hilo study report` does, and `hilo study simulate` remakes them byte for byte.
+pub fn drop_datasets(plan: &Plan, progress: &mut (dyn FnMut(Progress) + Send)) -> Result<u64> {
+    if !plan.complete() {
+        return Ok(0);
+    }
+    let mut freed = 0;
+    for d in plan.data.iter().filter(|d| d.dir.exists()) {
+        freed += bytes_under(&d.dir);
+        std::fs::remove_dir_all(&d.dir).map_err(|e| hilo_core::fs::FileError::io(&d.dir, e))?;
+    }
+    // The folder itself when nothing else is in it (another code's datasets stay).
+    let _ = std::fs::remove_dir(plan.out.join("data"));
+    progress(Progress::Stage(&format!(
+        "datasets deleted: {:.1} GB freed in {}",
+        freed as f64 / 1e9,
+        plan.out.join("data").display()
+    )));
+    Ok(freed)
+}
+
+/// The bytes of the files under `dir` (links not followed; what cannot be read counts 0).
+fn bytes_under(dir: &Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(dir) else { return 0 };
+    entries
+        .filter_map(|e| e.ok())
+        .map(|e| match e.file_type() {
+            Ok(t) if t.is_dir() => bytes_under(&e.path()),
+            Ok(t) if t.is_file() => e.metadata().map_or(0, |m| m.len()),
+            _ => 0,
+        })
+        .sum()
 }
 
 /// The plan of each study of a sweep, in its folder under `out`.

@@ -63,7 +63,7 @@ fn tiny(study: &Study, registry: &Registry, presets: &[&str], out: &Path) -> hil
     // Two training steps (batches of 2).
     profile.train_samples = Some(4);
     profile.seeds = 1;
-    let opts = RunOptions { profile, out: out.to_path_buf() };
+    let opts = RunOptions { profile, out: out.to_path_buf(), drop_datasets: false };
     let mut lines = Vec::new();
     let report = hilo_study::run(study, registry, &opts, &mut |p| {
         if let Progress::Stage(s) = p {
@@ -123,7 +123,9 @@ fn a_learning_curve_point_is_a_training_of_its_budget() {
         profile.curve = vec![0.5, 1.0];
         let out = dir.path().join(format!("at{samples}"));
         let plan = hilo_study::Plan::new(&study, &registry, &profile, &out).unwrap();
-        let report = hilo_study::run(&study, &registry, &RunOptions { profile, out }, &mut |_| {}).unwrap();
+        let report =
+            hilo_study::run(&study, &registry, &RunOptions { profile, out, drop_datasets: false }, &mut |_| {})
+                .unwrap();
         (plan, report)
     };
     let (long, long_report) = run(8);
@@ -242,8 +244,13 @@ fn stages_run_one_by_one_give_the_report_of_one_run_and_redo_nothing_done() {
     profile.presets = vec!["centerpoint".into()];
     profile.train_samples = Some(4);
     let whole = dir.path().join("whole");
-    hilo_study::run(&study, &registry, &RunOptions { profile: profile.clone(), out: whole.clone() }, &mut |_| {})
-        .unwrap();
+    hilo_study::run(
+        &study,
+        &registry,
+        &RunOptions { profile: profile.clone(), out: whole.clone(), drop_datasets: false },
+        &mut |_| {},
+    )
+    .unwrap();
     // The same plan, stage by stage, as a workflow engine runs it (the trainings in reverse).
     let by_stage = dir.path().join("stages");
     let plan = Plan::new(&study, &registry, &profile, &by_stage).unwrap();
@@ -312,7 +319,13 @@ fn a_second_traffic_draw_trains_every_detector_again_and_is_the_replicate() {
     let wf = hilo_study::workflow::Workflow { hilo: "/usr/bin/hilo".into(), gpu: false };
     let snake = hilo_study::workflow::snakefile(&plan, &wf).unwrap();
     assert!(snake.contains("--draw 1") && snake.contains("centerpoint-draw1-seed1"), "{snake}");
-    let report = hilo_study::run(&study, &registry, &RunOptions { profile, out: out.clone() }, &mut |_| {}).unwrap();
+    let report = hilo_study::run(
+        &study,
+        &registry,
+        &RunOptions { profile, out: out.clone(), drop_datasets: false },
+        &mut |_| {},
+    )
+    .unwrap();
     assert_eq!(report.entries.len(), 8);
     assert_eq!(report.entries.iter().filter(|e| e.draw == 1).count(), 4);
     // Every detector is scored on the validation scenes both draws share.
@@ -371,7 +384,7 @@ fn a_weather_condition_is_recorded_trained_and_judged_on_its_own() {
     assert_ne!(plan.data[1].dir, plan.data[3].dir);
     // centerpoint on four rigs, pointpillars-lr on the two with a radar; two seeds.
     assert_eq!(plan.jobs.len(), (4 + 2) * 2);
-    let opts = RunOptions { profile, out: out.clone() };
+    let opts = RunOptions { profile, out: out.clone(), drop_datasets: false };
     let report = hilo_study::run(&study, &registry, &opts, &mut |_| {}).unwrap();
     let conf = |n: &str| report.configurations.iter().find(|c| c.name == n).unwrap();
     assert_eq!(conf("2x lidar-16 in fog").sensors, conf("2x lidar-16").sensors, "the same poses");
@@ -460,7 +473,7 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
         Ok(p)
     };
     let out = dir.path().join("sweep");
-    let c = hilo_study::run_sweep(&sweep, &registry, &profile, &out, &mut |_| {}).unwrap();
+    let c = hilo_study::run_sweep(&sweep, &registry, &profile, &out, false, &mut |_| {}).unwrap();
     assert_eq!(c.shards.iter().map(|s| s.name.as_str()).collect::<Vec<_>>(), ["list", "dear"]);
     // The catalogs differ by $2,000 per 16-beam LiDAR: the two-LiDAR rig costs $4,000 more.
     let cheap = &c.configurations[0];
@@ -477,8 +490,13 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     // A study of the sweep is the study run alone: the same report, apart from timings.
     let alone = dir.path().join("alone");
     let dear = &sweep.shards[1].study;
-    hilo_study::run(dear, &registry, &RunOptions { profile: profile(dear).unwrap(), out: alone.clone() }, &mut |_| {})
-        .unwrap();
+    hilo_study::run(
+        dear,
+        &registry,
+        &RunOptions { profile: profile(dear).unwrap(), out: alone.clone(), drop_datasets: false },
+        &mut |_| {},
+    )
+    .unwrap();
     assert_eq!(report_without_timings(&alone), report_without_timings(&Sweep::shard_out(&out, "dear")));
     // Rerun: everything is done, the comparison is the same; the folder refuses another sweep.
     // A finished study whose datasets were deleted (to free the disk) is not simulated or
@@ -487,7 +505,8 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     let report = std::fs::read(shard.join("report.json")).unwrap();
     std::fs::remove_dir_all(shard.join("data")).unwrap();
     let mut lines = Vec::new();
-    let again = hilo_study::run_sweep(&sweep, &registry, &profile, &out, &mut |p| {
+    // With --drop-datasets: the other study's datasets go too, its report stays.
+    let again = hilo_study::run_sweep(&sweep, &registry, &profile, &out, true, &mut |p| {
         if let Progress::Stage(s) = p {
             lines.push(s.to_owned());
         }
@@ -495,6 +514,8 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     .unwrap();
     assert_eq!(serde_json::to_value(&again).unwrap(), serde_json::to_value(&c).unwrap());
     assert!(!shard.join("data").exists(), "the finished study's datasets were simulated again");
+    assert!(!Sweep::shard_out(&out, "dear").join("data").exists());
+    assert!(lines.iter().any(|l| l.starts_with("datasets deleted:")), "{lines:?}");
     assert_eq!(std::fs::read(shard.join("report.json")).unwrap(), report);
     assert_eq!(lines.iter().filter(|l| l.starts_with("complete:")).count(), 2, "{lines:?}");
     // A training made after the report (here: its output touched) makes the report stale.
@@ -505,7 +526,7 @@ fn a_sweep_runs_each_study_as_if_alone_and_compares_them() {
     assert!(!plan.complete());
     let mut one = sweep.clone();
     one.shards.truncate(1);
-    let err = hilo_study::run_sweep(&one, &registry, &profile, &out, &mut |_| {}).unwrap_err();
+    let err = hilo_study::run_sweep(&one, &registry, &profile, &out, false, &mut |_| {}).unwrap_err();
     assert!(err.to_string().contains("holds another sweep"), "{err}");
     let md = std::fs::read_to_string(out.join("comparison.md")).unwrap();
     assert!(md.contains("| [dear](dear/report.md) |") && md.contains("$14,000"), "{md}");
