@@ -50,9 +50,9 @@ pub fn run(
 }
 
 /// Runs (or resumes) every study of a sweep, each in its folder under `out` with its own plan
-/// (`profile` gives each study's profile), then writes the comparison across them. With
-/// `drop_datasets`, each study's datasets are deleted once its report is written, so the sweep
-/// holds one study's datasets at a time.
+/// (`profile` gives each study's profile), then writes the comparison across them. With `drop`,
+/// each study's datasets are deleted once its report is written ([`drop_datasets`]), so the
+/// sweep holds one study's datasets at a time.
 pub fn run_sweep(
     sweep: &Sweep,
     registry: &Registry,
@@ -84,10 +84,14 @@ pub fn drop_datasets(plan: &Plan, progress: &mut (dyn FnMut(Progress) + Send)) -
     if !plan.complete() {
         return Ok(0);
     }
+    let there: Vec<&Path> = plan.data.iter().map(|d| d.dir.as_path()).filter(|d| d.exists()).collect();
+    if there.is_empty() {
+        return Ok(0);
+    }
     let mut freed = 0;
-    for d in plan.data.iter().filter(|d| d.dir.exists()) {
-        freed += bytes_under(&d.dir);
-        std::fs::remove_dir_all(&d.dir).map_err(|e| hilo_core::fs::FileError::io(&d.dir, e))?;
+    for dir in there {
+        freed += bytes_under(dir);
+        std::fs::remove_dir_all(dir).map_err(|e| hilo_core::fs::FileError::io(dir, e))?;
     }
     // The folder itself when nothing else is in it (another code's datasets stay).
     let _ = std::fs::remove_dir(plan.out.join("data"));

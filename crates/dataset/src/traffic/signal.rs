@@ -1,6 +1,7 @@
 //! A fixed-time signal plan. The scene's signal groups, or else opposing arms (directions
-//! within 20° of opposite) paired, form the groups; the groups run in turn, each with an optional protected-left interval, a green for through,
-//! right and permissive left, a yellow and an all-red. Pedestrians get WALK on an arm's
+//! within 20° of opposite) paired, form the groups; the groups run in turn, each with an
+//! optional protected-left interval, a green for through, right and permissive left (protected
+//! where the group is one arm), a yellow and an all-red. Pedestrians get WALK on an arm's
 //! crosswalk while a group that does not contain that arm is green (the crosswalk runs parallel
 //! to that traffic). Right turns on red are not allowed. A roundabout has no signal
 //! ([`SignalPlan::unsignalised`]).
