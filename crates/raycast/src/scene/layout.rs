@@ -401,11 +401,14 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         let cw1 = layout.arms[0].crosswalk[1].dot(f.dir);
         layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
     }
-    let signal_groups = cfg
-        .signal_groups
-        .iter()
-        .map(|g| g.iter().filter_map(|name| layout.arms.iter().position(|a| &a.name == name)).collect())
-        .collect();
+    with_graph(cfg, layout)
+}
+
+/// The layout with the scene's lane graph and signal groups, their arms by index into its arms
+/// (a name the layout lacks, which a checked scene never has, is dropped).
+fn with_graph(cfg: &SceneConfig, layout: Layout) -> Layout {
+    let index = |name: &String| layout.arms.iter().position(|a| &a.name == name);
+    let signal_groups = cfg.signal_groups.iter().map(|g| g.iter().filter_map(index).collect()).collect();
     Layout { connections: resolve_connections(cfg, &layout.arms), signal_groups, ..layout }
 }
 
