@@ -15,10 +15,9 @@ use std::path::{Path, PathBuf};
 pub struct StudyArgs {
     #[command(subcommand)]
     pub stage: Option<StageCommand>,
-    /// Study TOML; the embedded default (the paper's configurations on the default
-    /// intersection) when omitted. A study file with `scenes = [...]` or `catalogs = [...]`, or
-    /// a directory of study files, is a sweep: one study per scene × catalog (or file), each in
-    /// its folder under --out, and comparison.md across them.
+    /// Study TOML (the embedded default when omitted). One with `scenes = [...]` or `catalogs
+    /// = [...]`, or a directory of study files, is a sweep: a study per scene × catalog (or
+    /// file) in its folder under --out, and comparison.md across them.
     pub study: Option<PathBuf>,
     #[arg(long, default_value = "study")]
     pub out: PathBuf,
@@ -28,24 +27,19 @@ pub struct StudyArgs {
     /// Seeds per detector, 1 to 100 (overrides the profile's: 3 for default and paper).
     #[arg(long, value_parser = hilo_study::profile::seeds_arg)]
     pub seeds: Option<usize>,
-    /// Training-traffic draws, 1 to 10 (overrides the profile's 1): each configuration's
-    /// training scenes recorded again with other traffic, every detector trained on each, and
-    /// the draw a random effect of the verdict.
+    /// Training-traffic draws, 1 to 10 (overrides the profile's 1): training scenes recorded
+    /// again with other traffic, every detector trained on each; the draw a random effect.
     #[arg(long, value_parser = hilo_study::profile::draws_arg)]
     pub traffic_draws: Option<usize>,
-    /// Presets to train (comma-separated), overriding the profile's; ablations (as the plugins
-    /// register them, e.g. `lirafusion-like-no-early`)
-    /// train on the study's first configuration with a radar.
+    /// Presets to train (comma-separated), overriding the profile's; ablations (e.g.
+    /// `lirafusion-like-no-early`) train on the study's first configuration with a radar.
     #[arg(long, value_delimiter = ',')]
     pub presets: Option<Vec<String>>,
-    /// Write the study as a workflow for this engine (`snakemake`) into --out instead of
-    /// running it.
+    /// Write the study as a workflow for this engine (`snakemake`) into --out, not running it.
     #[arg(long, value_enum)]
     pub workflow: Option<Engine>,
-    /// Delete each study's datasets (its data/ folder, ~8 GB at the default profile) once its
-    /// report is written: a sweep then holds one study's datasets at a time, and a rerun skips
-    /// the studies it finished. `hilo study report` on such a study needs them remade
-    /// (`hilo study simulate`).
+    /// Delete each study's datasets (data/, ~8 GB at the default profile) once its report is
+    /// written; `hilo study report` on it then needs `hilo study simulate` first.
     #[arg(long)]
     pub drop_datasets: bool,
 }
@@ -200,9 +194,8 @@ pub fn study(args: &StudyArgs) -> Result<()> {
         };
         return match args.workflow {
             None => {
-                let c = hilo_study::run_sweep(&sweep, &registry, &profile, &args.out, args.drop_datasets, &mut |p| {
-                    reporter.study(p)
-                })?;
+                let (drop, out) = (args.drop_datasets, &args.out);
+                let c = hilo_study::run_sweep(&sweep, &registry, &profile, out, drop, &mut |p| reporter.study(p))?;
                 eprintln!("{} studies compared: {}", c.shards.len(), args.out.join("comparison.md").display());
                 Ok(())
             }

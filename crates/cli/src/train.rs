@@ -15,10 +15,9 @@ pub struct TrainArgs {
     pub version: String,
     #[arg(long, default_value = "train")]
     pub split: String,
-    /// Detector preset or ablation, as the plugins register them: centerpoint, pointpillars
-    /// (LiDAR only); pointpillars-lr, l4dr-like, lirafusion-like, bi-lrfusion-like, middle-attention, late
-    /// (LiDAR + radar); l4dr-like-no-early, lirafusion-like-no-early (the paper's ablation).
-    /// An unknown name lists the known ones.
+    /// Detector preset or ablation: centerpoint, pointpillars (LiDAR only); pointpillars-lr,
+    /// l4dr-like, lirafusion-like, bi-lrfusion-like, middle-attention, late (LiDAR + radar);
+    /// l4dr-like-no-early, lirafusion-like-no-early (ablations). An unknown name lists them.
     #[arg(long, default_value = "centerpoint")]
     pub detector: String,
     /// A detector of one's own: a JSON file with the fields of run.json's "detector" (grid,
