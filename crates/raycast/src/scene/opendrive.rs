@@ -46,7 +46,7 @@ use crate::error::RaycastError;
 use crate::scene::config::{
     ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, OriginConfig, RoiConfig, RoiKind, SceneConfig, SignalPoleConfig,
 };
-use crate::scene::layout::build_layout;
+use crate::scene::layout::{Layout, build_layout};
 use glam::Vec2;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet, HashSet};
@@ -160,8 +160,10 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         connections: Vec::new(),
         signal_groups: Vec::new(),
     };
-    config.connections = connections(&net, &lanes_of[&junction], &config, c, &mut notes);
-    match controller_groups(&net, &ids, &lanes_of[&junction], &junction, &config, c) {
+    // The arms' geometry, which the lane graph, the signal groups and the poles are read against.
+    let layout = build_layout(&config);
+    config.connections = connections(&net, &lanes_of[&junction], &layout, c, &mut notes);
+    match controller_groups(&net, &ids, &lanes_of[&junction], &junction, &layout, c) {
         Ok((groups, read)) => {
             notes.push(format!(
                 "signal groups from the file's {read}: {} (OpenDRIVE gives no timings: the study's intervals run them)",
@@ -180,7 +182,7 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         ));
     }
     let lights = traffic_lights(&net, &centres, &junction);
-    config.signal_poles = corner_poles(&config, &lights);
+    config.signal_poles = corner_poles(&layout, &lights);
     notes.push(if lights.is_empty() {
         format!(
             "no traffic light at this junction in the file: a signal pole at each of the {} corners",
@@ -447,23 +449,22 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, c: Vec2, notes: &mut Vec<String>) 
 fn connections(
     net: &xodr::RoadNetwork,
     inside: &HashSet<xodr::LaneId>,
-    config: &SceneConfig,
+    layout: &Layout,
     c: Vec2,
     notes: &mut Vec<String>,
 ) -> Vec<crate::scene::config::ConnectionConfig> {
-    let layout = build_layout(config);
     let mut out = BTreeSet::new();
     let (mut u_turns, mut unread) = (0, 0);
     for (l, _, _, into) in approach_lanes(net, inside) {
         if !into {
             continue;
         }
-        let Some(from) = scene_lane(&layout, &l.center, c, false) else {
+        let Some(from) = scene_lane(layout, &l.center, c, false) else {
             unread += 1;
             continue;
         };
         for exit in exits(net, inside, l) {
-            let Some(to) = scene_lane(&layout, &exit.center, c, true) else {
+            let Some(to) = scene_lane(layout, &exit.center, c, true) else {
                 unread += 1;
                 continue;
             };
@@ -510,10 +511,9 @@ fn controller_groups(
     ids: &xodr::Provenance,
     inside: &HashSet<xodr::LaneId>,
     junction: &str,
-    config: &SceneConfig,
+    layout: &Layout,
     c: Vec2,
 ) -> Result<(Vec<Vec<String>>, String), String> {
-    let layout = build_layout(config);
     let mut mine: Vec<(Option<u32>, usize, &xodr::ControllerProvenance)> = ids
         .controllers
         .iter()
@@ -535,7 +535,7 @@ fn controller_groups(
             .flat_map(|signal| signal.lanes.iter())
             .filter_map(|&id| net.lane(id))
             .filter(|l| l.kind == xodr::LaneType::Driving && l.successors.iter().any(|s| inside.contains(s)))
-            .filter_map(|l| scene_lane(&layout, &l.center, c, false).map(|(arm, _)| arm))
+            .filter_map(|l| scene_lane(layout, &l.center, c, false).map(|(arm, _)| arm))
             .collect();
         // A controller of lights over no driving lane into the junction (pedestrian lights,
         // valid for lane 0 only) runs no vehicle phase.
@@ -773,9 +773,8 @@ fn outward(center: &xodr::Polyline, c: Vec2) -> (Vec2, Vec2, Vec2) {
 /// `lights` nearer to it than to any other corner, or at every corner when there is none. Each
 /// stands in its corner's sidewalk square (or, without sidewalks, 1 m outside the meeting of
 /// the two arms' edges), its mast arm pointing at the junction centre.
-fn corner_poles(cfg: &SceneConfig, lights: &[Vec2]) -> Vec<SignalPoleConfig> {
-    let layout = build_layout(cfg);
-    let corners = layout.corner_posts;
+fn corner_poles(layout: &Layout, lights: &[Vec2]) -> Vec<SignalPoleConfig> {
+    let corners = &layout.corner_posts;
     let chosen: BTreeSet<usize> = if lights.is_empty() {
         (0..corners.len()).collect()
     } else {
