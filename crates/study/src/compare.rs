@@ -163,6 +163,18 @@ pub struct ClaimAcross {
     pub across: Across,
     /// Which studies gave which verdict.
     pub why: String,
+    /// Each of the claim's metrics on its own across the sweep (a claim is supported at a site
+    /// only when all its metrics are, so a metric can hold everywhere while its claim does not).
+    pub metrics: Vec<MetricAcross>,
+}
+
+/// One metric of a claim across a sweep: its verdict at each study, combined as a claim's.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MetricAcross {
+    pub metric: String,
+    pub across: Across,
+    /// Which studies gave which verdict.
+    pub why: String,
 }
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -175,6 +187,8 @@ pub struct ClaimAt {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct RowAt {
     pub metric: String,
+    /// The row's own verdict in its study (Holm-adjusted there).
+    pub verdict: Verdict,
     pub estimate: f64,
     pub lo: f64,
     pub hi: f64,
@@ -338,6 +352,7 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
                     at: BTreeMap::new(),
                     across: Across::Undecided,
                     why: String::new(),
+                    metrics: Vec::new(),
                 });
             }
         }
@@ -354,6 +369,7 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
                         .iter()
                         .map(|row| RowAt {
                             metric: row.metric.clone(),
+                            verdict: row.verdict,
                             estimate: row.test.estimate,
                             lo: row.test.lo,
                             hi: row.test.hi,
@@ -369,7 +385,8 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
             claim.at.insert(s.name.clone(), at);
         }
         claim.across = Across::of(&verdicts);
-        claim.why = by.iter().map(|(v, names)| format!("{v} at {}", names.join(", "))).collect::<Vec<_>>().join("; ");
+        claim.why = why(&by);
+        claim.metrics = metrics_across(claim, reports);
     }
     Comparison {
         sweep: record.source.clone(),
@@ -385,6 +402,37 @@ pub fn build(record: &SweepRecord, reports: &[(ShardRecord, Report)]) -> Compari
 
 /// The configurations of a study recorded in one of its weather conditions ("… in fog"): the
 /// same rigs in other weather, not rigs to choose between.
+/// "supported at a, b; undecided at c": which studies gave which verdict.
+fn why(by: &BTreeMap<&str, Vec<&str>>) -> String {
+    by.iter().map(|(v, names)| format!("{v} at {}", names.join(", "))).collect::<Vec<_>>().join("; ")
+}
+
+/// Each metric of `claim` (in the order its studies first give them) across the sweep, from its
+/// row's verdict at each study; a study without the row (or the claim untested) tested nothing.
+fn metrics_across(claim: &ClaimAcross, reports: &[(ShardRecord, Report)]) -> Vec<MetricAcross> {
+    let mut metrics: Vec<&str> = Vec::new();
+    for at in claim.at.values() {
+        for r in &at.rows {
+            if !metrics.contains(&r.metric.as_str()) {
+                metrics.push(&r.metric);
+            }
+        }
+    }
+    metrics
+        .into_iter()
+        .map(|m| {
+            let mut verdicts = Vec::new();
+            let mut by: BTreeMap<&str, Vec<&str>> = BTreeMap::new();
+            for (s, _) in reports {
+                let v = claim.at.get(&s.name).and_then(|at| at.rows.iter().find(|r| r.metric == m)).map(|r| r.verdict);
+                verdicts.push(v);
+                by.entry(v.map_or("not tested", verdict_word)).or_default().push(&s.name);
+            }
+            MetricAcross { metric: m.to_owned(), across: Across::of(&verdicts), why: why(&by) }
+        })
+        .collect()
+}
+
 fn in_conditions(r: &Report) -> Vec<String> {
     r.conditions.iter().flat_map(|c| c.configurations.iter().map(|b| c.label(b))).collect()
 }
@@ -511,6 +559,17 @@ pub fn markdown(c: &Comparison) -> String {
             })
             .collect();
         let _ = writeln!(s, "| {} | {} | **{}** |", esc(&cl.statement), cells.join(" | "), cl.across.words());
+    }
+    s.push_str(
+        "\n### Each metric across the sweep\n\nA claim holds at a site only when all its metrics do; here each \
+         metric of a claim on its own, by the same rule (each study's verdict for it, Holm-adjusted there).\n\n\
+         | claim | metric | across the sweep | where |\n|---|---|---|---|\n",
+    );
+    for cl in &c.claims {
+        for m in &cl.metrics {
+            let _ =
+                writeln!(s, "| {} | {} | **{}** | {} |", esc(&cl.statement), m.metric, m.across.words(), esc(&m.why));
+        }
     }
     s.push_str("\n## Configurations\n\nCost, share of road users no sensor hit, and mAP on the common ground truth (mean [min, max] over seeds) per study.\n\n");
     let _ = writeln!(s, "| configuration | {} |", names.join(" | "));
@@ -640,6 +699,46 @@ mod tests {
         assert_eq!(Across::of(&[None, None]), Across::NotTested);
         assert_eq!(Across::of(&[]), Across::NotTested);
         assert_eq!(Across::of(&[s]), Across::SupportedEverywhere);
+    }
+
+    /// Each metric of a claim is judged across the sweep on its own: on two copies of a committed
+    /// report as two sites, where the first metric of a claim is supported at one site and
+    /// undecided at the other (so the claim is undecided across the sweep) and its second metric is
+    /// supported at both, the second metric holds at every site. Every metric's verdict is
+    /// [`Across::of`] its rows' verdicts, and the markdown lists it.
+    #[test]
+    fn a_metric_can_hold_at_every_site_where_its_claim_does_not() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/paper-sensors-report/report.json");
+        let r: Report = hilo_core::fs::read_json(&path, hilo_core::fs::limit::TABLE).unwrap();
+        let shard = |n: &str| ShardRecord { name: n.into(), scene: None, catalog: None, fingerprint: String::new() };
+        let set = |r: &mut Report, first: Verdict, claim: Verdict| {
+            let c = r.claims.iter_mut().find(|c| c.id == "vs_lidar_alone").unwrap();
+            assert_eq!(c.rows.len(), 2, "mAP and pedestrian AP");
+            (c.rows[0].verdict, c.rows[1].verdict, c.verdict) = (first, Supported, claim);
+        };
+        let (mut a, mut b) = (r.clone(), r);
+        set(&mut a, Supported, Supported);
+        set(&mut b, Undecided, Undecided);
+        let record =
+            SweepRecord { source: "s.toml".into(), profile: "default".into(), shards: vec![shard("a"), shard("b")] };
+        let c = build(&record, &[(shard("a"), a.clone()), (shard("b"), b.clone())]);
+        let claim = c.claims.iter().find(|x| x.id == "vs_lidar_alone").unwrap();
+        assert_eq!(claim.across, Across::Undecided);
+        let m: Vec<(&str, Across)> = claim.metrics.iter().map(|m| (m.metric.as_str(), m.across)).collect();
+        assert_eq!(m, [("mAP", Across::Undecided), ("pedestrian AP", Across::SupportedEverywhere)]);
+        assert_eq!(claim.metrics[0].why, "supported at a; undecided at b");
+        // Every metric of every claim, against its rows' verdicts at the two sites.
+        for cl in &c.claims {
+            let rows = |r: &Report| r.claims.iter().find(|x| x.id == cl.id).map(|x| x.rows.clone()).unwrap_or_default();
+            let tested = |r: &Report| r.claims.iter().any(|x| x.id == cl.id && x.not_tested.is_none());
+            assert_eq!(cl.metrics.len(), if tested(&a) { rows(&a).len() } else { 0 }, "{}", cl.id);
+            for (k, m) in cl.metrics.iter().enumerate() {
+                let v = [&a, &b].map(|r| Some(rows(r)[k].verdict));
+                assert_eq!((m.metric.as_str(), m.across), (rows(&a)[k].metric.as_str(), Across::of(&v)), "{}", cl.id);
+            }
+        }
+        let md = markdown(&c);
+        assert!(md.contains("| pedestrian AP | **supported at every site** | supported at a, b |"), "{md}");
     }
 
     /// The radar's worth is the `radar_adds` and `radar_adds_velocity` claims' rows, in the
