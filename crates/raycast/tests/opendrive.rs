@@ -150,6 +150,7 @@ fn the_written_scene_file_reads_back_and_says_what_was_assumed() {
         assert!(text.contains(n.as_str()), "{n}");
     }
     let back = SceneConfig::from_toml_str(&text, Path::new("scene.toml")).unwrap();
+    assert!(imp.config.connections.iter().any(|c| !c.path.is_empty()), "the file's curves are kept");
     assert_eq!(back, imp.config);
     // A source path with line breaks and other control characters stays inside its comment.
     let odd = scene_toml(&imp, Path::new("a\nname = \"x\"\r\u{7}.xodr")).unwrap();

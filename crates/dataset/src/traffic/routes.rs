@@ -4,7 +4,9 @@
 //! Movements are found by angle, so any number of straight arms works: through is the exit arm
 //! within 35° of straight on, left and right the arms nearest to ±90°. Left turns use the
 //! left-turn bay when the arm has one (entering it by a 30 m taper from the innermost lane),
-//! right turns the outermost lane. Junction connectors are cubic Bézier curves between the
+//! right turns the outermost lane. Where the scene's lane graph draws a connection's way
+//! through the junction (an imported junction's connecting lane), the route follows it from
+//! the stop line; otherwise junction connectors are cubic Bézier curves between the
 //! junction-side edges of the two crosswalks, swung wide where a car's body would otherwise clip
 //! a corner ([`ROUTE_HALF_WIDTH_M`]); the speed on a route is capped by its curvature
 //! (lateral acceleration ≤ 2.5 m/s²) with comfortable braking into curves. At a roundabout a
@@ -12,6 +14,7 @@
 //! ([`ring_conflicts`] says where each route yields to which).
 
 use glam::Vec2;
+pub use hilo_raycast::scene::layout::ROUTE_HALF_WIDTH_M;
 use hilo_raycast::scene::layout::{ArmLayout, Lane, LaneKind, Layout, Ring, arc, point_in_polygon};
 
 /// Route sample spacing.
@@ -139,10 +142,6 @@ fn bezier(p0: Vec2, p1: Vec2, p2: Vec2, p3: Vec2, n: usize) -> Vec<Vec2> {
         })
         .collect()
 }
-
-/// Half the width a route keeps clear on either side of its centre line through the junction:
-/// the widest car's half width (the model's cars are up to 2.0 m wide).
-pub const ROUTE_HALF_WIDTH_M: f32 = 1.0;
 
 /// The connector through the junction from `entry` (heading `h`) to `exit` (heading
 /// `exit_dir`): a cubic Bézier whose handles are 0.45 of the chord, lengthened in steps of 0.05
@@ -309,9 +308,9 @@ fn ring_connector(
 }
 
 /// One movement's start: the approach arm, the movement, the exit arm, and per route the
-/// inbound polyline (its last point the stop line) with the exit lane (index among the exit
-/// arm's outbound lanes).
-type Starts = (usize, Movement, usize, Vec<(Vec<Vec2>, usize)>);
+/// inbound polyline (its last point the stop line), the exit lane (index among the exit arm's
+/// outbound lanes) and the way through the junction the scene draws (empty: hilo draws it).
+type Starts = (usize, Movement, usize, Vec<(Vec<Vec2>, usize, Vec<Vec2>)>);
 
 /// The polyline a vehicle drives on inbound lane `k` of `arm` up to its stop line: for a left
 /// turn from the innermost lane where the arm has a left-turn bay, into the bay by a taper.
@@ -358,7 +357,8 @@ fn rule_starts(layout: &Layout) -> Vec<Starts> {
                 Movement::Right => vec![(n_in - 1, n_out - 1)],
                 Movement::Left => vec![(0, 0)],
             };
-            let starts = pairs.into_iter().filter_map(|(k, o)| Some((start_polyline(arm, k, m)?, o))).collect();
+            let starts =
+                pairs.into_iter().filter_map(|(k, o)| Some((start_polyline(arm, k, m)?, o, Vec::new()))).collect();
             out.push((i, m, j, starts));
         }
     }
@@ -389,7 +389,7 @@ fn connection_starts(layout: &Layout) -> Vec<Starts> {
         .filter_map(|c| {
             let m = movement_between(layout, c.from, c.to);
             let poly = start_polyline(layout.arms.get(c.from)?, c.from_lane, m)?;
-            Some((c.from, rank(m), c.from_lane, (c.from, m, c.to, vec![(poly, c.to_lane)])))
+            Some((c.from, rank(m), c.from_lane, (c.from, m, c.to, vec![(poly, c.to_lane, c.path.clone())])))
         })
         .collect();
     out.sort_by_key(|x| (x.0, x.1, x.2));
@@ -405,26 +405,35 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
         let (arm, exit) = (&layout.arms[i], &layout.arms[j]);
         let out = lanes(exit, LaneKind::Outbound);
         if let Some(ring) = &layout.ring {
-            for (poly, k) in starts {
+            for (poly, k, _) in starts {
                 let (first, last) = (poly[0], poly[poly.len() - 1]);
                 routes.push(ring_route(layout, ring, (i, first, last), (j, out[k]), m));
             }
             continue;
         }
-        for (mut poly, k) in starts {
+        for (mut poly, k, drawn) in starts {
             let Some(&o) = out.get(k) else { continue };
             let stop_line = *poly.last().unwrap_or(&o.start);
             let h = (stop_line - poly[poly.len() - 2]).normalize_or(-arm.dir);
             let stop_s = polyline_length(&poly);
-            // Straight over the own crosswalk to its junction-side edge.
-            let entry = stop_line + h * (stop_line.dot(arm.dir) - cw0(arm)).max(0.0);
-            poly.push(entry);
             let exit_dir = (o.end - o.start).normalize_or(exit.dir);
-            let curve = connector(layout, entry, h, o.start, exit_dir);
-            poly.extend_from_slice(&curve[1..]);
+            if drawn.is_empty() {
+                // Straight over the own crosswalk to its junction-side edge.
+                let entry = stop_line + h * (stop_line.dot(arm.dir) - cw0(arm)).max(0.0);
+                poly.push(entry);
+                let curve = connector(layout, entry, h, o.start, exit_dir);
+                poly.extend_from_slice(&curve[1..]);
+            } else {
+                // The scene's own curve from where it has passed the stop line.
+                poly.extend(drawn.iter().copied().skip_while(|p| (*p - stop_line).dot(h) <= DS));
+            }
             poly.push(o.end);
             let path = Path::from_polyline(&poly);
-            let clear_s = path.length() - (o.end - o.start).length() + crosswalk_width(exit);
+            let clear_s = if drawn.is_empty() {
+                path.length() - (o.end - o.start).length() + crosswalk_width(exit)
+            } else {
+                leaves_at(&path, exit)
+            };
             let v_cap = speed_caps(&path);
             let crosswalks = crossings(layout, &path, [i, j]);
             routes.push(Route {
@@ -441,6 +450,14 @@ pub fn build_routes(layout: &Layout) -> Vec<Route> {
         }
     }
     routes
+}
+
+/// The arc length where `path`, ending out along the arm `exit`, passes the far edge of that
+/// arm's crosswalk for the last time.
+fn leaves_at(path: &Path, exit: &ArmLayout) -> f32 {
+    let far = exit.crosswalk[1].dot(exit.dir);
+    let last_inside = path.points.iter().rposition(|p| p.dot(exit.dir) < far);
+    last_inside.map_or(0.0, |k| (k + 1) as f32 * DS).min(path.length())
 }
 
 /// The length of a polyline, summed segment by segment.

@@ -84,8 +84,10 @@ impl std::fmt::Debug for SceneConfig {
 /// vehicles drive these and no others: a turn no connection allows is not made, and a lane
 /// carries the turns its connections give it. Whether a movement is a left turn, a right turn or
 /// through follows from the two arms' headings, as for hilo's own rules. A left turn from the
-/// innermost lane of an arm with a left-turn bay uses the bay.
-#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+/// innermost lane of an arm with a left-turn bay uses the bay. Where a connection gives its
+/// `path` (an imported junction's connecting lane), vehicles drive that curve through the
+/// junction; otherwise hilo draws the turn.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ConnectionConfig {
     /// The arm the movement comes from, by name.
@@ -96,7 +98,17 @@ pub struct ConnectionConfig {
     pub to: String,
     /// Its outbound lane, 0 the innermost.
     pub to_lane: u32,
+    /// The way through the junction as the road network draws it: the connecting lane's centre
+    /// line in scene coordinates (m), in the direction of travel, from about the inbound lane's
+    /// end to about the outbound lane's start. The route follows the inbound lane to its stop
+    /// line, then the points of this line past it, then the outbound lane. Empty: hilo draws
+    /// the turn.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub path: Vec<[f32; 2]>,
 }
+
+/// The most points a connection's `path` may list.
+pub const MAX_CONNECTION_POINTS: usize = 2_000;
 
 /// A roundabout (`[roundabout]`): the arms meet a one-way circulatory roadway, driven
 /// counter-clockwise, around a raised central island at the junction's centre. Entering traffic
@@ -571,7 +583,7 @@ impl SceneConfig {
         if let Some(r) = &self.roundabout {
             check_roundabout(&c, r, &self.arms)?;
         }
-        check_connections(&c, &self.connections, &self.arms, self.roundabout.is_some())?;
+        check_connections(&c, &self.connections, &self.arms, self.roundabout.is_some(), self.ground.half_size_m)?;
         check_signal_groups(&c, &self.signal_groups, &self.arms, self.roundabout.is_some())?;
         if let Some((i, j, along)) = overlapping_arms(&self.arms, self.roundabout.as_ref()) {
             let (a, b) = (&self.arms[i], &self.arms[j]);
@@ -729,6 +741,7 @@ fn check_connections(
     connections: &[ConnectionConfig],
     arms: &[ArmConfig],
     roundabout: bool,
+    ground_half_m: f32,
 ) -> Result<(), RaycastError> {
     if roundabout && !connections.is_empty() {
         return Err(c.err("connections", connections.len(), "a roundabout's ring connects every entry to every exit"));
@@ -760,9 +773,30 @@ fn check_connections(
                 &format!("arm {:?} has {} outbound lane(s), counted from 0", to.name, to.lanes_out),
             ));
         }
-        if !seen.insert(x) {
+        if !seen.insert((&x.from, x.from_lane, &x.to, x.to_lane)) {
             return Err(c.err(&format!("connections[{k}]"), x, "listed twice"));
         }
+        check_connection_path(c, &f("path"), &x.path, ground_half_m)?;
+    }
+    Ok(())
+}
+
+/// A connection's drawn path: none, or 2 to [`MAX_CONNECTION_POINTS`] finite points on the
+/// ground, no two neighbours more than 10 m apart (a curve, not a jump across the junction).
+fn check_connection_path(c: &Check, field: &str, path: &[[f32; 2]], ground_half_m: f32) -> Result<(), RaycastError> {
+    if path.is_empty() {
+        return Ok(());
+    }
+    if path.len() < 2 || path.len() > MAX_CONNECTION_POINTS {
+        let why = format!("a path lists 2 to {MAX_CONNECTION_POINTS} points, or none (hilo draws the turn)");
+        return Err(c.err(field, path.len(), &why));
+    }
+    if let Some((k, p)) = path.iter().enumerate().find(|(_, p)| !p[0].is_finite() || !p[1].is_finite()) {
+        return Err(c.err(&format!("{field}[{k}]"), p, "must be finite numbers"));
+    }
+    c.on_ground(field, path, ground_half_m)?;
+    if let Some(k) = path.windows(2).position(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]) > 10.0) {
+        return Err(c.err(&format!("{field}[{}]", k + 1), path[k + 1], "lies more than 10 m from the point before it"));
     }
     Ok(())
 }

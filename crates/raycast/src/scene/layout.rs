@@ -103,15 +103,22 @@ pub struct Layout {
     pub signal_groups: Vec<Vec<usize>>,
 }
 
+/// Half the width a route keeps clear on either side of its centre line through the junction:
+/// the widest car's half width (the traffic model's cars are up to 2.0 m wide).
+pub const ROUTE_HALF_WIDTH_M: f32 = 1.0;
+
 /// One connection of the lane graph: arm `from`'s inbound lane `from_lane` to arm `to`'s
 /// outbound lane `to_lane` (lanes of each kind counted from the arm's centre line, 0 the
-/// innermost; arms by index into [`Layout::arms`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// innermost; arms by index into [`Layout::arms`]), through the junction along `path` where
+/// the scene gives one (else hilo draws the turn).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Connection {
     pub from: usize,
     pub from_lane: usize,
     pub to: usize,
     pub to_lane: usize,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub path: Vec<Vec2>,
 }
 
 /// A roundabout's circulatory roadway around its raised island, centred on the origin.
@@ -424,6 +431,7 @@ fn resolve_connections(cfg: &SceneConfig, arms: &[ArmLayout]) -> Vec<Connection>
                 from_lane: c.from_lane as usize,
                 to: index(&c.to)?,
                 to_lane: c.to_lane as usize,
+                path: c.path.iter().map(|p| Vec2::from(*p)).collect(),
             })
         })
         .collect()

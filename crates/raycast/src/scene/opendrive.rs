@@ -23,7 +23,9 @@
 //! - **lane graph**: which of the arm's inbound lanes leads, through the junction's connecting
 //!   lanes, to which outbound lanes of the other arms (`[[connections]]`, each end read as the
 //!   scene's lane nearest the file's; U-turns left out), so traffic drives the movements the
-//!   file allows and no others;
+//!   file allows and no others, each along the connecting lane's own centre line (`path`)
+//!   where a car's body along it stays on the scene's carriageway (hilo draws the turn where
+//!   not, with a note);
 //! - **signal phases**: the junction's `<controller>`s, in the order of their `sequence` and
 //!   then of the file, each switching the lights of the arms whose inbound lanes its signals
 //!   govern (controllers over the same arms are one phase), become the scene's `signal_groups`
@@ -39,14 +41,15 @@
 //! pole height 7 m, no buildings or trees (OpenDRIVE objects carry no heights hilo could trust;
 //! add them to the written scene file). Left out: the roads' curvature and elevation (hilo's arms
 //! are straight and flat), turn bays as their own lanes (they count as inbound lanes), and the
-//! junction's own lane geometry (hilo derives the box from the arms and draws the turns).
+//! junction's own road surface (hilo derives the box and its corners from the arms; the turns
+//! follow the file's curves over it).
 //! `<include>`s are not followed: the one file given is read, with a bound on its size.
 
 use crate::error::RaycastError;
 use crate::scene::config::{
     ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, OriginConfig, RoiConfig, RoiKind, SceneConfig, SignalPoleConfig,
 };
-use crate::scene::layout::{Layout, build_layout};
+use crate::scene::layout::{Layout, ROUTE_HALF_WIDTH_M, build_layout};
 use glam::Vec2;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet, HashSet};
@@ -444,8 +447,10 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, c: Vec2, notes: &mut Vec<String>) 
 
 /// The junction's lane graph in the scene's terms: each driving lane into the junction, through
 /// its connecting lanes (`inside`), to each driving lane out of it, each end read as the scene's
-/// lane nearest it ([`scene_lane`]); `c` is the junction's centre. U-turns are left out, with a
-/// note.
+/// lane nearest it ([`scene_lane`]); `c` is the junction's centre. Each connection keeps the
+/// connecting lanes' centre line as its `path` where a car's body along it stays on the
+/// scene's carriageway ([`drivable_path`]); where several of the file's ways join the same two
+/// scene lanes, the first the file lists. U-turns are left out, with a note.
 fn connections(
     net: &xodr::RoadNetwork,
     inside: &HashSet<xodr::LaneId>,
@@ -453,8 +458,8 @@ fn connections(
     c: Vec2,
     notes: &mut Vec<String>,
 ) -> Vec<crate::scene::config::ConnectionConfig> {
-    let mut out = BTreeSet::new();
-    let (mut u_turns, mut unread) = (0, 0);
+    let mut out: BTreeMap<(String, u32, String, u32), Vec<[f32; 2]>> = BTreeMap::new();
+    let (mut u_turns, mut unread, mut drawn_by_hilo) = (0, 0, 0);
     for (l, _, _, into) in approach_lanes(net, inside) {
         if !into {
             continue;
@@ -463,7 +468,7 @@ fn connections(
             unread += 1;
             continue;
         };
-        for exit in exits(net, inside, l) {
+        for (exit, way) in exits(net, inside, l) {
             let Some(to) = scene_lane(layout, &exit.center, c, true) else {
                 unread += 1;
                 continue;
@@ -472,21 +477,29 @@ fn connections(
                 u_turns += 1;
                 continue;
             }
-            out.insert(crate::scene::config::ConnectionConfig {
-                from: layout.arms[from.0].name.clone(),
-                from_lane: from.1 as u32,
-                to: layout.arms[to.0].name.clone(),
-                to_lane: to.1 as u32,
-            });
+            let key = (layout.arms[from.0].name.clone(), from.1 as u32, layout.arms[to.0].name.clone(), to.1 as u32);
+            if out.contains_key(&key) {
+                continue;
+            }
+            let way: Vec<Vec2> = way.into_iter().map(|p| p - c).collect();
+            let path = if drivable_path(layout, &way) {
+                way.iter().map(|p| [(p.x * 100.0).round() / 100.0 + 0.0, (p.y * 100.0).round() / 100.0 + 0.0]).collect()
+            } else {
+                drawn_by_hilo += 1;
+                Vec::new()
+            };
+            out.insert(key, path);
         }
     }
     notes.push(if out.is_empty() {
         "no connection through the junction read from the file's lane graph: hilo's own rules connect its lanes"
             .to_owned()
+    } else if drawn_by_hilo == 0 {
+        format!("{} connections through the junction from the file's lane graph, each along its own curve", out.len())
     } else {
         format!(
-            "{} connections through the junction from the file's lane graph (its connecting lanes' own curves are \
-             not kept: hilo draws each turn)",
+            "{} connections through the junction from the file's lane graph; {drawn_by_hilo} of their curves would \
+             take a car off the scene's carriageway, and hilo draws those turns",
             out.len()
         )
     });
@@ -496,7 +509,28 @@ fn connections(
     if unread > 0 {
         notes.push(format!("{unread} lane(s) of the file's connections match no lane of the scene; left out"));
     }
-    out.into_iter().collect()
+    out.into_iter()
+        .map(|((from, from_lane, to, to_lane), path)| crate::scene::config::ConnectionConfig {
+            from,
+            from_lane,
+            to,
+            to_lane,
+            path,
+        })
+        .collect()
+}
+
+/// Whether a car driving the centre line `way` (scene coordinates) keeps its body on the
+/// scene's carriageway: its centre and both sides ([`ROUTE_HALF_WIDTH_M`] out) at every
+/// segment's middle and at every point. The scene's arms are straight where the file's roads
+/// bend, and its corners its own, so a file's curve can cut one.
+fn drivable_path(layout: &Layout, way: &[Vec2]) -> bool {
+    way.len() >= 2
+        && way.windows(2).all(|w| {
+            let side = (w[1] - w[0]).normalize_or_zero().perp() * ROUTE_HALF_WIDTH_M;
+            let mid = 0.5 * (w[0] + w[1]);
+            [mid, w[1]].iter().all(|&p| [p, p + side, p - side].iter().all(|&q| layout.on_carriageway(q)))
+        })
 }
 
 /// The signal groups the junction's controllers give, with what was read: each controller of
@@ -577,27 +611,50 @@ fn controller_groups(
 }
 
 /// The driving lanes outside the junction that lane `l` leads to through the junction's lanes
-/// (`inside`), in the order the file lists them.
-fn exits<'a>(net: &'a xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, l: &xodr::Lane) -> Vec<&'a xodr::Lane> {
+/// (`inside`), in the order the file lists them, each with the way there: the centre lines of
+/// the connecting lanes driven, joined in the direction of travel (file coordinates).
+fn exits<'a>(
+    net: &'a xodr::RoadNetwork,
+    inside: &HashSet<xodr::LaneId>,
+    l: &xodr::Lane,
+) -> Vec<(&'a xodr::Lane, Vec<Vec2>)> {
     let mut seen: HashSet<xodr::LaneId> = HashSet::new();
-    let mut stack: Vec<xodr::LaneId> = l.successors.iter().copied().filter(|s| inside.contains(s)).collect();
-    let mut out: Vec<&xodr::Lane> = Vec::new();
-    while let Some(id) = stack.pop() {
+    let mut stack: Vec<(xodr::LaneId, Vec<Vec2>)> =
+        l.successors.iter().copied().filter(|s| inside.contains(s)).map(|s| (s, Vec::new())).collect();
+    let mut out: Vec<(&xodr::Lane, Vec<Vec2>)> = Vec::new();
+    while let Some((id, before)) = stack.pop() {
         if !seen.insert(id) {
             continue;
         }
         let Some(lane) = net.lane(id) else { continue };
+        let mut way = before;
+        way.extend(travel_points(lane, way.last().copied()));
         for &next in &lane.successors {
             if inside.contains(&next) {
-                stack.push(next);
+                stack.push((next, way.clone()));
             } else if let Some(o) = net.lane(next).filter(|o| o.kind == xodr::LaneType::Driving)
-                && !out.iter().any(|x| x.id == o.id)
+                && !out.iter().any(|x| x.0.id == o.id)
             {
-                out.push(o);
+                out.push((o, way.clone()));
             }
         }
     }
     out
+}
+
+/// A lane's centre line in the direction of travel; a lane driven both ways runs from its end
+/// nearest `from` (the way so far), or as drawn.
+fn travel_points(lane: &xodr::Lane, from: Option<Vec2>) -> Vec<Vec2> {
+    let mut pts: Vec<Vec2> = lane.center.points().iter().map(|p| Vec2::new(p.x, p.y)).collect();
+    let backward = match (lane.direction, from, pts.first(), pts.last()) {
+        (xodr::Direction::Backward, ..) => true,
+        (xodr::Direction::Both, Some(f), Some(&a), Some(&b)) => f.distance(b) < f.distance(a),
+        _ => false,
+    };
+    if backward {
+        pts.reverse();
+    }
+    pts
 }
 
 /// The scene's lane nearest a lane of the file (its centre line `center`; `c` the junction's
@@ -813,12 +870,30 @@ fn comment(s: &str) -> String {
 /// A scene file's text for `imported`: a header naming the source and junction and every note,
 /// then the configuration as TOML.
 pub fn scene_toml(imported: &Imported, source: &Path) -> Result<String, RaycastError> {
-    let body = toml::to_string_pretty(&imported.config).map_err(|e| RaycastError::Invalid {
+    let unwritable = |e: toml::ser::Error| RaycastError::Invalid {
         path: PathBuf::from(source),
         field: "scene".into(),
         value: String::new(),
         reason: format!("cannot be written as TOML: {e}"),
-    })?;
+    };
+    // The lane graph last, each connection's path a few points a line (the pretty writer would
+    // give every coordinate a line of its own).
+    let mut plain = imported.config.clone();
+    let connections = std::mem::take(&mut plain.connections);
+    let mut body = toml::to_string_pretty(&plain).map_err(unwritable)?;
+    for mut c in connections {
+        let path = std::mem::take(&mut c.path);
+        let head = toml::to_string(&c).map_err(unwritable)?;
+        body.push_str(&format!("\n[[connections]]\n{head}"));
+        if !path.is_empty() {
+            body.push_str("path = [\n");
+            for line in path.chunks(4) {
+                let pts: Vec<String> = line.iter().map(|p| format!("[{:?}, {:?}]", p[0], p[1])).collect();
+                body.push_str(&format!("    {},\n", pts.join(", ")));
+            }
+            body.push_str("]\n");
+        }
+    }
     let mut head = format!(
         "{HEADER} from {} (junction {}).\n",
         comment(&source.display().to_string()),
