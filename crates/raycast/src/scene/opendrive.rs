@@ -47,7 +47,8 @@
 
 use crate::error::RaycastError;
 use crate::scene::config::{
-    ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, OriginConfig, RoiConfig, RoiKind, SceneConfig, SignalPoleConfig,
+    ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, MAX_CONNECTION_POINTS, OriginConfig, RoiConfig, RoiKind, SceneConfig,
+    SignalPoleConfig,
 };
 use crate::scene::layout::{Layout, ROUTE_HALF_WIDTH_M, build_layout};
 use glam::Vec2;
@@ -481,7 +482,7 @@ fn connections(
             if out.contains_key(&key) {
                 continue;
             }
-            let way: Vec<Vec2> = way.into_iter().map(|p| p - c).collect();
+            let way = thinned(way.into_iter().map(|p| p - c).collect(), MAX_CONNECTION_POINTS);
             let path = if drivable_path(layout, &way) {
                 way.iter().map(|p| [(p.x * 100.0).round() / 100.0 + 0.0, (p.y * 100.0).round() / 100.0 + 0.0]).collect()
             } else {
@@ -518,6 +519,21 @@ fn connections(
             path,
         })
         .collect()
+}
+
+/// `pts` with at most `most` points (at least 2): every k-th, and the last.
+fn thinned(pts: Vec<Vec2>, most: usize) -> Vec<Vec2> {
+    if pts.len() <= most.max(2) {
+        return pts;
+    }
+    let k = pts.len().div_ceil(most.max(2) - 1);
+    let mut out: Vec<Vec2> = pts.iter().step_by(k).copied().collect();
+    if let (Some(&last), Some(&end)) = (out.last(), pts.last())
+        && last != end
+    {
+        out.push(end);
+    }
+    out
 }
 
 /// Whether a car driving the centre line `way` (scene coordinates) keeps its body on the
@@ -956,6 +972,21 @@ mod tests {
             median_m: None,
         };
         (name.into(), a)
+    }
+
+    /// A connecting lane sampled more finely than a scene keeps is thinned to the most a path
+    /// may list, its ends kept; one within the bound is left alone.
+    #[test]
+    fn a_long_way_is_thinned_to_what_a_scene_keeps() {
+        for n in [2, 3, 1_999, 2_000, 2_001, 4_000, 4_001, 10_007] {
+            let way: Vec<Vec2> = (0..n).map(|k| Vec2::new(k as f32 * 0.01, 0.0)).collect();
+            let t = thinned(way.clone(), MAX_CONNECTION_POINTS);
+            assert!(t.len() >= 2 && t.len() <= MAX_CONNECTION_POINTS, "{n}: {}", t.len());
+            assert_eq!((t[0], t[t.len() - 1]), (way[0], way[n - 1]), "{n}");
+            if n <= MAX_CONNECTION_POINTS {
+                assert_eq!(t, way);
+            }
+        }
     }
 
     fn join(list: Vec<(String, Approach)>) -> (Vec<Approach>, Vec<String>) {
