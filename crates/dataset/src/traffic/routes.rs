@@ -155,11 +155,7 @@ fn connector(layout: &Layout, entry: Vec2, h: Vec2, exit: Vec2, exit_dir: Vec2) 
         bezier(entry, entry + h * c, exit - exit_dir * c, exit, 24)
     };
     let clear = |pts: &[Vec2]| {
-        pts.windows(2).all(|w| {
-            let side = (w[1] - w[0]).normalize_or_zero().perp() * ROUTE_HALF_WIDTH_M;
-            let mid = 0.5 * (w[0] + w[1]);
-            [mid, mid + side, mid - side].iter().all(|&q| layout.on_carriageway(q))
-        })
+        pts.windows(2).all(|w| layout.car_on_carriageway(0.5 * (w[0] + w[1]), (w[1] - w[0]).normalize_or_zero()))
     };
     let first = curve(0.45);
     if clear(&first) {

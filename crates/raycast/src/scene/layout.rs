@@ -169,6 +169,13 @@ impl Layout {
         on_road && !raised && !self.on_island(p)
     }
 
+    /// Whether a car at `p` heading `dir` (a unit vector) is on the carriageway: its centre and
+    /// its sides, [`ROUTE_HALF_WIDTH_M`] to either side.
+    pub fn car_on_carriageway(&self, p: Vec2, dir: Vec2) -> bool {
+        let side = dir.perp() * ROUTE_HALF_WIDTH_M;
+        [p, p + side, p - side].iter().all(|&q| self.on_carriageway(q))
+    }
+
     /// Whether `p` is on a roundabout's central island.
     pub fn on_island(&self, p: Vec2) -> bool {
         self.ring.as_ref().is_some_and(|r| p.length() < r.island_radius_m && point_in_polygon(p, &r.island))

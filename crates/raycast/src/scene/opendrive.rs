@@ -50,7 +50,7 @@ use crate::scene::config::{
     ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, MAX_CONNECTION_POINTS, OriginConfig, RoiConfig, RoiKind, SceneConfig,
     SignalPoleConfig,
 };
-use crate::scene::layout::{Layout, ROUTE_HALF_WIDTH_M, build_layout};
+use crate::scene::layout::{Layout, build_layout};
 use glam::Vec2;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet, HashSet};
@@ -537,15 +537,14 @@ fn thinned(pts: Vec<Vec2>, most: usize) -> Vec<Vec2> {
 }
 
 /// Whether a car driving the centre line `way` (scene coordinates) keeps its body on the
-/// scene's carriageway: its centre and both sides ([`ROUTE_HALF_WIDTH_M`] out) at every
-/// segment's middle and at every point. The scene's arms are straight where the file's roads
+/// scene's carriageway ([`Layout::car_on_carriageway`]) at every segment's middle and at every
+/// point. The scene's arms are straight where the file's roads
 /// bend, and its corners its own, so a file's curve can cut one.
 fn drivable_path(layout: &Layout, way: &[Vec2]) -> bool {
     way.len() >= 2
         && way.windows(2).all(|w| {
-            let side = (w[1] - w[0]).normalize_or_zero().perp() * ROUTE_HALF_WIDTH_M;
-            let mid = 0.5 * (w[0] + w[1]);
-            [mid, w[1]].iter().all(|&p| [p, p + side, p - side].iter().all(|&q| layout.on_carriageway(q)))
+            let dir = (w[1] - w[0]).normalize_or_zero();
+            [0.5 * (w[0] + w[1]), w[1]].iter().all(|&p| layout.car_on_carriageway(p, dir))
         })
 }
 
