@@ -135,6 +135,33 @@ fn impossible_geometry_is_refused_naming_the_field() {
     load_text(d.path(), &ok).unwrap();
     let skew = format!("name = \"x\"\n{}{}{}", arm("a", 0.0, ""), arm("b", 60.0, ""), arm("c", 180.0, ""));
     load_text(d.path(), &skew).unwrap();
+    // A curb radius: out of range, on a T-junction's straight side (no corner), so large the
+    // crosswalk leaves the arm's inner half, at a roundabout; a fitting one passes.
+    let four = |extra: &str| {
+        format!(
+            "name = \"x\"\n{}{}{}{}",
+            arm("e", 0.0, extra),
+            arm("n", 90.0, ""),
+            arm("w", 180.0, ""),
+            arm("s", 270.0, "")
+        )
+    };
+    expect_err(d.path(), &four("corner_radius_m = -1.0"), &["arms[0].corner_radius_m", "0 (sharp) to 30 m"]);
+    expect_err(d.path(), &four("corner_radius_m = nan"), &["arms[0].corner_radius_m"]);
+    expect_err(d.path(), &four("corner_radius_m = 30.0"), &["arms[0].corner_radius_m", "beyond half its length"]);
+    load_text(d.path(), &four("corner_radius_m = 12.0")).unwrap();
+    let tee = format!(
+        "name = \"x\"\n{}{}{}",
+        arm("e", 0.0, ""),
+        arm("n", 90.0, ""),
+        arm("w", 180.0, "corner_radius_m = 5.0")
+    );
+    expect_err(d.path(), &tee, &["arms[2].corner_radius_m", "meets no corner"]);
+    let ring =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fixtures/sites/roundabout.toml"))
+            .unwrap()
+            .replacen("[[arms]]\n", "[[arms]]\ncorner_radius_m = 5.0\n", 1);
+    expect_err(d.path(), &ring, &["arms[0].corner_radius_m", "flare onto its ring"]);
 }
 
 /// The default intersection with `edit` applied to its text.

@@ -128,3 +128,97 @@ fn no_sidewalk_reaches_onto_another_arm_s_carriageway() {
         }
     }
 }
+
+/// Every drawn site's corners rounded at 2, 6 and 10 m (where the scene can hold the radius):
+/// the ground between each arc and its sharp corner becomes carriageway, just behind the arc
+/// is raised, the corner's pole stands on its sidewalk, and no sidewalk piece reaches onto
+/// another arm's road or into the junction box.
+#[test]
+fn rounded_corners_at_every_site_keep_the_sidewalks_off_the_carriageway() {
+    use hilo_raycast::scene::layout::{corner_curb, point_in_polygon};
+    let mut all = sites();
+    all.push(root().join("fixtures/intersection.toml"));
+    let mut rounded = 0;
+    for p in &all {
+        let base = SceneConfig::load(p).unwrap();
+        if base.roundabout.is_some() {
+            continue;
+        }
+        let sharp = Scene::load(p).unwrap().layout;
+        for r in [2.0f32, 6.0, 10.0] {
+            // What stands at the sharp corners (poles, lights, trees, buildings) would stand
+            // in the wider junction box: only the road's geometry is checked here.
+            let mut cfg = SceneConfig {
+                signal_poles: Vec::new(),
+                street_lights: Vec::new(),
+                trees: Vec::new(),
+                buildings: Vec::new(),
+                ..base.clone()
+            };
+            for a in &mut cfg.arms {
+                a.corner_radius_m = r;
+            }
+            // Straight sides (a T-junction's) take none.
+            let scene = loop {
+                match Scene::from_config(cfg.clone(), p.parent().unwrap(), p) {
+                    Ok(s) => break Some(s),
+                    Err(e) => {
+                        let e = e.to_string();
+                        let Some(k) = (0..cfg.arms.len()).find(|k| e.contains(&format!("arms[{k}].corner_radius_m")))
+                        else {
+                            panic!("{}: r {r}: {e}", p.display());
+                        };
+                        if e.contains("beyond half its length") {
+                            break None;
+                        }
+                        cfg.arms[k].corner_radius_m = 0.0;
+                    }
+                }
+            };
+            let Some(scene) = scene else { continue };
+            let l = &scene.layout;
+            let n = l.arms.len();
+            for i in 0..n {
+                let (a, b) = (&l.arms[i], &l.arms[(i + 1) % n]);
+                let radius = cfg.arms.iter().find(|c| c.name == a.name).unwrap().corner_radius_m;
+                let (Some(curb), Some(corner)) = (corner_curb(a, b, radius, 1.0), corner_curb(a, b, 0.0, 1.0)) else {
+                    continue;
+                };
+                // A corner the sharp layout has: a vertex of its junction box.
+                let (mid, sharp_corner) = (curb[curb.len() / 2], corner[1]);
+                if radius == 0.0 || !sharp.central.iter().any(|v| v.distance(sharp_corner) < 1e-3) {
+                    continue;
+                }
+                rounded += 1;
+                let q = 0.5 * (mid + sharp_corner);
+                let at = format!("{} r {r}, corner of {:?} at {q}", p.display(), a.name);
+                assert!(l.on_carriageway(q) && !sharp.on_carriageway(q), "{at}");
+                let behind = mid + (mid - sharp_corner).normalize() * 0.05;
+                assert!(!l.on_carriageway(behind), "{at}: behind the arc at {behind}");
+            }
+            for w in &l.corner_sidewalks {
+                let c = w.iter().copied().sum::<glam::Vec2>() / w.len() as f32;
+                for v in w {
+                    let q = *v + (c - *v).normalize_or_zero() * 0.01;
+                    assert!(
+                        !point_in_polygon(q, &l.central),
+                        "{} r {r}: corner sidewalk in the box at {q}",
+                        p.display()
+                    );
+                    for arm in &l.arms {
+                        assert!(
+                            !point_in_polygon(q, &arm.road),
+                            "{} r {r}: on {}'s road at {q}",
+                            p.display(),
+                            arm.name
+                        );
+                    }
+                }
+            }
+            for post in &l.corner_posts {
+                assert!(!l.on_carriageway(*post), "{} r {r}: pole on the carriageway at {post}", p.display());
+            }
+        }
+    }
+    assert!(rounded >= 40, "only {rounded} rounded corners checked");
+}

@@ -219,7 +219,17 @@ pub struct ArmConfig {
     pub crosswalk_width_m: f32,
     #[serde(default = "d_speed")]
     pub speed_limit_kph: f32,
+    /// Radius of the curb at the corner on this arm's inbound side, m: the corner it shares with
+    /// the next arm counter-clockwise, which traffic entering on this arm passes on a right
+    /// turn. 0 (the default): a sharp corner. The curb runs along an arc tangent to both edges,
+    /// the corner's sidewalk follows it, and the crosswalks and stop lines of both arms move out
+    /// to where the arc meets their edges. An OpenDRIVE import fits it to the file's right turn.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub corner_radius_m: f32,
 }
+
+/// The largest curb radius at a corner (`corner_radius_m`), m.
+pub const MAX_CORNER_RADIUS_M: f32 = 30.0;
 
 /// The farthest an arm's centre line may lie from the junction's centre (`offset_m`).
 pub const MAX_ARM_OFFSET_M: f32 = 20.0;
@@ -583,6 +593,7 @@ impl SceneConfig {
         if let Some(r) = &self.roundabout {
             check_roundabout(&c, r, &self.arms)?;
         }
+        check_corner_radii(&c, &self.arms)?;
         check_connections(&c, &self.connections, &self.arms, self.roundabout.is_some(), self.ground.half_size_m)?;
         check_signal_groups(&c, &self.signal_groups, &self.arms, self.roundabout.is_some())?;
         if let Some((i, j, along)) = overlapping_arms(&self.arms, self.roundabout.as_ref()) {
@@ -707,6 +718,13 @@ fn check_arm(c: &Check, i: usize, a: &ArmConfig, ground_half_m: f32) -> Result<(
     c.positive(&f("crosswalk_width_m"), a.crosswalk_width_m)?;
     c.positive(&f("speed_limit_kph"), a.speed_limit_kph)?;
     c.non_negative(&f("left_turn_bay_length_m"), a.left_turn_bay_length_m)?;
+    if !(a.corner_radius_m.is_finite() && (0.0..=MAX_CORNER_RADIUS_M).contains(&a.corner_radius_m)) {
+        return Err(c.err(
+            &f("corner_radius_m"),
+            a.corner_radius_m,
+            &format!("a curb's radius at a corner is 0 (sharp) to {MAX_CORNER_RADIUS_M} m"),
+        ));
+    }
     if a.lanes_in + a.lanes_out == 0 {
         return Err(c.err(&f("lanes_in"), a.lanes_in, "an arm needs at least one lane"));
     }
@@ -730,6 +748,36 @@ fn check_arm(c: &Check, i: usize, a: &ArmConfig, ground_half_m: f32) -> Result<(
             a.length_m,
             &format!("the arm runs off the ground (ground.half_size_m = {})", ground_half_m),
         ));
+    }
+    Ok(())
+}
+
+/// A curb radius only where the arm's inbound side meets a corner: the next arm
+/// counter-clockwise turns off by less than 179° (a T-junction's straight side has none).
+fn check_corner_radii(c: &Check, arms: &[ArmConfig]) -> Result<(), RaycastError> {
+    let key = |a: &ArmConfig| a.heading_deg.rem_euclid(360.0);
+    for (i, a) in arms.iter().enumerate() {
+        if a.corner_radius_m == 0.0 {
+            continue;
+        }
+        // The next arm counter-clockwise, and the angle to it (360° when alone).
+        let gap = arms
+            .iter()
+            .enumerate()
+            .filter(|&(j, _)| j != i)
+            .map(|(_, b)| (key(b) - key(a)).rem_euclid(360.0))
+            .filter(|g| *g > 0.0)
+            .fold(360.0f32, f32::min);
+        if gap >= 179.0 {
+            return Err(c.err(
+                &format!("arms[{i}].corner_radius_m"),
+                a.corner_radius_m,
+                &format!(
+                    "the arm's inbound side meets no corner: the next arm counter-clockwise is {gap:.0}° round, \
+                     a road running on"
+                ),
+            ));
+        }
     }
     Ok(())
 }
@@ -884,6 +932,13 @@ fn check_roundabout(c: &Check, r: &RoundaboutConfig, arms: &[ArmConfig]) -> Resu
                 &f("left_turn_lanes"),
                 a.left_turn_lanes,
                 "a roundabout's ring serves every turn: no bays",
+            ));
+        }
+        if a.corner_radius_m > 0.0 {
+            return Err(c.err(
+                &f("corner_radius_m"),
+                a.corner_radius_m,
+                "a roundabout's curbs flare onto its ring on their own: no corner radius",
             ));
         }
         if a.lanes_in > 1 || a.lanes_out > 1 {

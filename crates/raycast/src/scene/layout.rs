@@ -2,14 +2,18 @@
 //! the junction box and ROI polygons. Everything is 2-D in the local frame.
 //!
 //! Simplifications (documented for users): arms are straight; the junction corners are sharp
-//! (no curb radius); right turns share the outermost through lane (no right-turn bays); roads
-//! are flat at ground height, and only sidewalks and medians are raised (by the curb height).
+//! unless an arm gives its corner a curb radius (`corner_radius_m`, which an OpenDRIVE import
+//! fits to the file's right turns); right turns share the outermost through lane (no right-turn
+//! bays); roads are flat at ground height, and only sidewalks and medians are raised (by the
+//! curb height).
 //! A parking lane (`parking_lane_width_m`) widens the road on both curb sides of an arm; the
 //! crosswalk crosses it, the stop line does not. Sidewalks run along the curbs from each corner
 //! and meet in a corner piece behind both curbs: a square at a right corner, a rhombus at an
 //! obtuse one; at an acute corner each strip starts where its outer edge meets the neighbour's
 //! curb and the corner piece is a parallelogram along the two curbs, so no sidewalk lies on a
-//! carriageway.
+//! carriageway. A rounded corner's curb is an arc tangent to both edges; its sidewalk follows
+//! the arc, the strips start at the tangent points, and the crosswalks and stop lines of both
+//! arms lie beyond them (a crosswalk starts where both its ends stand on a straight sidewalk).
 //!
 //! A roundabout (`[roundabout]`) replaces the junction box with a ring around a raised island:
 //! each arm's yield line lies just off the ring and its crosswalk a setback behind it, and each
@@ -266,6 +270,79 @@ fn acute_setback(a: Vec2, b: Vec2, sw: f32, corner: bool) -> f32 {
     }
 }
 
+/// A corner whose curb runs along a circular arc (`corner_radius_m`): the circle of `radius`
+/// about `centre`, behind both curbs, tangent to arm `a`'s inbound edge at `on_in` and to the
+/// next arm `b`'s outbound edge at `on_out`.
+struct Rounded {
+    centre: Vec2,
+    radius: f32,
+    on_in: Vec2,
+    on_out: Vec2,
+}
+
+impl Rounded {
+    /// The rounded corner between arm `a`'s inbound edge and arm `b`'s outbound edge, if
+    /// `radius` is positive and the edges are not (nearly) parallel.
+    fn of(a: &ArmFrame, b: &ArmFrame, radius: f32) -> Option<Rounded> {
+        if radius <= 0.0 {
+            return None;
+        }
+        // Behind a's inbound edge is +normal, behind b's outbound edge −normal.
+        let centre = line_meet(a.normal, a.edge_in + a.off + radius, b.normal, b.edge_out + b.off - radius)?;
+        Some(Rounded { centre, radius, on_in: centre - a.normal * radius, on_out: centre + b.normal * radius })
+    }
+
+    /// The curb from `on_in` to `on_out`, bulging towards the sharp corner it replaces.
+    fn curb(&self) -> Vec<Vec2> {
+        short_arc(self.centre, self.on_in, self.on_out)
+    }
+
+    /// The corner's sidewalk, `sw` wide behind the curb: between the curb and the same arc
+    /// `sw` nearer the centre, or the sector out to the centre when the radius is no more than
+    /// `sw` (the arms' strips, which start at the tangent points, cover the rest).
+    fn sidewalk(&self, sw: f32) -> Vec<Vec2> {
+        let curb = self.curb();
+        let mut walk = curb.clone();
+        if self.radius > sw {
+            let k = (self.radius - sw) / self.radius;
+            walk.extend(curb.iter().rev().map(|&p| self.centre + (p - self.centre) * k));
+        } else {
+            walk.push(self.centre);
+        }
+        ccw(walk)
+    }
+
+    /// Where a pole stands: on the corner's bisector, half the sidewalk's width `sw` behind the
+    /// curb (or, where the curb's radius is under that, as far from both curbs' lines).
+    fn post(&self, a: &ArmFrame, b: &ArmFrame, sw: f32) -> Vec2 {
+        let bisector = ((self.on_in - self.centre) + (self.on_out - self.centre)).normalize_or_zero();
+        if self.radius >= 0.5 * sw {
+            return self.centre + bisector * (self.radius - 0.5 * sw);
+        }
+        line_meet(a.normal, a.edge_in + a.off + 0.5 * sw, b.normal, b.edge_out + b.off - 0.5 * sw)
+            .unwrap_or(self.centre)
+    }
+}
+
+/// The curb from arm `a`'s inbound edge round to arm `b`'s outbound edge (`b` the next arm
+/// counter-clockwise), `reach` metres along each edge beyond the corner: two straight runs
+/// meeting at the sharp corner, or joined by an arc of `radius` (sampled every degree) as
+/// [`build_layout`] rounds it. `None` where the edges are (nearly) parallel.
+pub fn corner_curb(a: &ArmLayout, b: &ArmLayout, radius: f32, reach: f32) -> Option<Vec<Vec2>> {
+    if radius <= 0.0 {
+        let p = line_meet(a.normal, a.edge_in_m, b.normal, b.edge_out_m)?;
+        return Some(vec![p + a.dir * reach, p, p + b.dir * reach]);
+    }
+    let c = line_meet(a.normal, a.edge_in_m + radius, b.normal, b.edge_out_m - radius)?;
+    let (u0, u1) = (-a.normal, b.normal);
+    let delta = u0.perp_dot(u1).atan2(u0.dot(u1));
+    let n = (delta.abs().to_degrees().ceil() as usize).max(1);
+    let mut curb = vec![c + u0 * radius + a.dir * reach];
+    curb.extend((0..=n).map(|k| c + Vec2::from_angle(delta * k as f32 / n as f32).rotate(u0) * radius));
+    curb.push(c + u1 * radius + b.dir * reach);
+    Some(curb)
+}
+
 /// Derives the layout. Arms are handled in counter-clockwise order of heading.
 pub fn build_layout(cfg: &SceneConfig) -> Layout {
     let mut frames: Vec<ArmFrame> = cfg
@@ -304,6 +381,10 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         })
         .collect();
 
+    // rounded[i]: corner[i] with arm i's curb radius, where it has one.
+    let rounded: Vec<Option<Rounded>> = (0..n)
+        .map(|i| corners[i].and_then(|_| Rounded::of(&frames[i], &frames[(i + 1) % n], frames[i].cfg.corner_radius_m)))
+        .collect();
     let ring = cfg.roundabout.as_ref();
     let ro = ring.map_or(0.0, |r| r.outer_radius_m());
     let mut layout = Layout::default();
@@ -313,9 +394,15 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         // Where the curbs start (a corner, or the ring), the crosswalk and the stop (or yield)
         // line, along the arm from the centre.
         let (a_in, a_out, cw0, stop) = match ring {
+            // A rounded corner's curb meets the arm's edge at its tangent point.
             None => {
-                let a_in = corners[i].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
-                let a_out = corners[prev].map_or(0.0, |p| p.dot(f.dir)).max(0.0);
+                let a_in =
+                    rounded[i].as_ref().map_or(corners[i], |r| Some(r.on_in)).map_or(0.0, |p| p.dot(f.dir)).max(0.0);
+                let a_out = rounded[prev]
+                    .as_ref()
+                    .map_or(corners[prev], |r| Some(r.on_out))
+                    .map_or(0.0, |p| p.dot(f.dir))
+                    .max(0.0);
                 let cw0 = a_in.max(a_out) + 0.5;
                 (a_in, a_out, cw0, cw0 + a.crosswalk_width_m + 1.0)
             }
@@ -352,8 +439,18 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             // neighbour's carriageway: it starts where its outer edge meets the neighbour's curb.
             let next = &frames[(i + 1) % n];
             let before = &frames[prev];
-            let a_in = a_in + acute_setback(f.dir, next.dir, sw, ring.is_none() && corners[i].is_some());
-            let a_out = a_out + acute_setback(before.dir, f.dir, sw, ring.is_none() && corners[prev].is_some());
+            // The setback is the sharp corner's: a rounded curb's tangent point may lie beyond it.
+            let sharp = |c: Option<Vec2>| c.map_or(0.0, |p| p.dot(f.dir)).max(0.0);
+            let a_in = if rounded[i].is_some() {
+                a_in.max(sharp(corners[i]) + acute_setback(f.dir, next.dir, sw, true))
+            } else {
+                a_in + acute_setback(f.dir, next.dir, sw, ring.is_none() && corners[i].is_some())
+            };
+            let a_out = if rounded[prev].is_some() {
+                a_out.max(sharp(corners[prev]) + acute_setback(before.dir, f.dir, sw, true))
+            } else {
+                a_out + acute_setback(before.dir, f.dir, sw, ring.is_none() && corners[prev].is_some())
+            };
             sidewalks.push(f.rect(a_in, len, f.edge_in, f.edge_in + sw));
             sidewalks.push(f.rect(a_out, len, f.edge_out - sw, f.edge_out));
         }
@@ -389,7 +486,14 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         let cw1_f = layout.arms[i].crosswalk[1].dot(f.dir);
         layout.central.push(f.at(cw1_f, f.edge_out));
         layout.central.push(f.at(cw1_f, f.edge_in));
-        if let Some(p) = corners[i] {
+        if let Some(r) = &rounded[i] {
+            layout.central.extend(r.curb());
+            let sw = f.cfg.sidewalk_width_m.min(g.cfg.sidewalk_width_m);
+            if sw > 0.0 {
+                layout.corner_posts.push(r.post(f, g, sw));
+                layout.corner_sidewalks.push(r.sidewalk(sw));
+            }
+        } else if let Some(p) = corners[i] {
             layout.central.push(p);
             let sw = f.cfg.sidewalk_width_m.min(g.cfg.sidewalk_width_m);
             if sw > 0.0 {
@@ -680,6 +784,53 @@ mod tests {
                 assert!(
                     (l1.end - l0.end).dot(p.normal).abs() < 1e-4 && (l1.start - l0.start).dot(p.normal).abs() < 1e-4
                 );
+            }
+        }
+    }
+
+    /// Polygon area (shoelace).
+    fn area(poly: &[Vec2]) -> f32 {
+        0.5 * (0..poly.len()).map(|i| poly[i].perp_dot(poly[(i + 1) % poly.len()])).sum::<f32>().abs()
+    }
+
+    /// The default junction's right corners rounded: the corner's sidewalk is the quarter
+    /// annulus (or quarter disc) behind the arc, the ground between the arc and the sharp corner
+    /// becomes carriageway, the crosswalks move out by the radius, and a radius of 0 is the sharp
+    /// layout itself.
+    #[test]
+    fn a_rounded_corner_is_a_quarter_annulus_of_sidewalk_and_widens_the_carriageway() {
+        let sharp = build_layout(&default_cfg());
+        for r in [0.0f32, 1.5, 8.0] {
+            let mut cfg = default_cfg();
+            for a in &mut cfg.arms {
+                a.corner_radius_m = r;
+            }
+            let l = build_layout(&cfg);
+            if r == 0.0 {
+                assert_eq!(l, sharp);
+                continue;
+            }
+            assert_eq!(l.corner_sidewalks.len(), 4);
+            for (i, w) in l.corner_sidewalks.iter().enumerate() {
+                let (a, b) = (&l.arms[i], &l.arms[(i + 1) % 4]);
+                let sw = 2.5f32;
+                let inner = (r - sw).max(0.0);
+                let want = std::f32::consts::FRAC_PI_4 * (r * r - inner * inner);
+                assert!((area(w) - want).abs() < 0.01 * want, "r {r} corner {i}: {} against {want}", area(w));
+                let curb = corner_curb(a, b, r, 5.0).unwrap();
+                let p = corner_curb(a, b, 0.0, 5.0).unwrap()[1];
+                let mid = curb[curb.len() / 2];
+                // Between the arc and the sharp corner: carriageway now, sidewalk before.
+                let q = 0.5 * (mid + p);
+                assert!(l.on_carriageway(q) && !sharp.on_carriageway(q), "r {r} corner {i} at {q}");
+                // Just behind the arc: raised.
+                let behind = mid + (mid - p).normalize() * 0.05;
+                assert!(!l.on_carriageway(behind), "r {r} corner {i} at {behind}");
+                assert!(point_in_polygon(l.corner_posts[i], w) && !l.on_carriageway(l.corner_posts[i]));
+            }
+            for (arm, before) in l.arms.iter().zip(&sharp.arms) {
+                let moved = (arm.crosswalk[0] - before.crosswalk[0]).dot(arm.dir);
+                assert!((moved - r).abs() < 1e-3, "{}: crosswalk moved {moved} for r {r}", arm.name);
             }
         }
     }

@@ -117,6 +117,21 @@ fn plausible(cfg: &SceneConfig, layout: &Layout, file: &Path) -> Result<(), Rayc
         value,
         reason,
     };
+    // A curb's arc pushes both arms' crosswalks out: they must stay on the arms' inner halves.
+    for (k, a) in cfg.arms.iter().enumerate().filter(|(_, a)| a.corner_radius_m > 0.0) {
+        let reach =
+            layout.arms.iter().filter(|l| l.name == a.name).map(|l| l.crosswalk[1].dot(l.dir)).fold(0.0f32, f32::max);
+        if reach > 0.5 * a.length_m {
+            return Err(err(
+                format!("arms[{k}].corner_radius_m"),
+                a.corner_radius_m.to_string(),
+                format!(
+                    "the curb's arc puts the arm's crosswalk {reach:.1} m out, beyond half its length ({} m)",
+                    a.length_m
+                ),
+            ));
+        }
+    }
     let footprints: Vec<Vec<Vec2>> =
         cfg.buildings.iter().map(|b| b.footprint.iter().map(|p| Vec2::from(*p)).collect()).collect();
     for (k, f) in footprints.iter().enumerate() {

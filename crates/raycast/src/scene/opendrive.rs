@@ -26,6 +26,11 @@
 //!   file allows and no others, each along the connecting lane's own centre line (`path`)
 //!   where a car's body along it stays on the scene's carriageway (hilo draws the turn where
 //!   not, with a note);
+//! - **curb radii**: each corner whose right turn the file gives is rounded (`corner_radius_m`)
+//!   with the radius, 0 to 30 m in steps of 0.1 m, whose curb stands nearest half a lane from
+//!   that turn's centre line (RMS over its points, kept within 0.5 m; the note gives each
+//!   radius and its RMS), so the file's right turns fit the scene's carriageway as they fit
+//!   the file's;
 //! - **signal phases**: the junction's `<controller>`s, in the order of their `sequence` and
 //!   then of the file, each switching the lights of the arms whose inbound lanes its signals
 //!   govern (controllers over the same arms are one phase), become the scene's `signal_groups`
@@ -47,8 +52,8 @@
 
 use crate::error::RaycastError;
 use crate::scene::config::{
-    ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, MAX_CONNECTION_POINTS, OriginConfig, RoiConfig, RoiKind, SceneConfig,
-    SignalPoleConfig,
+    ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, MAX_CONNECTION_POINTS, MAX_CORNER_RADIUS_M, OriginConfig, RoiConfig,
+    RoiKind, SceneConfig, SignalPoleConfig,
 };
 use crate::scene::layout::{Layout, build_layout};
 use glam::Vec2;
@@ -164,8 +169,11 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
         connections: Vec::new(),
         signal_groups: Vec::new(),
     };
-    // The arms' geometry, which the lane graph, the signal groups and the poles are read against.
-    let layout = build_layout(&config);
+    // The arms' geometry, which the lane graph, the signal groups and the poles are read against,
+    // with its corners rounded as the file's right turns go round them.
+    let sharp = build_layout(&config);
+    let ways = file_ways(&net, &lanes_of[&junction], &sharp, c).ways;
+    let layout = round_corners(&mut config, &sharp, &ways, path, &mut notes);
     config.connections = connections(&net, &lanes_of[&junction], &layout, c, &mut notes);
     match controller_groups(&net, &ids, &lanes_of[&junction], &junction, &layout, c) {
         Ok((groups, read)) => {
@@ -443,7 +451,48 @@ fn arm(net: &xodr::RoadNetwork, a: &Approach, c: Vec2, notes: &mut Vec<String>) 
         curb_height_m: CURB_M,
         crosswalk_width_m: CROSSWALK_M,
         speed_limit_kph: SPEED_KPH,
+        corner_radius_m: 0.0,
     }
+}
+
+/// Gives each corner of `config` the curb radius its file's right turn fits
+/// ([`fitted_corner_radii`], read on the sharp-cornered `sharp` layout), keeps those the scene
+/// can hold (crosswalks on the arms' inner halves), and returns the layout with them.
+fn round_corners(
+    config: &mut SceneConfig,
+    sharp: &Layout,
+    ways: &[Way],
+    path: &Path,
+    notes: &mut Vec<String>,
+) -> Layout {
+    let radii = fitted_corner_radii(sharp, ways);
+    let mut fitted = Vec::new();
+    for (arm, r) in sharp.arms.iter().zip(&radii) {
+        if let (Some((r, rms)), Some(cfg)) = (r, config.arms.iter_mut().find(|a| a.name == arm.name)) {
+            cfg.corner_radius_m = *r;
+            fitted.push(format!("{r:.1} m (RMS {rms:.2} m)"));
+        }
+    }
+    let layout = build_layout(config);
+    if fitted.is_empty() {
+        notes.push("corners sharp: the file has no right turn a curb's arc fits".into());
+        return sharp.clone();
+    }
+    if let Err(e) = config.validate(path).and_then(|()| super::plausible(config, &layout, path)) {
+        for a in &mut config.arms {
+            a.corner_radius_m = 0.0;
+        }
+        notes.push(format!("corners sharp: the curb radii the file's right turns fit do not fit the scene ({e})"));
+        return sharp.clone();
+    }
+    notes.push(format!(
+        "{} of {} corners rounded as the file's right turns go round them, each curb half a lane from its turn's \
+         centre line: radii {}",
+        fitted.len(),
+        radii.len(),
+        fitted.join(", ")
+    ));
+    layout
 }
 
 /// The junction's lane graph in the scene's terms: each driving lane into the junction, through
@@ -460,37 +509,17 @@ fn connections(
     notes: &mut Vec<String>,
 ) -> Vec<crate::scene::config::ConnectionConfig> {
     let mut out: BTreeMap<(String, u32, String, u32), Vec<[f32; 2]>> = BTreeMap::new();
-    let (mut u_turns, mut unread, mut drawn_by_hilo) = (0, 0, 0);
-    for (l, _, _, into) in approach_lanes(net, inside) {
-        if !into {
-            continue;
-        }
-        let Some(from) = scene_lane(layout, &l.center, c, false) else {
-            unread += 1;
-            continue;
+    let mut drawn_by_hilo = 0;
+    let FileWays { ways, u_turns, unread } = file_ways(net, inside, layout, c);
+    for (from, to, way) in ways {
+        let key = (layout.arms[from.0].name.clone(), from.1 as u32, layout.arms[to.0].name.clone(), to.1 as u32);
+        let path = if drivable_path(layout, &way) {
+            way.iter().map(|p| [(p.x * 100.0).round() / 100.0 + 0.0, (p.y * 100.0).round() / 100.0 + 0.0]).collect()
+        } else {
+            drawn_by_hilo += 1;
+            Vec::new()
         };
-        for (exit, way) in exits(net, inside, l) {
-            let Some(to) = scene_lane(layout, &exit.center, c, true) else {
-                unread += 1;
-                continue;
-            };
-            if from.0 == to.0 {
-                u_turns += 1;
-                continue;
-            }
-            let key = (layout.arms[from.0].name.clone(), from.1 as u32, layout.arms[to.0].name.clone(), to.1 as u32);
-            if out.contains_key(&key) {
-                continue;
-            }
-            let way = thinned(way.into_iter().map(|p| p - c).collect(), MAX_CONNECTION_POINTS);
-            let path = if drivable_path(layout, &way) {
-                way.iter().map(|p| [(p.x * 100.0).round() / 100.0 + 0.0, (p.y * 100.0).round() / 100.0 + 0.0]).collect()
-            } else {
-                drawn_by_hilo += 1;
-                Vec::new()
-            };
-            out.insert(key, path);
-        }
+        out.insert(key, path);
     }
     notes.push(if out.is_empty() {
         "no connection through the junction read from the file's lane graph: hilo's own rules connect its lanes"
@@ -519,6 +548,96 @@ fn connections(
             path,
         })
         .collect()
+}
+
+/// One way through the junction read as the scene's lanes: an inbound lane `(arm, lane)`, an
+/// outbound one (arms by index into the layout, lanes counted from the arm's centre line), and
+/// the file's connecting lanes' centre line joined between them, in scene coordinates.
+type Way = ((usize, usize), (usize, usize), Vec<Vec2>);
+
+/// The file's ways through the junction, the first for each pair of scene lanes; and the
+/// U-turns and the lanes that match no scene lane, left out.
+struct FileWays {
+    ways: Vec<Way>,
+    u_turns: usize,
+    unread: usize,
+}
+
+fn file_ways(net: &xodr::RoadNetwork, inside: &HashSet<xodr::LaneId>, layout: &Layout, c: Vec2) -> FileWays {
+    let mut found = FileWays { ways: Vec::new(), u_turns: 0, unread: 0 };
+    let mut seen = HashSet::new();
+    for (l, _, _, into) in approach_lanes(net, inside) {
+        if !into {
+            continue;
+        }
+        let Some(from) = scene_lane(layout, &l.center, c, false) else {
+            found.unread += 1;
+            continue;
+        };
+        for (exit, way) in exits(net, inside, l) {
+            let Some(to) = scene_lane(layout, &exit.center, c, true) else {
+                found.unread += 1;
+                continue;
+            };
+            if from.0 == to.0 {
+                found.u_turns += 1;
+                continue;
+            }
+            if seen.insert((from, to)) {
+                found.ways.push((from, to, thinned(way.into_iter().map(|p| p - c).collect(), MAX_CONNECTION_POINTS)));
+            }
+        }
+    }
+    found
+}
+
+/// The largest RMS distance, m, between a right turn's centre line and half a lane off the
+/// fitted curb at which the fit is kept.
+const CURB_FIT_RMS_M: f32 = 0.5;
+
+/// The curb radius of each corner that the file's right turn round it fits best, by the
+/// layout's arm index `i` (the corner between arm `i`'s inbound side and the next arm's
+/// outbound side): the radius, from 0 (sharp) to [`MAX_CORNER_RADIUS_M`] in steps of 0.1 m,
+/// whose curb ([`corner_curb`]) stands nearest half a lane (and the arm's parking lane) from
+/// the turn's centre line, over the line's points, RMS. The turn read is the one from the
+/// outermost inbound lane to the outermost outbound lane. `None` where the file has no right
+/// turn there, or none within [`CURB_FIT_RMS_M`] of any radius; else the radius and its RMS.
+fn fitted_corner_radii(layout: &Layout, ways: &[Way]) -> Vec<Option<(f32, f32)>> {
+    let n = layout.arms.len();
+    (0..n)
+        .map(|i| {
+            let j = (i + 1) % n;
+            let (_, _, way) =
+                ways.iter().filter(|(from, to, _)| from.0 == i && to.0 == j).max_by_key(|w| (w.0.1, w.1.1))?;
+            let (a, b) = (&layout.arms[i], &layout.arms[j]);
+            let off = 0.5 * a.lanes.first().map_or(0.0, |l| l.width_m) + a.parking_lane_m;
+            let rms = |r: f32| {
+                let curb = crate::scene::layout::corner_curb(a, b, r, 200.0)?;
+                let sq: f32 = way.iter().map(|&p| (distance_to_polyline(p, &curb) - off).powi(2)).sum();
+                Some((sq / way.len().max(1) as f32).sqrt())
+            };
+            let steps = (MAX_CORNER_RADIUS_M * 10.0).round() as usize;
+            let (r, e) = (0..=steps)
+                .filter_map(|k| {
+                    let r = k as f32 / 10.0;
+                    rms(r).map(|e| (r, e))
+                })
+                .min_by(|x, y| x.1.total_cmp(&y.1))?;
+            (e <= CURB_FIT_RMS_M).then_some((r, e))
+        })
+        .collect()
+}
+
+/// The distance from `p` to the polyline `line`.
+fn distance_to_polyline(p: Vec2, line: &[Vec2]) -> f32 {
+    line.windows(2)
+        .map(|w| {
+            let d = w[1] - w[0];
+            let t =
+                if d.length_squared() > 0.0 { ((p - w[0]).dot(d) / d.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+            p.distance(w[0] + d * t)
+        })
+        .fold(f32::INFINITY, f32::min)
 }
 
 /// `pts` with at most `most` points (at least 2): every k-th, and the last.
