@@ -468,8 +468,11 @@ fn round_corners(
     let radii = fitted_corner_radii(sharp, ways);
     let mut fitted = Vec::new();
     for (arm, r) in sharp.arms.iter().zip(&radii) {
-        if let (Some((r, rms)), Some(cfg)) = (r, config.arms.iter_mut().find(|a| a.name == arm.name)) {
-            cfg.corner_radius_m = *r;
+        // A best fit of 0 leaves the corner sharp, as it was.
+        if let (Some((r, rms)), Some(cfg)) =
+            (r.filter(|f| f.0 > 0.0), config.arms.iter_mut().find(|a| a.name == arm.name))
+        {
+            cfg.corner_radius_m = r;
             fitted.push(format!("{r:.1} m (RMS {rms:.2} m)"));
         }
     }
