@@ -480,7 +480,21 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         ring_central(&mut layout, &frames, r);
         return layout;
     }
-    // Corner sidewalks and the central polygon, walking counter-clockwise.
+    junction_box(&mut layout, &frames, &corners, &rounded);
+    if n == 1 {
+        layout.central.clear();
+        let f = &frames[0];
+        let cw1 = layout.arms[0].crosswalk[1].dot(f.dir);
+        layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
+    }
+    with_graph(cfg, layout)
+}
+
+/// The junction box (`central`), walking counter-clockwise round the arms' crosswalks and the
+/// corners between them (sharp, or `rounded` along the curb's arc), and each corner's sidewalk
+/// piece and pole place.
+fn junction_box(layout: &mut Layout, frames: &[ArmFrame], corners: &[Option<Vec2>], rounded: &[Option<Rounded>]) {
+    let n = frames.len();
     for i in 0..n {
         let (f, g) = (&frames[i], &frames[(i + 1) % n]);
         let cw1_f = layout.arms[i].crosswalk[1].dot(f.dir);
@@ -513,13 +527,6 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             }
         }
     }
-    if n == 1 {
-        layout.central.clear();
-        let f = &frames[0];
-        let cw1 = layout.arms[0].crosswalk[1].dot(f.dir);
-        layout.central = f.rect(0.0, cw1, f.edge_out, f.edge_in);
-    }
-    with_graph(cfg, layout)
 }
 
 /// The layout with the scene's lane graph and signal groups, their arms by index into its arms
