@@ -63,12 +63,8 @@ impl Rect {
     }
 }
 
-/// Distance from `p` to the segment `a`–`b`.
-pub fn point_segment_distance(p: Vec2, a: Vec2, b: Vec2) -> f32 {
-    let ab = b - a;
-    let t = if ab.length_squared() > 0.0 { ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
-    (a + ab * t - p).length()
-}
+/// Distance from `p` to the segment `a`–`b` (the scene's own, which the importer also uses).
+pub use hilo_raycast::scene::layout::point_segment_distance;
 
 #[cfg(test)]
 mod tests {

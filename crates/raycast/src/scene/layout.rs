@@ -143,6 +143,13 @@ impl Ring {
     }
 }
 
+/// Distance from `p` to the segment `a`–`b`.
+pub fn point_segment_distance(p: Vec2, a: Vec2, b: Vec2) -> f32 {
+    let ab = b - a;
+    let t = if ab.length_squared() > 0.0 { ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+    (a + ab * t - p).length()
+}
+
 /// Vertices of the polygons that stand for circles and arcs: one every 7.5° or less.
 const ARC_STEP_RAD: f32 = std::f32::consts::PI / 24.0;
 
@@ -284,12 +291,18 @@ impl Rounded {
     /// The rounded corner between arm `a`'s inbound edge and arm `b`'s outbound edge, if
     /// `radius` is positive and the edges are not (nearly) parallel.
     fn of(a: &ArmFrame, b: &ArmFrame, radius: f32) -> Option<Rounded> {
+        Rounded::between(a.normal, a.edge_in + a.off, b.normal, b.edge_out + b.off, radius)
+    }
+
+    /// The same from the edges' lines: arm `a`'s inbound edge `x · na = ea` and arm `b`'s
+    /// outbound edge `x · nb = eb` (lateral offsets from the junction's centre).
+    fn between(na: Vec2, ea: f32, nb: Vec2, eb: f32, radius: f32) -> Option<Rounded> {
         if radius <= 0.0 {
             return None;
         }
         // Behind a's inbound edge is +normal, behind b's outbound edge −normal.
-        let centre = line_meet(a.normal, a.edge_in + a.off + radius, b.normal, b.edge_out + b.off - radius)?;
-        Some(Rounded { centre, radius, on_in: centre - a.normal * radius, on_out: centre + b.normal * radius })
+        let centre = line_meet(na, ea + radius, nb, eb - radius)?;
+        Some(Rounded { centre, radius, on_in: centre - na * radius, on_out: centre + nb * radius })
     }
 
     /// The curb from `on_in` to `on_out`, bulging towards the sharp corner it replaces.
@@ -333,13 +346,14 @@ pub fn corner_curb(a: &ArmLayout, b: &ArmLayout, radius: f32, reach: f32) -> Opt
         let p = line_meet(a.normal, a.edge_in_m, b.normal, b.edge_out_m)?;
         return Some(vec![p + a.dir * reach, p, p + b.dir * reach]);
     }
-    let c = line_meet(a.normal, a.edge_in_m + radius, b.normal, b.edge_out_m - radius)?;
+    let r = Rounded::between(a.normal, a.edge_in_m, b.normal, b.edge_out_m, radius)?;
+    // From the centre towards each tangent point.
     let (u0, u1) = (-a.normal, b.normal);
     let delta = u0.perp_dot(u1).atan2(u0.dot(u1));
     let n = (delta.abs().to_degrees().ceil() as usize).max(1);
-    let mut curb = vec![c + u0 * radius + a.dir * reach];
-    curb.extend((0..=n).map(|k| c + Vec2::from_angle(delta * k as f32 / n as f32).rotate(u0) * radius));
-    curb.push(c + u1 * radius + b.dir * reach);
+    let mut curb = vec![r.on_in + a.dir * reach];
+    curb.extend((0..=n).map(|k| r.centre + Vec2::from_angle(delta * k as f32 / n as f32).rotate(u0) * radius));
+    curb.push(r.on_out + b.dir * reach);
     Some(curb)
 }
 
@@ -393,16 +407,13 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
         let prev = (i + n - 1) % n;
         // Where the curbs start (a corner, or the ring), the crosswalk and the stop (or yield)
         // line, along the arm from the centre.
+        // How far out along the arm a point lies (0 for none, or one behind the centre).
+        let along = |p: Option<Vec2>| p.map_or(0.0, |p| p.dot(f.dir)).max(0.0);
         let (a_in, a_out, cw0, stop) = match ring {
             // A rounded corner's curb meets the arm's edge at its tangent point.
             None => {
-                let a_in =
-                    rounded[i].as_ref().map_or(corners[i], |r| Some(r.on_in)).map_or(0.0, |p| p.dot(f.dir)).max(0.0);
-                let a_out = rounded[prev]
-                    .as_ref()
-                    .map_or(corners[prev], |r| Some(r.on_out))
-                    .map_or(0.0, |p| p.dot(f.dir))
-                    .max(0.0);
+                let a_in = along(rounded[i].as_ref().map_or(corners[i], |r| Some(r.on_in)));
+                let a_out = along(rounded[prev].as_ref().map_or(corners[prev], |r| Some(r.on_out)));
                 let cw0 = a_in.max(a_out) + 0.5;
                 (a_in, a_out, cw0, cw0 + a.crosswalk_width_m + 1.0)
             }
@@ -439,17 +450,14 @@ pub fn build_layout(cfg: &SceneConfig) -> Layout {
             // neighbour's carriageway: it starts where its outer edge meets the neighbour's curb.
             let next = &frames[(i + 1) % n];
             let before = &frames[prev];
-            // The setback is the sharp corner's: a rounded curb's tangent point may lie beyond it.
-            let sharp = |c: Option<Vec2>| c.map_or(0.0, |p| p.dot(f.dir)).max(0.0);
-            let a_in = if rounded[i].is_some() {
-                a_in.max(sharp(corners[i]) + acute_setback(f.dir, next.dir, sw, true))
-            } else {
-                a_in + acute_setback(f.dir, next.dir, sw, ring.is_none() && corners[i].is_some())
-            };
-            let a_out = if rounded[prev].is_some() {
-                a_out.max(sharp(corners[prev]) + acute_setback(before.dir, f.dir, sw, true))
-            } else {
-                a_out + acute_setback(before.dir, f.dir, sw, ring.is_none() && corners[prev].is_some())
+            // The setback is from the sharp corner; a rounded curb's tangent point may lie
+            // beyond it (at a roundabout the flare sets where the strips start).
+            let (a_in, a_out) = match ring {
+                None => (
+                    a_in.max(along(corners[i]) + acute_setback(f.dir, next.dir, sw, corners[i].is_some())),
+                    a_out.max(along(corners[prev]) + acute_setback(before.dir, f.dir, sw, corners[prev].is_some())),
+                ),
+                Some(_) => (a_in, a_out),
             };
             sidewalks.push(f.rect(a_in, len, f.edge_in, f.edge_in + sw));
             sidewalks.push(f.rect(a_out, len, f.edge_out - sw, f.edge_out));

@@ -55,7 +55,7 @@ use crate::scene::config::{
     ArmConfig, GroundConfig, MAX_ARM_OFFSET_M, MAX_CONNECTION_POINTS, MAX_CORNER_RADIUS_M, OriginConfig, RoiConfig,
     RoiKind, SceneConfig, SignalPoleConfig,
 };
-use crate::scene::layout::{Layout, build_layout};
+use crate::scene::layout::{Layout, build_layout, point_segment_distance};
 use glam::Vec2;
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet, HashSet};
@@ -171,10 +171,12 @@ pub fn import_str(xml: &str, path: &Path, pick: &JunctionPick) -> Result<Importe
     };
     // The arms' geometry, which the lane graph, the signal groups and the poles are read against,
     // with its corners rounded as the file's right turns go round them.
+    // The file's ways are read once: rounding moves where lanes end along their arms, not the
+    // lanes themselves, so each way matches the same scene lanes on either layout.
     let sharp = build_layout(&config);
-    let ways = file_ways(&net, &lanes_of[&junction], &sharp, c).ways;
-    let layout = round_corners(&mut config, &sharp, &ways, path, &mut notes);
-    config.connections = connections(&net, &lanes_of[&junction], &layout, c, &mut notes);
+    let ways = file_ways(&net, &lanes_of[&junction], &sharp, c);
+    let layout = round_corners(&mut config, &sharp, &ways.ways, path, &mut notes);
+    config.connections = connections(ways, &layout, &mut notes);
     match controller_groups(&net, &ids, &lanes_of[&junction], &junction, &layout, c) {
         Ok((groups, read)) => {
             notes.push(format!(
@@ -476,11 +478,11 @@ fn round_corners(
             fitted.push(format!("{r:.1} m (RMS {rms:.2} m)"));
         }
     }
-    let layout = build_layout(config);
     if fitted.is_empty() {
         notes.push("corners sharp: the file has no right turn a curb's arc fits".into());
         return sharp.clone();
     }
+    let layout = build_layout(config);
     if let Err(e) = config.validate(path).and_then(|()| super::plausible(config, &layout, path)) {
         for a in &mut config.arms {
             a.corner_radius_m = 0.0;
@@ -498,22 +500,19 @@ fn round_corners(
     layout
 }
 
-/// The junction's lane graph in the scene's terms: each driving lane into the junction, through
-/// its connecting lanes (`inside`), to each driving lane out of it, each end read as the scene's
-/// lane nearest it ([`scene_lane`]); `c` is the junction's centre. Each connection keeps the
-/// connecting lanes' centre line as its `path` where a car's body along it stays on the
+/// The junction's lane graph in the scene's terms, from the file's ways through it
+/// ([`file_ways`]: each driving lane into the junction, through its connecting lanes, to each
+/// driving lane out of it, each end read as the scene's lane nearest it). Each connection keeps
+/// the connecting lanes' centre line as its `path` where a car's body along it stays on the
 /// scene's carriageway ([`drivable_path`]); where several of the file's ways join the same two
 /// scene lanes, the first the file lists. U-turns are left out, with a note.
 fn connections(
-    net: &xodr::RoadNetwork,
-    inside: &HashSet<xodr::LaneId>,
+    FileWays { ways, u_turns, unread }: FileWays,
     layout: &Layout,
-    c: Vec2,
     notes: &mut Vec<String>,
 ) -> Vec<crate::scene::config::ConnectionConfig> {
     let mut out: BTreeMap<(String, u32, String, u32), Vec<[f32; 2]>> = BTreeMap::new();
     let mut drawn_by_hilo = 0;
-    let FileWays { ways, u_turns, unread } = file_ways(net, inside, layout, c);
     for (from, to, way) in ways {
         let key = (layout.arms[from.0].name.clone(), from.1 as u32, layout.arms[to.0].name.clone(), to.1 as u32);
         let path = if drivable_path(layout, &way) {
@@ -633,14 +632,7 @@ fn fitted_corner_radii(layout: &Layout, ways: &[Way]) -> Vec<Option<(f32, f32)>>
 
 /// The distance from `p` to the polyline `line`.
 fn distance_to_polyline(p: Vec2, line: &[Vec2]) -> f32 {
-    line.windows(2)
-        .map(|w| {
-            let d = w[1] - w[0];
-            let t =
-                if d.length_squared() > 0.0 { ((p - w[0]).dot(d) / d.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
-            p.distance(w[0] + d * t)
-        })
-        .fold(f32::INFINITY, f32::min)
+    line.windows(2).map(|w| point_segment_distance(p, w[0], w[1])).fold(f32::INFINITY, f32::min)
 }
 
 /// `pts` with at most `most` points (at least 2): every k-th, and the last.
