@@ -1,6 +1,7 @@
 //! How far an imported junction's lanes stand from the OpenDRIVE file's own lane centre lines
-//! ([`hilo_raycast::scene::opendrive::lane_deviations`]), per imported site of the library and
-//! lane, over the samples from 10 m (the junction's box) out to 20, 40, 60 and 120 m from the
+//! ([`hilo_raycast::scene::opendrive::lane_deviations`]), and its road edges from the borders of
+//! the file's driving lanes ([`hilo_raycast::scene::opendrive::edge_deviations`]), per imported
+//! site of the library, lane and edge, over the samples from 10 m (the junction's box) out to 20, 40, 60 and 120 m from the
 //! junction's centre:
 //!
 //!     cargo run --release -p hilo-raycast --example import_fidelity
@@ -10,7 +11,7 @@
 
 use glam::Vec2;
 use hilo_raycast::Scene;
-use hilo_raycast::scene::opendrive::lane_deviations;
+use hilo_raycast::scene::opendrive::{RoadEdge, edge_deviations, lane_deviations};
 use std::path::{Path, PathBuf};
 
 const REACHES_M: [f32; 4] = [20.0, 40.0, 60.0, 120.0];
@@ -20,8 +21,8 @@ fn root() -> PathBuf {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    println!("| site | road | way | max deviation (m) from 10 m out to 20 / 40 / 60 / 120 m |");
-    println!("|---|---|---|---|");
+    println!("| site | road | way | measured | max deviation (m) from 10 m out to 20 / 40 / 60 / 120 m |");
+    println!("|---|---|---|---|---|");
     for (site, map, junction) in [
         ("fabriksgatan.toml", "fabriksgatan_traffic_lights.xodr", "4"),
         ("three_arm_grid.toml", "multi_intersections.xodr", "150"),
@@ -34,7 +35,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for d in lane_deviations(&xml, &path, junction, &scene.layout, origin, &REACHES_M)? {
             let cells: Vec<String> = d.worst_m.iter().map(|w| format!("{w:.2}")).collect();
             let way = if d.into { "in" } else { "out" };
-            println!("| {site} | {} | {way} | {} |", d.road, cells.join(" / "));
+            println!("| {site} | {} | {way} | lane centre | {} |", d.road, cells.join(" / "));
+        }
+        for d in edge_deviations(&xml, &path, junction, &scene.layout, origin, &REACHES_M)? {
+            let cells: Vec<String> = d.worst_m.iter().map(|w| format!("{w:.2}")).collect();
+            let way = if d.into { "in" } else { "out" };
+            let edge = match d.edge {
+                RoadEdge::Curb => "curb edge",
+                RoadEdge::Median => "median edge",
+            };
+            println!("| {site} | {} | {way} | {edge} | {} |", d.road, cells.join(" / "));
         }
     }
     Ok(())

@@ -239,6 +239,77 @@ fn imported_lanes_stand_where_the_file_draws_them() {
     }
 }
 
+/// Import fidelity of the road edges: the border of each approach's driving lanes on the curb
+/// side (and on the median side of a divided arm) stands, within 20 m of the junction's centre
+/// (out of its box), within 0.05 m of the scene's road edge at the esmini maps and within
+/// 0.15 m at Braunschweig, as the lanes do; every road's curbs are measured, both ways.
+#[test]
+fn imported_road_edges_stand_where_the_file_draws_them() {
+    use hilo_raycast::scene::opendrive::{RoadEdge, edge_deviations};
+    for (site, map, junction, tolerance_m, medians) in [
+        ("fabriksgatan.toml", "fabriksgatan_traffic_lights.xodr", "4", 0.05, 0),
+        ("three_arm_grid.toml", "multi_intersections.xodr", "150", 0.05, 0),
+        ("braunschweig.toml", "braunschweig.xodr", "1", 0.15, 8),
+    ] {
+        let path = fixture(map);
+        let xml = std::fs::read_to_string(&path).unwrap();
+        let scene = Scene::load(&fixture("../sites").join(site)).unwrap();
+        let origin = glam::Vec2::new(scene.config.origin.x_m as f32, scene.config.origin.y_m as f32);
+        let all = edge_deviations(&xml, &path, junction, &scene.layout, origin, &[20.0]).unwrap();
+        let ways: usize =
+            scene.config.arms.iter().map(|a| usize::from(a.lanes_in > 0) + usize::from(a.lanes_out > 0)).sum();
+        let curbs = all.iter().filter(|d| d.edge == RoadEdge::Curb).count();
+        assert_eq!(curbs, ways, "{site}: one curb per road and way");
+        assert_eq!(all.len() - curbs, medians, "{site}: median edges");
+        for d in &all {
+            assert!(
+                d.worst_m[0] <= tolerance_m,
+                "{site}: road {} ({:?}, in {}) stands {} m off",
+                d.road,
+                d.edge,
+                d.into,
+                d.worst_m[0]
+            );
+        }
+    }
+}
+
+/// The road-edge measure is not blind: a scene whose inbound curbs stand 0.3 m out, or whose
+/// medians are 0.4 m wider, is measured that far off.
+#[test]
+fn a_moved_road_edge_is_measured() {
+    use hilo_raycast::scene::opendrive::{RoadEdge, edge_deviations};
+    let path = fixture("braunschweig.xodr");
+    let xml = std::fs::read_to_string(&path).unwrap();
+    let scene = Scene::load(&fixture("../sites/braunschweig.toml")).unwrap();
+    let origin = glam::Vec2::new(scene.config.origin.x_m as f32, scene.config.origin.y_m as f32);
+    let base = edge_deviations(&xml, &path, "1", &scene.layout, origin, &[20.0]).unwrap();
+    let mut moved = scene.layout.clone();
+    for arm in &mut moved.arms {
+        arm.edge_in_m += 0.3;
+        arm.median_half_width_m += 0.2;
+    }
+    let off = edge_deviations(&xml, &path, "1", &moved, origin, &[20.0]).unwrap();
+    assert_eq!(base.len(), off.len());
+    for (b, o) in base.iter().zip(&off) {
+        let grew = o.worst_m[0] - b.worst_m[0];
+        let (lo, hi) = match (b.edge, b.into) {
+            (RoadEdge::Curb, true) => (0.3 - 2.0 * b.worst_m[0], 0.3 + 1e-3),
+            (RoadEdge::Curb, false) => (-1e-3, 1e-3),
+            (RoadEdge::Median, _) => (0.2 - 2.0 * b.worst_m[0], 0.2 + 1e-3),
+        };
+        assert!(
+            (lo..=hi).contains(&grew),
+            "road {} {:?} in {}: {} -> {}",
+            b.road,
+            b.edge,
+            b.into,
+            b.worst_m[0],
+            o.worst_m[0]
+        );
+    }
+}
+
 /// A junction's `<controller>`s become its signal groups where they form phases hilo can run:
 /// esmini's five junctions each list theirs (every one a phase of one arm or two facing arms);
 /// a `sequence` reorders them; a controller made to switch a crossing arm as well, or lights

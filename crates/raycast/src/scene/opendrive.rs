@@ -265,6 +265,116 @@ pub fn lane_deviations(
     Ok(out)
 }
 
+/// Which edge of an approach's carriageway an [`EdgeDeviation`] measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RoadEdge {
+    /// The curb side: the outer border of the outermost driving lane.
+    Curb,
+    /// The median side of a divided arm: the inner border of the innermost driving lane.
+    Median,
+}
+
+/// How far one road edge of the file stands from the scene's: see [`edge_deviations`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct EdgeDeviation {
+    /// The road (`<road id>`) in the file whose lanes the edge borders.
+    pub road: String,
+    /// Whether its lanes lead into the junction (else out of it).
+    pub into: bool,
+    pub edge: RoadEdge,
+    /// The largest lateral distance (m) over the samples from [`FIDELITY_FROM_M`] out to each
+    /// reach asked for.
+    pub worst_m: Vec<f32>,
+}
+
+/// How far the road edges of `layout` (imported as for [`lane_deviations`]) stand from the
+/// file's: for each road leading into or out of the junction, the border of its driving lanes
+/// on the curb side (the outermost lane's outer border, centre line ± half the lane's width at
+/// each of the parser's samples, across its tangent) against the scene's road edge on that side
+/// (`edge_in_m`, `edge_out_m`), and on a divided arm the border on the median side against the
+/// median's edge; over the samples from [`FIDELITY_FROM_M`] out to each of `reaches_m`. The
+/// edge is the lanes' border, where the scene's curb stands; the file's non-driving lanes
+/// beyond it (sidewalks) are modelled by their width, not measured here.
+pub fn edge_deviations(
+    xml: &str,
+    path: &Path,
+    junction: &str,
+    layout: &Layout,
+    origin: Vec2,
+    reaches_m: &[f32],
+) -> Result<Vec<EdgeDeviation>, RaycastError> {
+    let net = parse(xml, path)?;
+    let inside = junctions(&net).0.remove(junction).unwrap_or_default();
+    // Per road and way: per lane, its border samples (position, outer and inner lateral offset
+    // on the arm the sample lies along, that arm's index).
+    type Borders = Vec<(Vec2, f32, f32, usize)>;
+    let mut groups: BTreeMap<(String, bool), Vec<Borders>> = BTreeMap::new();
+    for (l, road, _, into) in approach_lanes(&net, &inside) {
+        let pts = l.center.points();
+        let mut samples = Vec::new();
+        for (i, (p, t)) in pts.iter().zip(l.center.tangents()).enumerate() {
+            let q = Vec2::new(p.x, p.y) - origin;
+            let Some((a, arm)) = nearest_arm(layout, q) else { continue };
+            let half = 0.5 * l.widths.get(i).copied().unwrap_or(l.width);
+            let across = Vec2::new(-t.y, t.x) * half;
+            let (s1, s2) = ((q + across).dot(arm.normal), (q - across).dot(arm.normal));
+            // Inbound lanes lie on the normal's side of the arm, outbound ones on the other.
+            let (outer, inner) = if into { (s1.max(s2), s1.min(s2)) } else { (s1.min(s2), s1.max(s2)) };
+            samples.push((q, outer, inner, a));
+        }
+        groups.entry((road.od_id().to_owned(), into)).or_default().push(samples);
+    }
+    let mut out = Vec::new();
+    for ((road, into), lanes) in groups {
+        let sign = if into { 1.0 } else { -1.0 };
+        let mean = |s: &Borders, k: fn(&(Vec2, f32, f32, usize)) -> f32| {
+            s.iter().map(k).sum::<f32>() / s.len().max(1) as f32 * sign
+        };
+        let pick = |k: fn(&(Vec2, f32, f32, usize)) -> f32, outermost: bool| {
+            lanes.iter().filter(|s| !s.is_empty()).max_by(|a, b| {
+                let o = mean(a, k).total_cmp(&mean(b, k));
+                if outermost { o } else { o.reverse() }
+            })
+        };
+        let worst = |samples: &Borders, edge: RoadEdge| {
+            let mut worst_m = vec![0.0f32; reaches_m.len()];
+            for &(q, outer, inner, a) in samples {
+                let arm = &layout.arms[a];
+                let (s, scene) = match (edge, into) {
+                    (RoadEdge::Curb, true) => (outer, arm.edge_in_m),
+                    (RoadEdge::Curb, false) => (outer, arm.edge_out_m),
+                    (RoadEdge::Median, _) => (inner, arm.offset_m + sign * arm.median_half_width_m),
+                };
+                for (w, &reach) in worst_m.iter_mut().zip(reaches_m) {
+                    if (FIDELITY_FROM_M..=reach).contains(&q.length()) {
+                        *w = w.max((s - scene).abs());
+                    }
+                }
+            }
+            worst_m
+        };
+        if let Some(s) = pick(|x| x.1, true) {
+            out.push(EdgeDeviation {
+                road: road.clone(),
+                into,
+                edge: RoadEdge::Curb,
+                worst_m: worst(s, RoadEdge::Curb),
+            });
+        }
+        let divided = lanes.iter().flatten().any(|x| layout.arms[x.3].median_half_width_m > 0.0);
+        if let Some(s) = pick(|x| x.2, false).filter(|_| divided) {
+            out.push(EdgeDeviation { road, into, edge: RoadEdge::Median, worst_m: worst(s, RoadEdge::Median) });
+        }
+    }
+    Ok(out)
+}
+
+/// The arm of `layout` whose direction is nearest that of `q` from the junction's centre.
+fn nearest_arm(layout: &Layout, q: Vec2) -> Option<(usize, &crate::scene::layout::ArmLayout)> {
+    let u = q.normalize_or_zero();
+    layout.arms.iter().enumerate().min_by(|a, b| (u - a.1.dir).length().total_cmp(&(u - b.1.dir).length()))
+}
+
 /// Reads the OpenDRIVE text `xml` (its `<include>`s refused); `path` names it in errors.
 fn parse(xml: &str, path: &Path) -> Result<xodr::RoadNetwork, RaycastError> {
     Ok(parse_with_ids(xml, path)?.0)
@@ -812,9 +922,7 @@ fn nearest_lane(
     bays: bool,
 ) -> Option<(usize, usize, f32)> {
     use crate::scene::layout::LaneKind;
-    let u = q.normalize_or_zero();
-    let (i, arm) =
-        layout.arms.iter().enumerate().min_by(|a, b| (u - a.1.dir).length().total_cmp(&(u - b.1.dir).length()))?;
+    let (i, arm) = nearest_arm(layout, q)?;
     let (k, d) = arm
         .lanes
         .iter()
