@@ -1018,9 +1018,13 @@ fn centre_line_offset(a: &Approach, dir: Vec2, c: Vec2, median_m: f32) -> f32 {
     }
 }
 
-/// `v` to the nearest multiple of `step` (never -0, which TOML would print as `-0.0`).
+/// `v` to the nearest multiple of `step`, a unit fraction such as 0.01 (never -0, which TOML
+/// would print as `-0.0`). The count of steps is divided by the steps per unit, an exact
+/// integer, so the result is the float nearest the decimal and a scene file reads `3.2`, not
+/// the `3.1999998` that multiplying by an inexact `0.01` gives.
 fn round(v: f32, step: f32) -> f32 {
-    (v / step).round() * step + 0.0
+    let per_unit = (1.0 / step).round();
+    (v * per_unit).round() / per_unit + 0.0
 }
 
 /// The junction `pick` names among `centres`.
@@ -1193,6 +1197,27 @@ mod tests {
             median_m: None,
         };
         (name.into(), a)
+    }
+
+    /// Every rounded value is the float nearest its decimal, so a scene file prints it with no
+    /// more digits than its step has (`3.2`, not `3.1999998`); ties and negatives included.
+    #[test]
+    fn rounded_values_print_as_their_decimals() {
+        for k in -10_000i32..=10_000 {
+            for (step, digits) in [(0.01f32, 2usize), (0.1, 1)] {
+                let exact = k as f32 * step;
+                for v in [exact, exact + 0.3 * step, exact - 0.3 * step] {
+                    let r = round(v, step);
+                    let text = r.to_string();
+                    let decimals = text.split_once('.').map_or(0, |(_, d)| d.len());
+                    assert!(decimals <= digits, "round({v}, {step}) = {text}");
+                    assert!((r - v).abs() <= 0.5 * step + 1e-4 * v.abs().max(1.0), "round({v}, {step}) = {r}");
+                    assert_ne!(text, "-0");
+                }
+            }
+        }
+        assert_eq!(round(3.2, 0.01).to_string(), "3.2");
+        assert_eq!(round(-0.001, 0.01).to_string(), "0");
     }
 
     /// A connecting lane sampled more finely than a scene keeps is thinned to the most a path
