@@ -230,7 +230,7 @@ fn places_with_the_sites_calibration(dir: &std::path::Path, study: &std::path::P
     let o = hilo().arg("place").arg(&calibrated).arg("--out").arg(&placed).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let said = String::from_utf8_lossy(&o.stderr).to_string() + &String::from_utf8_lossy(&o.stdout);
-    assert!(said.contains("predicted mAP"), "{said}");
+    assert!(said.contains("predicted mAP") && said.contains("no LiDAR point on (sampled training traffic)"), "{said}");
     let mut n = 0;
     for e in std::fs::read_dir(&placed).unwrap() {
         let path = e.unwrap().path();
@@ -238,6 +238,12 @@ fn places_with_the_sites_calibration(dir: &std::path::Path, study: &std::path::P
             let p = json(&path)["prediction"].clone();
             let (map, lo, hi) = (p["map"].as_f64().unwrap(), p["lo"].as_f64().unwrap(), p["hi"].as_f64().unwrap());
             assert!(lo < map && map < hi && !p["advice"].as_str().unwrap().is_empty(), "{p}");
+            // Per class, the share of the sampled road users its LiDARs never hit.
+            let never = p["never_hit"].as_object().unwrap();
+            assert!(
+                never.contains_key("car") && never.values().all(|v| (0.0..=1.0).contains(&v.as_f64().unwrap())),
+                "{p}"
+            );
             n += 1;
         }
     }

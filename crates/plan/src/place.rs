@@ -6,12 +6,13 @@ use crate::error::{Result, StudyError};
 use crate::render::scene_canvas;
 use crate::study::{Configuration, Study};
 use glam::{Vec2, Vec3};
+use hilo_placement_ip::calibrated::file::Prediction;
 use hilo_placement_ip::greedy::greedy;
 use hilo_placement_ip::pipeline::{ObjectiveKind, Prepared, instance, prepare, solve_from};
 use hilo_placement_ip::{Instance, Limit, Modality, Outcome, PlacedSensor, Placement};
 use hilo_raycast::scene::config::RoiKind;
 use hilo_raycast::{QueryRegion, World};
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 
 /// What placing a study computed: the targets, candidates and visibility of every sensor type
 /// (reused by the trade-off sweeps), and each configuration's placement with its coverage.
@@ -152,10 +153,7 @@ impl PointCache {
         inst: &Instance,
         extents: bool,
     ) -> Result<hilo_placement_ip::instance::PointRows> {
-        if self.traffic.is_none() {
-            let traffic = crate::road_users::TrainingTraffic::new(study)?;
-            self.traffic = Some(crate::road_users::TrafficPoints::new(&traffic, POINTS_EVERY)?);
-        }
+        self.sample_traffic(study)?;
         let cache = if extents { &mut self.extents } else { &mut self.points };
         let key = |o: usize| (inst.types[inst.options[o].ty].name.clone(), inst.options[o].candidate);
         let missing: Vec<usize> = (0..inst.options.len())
@@ -176,6 +174,36 @@ impl PointCache {
         }
         let rows = (0..inst.options.len()).map(|o| cache.rows.get(&key(o)).cloned().unwrap_or_default()).collect();
         Ok(hilo_placement_ip::instance::PointRows { k: cache.k, weights: cache.weights.clone(), rows })
+    }
+
+    /// Samples the study's training traffic, once.
+    fn sample_traffic(&mut self, study: &Study) -> Result<()> {
+        if self.traffic.is_none() {
+            let traffic = crate::road_users::TrainingTraffic::new(study)?;
+            self.traffic = Some(crate::road_users::TrafficPoints::new(&traffic, POINTS_EVERY)?);
+        }
+        Ok(())
+    }
+
+    /// The calibration file's prediction for `selection` (options of `inst`), with the share
+    /// of each class of the sampled training traffic its LiDARs put no point on
+    /// ([`crate::road_users::TrafficPoints::never_hit`]); None without a calibration file.
+    fn predicted(
+        &mut self,
+        study: &Study,
+        world: &World,
+        prep: &Prepared,
+        inst: &Instance,
+        selection: &[usize],
+    ) -> Result<Option<Prediction>> {
+        let Some(c) = &study.calibration else { return Ok(None) };
+        self.sample_traffic(study)?;
+        let lidars: Vec<usize> = selection.iter().copied().filter(|&o| inst.modality(o) == Modality::Lidar).collect();
+        let never_hit = match &self.traffic {
+            Some(tp) => tp.never_hit(world, lidars.len(), |i| option_lidar(study, prep, inst, lidars[i]))?,
+            None => BTreeMap::new(),
+        };
+        Ok(Some(Prediction { never_hit, ..c.predict(inst, selection) }))
     }
 }
 
@@ -303,7 +331,7 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
             candidates: prep.candidates.len(),
             scene_hash: study.scene_hash.clone(),
             catalog_hash: study.catalog_hash.clone(),
-            prediction: study.calibration.as_ref().map(|c| c.predict(&inst, &o.selection)),
+            prediction: points.predicted(study, &world, &prep, &inst, &o.selection)?,
         };
         progress(&format!(
             "{:<24} objective {:>9.1} (greedy {:>9.1}) {} in {:.3} s, central coverage {:.1}%, cost {} USD",
@@ -315,10 +343,7 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
             100.0 * p.central_coverage,
             p.cost_usd
         ));
-        if let Some(pr) = &p.prediction {
-            progress(&format!("{:<24} predicted mAP {:.3} [{:.3}, {:.3}]; {}", "", pr.map, pr.lo, pr.hi, pr.advice));
-        }
-        for line in unfilled(&p, &limit, &types) {
+        for line in p.prediction.iter().flat_map(prediction_lines).chain(unfilled(&p, &limit, &types)) {
             progress(&format!("{:<24} {line}", ""));
         }
         out.placements.push(p);
@@ -335,6 +360,17 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
     let lidar_hits = at.iter().map(|&k| std::mem::take(&mut lidar_hits[k])).collect();
     let radar_covered = at.iter().map(|&k| std::mem::take(&mut radar_covered[k])).collect();
     Ok(Placed { prepared: prep, placements, lidar_hits, radar_covered })
+}
+
+/// What `hilo place` prints of a rig's prediction: its predicted mAP and how far the junction
+/// lies from the fitted sites, and the share of each class its LiDARs never hit.
+fn prediction_lines(pr: &Prediction) -> Vec<String> {
+    let mut lines = vec![format!("predicted mAP {:.3} [{:.3}, {:.3}]; {}", pr.map, pr.lo, pr.hi, pr.advice)];
+    if !pr.never_hit.is_empty() {
+        let shares: Vec<String> = pr.never_hit.iter().map(|(c, v)| format!("{c} {:.1}%", 100.0 * v)).collect();
+        lines.push(format!("no LiDAR point on (sampled training traffic): {}", shares.join(", ")));
+    }
+    lines
 }
 
 /// For a configuration of sensor counts (each an upper limit), the types of which `p` holds

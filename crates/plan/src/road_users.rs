@@ -145,6 +145,8 @@ pub struct TrafficPoints {
     /// for the seeds, and the road users that count with their class's index.
     frames: Vec<Frame>,
     classes: usize,
+    /// The evaluated classes' names, by index.
+    names: Vec<&'static str>,
     seed: u64,
 }
 
@@ -178,7 +180,7 @@ impl TrafficPoints {
                 frames.push(Frame { actors, stream: id.stream(), index, users });
             }
         }
-        Ok(TrafficPoints { frames, classes: traffic.classes.len(), seed: traffic.seed })
+        Ok(TrafficPoints { frames, classes: traffic.classes.len(), names: traffic.classes.clone(), seed: traffic.seed })
     }
 
     /// Frames held.
@@ -253,6 +255,34 @@ impl TrafficPoints {
                 .collect())
         })?;
         Ok(hilo_placement_ip::instance::PointRows { k: EXTENT_UNITS, weights: self.sample_weights(), rows })
+    }
+
+    /// Per evaluated class with sampled road users (by name), the share of them that none of
+    /// the `lidars` LiDARs (`lidar_of`, each scanning as in [`TrafficPoints::rows`]) puts a
+    /// point on.
+    pub fn never_hit(
+        &self,
+        world: &hilo_raycast::World,
+        lidars: usize,
+        lidar_of: impl Fn(usize) -> Option<(hilo_sensor_models::LidarSpec, hilo_sensor_models::SensorPose)> + Sync,
+    ) -> Result<BTreeMap<String, f64>> {
+        let rows = self.rows(world, lidars, lidar_of, 1)?;
+        let mut hit = vec![false; self.frames.iter().map(|fr| fr.users.len()).sum()];
+        for &(sample, _) in rows.rows.iter().flatten() {
+            hit[sample as usize] = true;
+        }
+        let mut counts = vec![(0usize, 0usize); self.classes];
+        let classes = self.frames.iter().flat_map(|fr| fr.users.iter().map(|u| u.1));
+        for (c, h) in classes.zip(&hit) {
+            counts[c].0 += 1;
+            counts[c].1 += usize::from(!*h);
+        }
+        Ok(counts
+            .iter()
+            .zip(&self.names)
+            .filter(|((n, _), _)| *n > 0)
+            .map(|((n, missed), name)| ((*name).to_owned(), *missed as f64 / *n as f64))
+            .collect())
     }
 
     /// Every counted road user of every frame as a sample, weighted 1 / (its class's samples ×
@@ -596,11 +626,14 @@ mod tests {
         let w = Weights { lidar_points: 1.0, ..Weights::default() };
         for mask in 1u32..16 {
             let sel: Vec<usize> = (0..4).filter(|o| mask & (1 << o) != 0).collect();
-            // Brute force: full scans, the road users' classes and ranges from the traffic.
+            // Brute force: full scans, the road users' classes and ranges from the traffic; per
+            // class the capped count and the road users no chosen LiDAR puts a point on.
+            let lidars: Vec<usize> = sel.iter().copied().filter(|&o| o < 3).collect();
             let mut per_class: BTreeMap<usize, (f64, usize)> = BTreeMap::new();
+            let mut missed: BTreeMap<&str, (usize, usize)> = BTreeMap::new();
             for fr in &tp.frames {
                 let mut n: BTreeMap<u32, usize> = BTreeMap::new();
-                for &o in sel.iter().filter(|&&o| o < 3) {
+                for &o in &lidars {
                     let (spec, pose) = lidar(o).unwrap();
                     let seed = hilo_dataset::simulate::derive_seed(tp.seed, &[2, fr.stream, fr.index as u64, 0]);
                     let scan =
@@ -610,9 +643,13 @@ mod tests {
                     }
                 }
                 for &(a, c) in &fr.users {
+                    let points = n.get(&a).copied().unwrap_or(0);
                     let e = per_class.entry(c).or_default();
-                    e.0 += (n.get(&a).copied().unwrap_or(0) as f64 / f64::from(k)).min(1.0);
+                    e.0 += (points as f64 / f64::from(k)).min(1.0);
                     e.1 += 1;
+                    let m = missed.entry(tp.names[c]).or_default();
+                    m.0 += usize::from(points == 0);
+                    m.1 += 1;
                 }
             }
             let want = per_class.values().map(|(s, n)| s / *n as f64).sum::<f64>() / per_class.len() as f64;
@@ -620,6 +657,16 @@ mod tests {
             assert!((got - want).abs() < 1e-12, "{sel:?}: {got} against {want}");
             if sel == [0, 1, 2] {
                 assert!(want > 0.05, "the rig sees its road users: {want}");
+            }
+            // The share of each class no chosen LiDAR puts a point on, against the same scans.
+            let never = tp.never_hit(&world, lidars.len(), |i| lidar(lidars[i])).unwrap();
+            let want: BTreeMap<String, f64> =
+                missed.iter().map(|(c, (m, n))| ((*c).to_owned(), *m as f64 / *n as f64)).collect();
+            assert_eq!(never, want, "{sel:?}");
+            if lidars.is_empty() {
+                assert!(never.values().all(|v| *v == 1.0), "a radar alone hits nobody: {never:?}");
+            } else if lidars == [0, 1, 2] {
+                assert!(never.values().any(|v| *v < 1.0), "the rig hits someone: {never:?}");
             }
         }
         // The footprint term: per road user, the options' shares from full scans, each rounded

@@ -81,6 +81,13 @@ pub struct Prediction {
     /// Features outside the fitting sites' range.
     pub outside: Vec<String>,
     pub advice: String,
+    /// Per evaluated class, the share of the sampled training traffic's road users of that class
+    /// that none of the rig's LiDARs puts a point on (filled in by the caller that has the
+    /// traffic; empty where it was not counted). The prediction is of mAP, a mean over classes;
+    /// this says what a rig gives up on one class, as at a pole whose blind spot covers a
+    /// crosswalk.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub never_hit: BTreeMap<String, f64>,
 }
 
 impl CalibrationFile {
@@ -185,6 +192,7 @@ impl CalibrationFile {
             farthest_sd: farthest.1,
             outside,
             advice,
+            never_hit: BTreeMap::new(),
         }
     }
 }
