@@ -12,7 +12,7 @@ use hilo_placement_ip::pipeline::{ObjectiveKind, Prepared, instance, prepare, so
 use hilo_placement_ip::{Instance, Limit, Modality, Outcome, PlacedSensor, Placement};
 use hilo_raycast::scene::config::RoiKind;
 use hilo_raycast::{QueryRegion, World};
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{HashMap, HashSet};
 
 /// What placing a study computed: the targets, candidates and visibility of every sensor type
 /// (reused by the trade-off sweeps), and each configuration's placement with its coverage.
@@ -153,36 +153,25 @@ impl PointCache {
         inst: &Instance,
         extents: bool,
     ) -> Result<hilo_placement_ip::instance::PointRows> {
-        self.sample_traffic(study)?;
+        let tp = sampled(&mut self.traffic, study)?;
         let cache = if extents { &mut self.extents } else { &mut self.points };
         let key = |o: usize| (inst.types[inst.options[o].ty].name.clone(), inst.options[o].candidate);
         let missing: Vec<usize> = (0..inst.options.len())
             .filter(|&o| inst.modality(o) == Modality::Lidar && !cache.rows.contains_key(&key(o)))
             .collect();
-        if let Some(tp) = &self.traffic {
-            let lidar_of = |i: usize| option_lidar(study, prep, inst, missing[i]);
-            let new = if extents {
-                tp.extent_rows(world, missing.len(), lidar_of)?
-            } else {
-                tp.rows(world, missing.len(), lidar_of, study.file.validation.min_points)?
-            };
-            cache.k = new.k;
-            cache.weights = new.weights;
-            for (i, row) in new.rows.into_iter().enumerate() {
-                cache.rows.insert(key(missing[i]), row);
-            }
+        let lidar_of = |i: usize| option_lidar(study, prep, inst, missing[i]);
+        let new = if extents {
+            tp.extent_rows(world, missing.len(), lidar_of)?
+        } else {
+            tp.rows(world, missing.len(), lidar_of, study.file.validation.min_points)?
+        };
+        cache.k = new.k;
+        cache.weights = new.weights;
+        for (i, row) in new.rows.into_iter().enumerate() {
+            cache.rows.insert(key(missing[i]), row);
         }
         let rows = (0..inst.options.len()).map(|o| cache.rows.get(&key(o)).cloned().unwrap_or_default()).collect();
         Ok(hilo_placement_ip::instance::PointRows { k: cache.k, weights: cache.weights.clone(), rows })
-    }
-
-    /// Samples the study's training traffic, once.
-    fn sample_traffic(&mut self, study: &Study) -> Result<()> {
-        if self.traffic.is_none() {
-            let traffic = crate::road_users::TrainingTraffic::new(study)?;
-            self.traffic = Some(crate::road_users::TrafficPoints::new(&traffic, POINTS_EVERY)?);
-        }
-        Ok(())
     }
 
     /// The calibration file's prediction for `selection` (options of `inst`), with the share
@@ -197,13 +186,25 @@ impl PointCache {
         selection: &[usize],
     ) -> Result<Option<Prediction>> {
         let Some(c) = &study.calibration else { return Ok(None) };
-        self.sample_traffic(study)?;
+        let tp = sampled(&mut self.traffic, study)?;
         let lidars: Vec<usize> = selection.iter().copied().filter(|&o| inst.modality(o) == Modality::Lidar).collect();
-        let never_hit = match &self.traffic {
-            Some(tp) => tp.never_hit(world, lidars.len(), |i| option_lidar(study, prep, inst, lidars[i]))?,
-            None => BTreeMap::new(),
-        };
+        let never_hit = tp.never_hit(world, lidars.len(), |i| option_lidar(study, prep, inst, lidars[i]))?;
         Ok(Some(Prediction { never_hit, ..c.predict(inst, selection) }))
+    }
+}
+
+/// The study's training traffic sampled for the point terms, sampled into `traffic` on first
+/// use (a free function over the one field, so the caller may borrow the caches beside it).
+fn sampled<'a>(
+    traffic: &'a mut Option<crate::road_users::TrafficPoints>,
+    study: &Study,
+) -> Result<&'a crate::road_users::TrafficPoints> {
+    match traffic {
+        Some(tp) => Ok(tp),
+        None => {
+            let t = crate::road_users::TrainingTraffic::new(study)?;
+            Ok(traffic.insert(crate::road_users::TrafficPoints::new(&t, POINTS_EVERY)?))
+        }
     }
 }
 

@@ -212,6 +212,16 @@ fn broken_files_are_errors_not_panics() {
     assert!(e.contains("road.xodr") && e.contains("junction"), "{e}");
 }
 
+/// An imported site of the library with its map: the map's path and text, the site's scene and
+/// the scene's origin in the map's frame.
+fn imported_site(site: &str, map: &str) -> (PathBuf, String, Scene, glam::Vec2) {
+    let path = fixture(map);
+    let xml = std::fs::read_to_string(&path).unwrap();
+    let scene = Scene::load(&fixture("../sites").join(site)).unwrap();
+    let origin = glam::Vec2::new(scene.config.origin.x_m as f32, scene.config.origin.y_m as f32);
+    (path, xml, scene, origin)
+}
+
 /// Import fidelity: the lanes of each imported site stand, within 20 m of the junction's centre
 /// (out of its box), within 0.05 m of the file's own lane centre lines at the esmini maps and
 /// within 0.15 m at Braunschweig, whose roads bend there (the arms are straight along each road's
@@ -225,10 +235,7 @@ fn imported_lanes_stand_where_the_file_draws_them() {
         ("three_arm_grid.toml", "multi_intersections.xodr", "150", 0.05),
         ("braunschweig.toml", "braunschweig.xodr", "1", 0.15),
     ] {
-        let path = fixture(map);
-        let xml = std::fs::read_to_string(&path).unwrap();
-        let scene = Scene::load(&fixture("../sites").join(site)).unwrap();
-        let origin = glam::Vec2::new(scene.config.origin.x_m as f32, scene.config.origin.y_m as f32);
+        let (path, xml, scene, origin) = imported_site(site, map);
         let all = lane_deviations(&xml, &path, junction, &scene.layout, origin, &[20.0]).unwrap();
         let lanes_in_scene: usize =
             scene.config.arms.iter().map(|a| (a.lanes_in + a.lanes_out + a.left_turn_lanes) as usize).sum();
@@ -251,10 +258,7 @@ fn imported_road_edges_stand_where_the_file_draws_them() {
         ("three_arm_grid.toml", "multi_intersections.xodr", "150", 0.05, 0),
         ("braunschweig.toml", "braunschweig.xodr", "1", 0.15, 8),
     ] {
-        let path = fixture(map);
-        let xml = std::fs::read_to_string(&path).unwrap();
-        let scene = Scene::load(&fixture("../sites").join(site)).unwrap();
-        let origin = glam::Vec2::new(scene.config.origin.x_m as f32, scene.config.origin.y_m as f32);
+        let (path, xml, scene, origin) = imported_site(site, map);
         let all = edge_deviations(&xml, &path, junction, &scene.layout, origin, &[20.0]).unwrap();
         let ways: usize =
             scene.config.arms.iter().map(|a| usize::from(a.lanes_in > 0) + usize::from(a.lanes_out > 0)).sum();
@@ -279,10 +283,7 @@ fn imported_road_edges_stand_where_the_file_draws_them() {
 #[test]
 fn a_moved_road_edge_is_measured() {
     use hilo_raycast::scene::opendrive::{RoadEdge, edge_deviations};
-    let path = fixture("braunschweig.xodr");
-    let xml = std::fs::read_to_string(&path).unwrap();
-    let scene = Scene::load(&fixture("../sites/braunschweig.toml")).unwrap();
-    let origin = glam::Vec2::new(scene.config.origin.x_m as f32, scene.config.origin.y_m as f32);
+    let (path, xml, scene, origin) = imported_site("braunschweig.toml", "braunschweig.xodr");
     let base = edge_deviations(&xml, &path, "1", &scene.layout, origin, &[20.0]).unwrap();
     let mut moved = scene.layout.clone();
     for arm in &mut moved.arms {

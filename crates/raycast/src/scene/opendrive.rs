@@ -254,11 +254,7 @@ pub fn lane_deviations(
             let q = Vec2::new(p.x, p.y) - origin;
             // No lane of that kind on the nearest arm: as far from the file as can be.
             let d = nearest_lane(layout, q, out_of, true).map_or(f32::INFINITY, |(_, _, d)| d);
-            for (w, &reach) in worst_m.iter_mut().zip(reaches_m) {
-                if (FIDELITY_FROM_M..=reach).contains(&q.length()) {
-                    *w = w.max(d);
-                }
-            }
+            widen_within_reach(&mut worst_m, reaches_m, q, d);
         }
         out.push(LaneDeviation { road: road.od_id().to_owned(), into, worst_m });
     }
@@ -345,11 +341,7 @@ pub fn edge_deviations(
                     (RoadEdge::Curb, false) => (outer, arm.edge_out_m),
                     (RoadEdge::Median, _) => (inner, arm.offset_m + sign * arm.median_half_width_m),
                 };
-                for (w, &reach) in worst_m.iter_mut().zip(reaches_m) {
-                    if (FIDELITY_FROM_M..=reach).contains(&q.length()) {
-                        *w = w.max((s - scene).abs());
-                    }
-                }
+                widen_within_reach(&mut worst_m, reaches_m, q, (s - scene).abs());
             }
             worst_m
         };
@@ -367,6 +359,16 @@ pub fn edge_deviations(
         }
     }
     Ok(out)
+}
+
+/// Raises each reach's largest distance in `worst_m` to `d`, a sample at `q` from the
+/// junction's centre, where the sample lies from [`FIDELITY_FROM_M`] out to that reach.
+fn widen_within_reach(worst_m: &mut [f32], reaches_m: &[f32], q: Vec2, d: f32) {
+    for (w, &reach) in worst_m.iter_mut().zip(reaches_m) {
+        if (FIDELITY_FROM_M..=reach).contains(&q.length()) {
+            *w = w.max(d);
+        }
+    }
 }
 
 /// The arm of `layout` whose direction is nearest that of `q` from the junction's centre.
