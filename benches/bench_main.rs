@@ -174,6 +174,7 @@ fn placement(c: &mut Criterion) {
         road_users: Vec::new(),
         points: Default::default(),
         extents: Default::default(),
+        floors: Vec::new(),
     };
     let limit = Limit::Counts(vec![2, 1]);
     let exact = hilo::placement::pipeline::solve(&inst, &limit, 60.0).expect("exact");

@@ -248,11 +248,78 @@ fn places_with_the_sites_calibration(dir: &std::path::Path, study: &std::path::P
         }
     }
     assert!(n > 0);
+    places_above_a_hit_floor(dir, &placed, &calibrated);
     let both = dir.join("both.toml");
     let text = text.replacen("[placement]\n", "[placement]\ncalibration = { lidar = 1.0, radar = 0.0 }\n", 1);
     std::fs::write(&both, format!("calibration_file = {:?}\n{text}", file.display().to_string())).unwrap();
     let o = hilo().arg("place").arg(&both).arg("--out").arg(dir.join("placed2")).output().unwrap();
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("give one of the two"), "{o:?}");
+}
+
+/// `[placement] min_hit_share`: a floor on the share of cars the LiDARs hit, set at the share the
+/// worst LiDAR rig of `placed` (the same study without it) reaches, then just above it, where it
+/// binds. Each rig meets it as its own prediction counts (or, where it binds, `hilo place` says
+/// which configuration cannot, naming the class); a class the traffic does not hold is refused
+/// by name.
+fn places_above_a_hit_floor(dir: &std::path::Path, placed: &std::path::Path, calibrated: &std::path::Path) {
+    let hit = |p: &serde_json::Value| 1.0 - p["prediction"]["never_hit"]["car"].as_f64().unwrap();
+    let lidar_rigs = |folder: &std::path::Path| -> Vec<serde_json::Value> {
+        let mut rigs: Vec<serde_json::Value> = std::fs::read_dir(folder)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|x| x == "json"))
+            .map(|p| json(&p))
+            .filter(|p| p["sensors"].as_array().is_some_and(|s| s.iter().any(|s| s["modality"] == "lidar")))
+            .collect();
+        rigs.sort_by(|a, b| a["name"].as_str().cmp(&b["name"].as_str()));
+        rigs
+    };
+    let before = lidar_rigs(placed);
+    let worst = before.iter().map(hit).fold(1.0, f64::min);
+    assert!(worst < 1.0, "every rig hits every car: the floor cannot bind");
+    let text = std::fs::read_to_string(calibrated).unwrap();
+    let floored = dir.join("floored.toml");
+    let with = |class: &str, share: f64| {
+        text.replacen("[placement]\n", &format!("[placement]\nmin_hit_share = {{ {class} = {share} }}\n"), 1)
+    };
+    // At the worst rig's share every rig already meets it: the same objectives. Just above it
+    // binds: that rig moves, or its configuration is refused by name.
+    for (k, floor) in
+        [(worst * 1000.0).floor() / 1000.0, ((worst * 1000.0).floor() + 1.0) / 1000.0].into_iter().enumerate()
+    {
+        std::fs::write(&floored, with("car", floor)).unwrap();
+        let out = dir.join(format!("placed-floor-{k}"));
+        let o = hilo().arg("place").arg(&floored).arg("--out").arg(&out).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        if !o.status.success() {
+            assert!(k == 1 && err.contains("placing configuration") && err.contains("hit floors (car ≥"), "{err}");
+            continue;
+        }
+        let after = lidar_rigs(&out);
+        assert_eq!(after.len(), before.len());
+        for (p, b) in after.iter().zip(&before) {
+            assert!(hit(p) >= floor - 1e-9, "{} hits {} of the cars, below {floor}", p["name"], hit(p));
+            let said = format!("hit floors car ≥ {:.1}%", 100.0 * floor);
+            assert!(p["method"].as_str().unwrap().contains(&said), "{}", p["method"]);
+            let (now, then) = (p["objective"].as_f64().unwrap(), b["objective"].as_f64().unwrap());
+            assert!(
+                if k == 0 { (now - then).abs() < 1e-9 } else { now <= then + 1e-9 },
+                "{}: {now} vs {then}",
+                p["name"]
+            );
+        }
+        assert!(
+            k == 0 || after.iter().zip(&before).any(|(a, b)| a["sensors"] != b["sensors"]),
+            "the floor moved no rig"
+        );
+    }
+    std::fs::write(&floored, with("bicycle", 0.9)).unwrap();
+    let o = hilo().arg("place").arg(&floored).arg("--out").arg(dir.join("placed-bicycle")).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("placement.min_hit_share.bicycle = 0.9") && err.contains("no bicycle"),
+        "{err}"
+    );
 }
 
 /// `--sites` over three finished validations (here one validation as three sites, which the

@@ -40,6 +40,13 @@
 //! The shares are summed sensor by sensor, not taken over the union of the points, so the term
 //! keeps the point term's exact form (two LiDARs that each see one face add up to less than
 //! the corner their union shows: the term undervalues such pairs).
+//!
+//! Hit floors ([`crate::instance::HitFloor`], `[placement] min_hit_share`) are constraints, not
+//! terms: at least a share of a class's sampled road users must get a point from some chosen
+//! LiDAR (y_s ≤ Σ_{o hits s} x_o, 0 ≤ y_s ≤ 1, Σ_s y_s ≥ ⌈share × samples⌉; y needs no
+//! integrality, as the x are). The objective averages classes, so it may buy a point of mAP
+//! on cars and trucks with a crosswalk no beam reaches; a floor rules such rigs out. A limit no
+//! selection meets them under is an error that names the shares reached.
 
 use crate::candidates::Modality;
 use crate::error::PlacementError;
@@ -62,21 +69,24 @@ pub use search::{greedy, greedy_given, swaps, upper_bound};
 pub const CBC_MAX_NONZEROS: usize = 1_000_000;
 
 /// The non-zeros of the calibrated IP's coverage rows: per non-zero term, its modality's
-/// visibility entries (or point counts) on targets of positive weight.
+/// visibility entries (or point counts) on targets of positive weight; and the hit floors'
+/// entries.
 pub fn nonzeros(inst: &Instance, w: &Weights) -> usize {
     let tau = inst.tau();
-    w.terms()
-        .iter()
-        .filter(|t| t.weight > 0.0)
-        .map(|t| {
-            let wt = t.targets(inst);
-            let mut n = 0;
-            for o in (0..inst.options.len()).filter(|&o| inst.modality(o) == t.modality) {
-                t.for_each(inst, o, tau, |j, _| n += usize::from(wt.get(j).is_some_and(|&w| w > 0.0)));
-            }
-            n
-        })
-        .sum()
+    let floors: usize = inst.floors.iter().flat_map(|f| &f.rows).map(Vec::len).sum();
+    floors
+        + w.terms()
+            .iter()
+            .filter(|t| t.weight > 0.0)
+            .map(|t| {
+                let wt = t.targets(inst);
+                let mut n = 0;
+                for o in (0..inst.options.len()).filter(|&o| inst.modality(o) == t.modality) {
+                    t.for_each(inst, o, tau, |j, _| n += usize::from(wt.get(j).is_some_and(|&w| w > 0.0)));
+                }
+                n
+            })
+            .sum::<usize>()
 }
 
 /// The weights (mAP per unit of saturated coverage): per modality, of the coverage term, of
@@ -362,6 +372,12 @@ pub fn check_instance(inst: &Instance, w: &Weights) -> Result<(), PlacementError
             ));
         }
     }
+    if let Some(f) = inst.floors.iter().find(|f| f.rows.len() != inst.options.len()) {
+        return Err(PlacementError::instance(
+            "placement.min_hit_share",
+            format!("the {} hit floor has rows for {} of {} options", f.class, f.rows.len(), inst.options.len()),
+        ));
+    }
     Ok(())
 }
 
@@ -450,27 +466,100 @@ pub fn solve_given(
     if let Some(o) = fixed.iter().find(|o| !warm.selection.contains(o)) {
         return Err(PlacementError::Solver(format!("the warm start lacks the given option {o}")));
     }
-    let local = swaps(inst, limit, w, warm, time_limit_s, fixed).no_worse_than(warm, 1e-12);
+    let local = no_worse_than(inst, swaps(inst, limit, w, warm, time_limit_s, fixed), warm);
     let nz = nonzeros(inst, w);
     if nz > max_nonzeros {
-        return Ok(Outcome {
+        let out = Outcome {
             solve_seconds: start.elapsed().as_secs_f64(),
-            method: format!("greedy and swaps, calibrated objective (CBC not run: {nz} non-zeros > {max_nonzeros})"),
+            method: format!(
+                "greedy and swaps, calibrated objective{} (CBC not run: {nz} non-zeros > {max_nonzeros})",
+                floors_said(inst)
+            ),
             ..local
-        });
+        };
+        let what = format!(
+            "greedy and swaps (CBC not run: {nz} non-zeros > {max_nonzeros}, placement.calibrated_cbc_max_nonzeros) found no selection within the limit"
+        );
+        return floors_met(inst, out, &what);
     }
-    let out = cbc(inst, limit, w, solve_limit, &local, fixed)?;
-    let out = Outcome { method: format!("{} ({nz} non-zeros)", out.method), ..out };
-    if out.proven_optimal || out.bound <= local.bound {
-        return Ok(Outcome { solve_seconds: start.elapsed().as_secs_f64(), ..out });
+    let out = cbc(inst, limit, w, solve_limit, &local, fixed).map_err(|e| match e {
+        PlacementError::Solver(m) if !inst.floors.is_empty() && m.ends_with("infeasible or unbounded") => {
+            PlacementError::Infeasible(format!(
+                "no selection within the limit meets the hit floors ({}; CBC proved it); the most greedy and swaps reached: {}",
+                floor_list(inst),
+                floor_shares(inst, &local.selection)
+            ))
+        }
+        e => e,
+    })?;
+    let out = Outcome { method: format!("{}{} ({nz} non-zeros)", out.method, floors_said(inst)), ..out };
+    let out = if out.proven_optimal || out.bound <= local.bound {
+        Outcome { solve_seconds: start.elapsed().as_secs_f64(), ..out }
+    } else {
+        let bound = local.bound.max(out.objective);
+        Outcome {
+            gap: (bound - out.objective) / out.objective.abs().max(1e-9),
+            bound,
+            solve_seconds: start.elapsed().as_secs_f64(),
+            ..out
+        }
+    };
+    floors_met(inst, out, "CBC stopped before it found a selection within the limit")
+}
+
+/// Per hit floor of `inst`, its samples some option hits, each with those options (a sample
+/// no option hits needs no column: it stays unhit).
+fn floor_columns(inst: &Instance) -> Vec<Vec<(u32, Vec<usize>)>> {
+    inst.floors
+        .iter()
+        .map(|f| {
+            let mut by: std::collections::BTreeMap<u32, Vec<usize>> = std::collections::BTreeMap::new();
+            for (o, row) in f.rows.iter().enumerate() {
+                for &s in row {
+                    by.entry(s).or_default().push(o);
+                }
+            }
+            by.into_iter().collect()
+        })
+        .collect()
+}
+
+/// `out`, or `warm`'s selection where that is better by more than rounding and meets the hit
+/// floors (a selection below them is no placement, however high its objective).
+fn no_worse_than(inst: &Instance, out: Outcome, warm: &Outcome) -> Outcome {
+    if inst.unmet_floor(&warm.selection).is_none() { out.no_worse_than(warm, 1e-12) } else { out }
+}
+
+/// `out` when its selection meets the instance's hit floors; otherwise why not (`what` says
+/// which search came short), with the shares it reaches.
+fn floors_met(inst: &Instance, out: Outcome, what: &str) -> Result<Outcome, PlacementError> {
+    match inst.unmet_floor(&out.selection) {
+        None => Ok(out),
+        Some(_) => Err(PlacementError::Infeasible(format!(
+            "{what} that meets the hit floors ({}); the selection it found: {}",
+            floor_list(inst),
+            floor_shares(inst, &out.selection)
+        ))),
     }
-    let bound = local.bound.max(out.objective);
-    Ok(Outcome {
-        gap: (bound - out.objective) / out.objective.abs().max(1e-9),
-        bound,
-        solve_seconds: start.elapsed().as_secs_f64(),
-        ..out
-    })
+}
+
+/// The instance's hit floors as a method's suffix: ", hit floors pedestrian ≥ 95.0%" (empty
+/// without floors).
+fn floors_said(inst: &Instance) -> String {
+    if inst.floors.is_empty() { String::new() } else { format!(", hit floors {}", floor_list(inst)) }
+}
+
+/// The instance's hit floors: "pedestrian ≥ 95.0%, car ≥ 90.0%".
+fn floor_list(inst: &Instance) -> String {
+    let f: Vec<String> = inst.floors.iter().map(|f| format!("{} ≥ {:.1}%", f.class, 100.0 * f.share)).collect();
+    f.join(", ")
+}
+
+/// The share of each floor's class that `sel` hits ("pedestrian 91.2% of 1024").
+fn floor_shares(inst: &Instance, sel: &[usize]) -> String {
+    let f: Vec<String> =
+        inst.floors.iter().map(|f| format!("{} {:.1}% of {}", f.class, 100.0 * f.share_hit(sel), f.samples)).collect();
+    f.join(", ")
 }
 
 /// The calibrated IP by CBC within `solve_limit`, warm-started from `warm`, the options of
@@ -516,6 +605,9 @@ fn cbc(
             }
         }
     }
+    let floors = floor_columns(inst);
+    let y: Vec<Vec<Variable>> =
+        floors.iter().map(|f| f.iter().map(|_| vars.add(variable().min(0.0).max(1.0))).collect()).collect();
     let objective: Expression = z.iter().map(|&(v, c, ..)| c * v).sum();
     let mut problem = vars.maximise(objective).using(coin_cbc);
     problem.set_parameter("log", "0");
@@ -534,15 +626,26 @@ fn cbc(
     let s: Vec<Vec<f64>> =
         terms.iter().map(|t| if t.weight > 0.0 { sums(inst, &warm.selection, t, tau) } else { Vec::new() }).collect();
     init.extend(z.iter().map(|&(v, _, ti, j)| (v, (s[ti][j] / terms[ti].k).min(1.0))));
+    // The hit floors: y_s ≤ Σ_{o hits s} x_o, Σ_s y_s ≥ what the floor needs.
+    for ((f, cols), ys) in inst.floors.iter().zip(&floors).zip(&y) {
+        for ((_, col), &v) in cols.iter().zip(ys) {
+            let cover: Expression = col.iter().map(|&o| x[o]).sum();
+            problem.add_constraint((v - cover).leq(0.0));
+            init.push((v, if col.iter().any(|o| chosen.contains(o)) { 1.0 } else { 0.0 }));
+        }
+        let total: Expression = ys.iter().copied().sum();
+        problem.add_constraint(total.geq(f64::from(f.needed())));
+    }
     let problem = problem.with_initial_solution(init);
     let run = crate::mip::run_cbc(problem, x.len(), solve_limit, "CBC, calibrated objective")?;
     let method = run.method("CBC, calibrated objective");
-    // Without proof and without an incumbent CBC's columns may break the limit: the warm start stands.
-    let selection =
-        if run.proven || inst.check(limit, &run.selection).is_ok() { run.selection } else { warm.selection.clone() };
+    // Without proof and without an incumbent CBC's columns may break the limit or the floors:
+    // the warm start stands.
+    let valid = |sel: &[usize]| inst.check(limit, sel).is_ok() && inst.unmet_floor(sel).is_none();
+    let selection = if run.proven || valid(&run.selection) { run.selection } else { warm.selection.clone() };
     let bound = if run.bound.is_finite() { run.bound * scale } else { f64::INFINITY };
     let out = outcome(inst, selection, w, bound, run.proven, start, &method);
-    Ok(out.no_worse_than(warm, 1e-12))
+    Ok(no_worse_than(inst, out, warm))
 }
 
 #[cfg(test)]
@@ -580,6 +683,7 @@ mod tests {
                 .collect(),
             points: random_points(&mut rng, 12),
             extents: random_extents(&mut rng, 12),
+            floors: Vec::new(),
         }
     }
 
@@ -675,6 +779,79 @@ mod tests {
             };
             assert_cbc_is_brute_force(&inst, &w, seed, false);
         }
+    }
+
+    /// A floor of 40 samples that the LiDAR options (even options) each hit about a third of.
+    fn random_floor(seed: u64, options: usize) -> crate::instance::HitFloor {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0xf100);
+        let rows = (0..options)
+            .map(|o| if o % 2 == 1 { Vec::new() } else { (0..40u32).filter(|_| rng.random::<f32>() < 0.3).collect() })
+            .collect();
+        crate::instance::HitFloor { class: "pedestrian".into(), share: 1.0, samples: 40, rows }
+    }
+
+    /// Hit floors, by brute force: CBC's optimum is the best selection that meets them, and it
+    /// meets them; greedy and swaps (CBC not run) meet them too, never above that optimum; a
+    /// floor no selection meets is refused by both paths, naming the class and the share
+    /// reached. The floors are set at the best share any selection reaches, so they bind.
+    #[test]
+    fn hit_floors_keep_every_solver_above_them() {
+        let (mut binding, mut searched) = (0, 0);
+        for seed in 0..8 {
+            let mut inst = random_instance(seed);
+            inst.floors = vec![random_floor(seed, inst.options.len())];
+            inst.validate().unwrap();
+            // Rows out of order, past the samples, or of another length are refused.
+            let mut bad = inst.clone();
+            bad.floors[0].rows[0] = vec![3, 2];
+            assert!(bad.validate().unwrap_err().to_string().contains("ascending"));
+            bad.floors[0].rows[0] = vec![40];
+            assert!(bad.validate().is_err());
+            bad.floors[0].rows.pop();
+            assert!(bad.validate().unwrap_err().to_string().contains("rows for 11 of 12"));
+            let w = if seed % 2 == 0 {
+                Weights::once(0.6, 0.2)
+            } else {
+                Weights { lidar: 0.2, lidar_road_users: 0.5, radar_road_users: 0.1, ..Weights::default() }
+            };
+            for limit in [Limit::Counts(vec![2, 1]), Limit::Budget { usd: 10.0, min: vec![0, 0], max: vec![9, 9] }] {
+                let n = inst.options.len();
+                let feasible: Vec<Vec<usize>> = (0u32..1 << n)
+                    .map(|mask| (0..n).filter(|o| mask & (1 << o) != 0).collect::<Vec<_>>())
+                    .filter(|s| inst.check(&limit, s).is_ok())
+                    .collect();
+                let floor = &inst.floors[0];
+                let most = feasible.iter().map(|s| floor.hits(s)).max().unwrap();
+                inst.floors[0].share = f64::from(most) / 40.0;
+                let meets = |s: &Vec<usize>| inst.unmet_floor(s).is_none();
+                let best = feasible.iter().filter(|s| meets(s)).map(|s| evaluate(&inst, s, &w)).fold(0.0, f64::max);
+                let free = feasible.iter().map(|s| evaluate(&inst, s, &w)).fold(0.0, f64::max);
+                binding += usize::from(best < free - 1e-9);
+                let g = greedy(&inst, &limit, &w);
+                let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
+                assert!(meets(&out.selection), "seed {seed} {limit:?}: {:?}", out.selection);
+                assert!((out.objective - best).abs() < 1e-6, "seed {seed} {limit:?}: {} vs {best}", out.objective);
+                assert!(out.method.contains("hit floors pedestrian"), "{}", out.method);
+                match solve(&inst, &limit, &w, 30.0, 0, &g) {
+                    Ok(local) => {
+                        searched += 1;
+                        assert!(meets(&local.selection), "seed {seed} {limit:?}: {:?}", local.selection);
+                        assert!(local.objective <= best + 1e-9 && local.bound >= best - 1e-9, "seed {seed}");
+                    }
+                    Err(e) => assert!(e.to_string().contains("greedy and swaps found no selection"), "{e}"),
+                }
+                // One more sample than any selection hits.
+                inst.floors[0].share = f64::from(most + 1) / 40.0;
+                for max_nonzeros in [CBC_MAX_NONZEROS, 0] {
+                    let e = solve(&inst, &limit, &w, 30.0, max_nonzeros, &g).unwrap_err().to_string();
+                    assert!(e.starts_with("infeasible: ") && e.contains("pedestrian"), "seed {seed}: {e}");
+                    assert!(max_nonzeros == 0 || e.contains("CBC proved it"), "{e}");
+                    assert!(max_nonzeros > 0 || e.contains("the selection it found: pedestrian"), "{e}");
+                }
+            }
+        }
+        // The floors change the optimum in most cases, and greedy and swaps meet most of them.
+        assert!(binding >= 8 && searched >= 12, "binding {binding}, met by the search {searched} of 16");
     }
 
     /// Given a sensor: CBC keeps it and equals brute force over the selections that hold it;
@@ -773,6 +950,7 @@ mod tests {
             road_users: vec![0.3, 0.1],
             points: Default::default(),
             extents: Default::default(),
+            floors: Vec::new(),
         };
         let w = Weights { lidar_road_users: 1.0, ..Weights::default() };
         // Target 0 seen fully holds 0.3 of the 0.4 road users on targets; by region, 1 of 2.
@@ -906,6 +1084,7 @@ mod tests {
             road_users: Vec::new(),
             points: Default::default(),
             extents: Default::default(),
+            floors: Vec::new(),
         }
     }
 

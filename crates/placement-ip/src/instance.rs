@@ -84,6 +84,52 @@ pub struct Instance {
     /// 1, as points do.
     #[serde(default, skip_serializing_if = "PointRows::is_empty")]
     pub extents: PointRows,
+    /// Floors on the share of a class's sampled road users that at least one chosen LiDAR puts
+    /// a point on (empty: none). The calibrated objective's solvers keep every selection above
+    /// them ([`crate::calibrated`]); the paper's solvers do not read them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub floors: Vec<HitFloor>,
+}
+
+/// A floor on how many of one class's sampled road users the chosen LiDARs hit: at least
+/// `share` of its `samples` must get a point from at least one of them. A road user hit by one
+/// LiDAR is hit by any rig that holds it, so the floor is a covering constraint, exact in an IP
+/// (y_s ≤ Σ_{o hits s} x_o, 0 ≤ y_s ≤ 1, Σ_s y_s ≥ ⌈share × samples⌉) and monotone in the
+/// selection: adding a sensor never breaks it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HitFloor {
+    /// The class's name, for messages.
+    pub class: String,
+    /// The share of its samples that must be hit, in (0, 1].
+    pub share: f64,
+    /// Its sampled road users (one road user in one frame each).
+    pub samples: u32,
+    /// Per option, the samples (indices below `samples`, ascending) it puts a point on (empty
+    /// for a radar).
+    pub rows: Vec<Vec<u32>>,
+}
+
+impl HitFloor {
+    /// Samples that must be hit: ⌈share × samples⌉ (a hair below an integer counts as it).
+    pub fn needed(&self) -> u32 {
+        ((self.share * f64::from(self.samples) - 1e-9).ceil().max(0.0) as u32).min(self.samples)
+    }
+
+    /// Samples the options of `sel` hit.
+    pub fn hits(&self, sel: &[usize]) -> u32 {
+        let mut hit = vec![false; self.samples as usize];
+        for &o in sel {
+            for &s in self.rows.get(o).map_or(&[][..], Vec::as_slice) {
+                hit[s as usize] = true;
+            }
+        }
+        hit.iter().filter(|&&h| h).count() as u32
+    }
+
+    /// The share of the samples `sel` hits.
+    pub fn share_hit(&self, sel: &[usize]) -> f64 {
+        f64::from(self.hits(sel)) / f64::from(self.samples.max(1))
+    }
 }
 
 /// The units of [`Instance::extents`]: thousandths of a road user's footprint.
@@ -196,7 +242,36 @@ impl Instance {
                 }
             }
         }
+        for f in &self.floors {
+            if !(f.share > 0.0 && f.share <= 1.0) || f.samples == 0 {
+                return bad(format!(
+                    "{} hit floor: share {} of {} samples (must be in (0, 1] of at least one)",
+                    f.class, f.share, f.samples
+                ));
+            }
+            if f.rows.len() != self.options.len() {
+                return bad(format!(
+                    "{} hit floor: rows for {} of {} options",
+                    f.class,
+                    f.rows.len(),
+                    self.options.len()
+                ));
+            }
+            for (i, row) in f.rows.iter().enumerate() {
+                if row.windows(2).any(|w| w[0] >= w[1]) || row.last().is_some_and(|&s| s >= f.samples) {
+                    return bad(format!(
+                        "option {i}: {} hit floor rows must be ascending samples below {}",
+                        f.class, f.samples
+                    ));
+                }
+            }
+        }
         Ok(())
+    }
+
+    /// The first floor (of [`Instance::floors`]) that `sel` leaves unmet, with the share it hits.
+    pub fn unmet_floor(&self, sel: &[usize]) -> Option<(&HitFloor, f64)> {
+        self.floors.iter().find(|f| f.hits(sel) < f.needed()).map(|f| (f, f.share_hit(sel)))
     }
 
     /// Whether a selection respects the limit and the one-sensor-per-mount rule; the error

@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 /// Placement settings (the `[placement]` table of a study).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlacementConfig {
     pub cell_m: f32,
@@ -40,6 +40,32 @@ pub struct PlacementConfig {
     /// The largest calibrated IP (non-zeros of its coverage rows) handed to CBC; a larger one is
     /// solved by greedy and swaps with the submodular bound ([`crate::calibrated::solve`]).
     pub calibrated_cbc_max_nonzeros: usize,
+    /// Per class, the share of its road users in sampled frames of the study's training traffic
+    /// that every rig with a LiDAR must put at least one LiDAR point on (the calibrated
+    /// objective only: [`crate::instance::HitFloor`]). Empty: no floor.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub min_hit_share: BTreeMap<hilo_core::Class, f64>,
+}
+
+/// The derived form, with `min_hit_share` only when set: the study's content hashes read this
+/// text, so a study that sets no floor keeps its hashes (and its folders open).
+impl std::fmt::Debug for PlacementConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut d = f.debug_struct("PlacementConfig");
+        d.field("cell_m", &self.cell_m)
+            .field("p_min", &self.p_min)
+            .field("time_limit_s", &self.time_limit_s)
+            .field("node_limit", &self.node_limit)
+            .field("candidates", &self.candidates)
+            .field("visibility", &self.visibility)
+            .field("objective", &self.objective)
+            .field("calibration", &self.calibration)
+            .field("calibrated_cbc_max_nonzeros", &self.calibrated_cbc_max_nonzeros);
+        if !self.min_hit_share.is_empty() {
+            d.field("min_hit_share", &self.min_hit_share);
+        }
+        d.finish()
+    }
 }
 
 /// Which objective placement maximises.
@@ -65,6 +91,7 @@ impl Default for PlacementConfig {
             objective: ObjectiveKind::Paper,
             calibration: None,
             calibrated_cbc_max_nonzeros: crate::calibrated::CBC_MAX_NONZEROS,
+            min_hit_share: BTreeMap::new(),
         }
     }
 }
@@ -110,6 +137,18 @@ impl Check for PlacementConfig {
             }
             (ObjectiveKind::Calibrated, Some(w)) => w.check()?,
             (ObjectiveKind::Paper, _) => {}
+        }
+        for (class, &share) in &self.min_hit_share {
+            if !(share > 0.0 && share <= 1.0) {
+                return bad(&format!("min_hit_share.{class}"), share.to_string(), "must be a share in (0, 1]");
+            }
+            if self.objective != ObjectiveKind::Calibrated {
+                return bad(
+                    &format!("min_hit_share.{class}"),
+                    share.to_string(),
+                    "needs the calibrated objective (calibration_file = \"…\", or [placement] objective = \"calibrated\")",
+                );
+            }
         }
         self.visibility.validate()
     }
@@ -179,6 +218,7 @@ pub fn instance(prep: &Prepared, catalog: &Catalog, types: &[String], p_min: f64
         road_users: Vec::new(),
         points: Default::default(),
         extents: Default::default(),
+        floors: Vec::new(),
     };
     for (ty, name) in types.iter().enumerate() {
         let spec = catalog.get(name)?;
@@ -396,4 +436,45 @@ pub fn solve_from(
     )?;
     // CBC may stop with something worse than its warm start: never return less than greedy.
     Ok(out.no_worse_than(g, 1e-9))
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+
+    /// A hit floor is read per class, refused outside (0, 1], for an unknown class and with the
+    /// paper's objective (which does not read it), and shown in the settings' text only when
+    /// set, so a study without one keeps its content hashes.
+    #[test]
+    fn hit_floors_are_checked_and_shown_only_when_set() {
+        let calibrated = "objective = \"calibrated\"\ncalibration = { lidar = 1.0, radar = 0.0 }\n";
+        let read = |text: &str| toml::from_str::<PlacementConfig>(text);
+        let c = read(&format!("{calibrated}min_hit_share = {{ pedestrian = 0.95, car = 1.0 }}")).unwrap();
+        assert_eq!(c.min_hit_share.get(&hilo_core::Class::Pedestrian), Some(&0.95));
+        assert!(c.clone().validate().is_ok());
+        assert!(format!("{c:?}").ends_with(", min_hit_share: {Car: 1.0, Pedestrian: 0.95} }"), "{c:?}");
+        let plain = PlacementConfig::default();
+        assert!(!format!("{plain:?}").contains("min_hit_share"));
+        assert!(
+            format!("{plain:?}")
+                .ends_with(&format!("calibrated_cbc_max_nonzeros: {} }}", plain.calibrated_cbc_max_nonzeros))
+        );
+        for (share, said) in
+            [("0.0", "must be a share in (0, 1]"), ("1.5", "must be a share in (0, 1]"), ("nan", "(0, 1]")]
+        {
+            let e = read(&format!("{calibrated}min_hit_share = {{ pedestrian = {share} }}"))
+                .unwrap()
+                .validate()
+                .unwrap_err();
+            assert!(
+                e.to_string().starts_with("placement.min_hit_share.pedestrian = ") && e.to_string().contains(said),
+                "{e}"
+            );
+        }
+        let e = read("min_hit_share = { pedestrian = 0.9 }").unwrap().validate().unwrap_err().to_string();
+        assert!(e.contains("placement.min_hit_share.pedestrian = 0.9") && e.contains("calibrated objective"), "{e}");
+        let e = read(&format!("{calibrated}min_hit_share = {{ pedestrians = 0.9 }}")).unwrap_err().to_string();
+        assert!(e.contains("pedestrians"), "{e}");
+    }
 }

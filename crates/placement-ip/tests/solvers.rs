@@ -51,6 +51,7 @@ fn random_instance(seed: u64) -> Instance {
         road_users: Vec::new(),
         points: Default::default(),
         extents: Default::default(),
+        floors: Vec::new(),
     }
 }
 
@@ -112,6 +113,7 @@ fn greedy_is_strictly_worse_on_a_constructed_instance() {
         road_users: Vec::new(),
         points: Default::default(),
         extents: Default::default(),
+        floors: Vec::new(),
     };
     let limit = Limit::Counts(vec![2, 0, 1]);
     let g = greedy(&inst, &limit);
@@ -144,6 +146,7 @@ fn coefficients_are_finite_at_v_one_zero_and_tiny() {
         road_users: Vec::new(),
         points: Default::default(),
         extents: Default::default(),
+        floors: Vec::new(),
     };
     let o = solve(&inst, &Limit::Counts(vec![1, 0, 1]), Formulation::Plain, 10.0, None).unwrap();
     assert!((o.objective - 2.0).abs() < 1e-9, "{}", o.objective);
@@ -163,6 +166,7 @@ fn a_target_seen_by_one_modality_never_counts() {
         road_users: Vec::new(),
         points: Default::default(),
         extents: Default::default(),
+        floors: Vec::new(),
     };
     let sel = [0usize, 1];
     assert!((evaluate(&inst, &sel) - 1.8).abs() < 1e-6);
@@ -294,6 +298,7 @@ fn the_budget_bound_on_sensors_is_a_sum_over_types() {
         road_users: Vec::new(),
         points: Default::default(),
         extents: Default::default(),
+        floors: Vec::new(),
     };
     let limit = Limit::Budget { usd: 300.0, min: vec![], max: vec![u32::MAX, 2] };
     let oracle = exhaustive(&inst, &limit, 1000).unwrap();

@@ -174,6 +174,20 @@ impl PointCache {
         Ok(hilo_placement_ip::instance::PointRows { k: cache.k, weights: cache.weights.clone(), rows })
     }
 
+    /// The hit floors of `[placement] min_hit_share` over `inst`'s options: per class, its road
+    /// users in the sampled training traffic and, per LiDAR option, those it puts a point on
+    /// (the point rows' samples, so the floors and the point term see the same scans).
+    fn floors(
+        &mut self,
+        study: &Study,
+        world: &World,
+        prep: &Prepared,
+        inst: &Instance,
+    ) -> Result<Vec<hilo_placement_ip::instance::HitFloor>> {
+        let points = self.rows(study, world, prep, inst, false)?;
+        sampled(&mut self.traffic, study)?.hit_floors(&points, &study.placement.min_hit_share, &study.source)
+    }
+
     /// The calibration file's prediction for `selection` (options of `inst`), with the share
     /// of each class of the sampled training traffic its LiDARs put no point on
     /// ([`crate::road_users::TrafficPoints::never_hit`]); None without a calibration file.
@@ -286,6 +300,11 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
                 if w.reads_extents() {
                     inst.extents = points.rows(study, &world, &prep, &inst, true)?;
                 }
+                // The hit floors hold for every rig with a LiDAR (one without can hit nothing).
+                if !cfg.min_hit_share.is_empty() && (0..inst.options.len()).any(|o| inst.modality(o) == Modality::Lidar)
+                {
+                    inst.floors = points.floors(study, &world, &prep, &inst)?;
+                }
                 let g = hilo_placement_ip::calibrated::greedy_given(&inst, &limit, w, &fixed);
                 let o = hilo_placement_ip::calibrated::solve_given(
                     &inst,
@@ -294,7 +313,8 @@ pub fn place_all(study: &Study, prep: Prepared, progress: &mut dyn FnMut(&str)) 
                     (cfg.solve_limit(), cfg.calibrated_cbc_max_nonzeros),
                     &g,
                     &fixed,
-                )?;
+                )
+                .map_err(|e| StudyError::step(format!("placing configuration {:?}", conf.name), e))?;
                 let o = if fixed.is_empty() {
                     o
                 } else {

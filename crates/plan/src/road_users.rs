@@ -285,6 +285,48 @@ impl TrafficPoints {
             .collect())
     }
 
+    /// The hit floors of `shares` (`[placement] min_hit_share` of the study file `source`) over
+    /// the options of `points` (their [`TrafficPoints::rows`]): per class, its samples and, per
+    /// option, those it puts a point on, numbered among the class's samples. A class with no
+    /// sample (not evaluated, or absent from the traffic) is refused by name.
+    pub fn hit_floors(
+        &self,
+        points: &hilo_placement_ip::instance::PointRows,
+        shares: &BTreeMap<hilo_core::Class, f64>,
+        source: &str,
+    ) -> Result<Vec<hilo_placement_ip::instance::HitFloor>> {
+        let classes: Vec<&str> = self.frames.iter().flat_map(|fr| fr.users.iter().map(|u| self.names[u.1])).collect();
+        let mut floors = Vec::new();
+        for (class, &share) in shares {
+            // Each sample of the class by its index among the class's samples.
+            let mut local = vec![None; classes.len()];
+            let mut samples = 0u32;
+            for (s, c) in classes.iter().enumerate() {
+                if *c == class.name() {
+                    local[s] = Some(samples);
+                    samples += 1;
+                }
+            }
+            if samples == 0 {
+                return Err(crate::error::StudyError::setting(
+                    source,
+                    format!("placement.min_hit_share.{class}"),
+                    share,
+                    format!("the sampled training traffic holds no {class} within its evaluation range"),
+                ));
+            }
+            let rows =
+                points.rows.iter().map(|row| row.iter().filter_map(|&(s, _)| local.get(s as usize).copied().flatten()));
+            floors.push(hilo_placement_ip::instance::HitFloor {
+                class: class.name().to_owned(),
+                share,
+                samples,
+                rows: rows.map(Iterator::collect).collect(),
+            });
+        }
+        Ok(floors)
+    }
+
     /// Every counted road user of every frame as a sample, weighted 1 / (its class's samples ×
     /// classes), frame by frame.
     fn sample_weights(&self) -> Vec<f64> {
@@ -621,7 +663,21 @@ mod tests {
             road_users: Vec::new(),
             points: rows,
             extents: tp.extent_rows(&world, 4, lidar).unwrap(),
+            floors: Vec::new(),
         };
+        // The hit floors of every class the sampled traffic holds; one it does not hold is refused.
+        let present: std::collections::BTreeSet<usize> =
+            tp.frames.iter().flat_map(|fr| fr.users.iter().map(|u| u.1)).collect();
+        let shares: BTreeMap<hilo_core::Class, f64> =
+            present.iter().map(|&c| (tp.names[c].parse().unwrap(), 0.5)).collect();
+        let inst = Instance { floors: tp.hit_floors(&inst.points, &shares, "study.toml").unwrap(), ..inst };
+        let cyclists = BTreeMap::from([(hilo_core::Class::Bicycle, 0.5)]);
+        let e = tp.hit_floors(&inst.points, &cyclists, "study.toml").unwrap_err().to_string();
+        assert!(
+            e.starts_with("study.toml: placement.min_hit_share.bicycle = 0.5: ") && e.contains("no bicycle"),
+            "{e}"
+        );
+        assert_eq!(inst.floors.iter().map(|f| f.samples as usize).sum::<usize>(), inst.points.weights.len());
         inst.validate().unwrap();
         let w = Weights { lidar_points: 1.0, ..Weights::default() };
         for mask in 1u32..16 {
@@ -663,6 +719,11 @@ mod tests {
             let want: BTreeMap<String, f64> =
                 missed.iter().map(|(c, (m, n))| ((*c).to_owned(), *m as f64 / *n as f64)).collect();
             assert_eq!(never, want, "{sel:?}");
+            // Each floor's share hit is one minus its class's share missed.
+            for f in &inst.floors {
+                let (m, n) = missed[f.class.as_str()];
+                assert_eq!((f.samples as usize, f.hits(&sel) as usize), (n, n - m), "{sel:?} {}", f.class);
+            }
             if lidars.is_empty() {
                 assert!(never.values().all(|v| *v == 1.0), "a radar alone hits nobody: {never:?}");
             } else if lidars == [0, 1, 2] {

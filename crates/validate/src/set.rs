@@ -348,6 +348,11 @@ fn buy<T>(
         let lidar_of = |o: usize| hilo_plan::place::option_lidar(ctx.study, ctx.prep, &inst, o);
         inst.extents = ctx.traffic.extent_rows(&ctx.world, inst.options.len(), lidar_of)?;
     }
+    // The study's hit floors hold for a rig with a LiDAR, as `hilo place` holds them.
+    if !pc.min_hit_share.is_empty() && (0..inst.options.len()).any(|o| inst.modality(o) == Modality::Lidar) {
+        let points = if needs.0 { inst.points.clone() } else { ctx.point_rows(&inst)? };
+        inst.floors = ctx.traffic.hit_floors(&points, &pc.min_hit_share, &study.source)?;
+    }
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
     let o = calibrated::solve(&inst, &limit, w, pc.solve_limit(), pc.calibrated_cbc_max_nonzeros, &g)?;
@@ -712,6 +717,7 @@ mod tests {
             road_users: vec![],
             points: Default::default(),
             extents: Default::default(),
+            floors: Vec::new(),
         };
         let limit = Limit::Budget { usd: 22_750.0, min: vec![0, 0, 1], max: vec![u32::MAX, 2, u32::MAX] };
         let mut brute = Vec::new();

@@ -12,6 +12,11 @@
 //! better dear one), after first meeting each type's minimum count. Swaps then exchange one
 //! chosen option for one not chosen while that raises f (first the best swap, until none helps).
 //! Every gain is computed incrementally from the per-target view sums.
+//!
+//! With hit floors ([`crate::instance::HitFloor`]) greedy first meets them (after the minimum
+//! counts: each step adds the option that closes most of what the floors still lack, the larger
+//! gain among equals), and swaps take only exchanges that leave the floors no further from met;
+//! the floors only remove selections, so the bound above still bounds the optimum.
 
 use super::{Term, Weights};
 use crate::instance::{Instance, Limit, Outcome};
@@ -25,6 +30,9 @@ pub(super) struct State<'a> {
     terms: Vec<Term>,
     tau: f64,
     s: Vec<Vec<f64>>,
+    /// Per hit floor of the instance: per sample, the chosen options that hit it; and the
+    /// samples hit.
+    hits: Vec<(Vec<u32>, u32)>,
     pub sel: Vec<usize>,
     pub f: f64,
 }
@@ -38,7 +46,24 @@ impl<'a> State<'a> {
             .map(|t| Term { weight: t.weight / t.total(inst), ..t })
             .collect();
         let s = terms.iter().map(|t| vec![0.0; t.targets(inst).len()]).collect();
-        State { inst, terms, tau: inst.tau(), s, sel: Vec::new(), f: 0.0 }
+        let hits = inst.floors.iter().map(|f| (vec![0; f.samples as usize], 0)).collect();
+        State { inst, terms, tau: inst.tau(), s, hits, sel: Vec::new(), f: 0.0 }
+    }
+
+    /// What the hit floors still lack, each as a share of what it needs: 0 when all are met.
+    pub fn shortfall(&self) -> f64 {
+        self.shortfall_with(None)
+    }
+
+    /// [`State::shortfall`] after adding option `o` (None: as it is).
+    fn shortfall_with(&self, o: Option<usize>) -> f64 {
+        let mut lack = 0.0;
+        for (f, (count, hit)) in self.inst.floors.iter().zip(&self.hits) {
+            let new = o.map_or(0, |o| f.rows[o].iter().filter(|&&s| count[s as usize] == 0).count() as u32);
+            let needed = f.needed();
+            lack += f64::from(needed.saturating_sub(hit + new)) / f64::from(needed.max(1));
+        }
+        lack
     }
 
     /// What option `o` changes in the objective when its coefficients are added (`sign` 1) to,
@@ -68,6 +93,18 @@ impl<'a> State<'a> {
     }
 
     fn shift(&mut self, o: usize, sign: f64) {
+        for (f, (count, hit)) in self.inst.floors.iter().zip(self.hits.iter_mut()) {
+            for &s in &f.rows[o] {
+                let c = &mut count[s as usize];
+                if sign > 0.0 {
+                    *hit += u32::from(*c == 0);
+                    *c += 1;
+                } else {
+                    *c -= 1;
+                    *hit -= u32::from(*c == 0);
+                }
+            }
+        }
         let m = self.inst.modality(o);
         let tau = self.tau;
         for (t, s) in self.terms.iter().zip(self.s.iter_mut()).filter(|(t, _)| t.modality == m) {
@@ -161,6 +198,20 @@ fn greedy_run<'a>(inst: &'a Instance, limit: &Limit, w: &Weights, per_dollar: bo
             }
         }
     }
+    // Then the hit floors: the option that closes most of what they lack, the larger gain
+    // among equals; none closing any of it leaves them unmet (the solver says so).
+    while st.shortfall() > 0.0 {
+        let now = st.shortfall();
+        let pick = (0..inst.options.len())
+            .filter(|&o| can_add(inst, limit, &st.sel, o))
+            .map(|o| (now - st.shortfall_with(Some(o)), st.gain(o), o))
+            .filter(|x| x.0 > 1e-12)
+            .max_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)).then(b.2.cmp(&a.2)));
+        match pick {
+            Some((.., o)) => st.add(o),
+            None => break,
+        }
+    }
     while let Some((_, o)) = best_addition(&st, limit, per_dollar, |_| true) {
         st.add(o);
     }
@@ -179,7 +230,9 @@ pub fn greedy_given(inst: &Instance, limit: &Limit, w: &Weights, fixed: &[usize]
     let mut st = greedy_run(inst, limit, w, matches!(limit, Limit::Budget { .. }), fixed);
     if matches!(limit, Limit::Budget { .. }) {
         let plain = greedy_run(inst, limit, w, false, fixed);
-        if plain.f > st.f + 1e-12 {
+        // The one nearer to meeting the hit floors, then the larger objective.
+        let (a, b) = (plain.shortfall(), st.shortfall());
+        if a < b - 1e-12 || (a <= b + 1e-12 && plain.f > st.f + 1e-12) {
             st = plain;
         }
     }
@@ -190,7 +243,8 @@ pub fn greedy_given(inst: &Instance, limit: &Limit, w: &Weights, fixed: &[usize]
 
 /// Swaps from `from` (one chosen option out, one other in, the best such swap each round) while
 /// one raises the objective, until `deadline_s` seconds have passed; then adds what still fits.
-/// The options of `fixed` (all in `from`) are never swapped out.
+/// The options of `fixed` (all in `from`) are never swapped out; a swap that would leave the
+/// hit floors further from met is not taken.
 pub fn swaps(inst: &Instance, limit: &Limit, w: &Weights, from: &Outcome, deadline_s: f64, fixed: &[usize]) -> Outcome {
     let start = Instant::now();
     let mut st = State::new(inst, w);
@@ -205,10 +259,12 @@ pub fn swaps(inst: &Instance, limit: &Limit, w: &Weights, from: &Outcome, deadli
             let ty = inst.options[r].ty;
             // Dropping r would break a minimum count: only a sensor of its type may replace it.
             let keep_type = count(inst, &st.sel, ty) <= min[ty];
+            let lack = st.shortfall();
             st.remove(r);
-            if let Some((gain, o)) =
-                best_addition(&st, limit, false, |o| o != r && (!keep_type || inst.options[o].ty == ty))
-            {
+            let allowed = |o: usize| {
+                o != r && (!keep_type || inst.options[o].ty == ty) && st.shortfall_with(Some(o)) <= lack + 1e-12
+            };
+            if let Some((gain, o)) = best_addition(&st, limit, false, allowed) {
                 let delta = gain - loss;
                 if delta > 1e-9 * st.f.abs().max(1e-9) && best.is_none_or(|b| delta > b.0) {
                     best = Some((delta, r, o));

@@ -479,6 +479,7 @@ mod tests {
             road_users: Vec::new(),
             points: Default::default(),
             extents: Default::default(),
+            floors: Vec::new(),
         };
         let tau = inst.tau() * (1.0 - 1e-9);
         let lidars: Vec<usize> = (0..12).collect();

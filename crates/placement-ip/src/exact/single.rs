@@ -188,6 +188,7 @@ mod tests {
             road_users: Vec::new(),
             points: Default::default(),
             extents: Default::default(),
+            floors: Vec::new(),
         }
     }
 
@@ -227,6 +228,7 @@ mod tests {
             road_users: Vec::new(),
             points: Default::default(),
             extents: Default::default(),
+            floors: Vec::new(),
         };
         // Option 0 alone covers target 0 (−ln 0.1 ≥ 1), not target 1 (−ln 0.7 < 1).
         assert!((crate::instance::evaluate(&inst, &[0]) - 0.9).abs() < 1e-6);
