@@ -527,20 +527,20 @@ fn floor_columns(inst: &Instance) -> Vec<Vec<(u32, Vec<usize>)>> {
 /// `out`, or `warm`'s selection where that is better by more than rounding and meets the hit
 /// floors (a selection below them is no placement, however high its objective).
 fn no_worse_than(inst: &Instance, out: Outcome, warm: &Outcome) -> Outcome {
-    if inst.unmet_floor(&warm.selection).is_none() { out.no_worse_than(warm, 1e-12) } else { out }
+    if inst.meets_floors(&warm.selection) { out.no_worse_than(warm, 1e-12) } else { out }
 }
 
 /// `out` when its selection meets the instance's hit floors; otherwise why not (`what` says
 /// which search came short), with the shares it reaches.
 fn floors_met(inst: &Instance, out: Outcome, what: &str) -> Result<Outcome, PlacementError> {
-    match inst.unmet_floor(&out.selection) {
-        None => Ok(out),
-        Some(_) => Err(PlacementError::Infeasible(format!(
-            "{what} that meets the hit floors ({}); the selection it found: {}",
-            floor_list(inst),
-            floor_shares(inst, &out.selection)
-        ))),
+    if inst.meets_floors(&out.selection) {
+        return Ok(out);
     }
+    Err(PlacementError::Infeasible(format!(
+        "{what} that meets the hit floors ({}); the selection it found: {}",
+        floor_list(inst),
+        floor_shares(inst, &out.selection)
+    )))
 }
 
 /// The instance's hit floors as a method's suffix: ", hit floors pedestrian ≥ 95.0%" (empty
@@ -641,7 +641,7 @@ fn cbc(
     let method = run.method("CBC, calibrated objective");
     // Without proof and without an incumbent CBC's columns may break the limit or the floors:
     // the warm start stands.
-    let valid = |sel: &[usize]| inst.check(limit, sel).is_ok() && inst.unmet_floor(sel).is_none();
+    let valid = |sel: &[usize]| inst.check(limit, sel).is_ok() && inst.meets_floors(sel);
     let selection = if run.proven || valid(&run.selection) { run.selection } else { warm.selection.clone() };
     let bound = if run.bound.is_finite() { run.bound * scale } else { f64::INFINITY };
     let out = outcome(inst, selection, w, bound, run.proven, start, &method);
@@ -823,7 +823,7 @@ mod tests {
                 let floor = &inst.floors[0];
                 let most = feasible.iter().map(|s| floor.hits(s)).max().unwrap();
                 inst.floors[0].share = f64::from(most) / 40.0;
-                let meets = |s: &Vec<usize>| inst.unmet_floor(s).is_none();
+                let meets = |s: &Vec<usize>| inst.meets_floors(s);
                 let best = feasible.iter().filter(|s| meets(s)).map(|s| evaluate(&inst, s, &w)).fold(0.0, f64::max);
                 let free = feasible.iter().map(|s| evaluate(&inst, s, &w)).fold(0.0, f64::max);
                 binding += usize::from(best < free - 1e-9);

@@ -269,9 +269,9 @@ impl Instance {
         Ok(())
     }
 
-    /// The first floor (of [`Instance::floors`]) that `sel` leaves unmet, with the share it hits.
-    pub fn unmet_floor(&self, sel: &[usize]) -> Option<(&HitFloor, f64)> {
-        self.floors.iter().find(|f| f.hits(sel) < f.needed()).map(|f| (f, f.share_hit(sel)))
+    /// Whether `sel` meets every floor of [`Instance::floors`].
+    pub fn meets_floors(&self, sel: &[usize]) -> bool {
+        self.floors.iter().all(|f| f.hits(sel) >= f.needed())
     }
 
     /// Whether a selection respects the limit and the one-sensor-per-mount rule; the error

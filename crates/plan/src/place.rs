@@ -176,7 +176,8 @@ impl PointCache {
 
     /// The hit floors of `[placement] min_hit_share` over `inst`'s options: per class, its road
     /// users in the sampled training traffic and, per LiDAR option, those it puts a point on
-    /// (the point rows' samples, so the floors and the point term see the same scans).
+    /// (the point rows' samples, so the floors and the point term see the same scans; `inst`'s
+    /// own point rows where the weights had them computed).
     fn floors(
         &mut self,
         study: &Study,
@@ -184,8 +185,14 @@ impl PointCache {
         prep: &Prepared,
         inst: &Instance,
     ) -> Result<Vec<hilo_placement_ip::instance::HitFloor>> {
-        let points = self.rows(study, world, prep, inst, false)?;
-        sampled(&mut self.traffic, study)?.hit_floors(&points, &study.placement.min_hit_share, &study.source)
+        let counted;
+        let points = if inst.points.is_empty() {
+            counted = self.rows(study, world, prep, inst, false)?;
+            &counted
+        } else {
+            &inst.points
+        };
+        sampled(&mut self.traffic, study)?.hit_floors(points, &study.placement.min_hit_share, &study.source)
     }
 
     /// The calibration file's prediction for `selection` (options of `inst`), with the share

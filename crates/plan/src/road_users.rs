@@ -272,8 +272,7 @@ impl TrafficPoints {
             hit[sample as usize] = true;
         }
         let mut counts = vec![(0usize, 0usize); self.classes];
-        let classes = self.frames.iter().flat_map(|fr| fr.users.iter().map(|u| u.1));
-        for (c, h) in classes.zip(&hit) {
+        for (c, h) in self.sample_classes().zip(&hit) {
             counts[c].0 += 1;
             counts[c].1 += usize::from(!*h);
         }
@@ -295,14 +294,14 @@ impl TrafficPoints {
         shares: &BTreeMap<hilo_core::Class, f64>,
         source: &str,
     ) -> Result<Vec<hilo_placement_ip::instance::HitFloor>> {
-        let classes: Vec<&str> = self.frames.iter().flat_map(|fr| fr.users.iter().map(|u| self.names[u.1])).collect();
+        let classes: Vec<usize> = self.sample_classes().collect();
         let mut floors = Vec::new();
         for (class, &share) in shares {
             // Each sample of the class by its index among the class's samples.
             let mut local = vec![None; classes.len()];
             let mut samples = 0u32;
-            for (s, c) in classes.iter().enumerate() {
-                if *c == class.name() {
+            for (s, &c) in classes.iter().enumerate() {
+                if self.names[c] == class.name() {
                     local[s] = Some(samples);
                     samples += 1;
                 }
@@ -331,13 +330,17 @@ impl TrafficPoints {
     /// classes), frame by frame.
     fn sample_weights(&self) -> Vec<f64> {
         let mut per_class = vec![0usize; self.classes];
-        for fr in &self.frames {
-            for &(_, c) in &fr.users {
-                per_class[c] += 1;
-            }
+        for c in self.sample_classes() {
+            per_class[c] += 1;
         }
         let seen = per_class.iter().filter(|&&n| n > 0).count().max(1) as f64;
-        self.frames.iter().flat_map(|fr| fr.users.iter().map(|&(_, c)| 1.0 / (per_class[c] as f64 * seen))).collect()
+        self.sample_classes().map(|c| 1.0 / (per_class[c] as f64 * seen)).collect()
+    }
+
+    /// Per sample (every counted road user of every frame, frame by frame, as the rows number
+    /// them), its class's index.
+    fn sample_classes(&self) -> impl Iterator<Item = usize> + '_ {
+        self.frames.iter().flat_map(|fr| fr.users.iter().map(|u| u.1))
     }
 
     /// Per option (its LiDAR from `lidar_of`; none: an empty row), (sample, value) for the

@@ -350,8 +350,14 @@ fn buy<T>(
     }
     // The study's hit floors hold for a rig with a LiDAR, as `hilo place` holds them.
     if !pc.min_hit_share.is_empty() && (0..inst.options.len()).any(|o| inst.modality(o) == Modality::Lidar) {
-        let points = if needs.0 { inst.points.clone() } else { ctx.point_rows(&inst)? };
-        inst.floors = ctx.traffic.hit_floors(&points, &pc.min_hit_share, &study.source)?;
+        let counted;
+        let points = if needs.0 {
+            &inst.points
+        } else {
+            counted = ctx.point_rows(&inst)?;
+            &counted
+        };
+        inst.floors = ctx.traffic.hit_floors(points, &pc.min_hit_share, &study.source)?;
     }
     let limit = limit_for(conf, &types);
     let g = calibrated::greedy(&inst, &limit, w);
