@@ -854,6 +854,55 @@ mod tests {
         assert!(binding >= 8 && searched >= 12, "binding {binding}, met by the search {searched} of 16");
     }
 
+    /// Under a budget greedy meets a floor the way a weighted set cover does, by what each option
+    /// closes per dollar: one dear LiDAR closes most of the floor alone but leaves no money for
+    /// the rest, two cheap ones close all of it for less. Brute force says the floor is met only
+    /// by selections holding both cheap ones; greedy alone (no swaps, no CBC) finds one.
+    #[test]
+    fn under_a_budget_greedy_meets_a_floor_per_dollar() {
+        let types = vec![
+            SensorType { name: "dear".into(), modality: Modality::Lidar, price_usd: 20.0 },
+            SensorType { name: "cheap".into(), modality: Modality::Lidar, price_usd: 4.0 },
+            SensorType { name: "r".into(), modality: Modality::Radar, price_usd: 2.0 },
+        ];
+        let options: Vec<SensorOption> =
+            [(0, vec![(0, 0.9), (1, 0.9), (2, 0.9)]), (1, vec![(0, 0.5)]), (1, vec![(1, 0.5)])]
+                .into_iter()
+                .enumerate()
+                .map(|(i, (ty, row))| SensorOption { ty, candidate: i as u32, mount: i as u32, row })
+                .collect();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let inst = Instance {
+            weights: vec![1.0, 1.0, 1.0],
+            types,
+            options,
+            p_min: 1.0 - (-1.0f64).exp(),
+            road_users: vec![0.05, 0.05, 0.05],
+            points: random_points(&mut rng, 3),
+            extents: random_extents(&mut rng, 3),
+            floors: vec![crate::instance::HitFloor {
+                class: "pedestrian".into(),
+                share: 11.0 / 12.0,
+                samples: 12,
+                rows: vec![(0..10).collect(), (0..6).collect(), (6..12).collect()],
+            }],
+        };
+        inst.validate().unwrap();
+        let limit = Limit::Budget { usd: 22.0, min: vec![0, 0, 0], max: vec![9, 9, 9] };
+        let w = Weights::once(0.6, 0.2);
+        let meeting: Vec<Vec<usize>> = (0u32..1 << 3)
+            .map(|mask| (0..3).filter(|o| mask & (1 << o) != 0).collect::<Vec<_>>())
+            .filter(|s| inst.check(&limit, s).is_ok() && inst.meets_floors(s))
+            .collect();
+        assert!(!meeting.is_empty() && meeting.iter().all(|s| s.contains(&1) && s.contains(&2)), "{meeting:?}");
+        let g = greedy(&inst, &limit, &w);
+        assert!(inst.meets_floors(&g.selection), "greedy: {:?}", g.selection);
+        assert!(inst.check(&limit, &g.selection).is_ok());
+        let best = meeting.iter().map(|s| evaluate(&inst, s, &w)).fold(0.0, f64::max);
+        let out = solve(&inst, &limit, &w, 30.0, CBC_MAX_NONZEROS, &g).unwrap();
+        assert!((out.objective - best).abs() < 1e-6 && inst.meets_floors(&out.selection));
+    }
+
     /// Given a sensor: CBC keeps it and equals brute force over the selections that hold it;
     /// without CBC, greedy and swaps keep it and the bound is never below that optimum.
     #[test]

@@ -14,8 +14,8 @@
 //! Every gain is computed incrementally from the per-target view sums.
 //!
 //! With hit floors ([`crate::instance::HitFloor`]) greedy first meets them (after the minimum
-//! counts: each step adds the option that closes most of what the floors still lack, the larger
-//! gain among equals), and swaps take only exchanges that leave the floors no further from met;
+//! counts: each step adds the option that closes most of what the floors still lack, per dollar
+//! in the per-dollar run under a budget, the larger gain among equals), and swaps take only exchanges that leave the floors no further from met;
 //! the floors only remove selections, so the bound above still bounds the optimum.
 
 use super::{Term, Weights};
@@ -198,14 +198,18 @@ fn greedy_run<'a>(inst: &'a Instance, limit: &Limit, w: &Weights, per_dollar: bo
             }
         }
     }
-    // Then the hit floors: the option that closes most of what they lack, the larger gain
-    // among equals; none closing any of it leaves them unmet (the solver says so).
+    // Then the hit floors: the option that closes most of what they lack (per dollar when
+    // `per_dollar`, the weighted set cover's greedy), the larger gain among equals; none
+    // closing any of it leaves them unmet (the solver says so).
     while st.shortfall() > 0.0 {
         let now = st.shortfall();
         let pick = (0..inst.options.len())
             .filter(|&o| can_add(inst, limit, &st.sel, o))
-            .map(|o| (now - st.shortfall_with(Some(o)), st.gain(o), o))
-            .filter(|x| x.0 > 1e-12)
+            .filter_map(|o| {
+                let closed = now - st.shortfall_with(Some(o));
+                let price = if per_dollar { inst.types[inst.options[o].ty].price_usd.max(1e-9) } else { 1.0 };
+                (closed > 1e-12).then(|| (closed / price, st.gain(o) / price, o))
+            })
             .max_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)).then(b.2.cmp(&a.2)));
         match pick {
             Some((.., o)) => st.add(o),
