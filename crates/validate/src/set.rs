@@ -793,6 +793,38 @@ mod tests {
         assert!(other.predictors[recorded].unwrap() <= own + 0.005, "{:?}", other.predictors);
     }
 
+    /// The study's hit floor holds for the rig calibrated weights buy under its budget, as
+    /// `hilo place` holds it: set just above the share the unfloored purchase hits, the purchase
+    /// under it meets it, within the budget, at no higher objective.
+    #[test]
+    fn a_budgeted_purchase_meets_the_studys_hit_floor() {
+        let mut study = coarse();
+        let mut pc = study.placement.clone().into_inner();
+        (pc.time_limit_s, pc.node_limit) = (600.0, Some(100));
+        let v = &ValidationSettings { min_points: 100, ..study.file.validation.clone() };
+        let budget = budget_configuration(&study).unwrap();
+        let w = calibrated::Weights { lidar: 1.0, ..calibrated::Weights::default() };
+        // A floor needs the calibrated objective in the study; the purchase reads `w`.
+        (pc.objective, pc.calibration) = (hilo_placement_ip::pipeline::ObjectiveKind::Calibrated, Some(w));
+        let bought = |study: &Study| {
+            buy(study, v, &w, (false, false), &budget, 0, "calibrated", |inst, sel| {
+                (inst.floors[0].share_hit(sel), inst.floors[0].samples, inst.meets_floors(sel))
+            })
+            .unwrap()
+        };
+        // A floor of one road user: every rig with a LiDAR meets it, and it says what the rig hits.
+        pc.min_hit_share = BTreeMap::from([(hilo_core::Class::Pedestrian, 1e-9)]);
+        study.placement = pc.clone().validate().unwrap();
+        let (free, (share, samples, met)) = bought(&study);
+        assert!(met && share < 1.0 && samples > 20, "{share} of {samples}");
+        pc.min_hit_share = BTreeMap::from([(hilo_core::Class::Pedestrian, share + 0.5 / f64::from(samples))]);
+        study.placement = pc.validate().unwrap();
+        let (held, (above, _, met)) = bought(&study);
+        assert!(met && above > share, "{above} against {share}");
+        assert!(held.placement.cost_usd <= budget.budget_usd.unwrap() + 1e-6);
+        assert!(held.placement.objective <= free.placement.objective + 1e-9);
+    }
+
     /// A calibration file's frozen weights buy the rig the calibrated objective with those
     /// weights buys (the same poses), of kind `frozen`; the file's prediction is its intercept plus
     /// its coefficient times the term at that rig, which is the solve's objective over the weight
