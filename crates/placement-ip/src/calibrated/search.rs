@@ -15,8 +15,9 @@
 //!
 //! With hit floors ([`crate::instance::HitFloor`]) greedy first meets them (after the minimum
 //! counts: each step adds the option that closes most of what the floors still lack, per dollar
-//! in the per-dollar run under a budget, the larger gain among equals), and swaps take only exchanges that leave the floors no further from met;
-//! the floors only remove selections, so the bound above still bounds the optimum.
+//! in the per-dollar run under a budget, the larger gain among equals), and swaps take only
+//! exchanges that leave the floors no further from met; the floors only remove selections, so
+//! the bound above still bounds the optimum.
 
 use super::{Term, Weights};
 use crate::instance::{Instance, Limit, Outcome};
